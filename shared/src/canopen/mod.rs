@@ -1,0 +1,16 @@
+//! The CANopen services (EN 50325-4 / CiA 301) a safety device needs around its safety layer.
+//!
+//! Nothing in this module knows about SRDOs or GFC: it addresses objects, answers SDO
+//! requests, follows NMT commands, produces heartbeat and EMCY frames, and persists parameters.
+//! That keeps it usable by a second safety protocol on the same node.
+
+pub mod emcy;
+pub mod heartbeat;
+pub mod nmt;
+pub mod node_id;
+pub mod od;
+pub mod sdo;
+pub mod storage;
+
+pub use node_id::NodeId;
+pub use od::{AbortCode, Address, ObjectDictionary};

@@ -1,0 +1,116 @@
+//! Time as the protocol core sees it: microseconds handed in by the caller.
+//!
+//! The core never reads a clock. The caller passes `now` with every call, and the core answers
+//! with the [`Instant`] of its next deadline. A 64-bit microsecond count does not wrap in the
+//! life of a machine (about 584 000 years), so deadlines are absolute instants and comparing
+//! them needs no wrap-around arithmetic; adding a duration saturates instead of overflowing.
+
+/// A point in time, in microseconds since an epoch chosen by the caller (typically power-on).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Instant(u64);
+
+/// A span of time, in microseconds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Duration(u64);
+
+impl Instant {
+    /// The epoch itself.
+    pub const ZERO: Instant = Instant(0);
+    /// An instant later than any the caller will ever pass; used as "no deadline".
+    pub const NEVER: Instant = Instant(u64::MAX);
+
+    /// The instant `micros` microseconds after the epoch.
+    pub const fn from_micros(micros: u64) -> Self {
+        Instant(micros)
+    }
+
+    /// The instant `millis` milliseconds after the epoch (saturating).
+    pub const fn from_millis(millis: u64) -> Self {
+        Instant(millis.saturating_mul(1000))
+    }
+
+    /// Microseconds since the epoch.
+    pub const fn as_micros(self) -> u64 {
+        self.0
+    }
+
+    /// `self + duration`, saturating at [`Instant::NEVER`].
+    #[inline]
+    pub const fn saturating_add(self, duration: Duration) -> Instant {
+        Instant(self.0.saturating_add(duration.0))
+    }
+
+    /// The time from `earlier` to `self`, or zero if `earlier` is later than `self`.
+    #[inline]
+    pub const fn saturating_since(self, earlier: Instant) -> Duration {
+        Duration(self.0.saturating_sub(earlier.0))
+    }
+}
+
+impl Duration {
+    /// No time at all.
+    pub const ZERO: Duration = Duration(0);
+
+    /// A duration of `micros` microseconds.
+    pub const fn from_micros(micros: u64) -> Self {
+        Duration(micros)
+    }
+
+    /// A duration of `millis` milliseconds (saturating).
+    pub const fn from_millis(millis: u64) -> Self {
+        Duration(millis.saturating_mul(1000))
+    }
+
+    /// The duration in microseconds.
+    pub const fn as_micros(self) -> u64 {
+        self.0
+    }
+}
+
+impl core::ops::Add<Duration> for Instant {
+    type Output = Instant;
+    /// Saturating: see [`Instant::saturating_add`].
+    #[inline]
+    fn add(self, rhs: Duration) -> Instant {
+        self.saturating_add(rhs)
+    }
+}
+
+/// `true` when a timer armed to expire at `deadline` has expired at `now`.
+///
+/// A timer expires *at* its deadline, not after it: a pair of SRDO frames that completes exactly
+/// SCT after the previous one is already late (EN 50325-5 7.1.2 asks for reception *before* the
+/// time has elapsed). Keeping this in one function means every timer in the crate agrees.
+#[inline]
+pub const fn expired(deadline: Instant, now: Instant) -> bool {
+    now.0 >= deadline.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn adding_saturates_instead_of_wrapping() {
+        let late = Instant::from_micros(u64::MAX - 5);
+        assert_eq!(late + Duration::from_micros(10), Instant::NEVER);
+        assert_eq!(Duration::from_millis(u64::MAX).as_micros(), u64::MAX);
+    }
+
+    #[test]
+    fn a_timer_expires_at_its_deadline_not_after() {
+        let deadline = Instant::from_millis(50);
+        assert!(!expired(deadline, Instant::from_micros(49_999)));
+        assert!(expired(deadline, Instant::from_micros(50_000)));
+    }
+
+    #[test]
+    fn since_never_goes_negative() {
+        let a = Instant::from_micros(10);
+        let b = Instant::from_micros(20);
+        assert_eq!(b.saturating_since(a), Duration::from_micros(10));
+        assert_eq!(a.saturating_since(b), Duration::ZERO);
+    }
+}
