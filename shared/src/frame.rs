@@ -23,7 +23,11 @@ pub enum FrameError {
 impl CanId {
     /// The identifier `raw`, if it fits in 11 bits.
     pub const fn new(raw: u16) -> Result<Self, FrameError> {
-        if raw <= 0x7FF { Ok(CanId(raw)) } else { Err(FrameError::IdentifierOutOfRange) }
+        if raw <= 0x7FF {
+            Ok(CanId(raw))
+        } else {
+            Err(FrameError::IdentifierOutOfRange)
+        }
     }
 
     /// The identifier `raw` masked to 11 bits, for constants and computed identifiers whose
@@ -58,7 +62,12 @@ impl CanFrame {
         let mut bytes = [0u8; 8];
         bytes[..data.len()].copy_from_slice(data);
         // `data.len() <= 8` was checked above, so the cast is exact.
-        Ok(CanFrame { id, remote: false, dlc: data.len() as u8, data: bytes })
+        Ok(CanFrame {
+            id,
+            remote: false,
+            dlc: data.len() as u8,
+            data: bytes,
+        })
     }
 
     /// A data frame from a full 8-byte buffer of which the first `dlc` bytes count.
@@ -69,7 +78,31 @@ impl CanFrame {
         }
         let mut bytes = data;
         bytes[usize::from(dlc)..].fill(0);
-        Ok(CanFrame { id, remote: false, dlc, data: bytes })
+        Ok(CanFrame {
+            id,
+            remote: false,
+            dlc,
+            data: bytes,
+        })
+    }
+
+    /// A data frame of `len` bytes of `data`, `len` clamped to 8: for frames the crate builds
+    /// itself, whose length is known to be valid, without a `Result` to unwrap.
+    #[inline]
+    pub(crate) const fn with_len(id: CanId, data: [u8; 8], len: u8) -> Self {
+        let dlc = if len > 8 { 8 } else { len };
+        let mut bytes = data;
+        let mut i = dlc as usize;
+        while i < 8 {
+            bytes[i] = 0;
+            i += 1;
+        }
+        CanFrame {
+            id,
+            remote: false,
+            dlc,
+            data: bytes,
+        }
     }
 
     /// A remote frame (RTR) requesting `dlc` bytes.
@@ -77,7 +110,12 @@ impl CanFrame {
         if dlc > 8 {
             return Err(FrameError::TooLong);
         }
-        Ok(CanFrame { id, remote: true, dlc, data: [0; 8] })
+        Ok(CanFrame {
+            id,
+            remote: true,
+            dlc,
+            data: [0; 8],
+        })
     }
 
     /// The identifier.
@@ -101,7 +139,11 @@ impl CanFrame {
     /// The data bytes (empty for a remote frame).
     #[inline]
     pub fn data(&self) -> &[u8] {
-        if self.remote { &[] } else { &self.data[..usize::from(self.dlc)] }
+        if self.remote {
+            &[]
+        } else {
+            &self.data[..usize::from(self.dlc)]
+        }
     }
 
     /// All eight data bytes; bytes beyond the data length code are zero.
@@ -126,7 +168,10 @@ mod tests {
         let id = CanId::new(0x101).unwrap();
         assert_eq!(CanFrame::new(id, &[0; 9]), Err(FrameError::TooLong));
         assert_eq!(CanFrame::remote(id, 9), Err(FrameError::TooLong));
-        assert_eq!(CanFrame::from_parts(id, 9, [0; 8]), Err(FrameError::TooLong));
+        assert_eq!(
+            CanFrame::from_parts(id, 9, [0; 8]),
+            Err(FrameError::TooLong)
+        );
     }
 
     #[test]

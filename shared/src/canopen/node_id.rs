@@ -13,7 +13,11 @@ pub struct InvalidNodeId(pub u8);
 impl NodeId {
     /// The node-ID `raw`, if it is in `1..=127`.
     pub const fn new(raw: u8) -> Result<Self, InvalidNodeId> {
-        if raw >= 1 && raw <= 127 { Ok(NodeId(raw)) } else { Err(InvalidNodeId(raw)) }
+        if raw >= 1 && raw <= 127 {
+            Ok(NodeId(raw))
+        } else {
+            Err(InvalidNodeId(raw))
+        }
     }
 
     /// The raw node-ID.

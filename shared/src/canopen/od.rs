@@ -116,7 +116,10 @@ impl AbortCode {
 
     /// The abort code with the value `code`, if this crate knows it.
     pub fn from_code(code: u32) -> Option<AbortCode> {
-        AbortCode::ALL.iter().copied().find(|abort| abort.code() == code)
+        AbortCode::ALL
+            .iter()
+            .copied()
+            .find(|abort| abort.code() == code)
     }
 }
 

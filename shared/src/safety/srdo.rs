@@ -1,0 +1,433 @@
+//! The SRDO producer and consumer (EN 50325-5 7.1, CiA 304 8.1 and 9.5).
+//!
+//! Both work on [`ResolvedMapping`]s, so at run time they only copy bytes between a frame and
+//! spans of the process image. Payloads are handled as little-endian `u64`s: checking that the
+//! inverted frame is the bitwise inverse of the plain one is one XOR and one mask, whatever the
+//! mapping.
+//!
+//! Timers are absolute [`Instant`]s in microseconds and expire *at* their deadline
+//! ([`time::expired`]). A consumer checks its timers on every frame as well as when polled, so
+//! a frame that arrives after a deadline the caller has not yet polled for is still judged
+//! late.
+
+use super::config::{MAX_SRDO_DATA, ResolvedMapping};
+use super::types::SrdoNumber;
+use crate::process_image::ProcessImage;
+use crate::time::{self, Duration, Instant};
+
+/// Why a consumer (or producer) gave up on an SRDO.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SrdoFaultCause {
+    /// No complete pair arrived within SCT of the previous one, or of entering Operational
+    /// (EN 50325-5 7.1.2, SCT event).
+    SctElapsed,
+    /// The inverted frame did not arrive within SRVT of its plain frame (EN 50325-5 7.1.2,
+    /// SRVT event).
+    SrvtElapsed,
+    /// An inverted frame arrived with no plain frame pending (CiA 304 9.5: chronological
+    /// order).
+    InvertedWithoutPlain,
+    /// A second plain frame arrived before the inverted frame of the first (CiA 304 9.5).
+    PlainRepeated,
+    /// The inverted frame's data is not the bitwise inverse of the plain frame's
+    /// (EN 50325-5 7.1.1; CiA 304 9.5: compared bit by bit).
+    NotInverted,
+    /// A frame carried fewer data bytes than the mapping needs; the data was not processed
+    /// (EN 50325-5 7.1.3, EMCY 8210h).
+    TooShort,
+    /// The plain and inverted data handed in for transmission are not exact inverses, so
+    /// nothing was sent.
+    TransmitHalvesNotInverted,
+}
+
+/// A fault of one SRDO: which, and why.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SrdoFault {
+    /// The SRDO.
+    pub srdo: SrdoNumber,
+    /// The cause.
+    pub cause: SrdoFaultCause,
+}
+
+/// The payload bits that `len` bytes occupy in a little-endian `u64`.
+#[inline]
+const fn payload_mask(len: u8) -> u64 {
+    if len as usize >= MAX_SRDO_DATA {
+        u64::MAX
+    } else {
+        (1u64 << (len as u32 * 8)) - 1
+    }
+}
+
+/// `true` when the first `len` bytes of `inverted` are the bitwise inverse of `plain`'s.
+#[inline]
+pub const fn is_inverse(plain: u64, inverted: u64, len: u8) -> bool {
+    let mask = payload_mask(len);
+    (plain ^ inverted) & mask == mask
+}
+
+/// Receive side of one SRDO (EN 50325-5 7.1.2, 7.1.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Consumer {
+    /// A complete pair must finish before this instant.
+    sct_deadline: Instant,
+    /// The pending plain frame's inverted partner must arrive before this; `NEVER` when no
+    /// plain frame is pending.
+    srvt_deadline: Instant,
+    /// The pending plain frame's data.
+    pending: u64,
+}
+
+impl Consumer {
+    /// A consumer that starts monitoring at `now`: the first pair is due within SCT.
+    pub fn start(now: Instant, sct: Duration) -> Self {
+        Consumer {
+            sct_deadline: now + sct,
+            srvt_deadline: Instant::NEVER,
+            pending: 0,
+        }
+    }
+
+    /// The earliest instant at which [`Consumer::check_timers`] can fail.
+    #[inline]
+    pub fn deadline(&self) -> Instant {
+        if self.srvt_deadline < self.sct_deadline {
+            self.srvt_deadline
+        } else {
+            self.sct_deadline
+        }
+    }
+
+    /// Fails when SRVT or SCT has elapsed at `now`. SRVT is reported first: when a plain frame
+    /// is pending, its missing partner is the more specific cause.
+    #[inline]
+    pub fn check_timers(&self, now: Instant) -> Result<(), SrdoFaultCause> {
+        if time::expired(self.srvt_deadline, now) {
+            Err(SrdoFaultCause::SrvtElapsed)
+        } else if time::expired(self.sct_deadline, now) {
+            Err(SrdoFaultCause::SctElapsed)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// The plain frame (COB-ID 1) arrived at `now` with `dlc` bytes of `data`.
+    #[inline]
+    pub fn on_plain(
+        &mut self,
+        now: Instant,
+        data: &[u8; 8],
+        dlc: u8,
+        len: u8,
+        srvt: Duration,
+    ) -> Result<(), SrdoFaultCause> {
+        self.check_timers(now)?;
+        if self.srvt_deadline != Instant::NEVER {
+            return Err(SrdoFaultCause::PlainRepeated);
+        }
+        if dlc < len {
+            return Err(SrdoFaultCause::TooShort);
+        }
+        self.pending = u64::from_le_bytes(*data);
+        self.srvt_deadline = now + srvt;
+        Ok(())
+    }
+
+    /// The inverted frame (COB-ID 2) arrived at `now`. On success returns the plain payload
+    /// and the inverted payload, both to be delivered, and restarts SCT.
+    #[inline]
+    pub fn on_inverted(
+        &mut self,
+        now: Instant,
+        data: &[u8; 8],
+        dlc: u8,
+        len: u8,
+        sct: Duration,
+    ) -> Result<(u64, u64), SrdoFaultCause> {
+        if self.srvt_deadline == Instant::NEVER {
+            return Err(SrdoFaultCause::InvertedWithoutPlain);
+        }
+        self.check_timers(now)?;
+        if dlc < len {
+            return Err(SrdoFaultCause::TooShort);
+        }
+        let inverted = u64::from_le_bytes(*data);
+        if !is_inverse(self.pending, inverted, len) {
+            return Err(SrdoFaultCause::NotInverted);
+        }
+        let plain = self.pending;
+        self.pending = 0;
+        self.srvt_deadline = Instant::NEVER;
+        self.sct_deadline = now + sct;
+        Ok((plain, inverted))
+    }
+}
+
+/// Transmit side of one SRDO (EN 50325-5 6.2.1, 7.1.1; CiA 304 9.5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Producer {
+    /// The next cyclic transmission.
+    next: Instant,
+    /// The mapped data changed since the last transmission (event-driven transmission).
+    changed: bool,
+}
+
+impl Producer {
+    /// A producer entering Operational at `now`: its first cyclic transmission is delayed by
+    /// 0.5 ms × node-ID (CiA 304 9.5), so producers started together do not collide.
+    pub fn start(now: Instant, node_id: u8) -> Self {
+        Producer {
+            next: now + Duration::from_micros(500 * u64::from(node_id)),
+            changed: false,
+        }
+    }
+
+    /// The next transmission, cyclic or event-driven.
+    #[inline]
+    pub fn deadline(&self, now: Instant) -> Instant {
+        if self.changed { now } else { self.next }
+    }
+
+    /// `true` when a transmission is due at `now`.
+    #[inline]
+    pub fn due(&self, now: Instant) -> bool {
+        self.changed || time::expired(self.next, now)
+    }
+
+    /// Marks the mapped data as changed, for event-driven transmission.
+    pub fn mark_changed(&mut self) {
+        self.changed = true;
+    }
+
+    /// Records a transmission at `now` and schedules the next cyclic one. The cycle keeps its
+    /// phase when polled on time, and restarts from `now` when a transmission was late by a
+    /// whole cycle or was event-driven (so a burst of events cannot shorten the refresh
+    /// interval that consumers' SCT expects to see honoured).
+    #[inline]
+    pub fn sent(&mut self, now: Instant, refresh: Duration) {
+        let on_cycle = self.next + refresh;
+        self.next = if self.changed || time::expired(on_cycle, now) {
+            now + refresh
+        } else {
+            on_cycle
+        };
+        self.changed = false;
+    }
+}
+
+/// Gathers the plain and inverted payloads of a transmit SRDO from the process image and checks
+/// that they are exact inverses; `Err` means nothing may be sent.
+#[inline]
+pub fn gather(
+    image: &ProcessImage,
+    mapping: &ResolvedMapping,
+) -> Result<(u64, u64), SrdoFaultCause> {
+    let mut plain = [0u8; 8];
+    let mut inverted = [0u8; 8];
+    let mut at = 0usize;
+    for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
+        let source = image.get(mapping.plain[pair]);
+        let mirror = image.get(mapping.inverted[pair]);
+        let end = (at + source.len()).min(8);
+        // Validation guarantees equal lengths and a total of at most 8 bytes; `min` keeps a
+        // damaged mapping from panicking, and the inverse check below then fails it.
+        if mirror.len() != source.len() {
+            return Err(SrdoFaultCause::TransmitHalvesNotInverted);
+        }
+        plain[at..end].copy_from_slice(&source[..end - at]);
+        inverted[at..end].copy_from_slice(&mirror[..end - at]);
+        at = end;
+    }
+    let (plain, inverted) = (u64::from_le_bytes(plain), u64::from_le_bytes(inverted));
+    if is_inverse(plain, inverted, mapping.len) {
+        Ok((plain, inverted))
+    } else {
+        Err(SrdoFaultCause::TransmitHalvesNotInverted)
+    }
+}
+
+/// Delivers a validated pair into the process image: plain data to the plain objects, inverted
+/// data (as received) to the inverted objects.
+#[inline]
+pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, inverted: u64) {
+    let (plain, inverted) = (plain.to_le_bytes(), inverted.to_le_bytes());
+    let mut at = 0usize;
+    for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
+        let span = mapping.plain[pair];
+        let end = (at + usize::from(span.len)).min(8);
+        image.set(span, &plain[at..end]);
+        image.set(mapping.inverted[pair], &inverted[at..end]);
+        at = end;
+    }
+}
+
+/// Sets every object of a receive mapping to 0, the safe state (SC_REQ_05).
+pub fn clear(image: &mut ProcessImage, mapping: &ResolvedMapping) {
+    for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
+        image.clear(mapping.plain[pair]);
+        image.clear(mapping.inverted[pair]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SCT: Duration = Duration::from_millis(50);
+    const SRVT: Duration = Duration::from_millis(20);
+    const fn at(micros: u64) -> Instant {
+        Instant::from_micros(micros)
+    }
+    fn bytes(value: u64) -> [u8; 8] {
+        value.to_le_bytes()
+    }
+
+    #[test]
+    fn en50325_5_7_1_1_inverse_check_covers_exactly_the_mapped_bytes() {
+        assert!(is_inverse(0x12, 0xED, 1));
+        assert!(
+            is_inverse(0x12, 0xFFFF_FFED, 1),
+            "bytes beyond the mapping do not count"
+        );
+        assert!(!is_inverse(0x12, 0xEC, 1));
+        assert!(is_inverse(0x0123_4567_89AB_CDEF, !0x0123_4567_89AB_CDEF, 8));
+        assert!(!is_inverse(
+            0x0123_4567_89AB_CDEF,
+            !0x0123_4567_89AB_CDEF ^ (1 << 63),
+            8
+        ));
+    }
+
+    #[test]
+    fn en50325_5_7_1_2_a_valid_pair_restarts_sct() {
+        let mut consumer = Consumer::start(at(0), SCT);
+        assert_eq!(consumer.deadline(), at(50_000));
+        consumer
+            .on_plain(at(10_000), &bytes(0x5A), 1, 1, SRVT)
+            .unwrap();
+        assert_eq!(consumer.deadline(), at(30_000), "SRVT now the earliest");
+        assert_eq!(
+            consumer.on_inverted(at(10_200), &bytes(0xA5), 1, 1, SCT),
+            Ok((0x5A, 0xA5))
+        );
+        assert_eq!(consumer.deadline(), at(60_200));
+    }
+
+    #[test]
+    fn en50325_5_7_1_2_sct_event_at_the_deadline_itself() {
+        let consumer = Consumer::start(at(0), SCT);
+        assert_eq!(consumer.check_timers(at(49_999)), Ok(()));
+        assert_eq!(
+            consumer.check_timers(at(50_000)),
+            Err(SrdoFaultCause::SctElapsed)
+        );
+    }
+
+    #[test]
+    fn en50325_5_7_1_2_srvt_event_and_late_frames_are_judged_on_arrival() {
+        let mut consumer = Consumer::start(at(0), SCT);
+        consumer.on_plain(at(1_000), &bytes(1), 1, 1, SRVT).unwrap();
+        assert_eq!(
+            consumer.check_timers(at(21_000)),
+            Err(SrdoFaultCause::SrvtElapsed)
+        );
+        // Not polled in between: the late inverted frame itself is refused.
+        assert_eq!(
+            consumer.on_inverted(at(21_000), &bytes(0xFE), 1, 1, SCT),
+            Err(SrdoFaultCause::SrvtElapsed)
+        );
+    }
+
+    #[test]
+    fn cia304_9_5_order_is_checked_in_both_directions() {
+        let mut consumer = Consumer::start(at(0), SCT);
+        assert_eq!(
+            consumer.on_inverted(at(1), &bytes(0xFE), 1, 1, SCT),
+            Err(SrdoFaultCause::InvertedWithoutPlain)
+        );
+        consumer.on_plain(at(2), &bytes(1), 1, 1, SRVT).unwrap();
+        assert_eq!(
+            consumer.on_plain(at(3), &bytes(1), 1, 1, SRVT),
+            Err(SrdoFaultCause::PlainRepeated)
+        );
+    }
+
+    #[test]
+    fn en50325_5_7_1_3_short_frames_are_not_processed() {
+        let mut consumer = Consumer::start(at(0), SCT);
+        assert_eq!(
+            consumer.on_plain(at(1), &bytes(1), 1, 2, SRVT),
+            Err(SrdoFaultCause::TooShort)
+        );
+        consumer
+            .on_plain(at(2), &bytes(0x0201), 2, 2, SRVT)
+            .unwrap();
+        assert_eq!(
+            consumer.on_inverted(at(3), &bytes(0xFDFE), 1, 2, SCT),
+            Err(SrdoFaultCause::TooShort)
+        );
+    }
+
+    #[test]
+    fn en50325_5_7_1_3_longer_frames_use_only_the_mapped_bytes() {
+        let mut consumer = Consumer::start(at(0), SCT);
+        consumer
+            .on_plain(at(1), &[0x01, 0xAA, 0xBB, 0, 0, 0, 0, 0], 3, 1, SRVT)
+            .unwrap();
+        let (plain, inverted) = consumer
+            .on_inverted(at(2), &[0xFE, 0x00, 0x00, 0, 0, 0, 0, 0], 3, 1, SCT)
+            .unwrap();
+        assert_eq!((plain as u8, inverted as u8), (0x01, 0xFE));
+    }
+
+    #[test]
+    fn en50325_5_7_1_1_not_inverted_data_is_refused_bit_by_bit() {
+        for bit in 0..64 {
+            let mut consumer = Consumer::start(at(0), SCT);
+            let plain = 0x0123_4567_89AB_CDEFu64;
+            consumer.on_plain(at(1), &bytes(plain), 8, 8, SRVT).unwrap();
+            let wrong = !plain ^ (1 << bit);
+            assert_eq!(
+                consumer.on_inverted(at(2), &bytes(wrong), 8, 8, SCT),
+                Err(SrdoFaultCause::NotInverted),
+                "bit {bit}"
+            );
+        }
+    }
+
+    #[test]
+    fn cia304_9_5_first_transmission_delayed_half_a_millisecond_per_node_id() {
+        assert_eq!(Producer::start(at(1_000), 1).deadline(at(1_000)), at(1_500));
+        assert_eq!(Producer::start(at(0), 64).deadline(at(0)), at(32_000));
+    }
+
+    #[test]
+    fn en50325_5_6_2_1_cyclic_transmission_keeps_phase_and_events_go_at_once() {
+        let refresh = Duration::from_millis(25);
+        let mut producer = Producer::start(at(0), 2);
+        assert!(!producer.due(at(999)));
+        assert!(producer.due(at(1_000)));
+        producer.sent(at(1_100), refresh);
+        assert_eq!(
+            producer.deadline(at(1_100)),
+            at(26_000),
+            "phase kept despite 100 µs lateness"
+        );
+        producer.mark_changed();
+        assert!(producer.due(at(5_000)));
+        producer.sent(at(5_000), refresh);
+        assert_eq!(
+            producer.deadline(at(5_000)),
+            at(30_000),
+            "event restarts the cycle"
+        );
+        producer.sent(at(90_000), refresh);
+        assert_eq!(
+            producer.deadline(at(90_000)),
+            at(115_000),
+            "a missed cycle restarts from now"
+        );
+    }
+}
