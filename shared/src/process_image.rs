@@ -190,6 +190,11 @@ impl ProcessImage {
         }
     }
 
+    /// Sets every value to 0, the safe state (SC_REQ_05).
+    pub fn clear_all(&mut self) {
+        self.bytes.fill(0);
+    }
+
     /// Reads `address` by SDO rules into `buf`; sub-index 0 of an application index answers
     /// the highest sub-index.
     pub fn read(&self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {

@@ -8,6 +8,8 @@ use crate::frame::{CanFrame, CanId};
 pub mod code {
     /// Error reset or no error.
     pub const NO_ERROR: u16 = 0x0000;
+    /// Internal software: the two halves handed in for an SRDO were not inverses.
+    pub const INTERNAL_SOFTWARE: u16 = 0x6100;
     /// Data set: the safety configuration was refused (manufacturer bytes name SRDO and
     /// cause).
     pub const DATA_SET: u16 = 0x6300;

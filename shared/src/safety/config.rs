@@ -236,6 +236,25 @@ pub struct ResolvedMapping {
     pub len: u8,
 }
 
+impl ResolvedMapping {
+    /// No mapping at all.
+    pub const EMPTY: ResolvedMapping = ResolvedMapping {
+        plain: [Span { offset: 0, len: 0 }; MAX_MAPPING_ENTRIES / 2],
+        inverted: [Span { offset: 0, len: 0 }; MAX_MAPPING_ENTRIES / 2],
+        pairs: 0,
+        len: 0,
+    };
+
+    /// `true` when the byte at `offset` of the process image is mapped (plain or inverted).
+    pub fn covers(&self, offset: u8) -> bool {
+        let pairs = usize::from(self.pairs).min(self.plain.len());
+        self.plain[..pairs]
+            .iter()
+            .chain(&self.inverted[..pairs])
+            .any(|span| offset >= span.offset && offset - span.offset < span.len)
+    }
+}
+
 /// A validated, existing SRDO, ready to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ValidSrdo {

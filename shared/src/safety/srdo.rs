@@ -41,6 +41,34 @@ pub enum SrdoFaultCause {
     TransmitHalvesNotInverted,
 }
 
+impl SrdoFaultCause {
+    /// A stable number for this cause, sent in the manufacturer-specific bytes of EMCY.
+    pub const fn cause_code(self) -> u8 {
+        match self {
+            SrdoFaultCause::SctElapsed => 1,
+            SrdoFaultCause::SrvtElapsed => 2,
+            SrdoFaultCause::InvertedWithoutPlain => 3,
+            SrdoFaultCause::PlainRepeated => 4,
+            SrdoFaultCause::NotInverted => 5,
+            SrdoFaultCause::TooShort => 6,
+            SrdoFaultCause::TransmitHalvesNotInverted => 7,
+        }
+    }
+
+    /// The EMCY error code for this cause (EN 50325-5 7.1.3 mandates 8210h for a short frame).
+    pub const fn emergency_code(self) -> u16 {
+        use crate::canopen::emcy::code;
+        match self {
+            SrdoFaultCause::SctElapsed | SrdoFaultCause::SrvtElapsed => code::RPDO_TIMEOUT,
+            SrdoFaultCause::TooShort => code::PDO_LENGTH,
+            SrdoFaultCause::InvertedWithoutPlain
+            | SrdoFaultCause::PlainRepeated
+            | SrdoFaultCause::NotInverted => code::PROTOCOL_ERROR,
+            SrdoFaultCause::TransmitHalvesNotInverted => code::INTERNAL_SOFTWARE,
+        }
+    }
+}
+
 /// A fault of one SRDO: which, and why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

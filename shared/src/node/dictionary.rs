@@ -1,0 +1,159 @@
+//! The device's object dictionary as the SDO server sees it: communication objects
+//! (0x1000..0x1018), the safety objects (0x1300..0x13FF) and the application objects.
+
+use super::{Core, Event, persist};
+use crate::canopen::nmt::NmtState;
+use crate::canopen::od::{AbortCode, Address, ObjectDictionary};
+use crate::canopen::storage::Flash;
+use crate::process_image::Access;
+use crate::safety::config::SafetyConfig;
+use crate::safety::gfc;
+
+/// The signature "save" that 0x1010 expects (CiA 301 7.5.2.13).
+const SAVE: u32 = u32::from_le_bytes(*b"save");
+/// The signature "load" that 0x1011 expects (CiA 301 7.5.2.14).
+const LOAD: u32 = u32::from_le_bytes(*b"load");
+
+/// Copies `bytes` into `buf`, or answers that `buf` is too small.
+fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, AbortCode> {
+    let target = buf.get_mut(..bytes.len()).ok_or(AbortCode::OutOfMemory)?;
+    target.copy_from_slice(bytes);
+    Ok(bytes.len())
+}
+
+/// `data` as exactly `L` bytes, or the length abort code (CiA 301 0607 0012h / 0607 0013h).
+fn exact<const L: usize>(data: &[u8]) -> Result<[u8; L], AbortCode> {
+    if data.len() > L {
+        return Err(AbortCode::LengthTooHigh);
+    }
+    <[u8; L]>::try_from(data).map_err(|_| AbortCode::LengthTooLow)
+}
+
+impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
+    fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {
+        let Address { index, sub } = address;
+        match index {
+            0x1000 if sub == 0 => put(buf, &self.config.device_type.to_le_bytes()),
+            0x1001 if sub == 0 => put(buf, &[self.error_register]),
+            0x1008 if sub == 0 => put(buf, self.config.device_name.as_bytes()),
+            0x1010 | 0x1011 => match sub {
+                0 => put(buf, &[1]),
+                // Bit 0: the device saves (restores) parameters on command.
+                1 => put(buf, &1u32.to_le_bytes()),
+                _ => Err(AbortCode::NoSubIndex),
+            },
+            0x1017 if sub == 0 => put(buf, &self.heartbeat.period_ms().to_le_bytes()),
+            0x1018 => match sub {
+                0 => put(buf, &[4]),
+                1..=4 => put(
+                    buf,
+                    &self.config.identity[usize::from(sub) - 1].to_le_bytes(),
+                ),
+                _ => Err(AbortCode::NoSubIndex),
+            },
+            0x1300 if sub == 0 => put(buf, &[self.gfc_parameter]),
+            0x1000 | 0x1001 | 0x1008 | 0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
+            index if SafetyConfig::<N>::owns(index) => self.safety.read(address, buf),
+            0x2000..=0x9FFF => self.image.read(address, buf),
+            _ => Err(AbortCode::NoObject),
+        }
+    }
+
+    fn write(&mut self, address: Address, data: &[u8]) -> Result<(), AbortCode> {
+        let Address { index, sub } = address;
+        let operational = self.state == NmtState::Operational;
+        match index {
+            0x1000 | 0x1001 | 0x1008 | 0x1018 => {
+                let mut scratch = [0u8; 64];
+                self.read(address, &mut scratch)?;
+                Err(AbortCode::ReadOnly)
+            }
+            0x1010 | 0x1011 => match sub {
+                0 => Err(AbortCode::ReadOnly),
+                1 => {
+                    let signature = u32::from_le_bytes(exact(data)?);
+                    if index == 0x1010 {
+                        self.store(signature)
+                    } else {
+                        self.restore_defaults(signature)
+                    }
+                }
+                _ => Err(AbortCode::NoSubIndex),
+            },
+            0x1017 if sub == 0 => {
+                let period = u16::from_le_bytes(exact(data)?);
+                self.heartbeat.set_period(period, self.now);
+                Ok(())
+            }
+            0x1300 if sub == 0 => {
+                // EN 50325-5 8.2.2: the GFC parameter stays writable in Operational.
+                match exact::<1>(data)? {
+                    [gfc::GFC_NOT_VALID] => self.gfc_parameter = gfc::GFC_NOT_VALID,
+                    [gfc::GFC_VALID] => self.gfc_requested = true,
+                    _ => return Err(AbortCode::ValueTooHigh),
+                }
+                Ok(())
+            }
+            0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
+            index if SafetyConfig::<N>::owns(index) => {
+                self.safety.write(address, data, &self.image, operational)
+            }
+            0x2000..=0x9FFF => {
+                let (object, span) =
+                    self.image
+                        .find(address)
+                        .ok_or(if self.image.has_index(index) {
+                            if sub == 0 {
+                                AbortCode::ReadOnly
+                            } else {
+                                AbortCode::NoSubIndex
+                            }
+                        } else {
+                            AbortCode::NoObject
+                        })?;
+                if object.access == Access::ReadOnly {
+                    return Err(AbortCode::ReadOnly);
+                }
+                if operational {
+                    // Application safety values change only through SRDOs or the application
+                    // in Operational.
+                    return Err(AbortCode::DeviceState);
+                }
+                if data.len() != usize::from(object.len) {
+                    return Err(if data.len() > usize::from(object.len) {
+                        AbortCode::LengthTooHigh
+                    } else {
+                        AbortCode::LengthTooLow
+                    });
+                }
+                self.image.set(span, data);
+                Ok(())
+            }
+            _ => Err(AbortCode::NoObject),
+        }
+    }
+}
+
+impl<F: Flash, const N: usize> Core<F, N> {
+    /// 0x1010 sub-index 1: store all parameters (CiA 301 7.5.2.13).
+    fn store(&mut self, signature: u32) -> Result<(), AbortCode> {
+        if signature != SAVE {
+            return Err(AbortCode::CannotStore);
+        }
+        persist::store(&mut self.flash, &self.safety, self.heartbeat.period_ms()).map_err(|error| {
+            self.deferred_event = Some(Event::StorageFailed(error));
+            AbortCode::HardwareError
+        })
+    }
+
+    /// 0x1011 sub-index 1: restore default parameters at the next reset (CiA 301 7.5.2.14).
+    fn restore_defaults(&mut self, signature: u32) -> Result<(), AbortCode> {
+        if signature != LOAD {
+            return Err(AbortCode::CannotStore);
+        }
+        crate::canopen::storage::restore_defaults(&mut self.flash).map_err(|error| {
+            self.deferred_event = Some(Event::StorageFailed(error));
+            AbortCode::HardwareError
+        })
+    }
+}

@@ -1,0 +1,644 @@
+//! Tests of a whole node through its frame interface, each naming the clause it verifies.
+
+use super::*;
+use crate::canopen::emcy::code;
+use crate::canopen::od::ObjectDictionary;
+use crate::canopen::storage::RamFlash;
+use crate::process_image::{Access, Mappable};
+use crate::safety::config::{ConfigError, SrdoRecord};
+use crate::safety::signature;
+use std::vec::Vec as StdVec;
+
+/// A sink that records everything.
+#[derive(Default)]
+pub(crate) struct Recorder {
+    pub frames: StdVec<CanFrame>,
+    pub events: StdVec<Event>,
+}
+
+impl Sink for Recorder {
+    fn transmit(&mut self, frame: CanFrame) {
+        self.frames.push(frame);
+    }
+    fn event(&mut self, event: Event) {
+        self.events.push(event);
+    }
+}
+
+impl Recorder {
+    fn take(&mut self) -> (StdVec<CanFrame>, StdVec<Event>) {
+        (
+            core::mem::take(&mut self.frames),
+            core::mem::take(&mut self.events),
+        )
+    }
+    fn emergencies(&self) -> StdVec<Emergency> {
+        self.frames
+            .iter()
+            .filter(|f| (0x081..=0x0FF).contains(&f.id().raw()))
+            .filter_map(|f| Emergency::parse(f.data()))
+            .collect()
+    }
+}
+
+const fn object(index: u16, sub: u8, len: u8, access: Access, mappable: Mappable) -> AppObject {
+    AppObject {
+        address: Address::new(index, sub),
+        len,
+        access,
+        mappable,
+    }
+}
+
+/// Two safety inputs with inverted copies, two safety outputs with inverted copies, and a
+/// 16-bit value, plus a read-write parameter that cannot be mapped.
+static OBJECTS: [AppObject; 10] = [
+    object(0x6000, 1, 1, Access::ReadOnly, Mappable::Transmit),
+    object(0x6000, 2, 1, Access::ReadOnly, Mappable::Transmit),
+    object(0x6001, 1, 1, Access::ReadOnly, Mappable::Transmit),
+    object(0x6001, 2, 1, Access::ReadOnly, Mappable::Transmit),
+    object(0x6200, 1, 1, Access::ReadOnly, Mappable::Receive),
+    object(0x6200, 2, 1, Access::ReadOnly, Mappable::Receive),
+    object(0x6201, 1, 1, Access::ReadOnly, Mappable::Receive),
+    object(0x6201, 2, 1, Access::ReadOnly, Mappable::Receive),
+    object(0x6100, 1, 2, Access::ReadOnly, Mappable::Transmit),
+    object(0x2000, 1, 2, Access::ReadWrite, Mappable::No),
+];
+static TX_MAPPING: [u32; 2] = [0x6000_0108, 0x6001_0108];
+static RX_MAPPING: [u32; 2] = [0x6200_0108, 0x6201_0108];
+
+pub(crate) fn config(node_id: u8) -> NodeConfig {
+    NodeConfig {
+        node_id: NodeId::new(node_id).unwrap(),
+        device_type: 0x0001_0191,
+        device_name: "dual-channel safety node (test)",
+        identity: [0x1234, 0x5678, 1, 42],
+        app_objects: &OBJECTS,
+        default_transmit_mapping: &TX_MAPPING,
+        default_receive_mapping: &RX_MAPPING,
+        heartbeat_ms: 0,
+        sdo_timeout: Duration::from_millis(500),
+        event_driven: false,
+        gfc_on_fault: false,
+    }
+}
+
+type TestNode = Node<RamFlash<8192>, 4>;
+
+const fn ms(value: u64) -> Instant {
+    Instant::from_millis(value)
+}
+const fn us(value: u64) -> Instant {
+    Instant::from_micros(value)
+}
+
+/// A booted node (Pre-operational), with whatever the caller did to its configuration.
+fn booted(node_id: u8, configure: impl FnOnce(&mut NodeConfig)) -> (TestNode, Recorder) {
+    let mut config = config(node_id);
+    configure(&mut config);
+    let mut node = TestNode::new(config, RamFlash::new()).unwrap();
+    let mut sink = Recorder::default();
+    node.poll(Instant::ZERO, &mut sink);
+    sink.take();
+    (node, sink)
+}
+
+/// Declares the current configuration valid the way a tool does: signatures, then A5h.
+fn validate(node: &mut TestNode) {
+    for record in node.core.safety.srdos.iter_mut() {
+        record.signature = signature::compute(record);
+    }
+    node.core.safety.configuration_valid = 0xA5;
+}
+
+fn start(node: &mut TestNode, now: Instant, sink: &mut Recorder) {
+    node.handle_frame(now, &nmt::command_frame(NmtCommand::Start, 0), sink);
+}
+
+/// A booted, validated node with the pre-defined configuration, started at t = 0.
+fn operational(node_id: u8) -> (TestNode, Recorder) {
+    let (mut node, mut sink) = booted(node_id, |_| {});
+    validate(&mut node);
+    start(&mut node, Instant::ZERO, &mut sink);
+    assert_eq!(node.nmt_state(), NmtState::Operational);
+    sink.take();
+    (node, sink)
+}
+
+fn frame(id: u16, data: &[u8]) -> CanFrame {
+    CanFrame::new(CanId::new(id).unwrap(), data).unwrap()
+}
+
+fn output(node: &TestNode, index: u16, sub: u8) -> u8 {
+    let mut buf = [0u8; 8];
+    node.read_object(Address::new(index, sub), &mut buf)
+        .unwrap();
+    buf[0]
+}
+
+/// Sends a valid SRDO pair for node 33's SRDO 1 (COB-IDs 0x141/0x142).
+fn pair(node: &mut TestNode, at: Instant, value: u8, sink: &mut Recorder) {
+    node.handle_frame(at, &frame(0x141, &[value]), sink);
+    node.handle_frame(
+        at + Duration::from_micros(200),
+        &frame(0x142, &[!value]),
+        sink,
+    );
+}
+
+// ---- NMT, boot-up, heartbeat --------------------------------------------------------------
+
+#[test]
+fn cia301_7_3_2_boot_up_then_pre_operational() {
+    let mut node = TestNode::new(config(5), RamFlash::new()).unwrap();
+    assert_eq!(node.nmt_state(), NmtState::Initialising);
+    let mut sink = Recorder::default();
+    node.poll(Instant::ZERO, &mut sink);
+    assert_eq!(sink.frames, [frame(0x705, &[0])]);
+    assert_eq!(sink.events, [Event::NmtState(NmtState::PreOperational)]);
+}
+
+#[test]
+fn cia301_7_2_8_3_2_heartbeat_reports_the_nmt_state() {
+    let (mut node, mut sink) = booted(5, |config| config.heartbeat_ms = 100);
+    assert_eq!(node.poll(ms(50), &mut sink), ms(100));
+    assert!(sink.frames.is_empty());
+    node.poll(ms(100), &mut sink);
+    assert_eq!(sink.frames, [frame(0x705, &[0x7F])]);
+}
+
+#[test]
+fn cia301_7_2_8_3_1_nmt_commands_for_other_nodes_are_ignored_and_malformed_ones_reported() {
+    let (mut node, mut sink) = booted(5, |_| {});
+    node.handle_frame(ms(1), &nmt::command_frame(NmtCommand::Stop, 6), &mut sink);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    node.handle_frame(ms(1), &frame(0x000, &[0x02]), &mut sink);
+    assert_eq!(sink.events, [Event::NmtRefused(NmtError::Malformed)]);
+    node.handle_frame(ms(1), &nmt::command_frame(NmtCommand::Stop, 5), &mut sink);
+    assert_eq!(node.nmt_state(), NmtState::Stopped);
+}
+
+// ---- Entering Operational ----------------------------------------------------------------
+
+#[test]
+fn en50325_5_6_4_1_6_not_validated_configuration_keeps_the_node_out_of_operational() {
+    let (mut node, mut sink) = booted(1, |_| {});
+    start(&mut node, ms(1), &mut sink);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    assert!(!node.is_working());
+    let fault = ConfigFault {
+        srdo: None,
+        error: ConfigError::NotDeclaredValid,
+    };
+    assert_eq!(sink.events, [Event::ConfigurationRefused(fault)]);
+    let emcy = sink.emergencies();
+    assert_eq!(emcy.len(), 1);
+    assert_eq!(emcy[0].code, code::DATA_SET);
+    assert_eq!(
+        emcy[0].detail[..2],
+        [0, ConfigError::NotDeclaredValid.cause_code()]
+    );
+    // No SRDO runs: nothing is sent, however long we wait.
+    sink.take();
+    node.poll(ms(1_000), &mut sink);
+    assert!(sink.frames.is_empty());
+}
+
+#[test]
+fn en50325_5_8_3_1_signature_mismatch_names_the_srdo_and_the_cause() {
+    let (mut node, mut sink) = booted(1, |_| {});
+    validate(&mut node);
+    node.core.safety.srdos[0].signature ^= 1;
+    start(&mut node, ms(1), &mut sink);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    let srdo_1 = SrdoNumber::new(1).unwrap();
+    let fault = ConfigFault {
+        srdo: Some(srdo_1),
+        error: ConfigError::SignatureMismatch,
+    };
+    assert_eq!(sink.events, [Event::ConfigurationRefused(fault)]);
+    assert_eq!(
+        sink.emergencies()[0].detail[..2],
+        [1, ConfigError::SignatureMismatch.cause_code()]
+    );
+}
+
+#[test]
+fn cia304_9_5_configuration_damaged_after_validation_is_caught_on_the_way_into_operational() {
+    let (mut node, mut sink) = booted(1, |_| {});
+    validate(&mut node);
+    // A bit flip in RAM that keeps the signature consistent but breaks a rule (refresh 0).
+    node.core.safety.srdos[0].cycle_time = 0;
+    node.core.safety.srdos[0].signature = signature::compute(&node.core.safety.srdos[0]);
+    start(&mut node, ms(1), &mut sink);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    let fault = ConfigFault {
+        srdo: SrdoNumber::new(1),
+        error: ConfigError::CycleTimeZero,
+    };
+    assert_eq!(sink.events, [Event::ConfigurationRefused(fault)]);
+}
+
+// ---- Producer -----------------------------------------------------------------------------
+
+#[test]
+fn cia304_9_5_and_en50325_5_7_1_1_producer_sends_plain_then_inverted_after_node_id_delay() {
+    let (mut node, mut sink) = operational(3);
+    node.set_transmit_payloads(SrdoNumber::new(1).unwrap(), &[0x5A], &[0xA5])
+        .unwrap();
+    // First cyclic transmission 0.5 ms × 3 after start.
+    assert_eq!(node.poll(us(1_000), &mut sink), us(1_500));
+    assert!(sink.frames.is_empty());
+    assert_eq!(
+        node.poll(us(1_500), &mut sink),
+        us(26_500),
+        "next one a refresh time later"
+    );
+    assert_eq!(sink.frames, [frame(0x105, &[0x5A]), frame(0x106, &[0xA5])]);
+}
+
+#[test]
+fn en50325_5_8_2_2_no_srdo_is_sent_outside_operational() {
+    let (mut node, mut sink) = operational(3);
+    node.set_transmit_payloads(SrdoNumber::new(1).unwrap(), &[1], &[0xFE])
+        .unwrap();
+    node.handle_frame(
+        ms(1),
+        &nmt::command_frame(NmtCommand::EnterPreOperational, 3),
+        &mut sink,
+    );
+    sink.take();
+    node.poll(ms(500), &mut sink);
+    assert!(sink.frames.is_empty());
+}
+
+#[test]
+fn en50325_5_7_1_1_halves_that_are_not_inverses_are_never_sent() {
+    let (mut node, mut sink) = operational(3);
+    let srdo = SrdoNumber::new(1).unwrap();
+    node.set_transmit_half(srdo, &[0x5A], false).unwrap();
+    node.set_transmit_half(srdo, &[0x5B], true).unwrap();
+    node.poll(ms(2), &mut sink);
+    assert!(
+        sink.frames
+            .iter()
+            .all(|f| f.id().raw() != 0x105 && f.id().raw() != 0x106)
+    );
+    let fault = SrdoFault {
+        srdo,
+        cause: SrdoFaultCause::TransmitHalvesNotInverted,
+    };
+    assert!(sink.events.contains(&Event::SrdoFault(fault)));
+    assert_eq!(node.fault(), Some(SafeStateCause::Srdo(fault)));
+    assert_eq!(sink.emergencies()[0].code, code::INTERNAL_SOFTWARE);
+    // Even after the halves are mended, the producer stays silent until reset.
+    node.set_transmit_half(srdo, &[0xA5], true).unwrap();
+    sink.take();
+    node.poll(ms(100), &mut sink);
+    assert!(sink.frames.is_empty());
+}
+
+#[test]
+fn en50325_5_6_2_1_event_driven_transmission_on_a_change_of_mapped_data() {
+    let (mut node, mut sink) = booted(3, |config| config.event_driven = true);
+    validate(&mut node);
+    start(&mut node, Instant::ZERO, &mut sink);
+    let srdo = SrdoNumber::new(1).unwrap();
+    node.set_transmit_payloads(srdo, &[0], &[0xFF]).unwrap();
+    node.poll(ms(2), &mut sink);
+    sink.take();
+    node.set_transmit_payloads(srdo, &[1], &[0xFE]).unwrap();
+    node.poll(ms(10), &mut sink);
+    assert_eq!(sink.frames, [frame(0x105, &[1]), frame(0x106, &[0xFE])]);
+}
+
+#[test]
+fn en50325_5_6_2_1_srdo_is_never_answered_on_rtr() {
+    let (mut node, mut sink) = operational(3);
+    node.set_transmit_payloads(SrdoNumber::new(1).unwrap(), &[1], &[0xFE])
+        .unwrap();
+    node.poll(ms(2), &mut sink);
+    sink.take();
+    node.handle_frame(
+        ms(3),
+        &CanFrame::remote(CanId::new(0x105).unwrap(), 1).unwrap(),
+        &mut sink,
+    );
+    assert!(sink.frames.is_empty());
+    assert_eq!(node.remote_frames_ignored(), 1);
+}
+
+// ---- Consumer -----------------------------------------------------------------------------
+
+#[test]
+fn en50325_5_6_2_2_a_valid_pair_is_delivered_and_signalled() {
+    let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(10), 0x3C, &mut sink);
+    assert_eq!(
+        sink.events,
+        [Event::SrdoReceived(SrdoNumber::new(1).unwrap())]
+    );
+    assert_eq!(
+        (output(&node, 0x6200, 1), output(&node, 0x6201, 1)),
+        (0x3C, 0xC3)
+    );
+    assert!(node.is_working());
+}
+
+fn assert_safe(node: &TestNode, sink: &Recorder, cause: SrdoFaultCause, emcy_code: u16) {
+    let fault = SrdoFault {
+        srdo: SrdoNumber::new(1).unwrap(),
+        cause,
+    };
+    assert_eq!(node.fault(), Some(SafeStateCause::Srdo(fault)));
+    assert!(sink.events.contains(&Event::SrdoFault(fault)));
+    assert!(
+        sink.events
+            .contains(&Event::SafeState(SafeStateCause::Srdo(fault)))
+    );
+    assert_eq!(
+        (output(node, 0x6200, 1), output(node, 0x6201, 1)),
+        (0, 0),
+        "SC_REQ_05: outputs 0"
+    );
+    let emcy = sink.emergencies();
+    assert_eq!(emcy.len(), 1, "one EMCY");
+    assert_eq!(emcy[0].code, emcy_code);
+    assert_eq!(emcy[0].detail[..2], [1, cause.cause_code()]);
+    assert!(!node.is_working());
+}
+
+#[test]
+fn en50325_5_7_1_2_sct_event_fires_at_the_deadline_itself() {
+    let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(10), 0x3C, &mut sink);
+    sink.take();
+    // SCT 50 ms from the completed pair at 10.2 ms: due at 60.2 ms exactly.
+    let deadline = node.poll(ms(20), &mut sink);
+    assert!(deadline <= us(60_200));
+    let mut now = deadline;
+    while now < us(60_200) {
+        now = node.poll(now, &mut sink);
+    }
+    assert_eq!(
+        now,
+        us(60_200),
+        "the node asks to be polled at the SCT deadline itself"
+    );
+    assert!(node.is_working(), "not yet failed before the deadline");
+    node.poll(now, &mut sink);
+    assert_safe(&node, &sink, SrdoFaultCause::SctElapsed, code::RPDO_TIMEOUT);
+}
+
+#[test]
+fn en50325_5_7_1_2_first_pair_is_due_within_sct_of_entering_operational() {
+    let (mut node, mut sink) = operational(33);
+    node.poll(ms(50), &mut sink);
+    assert_safe(&node, &sink, SrdoFaultCause::SctElapsed, code::RPDO_TIMEOUT);
+}
+
+#[test]
+fn en50325_5_7_1_2_srvt_event() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    assert_eq!(
+        node.poll(ms(11), &mut sink),
+        ms(30),
+        "SRVT deadline 20 ms after the plain frame"
+    );
+    node.poll(ms(30), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::SrvtElapsed,
+        code::RPDO_TIMEOUT,
+    );
+}
+
+#[test]
+fn en50325_5_7_1_2_a_late_inverted_frame_is_refused_even_before_the_timer_is_polled() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(31), &frame(0x142, &[0xFE]), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::SrvtElapsed,
+        code::RPDO_TIMEOUT,
+    );
+}
+
+#[test]
+fn cia304_9_5_inverted_frame_without_plain_frame_is_an_error() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x142, &[0xFE]), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::InvertedWithoutPlain,
+        code::PROTOCOL_ERROR,
+    );
+}
+
+#[test]
+fn cia304_9_5_second_plain_frame_before_the_inverted_one_is_an_error() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(11), &frame(0x141, &[1]), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::PlainRepeated,
+        code::PROTOCOL_ERROR,
+    );
+}
+
+#[test]
+fn cia304_9_5_data_compared_bit_by_bit() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[0x0F]), &mut sink);
+    node.handle_frame(ms(10), &frame(0x142, &[0xF1]), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::NotInverted,
+        code::PROTOCOL_ERROR,
+    );
+}
+
+#[test]
+fn en50325_5_7_1_3_frame_shorter_than_the_mapping_gives_emcy_8210_and_is_not_processed() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[]), &mut sink);
+    assert_safe(&node, &sink, SrdoFaultCause::TooShort, 0x8210);
+}
+
+#[test]
+fn en50325_5_7_1_3_frame_longer_than_the_mapping_uses_only_the_mapped_bytes() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[0x11, 0x22, 0x33]), &mut sink);
+    node.handle_frame(ms(10), &frame(0x142, &[0xEE, 0x00, 0x00]), &mut sink);
+    assert!(node.is_working());
+    assert_eq!(
+        (output(&node, 0x6200, 1), output(&node, 0x6201, 1)),
+        (0x11, 0xEE)
+    );
+}
+
+#[test]
+fn en50325_5_6_2_1_rtr_on_a_receive_srdo_is_ignored_and_counted() {
+    let (mut node, mut sink) = operational(33);
+    let rtr = CanFrame::remote(CanId::new(0x141).unwrap(), 1).unwrap();
+    node.handle_frame(ms(10), &rtr, &mut sink);
+    assert_eq!(
+        sink.events,
+        [Event::RemoteFrameIgnored(SrdoNumber::new(1).unwrap())]
+    );
+    assert_eq!(node.remote_frames_ignored(), 1);
+    assert!(node.is_working());
+    pair(&mut node, ms(11), 7, &mut sink);
+    assert_eq!(
+        output(&node, 0x6200, 1),
+        7,
+        "the RTR did not disturb the pair order"
+    );
+}
+
+#[test]
+fn en50325_5_8_2_2_srdo_frames_outside_operational_are_not_processed() {
+    let (mut node, mut sink) = booted(33, |_| {});
+    validate(&mut node);
+    pair(&mut node, ms(10), 0x3C, &mut sink);
+    assert!(sink.events.is_empty());
+    assert_eq!(output(&node, 0x6200, 1), 0);
+}
+
+#[test]
+fn en50325_5_8_2_2_leaving_operational_puts_outputs_in_the_safe_state() {
+    let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(10), 0x3C, &mut sink);
+    node.handle_frame(ms(11), &nmt::command_frame(NmtCommand::Stop, 0), &mut sink);
+    assert_eq!((output(&node, 0x6200, 1), output(&node, 0x6201, 1)), (0, 0));
+    assert!(!node.is_working());
+}
+
+#[test]
+fn safe_state_is_latched_until_nmt_resets_communication() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x142, &[0xFE]), &mut sink);
+    assert!(node.fault().is_some());
+    // Valid pairs no longer deliver data.
+    pair(&mut node, ms(11), 0x3C, &mut sink);
+    assert_eq!(output(&node, 0x6200, 1), 0);
+    // Pre-operational and back does not clear the latch.
+    node.handle_frame(
+        ms(12),
+        &nmt::command_frame(NmtCommand::EnterPreOperational, 0),
+        &mut sink,
+    );
+    start(&mut node, ms(13), &mut sink);
+    assert!(node.fault().is_some());
+    // Reset communication does; the stored (here: default) configuration is back, so it must
+    // be validated again before the node may run.
+    sink.take();
+    node.handle_frame(
+        ms(14),
+        &nmt::command_frame(NmtCommand::ResetCommunication, 0),
+        &mut sink,
+    );
+    assert_eq!(node.fault(), None);
+    assert_eq!(node.error_register(), 0);
+    assert!(
+        sink.frames.contains(&frame(0x721, &[0])),
+        "boot-up after reset"
+    );
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    validate(&mut node);
+    start(&mut node, ms(15), &mut sink);
+    pair(&mut node, ms(16), 0x3C, &mut sink);
+    assert_eq!(output(&node, 0x6200, 1), 0x3C);
+}
+
+// ---- GFC ----------------------------------------------------------------------------------
+
+#[test]
+fn en50325_5_7_2_1_gfc_in_operational_switches_to_the_safe_state_at_once() {
+    let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(10), 0x3C, &mut sink);
+    sink.take();
+    node.handle_frame(ms(11), &frame(0x001, &[]), &mut sink);
+    assert_eq!(node.fault(), Some(SafeStateCause::Gfc));
+    assert_eq!(output(&node, 0x6200, 1), 0);
+    let mut buf = [0u8; 1];
+    assert_eq!(node.core.read(Address::new(0x1300, 0), &mut buf), Ok(1));
+    assert_eq!(
+        buf[0], 1,
+        "EN 50325-5 6.4.2.1: 0x1300 = 1 when a GFC was indicated"
+    );
+    assert!(sink.events.contains(&Event::GfcReceived));
+}
+
+#[test]
+fn en50325_5_8_2_2_gfc_outside_operational_is_ignored() {
+    let (mut node, mut sink) = booted(33, |_| {});
+    node.handle_frame(ms(11), &frame(0x001, &[]), &mut sink);
+    assert_eq!(node.fault(), None);
+    assert!(sink.events.is_empty());
+}
+
+#[test]
+fn en50325_5_6_3_gfc_producer_on_request_and_on_a_detected_fault() {
+    let (mut node, mut sink) = operational(33);
+    node.request_gfc();
+    node.poll(ms(1), &mut sink);
+    assert_eq!(sink.frames, [gfc::frame()]);
+    assert!(sink.events.contains(&Event::GfcSent));
+
+    let (mut node, mut sink) = booted(33, |config| config.gfc_on_fault = true);
+    validate(&mut node);
+    start(&mut node, Instant::ZERO, &mut sink);
+    node.handle_frame(ms(1), &frame(0x142, &[0]), &mut sink);
+    node.poll(ms(1), &mut sink);
+    assert!(sink.frames.contains(&gfc::frame()));
+}
+
+// ---- Polling ------------------------------------------------------------------------------
+
+#[test]
+fn an_idle_poll_does_nothing_and_reports_the_same_deadline() {
+    let (mut node, mut sink) = operational(33);
+    let deadline = node.poll(ms(1), &mut sink);
+    for step in 0..10 {
+        assert_eq!(
+            node.poll(ms(1) + Duration::from_micros(step), &mut sink),
+            deadline
+        );
+    }
+    assert!(sink.frames.is_empty() && sink.events.is_empty());
+}
+
+#[test]
+fn node_rejects_a_bad_object_table_and_srdo_count() {
+    static BAD: [AppObject; 1] = [object(0x6000, 1, 9, Access::ReadOnly, Mappable::Transmit)];
+    let mut bad = config(1);
+    bad.app_objects = &BAD;
+    assert!(matches!(
+        TestNode::new(bad, RamFlash::new()),
+        Err(NodeError::Table(_))
+    ));
+    assert!(matches!(
+        Node::<RamFlash<64>, 0>::new(config(1), RamFlash::new()),
+        Err(NodeError::SrdoCount)
+    ));
+}
+
+#[test]
+fn srdo_record_defaults_follow_en50325_5_table5() {
+    assert_eq!(SrdoRecord::DELETED.cycle_time, 25);
+    assert_eq!(SrdoRecord::DELETED.srvt, 20);
+    let node_65 = SafetyConfig::<1>::predefined(65, &TX_MAPPING, &RX_MAPPING);
+    assert!(
+        !node_65.srdos[0].exists(),
+        "node-IDs 65..127 have no pre-defined SRDO"
+    );
+}
