@@ -50,11 +50,12 @@ mod tests {
     /// A second, independent CRC-16 (bit by bit, MSB first, poly 0x1021, seed 0) and an
     /// independent serialisation of Table 9, written from the standard's text.
     fn reference_signature(record: &SrdoRecord) -> u16 {
-        let mut octets: Vec<u8> = Vec::new();
-        octets.push(record.direction);
-        octets.push((record.cycle_time & 0xFF) as u8);
-        octets.push((record.cycle_time >> 8) as u8);
-        octets.push(record.srvt);
+        let mut octets: Vec<u8> = vec![
+            record.direction,
+            (record.cycle_time & 0xFF) as u8,
+            (record.cycle_time >> 8) as u8,
+            record.srvt,
+        ];
         for value in [record.cob_id_1, record.cob_id_2] {
             for shift in [0, 8, 16, 24] {
                 octets.push((value >> shift) as u8);
