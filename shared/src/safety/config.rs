@@ -349,13 +349,13 @@ pub fn check_srdo<'a>(
     if record.cycle_time == 0 {
         return Err(ConfigError::CycleTimeZero);
     }
-    if direction == Direction::Receive {
-        if record.srvt == 0 {
-            return Err(ConfigError::SrvtZero);
-        }
-        if u16::from(record.srvt) >= record.cycle_time {
-            return Err(ConfigError::SrvtNotBelowSct);
-        }
+    // CiA 304 8.4.2.2 gives sub-index 03h the range 1..=255 whatever the direction; the
+    // single-write check refuses 0 too, so both judge a transmit SRDO alike.
+    if record.srvt == 0 {
+        return Err(ConfigError::SrvtZero);
+    }
+    if direction == Direction::Receive && u16::from(record.srvt) >= record.cycle_time {
+        return Err(ConfigError::SrvtNotBelowSct);
     }
     let cob_ids = CobIdPair::new(record.cob_id_1, record.cob_id_2)?;
     for other in others {
@@ -733,3 +733,7 @@ fn exact<const L: usize>(data: &[u8]) -> Result<[u8; L], AbortCode> {
         }
     }
 }
+
+#[cfg(test)]
+#[path = "config_tests.rs"]
+mod tests;
