@@ -642,3 +642,15 @@ fn srdo_record_defaults_follow_en50325_5_table5() {
         "node-IDs 65..127 have no pre-defined SRDO"
     );
 }
+
+#[test]
+fn per_srdo_ram_is_within_160_bytes() {
+    let per_srdo = core::mem::size_of::<SrdoRuntime>() + core::mem::size_of::<SrdoRecord>();
+    println!(
+        "SrdoRuntime {} + SrdoRecord {} = {} bytes per SRDO",
+        core::mem::size_of::<SrdoRuntime>(),
+        core::mem::size_of::<SrdoRecord>(),
+        per_srdo
+    );
+    assert!(per_srdo <= 160, "{per_srdo} bytes per SRDO");
+}
