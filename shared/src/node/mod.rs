@@ -704,7 +704,12 @@ impl<F: Flash, const N: usize> Core<F, N> {
         }
     }
 
+    /// Sends an EMCY, except in Stopped where CiA 301 Table 2 allows no EMCY (the event
+    /// that accompanies every EMCY still reports the cause).
     fn send_emergency(&mut self, code: u16, detail: [u8; 5], sink: &mut impl Sink) {
+        if self.state == NmtState::Stopped {
+            return;
+        }
         let emergency = Emergency {
             code,
             register: self.error_register,
