@@ -10,6 +10,7 @@ pub mod nmt;
 pub mod node_id;
 pub mod od;
 pub mod sdo;
+pub mod sdo_client;
 pub mod storage;
 
 pub use node_id::NodeId;

@@ -385,6 +385,11 @@ impl<F: Flash, const N: usize> Node<F, N> {
         &self.core.flash
     }
 
+    /// The storage medium, mutably (for tests that inject medium faults).
+    pub fn flash_mut(&mut self) -> &mut F {
+        &mut self.core.flash
+    }
+
     /// Reads an application object.
     pub fn read_object(&self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {
         self.core.image.read(address, buf)
@@ -869,5 +874,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
     }
 }
 
+#[cfg(test)]
+mod sdo_tests;
 #[cfg(test)]
 mod tests;

@@ -32,7 +32,7 @@ impl Recorder {
             core::mem::take(&mut self.events),
         )
     }
-    fn emergencies(&self) -> StdVec<Emergency> {
+    pub(crate) fn emergencies(&self) -> StdVec<Emergency> {
         self.frames
             .iter()
             .filter(|f| (0x081..=0x0FF).contains(&f.id().raw()))
@@ -576,7 +576,11 @@ fn en50325_5_7_2_1_gfc_in_operational_switches_to_the_safe_state_at_once() {
         "EN 50325-5 6.4.2.1: 0x1300 = 1 when a GFC was indicated"
     );
     assert!(sink.events.contains(&Event::GfcReceived));
-    assert_eq!(sink.emergencies()[0].code, code::GLOBAL_FAIL_SAFE, "the node says why it is safe");
+    assert_eq!(
+        sink.emergencies()[0].code,
+        code::GLOBAL_FAIL_SAFE,
+        "the node says why it is safe"
+    );
 }
 
 #[test]
@@ -587,7 +591,10 @@ fn cia301_table2_no_emcy_in_stopped_but_the_refusal_is_still_reported() {
     start(&mut node, ms(2), &mut sink);
     assert_eq!(node.nmt_state(), NmtState::Stopped);
     assert!(sink.emergencies().is_empty());
-    let fault = ConfigFault { srdo: None, error: ConfigError::NotDeclaredValid };
+    let fault = ConfigFault {
+        srdo: None,
+        error: ConfigError::NotDeclaredValid,
+    };
     assert_eq!(sink.events, [Event::ConfigurationRefused(fault)]);
 }
 
