@@ -42,6 +42,8 @@ fn validate(node: &mut Node<RamFlash<8192>, 2>, node_id: u8, sink: &mut common::
         let frame = CanFrame::new(sdo, &request).unwrap_or_else(|_| unreachable!());
         node.handle_frame(Instant::ZERO, &frame, sink);
     }
+    // Inputs that are exact inverses, so a producer has valid data to send.
+    let _ = node.write_object(Address::new(0x6001, 1), &[0xFF]);
     node.handle_frame(Instant::ZERO, &command_frame(NmtCommand::Start, 0), sink);
 }
 

@@ -728,15 +728,21 @@ impl<F: Flash, const N: usize> Core<F, N> {
         if self.heartbeat.poll(now) {
             sink.transmit(heartbeat::frame(self.config.node_id, self.state));
         }
+        if self.state == NmtState::Operational {
+            self.run_srdos(now, sink);
+        }
+        // Last, so that a fault found by the SRDO timers above sends its GFC in this same
+        // poll (EN 50325-5 6.3) rather than at the next one.
         if self.gfc_requested {
             self.gfc_requested = false;
             self.gfc_parameter = gfc::GFC_VALID;
             sink.transmit(gfc::frame());
             sink.event(Event::GfcSent);
         }
-        if self.state != NmtState::Operational {
-            return;
-        }
+    }
+
+    /// Every running SRDO's timers (Operational only).
+    fn run_srdos(&mut self, now: Instant, sink: &mut impl Sink) {
         for position in 0..self.active.len() {
             let Some(&slot) = self.active.get(position) else {
                 break;

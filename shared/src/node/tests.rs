@@ -674,3 +674,22 @@ fn per_srdo_ram_is_within_160_bytes() {
     );
     assert!(per_srdo <= 160, "{per_srdo} bytes per SRDO");
 }
+
+/// Found by the `node_frames` fuzz target: a fault found by a poll (here the transmit halves
+/// of an event-driven producer are not inverses, because the application never set its
+/// inputs) sends its GFC in that same poll, and the poll leaves nothing due at `now`.
+#[test]
+fn en50325_5_6_3_a_fault_found_by_a_poll_sends_its_gfc_in_that_poll() {
+    let (mut node, mut sink) = booted(1, |config| {
+        config.event_driven = true;
+        config.gfc_on_fault = true;
+    });
+    validate(&mut node);
+    start(&mut node, Instant::ZERO, &mut sink);
+    sink.take();
+    let now = us(65_535);
+    let deadline = node.poll(now, &mut sink);
+    assert!(deadline > now, "{deadline:?} at {now:?}");
+    assert!(sink.frames.contains(&gfc::frame()));
+    assert!(sink.events.contains(&Event::GfcSent));
+}
