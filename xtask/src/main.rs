@@ -1,1 +1,155 @@
-fn main() {}
+//! `cargo xtask`: the project's one entry point for building, testing, running and measuring.
+//!
+//! Every command sets up what it needs first (the cross target, say) and says what it did, so
+//! a fresh clone needs nothing but a Rust toolchain.
+
+mod bench;
+mod images;
+mod toolchain;
+
+use anyhow::{Result, bail};
+use clap::{Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+#[derive(Parser)]
+#[command(
+    name = "cargo xtask",
+    about = "Build, test, run and measure the CANopen Safety node"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Task,
+}
+
+#[derive(Subcommand)]
+enum Task {
+    /// Install what the other tasks need: the thumbv7em-none-eabihf target (rustup, or
+    /// Debian's rust-web packages as a fallback), clippy and rustfmt. Idempotent.
+    Setup {
+        /// Also install probe-rs-tools and defmt-print (about 7 minutes of compiling).
+        #[arg(long)]
+        probe_rs: bool,
+    },
+    /// Build both firmware images (release) and check their size against the budgets.
+    Build,
+    /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared` and the images.
+    Test,
+    /// The main job: a host demo of a producer and a consumer node exchanging SRDOs under
+    /// simulated time, with an emergency stop and injected faults.
+    Run {
+        /// Arguments for the demo (`cargo xtask run -- --help`).
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
+    /// Instruction counts (callgrind) for the hot paths, and the RAM per SRDO; writes
+    /// docs/performance.md.
+    Bench {
+        /// Check the counts against the targets and fail when one is exceeded.
+        #[arg(long)]
+        check: bool,
+    },
+    /// Run every fuzz target for a while (needs the nightly toolchain and cargo-fuzz).
+    Fuzz {
+        /// Seconds per target.
+        #[arg(long, default_value_t = 60)]
+        seconds: u32,
+    },
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let root = workspace_root();
+    match cli.command {
+        Task::Setup { probe_rs } => toolchain::setup(probe_rs),
+        Task::Build => {
+            let cross = toolchain::ensure()?;
+            images::build(&root, &cross)
+        }
+        Task::Test => test(&root),
+        Task::Run { args } => {
+            let mut command = cargo();
+            command.args([
+                "run",
+                "--quiet",
+                "--release",
+                "-p",
+                "system-tests",
+                "--bin",
+                "demo",
+                "--",
+            ]);
+            command.args(args);
+            run(&mut command)
+        }
+        Task::Bench { check } => bench::run(&root, check),
+        Task::Fuzz { seconds } => fuzz(&root, seconds),
+    }
+}
+
+/// `cargo test`, clippy, rustfmt, and the cross builds, in the order a failure is cheapest.
+fn test(root: &Path) -> Result<()> {
+    let cross = toolchain::ensure()?;
+    step("rustfmt");
+    run(cargo().args(["fmt", "--all", "--check"]))?;
+    step("clippy (host, every crate and target)");
+    run(cargo().args([
+        "clippy",
+        "--workspace",
+        "--all-targets",
+        "--",
+        "-D",
+        "warnings",
+    ]))?;
+    step("tests");
+    run(cargo().args(["test", "--workspace"]))?;
+    step("shared for thumbv7em-none-eabihf (no_std, no heap)");
+    run(&mut cross
+        .cargo(root)
+        .args(["build", "--release", "-p", "shared", "--features", "defmt"])
+        .finish())?;
+    step("firmware images");
+    images::build(root, &cross)?;
+    step("all checks passed");
+    Ok(())
+}
+
+fn fuzz(root: &Path, seconds: u32) -> Result<()> {
+    let fuzz_dir = root.join("shared/fuzz");
+    for target in ["node_frames", "sdo_server", "stored_parameters"] {
+        step(&format!("fuzz {target} for {seconds} s"));
+        run(Command::new("cargo")
+            .current_dir(&fuzz_dir)
+            .args(["+nightly", "fuzz", "run", target, "-O", "--"])
+            .arg(format!("-max_total_time={seconds}")))?;
+    }
+    Ok(())
+}
+
+/// The workspace root (xtask lives one level below it).
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+}
+
+/// The cargo that runs us.
+fn cargo() -> Command {
+    let mut command = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
+    command.current_dir(workspace_root());
+    command
+}
+
+/// Prints a step heading.
+fn step(what: &str) {
+    eprintln!("\n== xtask: {what}");
+}
+
+/// Runs `command`, failing with the command line when it fails.
+fn run(command: &mut Command) -> Result<()> {
+    let status = command.status()?;
+    if !status.success() {
+        bail!("`{command:?}` failed ({status})");
+    }
+    Ok(())
+}

@@ -666,6 +666,7 @@ fn srdo_record_defaults_follow_en50325_5_table5() {
 #[test]
 fn per_srdo_ram_is_within_160_bytes() {
     let per_srdo = core::mem::size_of::<SrdoRuntime>() + core::mem::size_of::<SrdoRecord>();
+    assert_eq!(per_srdo, RAM_PER_SRDO);
     println!(
         "SrdoRuntime {} + SrdoRecord {} = {} bytes per SRDO",
         core::mem::size_of::<SrdoRuntime>(),

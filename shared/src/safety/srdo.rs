@@ -280,14 +280,15 @@ pub fn gather(
 /// data (as received) to the inverted objects.
 #[inline]
 pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, inverted: u64) {
-    let (plain, inverted) = (plain.to_le_bytes(), inverted.to_le_bytes());
-    let mut at = 0usize;
+    let (mut plain, mut inverted) = (plain, inverted);
     for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
         let span = mapping.plain[pair];
-        let end = (at + usize::from(span.len)).min(8);
-        image.set(span, &plain[at..end]);
-        image.set(mapping.inverted[pair], &inverted[at..end]);
-        at = end;
+        image.put_le(span, plain);
+        image.put_le(mapping.inverted[pair], inverted);
+        // The next object's bytes follow in the frame (64-bit shift: nothing left).
+        let shift = 8 * u32::from(span.len);
+        plain = plain.checked_shr(shift).unwrap_or(0);
+        inverted = inverted.checked_shr(shift).unwrap_or(0);
     }
 }
 

@@ -1,0 +1,218 @@
+//! The three hot paths of the protocol core as a plain program, for instruction counting:
+//! `cargo xtask bench` runs it under callgrind, counting only inside the three measured
+//! functions (`--toggle-collect`), and divides by the iterations.
+//!
+//! ```text
+//! hot_paths <validated-pair|produced-pair|idle-poll> <iterations>
+//! ```
+//!
+//! - `validated-pair`: an 8-byte SRDO pair received by an Operational consumer (node 33):
+//!   both frames in, identifier lookup, order, SRVT and SCT checks, bit-by-bit inversion,
+//!   data delivered to the object dictionary.
+//! - `produced-pair`: a cyclic transmission of an 8-byte SRDO by a producer (node 1): the
+//!   poll that finds it due gathers the mapped data, checks the halves and hands both frames
+//!   to the sink.
+//! - `idle-poll`: a poll with nothing due.
+
+use shared::canopen::od::Address;
+use shared::canopen::sdo_client;
+use shared::canopen::storage::RamFlash;
+use shared::canopen::{NodeId, nmt};
+use shared::node::{Event, Node, NodeConfig, Sink};
+use shared::process_image::{Access, AppObject, Mappable};
+use shared::{CanFrame, CanId, Duration, Instant};
+use std::hint::black_box;
+
+const fn object(index: u16, mappable: Mappable) -> AppObject {
+    AppObject {
+        address: Address::new(index, 1),
+        len: 4,
+        access: Access::ReadOnly,
+        mappable,
+    }
+}
+
+/// Two 32-bit inputs and two 32-bit outputs, each with its inverted copy: 8 bytes per frame.
+static OBJECTS: [AppObject; 8] = [
+    object(0x6000, Mappable::Transmit),
+    object(0x6001, Mappable::Transmit),
+    object(0x6002, Mappable::Transmit),
+    object(0x6003, Mappable::Transmit),
+    object(0x6200, Mappable::Receive),
+    object(0x6201, Mappable::Receive),
+    object(0x6202, Mappable::Receive),
+    object(0x6203, Mappable::Receive),
+];
+
+fn config(node_id: u8) -> NodeConfig {
+    NodeConfig {
+        node_id: NodeId::new(node_id).expect("valid node-ID"),
+        device_type: 0x0001_0191,
+        device_name: "bench",
+        identity: [0; 4],
+        app_objects: &OBJECTS,
+        default_transmit_mapping: &[0x6000_0120, 0x6001_0120, 0x6002_0120, 0x6003_0120],
+        default_receive_mapping: &[0x6200_0120, 0x6201_0120, 0x6202_0120, 0x6203_0120],
+        heartbeat_ms: 0,
+        sdo_timeout: Duration::from_millis(500),
+        event_driven: false,
+        gfc_on_fault: false,
+    }
+}
+
+/// Keeps what it is handed observable, so nothing is optimised away.
+#[derive(Default)]
+pub struct Counter {
+    frames: u32,
+    events: u32,
+    last: Option<CanFrame>,
+}
+
+impl Sink for Counter {
+    fn transmit(&mut self, frame: CanFrame) {
+        self.frames += 1;
+        self.last = Some(black_box(frame));
+    }
+    fn event(&mut self, event: Event) {
+        self.events += 1;
+        black_box(event);
+    }
+}
+
+/// The node type measured: one SRDO.
+pub type BenchNode = Node<RamFlash<4096>, 1>;
+
+/// A node with the pre-defined SRDO 1, validated over SDO and started at t = 0.
+pub fn operational(node_id: u8) -> BenchNode {
+    let mut node = BenchNode::new(config(node_id), RamFlash::new()).expect("valid node");
+    let mut sink = Counter::default();
+    node.poll(Instant::ZERO, &mut sink);
+    if node_id <= 32 {
+        // Inputs that are exact inverses of each other.
+        node.write_object(Address::new(0x6001, 1), &[0xFF; 4])
+            .expect("input");
+        node.write_object(Address::new(0x6003, 1), &[0xFF; 4])
+            .expect("input");
+    }
+    let signature = shared::safety::signature::compute(&node.safety_config().srdos[0]);
+    let sdo = CanId::new(0x600 + u16::from(node_id)).expect("valid id");
+    let mut exchange = |request: [u8; 8]| {
+        let mut sink = Counter::default();
+        let frame = CanFrame::new(sdo, &request).expect("8 bytes");
+        node.handle_frame(Instant::ZERO, &frame, &mut sink);
+        sink.last.and_then(|f| f.data().try_into().ok())
+    };
+    sdo_client::download(
+        &mut exchange,
+        Address::new(0x13FF, 1),
+        &signature.to_le_bytes(),
+    )
+    .expect("signature accepted");
+    sdo_client::download(&mut exchange, Address::new(0x13FE, 0), &[0xA5]).expect("valid");
+    node.handle_frame(
+        Instant::ZERO,
+        &nmt::command_frame(nmt::NmtCommand::Start, 0),
+        &mut sink,
+    );
+    assert!(
+        node.is_working(),
+        "node {node_id} is Operational and working"
+    );
+    node
+}
+
+/// The `i`-th valid pair for node 33's SRDO 1: varying data and its exact inverse.
+pub fn pair_frames(i: u64) -> (CanFrame, CanFrame) {
+    let value = i.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    let plain = CanFrame::new(CanId::new(0x141).expect("id"), &value.to_le_bytes());
+    let inverted = CanFrame::new(CanId::new(0x142).expect("id"), &(!value).to_le_bytes());
+    (plain.expect("frame"), inverted.expect("frame"))
+}
+
+// The measured functions: callgrind counts only inside them (`--toggle-collect`), so building
+// the frames and the loop around them are not counted.
+
+/// Measured: both frames of a valid pair into the consumer.
+#[inline(never)]
+pub fn receive_pair(
+    node: &mut BenchNode,
+    at: Instant,
+    plain: &CanFrame,
+    inverted: &CanFrame,
+    sink: &mut Counter,
+) {
+    node.handle_frame(at, plain, sink);
+    node.handle_frame(at + Duration::from_micros(300), inverted, sink);
+}
+
+/// Measured: the poll at which a cyclic transmission is due.
+#[inline(never)]
+pub fn produce(node: &mut BenchNode, due: Instant, sink: &mut Counter) -> Instant {
+    node.poll(due, sink)
+}
+
+/// Measured: a poll with nothing due.
+#[inline(never)]
+pub fn idle(node: &mut BenchNode, now: Instant, sink: &mut Counter) -> Instant {
+    node.poll(now, sink)
+}
+
+fn validated_pair(iterations: u64) -> Counter {
+    let mut node = operational(33);
+    let mut sink = Counter::default();
+    for i in 0..iterations {
+        let (plain, inverted) = pair_frames(i);
+        let at = Instant::from_millis(10 * (i + 1));
+        receive_pair(&mut node, at, &plain, &inverted, &mut sink);
+    }
+    assert!(node.is_working(), "every pair was valid");
+    assert_eq!(sink.events as u64, iterations, "every pair was delivered");
+    sink
+}
+
+fn produced_pair(iterations: u64) -> Counter {
+    let mut node = operational(1);
+    let mut sink = Counter::default();
+    // The first transmission is due 0.5 ms after entering Operational (DSP 304 9.5).
+    let mut due = node.poll(Instant::ZERO, &mut sink);
+    for _ in 0..iterations {
+        due = produce(&mut node, due, &mut sink);
+    }
+    assert_eq!(sink.frames as u64, 2 * iterations, "a pair per poll");
+    sink
+}
+
+fn idle_poll(iterations: u64) -> Counter {
+    let mut node = operational(33);
+    let mut sink = Counter::default();
+    let now = Instant::from_millis(1);
+    let mut deadline = node.poll(now, &mut sink);
+    for _ in 0..iterations {
+        deadline = idle(&mut node, now, &mut sink);
+    }
+    black_box(deadline);
+    assert_eq!(sink.frames, 0, "nothing was due");
+    sink
+}
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let (Some(path), Some(iterations)) = (args.next(), args.next()) else {
+        eprintln!("usage: hot_paths <validated-pair|produced-pair|idle-poll> <iterations>");
+        std::process::exit(2);
+    };
+    let Ok(iterations) = iterations.parse::<u64>() else {
+        eprintln!("iterations must be a number, not {iterations:?}");
+        std::process::exit(2);
+    };
+    let sink = match path.as_str() {
+        "validated-pair" => validated_pair(iterations),
+        "produced-pair" => produced_pair(iterations),
+        "idle-poll" => idle_poll(iterations),
+        other => {
+            eprintln!("unknown hot path {other:?}");
+            std::process::exit(2);
+        }
+    };
+    black_box(sink.last);
+}

@@ -1,0 +1,206 @@
+//! `cargo xtask bench`: instruction counts of the hot paths (callgrind) and RAM per SRDO on
+//! the target, written to `docs/performance.md`.
+//!
+//! Instruction counts, unlike times, repeat exactly for the same binary and input whatever
+//! else the machine does, so they can be compared with the reference figures and across
+//! commits. Wall time is in `cargo bench -p shared --bench wall_time` (criterion).
+
+use crate::toolchain::{self, TARGET};
+use anyhow::{Context, Result, bail};
+use object::{Object, ObjectSection, ObjectSymbol};
+use std::fmt::Write as _;
+use std::path::Path;
+use std::process::Command;
+
+/// Iterations per measured path.
+const ITERATIONS: u64 = 10_000;
+
+/// One measured path: the example's mode, the function callgrind counts inside, the target
+/// and the reference C stack's figure (x86-64).
+struct HotPath {
+    mode: &'static str,
+    function: &'static str,
+    what: &'static str,
+    target: u64,
+    reference: u64,
+}
+
+const PATHS: [HotPath; 3] = [
+    HotPath {
+        mode: "validated-pair",
+        function: "receive_pair",
+        what: "validated 8-byte SRDO pair received",
+        target: 345,
+        reference: 689,
+    },
+    HotPath {
+        mode: "produced-pair",
+        function: "produce",
+        what: "8-byte SRDO pair produced",
+        target: 345,
+        reference: 622,
+    },
+    HotPath {
+        mode: "idle-poll",
+        function: "idle",
+        what: "idle poll, nothing due",
+        target: 40,
+        reference: 85,
+    },
+];
+
+/// RAM per SRDO target and the reference C stack's figure (Cortex-M4).
+const RAM_TARGET: u64 = 160;
+const RAM_REFERENCE: u64 = 676;
+
+pub fn run(root: &Path, check: bool) -> Result<()> {
+    toolchain::require("valgrind", "install Debian's valgrind package")?;
+    crate::step("hot paths (release build of shared/examples/hot_paths.rs)");
+    crate::run(crate::cargo().args([
+        "build",
+        "--release",
+        "-p",
+        "shared",
+        "--example",
+        "hot_paths",
+    ]))?;
+    let binary = root.join("target/release/examples/hot_paths");
+    let mut rows = Vec::new();
+    for path in &PATHS {
+        let out = std::env::temp_dir().join(format!("callgrind.{}.out", path.mode));
+        let status = Command::new("valgrind")
+            .arg("--tool=callgrind")
+            .arg(format!("--toggle-collect=hot_paths::{}", path.function))
+            .arg(format!("--callgrind-out-file={}", out.display()))
+            .arg(&binary)
+            .args([path.mode, &ITERATIONS.to_string()])
+            .stderr(std::process::Stdio::null())
+            .status()?;
+        if !status.success() {
+            bail!("{} under callgrind failed ({status})", path.mode);
+        }
+        let total = totals(&std::fs::read_to_string(&out)?)
+            .with_context(|| format!("no totals in {}", out.display()))?;
+        rows.push((path, total as f64 / ITERATIONS as f64));
+    }
+
+    crate::step("RAM per SRDO in the thumbv7em image");
+    let cross = toolchain::ensure()?;
+    crate::run(
+        &mut cross
+            .cargo(root)
+            .args(["build", "--release", "-p", "channel-a"])
+            .finish(),
+    )?;
+    let image = cross
+        .target_dir(root)
+        .join(TARGET)
+        .join("release/channel-a");
+    let ram = symbol_u32(&image, "SHARED_RAM_PER_SRDO")?;
+
+    let report = render(&rows, ram, &rustc_version());
+    let docs = root.join("docs");
+    std::fs::create_dir_all(&docs)?;
+    std::fs::write(docs.join("performance.md"), &report)?;
+    println!("{report}");
+
+    let mut over = Vec::new();
+    for (path, per_op) in &rows {
+        if *per_op > path.target as f64 {
+            over.push(format!("{}: {per_op:.0} > {}", path.what, path.target));
+        }
+    }
+    if u64::from(ram) > RAM_TARGET {
+        over.push(format!("RAM per SRDO: {ram} > {RAM_TARGET}"));
+    }
+    if !over.is_empty() {
+        let message = format!("over target: {}", over.join("; "));
+        if check {
+            bail!(message);
+        }
+        eprintln!("xtask: {message}");
+    }
+    Ok(())
+}
+
+/// The `totals:` (or `summary:`) line of a callgrind output file.
+fn totals(callgrind: &str) -> Option<u64> {
+    callgrind
+        .lines()
+        .find_map(|line| {
+            line.strip_prefix("totals:")
+                .or(line.strip_prefix("summary:"))
+        })
+        .and_then(|value| value.split_whitespace().next())
+        .and_then(|value| value.parse().ok())
+}
+
+/// The value of a `u32` static in an ELF image.
+fn symbol_u32(elf: &Path, name: &str) -> Result<u32> {
+    let bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let file = object::File::parse(&*bytes)?;
+    let symbol = file
+        .symbols()
+        .find(|symbol| symbol.name() == Ok(name))
+        .with_context(|| format!("{name} not in {}", elf.display()))?;
+    let section =
+        file.section_by_index(symbol.section_index().context("symbol without section")?)?;
+    let offset = symbol.address() - section.address();
+    let data = section.data()?;
+    let start = usize::try_from(offset)?;
+    let value = data
+        .get(start..start + 4)
+        .context("symbol outside its section")?;
+    Ok(u32::from_le_bytes(value.try_into()?))
+}
+
+fn rustc_version() -> String {
+    Command::new("rustc")
+        .arg("--version")
+        .output()
+        .ok()
+        .map(|out| String::from_utf8_lossy(&out.stdout).trim().to_owned())
+        .unwrap_or_else(|| "rustc (unknown version)".to_owned())
+}
+
+fn render(rows: &[(&HotPath, f64)], ram: u32, rustc: &str) -> String {
+    let mut md = String::new();
+    let _ = writeln!(md, "# Performance of the protocol core\n");
+    let _ = writeln!(
+        md,
+        "Generated by `cargo xtask bench` ({rustc}, x86-64, release profile). Instruction \
+         counts are callgrind's, counted only inside the measured function, over {ITERATIONS} \
+         iterations, divided by the iterations; they repeat exactly for the same binary. The \
+         reference is the best open-source C stack on the same paths.\n"
+    );
+    let _ = writeln!(md, "| path | instructions | target | reference C stack |");
+    let _ = writeln!(md, "|------|-------------:|-------:|------------------:|");
+    for (path, per_op) in rows {
+        let _ = writeln!(
+            md,
+            "| {} | {per_op:.0} | ≤ {} | {} |",
+            path.what, path.target, path.reference
+        );
+    }
+    let _ = writeln!(
+        md,
+        "| RAM per SRDO (state + mapping + record), thumbv7em | {ram} bytes | ≤ {RAM_TARGET} | {RAM_REFERENCE} |\n"
+    );
+    let _ = writeln!(
+        md,
+        "What is measured (see `shared/examples/hot_paths.rs`):\n\n\
+         - *validated pair*: node 33, Operational, SRDO 1 mapped to two 32-bit outputs with \
+         their inverted copies (8 bytes per frame). Both frames through `Node::handle_frame`: \
+         identifier lookup, order, SRVT and SCT checks, bit-by-bit inversion, delivery into the \
+         object dictionary and the `SrdoReceived` event.\n\
+         - *produced pair*: node 1, the poll at which the cyclic transmission is due: gather the \
+         mapped inputs, check that the halves are inverses, hand both frames to the sink, \
+         reschedule.\n\
+         - *idle poll*: `Node::poll` before the next deadline.\n\
+         - *RAM per SRDO*: `shared::node::RAM_PER_SRDO` as compiled into the channel-a image \
+         (read from the ELF symbol `SHARED_RAM_PER_SRDO`); a compile-time assertion keeps it \
+         at or below {RAM_TARGET} on every target.\n\n\
+         Wall time: `cargo bench -p shared --bench wall_time` (criterion; machine-dependent)."
+    );
+    md
+}

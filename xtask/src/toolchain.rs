@@ -1,0 +1,217 @@
+//! Getting a compiler for `thumbv7em-none-eabihf`.
+//!
+//! The normal path is rustup's prebuilt target. Where rustup cannot fetch it, Debian's
+//! `rustc-web`/`cargo-web` with `rust-web-src` can build `core` from source
+//! (`-Zbuild-std=core`); that path uses its own target directory so the two never mix.
+
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+/// The firmware target.
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+
+/// How firmware is compiled on this machine.
+pub enum Cross {
+    /// rustup's prebuilt `core` for the target.
+    Rustup,
+    /// Debian's compiler building `core` from source; `linker` when rust-lld is missing.
+    Debian { linker: Option<String> },
+}
+
+impl Cross {
+    /// `cargo <args…>` for the target, run from the workspace root.
+    pub fn cargo(&self, root: &Path) -> CrossCommand {
+        let mut command = match self {
+            Cross::Rustup => {
+                Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()))
+            }
+            Cross::Debian { linker } => {
+                let mut command = Command::new("/usr/bin/cargo");
+                command
+                    .env("RUSTC", "/usr/bin/rustc")
+                    .env("RUSTC_BOOTSTRAP", "1");
+                if let Some(linker) = linker {
+                    command.env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", linker);
+                }
+                command
+            }
+        };
+        command.current_dir(root);
+        CrossCommand {
+            command,
+            debian: matches!(self, Cross::Debian { .. }),
+            target_dir: self.target_dir(root),
+        }
+    }
+
+    /// Where this toolchain's artifacts go.
+    pub fn target_dir(&self, root: &Path) -> PathBuf {
+        match self {
+            Cross::Rustup => root.join("target"),
+            Cross::Debian { .. } => root.join("target/debian-build-std"),
+        }
+    }
+}
+
+/// A cargo command that gets the target flags appended after the caller's arguments.
+pub struct CrossCommand {
+    command: Command,
+    debian: bool,
+    target_dir: PathBuf,
+}
+
+impl CrossCommand {
+    /// Adds arguments (the subcommand first).
+    pub fn args<'a>(mut self, args: impl IntoIterator<Item = &'a str>) -> Self {
+        self.command.args(args);
+        self
+    }
+
+    /// The finished command.
+    pub fn finish(mut self) -> Command {
+        self.command.args(["--target", TARGET]);
+        self.command.arg("--target-dir").arg(&self.target_dir);
+        if self.debian {
+            self.command.arg("-Zbuild-std=core");
+        }
+        self.command
+    }
+}
+
+/// `true` when `program` can be started.
+fn exists(program: &str) -> bool {
+    Command::new(program)
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|status| status.success())
+}
+
+fn output(program: &str, args: &[&str]) -> Option<String> {
+    let out = Command::new(program).args(args).output().ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn rustup_has_target() -> bool {
+    output("rustup", &["target", "list", "--installed"])
+        .is_some_and(|list| list.lines().any(|line| line.trim() == TARGET))
+}
+
+/// Debian's toolchain, when its library source is installed.
+fn debian() -> Option<Cross> {
+    let sysroot = output("/usr/bin/rustc", &["--print", "sysroot"])?;
+    let source = Path::new(sysroot.trim()).join("lib/rustlib/src/rust/library/core");
+    if !source.is_dir() || !Path::new("/usr/bin/cargo").exists() {
+        return None;
+    }
+    let rust_lld = Path::new(sysroot.trim())
+        .join("lib/rustlib/x86_64-unknown-linux-gnu/bin/rust-lld")
+        .exists();
+    let linker = (!rust_lld).then(|| {
+        ["ld.lld-22", "ld.lld"]
+            .into_iter()
+            .find(|lld| exists(lld))
+            .unwrap_or("ld.lld-22")
+            .to_owned()
+    });
+    Some(Cross::Debian { linker })
+}
+
+/// The cross toolchain, installing the target when it is missing.
+pub fn ensure() -> Result<Cross> {
+    if exists("rustup") {
+        if !rustup_has_target() {
+            eprintln!("xtask: installing the {TARGET} target with rustup");
+            if super::run(Command::new("rustup").args(["target", "add", TARGET])).is_ok() {
+                return Ok(Cross::Rustup);
+            }
+            eprintln!("xtask: rustup could not install {TARGET}; trying Debian's toolchain");
+        } else {
+            return Ok(Cross::Rustup);
+        }
+    }
+    if let Some(cross) = debian() {
+        return Ok(cross);
+    }
+    install_debian()?;
+    debian()
+        .context("Debian's rust-web packages are installed but their library source is not found")
+}
+
+fn install_debian() -> Result<()> {
+    eprintln!("xtask: installing Debian's rustc-web, cargo-web, rust-web-src and lld-22");
+    let sudo: &[&str] = if output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0") {
+        &[]
+    } else {
+        &["sudo"]
+    };
+    let apt = |args: &[&str]| -> Result<()> {
+        let mut line: Vec<&str> = sudo.to_vec();
+        line.extend_from_slice(args);
+        super::run(
+            Command::new(line[0])
+                .args(&line[1..])
+                .env("DEBIAN_FRONTEND", "noninteractive"),
+        )
+    };
+    apt(&["apt-get", "update"])?;
+    apt(&[
+        "apt-get",
+        "install",
+        "-y",
+        "rustc-web",
+        "cargo-web",
+        "rust-web-src",
+        "lld-22",
+    ])
+}
+
+/// `cargo xtask setup`.
+pub fn setup(probe_rs: bool) -> Result<()> {
+    let cross = ensure()?;
+    match &cross {
+        Cross::Rustup => eprintln!("xtask: {TARGET}: rustup target installed"),
+        Cross::Debian { .. } => eprintln!("xtask: {TARGET}: Debian toolchain with build-std"),
+    }
+    if exists("rustup") {
+        for component in ["clippy", "rustfmt"] {
+            let installed = output("rustup", &["component", "list", "--installed"])
+                .is_some_and(|list| list.lines().any(|line| line.starts_with(component)));
+            if installed {
+                eprintln!("xtask: {component}: installed");
+            } else {
+                eprintln!("xtask: installing {component}");
+                super::run(Command::new("rustup").args(["component", "add", component]))?;
+            }
+        }
+    }
+    if probe_rs {
+        for (tool, krate) in [
+            ("probe-rs", "probe-rs-tools"),
+            ("defmt-print", "defmt-print"),
+        ] {
+            if exists(tool) {
+                eprintln!("xtask: {tool}: installed");
+            } else {
+                eprintln!("xtask: installing {krate} (cargo install --locked)");
+                super::run(Command::new("cargo").args(["install", "--locked", krate]))?;
+            }
+        }
+    }
+    if !exists("valgrind") {
+        eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
+    }
+    Ok(())
+}
+
+/// Fails with a clear message when a tool a task needs is missing.
+pub fn require(program: &str, hint: &str) -> Result<()> {
+    if !exists(program) {
+        bail!("`{program}` is not installed: {hint}");
+    }
+    Ok(())
+}
