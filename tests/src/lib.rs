@@ -1,1 +1,11 @@
-//! placeholder
+//! System tests and the host demo: CANopen Safety nodes running the real protocol core on a
+//! simulated CAN bus under simulated time.
+//!
+//! - [`bus`]: arbitration, bit timing with stuff bits, fault injection.
+//! - [`network`]: devices, a configuration tool speaking SDO and NMT over the bus, the log and
+//!   a candump trace.
+//! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
+
+pub mod bus;
+pub mod network;
+pub mod scenario;

@@ -347,6 +347,11 @@ impl<F: Flash, const N: usize> Node<F, N> {
         self.core.next_deadline = Instant::ZERO;
     }
 
+    /// The node-ID.
+    pub fn node_id(&self) -> NodeId {
+        self.core.config.node_id
+    }
+
     /// The NMT state.
     pub fn nmt_state(&self) -> NmtState {
         self.core.state

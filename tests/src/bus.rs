@@ -1,0 +1,386 @@
+//! A simulated CAN bus: arbitration by identifier, each frame on the bus for its real bit
+//! time (stuff bits included), delivered to every participant except its sender, and a fault
+//! vocabulary for injecting what real buses do.
+//!
+//! The same vocabulary ([`Fault`]) is meant for the host-side hub of the emulated network, so
+//! that a scenario written against the simulation can run against the emulator.
+
+use shared::{CanFrame, Duration, Instant};
+
+/// Bit rates CANopen devices commonly run at (CiA 301 Table 1 subset).
+pub const BIT_RATES: [u32; 4] = [125_000, 250_000, 500_000, 1_000_000];
+
+/// Bits one standard (11-bit) frame occupies on the bus: SOF to the end of the CRC with its
+/// stuff bits, then CRC delimiter, ACK slot and delimiter, end of frame and the 3-bit
+/// intermission (ISO 11898-1 10.4, 10.5).
+pub fn frame_bits(frame: &CanFrame) -> u32 {
+    let mut bits = Vec::with_capacity(98);
+    let mut push = |value: u32, width: u32| {
+        for bit in (0..width).rev() {
+            bits.push(value >> bit & 1 == 1);
+        }
+    };
+    push(0, 1); // SOF
+    push(u32::from(frame.id().raw()), 11);
+    push(u32::from(frame.is_remote()), 1); // RTR
+    push(0, 1); // IDE
+    push(0, 1); // r0
+    push(u32::from(frame.dlc()), 4);
+    if !frame.is_remote() {
+        for &byte in frame.data() {
+            push(u32::from(byte), 8);
+        }
+    }
+    let crc = crc15(&bits);
+    for bit in (0..15).rev() {
+        bits.push(crc >> bit & 1 == 1);
+    }
+    let stuffed = stuff_bits(&bits);
+    bits.len() as u32 + stuffed + 3 + 7 + 3
+}
+
+/// The CAN CRC-15 (polynomial 0x4599) over a bit stream (ISO 11898-1 10.4.2.6).
+fn crc15(bits: &[bool]) -> u16 {
+    let mut crc: u16 = 0;
+    for &bit in bits {
+        let next = bit ^ (crc >> 14 & 1 == 1);
+        crc = (crc << 1) & 0x7FFF;
+        if next {
+            crc ^= 0x4599;
+        }
+    }
+    crc
+}
+
+/// Stuff bits the transmitter inserts: after five equal bits, one of the opposite value, which
+/// counts towards the next run (ISO 11898-1 10.5).
+fn stuff_bits(bits: &[bool]) -> u32 {
+    let mut stuffed = 0;
+    let mut run = 0;
+    let mut last = None;
+    for &bit in bits {
+        if last == Some(bit) {
+            run += 1;
+        } else {
+            last = Some(bit);
+            run = 1;
+        }
+        if run == 5 {
+            stuffed += 1;
+            last = Some(!bit);
+            run = 1;
+        }
+    }
+    stuffed
+}
+
+/// How long `frame` occupies the bus at `bit_rate`.
+pub fn frame_time(frame: &CanFrame, bit_rate: u32) -> Duration {
+    let bits = u64::from(frame_bits(frame));
+    Duration::from_micros((bits * 1_000_000).div_ceil(u64::from(bit_rate)))
+}
+
+/// Which frames a fault applies to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Match {
+    /// Only frames with this identifier (any when `None`).
+    pub id: Option<u16>,
+    /// Only frames sent by this participant (any when `None`).
+    pub from: Option<usize>,
+    /// Only from this instant on.
+    pub after: Instant,
+    /// How many matching frames the fault applies to (`None`: all).
+    pub count: Option<u32>,
+}
+
+impl Match {
+    /// The next frame with identifier `id` from `after` on.
+    pub fn next_with_id(id: u16, after: Instant) -> Self {
+        Match {
+            id: Some(id),
+            from: None,
+            after,
+            count: Some(1),
+        }
+    }
+
+    /// Every frame of participant `from`, from `after` on.
+    pub fn all_from(from: usize, after: Instant) -> Self {
+        Match {
+            id: None,
+            from: Some(from),
+            after,
+            count: None,
+        }
+    }
+}
+
+/// What happens to a matching frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fault {
+    /// The frame is lost: no receiver sees it (a receiver-side error frame that the sender
+    /// does not repeat, or a frame filtered out on its way).
+    Drop,
+    /// Data byte `byte` is XOR-ed with `mask` after the CRC check, as a faulty controller or
+    /// gateway would pass it on.
+    Corrupt {
+        /// Index of the data byte.
+        byte: usize,
+        /// Bits flipped.
+        mask: u8,
+    },
+    /// Delivered this much later than it ended on the bus (a store-and-forward gateway).
+    Delay(Duration),
+    /// Delivered twice.
+    Repeat,
+    /// The sender's frames never reach the bus (a muted or disconnected participant).
+    Mute,
+}
+
+/// A fault and the frames it applies to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Injection {
+    /// Which frames.
+    pub when: Match,
+    /// What happens to them.
+    pub fault: Fault,
+    /// How many frames it has been applied to.
+    pub applied: u32,
+}
+
+impl Injection {
+    /// `fault` for the frames `when` selects.
+    pub fn new(when: Match, fault: Fault) -> Self {
+        Injection {
+            when,
+            fault,
+            applied: 0,
+        }
+    }
+
+    fn matches(&self, frame: &CanFrame, from: usize, now: Instant) -> bool {
+        now >= self.when.after
+            && self.when.id.is_none_or(|id| id == frame.id().raw())
+            && self.when.from.is_none_or(|sender| sender == from)
+            && self.when.count.is_none_or(|count| self.applied < count)
+    }
+}
+
+/// A frame on its way to the receivers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Delivery {
+    /// When the receivers get it.
+    pub at: Instant,
+    /// The frame as received.
+    pub frame: CanFrame,
+    /// Who sent it (it is not delivered back to the sender).
+    pub from: usize,
+}
+
+/// The bus: one transmit queue per participant, arbitration, timing and faults.
+#[derive(Debug)]
+pub struct Bus {
+    bit_rate: u32,
+    queues: Vec<std::collections::VecDeque<CanFrame>>,
+    /// The bus is busy until then.
+    free_at: Instant,
+    injections: Vec<Injection>,
+    /// Frames sent, for statistics: (sent, bits on the bus).
+    pub frames_sent: u64,
+    /// Bits the frames occupied.
+    pub bits_sent: u64,
+}
+
+impl Bus {
+    /// A bus at `bit_rate` with `participants` participants.
+    pub fn new(bit_rate: u32, participants: usize) -> Self {
+        Bus {
+            bit_rate,
+            queues: vec![Default::default(); participants],
+            free_at: Instant::ZERO,
+            injections: Vec::new(),
+            frames_sent: 0,
+            bits_sent: 0,
+        }
+    }
+
+    /// The bit rate.
+    pub fn bit_rate(&self) -> u32 {
+        self.bit_rate
+    }
+
+    /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO).
+    pub fn send(&mut self, from: usize, frame: CanFrame) {
+        if let Some(queue) = self.queues.get_mut(from) {
+            queue.push_back(frame);
+        }
+    }
+
+    /// Adds a fault.
+    pub fn inject(&mut self, injection: Injection) {
+        self.injections.push(injection);
+    }
+
+    /// Removes every fault.
+    pub fn clear_faults(&mut self) {
+        self.injections.clear();
+    }
+
+    /// When the next arbitration can start, if anything is waiting.
+    pub fn next_start(&self, now: Instant) -> Option<Instant> {
+        self.queues
+            .iter()
+            .any(|queue| !queue.is_empty())
+            .then(|| self.free_at.max(now))
+    }
+
+    /// Runs one arbitration at `now` (the bus must be free): the lowest identifier among the
+    /// queue heads wins; returns the deliveries it causes (none for a dropped or muted frame,
+    /// two for a repeated one).
+    pub fn arbitrate(&mut self, now: Instant) -> Vec<Delivery> {
+        if now < self.free_at {
+            return Vec::new();
+        }
+        // Identifier order; at equal identifiers a data frame wins over a remote frame.
+        let winner = self
+            .queues
+            .iter()
+            .enumerate()
+            .filter_map(|(index, queue)| queue.front().map(|frame| (index, *frame)))
+            .min_by_key(|(_, frame)| (frame.id().raw(), frame.is_remote()));
+        let Some((from, frame)) = winner else {
+            return Vec::new();
+        };
+        self.queues[from].pop_front();
+        let mut delivered = frame;
+        let mut at = now;
+        let mut copies = 1;
+        for injection in self.injections.iter_mut() {
+            if !injection.matches(&frame, from, now) {
+                continue;
+            }
+            injection.applied += 1;
+            match injection.fault {
+                Fault::Mute => return Vec::new(),
+                Fault::Drop => copies = 0,
+                Fault::Corrupt { byte, mask } => {
+                    let mut data = *delivered.raw_data();
+                    if let Some(target) = data.get_mut(byte) {
+                        *target ^= mask;
+                    }
+                    if let Ok(corrupted) =
+                        CanFrame::from_parts(delivered.id(), delivered.dlc(), data)
+                    {
+                        delivered = corrupted;
+                    }
+                }
+                Fault::Delay(delay) => at = at + delay,
+                Fault::Repeat => copies = 2,
+            }
+        }
+        let duration = frame_time(&frame, self.bit_rate);
+        self.free_at = now + duration;
+        self.frames_sent += 1;
+        self.bits_sent += u64::from(frame_bits(&frame));
+        let end = at + duration;
+        let mut deliveries = Vec::new();
+        for copy in 0..copies {
+            // A repeated frame occupies the bus again right after the first.
+            let extra = Duration::from_micros(duration.as_micros() * copy);
+            deliveries.push(Delivery {
+                at: end + extra,
+                frame: delivered,
+                from,
+            });
+        }
+        if copies == 2 {
+            self.free_at = self.free_at + duration;
+        }
+        deliveries
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::CanId;
+
+    fn frame(id: u16, data: &[u8]) -> CanFrame {
+        CanFrame::new(CanId::new(id).unwrap(), data).unwrap()
+    }
+
+    /// ISO 11898-1: an all-dominant header gives a stuff bit after every fifth bit.
+    #[test]
+    fn bit_time_counts_stuff_bits() {
+        // 19 header bits and a CRC of 0, all dominant: 34 bits, 6 stuff bits, 13 trailing.
+        assert_eq!(frame_bits(&frame(0x000, &[])), 34 + 6 + 13);
+        // A frame never takes fewer than its unstuffed bits nor more than the worst case.
+        for id in [0x000u16, 0x101, 0x555, 0x7FF] {
+            for len in 0..=8usize {
+                for fill in [0x00u8, 0xFF, 0xAA, 0x0F] {
+                    let bits = frame_bits(&frame(id, &vec![fill; len]));
+                    let unstuffed = 47 + 8 * len as u32;
+                    let stuffable = 34 + 8 * len as u32;
+                    assert!(bits >= unstuffed, "{id:03X} {len} {fill:02X}");
+                    assert!(
+                        bits <= unstuffed + (stuffable - 1) / 4,
+                        "{id:03X} {len} {fill:02X}"
+                    );
+                }
+            }
+        }
+        // An 8-byte SRDO frame at 500 kbit/s takes 2 µs per bit.
+        let srdo = frame(0x101, &[0x55; 8]);
+        assert_eq!(
+            frame_time(&srdo, 500_000).as_micros(),
+            u64::from(frame_bits(&srdo)) * 2
+        );
+    }
+
+    #[test]
+    fn lowest_identifier_wins_arbitration_and_the_sender_waits() {
+        let mut bus = Bus::new(500_000, 3);
+        bus.send(0, frame(0x102, &[1]));
+        bus.send(1, frame(0x701, &[5]));
+        bus.send(2, frame(0x081, &[0; 8]));
+        let first = bus.arbitrate(Instant::ZERO);
+        assert_eq!(first[0].frame.id().raw(), 0x081);
+        assert_eq!(first[0].from, 2);
+        // The bus is busy until the first frame has ended.
+        assert_eq!(bus.next_start(Instant::ZERO), Some(first[0].at));
+        assert!(bus.arbitrate(Instant::ZERO).is_empty());
+        let second = bus.arbitrate(first[0].at);
+        assert_eq!(second[0].frame.id().raw(), 0x102);
+        let third = bus.arbitrate(second[0].at);
+        assert_eq!(third[0].frame.id().raw(), 0x701);
+        assert_eq!(bus.next_start(third[0].at), None);
+    }
+
+    #[test]
+    fn faults_apply_to_the_frames_they_match() {
+        let mut bus = Bus::new(250_000, 2);
+        bus.inject(Injection::new(
+            Match::next_with_id(0x102, Instant::ZERO),
+            Fault::Corrupt {
+                byte: 0,
+                mask: 0x01,
+            },
+        ));
+        bus.inject(Injection::new(
+            Match::all_from(1, Instant::ZERO),
+            Fault::Mute,
+        ));
+        bus.send(0, frame(0x102, &[0xFE]));
+        bus.send(1, frame(0x101, &[0x01]));
+        assert!(bus.arbitrate(Instant::ZERO).is_empty(), "muted");
+        let corrupted = bus.arbitrate(Instant::ZERO);
+        assert_eq!(corrupted[0].frame.data(), &[0xFF]);
+        bus.send(0, frame(0x102, &[0xFE]));
+        let clean = bus.arbitrate(Instant::from_millis(1));
+        assert_eq!(
+            clean[0].frame.data(),
+            &[0xFE],
+            "the corruption applied once"
+        );
+    }
+}
