@@ -177,6 +177,11 @@ impl SrdoRuntime {
     };
 }
 
+/// EMCY 6300h detail byte 1 when the stored parameters were unusable at boot (byte 0 is 0:
+/// no particular SRDO). Distinct from every [`ConfigError`](crate::safety::config::ConfigError)
+/// cause code.
+pub const STORED_PARAMETERS_REJECTED: u8 = 0xF0;
+
 /// RAM per SRDO, in bytes: its run-time state with the resolved mapping ([`SrdoRuntime`]) and
 /// its configuration record. The identifier table (128 bytes) and the rest of the node are per
 /// node, not per SRDO. `cargo xtask bench` reports the figure measured in the thumbv7em image.
@@ -493,6 +498,10 @@ impl<F: Flash, const N: usize> Core<F, N> {
 
     /// Power-on or reset: boot-up message, then Pre-operational (CiA 301 7.3.2.2.1).
     fn boot(&mut self, now: Instant, sink: &mut impl Sink) {
+        let rejected = matches!(
+            self.deferred_event,
+            Some(Event::StoredParametersRejected(_))
+        );
         if let Some(event) = self.deferred_event.take() {
             sink.event(event);
         }
@@ -502,6 +511,16 @@ impl<F: Flash, const N: usize> Core<F, N> {
         ));
         self.heartbeat.set_period(self.heartbeat.period_ms(), now);
         self.change_state(NmtState::PreOperational, sink);
+        if rejected {
+            // The stored configuration is unusable and the defaults (not validated) are in
+            // force: say so on the bus, after the boot-up message (CiA 301 7.2.7).
+            self.error_register |= emcy::register::GENERIC | emcy::register::PROFILE;
+            self.send_emergency(
+                emcy::code::DATA_SET,
+                [0, STORED_PARAMETERS_REJECTED, 0, 0, 0],
+                sink,
+            );
+        }
     }
 
     /// NMT reset node or reset communication: parameters back to their stored (or default)
