@@ -1,0 +1,279 @@
+//! The inter-MCU link between channel A and channel B of one safety node (EN 50325-5 Annex A.4,
+//! Model III): the message set, its framing on the USART, and the receiver's checks.
+//!
+//! Sans-I/O like the protocol core: the sender turns a [`Message`] into bytes for the UART,
+//! the receiver is fed bytes and `now`, and reports messages, faults and its deadline.
+//!
+//! # Framing
+//!
+//! ```text
+//! COBS( sequence: u16 LE | postcard(Message) | CRC-32 LE over the preceding bytes ) 0x00
+//! ```
+//!
+//! COBS (the `cobs` crate) makes 0x00 a reliable frame delimiter, so a receiver that starts
+//! mid-stream or loses bytes resynchronises at the next delimiter. postcard serialises the
+//! message; the CRC-32 (ISO-HDLC, the `crc` crate) detects corruption; the sequence number
+//! detects lost, repeated and reordered messages.
+//!
+//! # Faults
+//!
+//! A corrupt, malformed, missing (sequence gap), repeated or late message is a [`LinkFault`];
+//! the channel treats every one as a reason for the safe state (issue: "a missing, late,
+//! repeated or corrupt message is a fault"). The receiver resynchronises afterwards so that the
+//! channels can agree again after an NMT reset.
+
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+use crc::{CRC_32_ISO_HDLC, Crc};
+use serde::{Deserialize, Serialize};
+use shared::{Duration, Instant};
+
+/// CRC-32 of every link frame.
+const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+
+/// Largest unencoded frame: sequence (2) + the largest message (postcard, at most 24) + CRC (4).
+const MAX_RAW: usize = 32;
+/// Largest frame on the wire: COBS adds at most one byte per 254, plus the delimiter.
+pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
+
+/// What one channel tells the other. Small, fixed-size values only.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Message {
+    /// Sent at least every heartbeat period (four times per smallest SCT or more): the
+    /// sender's NMT state (heartbeat code) and whether it is in its working state.
+    Heartbeat {
+        /// NMT state, as in the heartbeat message (CiA 301 7.2.8.3.2).
+        nmt: u8,
+        /// `true` in the working state, `false` in the safe state.
+        working: bool,
+    },
+    /// The sender's own sample of its safety inputs, for the input cross-check.
+    Inputs {
+        /// Input bits, channel-specific layout agreed by both.
+        sample: u32,
+    },
+    /// The sender's verdict on one received SRDO pair.
+    Verdict {
+        /// SRDO number (1..=64).
+        srdo: u8,
+        /// Count of valid pairs of this SRDO so far (identifies the pair).
+        pair: u32,
+        /// Plain data of the pair (little-endian, mapping length), 0 when not valid.
+        data: u64,
+        /// `true` when the pair passed every check.
+        valid: bool,
+    },
+    /// Channel B's plain half of a transmit SRDO differed from channel A's frame on the bus:
+    /// B did not send the inverted frame (CiA 304 9.5).
+    TransmitMismatch {
+        /// SRDO number.
+        srdo: u8,
+    },
+    /// The sender's configuration digest, before Operational and periodically after.
+    Configuration {
+        /// 0x13FE as the sender holds it.
+        valid: u8,
+        /// CRC-32 over all SRDO signatures (0x13FF sub 1..N, little-endian), computed by the
+        /// sender's own implementation.
+        signatures: u32,
+    },
+    /// The sender went to the safe state; the receiver follows (each channel can force it).
+    SafeState {
+        /// Cause code (the EMCY detail byte 1 the sender reported).
+        cause: u8,
+    },
+}
+
+/// Why the link is not trustworthy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LinkFault {
+    /// A frame failed its CRC.
+    Corrupt,
+    /// A frame could not be decoded (bad COBS, unknown message, too long, too short).
+    Malformed,
+    /// Messages were lost: this sequence number was expected, a later one came.
+    Missing {
+        /// The expected sequence number.
+        expected: u16,
+        /// The one received.
+        received: u16,
+    },
+    /// A message came again, or out of order (an earlier sequence number).
+    Repeated {
+        /// The expected sequence number.
+        expected: u16,
+        /// The one received.
+        received: u16,
+    },
+    /// No valid message within the link timeout.
+    Timeout,
+}
+
+/// Why a message could not be encoded (a bug: every message fits).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EncodeError;
+
+/// The sending side: numbers and frames messages.
+#[derive(Clone, Debug, Default)]
+pub struct Sender {
+    sequence: u16,
+}
+
+impl Sender {
+    /// A sender starting at sequence number 0.
+    pub const fn new() -> Self {
+        Sender { sequence: 0 }
+    }
+
+    /// The bytes to write to the UART for `message`, delimiter included.
+    pub fn encode(
+        &mut self,
+        message: &Message,
+    ) -> Result<heapless::Vec<u8, MAX_WIRE>, EncodeError> {
+        let mut raw = [0u8; MAX_RAW];
+        raw[..2].copy_from_slice(&self.sequence.to_le_bytes());
+        let body = postcard::to_slice(message, &mut raw[2..MAX_RAW - 4])
+            .map_err(|_| EncodeError)?
+            .len();
+        let end = 2 + body;
+        let crc = CRC.checksum(&raw[..end]);
+        raw[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+        let mut wire = [0u8; MAX_WIRE];
+        // `wire` holds the longest encoding of `MAX_RAW` bytes, so this cannot fail.
+        let len = cobs::encode(&raw[..end + 4], &mut wire);
+        let mut out = heapless::Vec::new();
+        out.extend_from_slice(&wire[..len])
+            .map_err(|_| EncodeError)?;
+        out.push(0).map_err(|_| EncodeError)?;
+        self.sequence = self.sequence.wrapping_add(1);
+        Ok(out)
+    }
+}
+
+/// The receiving side: reassembles frames, checks CRC and sequence, watches the timeout.
+#[derive(Clone, Debug)]
+pub struct Receiver {
+    buffer: heapless::Vec<u8, MAX_WIRE>,
+    overflowed: bool,
+    expected: u16,
+    timeout: Duration,
+    deadline: Instant,
+}
+
+impl Receiver {
+    /// A receiver expecting sequence number 0 and a first message within `timeout` of `now`.
+    pub fn new(now: Instant, timeout: Duration) -> Self {
+        Receiver {
+            buffer: heapless::Vec::new(),
+            overflowed: false,
+            expected: 0,
+            timeout,
+            deadline: now + timeout,
+        }
+    }
+
+    /// When [`Receiver::poll`] reports a timeout unless a valid message comes first.
+    pub fn deadline(&self) -> Instant {
+        self.deadline
+    }
+
+    /// [`LinkFault::Timeout`] once no valid message came within the timeout. Fires at the
+    /// deadline itself.
+    pub fn poll(&self, now: Instant) -> Result<(), LinkFault> {
+        if shared::time::expired(self.deadline, now) {
+            Err(LinkFault::Timeout)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Feeds one received byte; returns a message or a fault when it completes a frame.
+    pub fn receive(&mut self, now: Instant, byte: u8) -> Option<Result<Message, LinkFault>> {
+        if byte != 0 {
+            if self.buffer.push(byte).is_err() {
+                self.overflowed = true;
+            }
+            return None;
+        }
+        let overflowed = core::mem::replace(&mut self.overflowed, false);
+        if self.buffer.is_empty() && !overflowed {
+            // Two delimiters in a row: a resynchronisation or line idle, no message.
+            return None;
+        }
+        let mut raw = [0u8; MAX_WIRE];
+        let decoded = if overflowed {
+            None
+        } else {
+            cobs::decode(&self.buffer, &mut raw).ok()
+        };
+        self.buffer.clear();
+        Some(match decoded {
+            None => Err(LinkFault::Malformed),
+            Some(report) => self.check(now, raw.get(..report.frame_size()).unwrap_or_default()),
+        })
+    }
+
+    /// Checks a decoded frame: length, CRC, message, sequence.
+    fn check(&mut self, now: Instant, raw: &[u8]) -> Result<Message, LinkFault> {
+        if raw.len() < 2 + 1 + 4 {
+            return Err(LinkFault::Malformed);
+        }
+        let (payload, crc) = raw.split_at(raw.len() - 4);
+        let stored = u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]);
+        if CRC.checksum(payload) != stored {
+            return Err(LinkFault::Corrupt);
+        }
+        let sequence = u16::from_le_bytes([payload[0], payload[1]]);
+        let (message, rest) = postcard::take_from_bytes::<Message>(&payload[2..])
+            .map_err(|_| LinkFault::Malformed)?;
+        if !rest.is_empty() {
+            return Err(LinkFault::Malformed);
+        }
+        let expected = self.expected;
+        // Resynchronise on the sequence received, whatever the verdict, so that one lost
+        // message is one fault, not a fault for every message after it.
+        self.expected = sequence.wrapping_add(1);
+        match sequence_order(sequence, expected) {
+            Order::Expected => {
+                self.deadline = now + self.timeout;
+                Ok(message)
+            }
+            Order::Ahead => Err(LinkFault::Missing {
+                expected,
+                received: sequence,
+            }),
+            Order::Behind => Err(LinkFault::Repeated {
+                expected,
+                received: sequence,
+            }),
+        }
+    }
+}
+
+/// Where a received sequence number stands relative to the expected one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Order {
+    Expected,
+    Ahead,
+    Behind,
+}
+
+/// Serial-number comparison (RFC 1982) on 16 bits: the difference, read as signed, says
+/// whether `received` is ahead of or behind `expected`, across the wrap from 0xFFFF to 0.
+fn sequence_order(received: u16, expected: u16) -> Order {
+    // Reinterpreting the wrapped difference as signed is the point of the comparison.
+    #[allow(clippy::cast_possible_wrap)]
+    let difference = received.wrapping_sub(expected) as i16;
+    match difference {
+        0 => Order::Expected,
+        d if d > 0 => Order::Ahead,
+        _ => Order::Behind,
+    }
+}
+
+#[cfg(test)]
+mod tests;

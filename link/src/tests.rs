@@ -1,0 +1,205 @@
+//! Link framing and receiver checks: round trips, and every fault the issue names (missing,
+//! late, repeated, corrupt), plus no panic on any byte stream.
+
+use super::*;
+use proptest::prelude::*;
+
+const TIMEOUT: Duration = Duration::from_millis(10);
+
+fn messages() -> [Message; 6] {
+    [
+        Message::Heartbeat {
+            nmt: 0x05,
+            working: true,
+        },
+        Message::Inputs {
+            sample: 0xDEAD_BEEF,
+        },
+        Message::Verdict {
+            srdo: 64,
+            pair: u32::MAX,
+            data: u64::MAX,
+            valid: true,
+        },
+        Message::TransmitMismatch { srdo: 1 },
+        Message::Configuration {
+            valid: 0xA5,
+            signatures: 0x1234_5678,
+        },
+        Message::SafeState { cause: 0xFF },
+    ]
+}
+
+fn feed(receiver: &mut Receiver, now: Instant, bytes: &[u8]) -> Vec<Result<Message, LinkFault>> {
+    bytes
+        .iter()
+        .filter_map(|&byte| receiver.receive(now, byte))
+        .collect()
+}
+
+#[test]
+fn every_message_round_trips_and_fits_the_wire_budget() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    for message in messages() {
+        let wire = sender.encode(&message).unwrap();
+        assert_eq!(wire.last(), Some(&0), "delimited");
+        assert_eq!(wire.iter().filter(|&&b| b == 0).count(), 1, "one zero only");
+        assert_eq!(feed(&mut receiver, Instant::ZERO, &wire), [Ok(message)]);
+    }
+}
+
+#[test]
+fn a_lost_message_is_reported_once_then_the_link_resynchronises() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let heartbeat = Message::Heartbeat {
+        nmt: 5,
+        working: true,
+    };
+    feed(
+        &mut receiver,
+        Instant::ZERO,
+        &sender.encode(&heartbeat).unwrap(),
+    );
+    let _lost = sender.encode(&heartbeat).unwrap();
+    let third = sender.encode(&heartbeat).unwrap();
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &third),
+        [Err(LinkFault::Missing {
+            expected: 1,
+            received: 2
+        })]
+    );
+    let fourth = sender.encode(&heartbeat).unwrap();
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &fourth), [Ok(heartbeat)]);
+}
+
+#[test]
+fn a_repeated_message_is_a_fault() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let wire = sender.encode(&Message::SafeState { cause: 1 }).unwrap();
+    feed(&mut receiver, Instant::ZERO, &wire);
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &wire),
+        [Err(LinkFault::Repeated {
+            expected: 1,
+            received: 0
+        })]
+    );
+}
+
+#[test]
+fn a_flipped_bit_anywhere_is_never_accepted() {
+    let mut sender = Sender::new();
+    let wire = sender
+        .encode(&Message::Verdict {
+            srdo: 3,
+            pair: 77,
+            data: 0x0102_0304,
+            valid: true,
+        })
+        .unwrap();
+    for at in 0..wire.len() - 1 {
+        for bit in 0..8 {
+            let mut damaged = wire.clone();
+            damaged[at] ^= 1 << bit;
+            let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+            let results = feed(&mut receiver, Instant::ZERO, &damaged);
+            assert!(
+                results
+                    .iter()
+                    .all(|r| matches!(r, Err(LinkFault::Corrupt | LinkFault::Malformed))),
+                "byte {at} bit {bit}: {results:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_link_times_out_at_the_deadline_itself_and_each_message_extends_it() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    assert_eq!(receiver.poll(Instant::from_micros(9_999)), Ok(()));
+    assert_eq!(
+        receiver.poll(Instant::from_millis(10)),
+        Err(LinkFault::Timeout)
+    );
+    let at = Instant::from_millis(8);
+    feed(
+        &mut receiver,
+        at,
+        &sender.encode(&Message::Inputs { sample: 1 }).unwrap(),
+    );
+    assert_eq!(receiver.deadline(), at + TIMEOUT);
+    assert_eq!(receiver.poll(Instant::from_millis(17)), Ok(()));
+    assert_eq!(
+        receiver.poll(Instant::from_millis(18)),
+        Err(LinkFault::Timeout)
+    );
+}
+
+#[test]
+fn an_overlong_frame_is_malformed_and_the_next_one_is_read() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let noise = [0x55u8; 3 * MAX_WIRE];
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &noise), []);
+    assert_eq!(
+        receiver.receive(Instant::ZERO, 0),
+        Some(Err(LinkFault::Malformed))
+    );
+    let wire = sender.encode(&Message::Inputs { sample: 7 }).unwrap();
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &wire),
+        [Ok(Message::Inputs { sample: 7 })]
+    );
+    // Idle delimiters are not messages.
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &[0, 0, 0]), []);
+}
+
+#[test]
+fn sequence_numbers_compare_across_the_wrap() {
+    assert_eq!(sequence_order(0, 0xFFFF), Order::Ahead);
+    assert_eq!(sequence_order(0xFFFF, 0), Order::Behind);
+    assert_eq!(sequence_order(7, 7), Order::Expected);
+}
+
+proptest! {
+    /// Any byte stream: no panic, and noise is never accepted as a message (it would need a
+    /// valid COBS frame, a matching CRC-32 and a known message at once).
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+        let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+        for result in feed(&mut receiver, Instant::ZERO, &bytes) {
+            prop_assert!(result.is_err(), "{result:?}");
+        }
+    }
+
+    /// Any message sequence with random losses: every delivered message is the one sent with
+    /// that sequence number, and each loss is reported.
+    #[test]
+    fn losses_are_always_reported(lost in proptest::collection::vec(any::<bool>(), 1..60)) {
+        let mut sender = Sender::new();
+        let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+        let mut gap = false;
+        for (i, &drop) in lost.iter().enumerate() {
+            let message = Message::Inputs { sample: i as u32 };
+            let wire = sender.encode(&message).unwrap();
+            if drop {
+                gap = true;
+                continue;
+            }
+            let results = feed(&mut receiver, Instant::ZERO, &wire);
+            prop_assert_eq!(results.len(), 1);
+            if gap {
+                let missing = matches!(results[0], Err(LinkFault::Missing { .. }));
+                prop_assert!(missing);
+            } else {
+                prop_assert_eq!(results[0], Ok(message));
+            }
+            gap = false;
+        }
+    }
+}
