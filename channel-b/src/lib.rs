@@ -7,3 +7,6 @@
 
 /// Which MCU of the pair this image runs on.
 pub const CHANNEL: char = 'B';
+
+pub mod diverse;
+pub mod signature;

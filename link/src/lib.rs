@@ -275,5 +275,7 @@ fn sequence_order(received: u16, expected: u16) -> Order {
     }
 }
 
+pub mod crosscheck;
+
 #[cfg(test)]
 mod tests;

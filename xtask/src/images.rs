@@ -72,7 +72,12 @@ pub fn measure(elf: &Path) -> Result<Sizes> {
 
 /// Builds both images (release), prints their sizes and fails when one exceeds a budget.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
-    let mut command = cross.cargo(root).args(["build", "--release"]);
+    let mut command = cross.cargo(root).args([
+        "build",
+        "--release",
+        "--features",
+        "channel-a/defmt,channel-b/defmt",
+    ]);
     for image in IMAGES {
         command = command.args(["-p", image]);
     }

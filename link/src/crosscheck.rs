@@ -1,0 +1,249 @@
+//! The cross-check of receive SRDO verdicts between the two channels (EN 50325-5 Annex A.4,
+//! Model III; CiA 304 9.5).
+//!
+//! Each channel validates every received SRDO pair with its own copy of the protocol core and
+//! sends its verdict ([`crate::Message::Verdict`]) to the other. A pair is *confirmed* when both
+//! channels' verdicts for it agree in validity and data. A disagreement, or a verdict the other
+//! channel does not confirm within the timeout, is a [`CrossFault`]: both outputs go to the safe
+//! state.
+//!
+//! The policy for outputs that goes with it (in the channel logic): an output moves towards
+//! the safe state (0) as soon as the channel's own core says so, and away from it only with a
+//! confirmed pair.
+
+use shared::{Duration, Instant};
+
+/// One channel's verdict on one pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Verdict {
+    /// Count of valid pairs of the SRDO so far, identifying the pair.
+    pub pair: u32,
+    /// Whether the pair passed every check.
+    pub valid: bool,
+    /// Its plain data (0 when not valid).
+    pub data: u64,
+}
+
+/// Why the channels do not agree.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CrossFault {
+    /// The two verdicts on the same SRDO differ (pair, validity or data).
+    Disagreement {
+        /// SRDO number.
+        srdo: u8,
+    },
+    /// A verdict was not matched by the other channel in time.
+    Unconfirmed {
+        /// SRDO number.
+        srdo: u8,
+    },
+    /// A verdict named an SRDO this node does not have.
+    UnknownSrdo {
+        /// The SRDO number received.
+        srdo: u8,
+    },
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Slot {
+    local: Option<(Verdict, Instant)>,
+    remote: Option<(Verdict, Instant)>,
+}
+
+/// Whose verdict arrived.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Side {
+    Local,
+    Remote,
+}
+
+/// Pending verdicts of `N` SRDOs, compared as they pair up.
+#[derive(Clone, Debug)]
+pub struct VerdictCheck<const N: usize> {
+    timeout: Duration,
+    slots: [Slot; N],
+}
+
+impl<const N: usize> VerdictCheck<N> {
+    /// Verdicts must be confirmed within `timeout` of arriving.
+    pub fn new(timeout: Duration) -> Self {
+        VerdictCheck {
+            timeout,
+            slots: [Slot::default(); N],
+        }
+    }
+
+    /// This channel's verdict on SRDO `srdo` (1-based) at `now`. Returns the confirmed data
+    /// when the other channel's verdict was already there and agrees.
+    pub fn local(
+        &mut self,
+        now: Instant,
+        srdo: u8,
+        verdict: Verdict,
+    ) -> Result<Option<u64>, CrossFault> {
+        self.arrive(now, srdo, verdict, Side::Local)
+    }
+
+    /// The other channel's verdict, received over the link.
+    pub fn remote(
+        &mut self,
+        now: Instant,
+        srdo: u8,
+        verdict: Verdict,
+    ) -> Result<Option<u64>, CrossFault> {
+        self.arrive(now, srdo, verdict, Side::Remote)
+    }
+
+    fn arrive(
+        &mut self,
+        now: Instant,
+        srdo: u8,
+        verdict: Verdict,
+        side: Side,
+    ) -> Result<Option<u64>, CrossFault> {
+        let slot = usize::from(srdo)
+            .checked_sub(1)
+            .and_then(|index| self.slots.get_mut(index))
+            .ok_or(CrossFault::UnknownSrdo { srdo })?;
+        let (mine, theirs) = match side {
+            Side::Local => (&mut slot.local, &mut slot.remote),
+            Side::Remote => (&mut slot.remote, &mut slot.local),
+        };
+        if mine.is_some() {
+            // A second verdict from the same side before the first was matched: the other
+            // channel is behind or lost one.
+            *slot = Slot::default();
+            return Err(CrossFault::Unconfirmed { srdo });
+        }
+        match theirs.take() {
+            None => {
+                *mine = Some((verdict, now));
+                Ok(None)
+            }
+            // Agreement: the data when the pair was valid; nothing to drive when both found
+            // the same fault (each channel is then in its safe state already).
+            Some((other, _)) if other == verdict => Ok(verdict.valid.then_some(verdict.data)),
+            Some(_) => Err(CrossFault::Disagreement { srdo }),
+        }
+    }
+
+    /// [`CrossFault::Unconfirmed`] for a verdict older than the timeout (at the deadline itself).
+    pub fn poll(&self, now: Instant) -> Result<(), CrossFault> {
+        for (index, slot) in self.slots.iter().enumerate() {
+            for (_, since) in slot.local.iter().chain(slot.remote.iter()) {
+                if shared::time::expired(*since + self.timeout, now) {
+                    return Err(CrossFault::Unconfirmed {
+                        srdo: (index + 1) as u8,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// When [`VerdictCheck::poll`] next has something to report ([`Instant::NEVER`]: nothing).
+    pub fn deadline(&self) -> Instant {
+        self.slots
+            .iter()
+            .flat_map(|slot| slot.local.iter().chain(slot.remote.iter()))
+            .map(|(_, since)| *since + self.timeout)
+            .min()
+            .unwrap_or(Instant::NEVER)
+    }
+
+    /// Forgets every pending verdict (NMT reset).
+    pub fn reset(&mut self) {
+        self.slots = [Slot::default(); N];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TIMEOUT: Duration = Duration::from_millis(5);
+
+    fn valid(pair: u32, data: u64) -> Verdict {
+        Verdict {
+            pair,
+            valid: true,
+            data,
+        }
+    }
+
+    #[test]
+    fn agreeing_verdicts_confirm_the_data_whichever_comes_first() {
+        let mut check = VerdictCheck::<2>::new(TIMEOUT);
+        let t = Instant::from_millis(1);
+        assert_eq!(check.local(t, 1, valid(1, 0xAA)), Ok(None));
+        assert_eq!(check.deadline(), t + TIMEOUT);
+        assert_eq!(check.remote(t, 1, valid(1, 0xAA)), Ok(Some(0xAA)));
+        assert_eq!(check.deadline(), Instant::NEVER);
+        assert_eq!(check.remote(t, 2, valid(1, 0x55)), Ok(None));
+        assert_eq!(check.local(t, 2, valid(1, 0x55)), Ok(Some(0x55)));
+    }
+
+    /// Issue 4: a disagreement puts both outputs in the safe state.
+    #[test]
+    fn different_data_validity_or_pair_is_a_disagreement() {
+        let t = Instant::ZERO;
+        for other in [
+            valid(1, 0xAB),
+            valid(2, 0xAA),
+            Verdict {
+                pair: 1,
+                valid: false,
+                data: 0xAA,
+            },
+        ] {
+            let mut check = VerdictCheck::<1>::new(TIMEOUT);
+            check.local(t, 1, valid(1, 0xAA)).unwrap();
+            assert_eq!(
+                check.remote(t, 1, other),
+                Err(CrossFault::Disagreement { srdo: 1 })
+            );
+        }
+        // Two invalid verdicts agree on the fault, but confirm no data.
+        let mut check = VerdictCheck::<1>::new(TIMEOUT);
+        let invalid = Verdict {
+            pair: 3,
+            valid: false,
+            data: 0,
+        };
+        check.local(t, 1, invalid).unwrap();
+        assert_eq!(check.remote(t, 1, invalid), Ok(None));
+    }
+
+    /// Issue 4: a verdict not confirmed in time is a fault, at the deadline itself.
+    #[test]
+    fn an_unconfirmed_verdict_times_out() {
+        let mut check = VerdictCheck::<1>::new(TIMEOUT);
+        let t = Instant::from_millis(10);
+        check.remote(t, 1, valid(7, 1)).unwrap();
+        assert_eq!(check.poll(Instant::from_micros(14_999)), Ok(()));
+        assert_eq!(
+            check.poll(Instant::from_millis(15)),
+            Err(CrossFault::Unconfirmed { srdo: 1 })
+        );
+        // A second verdict from the same side before a match is a fault too.
+        let mut check = VerdictCheck::<1>::new(TIMEOUT);
+        check.local(t, 1, valid(1, 1)).unwrap();
+        assert_eq!(
+            check.local(t, 1, valid(2, 1)),
+            Err(CrossFault::Unconfirmed { srdo: 1 })
+        );
+    }
+
+    #[test]
+    fn unknown_srdo_numbers_are_refused() {
+        let mut check = VerdictCheck::<2>::new(TIMEOUT);
+        for srdo in [0u8, 3, 255] {
+            assert_eq!(
+                check.remote(Instant::ZERO, srdo, valid(1, 1)),
+                Err(CrossFault::UnknownSrdo { srdo })
+            );
+        }
+    }
+}
