@@ -1,0 +1,300 @@
+//! Model-based property test of the SRDO consumer (EN 50325-5 7.1.2, 7.1.3; CiA 304 9.5).
+//!
+//! Random frames, time steps and faults go into a real node (node-ID 33, receive SRDO 1 on
+//! 0x141/0x142, SCT 50 ms, SRVT 20 ms, one mapped byte and its inverted copy) and into a small
+//! reference model written here from the standard's rules, independent of the crate's code.
+//! After every step the two must agree on whether the node is still working, and the node must
+//! never deliver data the model did not see arrive as a valid pair within SCT and SRVT.
+
+use proptest::prelude::*;
+use shared::canopen::NodeId;
+use shared::canopen::nmt::{self, NmtCommand};
+use shared::canopen::od::Address;
+use shared::canopen::sdo_client;
+use shared::canopen::storage::RamFlash;
+use shared::node::{Event, Node, NodeConfig, Sink};
+use shared::process_image::{Access, AppObject, Mappable};
+use shared::{CanFrame, CanId, Duration, Instant};
+
+const SCT: u64 = 50_000;
+const SRVT: u64 = 20_000;
+
+const fn object(index: u16, mappable: Mappable) -> AppObject {
+    AppObject {
+        address: Address::new(index, 1),
+        len: 1,
+        access: Access::ReadOnly,
+        mappable,
+    }
+}
+
+static OBJECTS: [AppObject; 2] = [
+    object(0x6200, Mappable::Receive),
+    object(0x6201, Mappable::Receive),
+];
+
+#[derive(Default)]
+struct Recorder {
+    delivered: u32,
+    frames: Vec<CanFrame>,
+}
+
+impl Sink for Recorder {
+    fn transmit(&mut self, frame: CanFrame) {
+        self.frames.push(frame);
+    }
+    fn event(&mut self, event: Event) {
+        if matches!(event, Event::SrdoReceived(_)) {
+            self.delivered += 1;
+        }
+    }
+}
+
+type ModelNode = Node<RamFlash<4096>, 1>;
+
+/// Node 33 with its pre-defined receive SRDO, validated over SDO and started at t = 0.
+fn started() -> ModelNode {
+    let config = NodeConfig {
+        node_id: NodeId::new(33).unwrap(),
+        device_type: 0,
+        device_name: "model",
+        identity: [0; 4],
+        app_objects: &OBJECTS,
+        default_transmit_mapping: &[],
+        default_receive_mapping: &[0x6200_0108, 0x6201_0108],
+        heartbeat_ms: 0,
+        sdo_timeout: Duration::from_millis(100),
+        event_driven: false,
+        gfc_on_fault: false,
+    };
+    let mut node = ModelNode::new(config, RamFlash::new()).unwrap();
+    let mut sink = Recorder::default();
+    node.poll(Instant::ZERO, &mut sink);
+    let signature = shared::safety::signature::compute(&node.safety_config().srdos[0]);
+    let sdo = CanId::new(0x621).unwrap();
+    let mut exchange = |request: [u8; 8]| {
+        let mut sink = Recorder::default();
+        node.handle_frame(
+            Instant::ZERO,
+            &CanFrame::new(sdo, &request).unwrap(),
+            &mut sink,
+        );
+        sink.frames.last().map(|f| f.data().try_into().unwrap())
+    };
+    sdo_client::download(
+        &mut exchange,
+        Address::new(0x13FF, 1),
+        &signature.to_le_bytes(),
+    )
+    .unwrap();
+    sdo_client::download(&mut exchange, Address::new(0x13FE, 0), &[0xA5]).unwrap();
+    node.handle_frame(
+        Instant::ZERO,
+        &nmt::command_frame(NmtCommand::Start, 0),
+        &mut sink,
+    );
+    assert!(node.is_working());
+    node
+}
+
+/// The reference model: the consumer rules, straight from the standard.
+#[derive(Debug, Default)]
+struct Model {
+    failed: bool,
+    /// The plain byte waiting for its inverted frame, and when it arrived.
+    pending: Option<(u8, u64)>,
+    /// When the last valid pair completed (entering Operational counts, at t = 0).
+    last_pair: u64,
+    /// Data of the last valid pair (0 before any: the safe state).
+    output: u8,
+    pairs: u32,
+}
+
+impl Model {
+    /// Timers first: a deadline reached at `now` is expired (EN 50325-5 7.1.2).
+    fn timers(&mut self, now: u64) {
+        if self.failed {
+            return;
+        }
+        let srvt = self.pending.is_some_and(|(_, at)| now >= at + SRVT);
+        let sct = now >= self.last_pair + SCT;
+        if srvt || sct {
+            self.fail();
+        }
+    }
+
+    fn fail(&mut self) {
+        self.failed = true;
+        self.output = 0;
+        self.pending = None;
+    }
+
+    fn plain(&mut self, now: u64, dlc: u8, byte: u8) {
+        self.timers(now);
+        if self.failed {
+            return;
+        }
+        if dlc < 1 || self.pending.is_some() {
+            // Too short (7.1.3), or a second plain frame before the inverted one (CiA 304 9.5).
+            return self.fail();
+        }
+        self.pending = Some((byte, now));
+    }
+
+    fn inverted(&mut self, now: u64, dlc: u8, byte: u8) {
+        self.timers(now);
+        if self.failed {
+            return;
+        }
+        match self.pending.take() {
+            Some((plain, _)) if dlc >= 1 && byte == !plain => {
+                self.output = plain;
+                self.last_pair = now;
+                self.pairs += 1;
+            }
+            // Too short, not inverted, or no plain frame pending.
+            _ => self.fail(),
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+enum Step {
+    Plain {
+        dlc: u8,
+        data: [u8; 8],
+    },
+    /// The exact inverse of the pending plain byte when `correct`, else the byte as given.
+    Inverted {
+        dlc: u8,
+        data: [u8; 8],
+        correct: bool,
+    },
+    Remote {
+        inverted: bool,
+    },
+    Unrelated,
+    Poll,
+}
+
+fn step() -> impl Strategy<Value = (u64, Step)> {
+    let advance = prop_oneof![
+        0u64..2_000,
+        0u64..60_000,
+        Just(SRVT),
+        Just(SCT),
+        (SRVT - 2..=SRVT + 2),
+        (SCT - 2..=SCT + 2),
+        (24_000u64..26_000),
+    ];
+    let frame = prop_oneof![
+        4 => (0u8..=8, any::<[u8; 8]>()).prop_map(|(dlc, data)| Step::Plain { dlc, data }),
+        4 => (0u8..=8, any::<[u8; 8]>(), prop::bool::weighted(0.85))
+            .prop_map(|(dlc, data, correct)| Step::Inverted { dlc, data, correct }),
+        1 => any::<bool>().prop_map(|inverted| Step::Remote { inverted }),
+        1 => Just(Step::Unrelated),
+        2 => Just(Step::Poll),
+    ];
+    (advance, frame)
+}
+
+/// Mostly well-formed traffic: valid pairs every ~25 ms with small jitter, so runs get deep
+/// into the Operational state before a fault.
+fn mostly_valid() -> impl Strategy<Value = Vec<(u64, Step)>> {
+    proptest::collection::vec(
+        prop_oneof![
+            6 => (20_000u64..30_000, any::<u8>()).prop_map(|(gap, byte)| {
+                let mut data = [0u8; 8];
+                data[0] = byte;
+                vec![(gap, Step::Plain { dlc: 1, data }), (300, Step::Inverted { dlc: 1, data: [0; 8], correct: true })]
+            }),
+            1 => step().prop_map(|s| vec![s]),
+        ],
+        1..40,
+    )
+    .prop_map(|chunks| chunks.into_iter().flatten().collect())
+}
+
+fn check(steps: Vec<(u64, Step)>) -> Result<(), TestCaseError> {
+    let mut node = started();
+    let mut model = Model::default();
+    let mut sink = Recorder::default();
+    let mut now = 0u64;
+    let id = |raw| CanId::new(raw).unwrap();
+    for (advance, step) in steps {
+        now += advance;
+        let at = Instant::from_micros(now);
+        let frame = match step {
+            Step::Plain { dlc, data } => {
+                model.plain(now, dlc, data[0]);
+                Some(CanFrame::from_parts(id(0x141), dlc, data).unwrap())
+            }
+            Step::Inverted {
+                dlc,
+                mut data,
+                correct,
+            } => {
+                if let (true, Some((plain, _))) = (correct, model.pending) {
+                    data[0] = !plain;
+                }
+                model.inverted(now, dlc, data[0]);
+                Some(CanFrame::from_parts(id(0x142), dlc, data).unwrap())
+            }
+            Step::Remote { inverted } => {
+                model.timers(now);
+                Some(CanFrame::remote(id(if inverted { 0x142 } else { 0x141 }), 1).unwrap())
+            }
+            Step::Unrelated => {
+                model.timers(now);
+                Some(CanFrame::new(id(0x2A0), &[1, 2, 3]).unwrap())
+            }
+            Step::Poll => {
+                model.timers(now);
+                None
+            }
+        };
+        if let Some(frame) = frame {
+            node.handle_frame(at, &frame, &mut sink);
+        }
+        node.poll(at, &mut sink);
+
+        let mut output = [0u8; 1];
+        node.read_object(Address::new(0x6200, 1), &mut output)
+            .unwrap();
+        prop_assert_eq!(
+            node.is_working(),
+            !model.failed,
+            "at {} µs: {:?}",
+            now,
+            model
+        );
+        // Safety: nothing is delivered that the model did not see as a valid, timely pair,
+        // and the delivered value is that pair's plain data; 0 in the safe state (SC_REQ_05).
+        prop_assert_eq!(sink.delivered, model.pairs, "at {} µs", now);
+        prop_assert_eq!(output[0], model.output, "at {} µs", now);
+        if model.failed {
+            prop_assert_eq!(output[0], 0);
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(600))]
+
+    /// EN 50325-5 7.1.2, 7.1.3, CiA 304 9.5: random traffic, timing and faults.
+    #[test]
+    fn en50325_5_7_1_2_consumer_matches_reference_model_on_random_traffic(
+        steps in proptest::collection::vec(step(), 1..50)
+    ) {
+        check(steps)?;
+    }
+
+    /// The same, on traffic that is mostly valid pairs with faults sprinkled in.
+    #[test]
+    fn en50325_5_7_1_2_consumer_matches_reference_model_on_mostly_valid_traffic(
+        steps in mostly_valid()
+    ) {
+        check(steps)?;
+    }
+}
