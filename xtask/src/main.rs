@@ -6,6 +6,7 @@
 mod bench;
 mod images;
 mod toolchain;
+mod trace;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
@@ -49,6 +50,8 @@ enum Task {
         #[arg(long)]
         check: bool,
     },
+    /// Write docs/traceability.md: each clause and the tests that verify it, from test names.
+    Trace,
     /// Run every fuzz target for a while (needs the nightly toolchain and cargo-fuzz).
     Fuzz {
         /// Seconds per target.
@@ -84,6 +87,7 @@ fn main() -> Result<()> {
         }
         Task::Bench { check } => bench::run(&root, check),
         Task::Fuzz { seconds } => fuzz(&root, seconds),
+        Task::Trace => trace::run(&root),
     }
 }
 
@@ -110,6 +114,8 @@ fn test(root: &Path) -> Result<()> {
         .finish())?;
     step("firmware images");
     images::build(root, &cross)?;
+    step("traceability matrix");
+    trace::run(root)?;
     step("all checks passed");
     Ok(())
 }

@@ -425,7 +425,7 @@ mod tests {
 
     /// CiA 301 7.2.4.3.3: expedited download with size indicated, answered with scs = 3.
     #[test]
-    fn expedited_download_writes_and_confirms() {
+    fn cia301_7_2_4_3_3_expedited_download_writes_and_confirms() {
         let (mut sdo, mut od) = server();
         let reply = sdo.handle(T0, &[0x23, 0x01, 0x20, 0, 1, 2, 3, 4], &mut od);
         assert_eq!(reply, Some([0x60, 0x01, 0x20, 0, 0, 0, 0, 0]));
@@ -437,7 +437,7 @@ mod tests {
 
     /// CiA 301 7.2.4.3.3: e = 1, s = 0 (size not indicated) takes the object's own length.
     #[test]
-    fn expedited_download_without_size_uses_the_object_length() {
+    fn cia301_7_2_4_3_3_expedited_download_without_size_uses_the_object_length() {
         let (mut sdo, mut od) = server();
         let reply = sdo.handle(T0, &[0x22, 0x00, 0x20, 0, 7, 0xEE, 0xEE, 0xEE], &mut od);
         assert_eq!(reply, Some([0x60, 0x00, 0x20, 0, 0, 0, 0, 0]));
@@ -486,7 +486,7 @@ mod tests {
 
     /// CiA 301 7.2.4.3.6: values of 1..4 bytes are uploaded expedited with n = 4 - size.
     #[test]
-    fn expedited_upload_reports_the_size() {
+    fn cia301_7_2_4_3_6_expedited_upload_reports_the_size() {
         let (mut sdo, mut od) = server();
         od.word = 0xAABB_CCDD;
         assert_eq!(
@@ -507,7 +507,7 @@ mod tests {
     /// CiA 301 7.2.4.3.4..5: segmented download, toggle alternating from 0, written once
     /// after the last segment.
     #[test]
-    fn segmented_download_writes_once_at_the_end() {
+    fn cia301_7_2_4_3_4_segmented_download_writes_once_at_the_end() {
         let (mut sdo, mut od) = server();
         let text = b"light curtain 4";
         assert_eq!(
@@ -542,7 +542,7 @@ mod tests {
 
     /// CiA 301 7.2.4.3.7..8: segmented upload of a value read once at the initiate request.
     #[test]
-    fn segmented_upload_sends_a_snapshot() {
+    fn cia301_7_2_4_3_7_segmented_upload_sends_a_snapshot() {
         let (mut sdo, mut od) = server();
         od.text = b"safety node A".to_vec();
         assert_eq!(
@@ -580,7 +580,7 @@ mod tests {
 
     /// CiA 301 0503 0000h: a repeated toggle aborts and writes nothing.
     #[test]
-    fn a_toggle_error_aborts_without_writing() {
+    fn cia301_7_2_4_3_17_a_toggle_error_aborts_without_writing() {
         let (mut sdo, mut od) = server();
         sdo.handle(T0, &[0x21, 0x02, 0x20, 0, 14, 0, 0, 0], &mut od);
         sdo.handle(T0, &[0x00, 1, 2, 3, 4, 5, 6, 7], &mut od);
@@ -601,7 +601,7 @@ mod tests {
     /// CiA 301 0504 0000h: a stalled transfer is aborted at its deadline, not before, and the
     /// partial data is dropped.
     #[test]
-    fn a_stalled_transfer_times_out_at_its_deadline() {
+    fn cia301_7_2_4_3_17_a_stalled_transfer_times_out_at_its_deadline() {
         let (mut sdo, mut od) = server();
         assert_eq!(sdo.deadline(), None);
         sdo.handle(T0, &[0x21, 0x02, 0x20, 0, 14, 0, 0, 0], &mut od);
@@ -628,7 +628,7 @@ mod tests {
 
     /// CiA 301 0607 0012h / 0607 0013h: more or less data than the client announced.
     #[test]
-    fn segments_must_add_up_to_the_indicated_size() {
+    fn cia301_7_2_4_3_17_segments_must_add_up_to_the_indicated_size() {
         let (mut sdo, mut od) = server();
         sdo.handle(T0, &[0x21, 0x02, 0x20, 0, 5, 0, 0, 0], &mut od);
         assert_eq!(
@@ -645,7 +645,7 @@ mod tests {
 
     /// CiA 301 0504 0005h: more than the server can hold, announced or not.
     #[test]
-    fn oversized_downloads_run_out_of_memory_without_writing() {
+    fn cia301_7_2_4_3_17_oversized_downloads_run_out_of_memory_without_writing() {
         let (mut sdo, mut od) = server();
         assert_eq!(
             sdo.handle(T0, &[0x21, 0x02, 0x20, 0, 65, 0, 0, 0], &mut od),
@@ -665,7 +665,7 @@ mod tests {
     /// CiA 301 0504 0001h: unknown and unsupported command specifiers, segments out of place,
     /// short frames.
     #[test]
-    fn invalid_commands_abort() {
+    fn cia301_7_2_4_3_17_invalid_commands_abort() {
         let (mut sdo, mut od) = server();
         for command in [0xA0u8, 0xC0, 0xE0] {
             assert_eq!(
@@ -708,7 +708,7 @@ mod tests {
 
     /// CiA 301 7.2.4.3.16: the client's abort ends the transfer and is not answered.
     #[test]
-    fn a_client_abort_ends_the_transfer_silently() {
+    fn cia301_7_2_4_3_16_a_client_abort_ends_the_transfer_silently() {
         let (mut sdo, mut od) = server();
         sdo.handle(T0, &[0x21, 0x02, 0x20, 0, 14, 0, 0, 0], &mut od);
         sdo.handle(T0, &[0x00, 1, 2, 3, 4, 5, 6, 7], &mut od);

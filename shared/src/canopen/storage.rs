@@ -470,7 +470,7 @@ mod tests {
     /// CiA 301 7.5.2.14: after "restore defaults" the device starts on its defaults; a later
     /// store is used again.
     #[test]
-    fn restore_defaults_hides_the_stored_record_until_the_next_store() {
+    fn cia301_7_5_2_14_restore_defaults_hides_the_stored_record_until_the_next_store() {
         let mut flash = Medium::new();
         store(&mut flash, b"configured").unwrap();
         restore_defaults(&mut flash).unwrap();
@@ -553,7 +553,7 @@ mod tests {
     /// erase of the superseded record): afterwards the old or the new payload loads, never a
     /// mix and never nothing; once the store has answered Ok, only the new one.
     #[test]
-    fn a_power_cut_at_any_byte_leaves_the_old_or_the_new_record() {
+    fn cia301_7_5_2_13_a_power_cut_at_any_byte_leaves_the_old_or_the_new_record() {
         let old = b"old configuration, 0x13FE = A5, signatures of the old mapping";
         let new = b"NEW configuration, different length";
         let mut base = Medium::new();
