@@ -4,7 +4,7 @@
 //! Channel A uses the table-driven CRC-16/XMODEM of the `crc` crate over the record's fields.
 //! Channel B shifts bit by bit, least significant octet of each field first as Table 9's
 //! formula (2) orders them, straight from the raw values of its own object dictionary copy. The
-//! two are cross-checked over the link ([`channel_link::Message::Configuration`]) before
+//! two are cross-checked over the link ([`dual_channel::link::Message::Configuration`]) before
 //! Operational and periodically after.
 
 /// The Table 9 fields of one SRDO as channel B reads them from its object dictionary copy.

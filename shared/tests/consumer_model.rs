@@ -44,7 +44,7 @@ impl Sink for Recorder {
         self.frames.push(frame);
     }
     fn event(&mut self, event: Event) {
-        if matches!(event, Event::SrdoReceived(_)) {
+        if matches!(event, Event::SrdoReceived { .. }) {
             self.delivered += 1;
         }
     }

@@ -230,7 +230,7 @@ impl Network {
         let changed = output != device.output;
         device.output = output;
         for event in &outbox.events {
-            if matches!(event, Event::SrdoReceived(_)) {
+            if matches!(event, Event::SrdoReceived { .. }) {
                 device.pairs_received += 1;
             }
         }
@@ -363,7 +363,7 @@ impl Network {
     pub fn describe(&self, since: usize) -> String {
         let mut text = String::new();
         for (at, device, happening) in &self.log[since.min(self.log.len())..] {
-            if matches!(happening, Happening::Event(Event::SrdoReceived(_))) {
+            if matches!(happening, Happening::Event(Event::SrdoReceived { .. })) {
                 // Counted per device; one line per pair would drown the rest.
                 continue;
             }

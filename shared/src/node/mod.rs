@@ -104,7 +104,12 @@ pub enum Event {
     /// The NMT state changed to this one.
     NmtState(NmtState),
     /// A valid SRDO pair was received and its data delivered (EN 50325-5 6.2.2).
-    SrdoReceived(SrdoNumber),
+    SrdoReceived {
+        /// The SRDO.
+        srdo: SrdoNumber,
+        /// Its plain data, little-endian, in the mapped bytes (the rest 0).
+        data: u64,
+    },
     /// An SRDO failed; the device is in the safe state.
     SrdoFault(SrdoFault),
     /// The device entered its latched safe state for this cause.
@@ -684,7 +689,10 @@ impl<F: Flash, const N: usize> Core<F, N> {
                 .map(|(plain, inverted)| {
                     srdo::deliver(&mut self.image, &runtime.mapping, plain, inverted);
                     runtime.pairs = runtime.pairs.wrapping_add(1);
-                    sink.event(Event::SrdoReceived(number));
+                    sink.event(Event::SrdoReceived {
+                        srdo: number,
+                        data: plain & srdo::payload_mask(len),
+                    });
                 })
         };
         if let Err(cause) = result {

@@ -336,7 +336,10 @@ fn en50325_5_6_2_2_a_valid_pair_is_delivered_and_signalled() {
     pair(&mut node, ms(10), 0x3C, &mut sink);
     assert_eq!(
         sink.events,
-        [Event::SrdoReceived(SrdoNumber::new(1).unwrap())]
+        [Event::SrdoReceived {
+            srdo: SrdoNumber::new(1).unwrap(),
+            data: 0x3C
+        }]
     );
     assert_eq!(
         (output(&node, 0x6200, 1), output(&node, 0x6201, 1)),
@@ -482,6 +485,14 @@ fn en50325_5_7_1_3_frame_longer_than_the_mapping_uses_only_the_mapped_bytes() {
     assert_eq!(
         (output(&node, 0x6200, 1), output(&node, 0x6201, 1)),
         (0x11, 0xEE)
+    );
+    // The event carries the mapped byte only, not the unmapped 0x22 0x33.
+    assert_eq!(
+        sink.events.last(),
+        Some(&Event::SrdoReceived {
+            srdo: SrdoNumber::new(1).unwrap(),
+            data: 0x11
+        })
     );
 }
 

@@ -81,7 +81,7 @@ pub struct SrdoFault {
 
 /// The payload bits that `len` bytes occupy in a little-endian `u64`.
 #[inline]
-const fn payload_mask(len: u8) -> u64 {
+pub const fn payload_mask(len: u8) -> u64 {
     if len as usize >= MAX_SRDO_DATA {
         u64::MAX
     } else {

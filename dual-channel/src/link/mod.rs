@@ -1,5 +1,5 @@
-//! The inter-MCU link between channel A and channel B of one safety node (EN 50325-5 Annex A.4,
-//! Model III): the message set, its framing on the USART, and the receiver's checks.
+//! The inter-MCU link between channel A and channel B (EN 50325-5 Annex A.4, Model III): the
+//! message set, its framing on the USART, and the receiver's checks.
 //!
 //! Sans-I/O like the protocol core: the sender turns a [`Message`] into bytes for the UART,
 //! the receiver is fed bytes and `now`, and reports messages, faults and its deadline.
@@ -21,9 +21,6 @@
 //! the channel treats every one as a reason for the safe state (issue: "a missing, late,
 //! repeated or corrupt message is a fault"). The receiver resynchronises afterwards so that the
 //! channels can agree again after an NMT reset.
-
-#![cfg_attr(not(test), no_std)]
-#![forbid(unsafe_code)]
 
 use crc::{CRC_32_ISO_HDLC, Crc};
 use serde::{Deserialize, Serialize};
@@ -274,8 +271,6 @@ fn sequence_order(received: u16, expected: u16) -> Order {
         _ => Order::Behind,
     }
 }
-
-pub mod crosscheck;
 
 #[cfg(test)]
 mod tests;

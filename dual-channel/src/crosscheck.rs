@@ -2,7 +2,7 @@
 //! Model III; CiA 304 9.5).
 //!
 //! Each channel validates every received SRDO pair with its own copy of the protocol core and
-//! sends its verdict ([`crate::Message::Verdict`]) to the other. A pair is *confirmed* when both
+//! sends its verdict ([`crate::link::Message::Verdict`]) to the other. A pair is *confirmed* when both
 //! channels' verdicts for it agree in validity and data. A disagreement, or a verdict the other
 //! channel does not confirm within the timeout, is a [`CrossFault`]: both outputs go to the safe
 //! state.

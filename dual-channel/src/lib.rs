@@ -1,0 +1,15 @@
+//! What both channels of one safety node share (EN 50325-5 Annex A.4, Model III; CiA 304 9.5):
+//!
+//! - [`link`]: the inter-MCU link, its message set, framing and checks;
+//! - [`crosscheck`]: the comparison of the two channels' verdicts on received SRDOs;
+//! - [`runtime`]: one channel around its copy of the protocol core: bus, link, cross-checks
+//!   and output, with the channel-specific parts ([`runtime::Role`]) supplied by channel A and
+//!   channel B.
+//!
+//! Everything here is sans-I/O and runs in host tests exactly as on the MCU.
+
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod crosscheck;
+pub mod link;
