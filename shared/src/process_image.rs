@@ -86,6 +86,23 @@ pub struct ProcessImage {
     bytes: [u8; PROCESS_IMAGE_LEN],
 }
 
+/// The bits that the low `len` bytes occupy in a little-endian `u64` (lengths above 8 count as
+/// 8). A table, because the receive hot path needs it several times per SRDO pair.
+#[inline]
+pub const fn byte_mask(len: u8) -> u64 {
+    const MASKS: [u64; 9] = {
+        let mut masks = [u64::MAX; 9];
+        let mut len = 0;
+        while len < 8 {
+            masks[len] = (1u64 << (len * 8)) - 1;
+            len += 1;
+        }
+        masks
+    };
+    let index = if len < 8 { len as usize } else { 8 };
+    MASKS[index]
+}
+
 impl ProcessImage {
     /// Checks `table` and lays out its values, all zero (the safe state).
     pub fn new(table: &'static [AppObject]) -> Result<Self, TableError> {
@@ -189,7 +206,7 @@ impl ProcessImage {
     pub fn put_le(&mut self, span: Span, value: u64) {
         let start = usize::from(span.offset);
         let len = usize::from(span.len).min(8);
-        let mask = u64::MAX.checked_shr(64 - 8 * len as u32).unwrap_or(0);
+        let mask = byte_mask(span.len);
         if let Some(window) = self
             .bytes
             .get_mut(start..start + 8)

@@ -718,7 +718,10 @@ impl<F: Flash, const N: usize> Core<F, N> {
     }
 
     /// Enters the latched safe state for `cause` (once), clears every received value, and says
-    /// why: an event and an EMCY; a GFC too when configured.
+    /// why: an event and an EMCY; a GFC too when configured. Cold: kept out of the receive
+    /// hot path.
+    #[cold]
+    #[inline(never)]
     fn latch(&mut self, cause: SafeStateCause, sink: &mut impl Sink) {
         if let SafeStateCause::Srdo(fault) = cause {
             sink.event(Event::SrdoFault(fault));

@@ -10,7 +10,7 @@
 //! a frame that arrives after a deadline the caller has not yet polled for is still judged
 //! late.
 
-use super::config::{MAX_SRDO_DATA, ResolvedMapping};
+use super::config::ResolvedMapping;
 use super::types::SrdoNumber;
 use crate::process_image::ProcessImage;
 use crate::time::{self, Duration, Instant};
@@ -80,14 +80,7 @@ pub struct SrdoFault {
 }
 
 /// The payload bits that `len` bytes occupy in a little-endian `u64`.
-#[inline]
-pub const fn payload_mask(len: u8) -> u64 {
-    if len as usize >= MAX_SRDO_DATA {
-        u64::MAX
-    } else {
-        (1u64 << (len as u32 * 8)) - 1
-    }
-}
+pub use crate::process_image::byte_mask as payload_mask;
 
 /// `true` when the first `len` bytes of `inverted` are the bitwise inverse of `plain`'s.
 #[inline]
@@ -280,15 +273,16 @@ pub fn gather(
 /// data (as received) to the inverted objects.
 #[inline]
 pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, inverted: u64) {
-    let (mut plain, mut inverted) = (plain, inverted);
+    let mut at = 0u32;
     for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
         let span = mapping.plain[pair];
-        image.put_le(span, plain);
-        image.put_le(mapping.inverted[pair], inverted);
-        // The next object's bytes follow in the frame (64-bit shift: nothing left).
-        let shift = 8 * u32::from(span.len);
-        plain = plain.checked_shr(shift).unwrap_or(0);
-        inverted = inverted.checked_shr(shift).unwrap_or(0);
+        // Validation keeps every object inside the 8 payload bytes, so an object starts at
+        // byte 0..=7 and the shift is below 64; the mask keeps a damaged mapping from
+        // panicking (it then delivers wrong bytes, which validation has already excluded).
+        let shift = (8 * at) & 63;
+        image.put_le(span, plain >> shift);
+        image.put_le(mapping.inverted[pair], inverted >> shift);
+        at += u32::from(span.len);
     }
 }
 
