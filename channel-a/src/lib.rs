@@ -1,9 +1,12 @@
 //! Channel A of the dual-channel CANopen Safety node: the logic that is not hardware glue.
 //!
-//! Skeleton: the diverse SRDO building, the inter-MCU link and the cross-checks arrive with
-//! the firmware issue (see README). Everything that lands here is tested on the host.
+//! The channel runs the protocol core inside [`dual_channel::runtime::Runtime`] with its own
+//! [`role`]. Everything here is tested on the host; the firmware image (`main.rs`) only wires a
+//! board layer to it.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
 /// Which MCU of the pair this image runs on.
 pub const CHANNEL: char = 'A';
+
+pub mod role;

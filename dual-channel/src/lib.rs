@@ -13,3 +13,4 @@
 
 pub mod crosscheck;
 pub mod link;
+pub mod runtime;

@@ -68,8 +68,11 @@ pub enum Message {
         /// SRDO number.
         srdo: u8,
     },
-    /// The sender's configuration digest, before Operational and periodically after.
+    /// The sender's configuration digest, sent with every heartbeat.
     Configuration {
+        /// The sender's NMT state (heartbeat code): digests are compared in Operational,
+        /// where the configuration cannot change.
+        nmt: u8,
         /// 0x13FE as the sender holds it.
         valid: u8,
         /// CRC-32 over all SRDO signatures (0x13FF sub 1..N, little-endian), computed by the

@@ -23,6 +23,7 @@ fn messages() -> [Message; 6] {
         },
         Message::TransmitMismatch { srdo: 1 },
         Message::Configuration {
+            nmt: 0x05,
             valid: 0xA5,
             signatures: 0x1234_5678,
         },

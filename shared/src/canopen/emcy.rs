@@ -21,6 +21,9 @@ pub mod code {
     pub const RPDO_TIMEOUT: u16 = 0x8250;
     /// Device-specific: safe state entered on a global fail-safe command.
     pub const GLOBAL_FAIL_SAFE: u16 = 0xFF01;
+    /// Manufacturer-specific: the application put the device in its safe state (in a
+    /// dual-channel device, a cross-check between the channels failed).
+    pub const APPLICATION_FAULT: u16 = 0xFF02;
 }
 
 /// Bits of the error register, object 0x1001 (CiA 301 7.5.2.2).

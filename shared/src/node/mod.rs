@@ -95,6 +95,13 @@ pub enum SafeStateCause {
     Srdo(SrdoFault),
     /// A global fail-safe command was received (EN 50325-5 7.2.1).
     Gfc,
+    /// The application found a fault the protocol core cannot see (in a dual-channel device:
+    /// the channels disagree, or their link failed). `detail` is the application's cause
+    /// code, reported in EMCY FF02h. Producers stop too: the data behind them is in doubt.
+    Application {
+        /// The application's cause code (EMCY detail byte 1).
+        detail: u8,
+    },
 }
 
 /// Something the application should know.
@@ -484,6 +491,14 @@ impl<F: Flash, const N: usize> Node<F, N> {
         Ok(())
     }
 
+    /// Puts the device in its latched safe state for a fault the application found (EMCY
+    /// FF02h with `detail`); producers stop. Cleared only by NMT reset, like every other cause.
+    pub fn enter_safe_state(&mut self, detail: u8, sink: &mut impl Sink) {
+        self.core
+            .latch(SafeStateCause::Application { detail }, sink);
+        self.core.next_deadline = Instant::ZERO;
+    }
+
     /// Requests a GFC (EN 50325-5 6.3), sent at the next poll; sets 0x1300 to 1.
     pub fn request_gfc(&mut self) {
         self.core.gfc_requested = true;
@@ -723,11 +738,15 @@ impl<F: Flash, const N: usize> Core<F, N> {
     #[cold]
     #[inline(never)]
     fn latch(&mut self, cause: SafeStateCause, sink: &mut impl Sink) {
-        if let SafeStateCause::Srdo(fault) = cause {
-            sink.event(Event::SrdoFault(fault));
-            if fault.cause == SrdoFaultCause::TransmitHalvesNotInverted {
-                self.producers_halted = true;
+        match cause {
+            SafeStateCause::Srdo(fault) => {
+                sink.event(Event::SrdoFault(fault));
+                if fault.cause == SrdoFaultCause::TransmitHalvesNotInverted {
+                    self.producers_halted = true;
+                }
             }
+            SafeStateCause::Application { .. } => self.producers_halted = true,
+            SafeStateCause::Gfc => {}
         }
         if self.fault.is_some() {
             return;
@@ -744,6 +763,9 @@ impl<F: Flash, const N: usize> Core<F, N> {
                 [fault.srdo.get(), fault.cause.cause_code(), 0, 0, 0],
             ),
             SafeStateCause::Gfc => (emcy::code::GLOBAL_FAIL_SAFE, [0; 5]),
+            SafeStateCause::Application { detail } => {
+                (emcy::code::APPLICATION_FAULT, [0, detail, 0, 0, 0])
+            }
         };
         self.error_register |= emcy::register::GENERIC | emcy::register::COMMUNICATION;
         self.send_emergency(code, detail, sink);

@@ -705,3 +705,40 @@ fn en50325_5_6_3_a_fault_found_by_a_poll_sends_its_gfc_in_that_poll() {
     assert!(sink.frames.contains(&gfc::frame()));
     assert!(sink.events.contains(&Event::GfcSent));
 }
+
+/// A fault the application found (a dual-channel cross-check): latched safe state, outputs 0
+/// (SC_REQ_05), EMCY FF02h with the application's cause, and producers stop.
+#[test]
+fn sc_req_05_application_safe_state_clears_outputs_and_stops_producers() {
+    let (mut consumer, mut sink) = operational(33);
+    pair(&mut consumer, ms(10), 0x5A, &mut sink);
+    assert_eq!(output(&consumer, 0x6200, 1), 0x5A);
+    sink.take();
+    consumer.enter_safe_state(7, &mut sink);
+    assert!(!consumer.is_working());
+    assert_eq!(output(&consumer, 0x6200, 1), 0);
+    assert_eq!(
+        consumer.fault(),
+        Some(SafeStateCause::Application { detail: 7 })
+    );
+    let emcy = sink.emergencies();
+    assert_eq!(emcy[0].code, code::APPLICATION_FAULT);
+    assert_eq!(emcy[0].detail[1], 7);
+
+    let (mut producer, mut sink) = operational(1);
+    producer
+        .write_object(Address::new(0x6001, 1), &[0xFF])
+        .unwrap();
+    producer.poll(ms(30), &mut sink);
+    assert!(sink.frames.iter().any(|f| f.id().raw() == 0x101));
+    producer.enter_safe_state(1, &mut sink);
+    sink.take();
+    producer.poll(ms(200), &mut sink);
+    assert!(
+        !sink
+            .frames
+            .iter()
+            .any(|f| (0x101..=0x180).contains(&f.id().raw())),
+        "no SRDO after an application fault"
+    );
+}

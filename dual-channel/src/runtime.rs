@@ -1,0 +1,542 @@
+//! One channel of the safety node around its own copy of the protocol core (EN 50325-5
+//! Annex A.4, Model III; CiA 304 9.5).
+//!
+//! The runtime is what runs on each MCU between the board layer and the protocol core. It is
+//! sans-I/O like the core: the board layer feeds it CAN frames, link bytes and `now`, and it
+//! answers through [`Io`]: frames for the bus, bytes for the link, output values, events.
+//!
+//! What it adds to the core:
+//!
+//! - **Roles.** Channel A answers SDO and sends the plain frame of each transmit SRDO; channel
+//!   B is silent on the bus except for the inverted frame, which it builds by its own path and
+//!   sends only after comparing channel A's plain frame with its own result ([`Role`]).
+//! - **Receive cross-check.** Each valid pair the core delivers becomes a verdict sent over the
+//!   link and compared with the other channel's ([`VerdictCheck`]). An output moves towards the
+//!   safe state at once (bitwise AND with the new data) and away from it only with data both
+//!   channels confirmed.
+//! - **Link supervision.** A heartbeat every `link_period` (at least four per smallest SCT);
+//!   a missing, late, repeated or corrupt message is a fault ([`Receiver`]).
+//! - **Configuration and NMT cross-check.** Every heartbeat carries the sender's NMT state and
+//!   a digest of the signatures it computes by its own implementation; in Operational the
+//!   digests must match, and the NMT states may differ for at most two link periods.
+//! - **Latched safe state.** Any fault: outputs 0, the core's own safe state (EMCY FF02h, its
+//!   producers stop), the other channel told. Cleared only by NMT reset node or communication,
+//!   which both channels see on the bus.
+
+use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
+use crate::link::{LinkFault, Message, Receiver, Sender};
+use shared::canopen::nmt::NmtState;
+use shared::canopen::od::{AbortCode, Address};
+use shared::canopen::storage::Flash;
+use shared::node::{Event, Node, NodeConfig, NodeError, Sink};
+use shared::safety::config::SafetyConfig;
+use shared::{CanFrame, Duration, Instant};
+
+/// What differs between channel A and channel B.
+pub trait Role<const N: usize> {
+    /// A frame this channel's core wants to send; what goes on the bus (`None`: nothing).
+    fn outgoing(&mut self, frame: CanFrame, config: &SafetyConfig<N>) -> Option<CanFrame>;
+
+    /// A frame seen on the bus, before the core handles it: a frame to send in reply (channel
+    /// B's inverted frame), or `Err(srdo)` when it is the plain frame of transmit SRDO `srdo`
+    /// and does not match this channel's own result.
+    fn observe(
+        &mut self,
+        frame: &CanFrame,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, u8>;
+
+    /// This channel's safety input `address` was sampled as `value` (channel B keeps its own
+    /// copy, in its own layout).
+    fn input(&mut self, address: Address, value: &[u8]);
+
+    /// The signature of every SRDO of `config` as this channel computes it (by its own
+    /// implementation), folded into one CRC-32 for the link.
+    fn signature_digest(&self, config: &SafetyConfig<N>) -> u32;
+}
+
+/// Why a channel went to the safe state on its own account (faults of the SRDOs themselves
+/// are the core's, reported as [`Event`]s).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ChannelFault {
+    /// The link failed.
+    Link(LinkFault),
+    /// The channels' verdicts on a received SRDO disagree or were not confirmed.
+    Cross(CrossFault),
+    /// A transmit SRDO's plain half differs between the channels (CiA 304 9.5): found by
+    /// channel B, or reported to channel A by channel B.
+    TransmitMismatch {
+        /// SRDO number.
+        srdo: u8,
+    },
+    /// In Operational the channels hold different configurations (0x13FE or signatures).
+    ConfigurationMismatch,
+    /// The channels' NMT states differed for longer than two link periods.
+    NmtMismatch,
+    /// The other channel went to its safe state.
+    PeerSafeState {
+        /// The other channel's cause code.
+        cause: u8,
+    },
+}
+
+impl ChannelFault {
+    /// The cause code sent to the other channel and in EMCY FF02h (byte 1).
+    pub const fn cause_code(self) -> u8 {
+        match self {
+            ChannelFault::Link(LinkFault::Corrupt) => 0x10,
+            ChannelFault::Link(LinkFault::Malformed) => 0x11,
+            ChannelFault::Link(LinkFault::Missing { .. }) => 0x12,
+            ChannelFault::Link(LinkFault::Repeated { .. }) => 0x13,
+            ChannelFault::Link(LinkFault::Timeout) => 0x14,
+            ChannelFault::Cross(CrossFault::Disagreement { .. }) => 0x20,
+            ChannelFault::Cross(CrossFault::Unconfirmed { .. }) => 0x21,
+            ChannelFault::Cross(CrossFault::UnknownSrdo { .. }) => 0x22,
+            ChannelFault::TransmitMismatch { .. } => 0x30,
+            ChannelFault::ConfigurationMismatch => 0x31,
+            ChannelFault::NmtMismatch => 0x32,
+            ChannelFault::PeerSafeState { .. } => 0x40,
+        }
+    }
+}
+
+/// What a channel reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ChannelEvent {
+    /// The core reported this.
+    Node(Event),
+    /// The channel latched its safe state for this fault.
+    Fault(ChannelFault),
+    /// Both channels confirmed this data for a receive SRDO.
+    Confirmed {
+        /// SRDO number.
+        srdo: u8,
+        /// The data.
+        data: u64,
+    },
+}
+
+/// The board layer, as the runtime sees it.
+pub trait Io {
+    /// Puts `frame` on the CAN bus.
+    fn transmit(&mut self, frame: CanFrame);
+    /// Writes `bytes` to the link.
+    fn link(&mut self, bytes: &[u8]);
+    /// Drives the physical output(s) behind receive SRDO `srdo` to `data` (0: safe state).
+    fn output(&mut self, srdo: u8, data: u64);
+    /// Reports an event (log, diagnostics).
+    fn event(&mut self, event: ChannelEvent);
+}
+
+/// Collects what the core hands out during one call.
+struct Collect {
+    frames: heapless::Vec<CanFrame, 16>,
+    events: heapless::Vec<Event, 16>,
+    /// More than fit: treated as a fault of the channel (it cannot have seen everything).
+    overflow: bool,
+}
+
+impl Collect {
+    const fn new() -> Self {
+        Collect {
+            frames: heapless::Vec::new(),
+            events: heapless::Vec::new(),
+            overflow: false,
+        }
+    }
+}
+
+impl Sink for Collect {
+    fn transmit(&mut self, frame: CanFrame) {
+        if self.frames.push(frame).is_err() {
+            self.overflow = true;
+        }
+    }
+    fn event(&mut self, event: Event) {
+        if self.events.push(event).is_err() {
+            self.overflow = true;
+        }
+    }
+}
+
+/// One channel: its core, its role, the link and the cross-checks.
+pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
+    node: Node<F, N>,
+    role: R,
+    sender: Sender,
+    receiver: Receiver,
+    verdicts: VerdictCheck<N>,
+    link_period: Duration,
+    next_heartbeat: Instant,
+    peer_nmt: u8,
+    nmt_differs_since: Option<Instant>,
+    fault: Option<ChannelFault>,
+    outputs: [u64; N],
+    pairs: [u32; N],
+}
+
+impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
+    /// A channel powered on at `now`, sending a link heartbeat every `link_period` and
+    /// expecting one from the other channel within twice that.
+    pub fn new(
+        config: NodeConfig,
+        flash: F,
+        role: R,
+        now: Instant,
+        link_period: Duration,
+    ) -> Result<Self, NodeError> {
+        let timeout = Duration::from_micros(2 * link_period.as_micros());
+        Ok(Runtime {
+            node: Node::new(config, flash)?,
+            role,
+            sender: Sender::new(),
+            receiver: Receiver::new(now, timeout),
+            verdicts: VerdictCheck::new(timeout),
+            link_period,
+            next_heartbeat: now,
+            peer_nmt: NmtState::Initialising.heartbeat_code(),
+            nmt_differs_since: None,
+            fault: None,
+            outputs: [0; N],
+            pairs: [0; N],
+        })
+    }
+
+    /// The channel's core.
+    pub fn node(&self) -> &Node<F, N> {
+        &self.node
+    }
+
+    /// The channel's role.
+    pub fn role(&self) -> &R {
+        &self.role
+    }
+
+    /// The fault the channel latched, if any.
+    pub fn fault(&self) -> Option<ChannelFault> {
+        self.fault
+    }
+
+    /// The value the channel drives on the output(s) of receive SRDO `srdo` (1-based).
+    pub fn output(&self, srdo: u8) -> u64 {
+        usize::from(srdo)
+            .checked_sub(1)
+            .and_then(|index| self.outputs.get(index))
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// `true` while neither the core nor the channel is in its safe state.
+    pub fn is_working(&self) -> bool {
+        self.fault.is_none() && self.node.is_working()
+    }
+
+    /// A frame from the bus.
+    pub fn on_frame(&mut self, now: Instant, frame: &CanFrame, io: &mut impl Io) {
+        if self.fault.is_none() || !is_srdo(frame) {
+            match self.role.observe(frame, self.node.safety_config()) {
+                Ok(Some(reply)) => io.transmit(reply),
+                Ok(None) => {}
+                Err(srdo) => {
+                    self.send(&Message::TransmitMismatch { srdo }, io);
+                    self.latch(ChannelFault::TransmitMismatch { srdo }, io);
+                }
+            }
+        }
+        let mut collect = Collect::new();
+        self.node.handle_frame(now, frame, &mut collect);
+        self.after_core(now, collect, io);
+    }
+
+    /// A byte from the link.
+    pub fn on_link_byte(&mut self, now: Instant, byte: u8, io: &mut impl Io) {
+        match self.receiver.receive(now, byte) {
+            None => {}
+            Some(Err(fault)) => self.latch(ChannelFault::Link(fault), io),
+            Some(Ok(message)) => self.on_message(now, message, io),
+        }
+    }
+
+    /// This channel's sample of safety input `plain` (and its inverted copy `inverted`, which
+    /// the core's transmit check needs).
+    pub fn set_input(
+        &mut self,
+        now: Instant,
+        plain: Address,
+        inverted: Address,
+        value: &[u8],
+        io: &mut impl Io,
+    ) -> Result<(), AbortCode> {
+        let mut flipped = [0u8; 8];
+        let flipped = flipped
+            .get_mut(..value.len())
+            .ok_or(AbortCode::LengthTooHigh)?;
+        for (out, byte) in flipped.iter_mut().zip(value) {
+            *out = !byte;
+        }
+        self.node.write_object(plain, value)?;
+        self.node.write_object(inverted, flipped)?;
+        self.role.input(plain, value);
+        let mut collect = Collect::new();
+        self.node.poll(now, &mut collect);
+        self.after_core(now, collect, io);
+        Ok(())
+    }
+
+    /// Runs what is due at `now`; returns when to call again.
+    pub fn poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
+        let mut collect = Collect::new();
+        let node_deadline = self.node.poll(now, &mut collect);
+        self.after_core(now, collect, io);
+        if let Err(fault) = self.receiver.poll(now) {
+            self.latch(ChannelFault::Link(fault), io);
+        }
+        if let Err(fault) = self.verdicts.poll(now) {
+            self.latch(ChannelFault::Cross(fault), io);
+        }
+        if self
+            .nmt_differs_since
+            .is_some_and(|since| shared::time::expired(since + self.grace(), now))
+        {
+            self.latch(ChannelFault::NmtMismatch, io);
+        }
+        if shared::time::expired(self.next_heartbeat, now) {
+            self.heartbeat(io);
+            self.next_heartbeat = now + self.link_period;
+        }
+        let mut next = node_deadline
+            .min(self.next_heartbeat)
+            .min(self.receiver.deadline())
+            .min(self.verdicts.deadline());
+        if let Some(since) = self.nmt_differs_since {
+            next = next.min(since + self.grace());
+        }
+        next
+    }
+
+    fn grace(&self) -> Duration {
+        Duration::from_micros(2 * self.link_period.as_micros())
+    }
+
+    fn heartbeat(&mut self, io: &mut impl Io) {
+        let nmt = self.node.nmt_state().heartbeat_code();
+        let config = self.node.safety_config();
+        let configuration = Message::Configuration {
+            nmt,
+            valid: config.configuration_valid,
+            signatures: self.role.signature_digest(config),
+        };
+        let heartbeat = Message::Heartbeat {
+            nmt,
+            working: self.is_working(),
+        };
+        self.send(&heartbeat, io);
+        self.send(&configuration, io);
+    }
+
+    fn send(&mut self, message: &Message, io: &mut impl Io) {
+        // Every message fits a frame; an encoding failure would be a bug, and the other
+        // channel then sees a sequence gap and goes to the safe state.
+        if let Ok(bytes) = self.sender.encode(message) {
+            io.link(&bytes);
+        }
+    }
+
+    /// What the core handed out: frames through the role, events through the cross-checks.
+    fn after_core(&mut self, now: Instant, collect: Collect, io: &mut impl Io) {
+        for frame in collect.frames {
+            if self.fault.is_some() && is_srdo(&frame) {
+                continue;
+            }
+            if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
+                io.transmit(frame);
+            }
+        }
+        for event in collect.events {
+            io.event(ChannelEvent::Node(event));
+            match event {
+                Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
+                Event::SafeState(_) | Event::NmtState(_) => self.follow_core(io),
+                _ => {}
+            }
+        }
+        if collect.overflow {
+            self.latch(ChannelFault::Cross(CrossFault::Unconfirmed { srdo: 0 }), io);
+        }
+        self.check_nmt(now);
+    }
+
+    /// The core left the working state (a fault of its own, or NMT): outputs 0.
+    fn follow_core(&mut self, io: &mut impl Io) {
+        if !self.node.is_working() {
+            self.clear_outputs(io);
+        }
+        if self.node.nmt_state() != NmtState::Operational {
+            self.verdicts.reset();
+            self.pairs = [0; N];
+        }
+        if matches!(
+            self.node.nmt_state(),
+            NmtState::Initialising | NmtState::PreOperational
+        ) && self.node.fault().is_none()
+        {
+            // NMT reset: the channel's own latch clears with the core's.
+            self.fault = None;
+        }
+    }
+
+    fn local_pair(&mut self, now: Instant, srdo: u8, data: u64, io: &mut impl Io) {
+        let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) else {
+            return;
+        };
+        self.pairs[index] = self.pairs[index].wrapping_add(1);
+        let verdict = Verdict {
+            pair: self.pairs[index],
+            valid: true,
+            data,
+        };
+        self.send(
+            &Message::Verdict {
+                srdo,
+                pair: verdict.pair,
+                data,
+                valid: true,
+            },
+            io,
+        );
+        // Towards the safe state at once: any bit this pair clears is cleared now.
+        let safer = self.outputs[index] & data;
+        self.drive(index, safer, io);
+        match self.verdicts.local(now, srdo, verdict) {
+            Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
+            Ok(None) => {}
+            Err(fault) => self.latch(ChannelFault::Cross(fault), io),
+        }
+    }
+
+    fn on_message(&mut self, now: Instant, message: Message, io: &mut impl Io) {
+        match message {
+            Message::Heartbeat { nmt, .. } => {
+                self.peer_nmt = nmt;
+                self.check_nmt(now);
+            }
+            Message::Inputs { .. } => {}
+            Message::Verdict {
+                srdo,
+                pair,
+                data,
+                valid,
+            } => {
+                let verdict = Verdict { pair, valid, data };
+                match self.verdicts.remote(now, srdo, verdict) {
+                    Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
+                    Ok(None) => {}
+                    Err(fault) => self.latch(ChannelFault::Cross(fault), io),
+                }
+            }
+            Message::TransmitMismatch { srdo } => {
+                self.latch(ChannelFault::TransmitMismatch { srdo }, io);
+            }
+            Message::Configuration {
+                nmt,
+                valid,
+                signatures,
+            } => {
+                let operational = NmtState::Operational.heartbeat_code();
+                let own = self.node.safety_config();
+                let differs = valid != own.configuration_valid
+                    || signatures != self.role.signature_digest(own);
+                if nmt == operational && self.node.nmt_state() == NmtState::Operational && differs {
+                    self.latch(ChannelFault::ConfigurationMismatch, io);
+                }
+            }
+            Message::SafeState { cause } => {
+                if self.fault.is_none() {
+                    self.latch(ChannelFault::PeerSafeState { cause }, io);
+                }
+            }
+        }
+    }
+
+    fn check_nmt(&mut self, now: Instant) {
+        let own = self.node.nmt_state().heartbeat_code();
+        if own == self.peer_nmt {
+            self.nmt_differs_since = None;
+        } else if self.nmt_differs_since.is_none() {
+            self.nmt_differs_since = Some(now);
+        }
+    }
+
+    fn confirmed(&mut self, srdo: u8, data: u64, io: &mut impl Io) {
+        io.event(ChannelEvent::Confirmed { srdo, data });
+        if let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) {
+            self.drive(index, data, io);
+        }
+    }
+
+    fn drive(&mut self, index: usize, data: u64, io: &mut impl Io) {
+        let value = if self.is_working() { data } else { 0 };
+        if self.outputs[index] != value {
+            self.outputs[index] = value;
+            // `index` < N <= 64.
+            io.output((index + 1) as u8, value);
+        }
+    }
+
+    fn clear_outputs(&mut self, io: &mut impl Io) {
+        for index in 0..N {
+            if self.outputs[index] != 0 {
+                self.outputs[index] = 0;
+                io.output((index + 1) as u8, 0);
+            }
+        }
+    }
+
+    /// Latches the channel's safe state for `fault` (once).
+    fn latch(&mut self, fault: ChannelFault, io: &mut impl Io) {
+        if self.fault.is_some() {
+            return;
+        }
+        self.fault = Some(fault);
+        self.clear_outputs(io);
+        io.event(ChannelEvent::Fault(fault));
+        if !matches!(fault, ChannelFault::PeerSafeState { .. }) {
+            self.send(
+                &Message::SafeState {
+                    cause: fault.cause_code(),
+                },
+                io,
+            );
+        }
+        let mut collect = Collect::new();
+        self.node.enter_safe_state(fault.cause_code(), &mut collect);
+        for frame in collect.frames {
+            if !is_srdo(&frame) {
+                if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
+                    io.transmit(frame);
+                }
+            }
+        }
+        for event in collect.events {
+            io.event(ChannelEvent::Node(event));
+        }
+    }
+}
+
+/// `true` for identifiers in the SRDO range 0x101..=0x180.
+fn is_srdo(frame: &CanFrame) -> bool {
+    (0x101..=0x180).contains(&frame.id().raw())
+}
+
+/// CRC-32 over signatures, as [`Role::signature_digest`] folds them for the link: each
+/// signature little-endian, in SRDO order. The fold is shared; the signatures are not.
+pub fn fold_signatures(signatures: impl Iterator<Item = u16>) -> u32 {
+    const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+    let mut digest = CRC.digest();
+    for signature in signatures {
+        digest.update(&signature.to_le_bytes());
+    }
+    digest.finalize()
+}
