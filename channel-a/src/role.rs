@@ -3,35 +3,100 @@
 //! every transmit SRDO, built by the protocol core. The inverted frame is channel B's.
 
 use dual_channel::runtime::{Role, fold_signatures};
-use shared::CanFrame;
 use shared::canopen::od::Address;
 use shared::safety::config::SafetyConfig;
 use shared::safety::signature;
 use shared::safety::types::Direction;
+use shared::{CanFrame, Instant};
 
-/// Channel A's role.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct ChannelA;
+/// Channel A's role: which plain frames wait for channel B's inverted frame.
+#[derive(Clone, Debug, Default)]
+pub struct ChannelA {
+    /// Plain COB-IDs whose inverted frame has not been seen on the bus yet.
+    awaiting: heapless::Vec<u16, 8>,
+    /// The newest plain frame per SRDO produced meanwhile, sent once the pair before it is
+    /// complete (a pair's frames are never interleaved with the next pair's).
+    deferred: heapless::Vec<CanFrame, 8>,
+}
+
+/// The transmit SRDO records' COB-IDs of `config`: (plain, inverted).
+fn transmit_ids<const N: usize>(config: &SafetyConfig<N>) -> impl Iterator<Item = (u16, u16)> + '_ {
+    config
+        .srdos
+        .iter()
+        .filter(|record| record.parsed_direction() == Ok(Direction::Transmit))
+        .map(|record| {
+            (
+                (record.cob_id_1 & 0x7FF) as u16,
+                (record.cob_id_2 & 0x7FF) as u16,
+            )
+        })
+}
 
 impl<const N: usize> Role<N> for ChannelA {
     fn outgoing(&mut self, frame: CanFrame, config: &SafetyConfig<N>) -> Option<CanFrame> {
-        let id = u32::from(frame.id().raw());
-        let inverted_of_transmit = config.srdos.iter().any(|record| {
-            record.parsed_direction() == Ok(Direction::Transmit) && record.cob_id_2 & 0x7FF == id
-        });
-        (!inverted_of_transmit).then_some(frame)
+        let id = frame.id().raw();
+        let Some((plain, _)) = transmit_ids(config).find(|&(p, i)| p == id || i == id) else {
+            return Some(frame);
+        };
+        if plain != id {
+            return None; // The inverted frame is channel B's.
+        }
+        if self.awaiting.contains(&plain) {
+            // The previous pair is not complete: keep only the newest data for later.
+            self.deferred
+                .retain(|deferred| deferred.id().raw() != plain);
+            // Capacity is the number of transmit SRDOs awaited, at most 8 here; a frame that
+            // does not fit is dropped and the next cycle carries the data.
+            let _ = self.deferred.push(frame);
+            return None;
+        }
+        // A full list means more transmit SRDOs in flight than this role tracks: the frame
+        // goes without tracking rather than never (B's check still guards it).
+        let _ = self.awaiting.push(plain);
+        Some(frame)
     }
 
     fn observe(
         &mut self,
-        _frame: &CanFrame,
+        _now: Instant,
+        frame: &CanFrame,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, u8> {
+        let id = frame.id().raw();
+        let Some((plain, _)) = transmit_ids(config).find(|&(_, inverted)| inverted == id) else {
+            return Ok(None);
+        };
+        self.awaiting.retain(|awaited| *awaited != plain);
+        let Some(position) = self
+            .deferred
+            .iter()
+            .position(|deferred| deferred.id().raw() == plain)
+        else {
+            return Ok(None);
+        };
+        let next = self.deferred.swap_remove(position);
+        let _ = self.awaiting.push(plain);
+        Ok(Some(next))
+    }
+
+    fn input(
+        &mut self,
+        _now: Instant,
+        _address: Address,
+        _value: &[u8],
         _config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, u8> {
+        // Channel A's inputs live in its core's process image, written by the runtime.
         Ok(None)
     }
 
-    fn input(&mut self, _address: Address, _value: &[u8]) {
-        // Channel A's inputs live in its core's process image, written by the runtime.
+    fn poll(&mut self, _now: Instant) -> Result<(), u8> {
+        Ok(())
+    }
+
+    fn deadline(&self) -> Instant {
+        Instant::NEVER
     }
 
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32 {
@@ -54,13 +119,38 @@ mod tests {
     #[test]
     fn cia304_9_5_a_sends_the_plain_frame_only() {
         let config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
-        let mut a = ChannelA;
+        let mut a = ChannelA::default();
         assert!(a.outgoing(frame(0x101), &config).is_some());
         assert!(a.outgoing(frame(0x102), &config).is_none());
+        // B's inverted frame completes the pair.
+        assert_eq!(a.observe(Instant::ZERO, &frame(0x102), &config), Ok(None));
         assert!(a.outgoing(frame(0x701), &config).is_some());
         assert!(a.outgoing(frame(0x581), &config).is_some());
         // A receive SRDO's identifiers are not A's to filter (it never sends them anyway).
         let consumer = SafetyConfig::<2>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
         assert!(a.outgoing(frame(0x142), &consumer).is_some());
+    }
+
+    /// EN 50325-5 7.1.1: the next plain frame waits until channel B's inverted frame of the
+    /// previous pair is on the bus, so pairs never interleave; only the newest data waits.
+    #[test]
+    fn en50325_5_7_1_1_a_new_plain_frame_waits_for_the_previous_pair() {
+        let config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        let mut a = ChannelA::default();
+        let data = |value: u8| CanFrame::new(CanId::new(0x101).unwrap(), &[value]).unwrap();
+        assert_eq!(a.outgoing(data(1), &config), Some(data(1)));
+        assert_eq!(a.outgoing(data(2), &config), None);
+        assert_eq!(a.outgoing(data(3), &config), None);
+        assert_eq!(
+            a.observe(Instant::ZERO, &frame(0x102), &config),
+            Ok(Some(data(3)))
+        );
+        assert_eq!(a.outgoing(data(4), &config), None);
+        assert_eq!(
+            a.observe(Instant::ZERO, &frame(0x102), &config),
+            Ok(Some(data(4)))
+        );
+        assert_eq!(a.observe(Instant::ZERO, &frame(0x102), &config), Ok(None));
+        assert_eq!(a.outgoing(data(5), &config), Some(data(5)));
     }
 }

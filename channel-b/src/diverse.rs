@@ -26,9 +26,9 @@ pub struct Input {
 }
 
 /// Channel B's inputs: a short list searched linearly (a different layout from A's image).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct InputTable {
-    inputs: heapless::Vec<Input, 32>,
+    inputs: heapless::Vec<Input, 16>,
 }
 
 /// Why channel B could not build or confirm a frame.

@@ -37,18 +37,31 @@ pub trait Role<const N: usize> {
     /// A frame this channel's core wants to send; what goes on the bus (`None`: nothing).
     fn outgoing(&mut self, frame: CanFrame, config: &SafetyConfig<N>) -> Option<CanFrame>;
 
-    /// A frame seen on the bus, before the core handles it: a frame to send in reply (channel
-    /// B's inverted frame), or `Err(srdo)` when it is the plain frame of transmit SRDO `srdo`
-    /// and does not match this channel's own result.
+    /// A frame seen on the bus at `now`, before the core handles it: a frame to send in reply
+    /// (channel B's inverted frame), or `Err(srdo)` when it is the plain frame of transmit SRDO
+    /// `srdo` and cannot be confirmed.
     fn observe(
         &mut self,
+        now: Instant,
         frame: &CanFrame,
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, u8>;
 
-    /// This channel's safety input `address` was sampled as `value` (channel B keeps its own
-    /// copy, in its own layout).
-    fn input(&mut self, address: Address, value: &[u8]);
+    /// This channel's safety input `address` was sampled as `value` at `now` (channel B keeps
+    /// its own copy, in its own layout). May release a frame that was waiting for it.
+    fn input(
+        &mut self,
+        now: Instant,
+        address: Address,
+        value: &[u8],
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, u8>;
+
+    /// Time-outs of the role's own (channel B: a plain frame it could not confirm in time).
+    fn poll(&mut self, now: Instant) -> Result<(), u8>;
+
+    /// When [`Role::poll`] next has something to do.
+    fn deadline(&self) -> Instant;
 
     /// The signature of every SRDO of `config` as this channel computes it (by its own
     /// implementation), folded into one CRC-32 for the link.
@@ -235,15 +248,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     /// A frame from the bus.
     pub fn on_frame(&mut self, now: Instant, frame: &CanFrame, io: &mut impl Io) {
-        if self.fault.is_none() || !is_srdo(frame) {
-            match self.role.observe(frame, self.node.safety_config()) {
-                Ok(Some(reply)) => io.transmit(reply),
-                Ok(None) => {}
-                Err(srdo) => {
-                    self.send(&Message::TransmitMismatch { srdo }, io);
-                    self.latch(ChannelFault::TransmitMismatch { srdo }, io);
-                }
-            }
+        if self.fault.is_none() {
+            let reply = self.role.observe(now, frame, self.node.safety_config());
+            self.role_reply(reply, io);
         }
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
@@ -278,7 +285,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
         self.node.write_object(plain, value)?;
         self.node.write_object(inverted, flipped)?;
-        self.role.input(plain, value);
+        let reply = self
+            .role
+            .input(now, plain, value, self.node.safety_config());
+        if self.fault.is_none() {
+            self.role_reply(reply, io);
+        }
         let mut collect = Collect::new();
         self.node.poll(now, &mut collect);
         self.after_core(now, collect, io);
@@ -290,6 +302,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let mut collect = Collect::new();
         let node_deadline = self.node.poll(now, &mut collect);
         self.after_core(now, collect, io);
+        if let Err(srdo) = self.role.poll(now) {
+            self.role_reply(Err(srdo), io);
+        }
         if let Err(fault) = self.receiver.poll(now) {
             self.latch(ChannelFault::Link(fault), io);
         }
@@ -306,14 +321,31 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.heartbeat(io);
             self.next_heartbeat = now + self.link_period;
         }
-        let mut next = node_deadline
-            .min(self.next_heartbeat)
-            .min(self.receiver.deadline())
-            .min(self.verdicts.deadline());
-        if let Some(since) = self.nmt_differs_since {
-            next = next.min(since + self.grace());
+        // Supervision deadlines already passed have done their work (the fault is latched);
+        // only those still ahead count, so the caller never gets a deadline at or before now.
+        let supervision = [
+            self.role.deadline(),
+            self.receiver.deadline(),
+            self.verdicts.deadline(),
+            self.nmt_differs_since
+                .map_or(Instant::NEVER, |since| since + self.grace()),
+        ];
+        supervision
+            .into_iter()
+            .filter(|deadline| *deadline > now)
+            .fold(node_deadline.min(self.next_heartbeat), Instant::min)
+    }
+
+    /// What the role answered: a frame to send, or a transmit SRDO it could not confirm.
+    fn role_reply(&mut self, reply: Result<Option<CanFrame>, u8>, io: &mut impl Io) {
+        match reply {
+            Ok(Some(frame)) => io.transmit(frame),
+            Ok(None) => {}
+            Err(srdo) => {
+                self.send(&Message::TransmitMismatch { srdo }, io);
+                self.latch(ChannelFault::TransmitMismatch { srdo }, io);
+            }
         }
-        next
     }
 
     fn grace(&self) -> Duration {

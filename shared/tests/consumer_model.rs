@@ -123,6 +123,15 @@ impl Model {
         }
     }
 
+    /// The earliest instant a timer rule can fire, while not failed.
+    fn next_deadline(&self) -> Option<u64> {
+        if self.failed {
+            return None;
+        }
+        let sct = self.last_pair + SCT;
+        Some(self.pending.map_or(sct, |(_, at)| sct.min(at + SRVT)))
+    }
+
     fn fail(&mut self) {
         self.failed = true;
         self.output = 0;
@@ -256,7 +265,17 @@ fn check(steps: Vec<(u64, Step)>) -> Result<(), TestCaseError> {
         if let Some(frame) = frame {
             node.handle_frame(at, &frame, &mut sink);
         }
-        node.poll(at, &mut sink);
+        let deadline = node.poll(at, &mut sink);
+        // Timers are never scheduled later than the rules require.
+        if let Some(due) = model.next_deadline() {
+            prop_assert!(
+                deadline.as_micros() <= due,
+                "poll at {} µs: next {:?}, model {}",
+                now,
+                deadline,
+                due
+            );
+        }
 
         let mut output = [0u8; 1];
         node.read_object(Address::new(0x6200, 1), &mut output)

@@ -4,8 +4,10 @@
 //! - [`bus`]: arbitration, bit timing with stuff bits, fault injection.
 //! - [`network`]: devices, a configuration tool speaking SDO and NMT over the bus, the log and
 //!   a candump trace.
+//! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
 
 pub mod bus;
+pub mod dual;
 pub mod network;
 pub mod scenario;

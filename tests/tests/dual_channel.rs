@@ -1,0 +1,246 @@
+//! Two dual-channel nodes on one simulated bus: node 1 (emergency stop, SRDO producer) and
+//! node 33 (safe output, SRDO consumer), each channel A and channel B with their link. The
+//! scenarios of the firmware and emulated-network issues, on the host, with the same channel
+//! code as the firmware (EN 50325-5 Annex A.4, Model III; CiA 304 9.5).
+
+use dual_channel::crosscheck::CrossFault;
+use dual_channel::link::LinkFault;
+use dual_channel::runtime::{ChannelEvent, ChannelFault};
+use shared::canopen::nmt::{NmtCommand, NmtState};
+use shared::node::Event;
+use shared::safety::srdo::SrdoFaultCause;
+use shared::{Duration, Instant};
+use system_tests::bus::{Fault, Injection, Match};
+use system_tests::dual::{DualNetwork, Side};
+
+fn running() -> DualNetwork {
+    let mut net = DualNetwork::new(500_000, &[1, 33]);
+    net.configure_and_start().expect("configuration accepted");
+    net.run_for(Duration::from_millis(200));
+    net
+}
+
+fn fault_of(net: &DualNetwork, since: usize, id: u8) -> Option<(Instant, Side, ChannelFault)> {
+    net.first_event(since, id, |_, e| matches!(e, ChannelEvent::Fault(_)))
+        .and_then(|(at, side, event)| match event {
+            ChannelEvent::Fault(fault) => Some((at, side, fault)),
+            _ => None,
+        })
+}
+
+/// Nominal: every channel Operational and working, node 33's output (both channels in series)
+/// follows node 1's input, confirmed by both channels.
+#[test]
+fn cia304_9_5_nominal_two_dual_channel_nodes_exchange_confirmed_srdos() {
+    let net = running();
+    for id in [1u8, 33] {
+        let node = net.node(id);
+        assert_eq!(
+            node.a.node().nmt_state(),
+            NmtState::Operational,
+            "node {id} A"
+        );
+        assert_eq!(
+            node.b.node().nmt_state(),
+            NmtState::Operational,
+            "node {id} B"
+        );
+        assert!(
+            node.a.is_working() && node.b.is_working(),
+            "node {id}: {:?}",
+            net.log
+        );
+    }
+    assert_eq!(net.output(33), 1);
+    let confirmed = net
+        .log
+        .iter()
+        .filter(|(_, id, _, e)| *id == 33 && matches!(e, ChannelEvent::Confirmed { .. }))
+        .count();
+    assert!(
+        confirmed >= 2 * 6,
+        "both channels confirmed every pair: {confirmed}"
+    );
+    // Channel A sent the plain frames, channel B the inverted ones (participants 1 and 2).
+    let senders = |id: u16| {
+        net.trace
+            .iter()
+            .filter(|(_, frame, _)| frame.id().raw() == id)
+            .map(|(_, _, from)| *from)
+            .collect::<std::collections::BTreeSet<_>>()
+    };
+    assert_eq!(senders(0x101), [1].into());
+    assert_eq!(senders(0x102), [2].into());
+}
+
+/// The emergency stop pressed (both contacts open): node 33's output goes to 0 at once, in
+/// each channel, without waiting for the cross-check (safe direction first).
+#[test]
+fn sc_req_05_emergency_stop_reaches_both_output_channels() {
+    let mut net = running();
+    let pressed = net.now;
+    net.set_inputs(1, 0, 0);
+    net.run_for(Duration::from_millis(50));
+    assert_eq!(net.output(33), 0);
+    assert!(net.node(33).a.is_working(), "data, not a fault");
+    let off = net
+        .log
+        .iter()
+        .find(|(at, id, _, e)| {
+            *at >= pressed
+                && *id == 33
+                && matches!(e, ChannelEvent::Node(Event::SrdoReceived { data: 0, .. }))
+        })
+        .map(|(at, ..)| at.saturating_since(pressed))
+        .unwrap();
+    assert!(off <= Duration::from_millis(1), "{off:?}");
+    let since = net.log.len();
+    net.set_inputs(1, 1, 1);
+    net.run_for(Duration::from_millis(50));
+    assert_eq!(net.output(33), 1, "{:?}", &net.log[since..]);
+}
+
+/// CiA 304 9.5: channel B of node 1 reads a different input than channel A: B sends no
+/// inverted frame, both channels of node 1 report the discrepancy, node 33 goes safe (SRVT).
+#[test]
+fn cia304_9_5_channel_b_disagreeing_with_channel_a_sends_nothing() {
+    let mut net = running();
+    let since = net.log.len();
+    let from = net.now;
+    net.set_inputs(1, 1, 0);
+    net.run_for(Duration::from_millis(100));
+    let (_, _, fault) = fault_of(&net, since, 1).expect("node 1 reports");
+    assert_eq!(fault, ChannelFault::TransmitMismatch { srdo: 1 });
+    for side in [Side::A, Side::B] {
+        assert!(
+            net.first_event(since, 1, |s, e| s == side
+                && matches!(e, ChannelEvent::Fault(_)))
+                .is_some(),
+            "channel {side:?} of node 1 reports"
+        );
+    }
+    let inverted_after = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at > from && frame.id().raw() == 0x102)
+        .count();
+    assert_eq!(inverted_after, 0, "no inverted frame after the mismatch");
+    let consumer = net.first_event(since, 33, |_, e| {
+        matches!(e, ChannelEvent::Node(Event::SrdoFault(f)) if f.cause == SrdoFaultCause::SrvtElapsed)
+    });
+    assert!(
+        consumer.is_some(),
+        "node 33 detects the missing inverted frame"
+    );
+    assert_eq!(net.output(33), 0);
+    // The node reports it on the bus: EMCY FF02h from node 1 (channel A speaks).
+    assert!(net.trace.iter().any(|(at, frame, _)| *at > from
+        && frame.id().raw() == 0x081
+        && frame.data()[..2] == [0x02, 0xFF]));
+}
+
+/// The link between node 33's channels is cut: both channels time out within two link
+/// periods and go to the safe state.
+#[test]
+fn link_cut_puts_both_channels_in_the_safe_state() {
+    let mut net = running();
+    let since = net.log.len();
+    let cut = net.now;
+    net.node_mut(33).link_faults.cut = true;
+    net.run_for(Duration::from_millis(50));
+    for side in [Side::A, Side::B] {
+        let (at, _, fault) = net
+            .first_event(since, 33, |s, e| {
+                s == side && matches!(e, ChannelEvent::Fault(_))
+            })
+            .and_then(|(at, s, e)| match e {
+                ChannelEvent::Fault(f) => Some((at, s, f)),
+                _ => None,
+            })
+            .expect("each channel latches");
+        assert_eq!(fault, ChannelFault::Link(LinkFault::Timeout), "{side:?}");
+        assert!(
+            at.saturating_since(cut) <= Duration::from_millis(20),
+            "{side:?}"
+        );
+    }
+    assert_eq!(net.output(33), 0);
+    // And it stays safe while SRDOs keep arriving.
+    net.run_for(Duration::from_millis(100));
+    assert_eq!(net.output(33), 0);
+}
+
+/// A corrupt link message is a fault at once.
+#[test]
+fn a_corrupt_link_byte_is_a_fault() {
+    let mut net = running();
+    let since = net.log.len();
+    net.node_mut(33).link_faults.corrupt_next_a_to_b = Some(0x04);
+    net.run_for(Duration::from_millis(30));
+    let (_, side, fault) = fault_of(&net, since, 33).expect("a fault");
+    assert_eq!(side, Side::B);
+    assert!(
+        matches!(
+            fault,
+            ChannelFault::Link(LinkFault::Corrupt | LinkFault::Malformed)
+        ),
+        "{fault:?}"
+    );
+    assert_eq!(net.output(33), 0);
+}
+
+/// One channel's CAN controller receives a valid-looking pair with other data (both frames
+/// altered alike in its receive path): the verdicts disagree and both channels go safe.
+#[test]
+fn differing_verdicts_put_both_channels_in_the_safe_state() {
+    let mut net = running();
+    let since = net.log.len();
+    let now = net.now;
+    let node = net.node_mut(33);
+    for id in [0x101u16, 0x102] {
+        node.receive_faults.push((
+            Side::A,
+            Injection::new(
+                Match::next_with_id(id, now),
+                Fault::Corrupt {
+                    byte: 0,
+                    mask: 0x02,
+                },
+            ),
+        ));
+    }
+    net.run_for(Duration::from_millis(60));
+    let (_, _, fault) = fault_of(&net, since, 33).expect("a fault");
+    assert!(
+        matches!(
+            fault,
+            ChannelFault::Cross(CrossFault::Disagreement { srdo: 1 })
+        ),
+        "{fault:?}"
+    );
+    assert!(!net.node(33).a.is_working() && !net.node(33).b.is_working());
+    assert_eq!(net.output(33), 0);
+}
+
+/// NMT reset communication clears the latch in both channels; the node works again.
+#[test]
+fn nmt_reset_clears_both_channels_together() {
+    let mut net = running();
+    net.node_mut(33).link_faults.corrupt_next_a_to_b = Some(0x01);
+    net.run_for(Duration::from_millis(30));
+    assert_eq!(net.output(33), 0);
+    net.nmt(NmtCommand::ResetCommunication, 33);
+    net.run_for(Duration::from_millis(5));
+    net.nmt(NmtCommand::Start, 33);
+    net.run_for(Duration::from_millis(100));
+    let node = net.node(33);
+    assert!(
+        node.a.is_working() && node.b.is_working(),
+        "{:?} {:?} {:?} {:?}",
+        node.a.fault(),
+        node.b.fault(),
+        node.a.node().fault(),
+        node.a.node().nmt_state()
+    );
+    assert_eq!(net.output(33), 1);
+}
