@@ -1,13 +1,19 @@
-//! Firmware image of channel A (STM32F405RG). Skeleton: boots, logs and idles.
+//! Firmware image of channel A (STM32F405RG): initialises the board and runs the channel.
 //!
 //! Built for `thumbv7em-none-eabihf` by `cargo xtask build`; on the host this binary only
-//! says so, so that `cargo clippy --workspace` covers the crate.
+//! says so, so that `cargo clippy --workspace` covers the crate. The node-ID is taken from
+//! `SAFETY_NODE_ID` at build time (default 1); a real device reads it from its switches.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
 mod firmware {
+    use board::hw::{InputObjects, run};
+    use channel_a::role::ChannelA;
     use defmt_rtt as _;
+    use dual_channel::device;
+    use embassy_executor::Spawner;
     use panic_probe as _;
+    use shared::canopen::NodeId;
 
     /// The RAM per SRDO of this image's protocol core, kept in the image so that
     /// `cargo xtask bench` reports the figure for the real target, not the host.
@@ -15,12 +21,36 @@ mod firmware {
     #[unsafe(no_mangle)]
     static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
 
-    #[cortex_m_rt::entry]
-    fn main() -> ! {
-        defmt::info!("channel {=char}: skeleton image", channel_a::CHANNEL);
-        loop {
-            cortex_m::asm::wfi();
+    /// The node-ID this image was built for.
+    fn node_id() -> NodeId {
+        let raw = option_env!("SAFETY_NODE_ID")
+            .and_then(|text| text.parse::<u8>().ok())
+            .unwrap_or(1);
+        match NodeId::new(raw) {
+            Ok(id) => id,
+            Err(_) => panic!("SAFETY_NODE_ID must be 1..=127"),
         }
+    }
+
+    #[embassy_executor::main]
+    async fn main(spawner: Spawner) {
+        defmt::info!(
+            "channel {=char}: node {=u8}",
+            channel_a::CHANNEL,
+            node_id().raw()
+        );
+        let role = ChannelA::default();
+        let inputs = InputObjects {
+            plain: device::INPUT,
+            inverted: device::INPUT_INVERTED,
+        };
+        run::<_, 4>(
+            spawner,
+            device::config(node_id(), "safety node, channel A"),
+            role,
+            inputs,
+        )
+        .await
     }
 }
 

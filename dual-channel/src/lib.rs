@@ -12,5 +12,6 @@
 #![forbid(unsafe_code)]
 
 pub mod crosscheck;
+pub mod device;
 pub mod link;
 pub mod runtime;

@@ -11,7 +11,6 @@ use shared::canopen::od::Address;
 use shared::canopen::sdo_client::{self, ClientError};
 use shared::canopen::storage::RamFlash;
 use shared::node::{Event, Node, NodeConfig, Sink};
-use shared::process_image::{Access, AppObject, Mappable};
 use shared::safety::config::SrdoRecord;
 use shared::{CanFrame, CanId, Duration, Instant};
 use std::fmt::Write as _;
@@ -19,47 +18,11 @@ use std::fmt::Write as _;
 /// The node type of the simulated devices: up to 4 SRDOs, 8 KiB per storage slot.
 pub type DeviceNode = Node<RamFlash<8192>, 4>;
 
-const fn object(index: u16, mappable: Mappable) -> AppObject {
-    AppObject {
-        address: Address::new(index, 1),
-        len: 1,
-        access: Access::ReadOnly,
-        mappable,
-    }
-}
-
-/// The application objects of the demo device: a safety input with its inverted copy (e.g.
-/// the two contacts of an emergency stop, 1 = released) and a safety output with its
-/// inverted copy (1 = the machine may run). 0 is the safe state of both (SC_REQ_05).
-pub static OBJECTS: [AppObject; 4] = [
-    object(0x6000, Mappable::Transmit),
-    object(0x6001, Mappable::Transmit),
-    object(0x6200, Mappable::Receive),
-    object(0x6201, Mappable::Receive),
-];
-
-/// Input object (plain).
-pub const INPUT: Address = Address::new(0x6000, 1);
-/// Input object (inverted copy).
-pub const INPUT_INVERTED: Address = Address::new(0x6001, 1);
-/// Output object (plain).
-pub const OUTPUT: Address = Address::new(0x6200, 1);
+pub use dual_channel::device::{INPUT, INPUT_INVERTED, OBJECTS, OUTPUT};
 
 /// The device description for node `id`.
 pub fn device_config(id: u8, name: &'static str) -> NodeConfig {
-    NodeConfig {
-        node_id: NodeId::new(id).expect("node-ID 1..=127"),
-        device_type: 0x0001_0191,
-        device_name: name,
-        identity: [0x0000_0ABC, 0x0000_0304, 1, u32::from(id)],
-        app_objects: &OBJECTS,
-        default_transmit_mapping: &[0x6000_0108, 0x6001_0108],
-        default_receive_mapping: &[0x6200_0108, 0x6201_0108],
-        heartbeat_ms: 100,
-        sdo_timeout: Duration::from_millis(500),
-        event_driven: true,
-        gfc_on_fault: false,
-    }
+    dual_channel::device::config(NodeId::new(id).expect("node-ID 1..=127"), name)
 }
 
 /// Something that happened on the network, for the log and the assertions.

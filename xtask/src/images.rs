@@ -70,11 +70,13 @@ pub fn measure(elf: &Path) -> Result<Sizes> {
     Ok(sizes)
 }
 
-/// Builds both images (release), prints their sizes and fails when one exceeds a budget.
+/// Builds both images (`firmware` profile: release, optimised for size), prints their sizes
+/// and fails when one exceeds a budget.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
     let mut command = cross.cargo(root).args([
         "build",
-        "--release",
+        "--profile",
+        "firmware",
         "--features",
         "channel-a/defmt,channel-b/defmt",
     ]);
@@ -82,7 +84,7 @@ pub fn build(root: &Path, cross: &Cross) -> Result<()> {
         command = command.args(["-p", image]);
     }
     crate::run(&mut command.finish())?;
-    let dir = cross.target_dir(root).join(TARGET).join("release");
+    let dir = cross.target_dir(root).join(TARGET).join("firmware");
     println!(
         "{:<10} {:>8} {:>8} {:>8} {:>16} {:>16}",
         "image", "text", "data", "bss", "flash/budget", "ram+stack/budget"

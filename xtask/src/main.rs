@@ -112,6 +112,24 @@ fn test(root: &Path) -> Result<()> {
         .cargo(root)
         .args(["build", "--release", "-p", "shared", "--features", "defmt"])
         .finish())?;
+    step("clippy (firmware crates for thumbv7em-none-eabihf)");
+    run(cross
+        .cargo(root)
+        .args([
+            "clippy",
+            "--profile",
+            "firmware",
+            "-p",
+            "board",
+            "-p",
+            "channel-a",
+            "-p",
+            "channel-b",
+            "--features",
+            "channel-a/defmt,channel-b/defmt",
+        ])
+        .finish()
+        .args(["--", "-D", "warnings"]))?;
     step("firmware images");
     images::build(root, &cross)?;
     step("traceability matrix");

@@ -1,0 +1,304 @@
+//! The hardware board layer: embassy-stm32 on the STM32F405RG.
+//!
+//! Reference wiring (both MCUs alike): CAN1 RX PB8 / TX PB9 to the shared transceiver, the
+//! link on USART3 TX PB10 / RX PB11 (crossed to the other MCU), the channel's safety input on
+//! PC0 (its own contact, closed = 1), its safety output on PC1 (its own relay, 1 = enabled),
+//! 8 MHz HSE crystal.
+//!
+//! One task owns the channel runtime and wakes for whatever comes first: a CAN frame, link
+//! bytes, the runtime's next deadline or the 1 ms input sample. Two small tasks move frames
+//! between the bxCAN and static channels, and drain the link transmit pipe into the USART. The
+//! independent watchdog is fed by the runtime loop only.
+
+use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
+use embassy_executor::Spawner;
+use embassy_futures::select::{Either4, select4};
+use embassy_stm32::can::filter::Mask32;
+use embassy_stm32::can::{
+    Can, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler, StandardId,
+    TxInterruptHandler,
+};
+use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
+use embassy_stm32::peripherals::{CAN1, USART3};
+use embassy_stm32::time::Hertz;
+use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{Config, bind_interrupts};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_sync::pipe::Pipe;
+use embassy_time::Timer;
+use embedded_io_async::{Read, Write};
+use shared::canopen::od::Address;
+use shared::canopen::storage::RamFlash;
+use shared::node::NodeConfig;
+use shared::{CanFrame, CanId, Duration, Instant};
+use static_cell::StaticCell;
+
+bind_interrupts!(struct Irqs {
+    CAN1_RX0 => Rx0InterruptHandler<CAN1>;
+    CAN1_RX1 => Rx1InterruptHandler<CAN1>;
+    CAN1_SCE => SceInterruptHandler<CAN1>;
+    CAN1_TX => TxInterruptHandler<CAN1>;
+    USART3 => usart::BufferedInterruptHandler<USART3>;
+});
+
+/// CAN bit rate (CiA 301 Table 1).
+pub const BIT_RATE: u32 = 500_000;
+/// Link heartbeat period: five per SCT of 50 ms.
+pub const LINK_PERIOD: Duration = Duration::from_millis(10);
+/// Link USART baud rate.
+pub const LINK_BAUD: u32 = 1_000_000;
+/// Inputs are sampled this often.
+pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+/// The watchdog bites when the runtime loop has not run for this long.
+pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
+
+/// Frames received, for the runtime task.
+static CAN_RX: Channel<CriticalSectionRawMutex, CanFrame, 32> = Channel::new();
+/// Frames to send, from the runtime task.
+static CAN_TX: Channel<CriticalSectionRawMutex, CanFrame, 16> = Channel::new();
+/// Link bytes to send.
+static LINK_TX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
+
+/// The channel's safety input and its inverted copy in the object dictionary.
+#[derive(Clone, Copy, Debug)]
+pub struct InputObjects {
+    /// The plain object (e.g. 0x6000:1).
+    pub plain: Address,
+    /// Its inverted copy (e.g. 0x6001:1).
+    pub inverted: Address,
+}
+
+fn now() -> Instant {
+    Instant::from_micros(embassy_time::Instant::now().as_micros())
+}
+
+fn embassy_instant(at: Instant) -> embassy_time::Instant {
+    embassy_time::Instant::from_micros(at.as_micros())
+}
+
+/// The 168 MHz clock tree from the 8 MHz crystal (APB1 42 MHz for bxCAN and USART3).
+fn clocks() -> Config {
+    use embassy_stm32::rcc::{
+        AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv,
+        PllSource, Sysclk,
+    };
+    let mut config = Config::default();
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(8_000_000),
+        mode: HseMode::Oscillator,
+    });
+    config.rcc.pll_src = PllSource::HSE;
+    config.rcc.pll = Some(Pll {
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL168,
+        divp: Some(PllPDiv::DIV2),
+        divq: Some(PllQDiv::DIV7),
+        divr: None,
+    });
+    config.rcc.ahb_pre = AHBPrescaler::DIV1;
+    config.rcc.apb1_pre = APBPrescaler::DIV4;
+    config.rcc.apb2_pre = APBPrescaler::DIV2;
+    config.rcc.sys = Sysclk::PLL1_P;
+    config
+}
+
+/// What the runtime hands out, applied to the hardware.
+struct BoardIo<'a, 'd> {
+    output: &'a mut Output<'d>,
+}
+
+impl Io for BoardIo<'_, '_> {
+    fn transmit(&mut self, frame: CanFrame) {
+        if CAN_TX.try_send(frame).is_err() {
+            // A full transmit queue loses the frame: the consumers' timers catch it.
+            defmt::warn!(
+                "CAN transmit queue full, frame {=u16:X} dropped",
+                frame.id().raw()
+            );
+        }
+    }
+
+    fn link(&mut self, bytes: &[u8]) {
+        if LINK_TX
+            .try_write(bytes)
+            .map_or(true, |written| written < bytes.len())
+        {
+            // The other channel sees a sequence gap or a corrupt frame: a fault, safe state.
+            defmt::warn!("link transmit pipe full");
+        }
+    }
+
+    fn output(&mut self, _srdo: u8, data: u64) {
+        // One relay per channel: energised only for a non-zero confirmed value.
+        self.output
+            .set_level(if data != 0 { Level::High } else { Level::Low });
+    }
+
+    fn event(&mut self, event: ChannelEvent) {
+        defmt::info!("{}", event);
+    }
+}
+
+#[embassy_executor::task]
+async fn can_task(mut can: Can<'static>) {
+    can.modify_filters()
+        .enable_bank(0, Fifo::Fifo0, Mask32::accept_all());
+    can.set_bitrate(BIT_RATE);
+    can.enable().await;
+    let (mut tx, mut rx) = can.split();
+    loop {
+        match embassy_futures::select::select(rx.read(), CAN_TX.receive()).await {
+            embassy_futures::select::Either::First(Ok(envelope)) => {
+                if let Some(frame) = from_bxcan(&envelope.frame) {
+                    if CAN_RX.try_send(frame).is_err() {
+                        defmt::warn!("CAN receive queue full");
+                    }
+                }
+            }
+            embassy_futures::select::Either::First(Err(error)) => {
+                defmt::warn!("CAN bus error {}", error);
+            }
+            embassy_futures::select::Either::Second(frame) => {
+                if let Some(frame) = to_bxcan(&frame) {
+                    tx.write(&frame).await;
+                }
+            }
+        }
+    }
+}
+
+#[embassy_executor::task]
+async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
+    let mut buf = [0u8; 64];
+    loop {
+        let n = LINK_TX.read(&mut buf).await;
+        if tx.write_all(&buf[..n]).await.is_err() {
+            defmt::warn!("link write failed");
+        }
+    }
+}
+
+/// A standard data or remote frame from the bxCAN; extended frames are not CANopen's.
+fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
+    let embassy_stm32::can::Id::Standard(id) = frame.id() else {
+        return None;
+    };
+    let id = CanId::new(id.as_raw()).ok()?;
+    if frame.header().rtr() {
+        CanFrame::remote(id, frame.header().len()).ok()
+    } else {
+        CanFrame::new(id, frame.data()).ok()
+    }
+}
+
+fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
+    let id = StandardId::new(frame.id().raw())?;
+    if frame.is_remote() {
+        Frame::new_remote(id, usize::from(frame.dlc())).ok()
+    } else {
+        Frame::new_data(id, frame.data()).ok()
+    }
+}
+
+/// Initialises the board, spawns the peripheral tasks and runs the channel until reset.
+pub async fn run<R: Role<N>, const N: usize>(
+    spawner: Spawner,
+    device: NodeConfig,
+    role: R,
+    input_objects: InputObjects,
+) -> ! {
+    let p = embassy_stm32::init(clocks());
+    let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
+    watchdog.unleash();
+
+    let mut output = Output::new(p.PC1, Level::Low, Speed::Low);
+    let input = Input::new(p.PC0, Pull::Down);
+
+    let can = Can::new(p.CAN1, p.PB8, p.PB9, Irqs);
+    static LINK_TX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
+    static LINK_RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
+    let mut link_config = usart::Config::default();
+    link_config.baudrate = LINK_BAUD;
+    let link = match BufferedUart::new(
+        p.USART3,
+        p.PB11,
+        p.PB10,
+        LINK_TX_BUF.init([0; 256]),
+        LINK_RX_BUF.init([0; 256]),
+        Irqs,
+        link_config,
+    ) {
+        Ok(link) => link,
+        Err(_) => halt_safe("link USART configuration refused"),
+    };
+    let (link_tx, mut link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) = link.split();
+    spawner.spawn(can_task(can).unwrap_or_else(|_| halt_safe("CAN task")));
+    spawner.spawn(link_tx_task(link_tx).unwrap_or_else(|_| halt_safe("link task")));
+
+    let mut runtime = match Runtime::new(device, RamFlash::<4096>::new(), role, now(), LINK_PERIOD)
+    {
+        Ok(runtime) => runtime,
+        Err(_) => halt_safe("device description refused"),
+    };
+    let mut io = BoardIo {
+        output: &mut output,
+    };
+    let mut sampled: Option<bool> = None;
+    let mut next_sample = now();
+    let mut link_buf = [0u8; 64];
+    loop {
+        let deadline = runtime.poll(now(), &mut io);
+        watchdog.pet();
+        let wake = deadline.min(next_sample);
+        match select4(
+            CAN_RX.receive(),
+            link_rx.read(&mut link_buf),
+            Timer::at(embassy_instant(wake)),
+            core::future::pending::<()>(),
+        )
+        .await
+        {
+            Either4::First(frame) => runtime.on_frame(now(), &frame, &mut io),
+            Either4::Second(Ok(n)) => {
+                let at = now();
+                for &byte in &link_buf[..n] {
+                    runtime.on_link_byte(at, byte, &mut io);
+                }
+            }
+            Either4::Second(Err(_)) => defmt::warn!("link read error"),
+            Either4::Third(()) | Either4::Fourth(()) => {}
+        }
+        let at = now();
+        if at >= next_sample {
+            next_sample = at + SAMPLE_PERIOD;
+            let level = input.is_high();
+            if sampled != Some(level) {
+                sampled = Some(level);
+                let value = [u8::from(level)];
+                if runtime
+                    .set_input(
+                        at,
+                        input_objects.plain,
+                        input_objects.inverted,
+                        &value,
+                        &mut io,
+                    )
+                    .is_err()
+                {
+                    defmt::error!("input object refused");
+                }
+            }
+        }
+    }
+}
+
+/// A fault before the runtime runs: outputs stay low (their reset state), the watchdog is
+/// not fed, and the MCU resets into the same check.
+fn halt_safe(why: &str) -> ! {
+    defmt::error!("halting in the safe state: {=str}", why);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
