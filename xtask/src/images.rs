@@ -15,6 +15,9 @@ pub const RAM_BUDGET: u64 = 32 * 1024;
 /// high-water mark on target (stack painting) as the firmware grows.
 pub const STACK_RESERVE: u64 = 8 * 1024;
 
+/// The chip, as probe-rs names it.
+pub const CHIP: &str = "STM32F405RGTx";
+
 /// The images built by `cargo xtask build`.
 pub const IMAGES: [&str; 2] = ["channel-a", "channel-b"];
 

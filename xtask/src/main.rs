@@ -34,6 +34,14 @@ enum Task {
     },
     /// Build both firmware images (release) and check their size against the budgets.
     Build,
+    /// Build both images and flash one to a connected STM32F405RG with probe-rs, then show its
+    /// defmt log (`probe-rs run`). Needs a probe; `cargo xtask setup --probe-rs` installs
+    /// probe-rs.
+    Flash {
+        /// Which channel's image: `a` or `b`.
+        #[arg(value_parser = ["a", "b"])]
+        channel: String,
+    },
     /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared` and the images.
     Test,
     /// The main job: a host demo of a producer and a consumer node exchanging SRDOs under
@@ -70,6 +78,19 @@ fn main() -> Result<()> {
             images::build(&root, &cross)
         }
         Task::Test => test(&root),
+        Task::Flash { channel } => {
+            let cross = toolchain::ensure()?;
+            images::build(&root, &cross)?;
+            toolchain::require("probe-rs", "run `cargo xtask setup --probe-rs`")?;
+            let image = cross
+                .target_dir(&root)
+                .join(toolchain::TARGET)
+                .join("firmware")
+                .join(format!("channel-{channel}"));
+            run(Command::new("probe-rs")
+                .args(["run", "--chip", images::CHIP])
+                .arg(image))
+        }
         Task::Run { args } => {
             let mut command = cargo();
             command.args([
