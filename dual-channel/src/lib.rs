@@ -11,7 +11,9 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod can_serial;
 pub mod crosscheck;
 pub mod device;
 pub mod link;
 pub mod runtime;
+pub mod selftest;
