@@ -29,11 +29,12 @@ use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
-use shared::canopen::od::Address;
 use shared::canopen::storage::RamFlash;
 use shared::node::NodeConfig;
 use shared::{CanFrame, CanId, Duration, Instant};
 use static_cell::StaticCell;
+
+use crate::InputObjects;
 
 bind_interrupts!(struct Irqs {
     CAN1_RX0 => Rx0InterruptHandler<CAN1>;
@@ -60,15 +61,6 @@ static CAN_RX: Channel<CriticalSectionRawMutex, CanFrame, 32> = Channel::new();
 static CAN_TX: Channel<CriticalSectionRawMutex, CanFrame, 16> = Channel::new();
 /// Link bytes to send.
 static LINK_TX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
-
-/// The channel's safety input and its inverted copy in the object dictionary.
-#[derive(Clone, Copy, Debug)]
-pub struct InputObjects {
-    /// The plain object (e.g. 0x6000:1).
-    pub plain: Address,
-    /// Its inverted copy (e.g. 0x6001:1).
-    pub inverted: Address,
-}
 
 fn now() -> Instant {
     Instant::from_micros(embassy_time::Instant::now().as_micros())

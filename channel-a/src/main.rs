@@ -7,9 +7,16 @@
 
 #[cfg(target_os = "none")]
 mod firmware {
-    use board::hw::{InputObjects, run};
+    use board::InputObjects;
+    #[cfg(feature = "hw")]
+    use board::hw::run;
+    #[cfg(all(feature = "qemu", not(feature = "hw")))]
+    use board::qemu::run;
     use channel_a::role::ChannelA;
+    #[cfg(feature = "hw")]
     use defmt_rtt as _;
+    #[cfg(all(feature = "qemu", not(feature = "hw")))]
+    use defmt_semihosting as _;
     use dual_channel::device;
     use embassy_executor::Spawner;
     use panic_probe as _;

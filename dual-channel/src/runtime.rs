@@ -32,6 +32,11 @@ use shared::node::{Event, Node, NodeConfig, NodeError, Sink};
 use shared::safety::config::SafetyConfig;
 use shared::{CanFrame, Duration, Instant};
 
+/// How long after power-on the other channel's first link message may take (its self-tests
+/// run first). Until then the channel is in its safe state anyway: it has not confirmed
+/// anything.
+pub const STARTUP: Duration = Duration::from_millis(1000);
+
 /// What differs between channel A and channel B.
 pub trait Role<const N: usize> {
     /// A frame this channel's core wants to send; what goes on the bus (`None`: nothing).
@@ -183,7 +188,8 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     verdicts: VerdictCheck<N>,
     link_period: Duration,
     next_heartbeat: Instant,
-    peer_nmt: u8,
+    /// The other channel's NMT state from its last heartbeat (none yet: nothing to compare).
+    peer_nmt: Option<u8>,
     nmt_differs_since: Option<Instant>,
     fault: Option<ChannelFault>,
     outputs: [u64; N],
@@ -205,11 +211,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             node: Node::new(config, flash)?,
             role,
             sender: Sender::new(),
-            receiver: Receiver::new(now, timeout),
+            receiver: Receiver::new(now, timeout, STARTUP),
             verdicts: VerdictCheck::new(timeout),
             link_period,
             next_heartbeat: now,
-            peer_nmt: NmtState::Initialising.heartbeat_code(),
+            peer_nmt: None,
             nmt_differs_since: None,
             fault: None,
             outputs: [0; N],
@@ -451,7 +457,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     fn on_message(&mut self, now: Instant, message: Message, io: &mut impl Io) {
         match message {
             Message::Heartbeat { nmt, .. } => {
-                self.peer_nmt = nmt;
+                self.peer_nmt = Some(nmt);
                 self.check_nmt(now);
             }
             Message::Inputs { .. } => {}
@@ -494,7 +500,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     fn check_nmt(&mut self, now: Instant) {
         let own = self.node.nmt_state().heartbeat_code();
-        if own == self.peer_nmt {
+        if self.peer_nmt.is_none_or(|peer| peer == own) {
             self.nmt_differs_since = None;
         } else if self.nmt_differs_since.is_none() {
             self.nmt_differs_since = Some(now);

@@ -5,6 +5,7 @@
 
 mod bench;
 mod images;
+mod qemu;
 mod toolchain;
 mod trace;
 
@@ -42,6 +43,18 @@ enum Task {
         #[arg(value_parser = ["a", "b"])]
         channel: String,
     },
+    /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
+    Qemu {
+        /// Which channel's image: `a` or `b`.
+        #[arg(value_parser = ["a", "b"])]
+        channel: String,
+        /// Stop after the start-up self-tests; fail unless they pass.
+        #[arg(long)]
+        selftest: bool,
+        /// Stop the run after this many seconds.
+        #[arg(long, default_value_t = 5)]
+        seconds: u64,
+    },
     /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared` and the images.
     Test,
     /// The main job: a host demo of a producer and a consumer node exchanging SRDOs under
@@ -78,6 +91,11 @@ fn main() -> Result<()> {
             images::build(&root, &cross)
         }
         Task::Test => test(&root),
+        Task::Qemu {
+            channel,
+            selftest,
+            seconds,
+        } => qemu::task(&root, &channel, selftest, seconds),
         Task::Flash { channel } => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;
@@ -153,6 +171,36 @@ fn test(root: &Path) -> Result<()> {
         .args(["--", "-D", "warnings"]))?;
     step("firmware images");
     images::build(root, &cross)?;
+    step("each image alone under QEMU, to its self-test verdict");
+    toolchain::ensure_qemu()?;
+    qemu::build(root, &cross)?;
+    run(cross
+        .cargo(root)
+        .args([
+            "clippy",
+            "--profile",
+            "firmware",
+            "--no-default-features",
+            "--features",
+            "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
+            "-p",
+            "board",
+            "-p",
+            "channel-a",
+            "-p",
+            "channel-b",
+        ])
+        .target_dir(qemu::target_dir(&cross, root))
+        .finish()
+        .args(["--", "-D", "warnings"]))?;
+    for channel in ["a", "b"] {
+        let image = qemu::image(&cross, root, channel);
+        let (exited_ok, log) = qemu::run_alone(&image, true, std::time::Duration::from_secs(30))?;
+        print!("{log}");
+        if !exited_ok || !log.contains("self-test verdict: true") {
+            anyhow::bail!("channel {channel}: self-test under QEMU failed");
+        }
+    }
     step("traceability matrix");
     trace::run(root)?;
     step("all checks passed");

@@ -68,6 +68,12 @@ impl CrossCommand {
         self
     }
 
+    /// Builds into `dir` instead (the QEMU images, so they never overwrite the hardware ones).
+    pub fn target_dir(mut self, dir: PathBuf) -> Self {
+        self.target_dir = dir;
+        self
+    }
+
     /// The finished command.
     pub fn finish(mut self) -> Command {
         self.command.args(["--target", TARGET]);
@@ -202,8 +208,52 @@ pub fn setup(probe_rs: bool) -> Result<()> {
             }
         }
     }
+    ensure_qemu()?;
+    if !exists("defmt-print") {
+        eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
+        super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))?;
+    } else {
+        eprintln!("xtask: defmt-print: installed");
+    }
     if !exists("valgrind") {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
+    }
+    Ok(())
+}
+
+/// QEMU's major version, when `qemu-system-arm` runs.
+fn qemu_major() -> Option<u32> {
+    let version = output("qemu-system-arm", &["--version"])?;
+    let number = version.split("version ").nth(1)?;
+    number.split('.').next()?.trim().parse().ok()
+}
+
+/// QEMU 8 or later (the netduinoplus2 model with USART interrupts), from Debian's
+/// bookworm-backports when the machine's own is older or missing.
+pub fn ensure_qemu() -> Result<()> {
+    if qemu_major().is_some_and(|major| major >= 8) {
+        eprintln!("xtask: qemu-system-arm: installed");
+        return Ok(());
+    }
+    eprintln!("xtask: installing qemu-system-arm from bookworm-backports");
+    let root = output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0");
+    let sudo: &[&str] = if root { &[] } else { &["sudo"] };
+    let sh = |script: &str| -> Result<()> {
+        let mut line: Vec<&str> = sudo.to_vec();
+        line.extend_from_slice(&["sh", "-c", script]);
+        super::run(
+            Command::new(line[0])
+                .args(&line[1..])
+                .env("DEBIAN_FRONTEND", "noninteractive"),
+        )
+    };
+    sh(
+        "grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/ || \
+        echo 'deb http://deb.debian.org/debian bookworm-backports main' > /etc/apt/sources.list.d/backports.list",
+    )?;
+    sh("apt-get update -qq && apt-get install -y -qq -t bookworm-backports qemu-system-arm")?;
+    if qemu_major().is_none_or(|major| major < 8) {
+        bail!("qemu-system-arm 8 or later is still not available");
     }
     Ok(())
 }

@@ -159,20 +159,24 @@ impl Sender {
 pub struct Receiver {
     buffer: heapless::Vec<u8, MAX_WIRE>,
     overflowed: bool,
-    expected: u16,
+    /// The next sequence number; `None` until the first valid message, whose number starts
+    /// the count (the other channel may have started first).
+    expected: Option<u16>,
     timeout: Duration,
     deadline: Instant,
 }
 
 impl Receiver {
-    /// A receiver expecting sequence number 0 and a first message within `timeout` of `now`.
-    pub fn new(now: Instant, timeout: Duration) -> Self {
+    /// A receiver expecting a message every `timeout` at most, and the first one within
+    /// `startup` of `now` (the other channel may take longer to come up). The first valid
+    /// message's sequence number starts the count.
+    pub fn new(now: Instant, timeout: Duration, startup: Duration) -> Self {
         Receiver {
             buffer: heapless::Vec::new(),
             overflowed: false,
-            expected: 0,
+            expected: None,
             timeout,
-            deadline: now + timeout,
+            deadline: now + startup,
         }
     }
 
@@ -233,10 +237,10 @@ impl Receiver {
         if !rest.is_empty() {
             return Err(LinkFault::Malformed);
         }
-        let expected = self.expected;
+        let expected = self.expected.unwrap_or(sequence);
         // Resynchronise on the sequence received, whatever the verdict, so that one lost
         // message is one fault, not a fault for every message after it.
-        self.expected = sequence.wrapping_add(1);
+        self.expected = Some(sequence.wrapping_add(1));
         match sequence_order(sequence, expected) {
             Order::Expected => {
                 self.deadline = now + self.timeout;

@@ -41,7 +41,7 @@ fn feed(receiver: &mut Receiver, now: Instant, bytes: &[u8]) -> Vec<Result<Messa
 #[test]
 fn every_message_round_trips_and_fits_the_wire_budget() {
     let mut sender = Sender::new();
-    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     for message in messages() {
         let wire = sender.encode(&message).unwrap();
         assert_eq!(wire.last(), Some(&0), "delimited");
@@ -53,7 +53,7 @@ fn every_message_round_trips_and_fits_the_wire_budget() {
 #[test]
 fn a_lost_message_is_reported_once_then_the_link_resynchronises() {
     let mut sender = Sender::new();
-    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     let heartbeat = Message::Heartbeat {
         nmt: 5,
         working: true,
@@ -77,9 +77,32 @@ fn a_lost_message_is_reported_once_then_the_link_resynchronises() {
 }
 
 #[test]
+fn the_first_message_starts_the_count_within_the_startup_time() {
+    let mut sender = Sender::new();
+    for _ in 0..40 {
+        let _ = sender.encode(&Message::Inputs { sample: 0 }).unwrap();
+    }
+    let startup = Duration::from_millis(500);
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    assert_eq!(receiver.poll(Instant::from_millis(499)), Ok(()));
+    let at = Instant::from_millis(300);
+    let message = Message::Inputs { sample: 40 };
+    assert_eq!(
+        feed(&mut receiver, at, &sender.encode(&message).unwrap()),
+        [Ok(message)]
+    );
+    assert_eq!(receiver.deadline(), at + TIMEOUT);
+    let silent = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    assert_eq!(
+        silent.poll(Instant::from_millis(500)),
+        Err(LinkFault::Timeout)
+    );
+}
+
+#[test]
 fn a_repeated_message_is_a_fault() {
     let mut sender = Sender::new();
-    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     let wire = sender.encode(&Message::SafeState { cause: 1 }).unwrap();
     feed(&mut receiver, Instant::ZERO, &wire);
     assert_eq!(
@@ -106,7 +129,7 @@ fn a_flipped_bit_anywhere_is_never_accepted() {
         for bit in 0..8 {
             let mut damaged = wire.clone();
             damaged[at] ^= 1 << bit;
-            let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+            let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
             let results = feed(&mut receiver, Instant::ZERO, &damaged);
             assert!(
                 results
@@ -121,7 +144,7 @@ fn a_flipped_bit_anywhere_is_never_accepted() {
 #[test]
 fn the_link_times_out_at_the_deadline_itself_and_each_message_extends_it() {
     let mut sender = Sender::new();
-    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     assert_eq!(receiver.poll(Instant::from_micros(9_999)), Ok(()));
     assert_eq!(
         receiver.poll(Instant::from_millis(10)),
@@ -144,7 +167,7 @@ fn the_link_times_out_at_the_deadline_itself_and_each_message_extends_it() {
 #[test]
 fn an_overlong_frame_is_malformed_and_the_next_one_is_read() {
     let mut sender = Sender::new();
-    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     let noise = [0x55u8; 3 * MAX_WIRE];
     assert_eq!(feed(&mut receiver, Instant::ZERO, &noise), []);
     assert_eq!(
@@ -172,7 +195,7 @@ proptest! {
     /// valid COBS frame, a matching CRC-32 and a known message at once).
     #[test]
     fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
-        let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+        let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
         for result in feed(&mut receiver, Instant::ZERO, &bytes) {
             prop_assert!(result.is_err(), "{result:?}");
         }
@@ -183,15 +206,18 @@ proptest! {
     #[test]
     fn losses_are_always_reported(lost in proptest::collection::vec(any::<bool>(), 1..60)) {
         let mut sender = Sender::new();
-        let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT);
+        let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+        // Losses before the first message received are not gaps: it starts the count.
         let mut gap = false;
+        let mut started = false;
         for (i, &drop) in lost.iter().enumerate() {
             let message = Message::Inputs { sample: i as u32 };
             let wire = sender.encode(&message).unwrap();
             if drop {
-                gap = true;
+                gap = started;
                 continue;
             }
+            started = true;
             let results = feed(&mut receiver, Instant::ZERO, &wire);
             prop_assert_eq!(results.len(), 1);
             if gap {

@@ -1,0 +1,109 @@
+//! `cargo xtask qemu a|b`: one firmware image alone under QEMU's `netduinoplus2`, its defmt
+//! log decoded. With `--selftest` the image stops after its start-up self-tests and the run
+//! passes only when QEMU exits with 0 and the log shows the verdict.
+
+use crate::toolchain::{self, Cross, TARGET};
+use anyhow::{Context, Result, bail};
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+/// Where the QEMU images are built (apart from the hardware ones).
+pub fn target_dir(cross: &Cross, root: &Path) -> PathBuf {
+    cross.target_dir(root).join("qemu")
+}
+
+/// Builds both images for QEMU.
+pub fn build(root: &Path, cross: &Cross) -> Result<()> {
+    let command = cross
+        .cargo(root)
+        .args([
+            "build",
+            "--profile",
+            "firmware",
+            "--no-default-features",
+            "--features",
+            "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
+            "-p",
+            "channel-a",
+            "-p",
+            "channel-b",
+        ])
+        .target_dir(target_dir(cross, root));
+    crate::run(&mut command.finish())
+}
+
+/// The QEMU image of `channel` (`a` or `b`).
+pub fn image(cross: &Cross, root: &Path, channel: &str) -> PathBuf {
+    target_dir(cross, root)
+        .join(TARGET)
+        .join("firmware")
+        .join(format!("channel-{channel}"))
+}
+
+/// Runs one image alone; returns its decoded log. `selftest`: stop after the self-tests.
+pub fn run_alone(image: &Path, selftest: bool, limit: Duration) -> Result<(bool, String)> {
+    toolchain::require("qemu-system-arm", "run `cargo xtask setup`")?;
+    toolchain::require("defmt-print", "run `cargo xtask setup`")?;
+    let mut semihosting = String::from("enable=on,target=native");
+    if selftest {
+        semihosting.push_str(",arg=selftest");
+    }
+    let mut qemu = Command::new("timeout")
+        .arg(format!("{}", limit.as_secs()))
+        .args([
+            "qemu-system-arm",
+            "-M",
+            "netduinoplus2",
+            "-nographic",
+            "-monitor",
+            "none",
+        ])
+        .args(["-semihosting-config", &semihosting])
+        // USART1 unused, USART2 the CAN bridge, USART3 the link: nothing attached when alone.
+        .args([
+            "-serial", "null", "-serial", "null", "-serial", "null", "-kernel",
+        ])
+        .arg(image)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .context("starting qemu-system-arm")?;
+    let mut raw = Vec::new();
+    if let Some(mut stdout) = qemu.stdout.take() {
+        std::io::Read::read_to_end(&mut stdout, &mut raw)?;
+    }
+    let status = qemu.wait()?;
+    let mut decoder = Command::new("defmt-print")
+        .arg("-e")
+        .arg(image)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .context("starting defmt-print")?;
+    if let Some(mut stdin) = decoder.stdin.take() {
+        stdin.write_all(&raw)?;
+    }
+    let decoded = decoder.wait_with_output()?;
+    let log = String::from_utf8_lossy(&decoded.stdout).into_owned();
+    // `timeout` exits with 124 when the limit ended the run.
+    Ok((status.success(), log))
+}
+
+/// `cargo xtask qemu`.
+pub fn task(root: &Path, channel: &str, selftest: bool, seconds: u64) -> Result<()> {
+    let cross = toolchain::ensure()?;
+    toolchain::ensure_qemu()?;
+    build(root, &cross)?;
+    let image = image(&cross, root, channel);
+    let (exited_ok, log) = run_alone(&image, selftest, Duration::from_secs(seconds))?;
+    print!("{log}");
+    if selftest {
+        if !exited_ok || !log.contains("self-test verdict: true") {
+            bail!("channel {channel}: self-test under QEMU failed");
+        }
+        println!("xtask: channel {channel}: self-test passed under QEMU");
+    }
+    Ok(())
+}
