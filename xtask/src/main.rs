@@ -173,6 +173,7 @@ fn test(root: &Path) -> Result<()> {
     images::build(root, &cross)?;
     step("each image alone under QEMU, to its self-test verdict");
     toolchain::ensure_qemu()?;
+    toolchain::ensure_defmt_print()?;
     qemu::build(root, &cross)?;
     run(cross
         .cargo(root)

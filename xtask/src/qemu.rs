@@ -95,6 +95,7 @@ pub fn run_alone(image: &Path, selftest: bool, limit: Duration) -> Result<(bool,
 pub fn task(root: &Path, channel: &str, selftest: bool, seconds: u64) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_qemu()?;
+    toolchain::ensure_defmt_print()?;
     build(root, &cross)?;
     let image = image(&cross, root, channel);
     let (exited_ok, log) = run_alone(&image, selftest, Duration::from_secs(seconds))?;

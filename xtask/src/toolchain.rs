@@ -209,16 +209,21 @@ pub fn setup(probe_rs: bool) -> Result<()> {
         }
     }
     ensure_qemu()?;
-    if !exists("defmt-print") {
-        eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
-        super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))?;
-    } else {
-        eprintln!("xtask: defmt-print: installed");
-    }
+    ensure_defmt_print()?;
     if !exists("valgrind") {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
     }
     Ok(())
+}
+
+/// defmt-print, which decodes the QEMU images' logs (about a minute of compiling).
+pub fn ensure_defmt_print() -> Result<()> {
+    if exists("defmt-print") {
+        eprintln!("xtask: defmt-print: installed");
+        return Ok(());
+    }
+    eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
+    super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))
 }
 
 /// QEMU's major version, when `qemu-system-arm` runs.
