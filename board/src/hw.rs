@@ -29,7 +29,7 @@ use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
-use shared::canopen::storage::RamFlash;
+use shared::canopen::storage::{Flash, Slot, StorageError};
 use shared::node::NodeConfig;
 use shared::{CanFrame, CanId, Duration, Instant};
 use static_cell::StaticCell;
@@ -94,6 +94,76 @@ fn clocks() -> Config {
     config.rcc.apb2_pre = APBPrescaler::DIV2;
     config.rcc.sys = Sysclk::PLL1_P;
     config
+}
+
+/// The stored parameters in flash sectors 10 and 11 (slots A and B, `memory.x` region
+/// PARAMETERS), through embassy-stm32's flash driver.
+///
+/// The driver programs whole 32-bit words; the storage layer writes at any byte offset. A
+/// write therefore reads each word it touches, clears the new bytes' zero bits into it and
+/// programs it again: the STM32F4 flash has no ECC and allows programming more zero bits into
+/// a word, and the storage layer only ever writes erased bytes (its records are checked by
+/// CRC-32 on the way back, so a word the hardware refused shows as a bad record).
+pub struct ParameterFlash<'d> {
+    flash: embassy_stm32::flash::Flash<'d, embassy_stm32::flash::Blocking>,
+}
+
+/// Flash offsets (from 0x0800_0000) of the two slots, and their length: sectors 10 and 11.
+const SLOT_OFFSETS: [u32; 2] = [0x000C_0000, 0x000E_0000];
+const SLOT_LEN: u32 = 0x0002_0000;
+
+impl ParameterFlash<'_> {
+    fn base(slot: Slot, offset: usize, len: usize) -> Result<u32, StorageError> {
+        let end = offset.checked_add(len).ok_or(StorageError::OutOfBounds)?;
+        if end > SLOT_LEN as usize {
+            return Err(StorageError::OutOfBounds);
+        }
+        // `offset` < SLOT_LEN, so it fits.
+        Ok(SLOT_OFFSETS[slot as usize] + offset as u32)
+    }
+}
+
+impl Flash for ParameterFlash<'_> {
+    fn slot_len(&self) -> usize {
+        SLOT_LEN as usize
+    }
+
+    fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
+        let at = Self::base(slot, offset, buf.len())?;
+        self.flash
+            .blocking_read(at, buf)
+            .map_err(|_| StorageError::Medium)
+    }
+
+    fn erase(&mut self, slot: Slot) -> Result<(), StorageError> {
+        let from = SLOT_OFFSETS[slot as usize];
+        self.flash
+            .blocking_erase(from, from + SLOT_LEN)
+            .map_err(|_| StorageError::Medium)
+    }
+
+    fn write(&mut self, slot: Slot, offset: usize, data: &[u8]) -> Result<(), StorageError> {
+        let start = Self::base(slot, offset, data.len())?;
+        let end = start + data.len() as u32;
+        let mut word_at = start & !3;
+        while word_at < end {
+            let mut word = [0u8; 4];
+            self.flash
+                .blocking_read(word_at, &mut word)
+                .map_err(|_| StorageError::Medium)?;
+            for (i, byte) in word.iter_mut().enumerate() {
+                let address = word_at + i as u32;
+                if (start..end).contains(&address) {
+                    *byte &= data[(address - start) as usize];
+                }
+            }
+            self.flash
+                .blocking_write(word_at, &word)
+                .map_err(|_| StorageError::Medium)?;
+            word_at += 4;
+        }
+        Ok(())
+    }
 }
 
 /// What the runtime hands out, applied to the hardware.
@@ -229,8 +299,13 @@ pub async fn run<R: Role<N>, const N: usize>(
     spawner.spawn(can_task(can).unwrap_or_else(|_| halt_safe("CAN task")));
     spawner.spawn(link_tx_task(link_tx).unwrap_or_else(|_| halt_safe("link task")));
 
-    let mut runtime = match Runtime::new(device, RamFlash::<4096>::new(), role, now(), LINK_PERIOD)
-    {
+    if !crate::self_tests() {
+        halt_safe("start-up self-test failed");
+    }
+    let parameters = ParameterFlash {
+        flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
+    };
+    let mut runtime = match Runtime::new(device, parameters, role, now(), LINK_PERIOD) {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };

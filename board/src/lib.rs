@@ -25,3 +25,28 @@ pub struct InputObjects {
     /// Its inverted copy (e.g. 0x6001:1).
     pub inverted: Address,
 }
+
+/// The start-up self-tests both layers run before the channel starts: RAM (a dedicated 1 KiB
+/// area, March C-) and the link CRC's known answer. `false` when one fails; the caller stays
+/// in the safe state.
+#[cfg(target_os = "none")]
+pub fn self_tests() -> bool {
+    use dual_channel::selftest;
+    static mut AREA: [u32; 256] = [0; 256];
+    // SAFETY: this is the only access to `AREA`, made once at start-up before any task runs;
+    // `self_tests` is called once per boot by the board layer.
+    let area = unsafe { &mut *core::ptr::addr_of_mut!(AREA) };
+    match selftest::march(area.as_mut_slice()) {
+        Ok(()) => defmt::info!("self-test: RAM (1 KiB, March C-) passed"),
+        Err(fault) => {
+            defmt::error!("self-test: RAM failed {}", fault);
+            return false;
+        }
+    }
+    if !selftest::crc_known_answer() {
+        defmt::error!("self-test: CRC known answer failed");
+        return false;
+    }
+    defmt::info!("self-test: CRC known answer passed");
+    true
+}

@@ -24,7 +24,6 @@ use cortex_m_rt::exception;
 use critical_section::Mutex;
 use dual_channel::can_serial;
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
-use dual_channel::selftest;
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -208,27 +207,6 @@ fn selftest_only() -> bool {
             .any(|word| word == b"selftest")
 }
 
-/// The start-up self-tests: RAM (a dedicated area, March C-) and the link CRC's known
-/// answer. `false` when one fails.
-fn self_tests() -> bool {
-    static mut AREA: [u32; 256] = [0; 256];
-    // SAFETY: this is the only access to `AREA`, made once, before any task runs.
-    let area = unsafe { &mut *core::ptr::addr_of_mut!(AREA) };
-    match selftest::march(area.as_mut_slice()) {
-        Ok(()) => defmt::info!("self-test: RAM (1 KiB, March C-) passed"),
-        Err(fault) => {
-            defmt::error!("self-test: RAM failed {}", fault);
-            return false;
-        }
-    }
-    if !selftest::crc_known_answer() {
-        defmt::error!("self-test: CRC known answer failed");
-        return false;
-    }
-    defmt::info!("self-test: CRC known answer passed");
-    true
-}
-
 /// Starts the board (SysTick, USARTs), runs the self-tests and then the channel.
 pub async fn run<R: Role<N>, const N: usize>(
     _spawner: Spawner,
@@ -251,7 +229,7 @@ pub async fn run<R: Role<N>, const N: usize>(
     usart_init(USART2, Interrupt::USART2);
     usart_init(USART3, Interrupt::USART3);
 
-    let passed = self_tests();
+    let passed = crate::self_tests();
     defmt::info!("self-test verdict: {=bool}", passed);
     if !passed || selftest_only() {
         exit(passed);
