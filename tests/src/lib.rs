@@ -7,7 +7,7 @@
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
 
-pub mod bus;
+pub use can_hub::bus;
 pub mod dual;
 pub mod network;
 pub mod scenario;

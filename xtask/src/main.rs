@@ -145,6 +145,7 @@ fn test(root: &Path) -> Result<()> {
         "warnings",
     ]))?;
     step("tests");
+    toolchain::ensure_tshark()?;
     run(cargo().args(["test", "--workspace"]))?;
     step("shared for thumbv7em-none-eabihf (no_std, no heap)");
     run(&mut cross

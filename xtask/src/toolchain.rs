@@ -210,6 +210,7 @@ pub fn setup(probe_rs: bool) -> Result<()> {
     }
     ensure_qemu()?;
     ensure_defmt_print()?;
+    ensure_tshark()?;
     if !exists("valgrind") {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
     }
@@ -224,6 +225,28 @@ pub fn ensure_defmt_print() -> Result<()> {
     }
     eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
     super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))
+}
+
+/// tshark (Debian's package), which the hub's test uses to check that its pcap traces decode
+/// as CANopen.
+pub fn ensure_tshark() -> Result<()> {
+    if exists("tshark") {
+        eprintln!("xtask: tshark: installed");
+        return Ok(());
+    }
+    eprintln!("xtask: installing tshark (Debian)");
+    let root = output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0");
+    let mut line: Vec<&str> = if root { Vec::new() } else { vec!["sudo"] };
+    line.extend_from_slice(&[
+        "sh",
+        "-c",
+        "apt-get update -qq && apt-get install -y -qq tshark",
+    ]);
+    super::run(
+        Command::new(line[0])
+            .args(&line[1..])
+            .env("DEBIAN_FRONTEND", "noninteractive"),
+    )
 }
 
 /// QEMU's major version, when `qemu-system-arm` runs.

@@ -2,8 +2,8 @@
 //! time (stuff bits included), delivered to every participant except its sender, and a fault
 //! vocabulary for injecting what real buses do.
 //!
-//! The same vocabulary ([`Fault`]) is meant for the host-side hub of the emulated network, so
-//! that a scenario written against the simulation can run against the emulator.
+//! The host simulation (`tests/`) and the emulated network's hub (`can-hub`) share this model
+//! and its fault vocabulary ([`Fault`]), so a scenario means the same on both.
 
 use shared::{CanFrame, Duration, Instant};
 
@@ -209,10 +209,19 @@ impl Bus {
         self.bit_rate
     }
 
-    /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO).
+    /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO). A
+    /// participant not seen before joins the bus.
     pub fn send(&mut self, from: usize, frame: CanFrame) {
+        if from >= self.queues.len() {
+            self.queues.resize(from + 1, Default::default());
+        }
+        self.queues[from].push_back(frame);
+    }
+
+    /// Forgets what participant `from` still had queued (it left the bus).
+    pub fn leave(&mut self, from: usize) {
         if let Some(queue) = self.queues.get_mut(from) {
-            queue.push_back(frame);
+            queue.clear();
         }
     }
 

@@ -1,0 +1,210 @@
+//! The hub's core: participants that speak CAN-over-serial joined to one [`Bus`] in real time.
+//!
+//! Sans-I/O like the rest: the program feeds it the bytes each participant sent and the time,
+//! and asks it what to write to whom and when to wake next.
+
+use crate::bus::{Bus, Delivery, Injection};
+use dual_channel::can_serial::{Decoder, SerialError, encode};
+use shared::{CanFrame, Instant};
+
+/// Bytes for one participant.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Outgoing {
+    /// The participant.
+    pub to: usize,
+    /// CAN-over-serial bytes of one frame.
+    pub bytes: Vec<u8>,
+}
+
+/// The hub: decoders per participant, the bus, frames in flight.
+pub struct Hub {
+    bus: Bus,
+    decoders: Vec<Decoder>,
+    present: Vec<bool>,
+    in_flight: Vec<Delivery>,
+    /// Frames that completed on the bus: (end time, frame, sender), for traces.
+    pub completed: Vec<(Instant, CanFrame, usize)>,
+    /// Byte streams that did not decode, per participant (a participant's framing is broken).
+    pub malformed: Vec<(usize, SerialError)>,
+}
+
+impl Hub {
+    /// A hub for a bus at `bit_rate`.
+    pub fn new(bit_rate: u32) -> Self {
+        Hub {
+            bus: Bus::new(bit_rate, 0),
+            decoders: Vec::new(),
+            present: Vec::new(),
+            in_flight: Vec::new(),
+            completed: Vec::new(),
+            malformed: Vec::new(),
+        }
+    }
+
+    /// The bus (statistics, bit rate).
+    pub fn bus(&self) -> &Bus {
+        &self.bus
+    }
+
+    /// Participant `id` joined.
+    pub fn join(&mut self, id: usize) {
+        if id >= self.present.len() {
+            self.present.resize(id + 1, false);
+            self.decoders.resize_with(id + 1, Decoder::new);
+        }
+        self.present[id] = true;
+    }
+
+    /// Participant `id` left; what it still had queued is dropped.
+    pub fn leave(&mut self, id: usize) {
+        if let Some(present) = self.present.get_mut(id) {
+            *present = false;
+        }
+        self.bus.leave(id);
+    }
+
+    /// Adds a fault on the bus.
+    pub fn inject(&mut self, injection: Injection) {
+        self.bus.inject(injection);
+    }
+
+    /// Bytes participant `id` sent at `now`.
+    pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) {
+        self.join(id);
+        for &byte in bytes {
+            match self.decoders[id].push(byte) {
+                Some(Ok(frame)) => self.bus.send(id, frame),
+                Some(Err(error)) => self.malformed.push((id, error)),
+                None => {}
+            }
+        }
+        let _ = now;
+    }
+
+    /// Everything due at `now`: frames that ended go to every present participant but their
+    /// sender; the next arbitration starts when the bus is free. Returns what to write, and
+    /// when to call again (`None`: when bytes arrive).
+    pub fn poll(&mut self, now: Instant) -> (Vec<Outgoing>, Option<Instant>) {
+        let mut out = Vec::new();
+        loop {
+            let (due, later): (Vec<_>, Vec<_>) =
+                self.in_flight.drain(..).partition(|d| d.at <= now);
+            self.in_flight = later;
+            for delivery in &due {
+                self.completed
+                    .push((delivery.at, delivery.frame, delivery.from));
+                let bytes = encode(&delivery.frame).to_vec();
+                for (to, present) in self.present.iter().enumerate() {
+                    if *present && to != delivery.from {
+                        out.push(Outgoing {
+                            to,
+                            bytes: bytes.clone(),
+                        });
+                    }
+                }
+            }
+            // Arbitrate while the bus is free at `now`; a dropped or muted frame leaves it free.
+            if self.bus.next_start(now).is_some_and(|start| start <= now) {
+                let deliveries = self.bus.arbitrate(now);
+                if deliveries.is_empty() {
+                    continue;
+                }
+                self.in_flight.extend(deliveries);
+            }
+            break;
+        }
+        let next = self
+            .in_flight
+            .iter()
+            .map(|d| d.at)
+            .chain(self.bus.next_start(now))
+            .min();
+        (out, next)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::{Fault, Match};
+    use shared::{CanId, Duration};
+
+    fn frame(id: u16, data: &[u8]) -> CanFrame {
+        CanFrame::new(CanId::new(id).unwrap(), data).unwrap()
+    }
+
+    fn decode(bytes: &[u8]) -> CanFrame {
+        let mut decoder = Decoder::new();
+        bytes
+            .iter()
+            .find_map(|&b| decoder.push(b))
+            .unwrap()
+            .unwrap()
+    }
+
+    #[test]
+    fn frames_reach_everyone_but_the_sender_after_their_bit_time() {
+        let mut hub = Hub::new(500_000);
+        for id in 0..3 {
+            hub.join(id);
+        }
+        hub.receive(Instant::ZERO, 1, &encode(&frame(0x101, &[1])));
+        let (out, next) = hub.poll(Instant::ZERO);
+        assert!(out.is_empty(), "still on the bus");
+        let end = next.unwrap();
+        assert_eq!(
+            end.as_micros(),
+            crate::bus::frame_time(&frame(0x101, &[1]), 500_000).as_micros()
+        );
+        let (out, next) = hub.poll(end);
+        let receivers: Vec<usize> = out.iter().map(|o| o.to).collect();
+        assert_eq!(receivers, [0, 2]);
+        assert_eq!(decode(&out[0].bytes), frame(0x101, &[1]));
+        assert_eq!(next, None);
+        assert_eq!(hub.completed.len(), 1);
+    }
+
+    #[test]
+    fn competing_frames_go_in_identifier_order() {
+        let mut hub = Hub::new(1_000_000);
+        for id in 0..3 {
+            hub.join(id);
+        }
+        hub.receive(Instant::ZERO, 0, &encode(&frame(0x701, &[5])));
+        hub.receive(Instant::ZERO, 1, &encode(&frame(0x102, &[0xFE])));
+        hub.receive(Instant::ZERO, 2, &encode(&frame(0x101, &[0x01])));
+        let mut now = Instant::ZERO;
+        let mut order = Vec::new();
+        loop {
+            let (out, next) = hub.poll(now);
+            order.extend(
+                out.iter()
+                    .filter(|o| o.to == 0 || o.to == 1)
+                    .map(|o| decode(&o.bytes).id().raw()),
+            );
+            match next {
+                Some(next) => now = next,
+                None => break,
+            }
+        }
+        order.dedup();
+        assert_eq!(order, [0x101, 0x102, 0x701]);
+    }
+
+    #[test]
+    fn injected_faults_apply_and_broken_framing_is_reported() {
+        let mut hub = Hub::new(250_000);
+        hub.join(0);
+        hub.join(1);
+        hub.inject(Injection::new(
+            Match::next_with_id(0x102, Instant::ZERO),
+            Fault::Drop,
+        ));
+        hub.receive(Instant::ZERO, 0, &encode(&frame(0x102, &[0xFE])));
+        let (_, next) = hub.poll(Instant::ZERO);
+        let (out, _) = hub.poll(next.unwrap_or(Instant::ZERO) + Duration::from_millis(1));
+        assert!(out.is_empty(), "dropped");
+        hub.receive(Instant::ZERO, 1, &[0x05, 0x01, 0x00]);
+        assert_eq!(hub.malformed.len(), 1);
+    }
+}

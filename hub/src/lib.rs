@@ -1,0 +1,12 @@
+//! The emulated CAN bus.
+//!
+//! - [`bus`]: the bus model shared by the host simulation (`tests/`) and the hub: arbitration
+//!   by identifier, each frame on the bus for its bit time with stuff bits, every participant
+//!   but the sender receives it, and the fault vocabulary.
+//! - [`trace`]: candump log and pcap (SocketCAN link type) writers.
+//! - [`hub`]: participants that speak CAN-over-serial ([`dual_channel::can_serial`]) joined
+//!   to one [`bus::Bus`] in real time (the `can-hub` program).
+
+pub mod bus;
+pub mod hub;
+pub mod trace;

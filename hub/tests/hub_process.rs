@@ -1,0 +1,115 @@
+//! The `can-hub` program end to end: tools join over TCP, a frame one sends reaches the
+//! others (not itself), and the traces it writes are read by other tools: the candump log, and
+//! the pcap as tshark decodes it (CANopen over SocketCAN).
+
+use dual_channel::can_serial::{Decoder, encode};
+use shared::{CanFrame, CanId};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+struct Hub {
+    child: Child,
+    dir: std::path::PathBuf,
+}
+
+impl Drop for Hub {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn start(port: u16) -> Hub {
+    let dir = std::env::temp_dir().join(format!("can-hub-test-{}-{port}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
+        .args(["--tcp", &format!("127.0.0.1:{port}")])
+        .arg("--candump")
+        .arg(dir.join("bus.log"))
+        .arg("--pcap")
+        .arg(dir.join("bus.pcap"))
+        .spawn()
+        .unwrap();
+    Hub { child, dir }
+}
+
+fn connect(port: u16) -> TcpStream {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        match TcpStream::connect(("127.0.0.1", port)) {
+            Ok(stream) => {
+                stream
+                    .set_read_timeout(Some(Duration::from_secs(5)))
+                    .unwrap();
+                return stream;
+            }
+            Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+            Err(error) => panic!("hub not reachable: {error}"),
+        }
+    }
+}
+
+fn receive(stream: &mut TcpStream) -> CanFrame {
+    let mut decoder = Decoder::new();
+    let mut byte = [0u8; 1];
+    loop {
+        stream.read_exact(&mut byte).expect("a frame within 5 s");
+        if let Some(result) = decoder.push(byte[0]) {
+            return result.expect("well-formed");
+        }
+    }
+}
+
+#[test]
+fn frames_reach_the_other_participants_and_the_traces() {
+    let port = 20_000 + (std::process::id() % 20_000) as u16;
+    let hub = start(port);
+    let mut tool = connect(port);
+    let mut node = connect(port);
+    // Both joined before anything is sent.
+    std::thread::sleep(Duration::from_millis(200));
+    let boot_up = CanFrame::new(CanId::new(0x701).unwrap(), &[0x00]).unwrap();
+    let sdo = CanFrame::new(
+        CanId::new(0x601).unwrap(),
+        &[0x40, 0x00, 0x10, 0, 0, 0, 0, 0],
+    )
+    .unwrap();
+    node.write_all(&encode(&boot_up)).unwrap();
+    assert_eq!(receive(&mut tool), boot_up);
+    tool.write_all(&encode(&sdo)).unwrap();
+    assert_eq!(receive(&mut node), sdo);
+    std::thread::sleep(Duration::from_millis(200));
+
+    let log = std::fs::read_to_string(hub.dir.join("bus.log")).unwrap();
+    let lines: Vec<&str> = log.lines().collect();
+    assert_eq!(lines.len(), 2, "{log}");
+    assert!(lines[0].ends_with(" can0 701#00"), "{log}");
+    assert!(lines[1].ends_with(" can0 601#4000100000000000"), "{log}");
+
+    // tshark (Debian's package; `cargo xtask setup` installs it) decodes CANopen from the pcap.
+    let tshark = Command::new("tshark")
+        .args(["-r"])
+        .arg(hub.dir.join("bus.pcap"))
+        .args(["-d", "can.subdissector,canopen"])
+        .output();
+    match tshark {
+        Ok(output) if output.status.success() => {
+            let text = String::from_utf8_lossy(&output.stdout);
+            let lines: Vec<&str> = text.lines().collect();
+            assert_eq!(lines.len(), 2, "{text}");
+            assert!(
+                lines[0].contains("CANopen") && lines[0].contains("Boot-up"),
+                "{text}"
+            );
+            assert!(
+                lines[1].contains("CANopen") && lines[1].contains("SDO"),
+                "{text}"
+            );
+        }
+        Ok(output) => panic!("tshark failed: {}", String::from_utf8_lossy(&output.stderr)),
+        Err(_) => panic!("tshark is missing: run `cargo xtask setup`"),
+    }
+}
