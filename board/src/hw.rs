@@ -30,11 +30,10 @@ use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::{Flash, Slot, StorageError};
-use shared::node::NodeConfig;
 use shared::{CanFrame, CanId, Duration, Instant};
 use static_cell::StaticCell;
 
-use crate::InputObjects;
+use crate::Device;
 
 bind_interrupts!(struct Irqs {
     CAN1_RX0 => Rx0InterruptHandler<CAN1>;
@@ -265,12 +264,8 @@ fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
 }
 
 /// Initialises the board, spawns the peripheral tasks and runs the channel until reset.
-pub async fn run<R: Role<N>, const N: usize>(
-    spawner: Spawner,
-    device: NodeConfig,
-    role: R,
-    input_objects: InputObjects,
-) -> ! {
+pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, role: R) -> ! {
+    let input_objects = device.inputs;
     let p = embassy_stm32::init(clocks());
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
@@ -305,7 +300,8 @@ pub async fn run<R: Role<N>, const N: usize>(
     let parameters = ParameterFlash {
         flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
     };
-    let mut runtime = match Runtime::new(device, parameters, role, now(), LINK_PERIOD) {
+    let config = (device.describe)(device.default_id);
+    let mut runtime = match Runtime::new(config, parameters, role, now(), LINK_PERIOD) {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };

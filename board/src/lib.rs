@@ -10,12 +10,79 @@
 //! only the types both layers share.
 #![no_std]
 
+use shared::canopen::NodeId;
 use shared::canopen::od::Address;
+use shared::node::NodeConfig;
 
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 pub mod qemu;
+
+/// What a board layer needs to know about the device it runs.
+#[derive(Clone, Copy)]
+pub struct Device {
+    /// The device description for a node-ID.
+    pub describe: fn(NodeId) -> NodeConfig,
+    /// The node-ID when the board has none of its own (the hardware image's build setting).
+    pub default_id: NodeId,
+    /// The channel's safety input objects.
+    pub inputs: InputObjects,
+}
+
+/// The arguments of an emulated run (QEMU semihosting command line, words separated by
+/// spaces): `selftest` stops after the start-up self-tests; `node=N` sets the node-ID.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Arguments {
+    /// Stop after the self-tests.
+    pub selftest: bool,
+    /// The node-ID, when given (1..=127).
+    pub node: Option<NodeId>,
+    /// A word that was not understood (the run refuses to start).
+    pub unknown: bool,
+}
+
+/// Parses an emulated run's command line.
+pub fn parse_arguments(line: &[u8]) -> Arguments {
+    let mut arguments = Arguments::default();
+    for word in line
+        .split(|&b| b == b' ' || b == 0)
+        .filter(|w| !w.is_empty())
+    {
+        if word == b"selftest" {
+            arguments.selftest = true;
+        } else if let Some(value) = word.strip_prefix(b"node=") {
+            let id = core::str::from_utf8(value)
+                .ok()
+                .and_then(|text| text.parse::<u8>().ok())
+                .and_then(|raw| NodeId::new(raw).ok());
+            match id {
+                Some(id) => arguments.node = Some(id),
+                None => arguments.unknown = true,
+            }
+        } else {
+            arguments.unknown = true;
+        }
+    }
+    arguments
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn emulated_run_arguments() {
+        assert_eq!(parse_arguments(b""), Arguments::default());
+        let both = parse_arguments(b"node=33 selftest");
+        assert!(both.selftest && !both.unknown);
+        assert_eq!(both.node.map(NodeId::raw), Some(33));
+        assert!(parse_arguments(b"node=0").unknown);
+        assert!(parse_arguments(b"node=128").unknown);
+        assert!(parse_arguments(b"node=x").unknown);
+        assert!(parse_arguments(b"verbose").unknown);
+    }
+}
 
 /// The channel's safety input and its inverted copy in the object dictionary.
 #[derive(Clone, Copy, Debug)]

@@ -31,11 +31,10 @@ use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embassy_time_queue_utils::Queue;
 use shared::canopen::storage::RamFlash;
-use shared::node::NodeConfig;
 use shared::{CanFrame, Duration, Instant};
 use stm32_metapac::{Interrupt, RCC, USART2, USART3, interrupt};
 
-use crate::InputObjects;
+use crate::Device;
 
 /// The core clock QEMU's netduinoplus2 runs SysTick from.
 const CPU_HZ: u32 = 168_000_000;
@@ -43,12 +42,17 @@ const CPU_HZ: u32 = 168_000_000;
 const TICK_HZ: u32 = 1_000;
 /// SysTick reload value for one tick.
 const RELOAD: u32 = CPU_HZ / TICK_HZ - 1;
-/// Link heartbeat period.
-const LINK_PERIOD: Duration = Duration::from_millis(10);
+/// Link heartbeat period under emulation: 25 ms, because four QEMU instances sharing a small
+/// host see scheduling gaps of tens of milliseconds. It still gives four heartbeats per SCT
+/// when the emulated network's consumers use an SCT of 100 ms or more (`cargo xtask emulate`
+/// configures 200 ms); the hardware layer uses 10 ms.
+const LINK_PERIOD: Duration = Duration::from_millis(25);
 
 /// Bytes received on USART2 (CAN bridge) and USART3 (link), filled by their interrupts.
-static CAN_RX: Pipe<CriticalSectionRawMutex, 512> = Pipe::new();
+static CAN_RX: Pipe<CriticalSectionRawMutex, 4096> = Pipe::new();
 static LINK_RX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
+/// Set when the CAN receive pipe overflowed (reported by the main loop).
+static CAN_RX_LOST: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
 /// The SysTick time driver.
 struct SysTickDriver {
@@ -118,7 +122,9 @@ fn USART2() {
     while USART2.sr().read().rxne() {
         let byte = USART2.dr().read().dr() as u8;
         // A full pipe loses the byte: the frame fails its CRC and the core's timers act.
-        let _ = CAN_RX.try_write(&[byte]);
+        if CAN_RX.try_write(&[byte]).is_err() {
+            CAN_RX_LOST.store(true, core::sync::atomic::Ordering::Relaxed);
+        }
     }
 }
 
@@ -175,9 +181,9 @@ fn now() -> Instant {
     Instant::from_micros(embassy_time::Instant::now().as_micros())
 }
 
-/// `true` when QEMU was started with `selftest` among the semihosting arguments.
-fn selftest_only() -> bool {
-    let mut buf = [0u8; 64];
+/// The semihosting command line (QEMU's `-semihosting-config arg=...`).
+fn arguments() -> crate::Arguments {
+    let mut buf = [0u8; 96];
     #[repr(C)]
     struct Block {
         buf: *mut u8,
@@ -195,25 +201,14 @@ fn selftest_only() -> bool {
             &mut block as *mut Block as usize,
         )
     };
-    let len = block.len.min(buf.len());
-    defmt::debug!(
-        "semihosting command line: {=usize} {=[u8]:a}",
-        result,
-        &buf[..len]
-    );
-    result == 0
-        && buf[..len]
-            .split(|&b| b == b' ')
-            .any(|word| word == b"selftest")
+    if result != 0 {
+        return crate::Arguments::default();
+    }
+    crate::parse_arguments(&buf[..block.len.min(buf.len())])
 }
 
 /// Starts the board (SysTick, USARTs), runs the self-tests and then the channel.
-pub async fn run<R: Role<N>, const N: usize>(
-    _spawner: Spawner,
-    device: NodeConfig,
-    role: R,
-    input_objects: InputObjects,
-) -> ! {
+pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, role: R) -> ! {
     let Some(mut core) = cortex_m::Peripherals::take() else {
         exit(false);
     };
@@ -229,14 +224,27 @@ pub async fn run<R: Role<N>, const N: usize>(
     usart_init(USART2, Interrupt::USART2);
     usart_init(USART3, Interrupt::USART3);
 
+    let arguments = arguments();
+    if arguments.unknown {
+        defmt::error!("semihosting arguments not understood (use `selftest`, `node=N`)");
+        exit(false);
+    }
     let passed = crate::self_tests();
     defmt::info!("self-test verdict: {=bool}", passed);
-    if !passed || selftest_only() {
+    if !passed || arguments.selftest {
         exit(passed);
     }
+    let id = arguments.node.unwrap_or(device.default_id);
+    defmt::info!("node-ID {=u8}", id.raw());
+    let input_objects = device.inputs;
 
-    let Ok(mut runtime) = Runtime::new(device, RamFlash::<4096>::new(), role, now(), LINK_PERIOD)
-    else {
+    let Ok(mut runtime) = Runtime::new(
+        (device.describe)(id),
+        RamFlash::<4096>::new(),
+        role,
+        now(),
+        LINK_PERIOD,
+    ) else {
         defmt::error!("device description refused");
         exit(false);
     };
@@ -268,9 +276,14 @@ pub async fn run<R: Role<N>, const N: usize>(
         .await
         {
             Either3::First(n) => {
+                if CAN_RX_LOST.swap(false, core::sync::atomic::Ordering::Relaxed) {
+                    defmt::warn!("CAN receive pipe overflowed: bytes lost");
+                }
                 for &byte in &can_buf[..n] {
-                    if let Some(Ok(frame)) = can.push(byte) {
-                        runtime.on_frame(now(), &frame, &mut io);
+                    match can.push(byte) {
+                        Some(Ok(frame)) => runtime.on_frame(now(), &frame, &mut io),
+                        Some(Err(error)) => defmt::warn!("CAN bridge: {}", error),
+                        None => {}
                     }
                 }
             }

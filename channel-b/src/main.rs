@@ -2,16 +2,17 @@
 //!
 //! Built for `thumbv7em-none-eabihf` by `cargo xtask build`; on the host this binary only
 //! says so, so that `cargo clippy --workspace` covers the crate. The node-ID is taken from
-//! `SAFETY_NODE_ID` at build time (default 1); a real device reads it from its switches.
+//! `SAFETY_NODE_ID` at build time (default 1; under QEMU the `node=N` argument overrides it);
+//! a real device reads it from its switches.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
 mod firmware {
-    use board::InputObjects;
     #[cfg(feature = "hw")]
     use board::hw::run;
     #[cfg(all(feature = "qemu", not(feature = "hw")))]
     use board::qemu::run;
+    use board::{Device, InputObjects};
     use channel_b::role::ChannelB;
     #[cfg(feature = "hw")]
     use defmt_rtt as _;
@@ -50,17 +51,15 @@ mod firmware {
             Ok(role) => role,
             Err(_) => panic!("channel B input table"),
         };
-        let inputs = InputObjects {
-            plain: device::INPUT,
-            inverted: device::INPUT_INVERTED,
+        let device = Device {
+            describe: |id| device::config(id, "safety node, channel B"),
+            default_id: node_id(),
+            inputs: InputObjects {
+                plain: device::INPUT,
+                inverted: device::INPUT_INVERTED,
+            },
         };
-        run::<_, 4>(
-            spawner,
-            device::config(node_id(), "safety node, channel B"),
-            role,
-            inputs,
-        )
-        .await
+        run::<_, 4>(spawner, device, role).await
     }
 }
 

@@ -9,4 +9,5 @@
 
 pub mod bus;
 pub mod hub;
+pub mod tool;
 pub mod trace;

@@ -4,6 +4,7 @@
 //! a fresh clone needs nothing but a Rust toolchain.
 
 mod bench;
+mod emulate;
 mod images;
 mod qemu;
 mod toolchain;
@@ -42,6 +43,13 @@ enum Task {
         /// Which channel's image: `a` or `b`.
         #[arg(value_parser = ["a", "b"])]
         channel: String,
+    },
+    /// The emulated network (work in progress): the bus hub, both nodes as four QEMU
+    /// instances, configured and started by a tool over the hub; prints a summary.
+    Emulate {
+        /// How long to watch the bus after NMT start.
+        #[arg(long, default_value_t = 5)]
+        seconds: u64,
     },
     /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
     Qemu {
@@ -91,6 +99,7 @@ fn main() -> Result<()> {
             images::build(&root, &cross)
         }
         Task::Test => test(&root),
+        Task::Emulate { seconds } => emulate::run(&root, seconds),
         Task::Qemu {
             channel,
             selftest,

@@ -215,10 +215,17 @@ impl Receiver {
             cobs::decode(&self.buffer, &mut raw).ok()
         };
         self.buffer.clear();
-        Some(match decoded {
+        let result = match decoded {
             None => Err(LinkFault::Malformed),
             Some(report) => self.check(now, raw.get(..report.frame_size()).unwrap_or_default()),
-        })
+        };
+        if self.expected.is_none() && result.is_err() {
+            // Before the first valid message the line may carry the tail of a frame the other
+            // channel sent before this one listened: not a fault, the start-up deadline
+            // still applies.
+            return None;
+        }
+        Some(result)
     }
 
     /// Checks a decoded frame: length, CRC, message, sequence.

@@ -100,6 +100,24 @@ fn the_first_message_starts_the_count_within_the_startup_time() {
 }
 
 #[test]
+fn garbage_before_the_first_message_is_ignored_but_not_after() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let wire = sender.encode(&Message::Inputs { sample: 1 }).unwrap();
+    // The tail of a frame sent before this channel listened.
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &wire[3..]), []);
+    let next = sender.encode(&Message::Inputs { sample: 2 }).unwrap();
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &next),
+        [Ok(Message::Inputs { sample: 2 })]
+    );
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &wire[3..]),
+        [Err(LinkFault::Malformed)]
+    );
+}
+
+#[test]
 fn a_repeated_message_is_a_fault() {
     let mut sender = Sender::new();
     let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
@@ -168,6 +186,8 @@ fn the_link_times_out_at_the_deadline_itself_and_each_message_extends_it() {
 fn an_overlong_frame_is_malformed_and_the_next_one_is_read() {
     let mut sender = Sender::new();
     let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let first = sender.encode(&Message::Inputs { sample: 6 }).unwrap();
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &first).len(), 1);
     let noise = [0x55u8; 3 * MAX_WIRE];
     assert_eq!(feed(&mut receiver, Instant::ZERO, &noise), []);
     assert_eq!(
