@@ -281,7 +281,14 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
                 }
                 for &byte in &can_buf[..n] {
                     match can.push(byte) {
-                        Some(Ok(frame)) => runtime.on_frame(now(), &frame, &mut io),
+                        Some(Ok(frame)) => {
+                            defmt::debug!(
+                                "CAN rx {=u16:X} {=[u8]:X}",
+                                frame.id().raw(),
+                                frame.data()
+                            );
+                            runtime.on_frame(now(), &frame, &mut io);
+                        }
                         Some(Err(error)) => defmt::warn!("CAN bridge: {}", error),
                         None => {}
                     }

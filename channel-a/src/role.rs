@@ -103,6 +103,10 @@ impl<const N: usize> Role<N> for ChannelA {
         // Table-driven CRC-16 of the `crc` crate, through the protocol core.
         fold_signatures(config.srdos.iter().map(signature::compute))
     }
+
+    fn speaks_for_the_node(&self) -> bool {
+        true
+    }
 }
 
 #[cfg(test)]

@@ -19,6 +19,10 @@
 //! - **Configuration and NMT cross-check.** Every heartbeat carries the sender's NMT state and
 //!   a digest of the signatures it computes by its own implementation; in Operational the
 //!   digests must match, and the NMT states may differ for at most two link periods.
+//! - **Start-up together.** A core boots only once the other channel has been heard on the
+//!   link, and the channel that speaks for the node (A) only once the other's core has booted
+//!   (its heartbeat says so): the node's boot-up message means both channels follow the bus. A
+//!   channel whose partner never speaks stays silent and reports the link time-out.
 //! - **Latched safe state.** Any fault: outputs 0, the core's own safe state (EMCY FF02h, its
 //!   producers stop), the other channel told. Cleared only by NMT reset node or communication,
 //!   which both channels see on the bus.
@@ -71,6 +75,12 @@ pub trait Role<const N: usize> {
     /// The signature of every SRDO of `config` as this channel computes it (by its own
     /// implementation), folded into one CRC-32 for the link.
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32;
+
+    /// `true` for the channel whose frames other than SRDOs go on the bus (channel A): its
+    /// core boots only after the other channel's has.
+    fn speaks_for_the_node(&self) -> bool {
+        false
+    }
 }
 
 /// Why a channel went to the safe state on its own account (faults of the SRDOs themselves
@@ -192,6 +202,8 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     peer_nmt: Option<u8>,
     nmt_differs_since: Option<Instant>,
     fault: Option<ChannelFault>,
+    /// The other channel has been heard: the core may boot.
+    link_up: bool,
     outputs: [u64; N],
     pairs: [u32; N],
 }
@@ -218,6 +230,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             peer_nmt: None,
             nmt_differs_since: None,
             fault: None,
+            link_up: false,
             outputs: [0; N],
             pairs: [0; N],
         })
@@ -252,8 +265,17 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         self.fault.is_none() && self.node.is_working()
     }
 
+    /// `true` once the other channel has been heard on the link: until then the core does
+    /// not boot, so the node announces itself (boot-up) only when both channels are up.
+    pub fn link_up(&self) -> bool {
+        self.link_up
+    }
+
     /// A frame from the bus.
     pub fn on_frame(&mut self, now: Instant, frame: &CanFrame, io: &mut impl Io) {
+        if !self.link_up {
+            return; // The core has not booted: the node is not on the bus yet.
+        }
         if self.fault.is_none() {
             let reply = self.role.observe(now, frame, self.node.safety_config());
             self.role_reply(reply, io);
@@ -268,7 +290,17 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         match self.receiver.receive(now, byte) {
             None => {}
             Some(Err(fault)) => self.latch(ChannelFault::Link(fault), io),
-            Some(Ok(message)) => self.on_message(now, message, io),
+            Some(Ok(message)) => {
+                if !self.link_up {
+                    // The silent channel's core boots as soon as it hears the other; the
+                    // channel that speaks for the node waits until the other's core has
+                    // booted, so that its boot-up message means both channels follow the bus.
+                    let peer_booted = matches!(message, Message::Heartbeat { nmt, .. }
+                        if nmt != NmtState::Initialising.heartbeat_code());
+                    self.link_up = !self.role.speaks_for_the_node() || peer_booted;
+                }
+                self.on_message(now, message, io);
+            }
         }
     }
 
@@ -297,17 +329,24 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if self.fault.is_none() {
             self.role_reply(reply, io);
         }
-        let mut collect = Collect::new();
-        self.node.poll(now, &mut collect);
-        self.after_core(now, collect, io);
+        if self.link_up {
+            let mut collect = Collect::new();
+            self.node.poll(now, &mut collect);
+            self.after_core(now, collect, io);
+        }
         Ok(())
     }
 
     /// Runs what is due at `now`; returns when to call again.
     pub fn poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
-        let mut collect = Collect::new();
-        let node_deadline = self.node.poll(now, &mut collect);
-        self.after_core(now, collect, io);
+        let node_deadline = if self.link_up {
+            let mut collect = Collect::new();
+            let deadline = self.node.poll(now, &mut collect);
+            self.after_core(now, collect, io);
+            deadline
+        } else {
+            Instant::NEVER
+        };
         if let Err(srdo) = self.role.poll(now) {
             self.role_reply(Err(srdo), io);
         }
@@ -455,6 +494,13 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     }
 
     fn on_message(&mut self, now: Instant, message: Message, io: &mut impl Io) {
+        #[cfg(feature = "defmt")]
+        if !matches!(
+            message,
+            Message::Heartbeat { .. } | Message::Configuration { .. }
+        ) {
+            defmt::debug!("link: {}", message);
+        }
         match message {
             Message::Heartbeat { nmt, .. } => {
                 self.peer_nmt = Some(nmt);

@@ -466,7 +466,15 @@ impl DualNetwork {
     /// Configures node 33 to consume node 1's SRDO, validates both, and starts the network
     /// with both channels of node 1 reading input 1.
     pub fn configure_and_start(&mut self) -> Result<(), ClientError> {
-        self.run_for(Duration::from_millis(5));
+        // Both channels of every node come up together (the link first): wait for boot-up.
+        for _ in 0..100 {
+            if self.nodes.iter().all(|node| {
+                node.a.node().nmt_state() == shared::canopen::nmt::NmtState::PreOperational
+            }) {
+                break;
+            }
+            self.run_for(Duration::from_millis(1));
+        }
         self.write(33, Address::new(0x1301, 1), &[0])?;
         self.write(33, Address::new(0x1301, 5), &0x101u32.to_le_bytes())?;
         self.write(33, Address::new(0x1301, 6), &0x102u32.to_le_bytes())?;

@@ -244,3 +244,34 @@ fn nmt_reset_clears_both_channels_together() {
     );
     assert_eq!(net.output(33), 1);
 }
+
+/// Start-up: channel A's core (the one that speaks for the node) boots only after channel
+/// B's has, so the node's boot-up message means both channels follow the bus; a channel
+/// whose partner never speaks stays silent and reports the link time-out.
+#[test]
+fn a_node_announces_itself_only_when_both_channels_are_up() {
+    let mut net = DualNetwork::new(500_000, &[1]);
+    net.node_mut(1).link_faults.cut = true;
+    net.run_for(Duration::from_millis(1500));
+    assert!(
+        net.trace
+            .iter()
+            .all(|(_, frame, _)| frame.id().raw() != 0x701),
+        "no boot-up while the channels cannot hear each other"
+    );
+    assert_eq!(
+        net.node(1).a.fault(),
+        Some(ChannelFault::Link(LinkFault::Timeout))
+    );
+
+    let mut net = DualNetwork::new(500_000, &[1]);
+    net.run_for(Duration::from_millis(50));
+    let boot_up = net
+        .trace
+        .iter()
+        .find(|(_, frame, _)| frame.id().raw() == 0x701 && frame.data() == [0x00])
+        .map(|(at, ..)| *at)
+        .expect("boot-up once both are up");
+    assert_eq!(net.node(1).b.node().nmt_state(), NmtState::PreOperational);
+    assert!(boot_up <= Instant::from_millis(30), "{boot_up:?}");
+}
