@@ -18,7 +18,8 @@
 //!   a missing, late, repeated or corrupt message is a fault ([`Receiver`]).
 //! - **Configuration and NMT cross-check.** Every heartbeat carries the sender's NMT state and
 //!   a digest of the signatures it computes by its own implementation; in Operational the
-//!   digests must match, and the NMT states may differ for at most two link periods.
+//!   digests must match (an output leaves the safe state only after they have, once per
+//!   Operational period), and the NMT states may differ for at most two link periods.
 //! - **Start-up together.** A core boots only once the other channel has been heard on the
 //!   link, and the channel that speaks for the node (A) only once the other's core has booted
 //!   (its heartbeat says so): the node's boot-up message means both channels follow the bus. A
@@ -204,6 +205,9 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     fault: Option<ChannelFault>,
     /// The other channel has been heard: the core may boot.
     link_up: bool,
+    /// In this Operational period the other channel's configuration digest matched ours: only
+    /// then may an output leave the safe state.
+    configuration_confirmed: bool,
     outputs: [u64; N],
     pairs: [u32; N],
 }
@@ -231,6 +235,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             nmt_differs_since: None,
             fault: None,
             link_up: false,
+            configuration_confirmed: false,
             outputs: [0; N],
             pairs: [0; N],
         })
@@ -453,6 +458,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if self.node.nmt_state() != NmtState::Operational {
             self.verdicts.reset();
             self.pairs = [0; N];
+            self.configuration_confirmed = false;
         }
         if matches!(
             self.node.nmt_state(),
@@ -532,8 +538,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 let own = self.node.safety_config();
                 let differs = valid != own.configuration_valid
                     || signatures != self.role.signature_digest(own);
-                if nmt == operational && self.node.nmt_state() == NmtState::Operational && differs {
-                    self.latch(ChannelFault::ConfigurationMismatch, io);
+                if nmt == operational && self.node.nmt_state() == NmtState::Operational {
+                    if differs {
+                        self.latch(ChannelFault::ConfigurationMismatch, io);
+                    } else {
+                        self.configuration_confirmed = true;
+                    }
                 }
             }
             Message::SafeState { cause } => {
@@ -555,6 +565,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     fn confirmed(&mut self, srdo: u8, data: u64, io: &mut impl Io) {
         io.event(ChannelEvent::Confirmed { srdo, data });
+        if !self.configuration_confirmed {
+            // Both channels agree on the data, but not yet (in Operational) on the
+            // configuration that produced it: the output stays where it is.
+            return;
+        }
         if let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) {
             self.drive(index, data, io);
         }

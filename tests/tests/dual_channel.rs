@@ -275,3 +275,29 @@ fn a_node_announces_itself_only_when_both_channels_are_up() {
     assert_eq!(net.node(1).b.node().nmt_state(), NmtState::PreOperational);
     assert!(boot_up <= Instant::from_millis(30), "{boot_up:?}");
 }
+
+/// An output leaves the safe state only after both channels compared their configuration
+/// digests in Operational: a pair confirmed before the first heartbeat exchange in
+/// Operational leaves the output at 0; the next one, after it, drives it.
+#[test]
+fn outputs_wait_for_the_configuration_cross_check_in_operational() {
+    let mut net = DualNetwork::new(500_000, &[1, 33]);
+    net.configure_and_start().expect("configuration accepted");
+    let confirmed = |net: &DualNetwork| {
+        net.log.iter().any(|(_, id, side, e)| {
+            *id == 33 && *side == Side::A && matches!(e, ChannelEvent::Confirmed { .. })
+        })
+    };
+    let give_up = net.now + Duration::from_millis(100);
+    while !confirmed(&net) && net.now < give_up {
+        net.run_for(Duration::from_micros(50));
+    }
+    assert!(confirmed(&net), "a pair was confirmed");
+    assert_eq!(
+        net.node(33).a.output(1),
+        0,
+        "confirmed data, but the configurations were not compared yet"
+    );
+    net.run_for(Duration::from_millis(60));
+    assert_eq!(net.output(33), 1);
+}
