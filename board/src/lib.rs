@@ -38,6 +38,9 @@ pub struct Arguments {
     pub selftest: bool,
     /// The node-ID, when given (1..=127).
     pub node: Option<NodeId>,
+    /// Panic right after the self-tests (`crash`), to check that a panic ends the emulated
+    /// run with failure instead of hanging.
+    pub crash: bool,
     /// A word that was not understood (the run refuses to start).
     pub unknown: bool,
 }
@@ -51,6 +54,8 @@ pub fn parse_arguments(line: &[u8]) -> Arguments {
     {
         if word == b"selftest" {
             arguments.selftest = true;
+        } else if word == b"crash" {
+            arguments.crash = true;
         } else if let Some(value) = word.strip_prefix(b"node=") {
             let id = core::str::from_utf8(value)
                 .ok()
@@ -81,6 +86,7 @@ mod tests {
         assert!(parse_arguments(b"node=128").unknown);
         assert!(parse_arguments(b"node=x").unknown);
         assert!(parse_arguments(b"verbose").unknown);
+        assert!(parse_arguments(b"crash").crash);
     }
 }
 

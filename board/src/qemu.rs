@@ -234,6 +234,9 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     if !passed || arguments.selftest {
         exit(passed);
     }
+    if arguments.crash {
+        panic!("deliberate crash (argument `crash`)");
+    }
     let id = arguments.node.unwrap_or(device.default_id);
     defmt::info!("node-ID {=u8}", id.raw());
     let input_objects = device.inputs;

@@ -206,11 +206,18 @@ fn test(root: &Path) -> Result<()> {
         .args(["--", "-D", "warnings"]))?;
     for channel in ["a", "b"] {
         let image = qemu::image(&cross, root, channel);
-        let (exited_ok, log) = qemu::run_alone(&image, true, std::time::Duration::from_secs(30))?;
+        let limit = std::time::Duration::from_secs(30);
+        let (code, log) = qemu::run_alone(&image, &["selftest"], limit)?;
         print!("{log}");
-        if !exited_ok || !log.contains("self-test verdict: true") {
+        if code != 0 || !log.contains("self-test verdict: true") {
             anyhow::bail!("channel {channel}: self-test under QEMU failed");
         }
+        // A panic must end the run with failure, promptly, not hang until the time limit.
+        let (code, log) = qemu::run_alone(&image, &["crash"], limit)?;
+        if code == 0 || code == 124 || !log.contains("deliberate crash") {
+            anyhow::bail!("channel {channel}: a panic under QEMU ended with {code}:\n{log}");
+        }
+        println!("xtask: channel {channel}: a panic exits QEMU with code {code}");
     }
     step("traceability matrix");
     trace::run(root)?;

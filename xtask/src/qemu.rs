@@ -42,13 +42,15 @@ pub fn image(cross: &Cross, root: &Path, channel: &str) -> PathBuf {
         .join(format!("channel-{channel}"))
 }
 
-/// Runs one image alone; returns its decoded log. `selftest`: stop after the self-tests.
-pub fn run_alone(image: &Path, selftest: bool, limit: Duration) -> Result<(bool, String)> {
+/// Runs one image alone with semihosting arguments `arguments` (e.g. `selftest`); returns
+/// QEMU's exit code (124: the time limit ended it) and the decoded log.
+pub fn run_alone(image: &Path, arguments: &[&str], limit: Duration) -> Result<(i32, String)> {
     toolchain::require("qemu-system-arm", "run `cargo xtask setup`")?;
     toolchain::require("defmt-print", "run `cargo xtask setup`")?;
     let mut semihosting = String::from("enable=on,target=native");
-    if selftest {
-        semihosting.push_str(",arg=selftest");
+    for argument in arguments {
+        semihosting.push_str(",arg=");
+        semihosting.push_str(argument);
     }
     let mut qemu = Command::new("timeout")
         .arg(format!("{}", limit.as_secs()))
@@ -88,7 +90,7 @@ pub fn run_alone(image: &Path, selftest: bool, limit: Duration) -> Result<(bool,
     let decoded = decoder.wait_with_output()?;
     let log = String::from_utf8_lossy(&decoded.stdout).into_owned();
     // `timeout` exits with 124 when the limit ended the run.
-    Ok((status.success(), log))
+    Ok((status.code().unwrap_or(-1), log))
 }
 
 /// `cargo xtask qemu`.
@@ -98,10 +100,11 @@ pub fn task(root: &Path, channel: &str, selftest: bool, seconds: u64) -> Result<
     toolchain::ensure_defmt_print()?;
     build(root, &cross)?;
     let image = image(&cross, root, channel);
-    let (exited_ok, log) = run_alone(&image, selftest, Duration::from_secs(seconds))?;
+    let arguments: &[&str] = if selftest { &["selftest"] } else { &[] };
+    let (code, log) = run_alone(&image, arguments, Duration::from_secs(seconds))?;
     print!("{log}");
     if selftest {
-        if !exited_ok || !log.contains("self-test verdict: true") {
+        if code != 0 || !log.contains("self-test verdict: true") {
             bail!("channel {channel}: self-test under QEMU failed");
         }
         println!("xtask: channel {channel}: self-test passed under QEMU");
