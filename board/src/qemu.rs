@@ -42,11 +42,11 @@ const CPU_HZ: u32 = 168_000_000;
 const TICK_HZ: u32 = 1_000;
 /// SysTick reload value for one tick.
 const RELOAD: u32 = CPU_HZ / TICK_HZ - 1;
-/// Link heartbeat period under emulation: 25 ms, because four QEMU instances sharing a small
-/// host see scheduling gaps of tens of milliseconds. It still gives four heartbeats per SCT
-/// when the emulated network's consumers use an SCT of 100 ms or more (`cargo xtask emulate`
-/// configures 200 ms); the hardware layer uses 10 ms.
-const LINK_PERIOD: Duration = Duration::from_millis(25);
+/// Link heartbeat period under emulation: 50 ms, because four QEMU instances sharing a small
+/// host see scheduling gaps of tens of milliseconds. It still gives at least four heartbeats
+/// per SCT when the emulated network's consumers use an SCT of 200 ms or more (`cargo xtask
+/// emulate` configures 500 ms); the hardware layer uses 10 ms.
+const LINK_PERIOD: Duration = Duration::from_millis(50);
 
 /// Bytes received on USART2 (CAN bridge) and USART3 (link), filled by their interrupts.
 static CAN_RX: Pipe<CriticalSectionRawMutex, 4096> = Pipe::new();

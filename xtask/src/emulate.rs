@@ -136,12 +136,12 @@ pub fn run(root: &Path, seconds: u64) -> Result<()> {
         tool.write(33, Address::new(0x1301, 1), &[0])?;
         tool.write(33, Address::new(0x1301, 5), &0x101u32.to_le_bytes())?;
         tool.write(33, Address::new(0x1301, 6), &0x102u32.to_le_bytes())?;
-        // Emulation timing: refresh 50 ms, SCT 200 ms, SRVT 50 ms (QEMU's scheduling on a
+        // Emulation timing: refresh 100 ms, SCT 500 ms, SRVT 100 ms (QEMU's scheduling on a
         // shared host is coarser than an MCU's).
-        tool.write(33, Address::new(0x1301, 2), &200u16.to_le_bytes())?;
-        tool.write(33, Address::new(0x1301, 3), &[50])?;
+        tool.write(33, Address::new(0x1301, 2), &500u16.to_le_bytes())?;
+        tool.write(33, Address::new(0x1301, 3), &[100])?;
         tool.write(33, Address::new(0x1301, 1), &[2])?;
-        tool.write(1, Address::new(0x1301, 2), &50u16.to_le_bytes())?;
+        tool.write(1, Address::new(0x1301, 2), &100u16.to_le_bytes())?;
         for id in [1, 33] {
             let signature = tool.sign_validate_store(id)?;
             eprintln!("xtask: node {id}: SRDO 1 signature {signature:04X}h, validated, stored");
