@@ -30,6 +30,31 @@ pub struct Device {
     pub inputs: InputObjects,
 }
 
+/// The RAM per SRDO of the image's protocol core, kept in the image so that `cargo xtask
+/// bench` reports the figure for the real target, not the host.
+#[cfg(target_os = "none")]
+#[used]
+#[unsafe(no_mangle)]
+static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
+
+impl Device {
+    /// The demo device (`dual_channel::device`) named `describe` gives, with the node-ID the
+    /// image was built for (`SAFETY_NODE_ID`, default 1; a real device reads its switches).
+    pub fn built(describe: fn(NodeId) -> NodeConfig) -> Result<Device, u8> {
+        let raw = option_env!("SAFETY_NODE_ID")
+            .and_then(|text| text.parse::<u8>().ok())
+            .unwrap_or(1);
+        Ok(Device {
+            describe,
+            default_id: NodeId::new(raw).map_err(|_| raw)?,
+            inputs: InputObjects {
+                plain: dual_channel::device::INPUT,
+                inverted: dual_channel::device::INPUT_INVERTED,
+            },
+        })
+    }
+}
+
 /// The arguments of an emulated run (QEMU semihosting command line, words separated by
 /// spaces): `selftest` stops after the start-up self-tests; `node=N` sets the node-ID.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

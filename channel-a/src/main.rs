@@ -8,11 +8,11 @@
 
 #[cfg(target_os = "none")]
 mod firmware {
+    use board::Device;
     #[cfg(feature = "hw")]
     use board::hw::run;
     #[cfg(all(feature = "qemu", not(feature = "hw")))]
     use board::qemu::run;
-    use board::{Device, InputObjects};
     use channel_a::role::ChannelA;
     #[cfg(feature = "hw")]
     use defmt_rtt as _;
@@ -21,41 +21,14 @@ mod firmware {
     use dual_channel::device;
     use embassy_executor::Spawner;
     use panic_probe as _;
-    use shared::canopen::NodeId;
-
-    /// The RAM per SRDO of this image's protocol core, kept in the image so that
-    /// `cargo xtask bench` reports the figure for the real target, not the host.
-    #[used]
-    #[unsafe(no_mangle)]
-    static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
-
-    /// The node-ID this image was built for.
-    fn node_id() -> NodeId {
-        let raw = option_env!("SAFETY_NODE_ID")
-            .and_then(|text| text.parse::<u8>().ok())
-            .unwrap_or(1);
-        match NodeId::new(raw) {
-            Ok(id) => id,
-            Err(_) => panic!("SAFETY_NODE_ID must be 1..=127"),
-        }
-    }
 
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
-        defmt::info!(
-            "channel {=char}: node {=u8}",
-            channel_a::CHANNEL,
-            node_id().raw()
-        );
-        let role = ChannelA::default();
-        let device = Device {
-            describe: |id| device::config(id, "safety node, channel A"),
-            default_id: node_id(),
-            inputs: InputObjects {
-                plain: device::INPUT,
-                inverted: device::INPUT_INVERTED,
-            },
+        defmt::info!("channel {=char}", channel_a::CHANNEL);
+        let Ok(device) = Device::built(|id| device::config(id, "safety node, channel A")) else {
+            panic!("SAFETY_NODE_ID must be 1..=127");
         };
+        let role = ChannelA::default();
         run::<_, 4>(spawner, device, role).await
     }
 }

@@ -8,11 +8,11 @@
 
 #[cfg(target_os = "none")]
 mod firmware {
+    use board::Device;
     #[cfg(feature = "hw")]
     use board::hw::run;
     #[cfg(all(feature = "qemu", not(feature = "hw")))]
     use board::qemu::run;
-    use board::{Device, InputObjects};
     use channel_b::role::ChannelB;
     #[cfg(feature = "hw")]
     use defmt_rtt as _;
@@ -21,43 +21,16 @@ mod firmware {
     use dual_channel::device;
     use embassy_executor::Spawner;
     use panic_probe as _;
-    use shared::canopen::NodeId;
-
-    /// The RAM per SRDO of this image's protocol core, kept in the image so that
-    /// `cargo xtask bench` reports the figure for the real target, not the host.
-    #[used]
-    #[unsafe(no_mangle)]
-    static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
-
-    /// The node-ID this image was built for.
-    fn node_id() -> NodeId {
-        let raw = option_env!("SAFETY_NODE_ID")
-            .and_then(|text| text.parse::<u8>().ok())
-            .unwrap_or(1);
-        match NodeId::new(raw) {
-            Ok(id) => id,
-            Err(_) => panic!("SAFETY_NODE_ID must be 1..=127"),
-        }
-    }
 
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
-        defmt::info!(
-            "channel {=char}: node {=u8}",
-            channel_b::CHANNEL,
-            node_id().raw()
-        );
+        defmt::info!("channel {=char}", channel_b::CHANNEL);
+        let Ok(device) = Device::built(|id| device::config(id, "safety node, channel B")) else {
+            panic!("SAFETY_NODE_ID must be 1..=127");
+        };
         let role = match ChannelB::new(&[(0x6000, 1, 1)]) {
             Ok(role) => role,
             Err(_) => panic!("channel B input table"),
-        };
-        let device = Device {
-            describe: |id| device::config(id, "safety node, channel B"),
-            default_id: node_id(),
-            inputs: InputObjects {
-                plain: device::INPUT,
-                inverted: device::INPUT_INVERTED,
-            },
         };
         run::<_, 4>(spawner, device, role).await
     }

@@ -6,6 +6,7 @@
 //! COBS( id: u16 LE, bit 15 = RTR | dlc: u8 | data[dlc] | CRC-16/XMODEM LE ) 0x00
 //! ```
 
+use crate::cobs_frames::{Completed, Reassembler};
 use crc::{CRC_16_XMODEM, Crc};
 use shared::{CanFrame, CanId};
 
@@ -51,40 +52,24 @@ pub fn encode(frame: &CanFrame) -> heapless::Vec<u8, MAX_WIRE> {
 /// Reassembles frames from a byte stream.
 #[derive(Clone, Debug, Default)]
 pub struct Decoder {
-    buffer: heapless::Vec<u8, MAX_WIRE>,
-    overflowed: bool,
+    frames: Reassembler<MAX_WIRE>,
 }
 
 impl Decoder {
     /// An empty decoder.
     pub const fn new() -> Self {
         Decoder {
-            buffer: heapless::Vec::new(),
-            overflowed: false,
+            frames: Reassembler::new(),
         }
     }
 
     /// Feeds one byte; returns a frame (or why not) when the byte ends one.
     pub fn push(&mut self, byte: u8) -> Option<Result<CanFrame, SerialError>> {
-        if byte != 0 {
-            if self.buffer.push(byte).is_err() {
-                self.overflowed = true;
-            }
-            return None;
-        }
-        let overflowed = core::mem::replace(&mut self.overflowed, false);
-        if self.buffer.is_empty() && !overflowed {
-            return None;
-        }
         let mut raw = [0u8; MAX_WIRE];
-        let decoded = (!overflowed)
-            .then(|| cobs::decode(&self.buffer, &mut raw).ok())
-            .flatten();
-        self.buffer.clear();
-        let Some(report) = decoded else {
-            return Some(Err(SerialError::Malformed));
-        };
-        Some(parse(raw.get(..report.frame_size()).unwrap_or_default()))
+        Some(match self.frames.push(byte, &mut raw)? {
+            Completed::Broken => Err(SerialError::Malformed),
+            Completed::Frame(len) => parse(raw.get(..len).unwrap_or_default()),
+        })
     }
 }
 

@@ -12,6 +12,7 @@
 #![forbid(unsafe_code)]
 
 pub mod can_serial;
+pub mod cobs_frames;
 pub mod crosscheck;
 pub mod device;
 pub mod link;

@@ -22,6 +22,7 @@
 //! repeated or corrupt message is a fault"). The receiver resynchronises afterwards so that the
 //! channels can agree again after an NMT reset.
 
+use crate::cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};
 use serde::{Deserialize, Serialize};
 use shared::{Duration, Instant};
@@ -157,8 +158,7 @@ impl Sender {
 /// The receiving side: reassembles frames, checks CRC and sequence, watches the timeout.
 #[derive(Clone, Debug)]
 pub struct Receiver {
-    buffer: heapless::Vec<u8, MAX_WIRE>,
-    overflowed: bool,
+    frames: Reassembler<MAX_WIRE>,
     /// The next sequence number; `None` until the first valid message, whose number starts
     /// the count (the other channel may have started first).
     expected: Option<u16>,
@@ -172,8 +172,7 @@ impl Receiver {
     /// message's sequence number starts the count.
     pub fn new(now: Instant, timeout: Duration, startup: Duration) -> Self {
         Receiver {
-            buffer: heapless::Vec::new(),
-            overflowed: false,
+            frames: Reassembler::new(),
             expected: None,
             timeout,
             deadline: now + startup,
@@ -197,27 +196,10 @@ impl Receiver {
 
     /// Feeds one received byte; returns a message or a fault when it completes a frame.
     pub fn receive(&mut self, now: Instant, byte: u8) -> Option<Result<Message, LinkFault>> {
-        if byte != 0 {
-            if self.buffer.push(byte).is_err() {
-                self.overflowed = true;
-            }
-            return None;
-        }
-        let overflowed = core::mem::replace(&mut self.overflowed, false);
-        if self.buffer.is_empty() && !overflowed {
-            // Two delimiters in a row: a resynchronisation or line idle, no message.
-            return None;
-        }
         let mut raw = [0u8; MAX_WIRE];
-        let decoded = if overflowed {
-            None
-        } else {
-            cobs::decode(&self.buffer, &mut raw).ok()
-        };
-        self.buffer.clear();
-        let result = match decoded {
-            None => Err(LinkFault::Malformed),
-            Some(report) => self.check(now, raw.get(..report.frame_size()).unwrap_or_default()),
+        let result = match self.frames.push(byte, &mut raw)? {
+            Completed::Broken => Err(LinkFault::Malformed),
+            Completed::Frame(len) => self.check(now, raw.get(..len).unwrap_or_default()),
         };
         if self.expected.is_none() && result.is_err() {
             // Before the first valid message the line may carry the tail of a frame the other
