@@ -20,6 +20,9 @@
 //!   a digest of the signatures it computes by its own implementation; in Operational the
 //!   digests must match (an output leaves the safe state only after they have, once per
 //!   Operational period), and the NMT states may differ for at most two link periods.
+//! - **Input cross-check.** Each channel sends a digest of its input samples on every change
+//!   and with every heartbeat; samples that differ for longer than [`INPUT_DISCREPANCY`] are a
+//!   fault (a stuck or broken contact), even when no SRDO carries them.
 //! - **Start-up together.** A core boots only once the other channel has been heard on the
 //!   link, and the channel that speaks for the node (A) only once the other's core has booted
 //!   (its heartbeat says so): the node's boot-up message means both channels follow the bus. A
@@ -41,6 +44,10 @@ use shared::{CanFrame, Duration, Instant};
 /// run first). Until then the channel is in its safe state anyway: it has not confirmed
 /// anything.
 pub const STARTUP: Duration = Duration::from_millis(1000);
+
+/// How long the two channels' input samples may differ: the two contacts of one emergency
+/// stop never open at exactly the same moment. Longer is a fault (a contact stuck or broken).
+pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 
 /// What differs between channel A and channel B.
 pub trait Role<const N: usize> {
@@ -103,6 +110,9 @@ pub enum ChannelFault {
     ConfigurationMismatch,
     /// The channels' NMT states differed for longer than two link periods.
     NmtMismatch,
+    /// The two channels' input samples differed for longer than [`INPUT_DISCREPANCY`] (a
+    /// stuck or broken contact on one channel).
+    InputDiscrepancy,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -125,6 +135,7 @@ impl ChannelFault {
             ChannelFault::TransmitMismatch { .. } => 0x30,
             ChannelFault::ConfigurationMismatch => 0x31,
             ChannelFault::NmtMismatch => 0x32,
+            ChannelFault::InputDiscrepancy => 0x33,
             ChannelFault::PeerSafeState { .. } => 0x40,
         }
     }
@@ -205,6 +216,12 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     fault: Option<ChannelFault>,
     /// The other channel has been heard: the core may boot.
     link_up: bool,
+    /// This channel's inputs as last sampled (object, value), folded into [`Message::Inputs`].
+    inputs: heapless::Vec<(Address, u64), 8>,
+    /// The other channel's last input digest.
+    peer_inputs: Option<u32>,
+    /// Since when the two input digests differ.
+    inputs_differ_since: Option<Instant>,
     /// In this Operational period the other channel's configuration digest matched ours: only
     /// then may an output leave the safe state.
     configuration_confirmed: bool,
@@ -235,6 +252,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             nmt_differs_since: None,
             fault: None,
             link_up: false,
+            inputs: heapless::Vec::new(),
+            peer_inputs: None,
+            inputs_differ_since: None,
             configuration_confirmed: false,
             outputs: [0; N],
             pairs: [0; N],
@@ -328,6 +348,26 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
         self.node.write_object(plain, value)?;
         self.node.write_object(inverted, flipped)?;
+        let mut bytes = [0u8; 8];
+        let len = value.len().min(8);
+        bytes[..len].copy_from_slice(&value[..len]);
+        let sample = u64::from_le_bytes(bytes);
+        match self
+            .inputs
+            .iter_mut()
+            .find(|(address, _)| *address == plain)
+        {
+            Some(entry) => entry.1 = sample,
+            None => {
+                if self.inputs.push((plain, sample)).is_err() {
+                    // More inputs than the cross-check tracks: a design error, not data.
+                    self.latch(ChannelFault::InputDiscrepancy, io);
+                }
+            }
+        }
+        let digest = self.input_digest();
+        self.send(&Message::Inputs { sample: digest }, io);
+        self.compare_inputs(now);
         let reply = self
             .role
             .input(now, plain, value, self.node.safety_config());
@@ -367,6 +407,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         {
             self.latch(ChannelFault::NmtMismatch, io);
         }
+        if self
+            .inputs_differ_since
+            .is_some_and(|since| shared::time::expired(since + INPUT_DISCREPANCY, now))
+        {
+            self.latch(ChannelFault::InputDiscrepancy, io);
+        }
         if shared::time::expired(self.next_heartbeat, now) {
             self.heartbeat(io);
             self.next_heartbeat = now + self.link_period;
@@ -379,6 +425,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.verdicts.deadline(),
             self.nmt_differs_since
                 .map_or(Instant::NEVER, |since| since + self.grace()),
+            self.inputs_differ_since
+                .map_or(Instant::NEVER, |since| since + INPUT_DISCREPANCY),
         ];
         supervision
             .into_iter()
@@ -414,8 +462,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             nmt,
             working: self.is_working(),
         };
+        let inputs = Message::Inputs {
+            sample: self.input_digest(),
+        };
         self.send(&heartbeat, io);
         self.send(&configuration, io);
+        self.send(&inputs, io);
     }
 
     fn send(&mut self, message: &Message, io: &mut impl Io) {
@@ -512,7 +564,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 self.peer_nmt = Some(nmt);
                 self.check_nmt(now);
             }
-            Message::Inputs { .. } => {}
+            Message::Inputs { sample } => {
+                self.peer_inputs = Some(sample);
+                self.compare_inputs(now);
+            }
             Message::Verdict {
                 srdo,
                 pair,
@@ -551,6 +606,30 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                     self.latch(ChannelFault::PeerSafeState { cause }, io);
                 }
             }
+        }
+    }
+
+    /// CRC-32 over this channel's input samples, in the order they were first sampled.
+    fn input_digest(&self) -> u32 {
+        const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+        let mut digest = CRC.digest();
+        for (address, value) in &self.inputs {
+            digest.update(&address.index.to_le_bytes());
+            digest.update(&[address.sub]);
+            digest.update(&value.to_le_bytes());
+        }
+        digest.finalize()
+    }
+
+    /// Starts or stops the input discrepancy timer.
+    fn compare_inputs(&mut self, now: Instant) {
+        let differ = self
+            .peer_inputs
+            .is_some_and(|peer| peer != self.input_digest());
+        match (differ, self.inputs_differ_since) {
+            (true, None) => self.inputs_differ_since = Some(now),
+            (false, _) => self.inputs_differ_since = None,
+            (true, Some(_)) => {}
         }
     }
 

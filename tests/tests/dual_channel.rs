@@ -301,3 +301,51 @@ fn outputs_wait_for_the_configuration_cross_check_in_operational() {
     net.run_for(Duration::from_millis(60));
     assert_eq!(net.output(33), 1);
 }
+
+/// The two contacts of one emergency stop never open at exactly the same moment: a difference
+/// shorter than the discrepancy time is tolerated, a longer one (a stuck or broken contact) is
+/// a fault in both channels, even before any SRDO runs.
+#[test]
+fn input_discrepancy_is_tolerated_briefly_and_latched_when_it_lasts() {
+    use dual_channel::runtime::INPUT_DISCREPANCY;
+    let mut net = DualNetwork::new(500_000, &[1]);
+    net.run_for(Duration::from_millis(50));
+    net.set_inputs(1, 1, 1);
+    net.run_for(Duration::from_millis(50));
+    // Channel A's contact opens first, channel B's 150 ms later: tolerated.
+    net.set_inputs(1, 0, 1);
+    net.run_for(Duration::from_millis(150));
+    net.set_inputs(1, 0, 0);
+    net.run_for(Duration::from_millis(300));
+    assert_eq!(net.node(1).a.fault(), None);
+    assert_eq!(net.node(1).b.fault(), None);
+    // Channel B's contact stays closed while A's is open: a fault after the discrepancy time.
+    let since = net.now;
+    net.set_inputs(1, 1, 0);
+    net.run_for(Duration::from_micros(
+        INPUT_DISCREPANCY.as_micros() + 50_000,
+    ));
+    for side in [Side::A, Side::B] {
+        let (at, _, event) = net
+            .first_event(0, 1, |s, e| {
+                s == side && matches!(e, ChannelEvent::Fault(_))
+            })
+            .expect("each channel latches");
+        let ChannelEvent::Fault(fault) = event else {
+            unreachable!()
+        };
+        // The first to see it latches `InputDiscrepancy`; the other may learn it over the link.
+        let code = ChannelFault::InputDiscrepancy.cause_code();
+        assert!(
+            fault == ChannelFault::InputDiscrepancy
+                || fault == ChannelFault::PeerSafeState { cause: code },
+            "{side:?}: {fault:?}"
+        );
+        let after = at.saturating_since(since);
+        assert!(after >= INPUT_DISCREPANCY, "{side:?} after {after:?}");
+        assert!(
+            after <= Duration::from_micros(INPUT_DISCREPANCY.as_micros() + 20_000),
+            "{side:?} after {after:?}"
+        );
+    }
+}
