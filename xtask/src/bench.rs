@@ -5,7 +5,8 @@
 //! else the machine does, so they can be compared with the reference figures and across
 //! commits. Wall time is in `cargo bench -p shared --bench wall_time` (criterion).
 
-use crate::toolchain::{self, TARGET};
+use crate::images::{self, Layer};
+use crate::toolchain;
 use anyhow::{Context, Result, bail};
 use object::{Object, ObjectSection, ObjectSymbol};
 use std::fmt::Write as _;
@@ -86,16 +87,8 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
 
     crate::step("RAM per SRDO in the thumbv7em image");
     let cross = toolchain::ensure()?;
-    crate::run(
-        &mut cross
-            .cargo(root)
-            .args(["build", "--release", "-p", "channel-a"])
-            .finish(),
-    )?;
-    let image = cross
-        .target_dir(root)
-        .join(TARGET)
-        .join("release/channel-a");
+    crate::run(&mut images::cargo(&cross, root, "build", Layer::Hw))?;
+    let image = images::image(&cross, root, Layer::Hw, "a");
     let ram = symbol_u32(&image, "SHARED_RAM_PER_SRDO")?;
 
     let report = render(&rows, ram, &rustc_version());

@@ -4,7 +4,8 @@
 use crate::toolchain::{Cross, TARGET};
 use anyhow::{Context, Result, bail};
 use object::{Object, ObjectSection, SectionFlags, SectionKind};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 /// Flash budget per image, bytes.
 pub const FLASH_BUDGET: u64 = 64 * 1024;
@@ -73,28 +74,70 @@ pub fn measure(elf: &Path) -> Result<Sizes> {
     Ok(sizes)
 }
 
-/// Builds both images (`firmware` profile: release, optimised for size), prints their sizes
-/// and fails when one exceeds a budget.
-pub fn build(root: &Path, cross: &Cross) -> Result<()> {
+/// The board layer an image is built for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layer {
+    /// embassy-stm32 on the STM32F405RG.
+    Hw,
+    /// QEMU's netduinoplus2.
+    Qemu,
+}
+
+impl Layer {
+    /// Where this layer's images are built (apart, so neither overwrites the other).
+    fn target_dir(self, cross: &Cross, root: &Path) -> PathBuf {
+        match self {
+            Layer::Hw => cross.target_dir(root),
+            Layer::Qemu => cross.target_dir(root).join("qemu"),
+        }
+    }
+}
+
+/// `cargo <verb>` over the board crate and both images of `layer`, for thumbv7em with the
+/// `firmware` profile (release, optimised for size). The one place that knows how.
+pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
+    let features = match layer {
+        Layer::Hw => "channel-a/defmt,channel-b/defmt",
+        Layer::Qemu => "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
+    };
     let mut command = cross.cargo(root).args([
-        "build",
+        verb,
         "--profile",
         "firmware",
         "--features",
-        "channel-a/defmt,channel-b/defmt",
+        features,
+        "-p",
+        "board",
     ]);
+    if layer == Layer::Qemu {
+        command = command.args(["--no-default-features"]);
+    }
     for image in IMAGES {
         command = command.args(["-p", image]);
     }
-    crate::run(&mut command.finish())?;
-    let dir = cross.target_dir(root).join(TARGET).join("firmware");
+    command.target_dir(layer.target_dir(cross, root)).finish()
+}
+
+/// The image of `channel` (`a` or `b`) for `layer`.
+pub fn image(cross: &Cross, root: &Path, layer: Layer, channel: &str) -> PathBuf {
+    layer
+        .target_dir(cross, root)
+        .join(TARGET)
+        .join("firmware")
+        .join(format!("channel-{channel}"))
+}
+
+/// Builds both hardware images, prints their sizes and fails when one exceeds a budget.
+pub fn build(root: &Path, cross: &Cross) -> Result<()> {
+    crate::run(&mut cargo(cross, root, "build", Layer::Hw))?;
     println!(
         "{:<10} {:>8} {:>8} {:>8} {:>16} {:>16}",
         "image", "text", "data", "bss", "flash/budget", "ram+stack/budget"
     );
     let mut over = Vec::new();
-    for image in IMAGES {
-        let sizes = measure(&dir.join(image))?;
+    for channel in ["a", "b"] {
+        let sizes = measure(&image(cross, root, Layer::Hw, channel))?;
+        let image = format!("channel-{channel}");
         println!(
             "{image:<10} {:>8} {:>8} {:>8} {:>7}/{:<8} {:>7}/{:<8}",
             sizes.text,

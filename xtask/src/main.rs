@@ -109,11 +109,7 @@ fn main() -> Result<()> {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;
             toolchain::require("probe-rs", "run `cargo xtask setup --probe-rs`")?;
-            let image = cross
-                .target_dir(&root)
-                .join(toolchain::TARGET)
-                .join("firmware")
-                .join(format!("channel-{channel}"));
+            let image = images::image(&cross, &root, images::Layer::Hw, &channel);
             run(Command::new("probe-rs")
                 .args(["run", "--chip", images::CHIP])
                 .arg(image))
@@ -161,49 +157,16 @@ fn test(root: &Path) -> Result<()> {
         .cargo(root)
         .args(["build", "--release", "-p", "shared", "--features", "defmt"])
         .finish())?;
-    step("clippy (firmware crates for thumbv7em-none-eabihf)");
-    run(cross
-        .cargo(root)
-        .args([
-            "clippy",
-            "--profile",
-            "firmware",
-            "-p",
-            "board",
-            "-p",
-            "channel-a",
-            "-p",
-            "channel-b",
-            "--features",
-            "channel-a/defmt,channel-b/defmt",
-        ])
-        .finish()
-        .args(["--", "-D", "warnings"]))?;
+    step("clippy (firmware crates for thumbv7em-none-eabihf, both board layers)");
+    for layer in [images::Layer::Hw, images::Layer::Qemu] {
+        run(images::cargo(&cross, root, "clippy", layer).args(["--", "-D", "warnings"]))?;
+    }
     step("firmware images");
     images::build(root, &cross)?;
     step("each image alone under QEMU, to its self-test verdict");
     toolchain::ensure_qemu()?;
     toolchain::ensure_defmt_print()?;
     qemu::build(root, &cross)?;
-    run(cross
-        .cargo(root)
-        .args([
-            "clippy",
-            "--profile",
-            "firmware",
-            "--no-default-features",
-            "--features",
-            "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
-            "-p",
-            "board",
-            "-p",
-            "channel-a",
-            "-p",
-            "channel-b",
-        ])
-        .target_dir(qemu::target_dir(&cross, root))
-        .finish()
-        .args(["--", "-D", "warnings"]))?;
     for channel in ["a", "b"] {
         let image = qemu::image(&cross, root, channel);
         let limit = std::time::Duration::from_secs(30);

@@ -2,44 +2,22 @@
 //! log decoded. With `--selftest` the image stops after its start-up self-tests and the run
 //! passes only when QEMU exits with 0 and the log shows the verdict.
 
-use crate::toolchain::{self, Cross, TARGET};
+use crate::images::{self, Layer};
+use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, bail};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-/// Where the QEMU images are built (apart from the hardware ones).
-pub fn target_dir(cross: &Cross, root: &Path) -> PathBuf {
-    cross.target_dir(root).join("qemu")
-}
-
 /// Builds both images for QEMU.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
-    let command = cross
-        .cargo(root)
-        .args([
-            "build",
-            "--profile",
-            "firmware",
-            "--no-default-features",
-            "--features",
-            "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
-            "-p",
-            "channel-a",
-            "-p",
-            "channel-b",
-        ])
-        .target_dir(target_dir(cross, root));
-    crate::run(&mut command.finish())
+    crate::run(&mut images::cargo(cross, root, "build", Layer::Qemu))
 }
 
 /// The QEMU image of `channel` (`a` or `b`).
 pub fn image(cross: &Cross, root: &Path, channel: &str) -> PathBuf {
-    target_dir(cross, root)
-        .join(TARGET)
-        .join("firmware")
-        .join(format!("channel-{channel}"))
+    images::image(cross, root, Layer::Qemu, channel)
 }
 
 /// Runs one image alone with semihosting arguments `arguments` (e.g. `selftest`); returns

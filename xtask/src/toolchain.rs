@@ -148,32 +148,27 @@ pub fn ensure() -> Result<Cross> {
         .context("Debian's rust-web packages are installed but their library source is not found")
 }
 
+/// Runs a shell `script` as root (through sudo unless already root), non-interactively: the
+/// apt installs of `setup`.
+fn as_root(script: &str) -> Result<()> {
+    let root = output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0");
+    let mut command = if root {
+        Command::new("sh")
+    } else {
+        let mut sudo = Command::new("sudo");
+        sudo.arg("sh");
+        sudo
+    };
+    super::run(
+        command
+            .args(["-c", script])
+            .env("DEBIAN_FRONTEND", "noninteractive"),
+    )
+}
+
 fn install_debian() -> Result<()> {
     eprintln!("xtask: installing Debian's rustc-web, cargo-web, rust-web-src and lld-22");
-    let sudo: &[&str] = if output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0") {
-        &[]
-    } else {
-        &["sudo"]
-    };
-    let apt = |args: &[&str]| -> Result<()> {
-        let mut line: Vec<&str> = sudo.to_vec();
-        line.extend_from_slice(args);
-        super::run(
-            Command::new(line[0])
-                .args(&line[1..])
-                .env("DEBIAN_FRONTEND", "noninteractive"),
-        )
-    };
-    apt(&["apt-get", "update"])?;
-    apt(&[
-        "apt-get",
-        "install",
-        "-y",
-        "rustc-web",
-        "cargo-web",
-        "rust-web-src",
-        "lld-22",
-    ])
+    as_root("apt-get update -qq && apt-get install -y -qq rustc-web cargo-web rust-web-src lld-22")
 }
 
 /// `cargo xtask setup`.
@@ -235,18 +230,7 @@ pub fn ensure_tshark() -> Result<()> {
         return Ok(());
     }
     eprintln!("xtask: installing tshark (Debian)");
-    let root = output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0");
-    let mut line: Vec<&str> = if root { Vec::new() } else { vec!["sudo"] };
-    line.extend_from_slice(&[
-        "sh",
-        "-c",
-        "apt-get update -qq && apt-get install -y -qq tshark",
-    ]);
-    super::run(
-        Command::new(line[0])
-            .args(&line[1..])
-            .env("DEBIAN_FRONTEND", "noninteractive"),
-    )
+    as_root("apt-get update -qq && apt-get install -y -qq tshark")
 }
 
 /// QEMU's major version, when `qemu-system-arm` runs.
@@ -264,22 +248,11 @@ pub fn ensure_qemu() -> Result<()> {
         return Ok(());
     }
     eprintln!("xtask: installing qemu-system-arm from bookworm-backports");
-    let root = output("id", &["-u"]).is_some_and(|uid| uid.trim() == "0");
-    let sudo: &[&str] = if root { &[] } else { &["sudo"] };
-    let sh = |script: &str| -> Result<()> {
-        let mut line: Vec<&str> = sudo.to_vec();
-        line.extend_from_slice(&["sh", "-c", script]);
-        super::run(
-            Command::new(line[0])
-                .args(&line[1..])
-                .env("DEBIAN_FRONTEND", "noninteractive"),
-        )
-    };
-    sh(
+    as_root(
         "grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/ || \
         echo 'deb http://deb.debian.org/debian bookworm-backports main' > /etc/apt/sources.list.d/backports.list",
     )?;
-    sh("apt-get update -qq && apt-get install -y -qq -t bookworm-backports qemu-system-arm")?;
+    as_root("apt-get update -qq && apt-get install -y -qq -t bookworm-backports qemu-system-arm")?;
     if qemu_major().is_none_or(|major| major < 8) {
         bail!("qemu-system-arm 8 or later is still not available");
     }
