@@ -70,13 +70,18 @@ pub struct Arguments {
     pub unknown: bool,
 }
 
-/// Parses an emulated run's command line.
+/// Parses an emulated run's command line. Without any `arg=`, QEMU's command line is the
+/// image's path: a first word with a `/` in it is that, not an argument.
 pub fn parse_arguments(line: &[u8]) -> Arguments {
     let mut arguments = Arguments::default();
-    for word in line
+    for (index, word) in line
         .split(|&b| b == b' ' || b == 0)
         .filter(|w| !w.is_empty())
+        .enumerate()
     {
+        if index == 0 && word.contains(&b'/') {
+            continue;
+        }
         if word == b"selftest" {
             arguments.selftest = true;
         } else if word == b"crash" {
@@ -112,6 +117,9 @@ mod tests {
         assert!(parse_arguments(b"node=x").unknown);
         assert!(parse_arguments(b"verbose").unknown);
         assert!(parse_arguments(b"crash").crash);
+        let path = parse_arguments(b"target/qemu/channel-a node=2");
+        assert_eq!((path.unknown, path.node.map(NodeId::raw)), (false, Some(2)));
+        assert!(parse_arguments(b"node=2 target/qemu/channel-a").unknown);
     }
 }
 

@@ -4,25 +4,32 @@
 //! clock tree's ready flags, bxCAN, GPIO or timer compare interrupts, so `embassy_stm32::init`
 //! cannot run here. This layer therefore brings its own:
 //!
-//! - an embassy-time driver on SysTick (1 kHz interrupt; `now` to the microsecond from the
-//!   counter; alarms are checked every tick, so a wake-up is at most 1 ms late, which is the
-//!   emulator's timing resolution, not the core's: the core judges every timer against `now`);
+//! - an embassy-time driver whose clock is the host's (semihosting `SYS_ELAPSED`, to the
+//!   microsecond) and whose alarms are checked on every SysTick interrupt (1 kHz), so a
+//!   wake-up is at most 1 ms late, which is the emulator's timing resolution, not the core's:
+//!   the core judges every timer against `now`. The host clock, not a count of ticks, because
+//!   an emulated MCU that the host does not schedule for a while loses ticks; with the host
+//!   clock every instance and the hub share one time base, and such a stall is seen for what
+//!   it is (a late message), measured ([`Status::longest_stall_ms`](dual_channel::can_serial::Status::longest_stall_ms)) and reported;
 //! - interrupt-driven, register-level USART2 (CAN frames over serial to the host-side bus hub,
-//!   [`dual_channel::can_serial`]) and USART3 (the link to the other channel);
+//!   [`dual_channel::can_serial`], which also carries the input pin's value from the hub and
+//!   the channel's [`Status`] to it) and USART3 (the link to the other channel);
 //! - semihosting for the run's arguments (`selftest` to stop after the start-up self-tests) and
 //!   the exit code; a panic or HardFault exits QEMU with failure, never hangs;
 //! - parameters in RAM ([`RamFlash`]).
 //!
-//! The inputs and outputs are not modelled by QEMU; the input reads as released (1) and the
-//! output value is logged.
+//! QEMU models no GPIO: the input pin's value comes from the hub ([`Wire::Input`]; released,
+//! 1, until the hub says otherwise) and the output pin's value goes to it in the status.
 
 use core::cell::{Cell, RefCell};
+use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
+use cortex_m::peripheral::NVIC;
 use cortex_m::peripheral::syst::SystClkSource;
-use cortex_m::peripheral::{NVIC, SCB, SYST};
 use cortex_m_rt::exception;
 use critical_section::Mutex;
-use dual_channel::can_serial;
+use dual_channel::can_serial::{self, Wire};
+use dual_channel::diagnostics::{Diagnostics, Observed};
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
@@ -54,35 +61,59 @@ static LINK_RX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
 /// Set when the CAN receive pipe overflowed (reported by the main loop).
 static CAN_RX_LOST: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
-/// The SysTick time driver.
-struct SysTickDriver {
-    /// Whole ticks since start.
-    ticks: Mutex<Cell<u64>>,
+/// The longest gap between two SysTick interrupts beyond one tick, in real milliseconds.
+static LONGEST_STALL_MS: AtomicU32 = AtomicU32::new(0);
+
+/// The time driver: the host's clock, alarms checked on SysTick.
+struct HostClockDriver {
+    /// The last time handed out (the clock never goes backwards) and the host clock at the
+    /// last SysTick interrupt.
+    last: Mutex<Cell<u64>>,
+    last_tick: Mutex<Cell<u64>>,
     queue: Mutex<RefCell<Queue>>,
 }
 
-embassy_time_driver::time_driver_impl!(static DRIVER: SysTickDriver = SysTickDriver {
-    ticks: Mutex::new(Cell::new(0)),
+embassy_time_driver::time_driver_impl!(static DRIVER: HostClockDriver = HostClockDriver {
+    last: Mutex::new(Cell::new(0)),
+    last_tick: Mutex::new(Cell::new(0)),
     queue: Mutex::new(RefCell::new(Queue::new())),
 });
 
-impl SysTickDriver {
-    /// Microseconds since start. Inside a critical section the SysTick interrupt cannot run,
-    /// so a counter that wrapped since the last tick shows as a pending SysTick: counted here
-    /// so that time never goes backwards.
+/// The semihosting block `SYS_ELAPSED` fills: the 64-bit tick count, low word first.
+#[repr(C)]
+struct Elapsed {
+    low: u32,
+    high: u32,
+}
+
+/// Host ticks per second (`SYS_TICKFREQ`); QEMU counts nanoseconds.
+static HOST_TICK_HZ: AtomicU32 = AtomicU32::new(0);
+
+/// Host ticks since QEMU started (`SYS_ELAPSED`), or `None` where semihosting has no clock.
+fn host_ticks() -> Option<u64> {
+    let mut block = Elapsed { low: 0, high: 0 };
+    // SAFETY: SYS_ELAPSED (30h) writes two words into the block, which lives on this stack
+    // frame for the call.
+    let result =
+        unsafe { cortex_m_semihosting::syscall1(0x30, &mut block as *mut Elapsed as usize) };
+    (result == 0).then_some(u64::from(block.high) << 32 | u64::from(block.low))
+}
+
+impl HostClockDriver {
+    /// Microseconds since start, never less than the last value handed out.
     fn micros(&self, cs: critical_section::CriticalSection<'_>) -> u64 {
-        let mut ticks = self.ticks.borrow(cs).get();
-        let mut current = SYST::get_current();
-        if SCB::is_pendst_pending() {
-            ticks += 1;
-            current = SYST::get_current();
-        }
-        let elapsed_cycles = u64::from(RELOAD - current.min(RELOAD));
-        ticks * u64::from(1_000_000 / TICK_HZ) + elapsed_cycles * 1_000_000 / u64::from(CPU_HZ)
+        let hz = u64::from(HOST_TICK_HZ.load(Ordering::Relaxed)).max(1);
+        let host = host_ticks().map_or(0, |ticks| {
+            (u128::from(ticks) * 1_000_000 / u128::from(hz)) as u64
+        });
+        let last = self.last.borrow(cs);
+        let now = host.max(last.get());
+        last.set(now);
+        now
     }
 }
 
-impl embassy_time_driver::Driver for SysTickDriver {
+impl embassy_time_driver::Driver for HostClockDriver {
     fn now(&self) -> u64 {
         critical_section::with(|cs| self.micros(cs))
     }
@@ -101,9 +132,14 @@ impl embassy_time_driver::Driver for SysTickDriver {
 #[exception]
 fn SysTick() {
     critical_section::with(|cs| {
-        let ticks = DRIVER.ticks.borrow(cs);
-        ticks.set(ticks.get() + 1);
         let now = DRIVER.micros(cs);
+        let last_tick = DRIVER.last_tick.borrow(cs);
+        let gap_ms = now.saturating_sub(last_tick.get()) / 1000;
+        if last_tick.get() != 0 && gap_ms > 1 {
+            let stall = u32::try_from(gap_ms - 1).unwrap_or(u32::MAX);
+            LONGEST_STALL_MS.fetch_max(stall, Ordering::Relaxed);
+        }
+        last_tick.set(now);
         DRIVER.queue.borrow(cs).borrow_mut().next_expiration(now);
     });
 }
@@ -160,6 +196,10 @@ fn usart_write(usart: stm32_metapac::usart::Usart, bytes: &[u8]) {
     }
 }
 
+fn send(message: &Wire) {
+    usart_write(USART2, &can_serial::encode_wire(message));
+}
+
 struct QemuIo;
 
 impl Io for QemuIo {
@@ -212,6 +252,17 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     let Some(mut core) = cortex_m::Peripherals::take() else {
         exit(false);
     };
+    // SAFETY: SYS_TICKFREQ (31h) takes no argument block.
+    let hz = unsafe { cortex_m_semihosting::syscall1(0x31, 0) };
+    match u32::try_from(hz) {
+        Ok(hz) if hz > 0 && hz != u32::MAX && host_ticks().is_some() => {
+            HOST_TICK_HZ.store(hz, Ordering::Relaxed);
+        }
+        _ => {
+            defmt::error!("semihosting gives no host clock (SYS_ELAPSED, SYS_TICKFREQ)");
+            exit(false);
+        }
+    }
     core.SYST.set_clock_source(SystClkSource::Core);
     core.SYST.set_reload(RELOAD);
     core.SYST.clear_current();
@@ -251,25 +302,40 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         defmt::error!("device description refused");
         exit(false);
     };
-    let mut io = QemuIo;
-    // QEMU models no GPIO: the input reads as released.
+    let mut board = QemuIo;
+    let mut diagnostics = Diagnostics::new();
+    // QEMU models no GPIO: the input reads as released until the hub sets it.
+    let mut input = 1u8;
+    let mut io = Observed {
+        io: &mut board,
+        diagnostics: &mut diagnostics,
+    };
     if runtime
         .set_input(
             now(),
             input_objects.plain,
             input_objects.inverted,
-            &[1],
+            &[input],
             &mut io,
         )
         .is_err()
     {
         exit(false);
     }
+    io.diagnostics.input(input);
     let mut can = can_serial::Decoder::new();
     let mut can_buf = [0u8; 64];
     let mut link_buf = [0u8; 64];
     loop {
-        let deadline = runtime.poll(now(), &mut io);
+        let at = now();
+        let deadline = runtime.poll(at, &mut io);
+        let stall = LONGEST_STALL_MS.load(Ordering::Relaxed);
+        io.diagnostics
+            .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
+        if let Some(status) = io.diagnostics.report(at, &runtime) {
+            send(&Wire::Status(status));
+        }
+        let deadline = deadline.min(io.diagnostics.deadline());
         let wake = embassy_time::Instant::from_micros(deadline.as_micros());
         match select3(
             CAN_RX.read(&mut can_buf),
@@ -284,13 +350,37 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
                 }
                 for &byte in &can_buf[..n] {
                     match can.push(byte) {
-                        Some(Ok(frame)) => {
+                        Some(Ok(Wire::Can(frame))) => {
                             defmt::debug!(
                                 "CAN rx {=u16:X} {=[u8]:X}",
                                 frame.id().raw(),
                                 frame.data()
                             );
                             runtime.on_frame(now(), &frame, &mut io);
+                        }
+                        Some(Ok(Wire::Input(value))) => {
+                            if value != input {
+                                defmt::info!("input pin {=u8}", value);
+                                input = value;
+                            }
+                            io.diagnostics.input(value);
+                            if runtime
+                                .set_input(
+                                    now(),
+                                    input_objects.plain,
+                                    input_objects.inverted,
+                                    &[value],
+                                    &mut io,
+                                )
+                                .is_err()
+                            {
+                                // The device description has no such input object: a build
+                                // error, not a run-time condition.
+                                exit(false);
+                            }
+                        }
+                        Some(Ok(Wire::Status(_))) => {
+                            defmt::warn!("CAN bridge: status from the hub")
                         }
                         Some(Err(error)) => defmt::warn!("CAN bridge: {}", error),
                         None => {}

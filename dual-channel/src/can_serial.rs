@@ -2,8 +2,16 @@
 //! the QEMU board layer sends and receives CAN frames on USART2, and a host-side bus hub puts
 //! them on the simulated bus.
 //!
+//! QEMU models no GPIO either, so the same line carries the board's pins: the hub sets the
+//! channel's safety input ([`Wire::Input`]) and the channel reports its state and output
+//! ([`Wire::Status`]). These never reach the bus.
+//!
 //! ```text
-//! COBS( id: u16 LE, bit 15 = RTR | dlc: u8 | data[dlc] | CRC-16/XMODEM LE ) 0x00
+//! COBS( word: u16 LE | body | CRC-16/XMODEM LE ) 0x00
+//!   word bits 14..11 = 0: a CAN frame, bits 10..0 = identifier, bit 15 = RTR;
+//!                         body = dlc: u8 | data[dlc] (none for RTR)
+//!   word = 0x4001:        Input, body = value: u8
+//!   word = 0x4002:        Status, body = Status::LEN bytes (see Status::to_bytes)
 //! ```
 
 use crate::cobs_frames::{Completed, Reassembler};
@@ -11,8 +19,10 @@ use crc::{CRC_16_XMODEM, Crc};
 use shared::{CanFrame, CanId};
 
 const CRC: Crc<u16> = Crc::<u16>::new(&CRC_16_XMODEM);
-/// Largest unencoded frame: identifier, DLC, 8 data bytes, CRC.
-const MAX_RAW: usize = 2 + 1 + 8 + 2;
+/// Largest unencoded message: word, the status body, CRC.
+const MAX_RAW: usize = 2 + Status::LEN + 2;
+const INPUT: u16 = 0x4001;
+const STATUS: u16 = 0x4002;
 /// Largest encoded frame, delimiter included.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
 
@@ -24,19 +34,116 @@ pub enum SerialError {
     Malformed,
 }
 
+/// What one channel tells the hub about itself (the emulated board's diagnostics and output
+/// pin). Counters wrap.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// The channel's NMT state as its heartbeat code (0: Initialising, 4: Stopped,
+    /// 5: Operational, 127: Pre-operational).
+    pub nmt: u8,
+    /// Neither the channel nor its core is in the safe state.
+    pub working: bool,
+    /// The other channel has been heard on the link.
+    pub link_up: bool,
+    /// The value on the channel's output pin (lowest byte of receive SRDO 1's output).
+    pub output: u8,
+    /// The channel's safety input as it last sampled it.
+    pub input: u8,
+    /// The cause code of the last safe state latched (0: none since power-on or reset; the
+    /// codes of `SrdoFaultCause::cause_code` and `ChannelFault::cause_code`, 0x50 for GFC).
+    pub cause: u8,
+    /// SRDO frames this channel sent.
+    pub sent: u16,
+    /// Valid SRDO pairs this channel's core received.
+    pub validated: u16,
+    /// The longest time, in real milliseconds, the emulated MCU did not run (its tick
+    /// interrupt came late): the emulator's scheduling jitter, for the report.
+    pub longest_stall_ms: u16,
+}
+
+impl Status {
+    /// Bytes of an encoded status.
+    pub const LEN: usize = 12;
+
+    /// The fixed little-endian layout: nmt, flags (bit 0 working, bit 1 link up), output,
+    /// input, cause, pad, sent, validated, longest stall.
+    pub fn to_bytes(&self) -> [u8; Self::LEN] {
+        let mut out = [0u8; Self::LEN];
+        out[0] = self.nmt;
+        out[1] = u8::from(self.working) | u8::from(self.link_up) << 1;
+        out[2] = self.output;
+        out[3] = self.input;
+        out[4] = self.cause;
+        out[6..8].copy_from_slice(&self.sent.to_le_bytes());
+        out[8..10].copy_from_slice(&self.validated.to_le_bytes());
+        out[10..12].copy_from_slice(&self.longest_stall_ms.to_le_bytes());
+        out
+    }
+
+    fn from_bytes(body: &[u8]) -> Result<Self, SerialError> {
+        let body: &[u8; Self::LEN] = body.try_into().map_err(|_| SerialError::Malformed)?;
+        if body[1] & !0b11 != 0 || body[5] != 0 {
+            return Err(SerialError::Malformed);
+        }
+        Ok(Status {
+            nmt: body[0],
+            working: body[1] & 1 != 0,
+            link_up: body[1] & 2 != 0,
+            output: body[2],
+            input: body[3],
+            cause: body[4],
+            sent: u16::from_le_bytes([body[6], body[7]]),
+            validated: u16::from_le_bytes([body[8], body[9]]),
+            longest_stall_ms: u16::from_le_bytes([body[10], body[11]]),
+        })
+    }
+}
+
+/// One message on the serial line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Wire {
+    /// A CAN frame, either way.
+    Can(CanFrame),
+    /// Hub to channel: the channel's safety input pin reads this.
+    Input(u8),
+    /// Channel to hub: the channel's state.
+    Status(Status),
+}
+
 /// The bytes for `frame`, delimiter included.
 pub fn encode(frame: &CanFrame) -> heapless::Vec<u8, MAX_WIRE> {
+    encode_wire(&Wire::Can(*frame))
+}
+
+/// The bytes for `message`, delimiter included.
+pub fn encode_wire(message: &Wire) -> heapless::Vec<u8, MAX_WIRE> {
     let mut raw = [0u8; MAX_RAW];
-    let id = frame.id().raw() | if frame.is_remote() { 0x8000 } else { 0 };
-    raw[..2].copy_from_slice(&id.to_le_bytes());
-    raw[2] = frame.dlc();
-    let data = if frame.is_remote() {
-        &[][..]
-    } else {
-        frame.data()
+    let end = match message {
+        Wire::Can(frame) => {
+            let id = frame.id().raw() | if frame.is_remote() { 0x8000 } else { 0 };
+            raw[..2].copy_from_slice(&id.to_le_bytes());
+            raw[2] = frame.dlc();
+            let data = if frame.is_remote() {
+                &[][..]
+            } else {
+                frame.data()
+            };
+            raw[3..3 + data.len()].copy_from_slice(data);
+            3 + data.len()
+        }
+        Wire::Input(value) => {
+            raw[..2].copy_from_slice(&INPUT.to_le_bytes());
+            raw[2] = *value;
+            3
+        }
+        Wire::Status(status) => {
+            raw[..2].copy_from_slice(&STATUS.to_le_bytes());
+            raw[2..2 + Status::LEN].copy_from_slice(&status.to_bytes());
+            2 + Status::LEN
+        }
     };
-    raw[3..3 + data.len()].copy_from_slice(data);
-    let end = 3 + data.len();
     let crc = CRC.checksum(&raw[..end]);
     raw[end..end + 2].copy_from_slice(&crc.to_le_bytes());
     let mut wire = [0u8; MAX_WIRE];
@@ -63,8 +170,8 @@ impl Decoder {
         }
     }
 
-    /// Feeds one byte; returns a frame (or why not) when the byte ends one.
-    pub fn push(&mut self, byte: u8) -> Option<Result<CanFrame, SerialError>> {
+    /// Feeds one byte; returns a message (or why not) when the byte ends one.
+    pub fn push(&mut self, byte: u8) -> Option<Result<Wire, SerialError>> {
         let mut raw = [0u8; MAX_WIRE];
         Some(match self.frames.push(byte, &mut raw)? {
             Completed::Broken => Err(SerialError::Malformed),
@@ -73,7 +180,7 @@ impl Decoder {
     }
 }
 
-fn parse(raw: &[u8]) -> Result<CanFrame, SerialError> {
+fn parse(raw: &[u8]) -> Result<Wire, SerialError> {
     if raw.len() < 5 {
         return Err(SerialError::Malformed);
     }
@@ -82,7 +189,19 @@ fn parse(raw: &[u8]) -> Result<CanFrame, SerialError> {
         return Err(SerialError::Malformed);
     }
     let word = u16::from_le_bytes([body[0], body[1]]);
-    let id = CanId::new(word & 0x7FFF).map_err(|_| SerialError::Malformed)?;
+    match word {
+        INPUT => match body[2..] {
+            [value] => Ok(Wire::Input(value)),
+            _ => Err(SerialError::Malformed),
+        },
+        STATUS => Status::from_bytes(&body[2..]).map(Wire::Status),
+        _ if word & 0x7800 != 0 => Err(SerialError::Malformed),
+        _ => parse_frame(word, body).map(Wire::Can),
+    }
+}
+
+fn parse_frame(word: u16, body: &[u8]) -> Result<CanFrame, SerialError> {
+    let id = CanId::new(word & 0x07FF).map_err(|_| SerialError::Malformed)?;
     let dlc = body[2];
     let data = &body[3..];
     if word & 0x8000 != 0 {
@@ -113,7 +232,20 @@ mod tests {
             };
             let mut decoder = Decoder::new();
             let results: Vec<_> = encode(&frame).iter().filter_map(|&b| decoder.push(b)).collect();
-            prop_assert_eq!(results, vec![Ok(frame)]);
+            prop_assert_eq!(results, vec![Ok(Wire::Can(frame))]);
+        }
+
+        #[test]
+        fn board_messages_round_trip(
+            input: u8, nmt: u8, working: bool, link_up: bool, output: u8, cause: u8,
+            sent: u16, validated: u16, longest_stall_ms: u16,
+        ) {
+            let status = Status { nmt, working, link_up, output, input, cause, sent, validated, longest_stall_ms };
+            let mut decoder = Decoder::new();
+            for message in [Wire::Input(input), Wire::Status(status)] {
+                let results: Vec<_> = encode_wire(&message).iter().filter_map(|&b| decoder.push(b)).collect();
+                prop_assert_eq!(results, vec![Ok(message)]);
+            }
         }
 
         #[test]

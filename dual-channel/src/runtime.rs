@@ -201,6 +201,21 @@ impl Sink for Collect {
     }
 }
 
+/// A safety input as the channel last sampled it.
+#[derive(Clone, Copy, Debug)]
+struct InputSample {
+    plain: Address,
+    inverted: Address,
+    bytes: [u8; 8],
+    len: usize,
+}
+
+impl InputSample {
+    fn value(&self) -> u64 {
+        u64::from_le_bytes(self.bytes)
+    }
+}
+
 /// One channel: its core, its role, the link and the cross-checks.
 pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     node: Node<F, N>,
@@ -216,8 +231,9 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     fault: Option<ChannelFault>,
     /// The other channel has been heard: the core may boot.
     link_up: bool,
-    /// This channel's inputs as last sampled (object, value), folded into [`Message::Inputs`].
-    inputs: heapless::Vec<(Address, u64), 8>,
+    /// This channel's inputs as last sampled, folded into [`Message::Inputs`] and written
+    /// back to the core after an NMT reset.
+    inputs: heapless::Vec<InputSample, 8>,
     /// The other channel's last input digest.
     peer_inputs: Option<u32>,
     /// Since when the two input digests differ.
@@ -339,27 +355,23 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         value: &[u8],
         io: &mut impl Io,
     ) -> Result<(), AbortCode> {
-        let mut flipped = [0u8; 8];
-        let flipped = flipped
-            .get_mut(..value.len())
-            .ok_or(AbortCode::LengthTooHigh)?;
-        for (out, byte) in flipped.iter_mut().zip(value) {
-            *out = !byte;
-        }
-        self.node.write_object(plain, value)?;
-        self.node.write_object(inverted, flipped)?;
+        let len = value.len();
         let mut bytes = [0u8; 8];
-        let len = value.len().min(8);
-        bytes[..len].copy_from_slice(&value[..len]);
-        let sample = u64::from_le_bytes(bytes);
-        match self
-            .inputs
-            .iter_mut()
-            .find(|(address, _)| *address == plain)
-        {
-            Some(entry) => entry.1 = sample,
+        bytes
+            .get_mut(..len)
+            .ok_or(AbortCode::LengthTooHigh)?
+            .copy_from_slice(value);
+        let sample = InputSample {
+            plain,
+            inverted,
+            bytes,
+            len,
+        };
+        Self::write_input(&mut self.node, &sample)?;
+        match self.inputs.iter_mut().find(|entry| entry.plain == plain) {
+            Some(entry) => *entry = sample,
             None => {
-                if self.inputs.push((plain, sample)).is_err() {
+                if self.inputs.push(sample).is_err() {
                     // More inputs than the cross-check tracks: a design error, not data.
                     self.latch(ChannelFault::InputDiscrepancy, io);
                 }
@@ -492,6 +504,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             io.event(ChannelEvent::Node(event));
             match event {
                 Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
+                Event::NmtState(NmtState::PreOperational) => {
+                    self.restore_inputs(io);
+                    self.follow_core(io);
+                }
                 Event::SafeState(_) | Event::NmtState(_) => self.follow_core(io),
                 _ => {}
             }
@@ -609,14 +625,41 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
+    /// Writes a sample and its inverted copy to the core's objects.
+    fn write_input(node: &mut Node<F, N>, sample: &InputSample) -> Result<(), AbortCode> {
+        let value = sample.bytes.get(..sample.len).unwrap_or_default();
+        let mut flipped = [0u8; 8];
+        for (out, byte) in flipped.iter_mut().zip(value) {
+            *out = !byte;
+        }
+        node.write_object(sample.plain, value)?;
+        node.write_object(
+            sample.inverted,
+            flipped.get(..sample.len).unwrap_or_default(),
+        )
+    }
+
+    /// NMT reset node brought the application objects back to their defaults (CiA 301
+    /// 7.3.2.2.3): the inputs are what the channel sampled, not defaults, so they are written
+    /// again. A write that fails now succeeded before: the core is not what it was, a fault.
+    fn restore_inputs(&mut self, io: &mut impl Io) {
+        let failed = self
+            .inputs
+            .iter()
+            .any(|sample| Self::write_input(&mut self.node, sample).is_err());
+        if failed {
+            self.latch(ChannelFault::InputDiscrepancy, io);
+        }
+    }
+
     /// CRC-32 over this channel's input samples, in the order they were first sampled.
     fn input_digest(&self) -> u32 {
         const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
         let mut digest = CRC.digest();
-        for (address, value) in &self.inputs {
-            digest.update(&address.index.to_le_bytes());
-            digest.update(&[address.sub]);
-            digest.update(&value.to_le_bytes());
+        for sample in &self.inputs {
+            digest.update(&sample.plain.index.to_le_bytes());
+            digest.update(&[sample.plain.sub]);
+            digest.update(&sample.value().to_le_bytes());
         }
         digest.finalize()
     }

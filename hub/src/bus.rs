@@ -235,6 +235,11 @@ impl Bus {
         self.injections.clear();
     }
 
+    /// Keeps only the faults for which `keep` is true.
+    pub fn retain_faults(&mut self, keep: impl FnMut(&Injection) -> bool) {
+        self.injections.retain(keep);
+    }
+
     /// When the next arbitration can start, if anything is waiting.
     pub fn next_start(&self, now: Instant) -> Option<Instant> {
         self.queues

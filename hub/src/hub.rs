@@ -4,7 +4,7 @@
 //! and asks it what to write to whom and when to wake next.
 
 use crate::bus::{Bus, Delivery, Injection};
-use dual_channel::can_serial::{Decoder, SerialError, encode};
+use dual_channel::can_serial::{Decoder, SerialError, Status, Wire, encode, encode_wire};
 use shared::{CanFrame, Instant};
 
 /// Bytes for one participant.
@@ -26,6 +26,8 @@ pub struct Hub {
     pub completed: Vec<(Instant, CanFrame, usize)>,
     /// Byte streams that did not decode, per participant (a participant's framing is broken).
     pub malformed: Vec<(usize, SerialError)>,
+    /// Status reports of the participants' boards: (arrival, participant, status).
+    pub statuses: Vec<(Instant, usize, Status)>,
 }
 
 impl Hub {
@@ -38,6 +40,7 @@ impl Hub {
             in_flight: Vec::new(),
             completed: Vec::new(),
             malformed: Vec::new(),
+            statuses: Vec::new(),
         }
     }
 
@@ -68,17 +71,29 @@ impl Hub {
         self.bus.inject(injection);
     }
 
-    /// Bytes participant `id` sent at `now`.
+    /// Removes the faults for which `keep` is false (e.g. unmutes a participant).
+    pub fn retain_faults(&mut self, keep: impl FnMut(&Injection) -> bool) {
+        self.bus.retain_faults(keep);
+    }
+
+    /// Bytes participant `id` sent at `now`: CAN frames go on the bus, status reports to
+    /// [`Hub::statuses`]. An input message is for boards, not from them: malformed.
     pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) {
         self.join(id);
         for &byte in bytes {
             match self.decoders[id].push(byte) {
-                Some(Ok(frame)) => self.bus.send(id, frame),
+                Some(Ok(Wire::Can(frame))) => self.bus.send(id, frame),
+                Some(Ok(Wire::Status(status))) => self.statuses.push((now, id, status)),
+                Some(Ok(Wire::Input(_))) => self.malformed.push((id, SerialError::Malformed)),
                 Some(Err(error)) => self.malformed.push((id, error)),
                 None => {}
             }
         }
-        let _ = now;
+    }
+
+    /// The bytes that set a board's input pin to `value`.
+    pub fn input(value: u8) -> Vec<u8> {
+        encode_wire(&Wire::Input(value)).to_vec()
     }
 
     /// Everything due at `now`: frames that ended go to every present participant but their
@@ -135,11 +150,10 @@ mod tests {
 
     fn decode(bytes: &[u8]) -> CanFrame {
         let mut decoder = Decoder::new();
-        bytes
-            .iter()
-            .find_map(|&b| decoder.push(b))
-            .unwrap()
-            .unwrap()
+        match bytes.iter().find_map(|&b| decoder.push(b)) {
+            Some(Ok(Wire::Can(frame))) => frame,
+            other => panic!("not a frame: {other:?}"),
+        }
     }
 
     #[test]
@@ -206,5 +220,28 @@ mod tests {
         assert!(out.is_empty(), "dropped");
         hub.receive(Instant::ZERO, 1, &[0x05, 0x01, 0x00]);
         assert_eq!(hub.malformed.len(), 1);
+    }
+
+    #[test]
+    fn status_reports_are_kept_off_the_bus() {
+        let mut hub = Hub::new(500_000);
+        hub.join(0);
+        hub.join(1);
+        let status = Status {
+            nmt: 5,
+            working: true,
+            ..Status::default()
+        };
+        let at = Instant::from_micros(7);
+        hub.receive(at, 0, &encode_wire(&Wire::Status(status)));
+        assert_eq!(hub.statuses, [(at, 0, status)]);
+        let (out, next) = hub.poll(at);
+        assert!(out.is_empty() && next.is_none(), "nothing on the bus");
+        hub.receive(at, 0, &Hub::input(0));
+        assert_eq!(
+            hub.malformed.len(),
+            1,
+            "input pins are set by the hub, not by boards"
+        );
     }
 }

@@ -6,8 +6,11 @@
 //! - [`trace`]: candump log and pcap (SocketCAN link type) writers.
 //! - [`hub`]: participants that speak CAN-over-serial ([`dual_channel::can_serial`]) joined
 //!   to one [`bus::Bus`] in real time (the `can-hub` program).
+//! - [`control`]: the hub's control port (input pins, faults, link cuts, status reports).
+//! - [`tool`]: a configuration tool's and a test's connection to the hub.
 
 pub mod bus;
+pub mod control;
 pub mod hub;
 pub mod tool;
 pub mod trace;

@@ -1,28 +1,36 @@
 //! `can-hub`: the emulated CAN bus between QEMU instances (each one's USART2 on a Unix socket)
-//! and tools (TCP on loopback), in real time, with candump and pcap traces.
+//! and tools (TCP on loopback), in real time, with candump and pcap traces, the links between
+//! the channels of a node, and a control port for input pins and faults.
 //!
 //! ```text
-//! can-hub --socket /tmp/bus/node1a.sock --socket /tmp/bus/node1b.sock --tcp 127.0.0.1:29536 \
+//! can-hub --socket node1a=/tmp/bus/node1a.sock --socket node1b=/tmp/bus/node1b.sock \
+//!         --link node1-link=/tmp/bus/node1a-link.sock,/tmp/bus/node1b-link.sock \
+//!         --tcp 127.0.0.1:29536 --control 127.0.0.1:29537 \
 //!         --candump bus.log --pcap bus.pcap --bit-rate 500000
 //! ```
 //!
 //! Every participant speaks CAN-over-serial (`dual_channel::can_serial`). The hub listens on
 //! each `--socket` path for one QEMU instance (start QEMU with `-chardev
 //! socket,id=can,path=PATH` and `-serial null -serial chardev:can`), and accepts any number of
-//! tool connections on `--tcp`. It runs until killed.
+//! tool connections on `--tcp`. A `--link` relays the bytes between two QEMU instances' link
+//! USARTs until the control port cuts it. The control port's line protocol is in
+//! `can_hub::control`. The hub runs until killed.
 
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
+use can_hub::control::{Command, status_line};
 use can_hub::hub::Hub;
 use can_hub::trace::{PcapWriter, candump_line};
 use clap::Parser;
 use shared::Instant;
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::net::TcpListener;
-use std::os::unix::net::UnixListener;
+use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -32,12 +40,20 @@ struct Args {
     /// Bit rate in bit/s: 125000, 250000, 500000 or 1000000.
     #[arg(long, default_value_t = 500_000)]
     bit_rate: u32,
-    /// A Unix socket path to listen on for one QEMU instance (repeatable).
+    /// `[NAME=]PATH`: a Unix socket to listen on for one QEMU instance (repeatable); the name
+    /// (default: the file stem) is how the control port addresses it.
     #[arg(long)]
-    socket: Vec<PathBuf>,
+    socket: Vec<String>,
+    /// `NAME=PATH_A,PATH_B`: relay the bytes between the two QEMU instances that connect to
+    /// these sockets (a link between two channels), until the control port cuts it.
+    #[arg(long)]
+    link: Vec<String>,
     /// A TCP address to accept tools on (e.g. 127.0.0.1:29536).
     #[arg(long)]
     tcp: Option<String>,
+    /// A TCP address for the control port (e.g. 127.0.0.1:29537).
+    #[arg(long)]
+    control: Option<String>,
     /// Write a candump log here.
     #[arg(long)]
     candump: Option<PathBuf>,
@@ -55,6 +71,8 @@ enum Input {
     Joined(usize, Box<dyn Write + Send>),
     Bytes(usize, Vec<u8>),
     Left(usize),
+    ControlJoined(usize, Box<dyn Write + Send>),
+    Control(usize, String),
 }
 
 fn reader(id: usize, mut stream: impl Read, tx: Sender<Input>) {
@@ -91,61 +109,133 @@ fn parse_drop(spec: &str) -> Result<(u16, f64), String> {
     Ok((id, at))
 }
 
+/// `[NAME=]PATH` → name and path.
+fn parse_socket(spec: &str) -> Result<(String, PathBuf), String> {
+    let (name, path) = match spec.split_once('=') {
+        Some((name, path)) => (name.to_string(), PathBuf::from(path)),
+        None => {
+            let path = PathBuf::from(spec);
+            let name = path
+                .file_stem()
+                .and_then(|stem| stem.to_str())
+                .ok_or_else(|| format!("--socket {spec}: no name and no file name to use"))?
+                .to_string();
+            (name, path)
+        }
+    };
+    if name.is_empty() || name.contains(char::is_whitespace) {
+        return Err(format!("--socket {spec}: `{name}` is not a usable name"));
+    }
+    Ok((name, path))
+}
+
+/// `NAME=PATH_A,PATH_B`.
+fn parse_link(spec: &str) -> Result<(String, PathBuf, PathBuf), String> {
+    let (name, paths) = spec
+        .split_once('=')
+        .ok_or_else(|| format!("--link {spec}: expected NAME=PATH_A,PATH_B"))?;
+    let (a, b) = paths
+        .split_once(',')
+        .ok_or_else(|| format!("--link {spec}: expected two paths separated by a comma"))?;
+    if name.is_empty() || name.contains(char::is_whitespace) {
+        return Err(format!("--link {spec}: `{name}` is not a usable name"));
+    }
+    Ok((name.to_string(), PathBuf::from(a), PathBuf::from(b)))
+}
+
+fn listen(path: &PathBuf) -> Result<UnixListener, String> {
+    let _ = std::fs::remove_file(path);
+    UnixListener::bind(path)
+        .map_err(|error| format!("cannot listen on {}: {error}", path.display()))
+}
+
+/// Copies `from` to `to` while the link is not cut; a cut link swallows the bytes.
+fn relay(mut from: UnixStream, mut to: UnixStream, cut: Arc<AtomicBool>) {
+    let mut buf = [0u8; 256];
+    while let Ok(n @ 1..) = from.read(&mut buf) {
+        if !cut.load(Ordering::Relaxed) && to.write_all(&buf[..n]).is_err() {
+            return;
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
+    match start(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("can-hub: {message}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn start(args: &Args) -> Result<(), String> {
     if !BIT_RATES.contains(&args.bit_rate) {
-        eprintln!(
-            "can-hub: --bit-rate {} is not one of {BIT_RATES:?}",
+        return Err(format!(
+            "--bit-rate {} is not one of {BIT_RATES:?}",
             args.bit_rate
-        );
-        return ExitCode::from(2);
+        ));
     }
     let mut hub = Hub::new(args.bit_rate);
     for spec in &args.drop {
-        match parse_drop(spec) {
-            Ok((id, at)) => hub.inject(Injection::new(
-                Match::next_with_id(id, Instant::from_micros((at * 1e6) as u64)),
-                Fault::Drop,
-            )),
-            Err(message) => {
-                eprintln!("can-hub: {message}");
-                return ExitCode::from(2);
-            }
-        }
+        let (id, at) = parse_drop(spec)?;
+        hub.inject(Injection::new(
+            Match::next_with_id(id, Instant::from_micros((at * 1e6) as u64)),
+            Fault::Drop,
+        ));
+    }
+    let sockets = args
+        .socket
+        .iter()
+        .map(|spec| parse_socket(spec))
+        .collect::<Result<Vec<_>, _>>()?;
+    let links = args
+        .link
+        .iter()
+        .map(|spec| parse_link(spec))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut names: Vec<String> = sockets.iter().map(|(name, _)| name.clone()).collect();
+    names.sort();
+    if names.windows(2).any(|pair| pair[0] == pair[1]) {
+        return Err("two --socket options have the same name".into());
     }
     let (tx, rx) = mpsc::channel();
-    let mut next_id = 0usize;
-    for path in &args.socket {
-        let _ = std::fs::remove_file(path);
-        let listener = match UnixListener::bind(path) {
-            Ok(listener) => listener,
-            Err(error) => {
-                eprintln!("can-hub: cannot listen on {}: {error}", path.display());
-                return ExitCode::from(2);
-            }
-        };
-        let id = next_id;
-        next_id += 1;
+    for (id, (_, path)) in sockets.iter().enumerate() {
+        let listener = listen(path)?;
         let tx = tx.clone();
         std::thread::spawn(move || {
-            if let Ok((stream, _)) = listener.accept() {
-                if let Ok(writer) = stream.try_clone() {
-                    let _ = tx.send(Input::Joined(id, Box::new(writer)));
-                    reader(id, stream, tx);
-                }
+            let Ok((stream, _)) = listener.accept() else {
+                return;
+            };
+            if let Ok(writer) = stream.try_clone() {
+                let _ = tx.send(Input::Joined(id, Box::new(writer)));
+                reader(id, stream, tx);
             }
         });
     }
+    let mut cuts = HashMap::new();
+    for (name, a, b) in &links {
+        let (a, b) = (listen(a)?, listen(b)?);
+        let cut = Arc::new(AtomicBool::new(false));
+        cuts.insert(name.clone(), cut.clone());
+        std::thread::spawn(move || {
+            let (Ok((a, _)), Ok((b, _))) = (a.accept(), b.accept()) else {
+                return;
+            };
+            let (Ok(a2), Ok(b2)) = (a.try_clone(), b.try_clone()) else {
+                return;
+            };
+            let back = cut.clone();
+            std::thread::spawn(move || relay(b2, a2, back));
+            relay(a, b, cut);
+        });
+    }
     if let Some(address) = &args.tcp {
-        let listener = match TcpListener::bind(address) {
-            Ok(listener) => listener,
-            Err(error) => {
-                eprintln!("can-hub: cannot listen on {address}: {error}");
-                return ExitCode::from(2);
-            }
-        };
+        let listener =
+            TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
         let tx = tx.clone();
-        let first = next_id;
+        let first = sockets.len();
         std::thread::spawn(move || {
             for (offset, stream) in listener.incoming().enumerate() {
                 let Ok(stream) = stream else { continue };
@@ -159,17 +249,112 @@ fn main() -> ExitCode {
             }
         });
     }
+    if let Some(address) = &args.control {
+        let listener =
+            TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
+        let tx = tx.clone();
+        std::thread::spawn(move || {
+            for (client, stream) in listener.incoming().enumerate() {
+                let Ok(stream) = stream else { continue };
+                let _ = stream.set_nodelay(true);
+                if let Ok(writer) = stream.try_clone() {
+                    let _ = tx.send(Input::ControlJoined(client, Box::new(writer)));
+                    let tx = tx.clone();
+                    std::thread::spawn(move || {
+                        for line in BufReader::new(stream).lines() {
+                            let Ok(line) = line else { return };
+                            if tx.send(Input::Control(client, line)).is_err() {
+                                return;
+                            }
+                        }
+                    });
+                }
+            }
+        });
+    }
     drop(tx);
-    match run(&mut hub, &rx, &args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(error) => {
-            eprintln!("can-hub: {error}");
-            ExitCode::FAILURE
+    let names = sockets.into_iter().map(|(name, _)| name).collect();
+    run(&mut hub, &rx, args, names, cuts).map_err(|error| error.to_string())
+}
+
+/// The state the main loop keeps besides the hub.
+struct Hosts {
+    names: Vec<String>,
+    writers: HashMap<usize, Box<dyn Write + Send>>,
+    controls: HashMap<usize, Box<dyn Write + Send>>,
+    cuts: HashMap<String, Arc<AtomicBool>>,
+}
+
+impl Hosts {
+    fn participant(&self, name: &str) -> Result<usize, String> {
+        self.names.iter().position(|n| n == name).ok_or_else(|| {
+            format!(
+                "no participant `{name}` (there are: {})",
+                self.names.join(", ")
+            )
+        })
+    }
+
+    /// Carries out one control command at `now`.
+    fn apply(&mut self, hub: &mut Hub, now: Instant, command: &Command) -> Result<(), String> {
+        let next = |id| Match::next_with_id(id, now);
+        match command {
+            Command::Input { name, value } => {
+                let id = self.participant(name)?;
+                let writer = self
+                    .writers
+                    .get_mut(&id)
+                    .ok_or_else(|| format!("`{name}` is not connected"))?;
+                writer
+                    .write_all(&Hub::input(*value))
+                    .map_err(|error| format!("`{name}`: {error}"))?;
+            }
+            Command::Drop(id) => hub.inject(Injection::new(next(*id), Fault::Drop)),
+            Command::Corrupt { id, byte, mask } => hub.inject(Injection::new(
+                next(*id),
+                Fault::Corrupt {
+                    byte: *byte,
+                    mask: *mask,
+                },
+            )),
+            Command::Delay { id, ms } => hub.inject(Injection::new(
+                next(*id),
+                Fault::Delay(shared::Duration::from_millis(*ms)),
+            )),
+            Command::Repeat(id) => hub.inject(Injection::new(next(*id), Fault::Repeat)),
+            Command::Mute(name, true) => {
+                let id = self.participant(name)?;
+                hub.inject(Injection::new(Match::all_from(id, now), Fault::Mute));
+            }
+            Command::Mute(name, false) => {
+                let id = self.participant(name)?;
+                hub.retain_faults(|injection| {
+                    !(injection.fault == Fault::Mute && injection.when.from == Some(id))
+                });
+            }
+            Command::Cut(name) => self
+                .cuts
+                .get(name)
+                .ok_or_else(|| format!("no link `{name}`"))?
+                .store(true, Ordering::Relaxed),
+            Command::Clear => hub.retain_faults(|_| false),
         }
+        Ok(())
+    }
+
+    fn tell_controls(&mut self, line: &str) {
+        self.controls
+            .retain(|_, writer| writeln!(writer, "{line}").is_ok());
     }
 }
 
-fn run(hub: &mut Hub, rx: &Receiver<Input>, args: &Args) -> std::io::Result<()> {
+fn run(
+    hub: &mut Hub,
+    rx: &Receiver<Input>,
+    args: &Args,
+    names: Vec<String>,
+    cuts: HashMap<String, Arc<AtomicBool>>,
+) -> std::io::Result<()> {
     let mut candump = args
         .candump
         .as_ref()
@@ -189,7 +374,13 @@ fn run(hub: &mut Hub, rx: &Receiver<Input>, args: &Args) -> std::io::Result<()> 
         .map_or(0, |d| d.as_micros() as u64);
     let start = std::time::Instant::now();
     let now = || Instant::from_micros(start.elapsed().as_micros() as u64);
-    let mut writers: HashMap<usize, Box<dyn Write + Send>> = HashMap::new();
+    let seconds = |at: Instant| at.as_micros() as f64 / 1e6;
+    let mut hosts = Hosts {
+        names,
+        writers: HashMap::new(),
+        controls: HashMap::new(),
+        cuts,
+    };
     let mut wake: Option<Instant> = None;
     loop {
         let timeout = wake.map_or(Duration::from_millis(100), |at| {
@@ -198,12 +389,31 @@ fn run(hub: &mut Hub, rx: &Receiver<Input>, args: &Args) -> std::io::Result<()> 
         match rx.recv_timeout(timeout) {
             Ok(Input::Joined(id, writer)) => {
                 hub.join(id);
-                writers.insert(id, writer);
+                hosts.writers.insert(id, writer);
             }
             Ok(Input::Bytes(id, bytes)) => hub.receive(now(), id, &bytes),
             Ok(Input::Left(id)) => {
                 hub.leave(id);
-                writers.remove(&id);
+                hosts.writers.remove(&id);
+            }
+            Ok(Input::ControlJoined(client, writer)) => {
+                hosts.controls.insert(client, writer);
+            }
+            Ok(Input::Control(client, line)) => {
+                let at = now();
+                let reply = match Command::parse(&line)
+                    .and_then(|command| hosts.apply(hub, at, &command).map(|()| command))
+                {
+                    Ok(command) => format!("ok {command} t={:.6}", seconds(at)),
+                    Err(why) => format!("error {why}"),
+                };
+                let gone = hosts
+                    .controls
+                    .get_mut(&client)
+                    .is_some_and(|writer| writeln!(writer, "{reply}").is_err());
+                if gone {
+                    hosts.controls.remove(&client);
+                }
             }
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => return Ok(()),
@@ -211,11 +421,12 @@ fn run(hub: &mut Hub, rx: &Receiver<Input>, args: &Args) -> std::io::Result<()> 
         let (out, next) = hub.poll(now());
         wake = next;
         for outgoing in out {
-            let failed = writers
+            let failed = hosts
+                .writers
                 .get_mut(&outgoing.to)
                 .is_some_and(|writer| writer.write_all(&outgoing.bytes).is_err());
             if failed {
-                writers.remove(&outgoing.to);
+                hosts.writers.remove(&outgoing.to);
                 hub.leave(outgoing.to);
             }
         }
@@ -229,6 +440,15 @@ fn run(hub: &mut Hub, rx: &Receiver<Input>, args: &Args) -> std::io::Result<()> 
                 pcap.write(stamp, &frame)?;
                 pcap.flush()?;
             }
+        }
+        let statuses: Vec<_> = hub.statuses.drain(..).collect();
+        for (at, id, status) in statuses {
+            let name = hosts
+                .names
+                .get(id)
+                .cloned()
+                .unwrap_or_else(|| format!("tool{id}"));
+            hosts.tell_controls(&status_line(&name, seconds(at), &status));
         }
         for (id, error) in hub.malformed.drain(..) {
             eprintln!("can-hub: participant {id}: {error:?}");

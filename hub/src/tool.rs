@@ -2,13 +2,16 @@
 //! transfers (through [`shared::canopen::sdo_client`]), NMT, and the EN 50325-5 signing
 //! sequence (read back, sign, declare valid, store).
 
-use dual_channel::can_serial::{Decoder, encode};
+use crate::control::parse_status;
+use dual_channel::can_serial::Status;
+use dual_channel::can_serial::{Decoder, Wire, encode};
 use shared::canopen::nmt::{self, NmtCommand};
 use shared::canopen::od::Address;
 use shared::canopen::sdo_client::{self, ClientError};
 use shared::safety::config::SrdoRecord;
 use shared::{CanFrame, CanId};
-use std::io::{self, Read, Write};
+use std::collections::HashMap;
+use std::io::{self, BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
@@ -74,7 +77,7 @@ impl Tool {
             };
             let mut found = None;
             for &byte in &buf[..n] {
-                if let Some(Ok(frame)) = self.decoder.push(byte) {
+                if let Some(Ok(Wire::Can(frame))) = self.decoder.push(byte) {
                     self.seen.push((Instant::now(), frame));
                     if found.is_none() && until(&frame) {
                         found = Some(frame);
@@ -152,5 +155,124 @@ impl Tool {
         self.write(id, Address::new(0x13FE, 0), &[0xA5])?;
         self.write(id, Address::new(0x1010, 1), b"save")?;
         Ok(signature)
+    }
+}
+
+/// A connection to the hub's control port ([`crate::control`]): commands, and the latest
+/// status of every participant.
+pub struct Control {
+    writer: TcpStream,
+    reader: BufReader<TcpStream>,
+    /// The latest status of each participant, with the hub's time of arrival (seconds).
+    pub latest: HashMap<String, (f64, Status)>,
+    /// Every status line received, in order: (participant, hub time, status).
+    pub history: Vec<(String, f64, Status)>,
+}
+
+impl Control {
+    /// Connects to the control port at `address`, retrying for up to `patience`.
+    pub fn connect(address: &str, patience: Duration) -> io::Result<Self> {
+        let give_up = Instant::now() + patience;
+        let stream = loop {
+            match TcpStream::connect(address) {
+                Ok(stream) => break stream,
+                Err(error) if Instant::now() >= give_up => return Err(error),
+                Err(_) => std::thread::sleep(Duration::from_millis(50)),
+            }
+        };
+        stream.set_nodelay(true)?;
+        Ok(Control {
+            reader: BufReader::new(stream.try_clone()?),
+            writer: stream,
+            latest: HashMap::new(),
+            history: Vec::new(),
+        })
+    }
+
+    /// Reads one line within `patience`; status lines are recorded. `None` when none came.
+    fn line(&mut self, patience: Duration) -> io::Result<Option<String>> {
+        self.reader
+            .get_ref()
+            .set_read_timeout(Some(patience.max(Duration::from_millis(1))))?;
+        let mut line = String::new();
+        match self.reader.read_line(&mut line) {
+            Ok(0) => Err(io::Error::new(io::ErrorKind::UnexpectedEof, "hub closed")),
+            Ok(_) => {
+                let line = line.trim_end().to_string();
+                if let Some((name, t, status)) = parse_status(&line) {
+                    self.latest.insert(name.clone(), (t, status));
+                    self.history.push((name, t, status));
+                }
+                Ok(Some(line))
+            }
+            Err(error)
+                if matches!(
+                    error.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) =>
+            {
+                Ok(None)
+            }
+            Err(error) => Err(error),
+        }
+    }
+
+    /// Sends `command` and waits for its answer: `Ok(hub time in seconds)` or the hub's
+    /// error.
+    pub fn command(&mut self, command: &str) -> io::Result<Result<f64, String>> {
+        writeln!(self.writer, "{command}")?;
+        let give_up = Instant::now() + Duration::from_secs(5);
+        loop {
+            let left = give_up.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    "no answer from the hub",
+                ));
+            }
+            let Some(line) = self.line(left)? else {
+                continue;
+            };
+            if let Some(error) = line.strip_prefix("error ") {
+                return Ok(Err(error.to_string()));
+            }
+            if let Some(rest) = line.strip_prefix("ok ") {
+                let t = rest
+                    .rsplit_once(" t=")
+                    .and_then(|(_, t)| t.parse().ok())
+                    .unwrap_or(f64::NAN);
+                return Ok(Ok(t));
+            }
+        }
+    }
+
+    /// Reads status lines until `until` holds for the latest statuses (returns the hub time
+    /// of the line that made it hold) or `patience` runs out (`None`).
+    pub fn wait_for(
+        &mut self,
+        patience: Duration,
+        mut until: impl FnMut(&HashMap<String, (f64, Status)>) -> bool,
+    ) -> io::Result<Option<f64>> {
+        let give_up = Instant::now() + patience;
+        if until(&self.latest) {
+            return Ok(self.history.last().map(|(_, t, _)| *t));
+        }
+        loop {
+            let left = give_up.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            let Some(line) = self.line(left)? else {
+                continue;
+            };
+            if parse_status(&line).is_some() && until(&self.latest) {
+                return Ok(self.history.last().map(|(_, t, _)| *t));
+            }
+        }
+    }
+
+    /// Reads status lines for `duration`.
+    pub fn watch(&mut self, duration: Duration) -> io::Result<()> {
+        self.wait_for(duration, |_| false).map(|_| ())
     }
 }

@@ -58,7 +58,10 @@ fn receive(stream: &mut TcpStream) -> CanFrame {
     loop {
         stream.read_exact(&mut byte).expect("a frame within 5 s");
         if let Some(result) = decoder.push(byte[0]) {
-            return result.expect("well-formed");
+            match result.expect("well-formed") {
+                dual_channel::can_serial::Wire::Can(frame) => return frame,
+                other => panic!("a frame expected, got {other:?}"),
+            }
         }
     }
 }

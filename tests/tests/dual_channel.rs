@@ -245,6 +245,31 @@ fn nmt_reset_clears_both_channels_together() {
     assert_eq!(net.output(33), 1);
 }
 
+/// NMT reset node restores the application objects to their defaults (CiA 301 7.3.2.2.3),
+/// the safety inputs among them; each channel writes its current input sample back, so the
+/// producer sends the input as it is, not a default, and never a pair whose halves differ.
+#[test]
+fn nmt_reset_node_keeps_the_producer_sending_the_sampled_input() {
+    let mut net = running();
+    net.nmt(NmtCommand::ResetNode, 0);
+    net.run_for(Duration::from_millis(50));
+    net.nmt(NmtCommand::Start, 0);
+    net.run_for(Duration::from_millis(200));
+    for id in [1u8, 33] {
+        let node = net.node(id);
+        assert!(
+            node.a.is_working() && node.b.is_working(),
+            "node {id}: {:?} {:?}",
+            node.a.fault(),
+            node.a.node().fault()
+        );
+    }
+    assert_eq!(net.output(33), 1, "node 1's input is still released");
+    net.set_inputs(1, 0, 0);
+    net.run_for(Duration::from_millis(20));
+    assert_eq!(net.output(33), 0);
+}
+
 /// Start-up: channel A's core (the one that speaks for the node) boots only after channel
 /// B's has, so the node's boot-up message means both channels follow the bus; a channel
 /// whose partner never speaks stays silent and reports the link time-out.

@@ -4,9 +4,11 @@
 //! a fresh clone needs nothing but a Rust toolchain.
 
 mod bench;
-mod emulate;
+mod e2e;
 mod images;
+mod network;
 mod qemu;
+mod run;
 mod toolchain;
 mod trace;
 
@@ -44,13 +46,9 @@ enum Task {
         #[arg(value_parser = ["a", "b"])]
         channel: String,
     },
-    /// The emulated network (work in progress): the bus hub, both nodes as four QEMU
-    /// instances, configured and started by a tool over the hub; prints a summary.
-    Emulate {
-        /// How long to watch the bus after NMT start.
-        #[arg(long, default_value_t = 5)]
-        seconds: u64,
-    },
+    /// The end-to-end tests on the emulated network: nominal, emergency stop, dropped and
+    /// corrupted frames, a stopped node, a channel that reads otherwise, a cut link.
+    E2e,
     /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
     Qemu {
         /// Which channel's image: `a` or `b`.
@@ -63,12 +61,25 @@ enum Task {
         #[arg(long, default_value_t = 5)]
         seconds: u64,
     },
-    /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared` and the images.
+    /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared`, the images,
+    /// QEMU self-tests and the end-to-end tests on the emulated network.
     Test,
-    /// The main job: a host demo of a producer and a consumer node exchanging SRDOs under
-    /// simulated time, with an emergency stop and injected faults.
+    /// The main job: the emulated safety network (two nodes, four QEMU instances, the bus
+    /// hub), configured and started, shown live; keys press the emergency stop and inject
+    /// faults. Ends with a summary; fails unless both nodes exchanged valid SRDOs.
     Run {
-        /// Arguments for the demo (`cargo xtask run -- --help`).
+        /// Run unattended for this long (e.g. `30s`), then print the summary.
+        #[arg(long = "for", value_parser = run::parse_duration)]
+        duration: Option<std::time::Duration>,
+        /// Schedule an action: `5s:press` (press, release, drop, corrupt, stop, b-differs,
+        /// cut-link, reset; repeatable).
+        #[arg(long, value_parser = run::parse_at)]
+        at: Vec<(std::time::Duration, run::Action)>,
+    },
+    /// The host demo: two nodes on a simulated bus under simulated time (no QEMU), with an
+    /// emergency stop and injected faults, every step checked.
+    Demo {
+        /// Arguments for the demo (`cargo xtask demo -- --help`).
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
@@ -99,7 +110,7 @@ fn main() -> Result<()> {
             images::build(&root, &cross)
         }
         Task::Test => test(&root),
-        Task::Emulate { seconds } => emulate::run(&root, seconds),
+        Task::E2e => e2e::task(&root),
         Task::Qemu {
             channel,
             selftest,
@@ -114,7 +125,8 @@ fn main() -> Result<()> {
                 .args(["run", "--chip", images::CHIP])
                 .arg(image))
         }
-        Task::Run { args } => {
+        Task::Run { duration, at } => run::task(&root, duration, at),
+        Task::Demo { args } => {
             let mut command = cargo();
             command.args([
                 "run",
@@ -182,6 +194,8 @@ fn test(root: &Path) -> Result<()> {
         }
         println!("xtask: channel {channel}: a panic exits QEMU with code {code}");
     }
+    step("end-to-end tests on the emulated network");
+    e2e::task(root)?;
     step("traceability matrix");
     trace::run(root)?;
     step("all checks passed");

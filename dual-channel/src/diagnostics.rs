@@ -1,0 +1,161 @@
+//! What a channel reports about itself to whoever watches the board (the emulated network's
+//! hub and its display): NMT state, safe or working, output, counters, the cause of the last
+//! safe state. Sans-I/O: the board layer hands it what the runtime did and asks when a report
+//! is due.
+//!
+//! A report goes out at once when anything a watcher acts on changes (state, output, input,
+//! cause), and otherwise every [`PERIOD`], so counters stay fresh and a silent channel is
+//! noticed.
+
+use crate::can_serial::Status;
+use crate::runtime::{ChannelEvent, Io, Role, Runtime};
+use shared::canopen::storage::Flash;
+use shared::node::{Event, SafeStateCause};
+use shared::{CanFrame, Duration, Instant};
+
+/// The longest time between two reports.
+pub const PERIOD: Duration = Duration::from_millis(250);
+
+/// The cause code reported for a received GFC (EN 50325-5 7.2.1); the other codes are those
+/// of `SrdoFaultCause::cause_code` (1..) and `ChannelFault::cause_code` (10h..).
+pub const GFC_CAUSE: u8 = 0x50;
+
+/// The SRDO identifier range (CiA 304 Table 3: 101h..180h), for counting SRDO frames sent.
+const SRDO_IDS: core::ops::RangeInclusive<u16> = 0x101..=0x180;
+
+/// A channel's diagnostics.
+#[derive(Clone, Debug)]
+pub struct Diagnostics {
+    status: Status,
+    last_reported: Option<Status>,
+    next_report: Instant,
+}
+
+impl Default for Diagnostics {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Diagnostics {
+    /// Nothing counted yet; the first report is due at once.
+    pub const fn new() -> Self {
+        Diagnostics {
+            status: Status {
+                nmt: 0,
+                working: false,
+                link_up: false,
+                output: 0,
+                input: 0,
+                cause: 0,
+                sent: 0,
+                validated: 0,
+                longest_stall_ms: 0,
+            },
+            last_reported: None,
+            next_report: Instant::ZERO,
+        }
+    }
+
+    /// The channel sent `frame`.
+    pub fn transmitted(&mut self, frame: &CanFrame) {
+        if SRDO_IDS.contains(&frame.id().raw()) {
+            self.status.sent = self.status.sent.wrapping_add(1);
+        }
+    }
+
+    /// The channel reported `event`.
+    pub fn event(&mut self, event: &ChannelEvent) {
+        match event {
+            ChannelEvent::Node(Event::SrdoReceived { .. }) => {
+                self.status.validated = self.status.validated.wrapping_add(1);
+            }
+            ChannelEvent::Node(Event::SafeState(cause)) => {
+                self.status.cause = match cause {
+                    SafeStateCause::Srdo(fault) => fault.cause.cause_code(),
+                    SafeStateCause::Gfc => GFC_CAUSE,
+                    SafeStateCause::Application { detail } => *detail,
+                };
+            }
+            ChannelEvent::Fault(fault) => self.status.cause = fault.cause_code(),
+            _ => {}
+        }
+    }
+
+    /// The channel's input pin was sampled as `value`.
+    pub fn input(&mut self, value: u8) {
+        self.status.input = value;
+    }
+
+    /// The emulated MCU did not run for `stall_ms` real milliseconds (kept: the longest).
+    pub fn stalled(&mut self, stall_ms: u16) {
+        self.status.longest_stall_ms = self.status.longest_stall_ms.max(stall_ms);
+    }
+
+    /// The report to send at `now`, if one is due: when something a watcher acts on changed
+    /// since the last one, or [`PERIOD`] after it.
+    pub fn report<F: Flash, R: Role<N>, const N: usize>(
+        &mut self,
+        now: Instant,
+        runtime: &Runtime<F, R, N>,
+    ) -> Option<Status> {
+        self.status.nmt = runtime.node().nmt_state().heartbeat_code();
+        self.status.working = runtime.is_working();
+        self.status.link_up = runtime.link_up();
+        // The output pin is the lowest byte of receive SRDO 1 (the demo device's relay).
+        self.status.output = runtime.output(1) as u8;
+        let changed = self.last_reported.is_none_or(|last| {
+            (
+                last.nmt,
+                last.working,
+                last.link_up,
+                last.output,
+                last.input,
+                last.cause,
+            ) != (
+                self.status.nmt,
+                self.status.working,
+                self.status.link_up,
+                self.status.output,
+                self.status.input,
+                self.status.cause,
+            )
+        });
+        if !changed && !shared::time::expired(self.next_report, now) {
+            return None;
+        }
+        self.last_reported = Some(self.status);
+        self.next_report = now + PERIOD;
+        Some(self.status)
+    }
+
+    /// When the next periodic report is due.
+    pub fn deadline(&self) -> Instant {
+        self.next_report
+    }
+}
+
+/// An [`Io`] that keeps [`Diagnostics`] up to date on the way through to the board's own.
+pub struct Observed<'a, I: Io> {
+    /// The board's I/O.
+    pub io: &'a mut I,
+    /// The diagnostics to update.
+    pub diagnostics: &'a mut Diagnostics,
+}
+
+impl<I: Io> Io for Observed<'_, I> {
+    fn transmit(&mut self, frame: CanFrame) {
+        self.diagnostics.transmitted(&frame);
+        self.io.transmit(frame);
+    }
+    fn link(&mut self, bytes: &[u8]) {
+        self.io.link(bytes);
+    }
+    fn output(&mut self, srdo: u8, data: u64) {
+        self.io.output(srdo, data);
+    }
+    fn event(&mut self, event: ChannelEvent) {
+        self.diagnostics.event(&event);
+        self.io.event(event);
+    }
+}

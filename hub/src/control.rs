@@ -1,0 +1,250 @@
+//! The hub's control port: a line protocol on TCP for people (`nc 127.0.0.1 29537`), scripts
+//! and tests. It sets the emulated boards' input pins, injects faults on the bus, cuts the
+//! links between channels, and reports every channel's status as it arrives.
+//!
+//! ```text
+//! → input node1a 0            the input pin of participant node1a reads 0
+//! → drop 0x102                the next frame with identifier 102h is lost
+//! → corrupt 0x101 0 0x01      data byte 0 of the next 101h frame is XOR-ed with 01h
+//! → delay 0x101 30            the next 101h frame arrives 30 ms late
+//! → repeat 0x101              the next 101h frame arrives twice
+//! → mute node1a / unmute node1a
+//! → cut node33-link           the link relay stops passing bytes, both ways
+//! → clear                     every injected bus fault is removed
+//! ← ok <command> t=<seconds on the hub's clock>   or   error <why>
+//! ← status node1a t=1.234567 nmt=5 working=1 link=1 output=1 input=1 cause=0x00 sent=12
+//!          validated=0 stall_ms=3
+//! ```
+
+use dual_channel::can_serial::Status;
+use std::fmt;
+
+/// A command on the control port.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Command {
+    /// Set participant `name`'s input pin.
+    Input {
+        /// The participant.
+        name: String,
+        /// The pin's value.
+        value: u8,
+    },
+    /// Drop the next frame with this identifier.
+    Drop(u16),
+    /// XOR data byte `byte` of the next frame with identifier `id` with `mask`.
+    Corrupt {
+        /// The identifier.
+        id: u16,
+        /// The data byte.
+        byte: usize,
+        /// The bits flipped.
+        mask: u8,
+    },
+    /// Deliver the next frame with identifier `id` `ms` milliseconds late.
+    Delay {
+        /// The identifier.
+        id: u16,
+        /// The delay.
+        ms: u64,
+    },
+    /// Deliver the next frame with this identifier twice.
+    Repeat(u16),
+    /// Participant `name`'s frames stop (`true`) or start again (`false`) reaching the bus.
+    Mute(String, bool),
+    /// The link relay `name` stops passing bytes.
+    Cut(String),
+    /// Remove every injected bus fault.
+    Clear,
+}
+
+fn identifier(word: &str) -> Result<u16, String> {
+    let digits = word
+        .strip_prefix("0x")
+        .or_else(|| word.strip_prefix("0X"))
+        .unwrap_or(word);
+    u16::from_str_radix(digits, 16)
+        .ok()
+        .filter(|id| *id <= 0x7FF)
+        .ok_or_else(|| format!("{word} is not an 11-bit identifier (hexadecimal, e.g. 0x102)"))
+}
+
+fn number<T: std::str::FromStr>(word: &str, what: &str) -> Result<T, String> {
+    let parsed = match word.strip_prefix("0x") {
+        Some(hex) => u64::from_str_radix(hex, 16)
+            .ok()
+            .and_then(|v| v.to_string().parse().ok()),
+        None => word.parse().ok(),
+    };
+    parsed.ok_or_else(|| format!("{word} is not {what}"))
+}
+
+impl Command {
+    /// Parses one line.
+    pub fn parse(line: &str) -> Result<Command, String> {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let command = match words.as_slice() {
+            ["input", name, value] => Command::Input {
+                name: (*name).to_string(),
+                value: number(value, "a pin value (0..255)")?,
+            },
+            ["drop", id] => Command::Drop(identifier(id)?),
+            ["corrupt", id, byte, mask] => {
+                let byte: usize = number(byte, "a data byte index (0..7)")?;
+                if byte > 7 {
+                    return Err(format!("data byte {byte} does not exist (0..7)"));
+                }
+                let mask: u8 = number(mask, "a bit mask (1..255)")?;
+                if mask == 0 {
+                    return Err("a mask of 0 flips no bit".into());
+                }
+                Command::Corrupt {
+                    id: identifier(id)?,
+                    byte,
+                    mask,
+                }
+            }
+            ["delay", id, ms] => Command::Delay {
+                id: identifier(id)?,
+                ms: number(ms, "a delay in milliseconds")?,
+            },
+            ["repeat", id] => Command::Repeat(identifier(id)?),
+            ["mute", name] => Command::Mute((*name).to_string(), true),
+            ["unmute", name] => Command::Mute((*name).to_string(), false),
+            ["cut", name] => Command::Cut((*name).to_string()),
+            ["clear"] => Command::Clear,
+            [] => return Err("empty command".into()),
+            [verb, ..] => {
+                return Err(format!(
+                    "`{verb}` with {} argument(s) is not a command (input, drop, corrupt, delay, \
+                     repeat, mute, unmute, cut, clear)",
+                    words.len() - 1
+                ));
+            }
+        };
+        Ok(command)
+    }
+}
+
+impl fmt::Display for Command {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Command::Input { name, value } => write!(f, "input {name} {value}"),
+            Command::Drop(id) => write!(f, "drop 0x{id:03X}"),
+            Command::Corrupt { id, byte, mask } => {
+                write!(f, "corrupt 0x{id:03X} {byte} 0x{mask:02X}")
+            }
+            Command::Delay { id, ms } => write!(f, "delay 0x{id:03X} {ms}"),
+            Command::Repeat(id) => write!(f, "repeat 0x{id:03X}"),
+            Command::Mute(name, true) => write!(f, "mute {name}"),
+            Command::Mute(name, false) => write!(f, "unmute {name}"),
+            Command::Cut(name) => write!(f, "cut {name}"),
+            Command::Clear => write!(f, "clear"),
+        }
+    }
+}
+
+/// A status line as the hub sends it: participant `name`'s `status`, received at `t` seconds.
+pub fn status_line(name: &str, t: f64, status: &Status) -> String {
+    format!(
+        "status {name} t={t:.6} nmt={} working={} link={} output={} input={} cause=0x{:02X} \
+         sent={} validated={} stall_ms={}",
+        status.nmt,
+        u8::from(status.working),
+        u8::from(status.link_up),
+        status.output,
+        status.input,
+        status.cause,
+        status.sent,
+        status.validated,
+        status.longest_stall_ms
+    )
+}
+
+/// Reads a status line back: (participant, t, status).
+pub fn parse_status(line: &str) -> Option<(String, f64, Status)> {
+    let mut words = line.split_whitespace();
+    if words.next()? != "status" {
+        return None;
+    }
+    let name = words.next()?.to_string();
+    let mut t = None;
+    let mut status = Status::default();
+    for word in words {
+        let (key, value) = word.split_once('=')?;
+        let int = || -> Option<u16> {
+            match value.strip_prefix("0x") {
+                Some(hex) => u16::from_str_radix(hex, 16).ok(),
+                None => value.parse().ok(),
+            }
+        };
+        match key {
+            "t" => t = value.parse().ok(),
+            "nmt" => status.nmt = u8::try_from(int()?).ok()?,
+            "working" => status.working = int()? != 0,
+            "link" => status.link_up = int()? != 0,
+            "output" => status.output = u8::try_from(int()?).ok()?,
+            "input" => status.input = u8::try_from(int()?).ok()?,
+            "cause" => status.cause = u8::try_from(int()?).ok()?,
+            "sent" => status.sent = int()?,
+            "validated" => status.validated = int()?,
+            "stall_ms" => status.longest_stall_ms = int()?,
+            _ => return None,
+        }
+    }
+    Some((name, t?, status))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn commands_parse_and_print_back() {
+        for line in [
+            "input node1a 0",
+            "drop 0x102",
+            "corrupt 0x101 0 0x01",
+            "delay 0x101 30",
+            "repeat 0x101",
+            "mute node1a",
+            "unmute node1b",
+            "cut node33-link",
+            "clear",
+        ] {
+            let command = Command::parse(line).unwrap();
+            assert_eq!(command.to_string(), line);
+        }
+        assert_eq!(Command::parse("drop 102"), Ok(Command::Drop(0x102)));
+    }
+
+    #[test]
+    fn bad_commands_say_what_is_wrong() {
+        let error = |line| Command::parse(line).unwrap_err();
+        assert!(error("drop 0x800").contains("11-bit"));
+        assert!(error("corrupt 0x101 8 1").contains("byte 8"));
+        assert!(error("corrupt 0x101 0 0").contains("mask of 0"));
+        assert!(error("input node1a 256").contains("pin value"));
+        assert!(error("explode").contains("not a command"));
+        assert!(error("").contains("empty"));
+    }
+
+    #[test]
+    fn status_lines_round_trip() {
+        let status = Status {
+            nmt: 5,
+            working: true,
+            link_up: true,
+            output: 1,
+            input: 1,
+            cause: 0x14,
+            sent: 300,
+            validated: 299,
+            longest_stall_ms: 12,
+        };
+        let line = status_line("node33a", 12.5, &status);
+        assert_eq!(
+            parse_status(&line),
+            Some(("node33a".to_string(), 12.5, status))
+        );
+    }
+}

@@ -1,0 +1,219 @@
+//! End-to-end tests of the emulated network (`cargo xtask e2e`, and part of `cargo xtask
+//! test`): the firmware images under QEMU, the hub between them, faults injected through the
+//! hub's control port, every verdict read from the channels' own status reports.
+//!
+//! Bounds. A fault must put node 33 in its safe state within the time the standard allows
+//! plus a margin for the emulation, [`MARGIN_MS`]: the status report that tells us travels
+//! over the emulated serial line and the hub, and the emulated MCUs share two host cores. The
+//! longest stall of any emulated MCU is measured and printed with the results; the bound for
+//! each case is:
+//!
+//! | case | the standard's bound | bound here |
+//! |------|----------------------|------------|
+//! | emergency stop pressed | next SRDO, sent at once on the change | refresh time + margin |
+//! | inverted frame dropped | SRVT after the plain frame (EN 50325-5 7.1.2) | refresh + SRVT + margin |
+//! | data byte corrupted | at once: the halves are not inverse (EN 50325-5 7.1.1) | refresh + margin |
+//! | node 1 stopped | SCT after the last pair (EN 50325-5 7.1.2) | SCT + refresh + margin |
+//! | channel B of node 1 reads otherwise | no inverted frame (CiA 304 9.5): SRVT | refresh + SRVT + margin |
+//! | link of node 33 cut | two link periods | 2 × link period + margin |
+//!
+//! "refresh +" because a fault injected on the next frame waits for that frame.
+
+use crate::network::{self, Network, output_33, working};
+use anyhow::{Result, bail};
+use std::time::Duration;
+
+/// The emulation's margin on top of each bound (see the module documentation).
+pub const MARGIN_MS: u64 = 150;
+
+/// One case's measured time against its bound.
+pub struct Measured {
+    /// The case.
+    pub case: &'static str,
+    /// What happened, in milliseconds after the cause (hub time).
+    pub ms: f64,
+    /// The bound.
+    pub bound_ms: u64,
+}
+
+/// Waits until node 33 is safe (both channels not working, output 0) with one of `causes`
+/// reported by channel A; returns the time after `since` (hub seconds), in milliseconds.
+fn node_33_safe(network: &mut Network, since: f64, causes: &[u8], bound_ms: u64) -> Result<f64> {
+    let patience = Duration::from_millis(bound_ms + 2_000);
+    let at = network.wait_for(patience, |latest| {
+        ["node33a", "node33b"].iter().all(|name| {
+            latest
+                .get(*name)
+                .is_some_and(|(_, s)| !s.working && s.output == 0)
+        }) && latest
+            .get("node33a")
+            .is_some_and(|(_, s)| causes.contains(&s.cause))
+    })?;
+    let Some(at) = at else {
+        bail!(
+            "node 33 did not reach its safe state (cause one of {causes:02X?}) within {} ms:\n{}",
+            bound_ms + 2_000,
+            network.table()
+        );
+    };
+    Ok((at - since) * 1000.0)
+}
+
+/// Presses the emergency stop on node 1 (both contacts open); returns the milliseconds until
+/// node 33's output is 0 in both channels.
+pub fn press(network: &mut Network) -> Result<f64> {
+    let pressed = network.command("input node1a 0")?;
+    network.command("input node1b 0")?;
+    let off = network.wait_for(Duration::from_secs(3), |latest| {
+        output_33(latest) == Some(0)
+    })?;
+    match off {
+        Some(off) => Ok((off - pressed) * 1000.0),
+        None => bail!(
+            "node 33's output stayed on after the emergency stop:\n{}",
+            network.table()
+        ),
+    }
+}
+
+/// Releases the emergency stop; waits until node 33's output is on again.
+pub fn release(network: &mut Network) -> Result<()> {
+    network.command("input node1a 1")?;
+    network.command("input node1b 1")?;
+    let on = network.wait_for(Duration::from_secs(3), |latest| {
+        output_33(latest) == Some(1)
+    })?;
+    if on.is_none() {
+        bail!(
+            "node 33's output stayed off after release:\n{}",
+            network.table()
+        );
+    }
+    Ok(())
+}
+
+/// Runs every case on one network; returns the measurements.
+pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
+    use network::{LINK_PERIOD_MS, REFRESH_MS, SCT_MS, SRVT_MS};
+    let mut results = Vec::new();
+    let mut check = |case: &'static str, ms: f64, bound_ms: u64| -> Result<()> {
+        println!("   {case}: {ms:.1} ms (bound {bound_ms} ms)");
+        if ms > bound_ms as f64 {
+            bail!("{case}: {ms:.1} ms exceeds its bound of {bound_ms} ms");
+        }
+        results.push(Measured { case, ms, bound_ms });
+        Ok(())
+    };
+
+    // Nominal: both nodes Operational, node 33 validates pairs and its output follows.
+    let before = network
+        .control
+        .latest
+        .get("node33a")
+        .map_or(0, |(_, s)| s.validated);
+    let flowing = network.wait_for(Duration::from_secs(3), |latest| {
+        working(latest, 1)
+            && working(latest, 33)
+            && latest
+                .get("node33a")
+                .is_some_and(|(_, s)| s.validated >= before.wrapping_add(5))
+    })?;
+    if flowing.is_none() {
+        bail!(
+            "nominal: node 33 did not validate SRDOs:\n{}",
+            network.table()
+        );
+    }
+    println!("   nominal: both nodes Operational, node 33 validates node 1's SRDO, output on");
+
+    let latency = press(network)?;
+    check(
+        "emergency stop → node 33 output 0",
+        latency,
+        REFRESH_MS + MARGIN_MS,
+    )?;
+    release(network)?;
+    let latency = press(network)?;
+    check("emergency stop again", latency, REFRESH_MS + MARGIN_MS)?;
+    release(network)?;
+
+    let at = network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
+    let ms = node_33_safe(network, at, &[2], REFRESH_MS + SRVT_MS + MARGIN_MS)?;
+    check(
+        "inverted frame dropped → node 33 safe (SRVT)",
+        ms,
+        REFRESH_MS + SRVT_MS + MARGIN_MS,
+    )?;
+    network.reset()?;
+
+    let at = network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
+    let ms = node_33_safe(network, at, &[5], REFRESH_MS + MARGIN_MS)?;
+    check(
+        "data byte corrupted → node 33 safe (not inverted)",
+        ms,
+        REFRESH_MS + MARGIN_MS,
+    )?;
+    network.reset()?;
+
+    let at = network.command("mute node1a")?;
+    network.command("mute node1b")?;
+    let ms = node_33_safe(network, at, &[1], SCT_MS + REFRESH_MS + MARGIN_MS)?;
+    check(
+        "node 1 stopped → node 33 safe (SCT)",
+        ms,
+        SCT_MS + REFRESH_MS + MARGIN_MS,
+    )?;
+    network.reset()?;
+
+    let at = network.command("input node1b 0")?;
+    let bound = REFRESH_MS + SRVT_MS + MARGIN_MS;
+    let ms = node_33_safe(network, at, &[2], bound)?;
+    check(
+        "channel B of node 1 reads otherwise → node 33 safe",
+        ms,
+        bound,
+    )?;
+    let reported = network.wait_for(Duration::from_secs(2), |latest| {
+        ["node1a", "node1b"].iter().all(|name| {
+            latest
+                .get(*name)
+                .is_some_and(|(_, s)| !s.working && matches!(s.cause, 0x30 | 0x33 | 0x40))
+        })
+    })?;
+    if reported.is_none() {
+        bail!(
+            "node 1 did not report the discrepancy:\n{}",
+            network.table()
+        );
+    }
+    println!(
+        "   node 1 reports it: {}",
+        network::cause(network.control.latest["node1a"].1.cause)
+    );
+    network.reset()?;
+
+    let at = network.command("cut node33-link")?;
+    let bound = 2 * LINK_PERIOD_MS + MARGIN_MS;
+    let ms = node_33_safe(network, at, &[0x14, 0x12, 0x40], bound)?;
+    check("link of node 33 cut → node 33 safe", ms, bound)?;
+    Ok(results)
+}
+
+/// `cargo xtask e2e`.
+pub fn task(root: &std::path::Path) -> Result<()> {
+    let mut network = Network::start(root)?;
+    println!("\n## End-to-end tests on the emulated network");
+    let outcome = run_all(&mut network);
+    let stall = network.longest_stall_ms();
+    let dir = network.dir().to_path_buf();
+    let _ = network.stop()?;
+    if let Ok(results) = &outcome {
+        println!("\n| case | measured | bound |\n|---|---:|---:|");
+        for Measured { case, ms, bound_ms } in results {
+            println!("| {case} | {ms:.1} ms | {bound_ms} ms |");
+        }
+    }
+    println!("   longest stall of an emulated MCU: {stall} ms");
+    println!("   traces and logs: {}", dir.display());
+    outcome.map(|_| ())
+}

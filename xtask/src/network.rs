@@ -1,0 +1,423 @@
+//! The emulated safety network: the bus hub and four QEMU instances (node 1, the
+//! emergency-stop input device and SRDO producer; node 33, the safe output device and SRDO
+//! consumer; each as channel A and channel B with the link between them relayed by the hub),
+//! configured, signed, validated, stored and started by a tool on the hub's TCP port.
+//!
+//! Every child process is killed when the [`Network`] is dropped, whichever way the task
+//! ends (error, panic, Ctrl-C: see [`crate::interrupt`]).
+
+use crate::images::{self, Layer};
+use crate::qemu;
+use crate::toolchain::{self, Cross};
+use anyhow::{Context, Result, anyhow, bail};
+use can_hub::tool::{Control, Tool};
+use dual_channel::can_serial::Status;
+use shared::canopen::nmt::NmtCommand;
+use shared::canopen::od::Address;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+/// The four emulated MCUs: (participant name, node-ID, channel).
+pub const CHANNELS: [(&str, u8, &str); 4] = [
+    ("node1a", 1, "a"),
+    ("node1b", 1, "b"),
+    ("node33a", 33, "a"),
+    ("node33b", 33, "b"),
+];
+
+/// The transmit SRDO of node 1 that node 33 consumes: its two identifiers.
+pub const PLAIN: u16 = 0x101;
+/// The inverted half.
+pub const INVERTED: u16 = 0x102;
+
+/// Emulation timing (the QEMU layer's link heartbeat is 50 ms): node 1 refreshes SRDO 1
+/// every 100 ms; node 33 allows 500 ms between pairs (SCT) and 100 ms between the halves
+/// of a pair (SRVT).
+pub const REFRESH_MS: u64 = 100;
+/// Node 33's safeguard cycle time for SRDO 1.
+pub const SCT_MS: u64 = 500;
+/// Node 33's SRVT for SRDO 1.
+pub const SRVT_MS: u64 = 100;
+/// The QEMU layer's link heartbeat period; a link is timed out after two.
+pub const LINK_PERIOD_MS: u64 = 50;
+
+const HUB_TCP: &str = "127.0.0.1:29536";
+const HUB_CONTROL: &str = "127.0.0.1:29537";
+
+/// The running network.
+pub struct Network {
+    children: Vec<(String, Child)>,
+    /// The configuration tool's connection to the bus.
+    pub tool: Tool,
+    /// The hub's control port.
+    pub control: Control,
+    dir: PathBuf,
+    cross: Cross,
+    root: PathBuf,
+}
+
+impl Drop for Network {
+    fn drop(&mut self) {
+        for (_, child) in &mut self.children {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+fn qemu_instance(image: &Path, node: u8, can: &Path, link: &Path, log: &Path) -> Result<Child> {
+    Command::new("qemu-system-arm")
+        .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
+        .args([
+            "-semihosting-config",
+            &format!("enable=on,target=native,arg=node={node}"),
+        ])
+        .args(["-chardev", &format!("socket,id=can,path={}", can.display())])
+        .args([
+            "-chardev",
+            &format!("socket,id=link,path={}", link.display()),
+        ])
+        .args(["-serial", "null", "-serial", "chardev:can"])
+        .args(["-serial", "chardev:link"])
+        .arg("-kernel")
+        .arg(image)
+        .stdin(Stdio::null())
+        .stdout(std::fs::File::create(log)?)
+        .stderr(std::fs::File::create(log.with_extension("err"))?)
+        .spawn()
+        .context("starting qemu-system-arm")
+}
+
+/// `true` when every channel of `node` (1 or 33) is Operational and working.
+pub fn working(latest: &HashMap<String, (f64, Status)>, node: u8) -> bool {
+    CHANNELS
+        .iter()
+        .filter(|(_, id, _)| *id == node)
+        .all(|(name, _, _)| {
+            latest
+                .get(*name)
+                .is_some_and(|(_, s)| s.nmt == 5 && s.working && s.link_up)
+        })
+}
+
+/// The output both channels of node 33 drive, when they agree.
+pub fn output_33(latest: &HashMap<String, (f64, Status)>) -> Option<u8> {
+    let a = latest.get("node33a")?.1.output;
+    let b = latest.get("node33b")?.1.output;
+    (a == b).then_some(a)
+}
+
+impl Network {
+    /// Builds what is missing, starts the hub and the four MCUs, configures both nodes over
+    /// the bus and starts them; returns once both nodes are Operational and node 33's output
+    /// follows node 1's input.
+    pub fn start(root: &Path) -> Result<Network> {
+        let cross = toolchain::ensure()?;
+        toolchain::ensure_qemu()?;
+        toolchain::ensure_defmt_print()?;
+        qemu::build(root, &cross)?;
+        crate::run(crate::cargo().args(["build", "--quiet", "-p", "can-hub"]))?;
+        let dir = root.join("target/emulate");
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)?;
+        let sockets = dir.clone();
+        let socket = |name: &str| sockets.join(format!("{name}.sock"));
+
+        let mut hub = Command::new(root.join("target/debug/can-hub"));
+        hub.args(["--tcp", HUB_TCP, "--control", HUB_CONTROL]);
+        for (name, _, _) in CHANNELS {
+            hub.arg("--socket")
+                .arg(format!("{name}={}", socket(name).display()));
+        }
+        for node in ["node1", "node33"] {
+            hub.arg("--link").arg(format!(
+                "{node}-link={},{}",
+                socket(&format!("{node}a-link")).display(),
+                socket(&format!("{node}b-link")).display()
+            ));
+        }
+        hub.arg("--candump")
+            .arg(dir.join("bus.log"))
+            .arg("--pcap")
+            .arg(dir.join("bus.pcap"))
+            .stderr(std::fs::File::create(dir.join("hub.err"))?);
+        let hub = hub.spawn().context("starting can-hub")?;
+        let mut children = vec![("hub".to_string(), hub)];
+        // The tool and the control port join first, so they see the boot-up messages.
+        let (tool, control) = match (
+            Tool::connect(HUB_TCP, Duration::from_secs(5)),
+            Control::connect(HUB_CONTROL, Duration::from_secs(5)),
+        ) {
+            (Ok(tool), Ok(control)) => (tool, control),
+            (Err(error), _) | (_, Err(error)) => {
+                for (_, child) in &mut children {
+                    let _ = child.kill();
+                }
+                bail!("the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL}: {error}");
+            }
+        };
+        let mut network = Network {
+            children,
+            tool,
+            control,
+            dir,
+            cross,
+            root: root.to_path_buf(),
+        };
+        for (name, node, channel) in CHANNELS {
+            let image = qemu::image(&network.cross, root, channel);
+            let link = socket(&format!("{name}-link"));
+            let log = network.dir.join(format!("{name}.defmt"));
+            let child = qemu_instance(&image, node, &socket(name), &link, &log)?;
+            network.children.push((name.to_string(), child));
+        }
+        if let Err(error) = network.configure() {
+            let _ = network.save_logs();
+            return Err(error.context(format!("logs and traces in {}", network.dir.display())));
+        }
+        Ok(network)
+    }
+
+    /// Fails when an emulated MCU has ended (a panic or HardFault exits QEMU).
+    pub fn check_alive(&mut self) -> Result<()> {
+        for (name, child) in &mut self.children {
+            if let Some(status) = child.try_wait()? {
+                bail!("{name} ended ({status}): a panic, HardFault or refused start");
+            }
+        }
+        Ok(())
+    }
+
+    /// Waits up to `patience` for the statuses to satisfy `until`; returns the hub time.
+    pub fn wait_for(
+        &mut self,
+        patience: Duration,
+        until: impl FnMut(&HashMap<String, (f64, Status)>) -> bool,
+    ) -> Result<Option<f64>> {
+        let found = self.control.wait_for(patience, until)?;
+        self.check_alive()?;
+        Ok(found)
+    }
+
+    /// A control command that must be accepted; returns the hub time it took effect.
+    pub fn command(&mut self, command: &str) -> Result<f64> {
+        self.control
+            .command(command)?
+            .map_err(|why| anyhow!("the hub refused `{command}`: {why}"))
+    }
+
+    fn configure(&mut self) -> Result<()> {
+        eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
+        let mut booted = [false; 2];
+        let _ = self.tool.receive_until(Duration::from_secs(20), |frame| {
+            match frame.id().raw() {
+                0x701 => booted[0] = true,
+                0x721 => booted[1] = true,
+                _ => {}
+            }
+            booted == [true, true]
+        })?;
+        self.check_alive()?;
+        if booted != [true, true] {
+            bail!("no boot-up from node 1 and node 33 within 20 s (booted: {booted:?})");
+        }
+        eprintln!("xtask: configuring over SDO: node 33 consumes node 1's SRDO 1 (101h/102h)");
+        let tool = &mut self.tool;
+        let configure = |tool: &mut Tool| -> Result<(), shared::canopen::sdo_client::ClientError> {
+            tool.write(33, Address::new(0x1301, 1), &[0])?;
+            tool.write(33, Address::new(0x1301, 5), &u32::from(PLAIN).to_le_bytes())?;
+            tool.write(
+                33,
+                Address::new(0x1301, 6),
+                &u32::from(INVERTED).to_le_bytes(),
+            )?;
+            tool.write(33, Address::new(0x1301, 2), &(SCT_MS as u16).to_le_bytes())?;
+            tool.write(33, Address::new(0x1301, 3), &[SRVT_MS as u8])?;
+            tool.write(33, Address::new(0x1301, 1), &[2])?;
+            tool.write(
+                1,
+                Address::new(0x1301, 2),
+                &(REFRESH_MS as u16).to_le_bytes(),
+            )?;
+            for id in [1, 33] {
+                let signature = tool.sign_validate_store(id)?;
+                eprintln!("xtask: node {id}: SRDO 1 signature {signature:04X}h, validated, stored");
+            }
+            Ok(())
+        };
+        configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
+        self.start_nodes()
+    }
+
+    /// NMT start for every node, then waits until both are Operational and working and node
+    /// 33's output is 1 (node 1's input released).
+    pub fn start_nodes(&mut self) -> Result<()> {
+        self.tool.nmt(NmtCommand::Start, 0)?;
+        let up = self.wait_for(Duration::from_secs(10), |latest| {
+            working(latest, 1) && working(latest, 33) && output_33(latest) == Some(1)
+        })?;
+        if up.is_none() {
+            bail!(
+                "the nodes did not become Operational with node 33's output on within 10 s:\n{}",
+                self.table()
+            );
+        }
+        Ok(())
+    }
+
+    /// NMT reset node for every node (clears latched faults), then starts them again.
+    pub fn reset(&mut self) -> Result<()> {
+        self.command("clear")?;
+        for (name, _, _) in CHANNELS {
+            self.command(&format!("input {name} 1"))?;
+        }
+        self.tool.nmt(NmtCommand::ResetNode, 0)?;
+        // Both nodes announce themselves again once both their channels run.
+        let mut booted = [false; 2];
+        let _ = self.tool.receive_until(Duration::from_secs(10), |frame| {
+            match (frame.id().raw(), frame.data()) {
+                (0x701, [0]) => booted[0] = true,
+                (0x721, [0]) => booted[1] = true,
+                _ => {}
+            }
+            booted == [true, true]
+        })?;
+        if booted != [true, true] {
+            bail!("after NMT reset node, no boot-up from both nodes within 10 s");
+        }
+        self.start_nodes()
+    }
+
+    /// The latest status of every channel, as a table.
+    pub fn table(&self) -> String {
+        table(&self.control.latest)
+    }
+
+    /// The longest stall any emulated MCU reported, in milliseconds.
+    pub fn longest_stall_ms(&self) -> u16 {
+        self.control
+            .latest
+            .values()
+            .map(|(_, s)| s.longest_stall_ms)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Stops every process, decodes the defmt logs into `target/emulate/<name>.log`, and
+    /// returns the channel faults each log shows.
+    pub fn stop(mut self) -> Result<Vec<(String, Vec<String>)>> {
+        self.save_logs()
+    }
+
+    fn save_logs(&mut self) -> Result<Vec<(String, Vec<String>)>> {
+        let history: String = self
+            .control
+            .history
+            .iter()
+            .map(|(name, t, status)| can_hub::control::status_line(name, *t, status) + "\n")
+            .collect();
+        std::fs::write(self.dir.join("status.log"), history)?;
+        for (_, child) in &mut self.children {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+        let mut faults = Vec::new();
+        for (name, _, channel) in CHANNELS {
+            let image = images::image(&self.cross, &self.root, Layer::Qemu, channel);
+            let raw = std::fs::read(self.dir.join(format!("{name}.defmt")))?;
+            let decoded = decode(&image, &raw)?;
+            std::fs::write(self.dir.join(format!("{name}.log")), &decoded)?;
+            let lines = decoded
+                .lines()
+                .filter(|line| line.contains("Fault(") || line.contains("SafeState("))
+                .map(|line| line.trim().to_string())
+                .collect();
+            faults.push((name.to_string(), lines));
+        }
+        Ok(faults)
+    }
+
+    /// Where the traces and logs are.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
+/// A cause code as words.
+pub fn cause(code: u8) -> &'static str {
+    match code {
+        0 => "-",
+        1 => "SCT elapsed",
+        2 => "SRVT elapsed",
+        3 => "inverted without plain",
+        4 => "plain repeated",
+        5 => "not inverted",
+        6 => "frame too short",
+        7 => "transmit halves not inverted",
+        0x10..=0x14 => "link fault",
+        0x20..=0x22 => "verdicts differ",
+        0x30 => "transmit mismatch A/B",
+        0x31 => "configuration mismatch",
+        0x32 => "NMT mismatch",
+        0x33 => "input discrepancy",
+        0x40 => "other channel safe",
+        0x50 => "GFC",
+        _ => "other",
+    }
+}
+
+fn nmt(code: u8) -> &'static str {
+    match code {
+        0 => "Initialising",
+        4 => "Stopped",
+        5 => "Operational",
+        127 => "Pre-operational",
+        _ => "?",
+    }
+}
+
+/// The statuses as a table.
+pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
+    let mut out = String::from(
+        "node ch  NMT              state    link  input output  SRDOs sent  validated  last cause\n",
+    );
+    for (name, node, channel) in CHANNELS {
+        let Some((_, s)) = latest.get(name) else {
+            out.push_str(&format!(
+                "{node:>4} {}   (no report yet)\n",
+                channel.to_uppercase()
+            ));
+            continue;
+        };
+        out.push_str(&format!(
+            "{node:>4} {}   {:<16} {:<8} {:<5} {:>5} {:>6} {:>11} {:>10}  {:02X}h {}\n",
+            channel.to_uppercase(),
+            nmt(s.nmt),
+            if s.working { "working" } else { "SAFE" },
+            if s.link_up { "up" } else { "down" },
+            s.input,
+            s.output,
+            s.sent,
+            s.validated,
+            s.cause,
+            cause(s.cause),
+        ));
+    }
+    out
+}
+
+fn decode(image: &Path, raw: &[u8]) -> Result<String> {
+    use std::io::Write as _;
+    let mut child = Command::new("defmt-print")
+        .arg("-e")
+        .arg(image)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()?;
+    if let Some(mut stdin) = child.stdin.take() {
+        stdin.write_all(raw)?;
+    }
+    Ok(String::from_utf8_lossy(&child.wait_with_output()?.stdout).into_owned())
+}
