@@ -7,6 +7,11 @@
 //! channel does not confirm within the timeout, is a [`CrossFault`]: both outputs go to the safe
 //! state.
 //!
+//! Pairs can follow each other faster than a verdict crosses the link (an SRDO is sent at once
+//! on every change of its data, so a bouncing contact sends pairs a few frame times apart):
+//! up to [`DEPTH`] verdicts per SRDO and channel wait for their match, in order. One more is a
+//! fault, as is any that waits longer than the timeout.
+//!
 //! The policy for outputs that goes with it (in the channel logic): an output moves towards
 //! the safe state (0) as soon as the channel's own core says so, and away from it only with a
 //! confirmed pair.
@@ -46,10 +51,16 @@ pub enum CrossFault {
     },
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// How many verdicts per SRDO and channel may wait for the other channel's.
+pub const DEPTH: usize = 4;
+
+/// Verdicts of one channel waiting for a match, oldest first.
+type Pending = heapless::Deque<(Verdict, Instant), DEPTH>;
+
+#[derive(Clone, Debug, Default)]
 struct Slot {
-    local: Option<(Verdict, Instant)>,
-    remote: Option<(Verdict, Instant)>,
+    local: Pending,
+    remote: Pending,
 }
 
 /// Whose verdict arrived.
@@ -71,7 +82,7 @@ impl<const N: usize> VerdictCheck<N> {
     pub fn new(timeout: Duration) -> Self {
         VerdictCheck {
             timeout,
-            slots: [Slot::default(); N],
+            slots: core::array::from_fn(|_| Slot::default()),
         }
     }
 
@@ -111,15 +122,14 @@ impl<const N: usize> VerdictCheck<N> {
             Side::Local => (&mut slot.local, &mut slot.remote),
             Side::Remote => (&mut slot.remote, &mut slot.local),
         };
-        if mine.is_some() {
-            // A second verdict from the same side before the first was matched: the other
-            // channel is behind or lost one.
-            *slot = Slot::default();
-            return Err(CrossFault::Unconfirmed { srdo });
-        }
-        match theirs.take() {
+        match theirs.pop_front() {
             None => {
-                *mine = Some((verdict, now));
+                if mine.push_back((verdict, now)).is_err() {
+                    // More verdicts waiting than the other channel can be behind by: it lost
+                    // some, or is not validating at all.
+                    *slot = Slot::default();
+                    return Err(CrossFault::Unconfirmed { srdo });
+                }
                 Ok(None)
             }
             // Agreement: the data when the pair was valid; nothing to drive when both found
@@ -155,7 +165,7 @@ impl<const N: usize> VerdictCheck<N> {
 
     /// Forgets every pending verdict (NMT reset).
     pub fn reset(&mut self) {
-        self.slots = [Slot::default(); N];
+        self.slots = core::array::from_fn(|_| Slot::default());
     }
 }
 
@@ -227,12 +237,36 @@ mod tests {
             check.poll(Instant::from_millis(15)),
             Err(CrossFault::Unconfirmed { srdo: 1 })
         );
-        // A second verdict from the same side before a match is a fault too.
+        // More verdicts from one side than may wait is a fault too.
         let mut check = VerdictCheck::<1>::new(TIMEOUT);
-        check.local(t, 1, valid(1, 1)).unwrap();
+        for pair in 1..=DEPTH as u32 {
+            check.local(t, 1, valid(pair, 1)).unwrap();
+        }
         assert_eq!(
-            check.local(t, 1, valid(2, 1)),
+            check.local(t, 1, valid(DEPTH as u32 + 1, 1)),
             Err(CrossFault::Unconfirmed { srdo: 1 })
+        );
+    }
+
+    /// Found on the emulated network: an emergency stop pressed and released at once sends two
+    /// pairs 17 ms apart, faster than a verdict crossed the emulated link. Both are matched,
+    /// in order, and each confirms its own data.
+    #[test]
+    fn pairs_faster_than_the_link_are_matched_in_order() {
+        let mut check = VerdictCheck::<1>::new(TIMEOUT);
+        let t = Instant::from_millis(1);
+        assert_eq!(check.local(t, 1, valid(8, 0)), Ok(None));
+        assert_eq!(check.local(t, 1, valid(9, 1)), Ok(None));
+        assert_eq!(check.remote(t, 1, valid(8, 0)), Ok(Some(0)));
+        assert_eq!(check.deadline(), t + TIMEOUT, "pair 9 still waits");
+        assert_eq!(check.remote(t, 1, valid(9, 1)), Ok(Some(1)));
+        assert_eq!(check.deadline(), Instant::NEVER);
+        // Out of order is a disagreement.
+        check.local(t, 1, valid(10, 0)).unwrap();
+        check.local(t, 1, valid(11, 1)).unwrap();
+        assert_eq!(
+            check.remote(t, 1, valid(11, 1)),
+            Err(CrossFault::Disagreement { srdo: 1 })
         );
     }
 
