@@ -95,6 +95,11 @@ impl<const N: usize> Role<N> for ChannelA {
         Ok(())
     }
 
+    fn reset(&mut self) {
+        self.awaiting.clear();
+        self.deferred.clear();
+    }
+
     fn deadline(&self) -> Instant {
         Instant::NEVER
     }

@@ -163,6 +163,11 @@ impl<const N: usize> Role<N> for ChannelB {
         }
     }
 
+    fn reset(&mut self) {
+        // The pair in progress is forgotten; the input samples are not (they are the pins).
+        self.held = None;
+    }
+
     fn poll(&mut self, now: Instant) -> Result<(), u8> {
         match self.held {
             Some(held) if shared::time::expired(held.since + self.window, now) => {

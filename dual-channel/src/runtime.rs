@@ -84,6 +84,10 @@ pub trait Role<const N: usize> {
     /// implementation), folded into one CRC-32 for the link.
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32;
 
+    /// NMT reset node or communication: forget every pair in progress (the core forgot its
+    /// own; a pair begun before the reset is never completed after it).
+    fn reset(&mut self) {}
+
     /// `true` for the channel whose frames other than SRDOs go on the bus (channel A): its
     /// core boots only after the other channel's has.
     fn speaks_for_the_node(&self) -> bool {
@@ -504,6 +508,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             io.event(ChannelEvent::Node(event));
             match event {
                 Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
+                Event::NmtState(NmtState::Initialising) => {
+                    self.role.reset();
+                    self.follow_core(io);
+                }
                 Event::NmtState(NmtState::PreOperational) => {
                     self.restore_inputs(io);
                     self.follow_core(io);

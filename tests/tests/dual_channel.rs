@@ -251,6 +251,11 @@ fn nmt_reset_clears_both_channels_together() {
 #[test]
 fn nmt_reset_node_keeps_the_producer_sending_the_sampled_input() {
     let mut net = running();
+    // A lost inverted frame leaves channel A waiting for it: the reset must end the wait
+    // (found on the emulated network: node 1 stayed silent after the reset).
+    net.inject(Match::next_with_id(0x102, Instant::ZERO), Fault::Drop);
+    net.run_for(Duration::from_millis(150));
+    assert_eq!(net.output(33), 0, "SRVT");
     net.nmt(NmtCommand::ResetNode, 0);
     net.run_for(Duration::from_millis(50));
     net.nmt(NmtCommand::Start, 0);
