@@ -389,6 +389,7 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
             }
             Either3::Second(n) => {
                 let at = now();
+                io.diagnostics.link_received(at);
                 for &byte in &link_buf[..n] {
                     runtime.on_link_byte(at, byte, &mut io);
                 }

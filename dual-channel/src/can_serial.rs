@@ -60,14 +60,17 @@ pub struct Status {
     /// The longest time, in real milliseconds, the emulated MCU did not run (its tick
     /// interrupt came late): the emulator's scheduling jitter, for the report.
     pub longest_stall_ms: u16,
+    /// The longest time, in milliseconds, between two receptions from the link (the other
+    /// channel's heartbeat period plus the link's jitter), for the report.
+    pub longest_link_gap_ms: u16,
 }
 
 impl Status {
     /// Bytes of an encoded status.
-    pub const LEN: usize = 12;
+    pub const LEN: usize = 14;
 
     /// The fixed little-endian layout: nmt, flags (bit 0 working, bit 1 link up), output,
-    /// input, cause, pad, sent, validated, longest stall.
+    /// input, cause, pad, sent, validated, longest stall, longest link gap.
     pub fn to_bytes(&self) -> [u8; Self::LEN] {
         let mut out = [0u8; Self::LEN];
         out[0] = self.nmt;
@@ -78,6 +81,7 @@ impl Status {
         out[6..8].copy_from_slice(&self.sent.to_le_bytes());
         out[8..10].copy_from_slice(&self.validated.to_le_bytes());
         out[10..12].copy_from_slice(&self.longest_stall_ms.to_le_bytes());
+        out[12..14].copy_from_slice(&self.longest_link_gap_ms.to_le_bytes());
         out
     }
 
@@ -96,6 +100,7 @@ impl Status {
             sent: u16::from_le_bytes([body[6], body[7]]),
             validated: u16::from_le_bytes([body[8], body[9]]),
             longest_stall_ms: u16::from_le_bytes([body[10], body[11]]),
+            longest_link_gap_ms: u16::from_le_bytes([body[12], body[13]]),
         })
     }
 }
@@ -238,9 +243,9 @@ mod tests {
         #[test]
         fn board_messages_round_trip(
             input: u8, nmt: u8, working: bool, link_up: bool, output: u8, cause: u8,
-            sent: u16, validated: u16, longest_stall_ms: u16,
+            sent: u16, validated: u16, longest_stall_ms: u16, longest_link_gap_ms: u16,
         ) {
-            let status = Status { nmt, working, link_up, output, input, cause, sent, validated, longest_stall_ms };
+            let status = Status { nmt, working, link_up, output, input, cause, sent, validated, longest_stall_ms, longest_link_gap_ms };
             let mut decoder = Decoder::new();
             for message in [Wire::Input(input), Wire::Status(status)] {
                 let results: Vec<_> = encode_wire(&message).iter().filter_map(|&b| decoder.push(b)).collect();

@@ -29,6 +29,7 @@ pub struct Diagnostics {
     status: Status,
     last_reported: Option<Status>,
     next_report: Instant,
+    last_link: Option<Instant>,
 }
 
 impl Default for Diagnostics {
@@ -51,7 +52,9 @@ impl Diagnostics {
                 sent: 0,
                 validated: 0,
                 longest_stall_ms: 0,
+                longest_link_gap_ms: 0,
             },
+            last_link: None,
             last_reported: None,
             next_report: Instant::ZERO,
         }
@@ -80,6 +83,16 @@ impl Diagnostics {
             ChannelEvent::Fault(fault) => self.status.cause = fault.cause_code(),
             _ => {}
         }
+    }
+
+    /// Bytes arrived from the link at `now`.
+    pub fn link_received(&mut self, now: Instant) {
+        if let Some(last) = self.last_link {
+            let gap_ms = now.as_micros().saturating_sub(last.as_micros()) / 1000;
+            let gap_ms = u16::try_from(gap_ms).unwrap_or(u16::MAX);
+            self.status.longest_link_gap_ms = self.status.longest_link_gap_ms.max(gap_ms);
+        }
+        self.last_link = Some(now);
     }
 
     /// The channel's input pin was sampled as `value`.

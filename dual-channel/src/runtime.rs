@@ -504,8 +504,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 io.transmit(frame);
             }
         }
+        let mut nmt_changed = false;
         for event in collect.events {
             io.event(ChannelEvent::Node(event));
+            nmt_changed |= matches!(event, Event::NmtState(_));
             match event {
                 Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
                 Event::NmtState(NmtState::Initialising) => {
@@ -522,6 +524,13 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
         if collect.overflow {
             self.latch(ChannelFault::Cross(CrossFault::Unconfirmed { srdo: 0 }), io);
+        }
+        if nmt_changed {
+            // The other channel learns a new NMT state at once, not at the next heartbeat:
+            // otherwise the start-up handshake (each channel boots on hearing the other) and
+            // the link's latency could take longer than the NMT grace of two link periods.
+            self.heartbeat(io);
+            self.next_heartbeat = now + self.link_period;
         }
         self.check_nmt(now);
     }
@@ -748,8 +757,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 }
             }
         }
+        let mut nmt_changed = false;
         for event in collect.events {
             io.event(ChannelEvent::Node(event));
+            nmt_changed |= matches!(event, Event::NmtState(_));
         }
     }
 }

@@ -12,7 +12,7 @@
 //! |------|----------------------|------------|
 //! | emergency stop pressed | next SRDO, sent at once on the change | refresh time + margin |
 //! | inverted frame dropped | SRVT after the plain frame (EN 50325-5 7.1.2) | refresh + SRVT + margin |
-//! | data byte corrupted | at once: the halves are not inverse (EN 50325-5 7.1.1) | refresh + margin |
+//! | inverted frame's data byte corrupted | at once: the halves are not inverse (EN 50325-5 7.1.1) | refresh + margin |
 //! | node 1 stopped | SCT after the last pair (EN 50325-5 7.1.2) | SCT + refresh + margin |
 //! | channel B of node 1 reads otherwise | no inverted frame (CiA 304 9.5): SRVT | refresh + SRVT + margin |
 //! | link of node 33 cut | two link periods | 2 × link period + margin |
@@ -146,10 +146,12 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
     )?;
     network.reset()?;
 
-    let at = network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
+    // The inverted frame: a corrupted plain frame is caught by node 1's channel B first (it
+    // compares it with its own), which sends no inverted frame: that is the SRVT case.
+    let at = network.command(&format!("corrupt 0x{:03X} 0 0x01", network::INVERTED))?;
     let ms = node_33_safe(network, at, &[5], REFRESH_MS + MARGIN_MS)?;
     check(
-        "data byte corrupted → node 33 safe (not inverted)",
+        "inverted data corrupted → node 33 safe (not inverted)",
         ms,
         REFRESH_MS + MARGIN_MS,
     )?;

@@ -295,6 +295,16 @@ impl Network {
         table(&self.control.latest)
     }
 
+    /// The longest gap between two link receptions any channel reported, in milliseconds.
+    pub fn longest_link_gap_ms(&self) -> u16 {
+        self.control
+            .latest
+            .values()
+            .map(|(_, s)| s.longest_link_gap_ms)
+            .max()
+            .unwrap_or(0)
+    }
+
     /// The longest stall any emulated MCU reported, in milliseconds.
     pub fn longest_stall_ms(&self) -> u16 {
         self.control

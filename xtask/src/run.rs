@@ -138,7 +138,10 @@ fn apply(network: &mut Network, action: Action, seen: &mut Observed) -> Result<(
         }
         Action::Corrupt => {
             network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
-            println!("** the hub corrupts byte 0 of node 1's next plain frame");
+            println!(
+                "** the hub corrupts byte 0 of node 1's next plain frame (node 1's channel B \
+                 sees it too and withholds the inverted frame)"
+            );
         }
         Action::Stop => {
             network.command("mute node1a")?;
