@@ -512,6 +512,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
                 Event::NmtState(NmtState::Initialising) => {
                     self.role.reset();
+                    // A difference seen before the reset must last its full time after it to
+                    // count again: the reset clears the latch, and the other channel's news
+                    // (its new input digest, say) may be on the link behind the reset.
+                    if self.inputs_differ_since.is_some() {
+                        self.inputs_differ_since = Some(now);
+                    }
                     self.follow_core(io);
                 }
                 Event::NmtState(NmtState::PreOperational) => {
@@ -757,10 +763,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 }
             }
         }
-        let mut nmt_changed = false;
         for event in collect.events {
             io.event(ChannelEvent::Node(event));
-            nmt_changed |= matches!(event, Event::NmtState(_));
         }
     }
 }

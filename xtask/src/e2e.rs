@@ -207,6 +207,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     println!("\n## End-to-end tests on the emulated network");
     let outcome = run_all(&mut network);
     let stall = network.longest_stall_ms();
+    let link_gap = network.longest_link_gap_ms();
     let dir = network.dir().to_path_buf();
     let _ = network.stop()?;
     if let Ok(results) = &outcome {
@@ -215,7 +216,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
             println!("| {case} | {ms:.1} ms | {bound_ms} ms |");
         }
     }
-    println!("   longest stall of an emulated MCU: {stall} ms");
+    println!("   longest stall of an emulated MCU: {stall} ms, longest link gap: {link_gap} ms");
     println!("   traces and logs: {}", dir.display());
     outcome.map(|_| ())
 }

@@ -32,7 +32,7 @@ pub const PLAIN: u16 = 0x101;
 /// The inverted half.
 pub const INVERTED: u16 = 0x102;
 
-/// Emulation timing (the QEMU layer's link heartbeat is 50 ms): node 1 refreshes SRDO 1
+/// Emulation timing (the QEMU layer's link heartbeat is 100 ms): node 1 refreshes SRDO 1
 /// every 100 ms; node 33 allows 500 ms between pairs (SCT) and 100 ms between the halves
 /// of a pair (SRVT).
 pub const REFRESH_MS: u64 = 100;
@@ -41,7 +41,7 @@ pub const SCT_MS: u64 = 500;
 /// Node 33's SRVT for SRDO 1.
 pub const SRVT_MS: u64 = 100;
 /// The QEMU layer's link heartbeat period; a link is timed out after two.
-pub const LINK_PERIOD_MS: u64 = 50;
+pub const LINK_PERIOD_MS: u64 = 100;
 
 const HUB_TCP: &str = "127.0.0.1:29536";
 const HUB_CONTROL: &str = "127.0.0.1:29537";
@@ -248,6 +248,23 @@ impl Network {
             Ok(())
         };
         configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
+        // Storing keeps each channel busy for a while (measured under QEMU: up to about
+        // 170 ms, and channel B stores after channel A has answered); an NMT start during that
+        // time reaches the two channels of a node that far apart, which their NMT cross-check
+        // rightly calls a fault. A status report comes only from a channel whose loop runs:
+        // one from every channel after the store means all are free.
+        let stored = self.command("clear")?;
+        let free = self.wait_for(Duration::from_secs(5), |latest| {
+            CHANNELS
+                .iter()
+                .all(|(name, _, _)| latest.get(*name).is_some_and(|(t, _)| *t > stored))
+        })?;
+        if free.is_none() {
+            bail!(
+                "not every channel reported after storing:\n{}",
+                self.table()
+            );
+        }
         self.start_nodes()
     }
 
@@ -272,6 +289,18 @@ impl Network {
         self.command("clear")?;
         for (name, _, _) in CHANNELS {
             self.command(&format!("input {name} 1"))?;
+        }
+        // The inputs are released in every channel before the reset.
+        let released = self.wait_for(Duration::from_secs(3), |latest| {
+            CHANNELS
+                .iter()
+                .all(|(name, _, _)| latest.get(*name).is_some_and(|(_, s)| s.input == 1))
+        })?;
+        if released.is_none() {
+            bail!(
+                "not every channel took its input back to 1:\n{}",
+                self.table()
+            );
         }
         self.tool.nmt(NmtCommand::ResetNode, 0)?;
         // Both nodes announce themselves again once both their channels run.
