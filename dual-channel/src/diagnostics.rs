@@ -53,6 +53,7 @@ impl Diagnostics {
                 validated: 0,
                 longest_stall_ms: 0,
                 longest_link_gap_ms: 0,
+                longest_busy_ms: 0,
             },
             last_link: None,
             last_reported: None,
@@ -93,6 +94,13 @@ impl Diagnostics {
             self.status.longest_link_gap_ms = self.status.longest_link_gap_ms.max(gap_ms);
         }
         self.last_link = Some(now);
+    }
+
+    /// One wake-up of the channel's loop ran from `start` to `end`.
+    pub fn busy(&mut self, start: Instant, end: Instant) {
+        let ms = end.as_micros().saturating_sub(start.as_micros()) / 1000;
+        let ms = u16::try_from(ms).unwrap_or(u16::MAX);
+        self.status.longest_busy_ms = self.status.longest_busy_ms.max(ms);
     }
 
     /// The channel's input pin was sampled as `value`.

@@ -208,6 +208,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     let outcome = run_all(&mut network);
     let stall = network.longest_stall_ms();
     let link_gap = network.longest_link_gap_ms();
+    let busy = network.longest_busy_ms();
     let dir = network.dir().to_path_buf();
     let _ = network.stop()?;
     if let Ok(results) = &outcome {
@@ -216,7 +217,10 @@ pub fn task(root: &std::path::Path) -> Result<()> {
             println!("| {case} | {ms:.1} ms | {bound_ms} ms |");
         }
     }
-    println!("   longest stall of an emulated MCU: {stall} ms, longest link gap: {link_gap} ms");
+    println!(
+        "   longest stall of an emulated MCU: {stall} ms, longest link gap: {link_gap} ms, \
+         longest loop wake-up: {busy} ms"
+    );
     println!("   traces and logs: {}", dir.display());
     outcome.map(|_| ())
 }
