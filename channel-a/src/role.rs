@@ -7,42 +7,71 @@ use shared::canopen::od::Address;
 use shared::safety::config::SafetyConfig;
 use shared::safety::signature;
 use shared::safety::types::Direction;
-use shared::{CanFrame, Instant};
+use shared::{CanFrame, Duration, Instant};
+
+/// A plain frame sent, waiting for channel B's inverted frame on the bus.
+#[derive(Clone, Copy, Debug)]
+struct Awaited {
+    plain: u16,
+    srdo: u8,
+    /// The SRDO's refresh time: the next pair is due then, so this one must be complete.
+    limit: Duration,
+    /// When the wait was first seen by [`Role::poll`] (`outgoing` has no clock).
+    since: Option<Instant>,
+}
 
 /// Channel A's role: which plain frames wait for channel B's inverted frame.
+///
+/// Channel A sees every inverted frame of its node's pairs on the bus. One that does not
+/// follow its plain frame within the SRDO's refresh time means that channel B withheld it
+/// (its own check failed and it says so over the link), or that it was lost on the way: the
+/// node's pair is broken either way, and A reports it (CiA 304 9.5; the in-operation check of
+/// the CAN message path). Without it A would wait for ever and the node would fall silent
+/// without saying why.
 #[derive(Clone, Debug, Default)]
 pub struct ChannelA {
-    /// Plain COB-IDs whose inverted frame has not been seen on the bus yet.
-    awaiting: heapless::Vec<u16, 8>,
+    /// Plain frames whose inverted frame has not been seen on the bus yet.
+    awaiting: heapless::Vec<Awaited, 8>,
     /// The newest plain frame per SRDO produced meanwhile, sent once the pair before it is
     /// complete (a pair's frames are never interleaved with the next pair's).
     deferred: heapless::Vec<CanFrame, 8>,
 }
 
-/// The transmit SRDO records' COB-IDs of `config`: (plain, inverted).
-fn transmit_ids<const N: usize>(config: &SafetyConfig<N>) -> impl Iterator<Item = (u16, u16)> + '_ {
+/// A transmit SRDO of the configuration.
+#[derive(Clone, Copy)]
+struct Transmit {
+    srdo: u8,
+    plain: u16,
+    inverted: u16,
+    refresh: Duration,
+}
+
+/// The transmit SRDOs of `config`.
+fn transmit_srdos<const N: usize>(config: &SafetyConfig<N>) -> impl Iterator<Item = Transmit> + '_ {
     config
         .srdos
         .iter()
-        .filter(|record| record.parsed_direction() == Ok(Direction::Transmit))
-        .map(|record| {
-            (
-                (record.cob_id_1 & 0x7FF) as u16,
-                (record.cob_id_2 & 0x7FF) as u16,
-            )
+        .enumerate()
+        .filter(|(_, record)| record.parsed_direction() == Ok(Direction::Transmit))
+        .map(|(index, record)| Transmit {
+            srdo: (index + 1) as u8,
+            plain: (record.cob_id_1 & 0x7FF) as u16,
+            inverted: (record.cob_id_2 & 0x7FF) as u16,
+            refresh: Duration::from_millis(u64::from(record.cycle_time)),
         })
 }
 
 impl<const N: usize> Role<N> for ChannelA {
     fn outgoing(&mut self, frame: CanFrame, config: &SafetyConfig<N>) -> Option<CanFrame> {
         let id = frame.id().raw();
-        let Some((plain, _)) = transmit_ids(config).find(|&(p, i)| p == id || i == id) else {
+        let Some(srdo) = transmit_srdos(config).find(|t| t.plain == id || t.inverted == id) else {
             return Some(frame);
         };
+        let plain = srdo.plain;
         if plain != id {
             return None; // The inverted frame is channel B's.
         }
-        if self.awaiting.contains(&plain) {
+        if self.awaiting.iter().any(|awaited| awaited.plain == plain) {
             // The previous pair is not complete: keep only the newest data for later.
             self.deferred
                 .retain(|deferred| deferred.id().raw() != plain);
@@ -53,7 +82,12 @@ impl<const N: usize> Role<N> for ChannelA {
         }
         // A full list means more transmit SRDOs in flight than this role tracks: the frame
         // goes without tracking rather than never (B's check still guards it).
-        let _ = self.awaiting.push(plain);
+        let _ = self.awaiting.push(Awaited {
+            plain,
+            srdo: srdo.srdo,
+            limit: srdo.refresh,
+            since: None,
+        });
         Some(frame)
     }
 
@@ -64,19 +98,24 @@ impl<const N: usize> Role<N> for ChannelA {
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, u8> {
         let id = frame.id().raw();
-        let Some((plain, _)) = transmit_ids(config).find(|&(_, inverted)| inverted == id) else {
+        let Some(srdo) = transmit_srdos(config).find(|t| t.inverted == id) else {
             return Ok(None);
         };
-        self.awaiting.retain(|awaited| *awaited != plain);
+        self.awaiting.retain(|awaited| awaited.plain != srdo.plain);
         let Some(position) = self
             .deferred
             .iter()
-            .position(|deferred| deferred.id().raw() == plain)
+            .position(|deferred| deferred.id().raw() == srdo.plain)
         else {
             return Ok(None);
         };
         let next = self.deferred.swap_remove(position);
-        let _ = self.awaiting.push(plain);
+        let _ = self.awaiting.push(Awaited {
+            plain: srdo.plain,
+            srdo: srdo.srdo,
+            limit: srdo.refresh,
+            since: None,
+        });
         Ok(Some(next))
     }
 
@@ -91,7 +130,16 @@ impl<const N: usize> Role<N> for ChannelA {
         Ok(None)
     }
 
-    fn poll(&mut self, _now: Instant) -> Result<(), u8> {
+    fn poll(&mut self, now: Instant) -> Result<(), u8> {
+        for awaited in &mut self.awaiting {
+            let since = *awaited.since.get_or_insert(now);
+            if shared::time::expired(since + awaited.limit, now) {
+                let srdo = awaited.srdo;
+                self.awaiting.clear();
+                self.deferred.clear();
+                return Err(srdo);
+            }
+        }
         Ok(())
     }
 
@@ -101,7 +149,15 @@ impl<const N: usize> Role<N> for ChannelA {
     }
 
     fn deadline(&self) -> Instant {
-        Instant::NEVER
+        self.awaiting
+            .iter()
+            .map(|awaited| match awaited.since {
+                Some(since) => since + awaited.limit,
+                // Not stamped yet: the next poll does it.
+                None => Instant::ZERO,
+            })
+            .min()
+            .unwrap_or(Instant::NEVER)
     }
 
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32 {
@@ -161,5 +217,30 @@ mod tests {
         );
         assert_eq!(a.observe(Instant::ZERO, &frame(0x102), &config), Ok(None));
         assert_eq!(a.outgoing(data(5), &config), Some(data(5)));
+    }
+
+    /// CiA 304 9.5: an inverted frame that does not follow within the refresh time (channel
+    /// B withheld it, or it was lost) is reported, at the deadline itself, not waited for.
+    #[test]
+    fn cia304_9_5_a_pair_left_incomplete_is_reported_after_the_refresh_time() {
+        let mut config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        config.srdos[0].cycle_time = 20;
+        let mut a = ChannelA::default();
+        assert_eq!(Role::<2>::deadline(&a), Instant::NEVER);
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        let sent = Instant::from_millis(100);
+        assert_eq!(Role::<2>::poll(&mut a, sent), Ok(()));
+        assert_eq!(Role::<2>::deadline(&a), Instant::from_millis(120));
+        assert_eq!(
+            Role::<2>::poll(&mut a, Instant::from_micros(119_999)),
+            Ok(())
+        );
+        assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(120)), Err(1));
+        assert_eq!(Role::<2>::deadline(&a), Instant::NEVER, "reported once");
+        // A completed pair is not reported.
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        assert_eq!(Role::<2>::poll(&mut a, sent), Ok(()));
+        assert_eq!(a.observe(sent, &frame(0x102), &config), Ok(None));
+        assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(500)), Ok(()));
     }
 }

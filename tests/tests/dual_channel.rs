@@ -404,3 +404,20 @@ fn an_input_difference_from_before_a_reset_does_not_latch_after_it() {
     assert_eq!(fault_of(&net, since, 1), None);
     assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
 }
+
+/// CiA 304 9.5: channel A of the producer sees every inverted frame of its node on the bus;
+/// one that never comes (lost, or withheld by channel B) breaks the node's pair, and A says
+/// so within the refresh time instead of falling silent.
+#[test]
+fn cia304_9_5_a_lost_inverted_frame_is_reported_by_the_producer() {
+    let mut net = running();
+    let since = net.log.len();
+    net.inject(Match::next_with_id(0x102, net.now), Fault::Drop);
+    net.run_for(Duration::from_millis(300));
+    let (_, side, fault) = fault_of(&net, since, 1).expect("node 1 reports it");
+    assert_eq!(
+        (side, fault),
+        (Side::A, ChannelFault::TransmitMismatch { srdo: 1 })
+    );
+    assert_eq!(net.output(33), 0);
+}
