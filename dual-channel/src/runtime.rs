@@ -231,6 +231,10 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     next_heartbeat: Instant,
     /// The other channel's NMT state from its last heartbeat (none yet: nothing to compare).
     peer_nmt: Option<u8>,
+    /// NMT resets since power-on (modulo 256), this channel's and the other's as its last
+    /// heartbeat said: messages sent in another epoch than ours are ignored.
+    epoch: u8,
+    peer_epoch: Option<u8>,
     nmt_differs_since: Option<Instant>,
     fault: Option<ChannelFault>,
     /// The other channel has been heard: the core may boot.
@@ -269,6 +273,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             link_period,
             next_heartbeat: now,
             peer_nmt: None,
+            epoch: 0,
+            peer_epoch: None,
             nmt_differs_since: None,
             fault: None,
             link_up: false,
@@ -477,6 +483,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let heartbeat = Message::Heartbeat {
             nmt,
             working: self.is_working(),
+            epoch: self.epoch,
         };
         let inputs = Message::Inputs {
             sample: self.input_digest(),
@@ -511,6 +518,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             match event {
                 Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
                 Event::NmtState(NmtState::Initialising) => {
+                    self.epoch = self.epoch.wrapping_add(1);
                     self.role.reset();
                     // A difference seen before the reset must last its full time after it to
                     // count again: the reset clears the latch, and the other channel's news
@@ -598,11 +606,20 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         ) {
             defmt::debug!("link: {}", message);
         }
+        if let Message::Heartbeat { nmt, epoch, .. } = message {
+            self.peer_nmt = Some(nmt);
+            self.peer_epoch = Some(epoch);
+            self.check_nmt(now);
+            return;
+        }
+        if self.peer_epoch.is_some_and(|epoch| epoch != self.epoch) {
+            // Sent before a reset that one of us has been through and the other not yet (the
+            // link may lag the bus): not about the present. Epochs that stay apart are an NMT
+            // mismatch (`check_nmt`).
+            return;
+        }
         match message {
-            Message::Heartbeat { nmt, .. } => {
-                self.peer_nmt = Some(nmt);
-                self.check_nmt(now);
-            }
+            Message::Heartbeat { .. } => {}
             Message::Inputs { sample } => {
                 self.peer_inputs = Some(sample);
                 self.compare_inputs(now);
@@ -701,7 +718,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     fn check_nmt(&mut self, now: Instant) {
         let own = self.node.nmt_state().heartbeat_code();
-        if self.peer_nmt.is_none_or(|peer| peer == own) {
+        let same_epoch = self.peer_epoch.is_none_or(|epoch| epoch == self.epoch);
+        if same_epoch && self.peer_nmt.is_none_or(|peer| peer == own) {
             self.nmt_differs_since = None;
         } else if self.nmt_differs_since.is_none() {
             self.nmt_differs_since = Some(now);

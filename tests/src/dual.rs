@@ -64,6 +64,8 @@ pub struct LinkFaults {
     pub cut: bool,
     /// The next byte from A to B gets this bit mask XOR-ed into it.
     pub corrupt_next_a_to_b: Option<u8>,
+    /// Extra latency of every byte, both ways (a slow link, as under emulation).
+    pub latency: Duration,
 }
 
 /// Which channel.
@@ -353,7 +355,7 @@ impl DualNetwork {
                 Side::A => &mut node.a_to_b,
                 Side::B => &mut node.b_to_a,
             };
-            let mut at = wire.busy_until.max(now);
+            let mut at = wire.busy_until.max(now + node.link_faults.latency);
             for (position, &byte) in out.link.iter().enumerate() {
                 at = at + LINK_BYTE_TIME;
                 let byte = match corrupt {

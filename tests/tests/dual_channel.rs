@@ -421,3 +421,33 @@ fn cia304_9_5_a_lost_inverted_frame_is_reported_by_the_producer() {
     );
     assert_eq!(net.output(33), 0);
 }
+
+/// The link lags the bus: a channel's safe-state message sent before an NMT reset can arrive
+/// after the other channel's reset. It belongs to the epoch before the reset and is ignored;
+/// the channels come back together (found on the emulated network, where a stale message
+/// latched the safe state again right after the reset).
+#[test]
+fn a_link_message_from_before_an_nmt_reset_is_ignored_after_it() {
+    let mut net = running();
+    net.node_mut(1).link_faults.latency = Duration::from_millis(8);
+    net.run_for(Duration::from_millis(50));
+    // Channel B of node 1 reads otherwise; the moment one channel latches, the contacts
+    // agree again and the reset comes, while its safe-state message is still on the link.
+    net.set_inputs(1, 1, 0);
+    let give_up = net.now + Duration::from_millis(200);
+    while net.node(1).a.fault().is_none() && net.node(1).b.fault().is_none() && net.now < give_up {
+        net.run_for(Duration::from_micros(50));
+    }
+    assert!(
+        net.node(1).a.fault().is_some() != net.node(1).b.fault().is_some(),
+        "one channel latched, the other has not heard yet"
+    );
+    net.set_inputs(1, 1, 1);
+    let since = net.log.len();
+    net.nmt(NmtCommand::ResetNode, 1);
+    net.run_for(Duration::from_millis(100));
+    net.nmt(NmtCommand::Start, 1);
+    net.run_for(Duration::from_millis(200));
+    assert_eq!(fault_of(&net, since, 1), None, "{:?}", &net.log[since..]);
+    assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
+}

@@ -46,6 +46,11 @@ pub enum Message {
         nmt: u8,
         /// `true` in the working state, `false` in the safe state.
         working: bool,
+        /// How many NMT resets (node or communication) the sender has been through since
+        /// power-on, modulo 256. Both channels see the same NMT commands on the bus, so their
+        /// counts agree; a message sent before a reset that arrives after it is recognised by
+        /// the count in the heartbeat that preceded it, and ignored.
+        epoch: u8,
     },
     /// The sender's own sample of its safety inputs, for the input cross-check.
     Inputs {

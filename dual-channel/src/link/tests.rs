@@ -11,6 +11,7 @@ fn messages() -> [Message; 6] {
         Message::Heartbeat {
             nmt: 0x05,
             working: true,
+            epoch: 3,
         },
         Message::Inputs {
             sample: 0xDEAD_BEEF,
@@ -57,6 +58,7 @@ fn a_lost_message_is_reported_once_then_the_link_resynchronises() {
     let heartbeat = Message::Heartbeat {
         nmt: 5,
         working: true,
+        epoch: 0,
     };
     feed(
         &mut receiver,
