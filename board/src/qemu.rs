@@ -52,8 +52,8 @@ const RELOAD: u32 = CPU_HZ / TICK_HZ - 1;
 /// Link heartbeat period under emulation: 100 ms (a time-out after 200 ms). With 50 ms, link
 /// time-outs (a gap over 100 ms) were seen during configuration in some runs of `cargo xtask
 /// e2e`, although no emulated MCU stalled or stayed busy that long (measured: stalls up to
-/// 28 ms, loop wake-ups up to 12 ms); the delay is on the emulated serial path, not in the
-/// channel, and is not yet understood. 100 ms still gives five heartbeats per SCT of the
+/// 30 ms, loop wake-ups up to 18 ms): the delay lies outside the channel's loop, presumably
+/// on the emulated serial path, and is not yet understood. 100 ms still gives five heartbeats per SCT of the
 /// emulated network's consumer (500 ms); the hardware layer uses 10 ms.
 const LINK_PERIOD: Duration = Duration::from_millis(100);
 

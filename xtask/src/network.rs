@@ -250,8 +250,9 @@ impl Network {
         configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
         // An NMT start right after the store reached the two channels of a node up to 177 ms
         // apart in some runs, which their NMT cross-check rightly calls a fault. The channels'
-        // loops were not the cause (their longest wake-up is reported: about 12 ms); the
-        // delay is on the emulated serial path and not yet understood. A status report comes
+        // loops were not the cause (their longest wake-up is reported: up to 18 ms); the
+        // delay lies outside them, presumably on the emulated serial path, and is not yet
+        // understood. A status report comes
         // only from a channel whose loop runs: the start waits for one from every channel.
         let stored = self.command("clear")?;
         let free = self.wait_for(Duration::from_secs(5), |latest| {
