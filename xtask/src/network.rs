@@ -15,6 +15,7 @@ use dual_channel::can_serial::Status;
 use shared::canopen::nmt::NmtCommand;
 use shared::canopen::od::Address;
 use std::collections::HashMap;
+use std::os::unix::process::CommandExt as _;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -83,6 +84,9 @@ fn qemu_instance(image: &Path, node: u8, can: &Path, link: &Path, log: &Path) ->
         .args(["-serial", "chardev:link"])
         .arg("-kernel")
         .arg(image)
+        // Its own process group: Ctrl-C reaches `cargo xtask`, which ends the run in order
+        // and kills every child (see `Drop for Network`).
+        .process_group(0)
         .stdin(Stdio::null())
         .stdout(std::fs::File::create(log)?)
         .stderr(std::fs::File::create(log.with_extension("err"))?)
@@ -142,7 +146,8 @@ impl Network {
             .arg(dir.join("bus.log"))
             .arg("--pcap")
             .arg(dir.join("bus.pcap"))
-            .stderr(std::fs::File::create(dir.join("hub.err"))?);
+            .stderr(std::fs::File::create(dir.join("hub.err"))?)
+            .process_group(0);
         let hub = hub.spawn().context("starting can-hub")?;
         let mut children = vec![("hub".to_string(), hub)];
         // The tool and the control port join first, so they see the boot-up messages.
@@ -446,7 +451,11 @@ pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
             channel.to_uppercase(),
             nmt(s.nmt),
             if s.working { "working" } else { "SAFE" },
-            if s.link_up { "up" } else { "down" },
+            match (s.cause, s.link_up) {
+                (0x10..=0x14, _) => "FAULT",
+                (_, true) => "up",
+                (_, false) => "-",
+            },
             s.input,
             s.output,
             s.sent,
