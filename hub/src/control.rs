@@ -8,6 +8,8 @@
 //! → corrupt 0x101 0 0x01      data byte 0 of the next 101h frame is XOR-ed with 01h
 //! → delay 0x101 30            the next 101h frame arrives 30 ms late
 //! → repeat 0x101              the next 101h frame arrives twice
+//! → insert 0x101 00 ff        a frame 101h#00FF goes on the bus from the hub itself (a rogue
+//!                             sender; arbitration and bit time as for everyone)
 //! → mute node1a / unmute node1a
 //! → cut node33-link           the link relay stops passing bytes, both ways
 //! → clear                     every injected bus fault is removed
@@ -49,6 +51,13 @@ pub enum Command {
     },
     /// Deliver the next frame with this identifier twice.
     Repeat(u16),
+    /// Put this frame on the bus, from the hub itself.
+    Insert {
+        /// The identifier.
+        id: u16,
+        /// The data bytes (at most 8).
+        data: Vec<u8>,
+    },
     /// Participant `name`'s frames stop (`true`) or start again (`false`) reaching the bus.
     Mute(String, bool),
     /// The link relay `name` stops passing bytes.
@@ -108,6 +117,25 @@ impl Command {
                 ms: number(ms, "a delay in milliseconds")?,
             },
             ["repeat", id] => Command::Repeat(identifier(id)?),
+            ["insert", id, bytes @ ..] => {
+                if bytes.len() > 8 {
+                    return Err(format!(
+                        "{} data bytes: a CAN frame has at most 8",
+                        bytes.len()
+                    ));
+                }
+                let data = bytes
+                    .iter()
+                    .map(|byte| {
+                        u8::from_str_radix(byte, 16)
+                            .map_err(|_| format!("{byte} is not a data byte (hexadecimal, 00..ff)"))
+                    })
+                    .collect::<Result<Vec<u8>, String>>()?;
+                Command::Insert {
+                    id: identifier(id)?,
+                    data,
+                }
+            }
             ["mute", name] => Command::Mute((*name).to_string(), true),
             ["unmute", name] => Command::Mute((*name).to_string(), false),
             ["cut", name] => Command::Cut((*name).to_string()),
@@ -116,7 +144,7 @@ impl Command {
             [verb, ..] => {
                 return Err(format!(
                     "`{verb}` with {} argument(s) is not a command (input, drop, corrupt, delay, \
-                     repeat, mute, unmute, cut, clear)",
+                     repeat, insert, mute, unmute, cut, clear)",
                     words.len() - 1
                 ));
             }
@@ -135,6 +163,10 @@ impl fmt::Display for Command {
             }
             Command::Delay { id, ms } => write!(f, "delay 0x{id:03X} {ms}"),
             Command::Repeat(id) => write!(f, "repeat 0x{id:03X}"),
+            Command::Insert { id, data } => {
+                write!(f, "insert 0x{id:03X}")?;
+                data.iter().try_for_each(|byte| write!(f, " {byte:02x}"))
+            }
             Command::Mute(name, true) => write!(f, "mute {name}"),
             Command::Mute(name, false) => write!(f, "unmute {name}"),
             Command::Cut(name) => write!(f, "cut {name}"),
@@ -210,6 +242,8 @@ mod tests {
             "corrupt 0x101 0 0x01",
             "delay 0x101 30",
             "repeat 0x101",
+            "insert 0x101 00 ff",
+            "insert 0x000",
             "mute node1a",
             "unmute node1b",
             "cut node33-link",
@@ -229,6 +263,8 @@ mod tests {
         assert!(error("corrupt 0x101 0 0").contains("mask of 0"));
         assert!(error("input node1a 256").contains("pin value"));
         assert!(error("explode").contains("not a command"));
+        assert!(error("insert 0x101 0 1 2 3 4 5 6 7 8").contains("at most 8"));
+        assert!(error("insert 0x101 xyz").contains("data byte"));
         assert!(error("").contains("empty"));
     }
 

@@ -91,6 +91,12 @@ impl Hub {
         }
     }
 
+    /// `frame` goes on the bus from participant `id` (the hub's own sender, say), which need
+    /// not be connected; it competes in arbitration like any other.
+    pub fn send(&mut self, id: usize, frame: CanFrame) {
+        self.bus.send(id, frame);
+    }
+
     /// The bytes that set a board's input pin to `value`.
     pub fn input(value: u8) -> Vec<u8> {
         encode_wire(&Wire::Input(value)).to_vec()

@@ -235,7 +235,8 @@ fn start(args: &Args) -> Result<(), String> {
         let listener =
             TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
         let tx = tx.clone();
-        let first = sockets.len();
+        // After the sockets: the hub's own sender (`insert` on the control port).
+        let first = sockets.len() + 1;
         std::thread::spawn(move || {
             for (offset, stream) in listener.incoming().enumerate() {
                 let Ok(stream) = stream else { continue };
@@ -322,6 +323,13 @@ impl Hosts {
                 Fault::Delay(shared::Duration::from_millis(*ms)),
             )),
             Command::Repeat(id) => hub.inject(Injection::new(next(*id), Fault::Repeat)),
+            Command::Insert { id, data } => {
+                let frame = shared::CanId::new(*id)
+                    .ok()
+                    .and_then(|id| shared::CanFrame::new(id, data).ok())
+                    .ok_or_else(|| format!("{command} is not a CAN frame"))?;
+                hub.send(self.names.len(), frame);
+            }
             Command::Mute(name, true) => {
                 let id = self.participant(name)?;
                 hub.inject(Injection::new(Match::all_from(id, now), Fault::Mute));

@@ -116,3 +116,61 @@ fn frames_reach_the_other_participants_and_the_traces() {
         Err(_) => panic!("tshark is missing: run `cargo xtask setup`"),
     }
 }
+
+/// The control port: commands are answered, bad ones with the reason; an inserted frame
+/// reaches the tools; an injected fault applies to the next matching frame; the link relay
+/// passes bytes until cut.
+#[test]
+fn the_control_port_inserts_injects_and_cuts() {
+    use can_hub::tool::Control;
+    use std::os::unix::net::UnixStream;
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 1;
+    let control_port = port + 20_000;
+    let dir = std::env::temp_dir().join(format!("can-hub-control-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (a, b) = (dir.join("a.sock"), dir.join("b.sock"));
+    let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
+        .args(["--tcp", &format!("127.0.0.1:{port}")])
+        .args(["--control", &format!("127.0.0.1:{control_port}")])
+        .arg("--link")
+        .arg(format!("l={},{}", a.display(), b.display()))
+        .spawn()
+        .unwrap();
+    let _hub = Hub { child, dir };
+    let mut tool = connect(port);
+    let mut control = Control::connect(
+        &format!("127.0.0.1:{control_port}"),
+        Duration::from_secs(10),
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+
+    assert!(control.command("insert 0x123 01 02").unwrap().is_ok());
+    let inserted = CanFrame::new(CanId::new(0x123).unwrap(), &[1, 2]).unwrap();
+    assert_eq!(receive(&mut tool), inserted);
+
+    assert!(control.command("drop 0x124").unwrap().is_ok());
+    assert!(control.command("insert 0x124 01").unwrap().is_ok());
+    assert!(control.command("insert 0x125 02").unwrap().is_ok());
+    let next = receive(&mut tool);
+    assert_eq!(next.id().raw(), 0x125, "the 124h frame was dropped");
+
+    let error = control.command("input nobody 1").unwrap().unwrap_err();
+    assert!(error.contains("no participant `nobody`"), "{error}");
+    let error = control.command("drop 0x800").unwrap().unwrap_err();
+    assert!(error.contains("11-bit"), "{error}");
+
+    let mut left = UnixStream::connect(&a).unwrap();
+    let mut right = UnixStream::connect(&b).unwrap();
+    right
+        .set_read_timeout(Some(Duration::from_millis(500)))
+        .unwrap();
+    left.write_all(b"hi").unwrap();
+    let mut buf = [0u8; 2];
+    right.read_exact(&mut buf).unwrap();
+    assert_eq!(&buf, b"hi");
+    assert!(control.command("cut l").unwrap().is_ok());
+    left.write_all(b"lost").unwrap();
+    let mut buf = [0u8; 4];
+    assert!(right.read(&mut buf).is_err(), "nothing passes a cut link");
+}
