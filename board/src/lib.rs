@@ -132,12 +132,61 @@ pub struct InputObjects {
     pub inverted: Address,
 }
 
-/// The start-up self-tests both layers run before the channel starts: RAM (a dedicated 1 KiB
-/// area, March C-) and the link CRC's known answer. `false` when one fails; the caller stays
-/// in the safe state.
+/// The image's seal: [`dual_channel::selftest::SEALED`] and the CRC-32 of the flash contents,
+/// written into the linked image by `cargo xtask build` (zeros until then). Read only through
+/// the image's bytes in flash ([`image`]), which the compiler cannot assume.
+#[cfg(target_os = "none")]
+#[used]
+#[unsafe(no_mangle)]
+static IMAGE_SEAL: [u32; 2] = [0, 0];
+
+/// Where flash begins (`memory.x`: FLASH ORIGIN), the image's first byte.
+#[cfg(target_os = "none")]
+const FLASH_ORIGIN: usize = 0x0800_0000;
+
+/// The image in flash: the code and read-only data (from the first byte of flash to
+/// `__erodata`) and the load image of the initialised data (`__sidata`, as long as `.data`).
+#[cfg(target_os = "none")]
+fn image() -> (&'static [u8], &'static [u8]) {
+    unsafe extern "C" {
+        static __erodata: u32;
+        static __sidata: u32;
+        static __sdata: u32;
+        static __edata: u32;
+    }
+    // Only the addresses of the linker's symbols are taken, never their contents.
+    let erodata = core::ptr::addr_of!(__erodata) as usize;
+    let sidata = core::ptr::addr_of!(__sidata) as usize;
+    let data_len = core::ptr::addr_of!(__edata) as usize - core::ptr::addr_of!(__sdata) as usize;
+    // SAFETY: both ranges are the image as linked (cortex-m-rt's link.x: vector table, code
+    // and read-only data from the flash origin to `__erodata`; the load image of `.data` at
+    // `__sidata`); flash is mapped, never written while the firmware runs, and read as bytes.
+    unsafe {
+        (
+            core::slice::from_raw_parts(FLASH_ORIGIN as *const u8, erodata - FLASH_ORIGIN),
+            core::slice::from_raw_parts(sidata as *const u8, data_len),
+        )
+    }
+}
+
+/// The start-up self-tests both layers run before the channel starts: the image CRC against
+/// its seal, RAM (a dedicated 1 KiB area, March C-) and the link CRC's known answer. `false`
+/// when one fails; the caller stays in the safe state.
 #[cfg(target_os = "none")]
 pub fn self_tests() -> bool {
     use dual_channel::selftest;
+    let seal = core::ptr::addr_of!(IMAGE_SEAL) as usize - FLASH_ORIGIN;
+    let (code, data) = image();
+    match selftest::check_image(code, data, seal) {
+        Ok(()) => defmt::info!(
+            "self-test: image CRC passed ({=usize} bytes)",
+            code.len() + data.len()
+        ),
+        Err(fault) => {
+            defmt::error!("self-test: image CRC failed {}", fault);
+            return false;
+        }
+    }
     static mut AREA: [u32; 256] = [0; 256];
     // SAFETY: this is the only access to `AREA`, made once at start-up before any task runs;
     // `self_tests` is called once per boot by the board layer.

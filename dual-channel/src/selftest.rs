@@ -6,6 +6,8 @@
 //!   tests, on a memory model with injected faults.
 //! - The signature cross-check of the two CRC implementations is done by the runtime over the
 //!   link; [`crc_known_answer`] checks the channel's own CRC-32 against a known answer.
+//! - [`check_image`]: the CRC-32 of the firmware image in flash against the value `cargo
+//!   xtask` sealed into it after linking ([`image_crc`] computes both).
 
 /// Word-addressed memory under test.
 #[allow(clippy::len_without_is_empty)] // reason: a memory under test is never empty; the test reads `len` only
@@ -97,9 +99,130 @@ pub fn crc_known_answer() -> bool {
     CRC.checksum(b"123456789") == 0xCBF4_3926
 }
 
+/// The first word of a sealed image's seal (`cargo xtask` writes it with the CRC after
+/// linking); an image built otherwise carries zeros there.
+pub const SEALED: u32 = 0x5EA1_ED01;
+
+/// Bytes of the seal: [`SEALED`], then the CRC, both little-endian.
+pub const SEAL_LEN: usize = 8;
+
+/// The CRC-32 (ISO-HDLC) of a firmware image's flash contents: `code` (from the first byte of
+/// flash to the end of the read-only data) then `data` (the load image of the initialised
+/// data, which may start a few alignment bytes later: those are not part of the image), the
+/// [`SEAL_LEN`] bytes of the seal at offset `seal` in `code` left out. `None` when the seal
+/// does not lie inside `code`. The same function seals the image on the host and checks it on
+/// the MCU.
+pub fn image_crc(code: &[u8], data: &[u8], seal: usize) -> Option<u32> {
+    const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+    let before = code.get(..seal)?;
+    let after = code.get(seal.checked_add(SEAL_LEN)?..)?;
+    let mut digest = CRC.digest();
+    digest.update(before);
+    digest.update(after);
+    digest.update(data);
+    Some(digest.finalize())
+}
+
+/// Why the image check failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ImageFault {
+    /// The image carries no seal: it was not built by `cargo xtask build` (or the seal is
+    /// damaged).
+    NotSealed,
+    /// The seal lies outside the image (a linker script error).
+    SealOutside,
+    /// The CRC differs from the sealed one: the flash contents changed.
+    Mismatch {
+        /// The CRC sealed after linking.
+        sealed: u32,
+        /// The CRC of the flash as it is.
+        found: u32,
+    },
+}
+
+/// Checks the image in flash (as for [`image_crc`]) against its seal.
+pub fn check_image(code: &[u8], data: &[u8], seal: usize) -> Result<(), ImageFault> {
+    let word = |at: usize| -> Option<u32> {
+        let bytes = code.get(at..at.checked_add(4)?)?;
+        Some(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]))
+    };
+    let (Some(marker), Some(sealed)) = (word(seal), seal.checked_add(4).and_then(word)) else {
+        return Err(ImageFault::SealOutside);
+    };
+    if marker != SEALED {
+        return Err(ImageFault::NotSealed);
+    }
+    let found = image_crc(code, data, seal).ok_or(ImageFault::SealOutside)?;
+    if found != sealed {
+        return Err(ImageFault::Mismatch { sealed, found });
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const DATA: [u8; 24] = [0xA5; 24];
+
+    fn sealed_image() -> (Vec<u8>, usize) {
+        let mut code: Vec<u8> = (0..=255u8).cycle().take(1000).collect();
+        let seal = 400;
+        code[seal..seal + 4].copy_from_slice(&SEALED.to_le_bytes());
+        let crc = image_crc(&code, &DATA, seal).unwrap();
+        code[seal + 4..seal + 8].copy_from_slice(&crc.to_le_bytes());
+        (code, seal)
+    }
+
+    fn mismatch(result: Result<(), ImageFault>) -> bool {
+        matches!(result, Err(ImageFault::Mismatch { .. }))
+    }
+
+    #[test]
+    fn a_sealed_image_passes_and_any_changed_byte_fails() {
+        let (code, seal) = sealed_image();
+        assert_eq!(check_image(&code, &DATA, seal), Ok(()));
+        for at in (0..code.len()).filter(|at| !(seal..seal + 8).contains(at)) {
+            let mut damaged = code.clone();
+            damaged[at] ^= 0x10;
+            assert!(mismatch(check_image(&damaged, &DATA, seal)), "byte {at}");
+        }
+        for at in 0..DATA.len() {
+            let mut data = DATA;
+            data[at] ^= 0x01;
+            assert!(mismatch(check_image(&code, &data, seal)), "data byte {at}");
+        }
+        // The CRC itself damaged.
+        let mut damaged = code.clone();
+        damaged[seal + 5] ^= 1;
+        assert!(mismatch(check_image(&damaged, &DATA, seal)));
+    }
+
+    #[test]
+    fn an_unsealed_image_or_a_seal_outside_it_fails() {
+        let (mut code, seal) = sealed_image();
+        let end = code.len();
+        assert_eq!(
+            check_image(&code, &DATA, end - 4),
+            Err(ImageFault::SealOutside)
+        );
+        assert_eq!(image_crc(&code, &DATA, end - 7), None);
+        code[seal] = 0;
+        assert_eq!(check_image(&code, &DATA, seal), Err(ImageFault::NotSealed));
+    }
+
+    /// The seal's bytes do not enter the CRC: sealing does not change what it seals.
+    #[test]
+    fn the_crc_leaves_the_seal_out() {
+        let (code, seal) = sealed_image();
+        let mut zeroed = code.clone();
+        zeroed[seal..seal + 8].fill(0);
+        assert_eq!(
+            image_crc(&code, &DATA, seal),
+            image_crc(&zeroed, &DATA, seal)
+        );
+    }
 
     /// A memory model with one injected fault.
     struct Faulty {

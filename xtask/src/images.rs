@@ -127,9 +127,116 @@ pub fn image(cross: &Cross, root: &Path, layer: Layer, channel: &str) -> PathBuf
         .join(format!("channel-{channel}"))
 }
 
+/// The first byte of flash (`memory.x`), where every image begins.
+const FLASH_ORIGIN: u64 = 0x0800_0000;
+
+/// Where an image's seal is, and what the image CRC covers: the code segment (vector table,
+/// code and read-only data in one segment from the start of flash, `--no-rosegment`) and the
+/// load image of `.data` (the firmware's `__erodata` and `__sidata` ranges); the seal's offset
+/// in the code and in the ELF file. The few alignment bytes between the two are not written
+/// by anyone (the MCU reads them as erased, QEMU as 0) and not covered.
+struct Located {
+    code: Vec<u8>,
+    data: Vec<u8>,
+    seal: usize,
+    file_offset: usize,
+}
+
+fn locate(elf: &Path, bytes: &[u8]) -> Result<Located> {
+    use object::read::elf::{ElfFile32, ProgramHeader as _};
+    use object::{Endianness, ObjectSymbol as _};
+    let file = ElfFile32::<Endianness>::parse(bytes).context("parsing the ELF image")?;
+    let endian = file.endian();
+    let mut segments: Vec<(u64, u64, u64)> = file
+        .elf_program_headers()
+        .iter()
+        .filter(|header| header.p_type(endian) == object::elf::PT_LOAD)
+        .filter(|header| header.p_filesz(endian) > 0)
+        .map(|header| {
+            (
+                u64::from(header.p_paddr(endian)),
+                u64::from(header.p_offset(endian)),
+                u64::from(header.p_filesz(endian)),
+            )
+        })
+        .filter(|(address, ..)| *address >= FLASH_ORIGIN)
+        .collect();
+    segments.sort();
+    let contents = |&(_, offset, size): &(u64, u64, u64)| {
+        bytes[offset as usize..(offset + size) as usize].to_vec()
+    };
+    let (code, data) = match segments.as_slice() {
+        [code] if code.0 == FLASH_ORIGIN => (contents(code), Vec::new()),
+        [code, data] if code.0 == FLASH_ORIGIN && data.0 - (code.0 + code.2) < 8 => {
+            (contents(code), contents(data))
+        }
+        _ => bail!(
+            "{}: flash segments {segments:x?} are not the code from {FLASH_ORIGIN:#x} and the \
+             data right after it, which the image CRC covers (see `--no-rosegment` in \
+             .cargo/config.toml)",
+            elf.display()
+        ),
+    };
+    let at = file
+        .symbols()
+        .find(|symbol| symbol.name() == Ok("IMAGE_SEAL"))
+        .with_context(|| format!("{}: no IMAGE_SEAL symbol", elf.display()))?
+        .address();
+    let (address, offset, _) = segments
+        .iter()
+        .copied()
+        .find(|(address, _, size)| (*address..address + size).contains(&at))
+        .with_context(|| format!("{}: IMAGE_SEAL at {at:#x} is not in flash", elf.display()))?;
+    Ok(Located {
+        code,
+        data,
+        seal: usize::try_from(at - FLASH_ORIGIN)?,
+        file_offset: usize::try_from(offset + (at - address))?,
+    })
+}
+
+/// Writes the seal into a linked image: [`dual_channel::selftest::SEALED`] and the CRC-32 of
+/// its flash contents, at the `IMAGE_SEAL` symbol. The image checks it at every start
+/// (`board::self_tests`). Returns the CRC. Idempotent: the seal's bytes are not part of it.
+pub fn seal(elf: &Path) -> Result<u32> {
+    use dual_channel::selftest::{SEAL_LEN, SEALED, image_crc};
+    let mut bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let located = locate(elf, &bytes)?;
+    let crc = image_crc(&located.code, &located.data, located.seal)
+        .with_context(|| format!("{}: the seal is not inside the image", elf.display()))?;
+    let mut value = [0u8; SEAL_LEN];
+    value[..4].copy_from_slice(&SEALED.to_le_bytes());
+    value[4..].copy_from_slice(&crc.to_le_bytes());
+    bytes[located.file_offset..located.file_offset + SEAL_LEN].copy_from_slice(&value);
+    std::fs::write(elf, &bytes).with_context(|| format!("writing {}", elf.display()))?;
+    Ok(crc)
+}
+
+/// A copy of `elf` at `copy` with its seal's bytes changed by `change` (for the tests that an
+/// unsealed or damaged image refuses to start).
+pub fn tampered_copy(elf: &Path, copy: &Path, change: impl FnOnce(&mut [u8])) -> Result<()> {
+    use dual_channel::selftest::SEAL_LEN;
+    let mut bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let at = locate(elf, &bytes)?.file_offset;
+    change(&mut bytes[at..at + SEAL_LEN]);
+    std::fs::write(copy, &bytes).with_context(|| format!("writing {}", copy.display()))?;
+    Ok(())
+}
+
+/// Builds both images of `layer` and seals them.
+pub fn build_layer(root: &Path, cross: &Cross, layer: Layer) -> Result<()> {
+    crate::run(&mut cargo(cross, root, "build", layer))?;
+    for channel in ["a", "b"] {
+        let elf = image(cross, root, layer, channel);
+        let crc = seal(&elf)?;
+        println!("xtask: channel-{channel} ({layer:?}): sealed, image CRC {crc:08X}h");
+    }
+    Ok(())
+}
+
 /// Builds both hardware images, prints their sizes and fails when one exceeds a budget.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
-    crate::run(&mut cargo(cross, root, "build", Layer::Hw))?;
+    build_layer(root, cross, Layer::Hw)?;
     println!(
         "{:<10} {:>8} {:>8} {:>8} {:>16} {:>16}",
         "image", "text", "data", "bss", "flash/budget", "ram+stack/budget"

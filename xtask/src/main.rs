@@ -193,6 +193,26 @@ fn test(root: &Path) -> Result<()> {
             anyhow::bail!("channel {channel}: a panic under QEMU ended with {code}:\n{log}");
         }
         println!("xtask: channel {channel}: a panic exits QEMU with code {code}");
+        // An image that is not sealed, or whose flash differs from its seal, stays in the
+        // safe state: its self-test fails and the run ends with failure.
+        let dir = root.join("target/qemu-tampered");
+        std::fs::create_dir_all(&dir)?;
+        /// How a test case changes the seal's bytes.
+        type Change = fn(&mut [u8]);
+        let cases: [(&str, Change, &str); 2] = [
+            ("unsealed", |seal| seal.fill(0), "NotSealed"),
+            ("damaged", |seal| seal[4] ^= 0x01, "Mismatch"),
+        ];
+        for (name, change, expected) in cases {
+            let copy = dir.join(format!("channel-{channel}-{name}"));
+            images::tampered_copy(&image, &copy, change)?;
+            let (code, log) = qemu::run_alone(&copy, &["selftest"], limit)?;
+            let refused = log.contains("image CRC failed") && log.contains(expected);
+            if code == 0 || !refused {
+                anyhow::bail!("channel {channel}: a {name} image ran ({code}):\n{log}");
+            }
+            println!("xtask: channel {channel}: a {name} image fails its image CRC self-test");
+        }
     }
     step("end-to-end tests on the emulated network");
     e2e::task(root)?;

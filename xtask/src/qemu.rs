@@ -10,9 +10,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-/// Builds both images for QEMU.
+/// Builds both images for QEMU and seals them.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
-    crate::run(&mut images::cargo(cross, root, "build", Layer::Qemu))
+    images::build_layer(root, cross, Layer::Qemu)
 }
 
 /// The QEMU image of `channel` (`a` or `b`).
