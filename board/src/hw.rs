@@ -266,6 +266,7 @@ fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
 /// Initialises the board, spawns the peripheral tasks and runs the channel until reset.
 pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, role: R) -> ! {
     let input_objects = device.inputs;
+    crate::stack::paint();
     let p = embassy_stm32::init(clocks());
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
@@ -311,9 +312,15 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     let mut sampled: Option<bool> = None;
     let mut next_sample = now();
     let mut link_buf = [0u8; 64];
+    let mut stack_reported = 0;
     loop {
         let deadline = runtime.poll(now(), &mut io);
         watchdog.pet();
+        let stack = crate::stack::used();
+        if stack > stack_reported {
+            stack_reported = stack;
+            defmt::info!("stack high-water mark: {=usize} bytes", stack);
+        }
         let wake = deadline.min(next_sample);
         match select4(
             CAN_RX.receive(),

@@ -18,6 +18,8 @@ use shared::node::NodeConfig;
 pub mod hw;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 pub mod qemu;
+#[cfg(target_os = "none")]
+pub mod stack;
 
 /// What a board layer needs to know about the device it runs.
 #[derive(Clone, Copy)]

@@ -251,6 +251,7 @@ fn arguments() -> crate::Arguments {
 
 /// Starts the board (SysTick, USARTs), runs the self-tests and then the channel.
 pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, role: R) -> ! {
+    crate::stack::paint();
     let Some(mut core) = cortex_m::Peripherals::take() else {
         exit(false);
     };
@@ -335,6 +336,7 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         let stall = LONGEST_STALL_MS.load(Ordering::Relaxed);
         io.diagnostics
             .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
+        io.diagnostics.stack(crate::stack::used());
         if let Some(status) = io.diagnostics.report(at, &runtime) {
             send(&Wire::Status(status));
         }

@@ -54,6 +54,7 @@ impl Diagnostics {
                 longest_stall_ms: 0,
                 longest_link_gap_ms: 0,
                 longest_busy_ms: 0,
+                stack_used: 0,
             },
             last_link: None,
             last_reported: None,
@@ -101,6 +102,11 @@ impl Diagnostics {
         let ms = end.as_micros().saturating_sub(start.as_micros()) / 1000;
         let ms = u16::try_from(ms).unwrap_or(u16::MAX);
         self.status.longest_busy_ms = self.status.longest_busy_ms.max(ms);
+    }
+
+    /// The stack's high-water mark is `bytes`.
+    pub fn stack(&mut self, bytes: usize) {
+        self.status.stack_used = u16::try_from(bytes).unwrap_or(u16::MAX);
     }
 
     /// The channel's input pin was sampled as `value`.

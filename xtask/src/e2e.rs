@@ -222,6 +222,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     let stall = network.longest_stall_ms();
     let link_gap = network.longest_link_gap_ms();
     let busy = network.longest_busy_ms();
+    let stack = network.stack_used();
     let dir = network.dir().to_path_buf();
     let _ = network.stop()?;
     if let Ok(results) = &outcome {
@@ -232,8 +233,19 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     }
     println!(
         "   longest stall of an emulated MCU: {stall} ms, longest link gap: {link_gap} ms, \
-         longest loop wake-up: {busy} ms"
+         longest loop wake-up: {busy} ms, deepest stack: {stack} bytes (reserve {} bytes)",
+        crate::images::STACK_RESERVE
     );
     println!("   traces and logs: {}", dir.display());
+    if u64::from(stack) > crate::images::STACK_RESERVE {
+        // Known and open (firmware issue): the main task's poll frame holds the runtime's
+        // construction temporaries. Reported loudly, not yet a failure: the budget check of
+        // `cargo xtask build` counts the designed reserve, and this shows it is not met.
+        println!(
+            "   WARNING: a channel used {stack} bytes of stack, more than the {} bytes the RAM \
+             budget reserves for it",
+            crate::images::STACK_RESERVE
+        );
+    }
     outcome.map(|_| ())
 }

@@ -12,8 +12,10 @@ pub const FLASH_BUDGET: u64 = 64 * 1024;
 /// RAM budget per image, bytes, including the stack reserve below.
 pub const RAM_BUDGET: u64 = 32 * 1024;
 /// RAM set aside for the stack in the budget. The linker places the stack at the top of RAM;
-/// this figure is what the images are designed to need and is checked against the measured
-/// high-water mark on target (stack painting) as the firmware grows.
+/// this figure is what the images are designed to need. The measured high-water mark (stack
+/// painting, `board::stack`, reported by `cargo xtask e2e`) is far above it today (about
+/// 55 KB under QEMU: the main task's poll frame holds the runtime's construction
+/// temporaries), so the RAM figure `cargo xtask build` checks is not yet the truth.
 pub const STACK_RESERVE: u64 = 8 * 1024;
 
 /// The chip, as probe-rs names it.

@@ -350,6 +350,16 @@ impl Network {
             .unwrap_or(0)
     }
 
+    /// The deepest stack any channel reported, in bytes.
+    pub fn stack_used(&self) -> u16 {
+        self.control
+            .latest
+            .values()
+            .map(|(_, s)| s.stack_used)
+            .max()
+            .unwrap_or(0)
+    }
+
     /// The longest stall any emulated MCU reported, in milliseconds.
     pub fn longest_stall_ms(&self) -> u16 {
         self.control
