@@ -37,8 +37,9 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embassy_time_queue_utils::Queue;
-use shared::canopen::storage::RamFlash;
+use shared::canopen::storage::{Flash as _, RamFlash, Slot};
 use shared::{CanFrame, Duration, Instant};
+use static_cell::ConstStaticCell;
 use stm32_metapac::{Interrupt, RCC, USART2, USART3, interrupt};
 
 use crate::Device;
@@ -295,13 +296,22 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     defmt::info!("node-ID {=u8}", id.raw());
     let input_objects = device.inputs;
 
-    let Ok(mut runtime) = Runtime::new(
-        (device.describe)(id),
-        RamFlash::<4096>::new(),
-        role,
-        now(),
-        LINK_PERIOD,
-    ) else {
+    // The parameter store lives in a zero-initialised static, erased here: 8 KiB that the
+    // runtime's construction would otherwise move through the stack (measured: the main
+    // task's frame held several copies).
+    static PARAMETERS: ConstStaticCell<RamFlash<4096>> = ConstStaticCell::new(RamFlash::zeroed());
+    let Some(parameters) = PARAMETERS.try_take() else {
+        defmt::error!("the parameter store is taken already");
+        exit(false);
+    };
+    for slot in [Slot::A, Slot::B] {
+        if parameters.erase(slot).is_err() {
+            defmt::error!("the parameter store cannot be erased");
+            exit(false);
+        }
+    }
+    let Ok(mut runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
+    else {
         defmt::error!("device description refused");
         exit(false);
     };

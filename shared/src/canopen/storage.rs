@@ -291,6 +291,12 @@ impl<const N: usize> RamFlash<N> {
         }
     }
 
+    /// Two slots of zeros, as a medium in no known state; erase both before use. For a
+    /// `static` in zero-initialised RAM (no initial image in flash, no copy on the stack).
+    pub const fn zeroed() -> Self {
+        RamFlash { slots: [[0; N]; 2] }
+    }
+
     /// The raw bytes of `slot`, for tests that corrupt or inspect the medium.
     pub fn slot_mut(&mut self, slot: Slot) -> &mut [u8; N] {
         &mut self.slots[slot as usize]
@@ -302,6 +308,23 @@ impl<const N: usize> RamFlash<N> {
             return Err(StorageError::OutOfBounds);
         }
         Ok(offset..end)
+    }
+}
+
+/// A medium borrowed for as long as the user lives: a parameter store kept in a `static`
+/// (so that the large buffer is never moved through the stack) serves through a reference.
+impl<F: Flash + ?Sized> Flash for &mut F {
+    fn slot_len(&self) -> usize {
+        (**self).slot_len()
+    }
+    fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
+        (**self).read(slot, offset, buf)
+    }
+    fn erase(&mut self, slot: Slot) -> Result<(), StorageError> {
+        (**self).erase(slot)
+    }
+    fn write(&mut self, slot: Slot, offset: usize, data: &[u8]) -> Result<(), StorageError> {
+        (**self).write(slot, offset, data)
     }
 }
 
