@@ -19,7 +19,9 @@
 //! - **Configuration and NMT cross-check.** Every heartbeat carries the sender's NMT state and
 //!   a digest of the signatures it computes by its own implementation; in Operational the
 //!   digests must match (an output leaves the safe state only after they have, once per
-//!   Operational period), and the NMT states may differ for at most two link periods.
+//!   Operational period), and the NMT states may differ for at most two link periods. A
+//!   heartbeat goes out at once on every NMT state change, and carries the count of NMT
+//!   resets (the epoch): a message sent before a reset that arrives after it is ignored.
 //! - **Input cross-check.** Each channel sends a digest of its input samples on every change
 //!   and with every heartbeat; samples that differ for longer than [`INPUT_DISCREPANCY`] are a
 //!   fault (a stuck or broken contact), even when no SRDO carries them.
