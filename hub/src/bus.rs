@@ -133,6 +133,9 @@ pub enum Fault {
     Delay(Duration),
     /// Delivered twice.
     Repeat,
+    /// Delivered right after the next frame that goes on the bus instead of before it (a
+    /// store-and-forward gateway that reorders); held until there is one.
+    Reorder,
     /// The sender's frames never reach the bus (a muted or disconnected participant).
     Mute,
 }
@@ -185,6 +188,8 @@ pub struct Bus {
     /// The bus is busy until then.
     free_at: Instant,
     injections: Vec<Injection>,
+    /// A frame held by [`Fault::Reorder`] until the next one has been delivered.
+    held: Option<Delivery>,
     /// Frames sent, for statistics: (sent, bits on the bus).
     pub frames_sent: u64,
     /// Bits the frames occupied.
@@ -199,6 +204,7 @@ impl Bus {
             queues: vec![Default::default(); participants],
             free_at: Instant::ZERO,
             injections: Vec::new(),
+            held: None,
             frames_sent: 0,
             bits_sent: 0,
         }
@@ -269,6 +275,7 @@ impl Bus {
         let mut delivered = frame;
         let mut at = now;
         let mut copies = 1;
+        let mut reorder = false;
         for injection in self.injections.iter_mut() {
             if !injection.matches(&frame, from, now) {
                 continue;
@@ -290,6 +297,7 @@ impl Bus {
                 }
                 Fault::Delay(delay) => at = at + delay,
                 Fault::Repeat => copies = 2,
+                Fault::Reorder => reorder = true,
             }
         }
         let duration = frame_time(&frame, self.bit_rate);
@@ -310,6 +318,18 @@ impl Bus {
         if copies == 2 {
             self.free_at = self.free_at + duration;
         }
+        if reorder && self.held.is_none() {
+            // Held back: it reaches the receivers just after the next frame does.
+            self.held = deliveries.pop();
+            deliveries.clear();
+        } else if let Some(mut held) = self.held.take() {
+            if let Some(last) = deliveries.last() {
+                held.at = last.at + Duration::from_micros(1);
+                deliveries.push(held);
+            } else {
+                self.held = Some(held);
+            }
+        }
         deliveries
     }
 }
@@ -321,6 +341,32 @@ mod tests {
 
     fn frame(id: u16, data: &[u8]) -> CanFrame {
         CanFrame::new(CanId::new(id).unwrap(), data).unwrap()
+    }
+
+    /// A reordered frame reaches the receivers just after the frame that followed it on the
+    /// bus (CiA 304 9.5: an inverted frame before its plain frame must be caught).
+    #[test]
+    fn a_reordered_frame_arrives_after_the_next_one() {
+        let mut bus = Bus::new(500_000, 2);
+        bus.inject(Injection::new(
+            Match::next_with_id(0x101, Instant::ZERO),
+            Fault::Reorder,
+        ));
+        bus.send(0, frame(0x101, &[1]));
+        bus.send(1, frame(0x102, &[0xFE]));
+        let mut now = Instant::ZERO;
+        let mut delivered = Vec::new();
+        while let Some(start) = bus.next_start(now) {
+            now = start;
+            delivered.extend(bus.arbitrate(now));
+        }
+        let order: Vec<(u16, u64)> = delivered
+            .iter()
+            .map(|d| (d.frame.id().raw(), d.at.as_micros()))
+            .collect();
+        assert_eq!(order.len(), 2, "{order:?}");
+        assert_eq!((order[0].0, order[1].0), (0x102, 0x101), "{order:?}");
+        assert!(order[1].1 > order[0].1);
     }
 
     /// ISO 11898-1: an all-dominant header gives a stuff bit after every fifth bit.

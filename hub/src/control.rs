@@ -8,6 +8,7 @@
 //! → corrupt 0x101 0 0x01      data byte 0 of the next 101h frame is XOR-ed with 01h
 //! → delay 0x101 30            the next 101h frame arrives 30 ms late
 //! → repeat 0x101              the next 101h frame arrives twice
+//! → reorder 0x101             the next 101h frame arrives after the frame that follows it
 //! → insert 0x101 00 ff        a frame 101h#00FF goes on the bus from the hub itself (a rogue
 //!                             sender; arbitration and bit time as for everyone)
 //! → mute node1a / unmute node1a
@@ -52,6 +53,8 @@ pub enum Command {
     },
     /// Deliver the next frame with this identifier twice.
     Repeat(u16),
+    /// Deliver the next frame with this identifier after the frame that follows it.
+    Reorder(u16),
     /// Put this frame on the bus, from the hub itself.
     Insert {
         /// The identifier.
@@ -118,6 +121,7 @@ impl Command {
                 ms: number(ms, "a delay in milliseconds")?,
             },
             ["repeat", id] => Command::Repeat(identifier(id)?),
+            ["reorder", id] => Command::Reorder(identifier(id)?),
             ["insert", id, bytes @ ..] => {
                 if bytes.len() > 8 {
                     return Err(format!(
@@ -145,7 +149,7 @@ impl Command {
             [verb, ..] => {
                 return Err(format!(
                     "`{verb}` with {} argument(s) is not a command (input, drop, corrupt, delay, \
-                     repeat, insert, mute, unmute, cut, clear)",
+                     repeat, reorder, insert, mute, unmute, cut, clear)",
                     words.len() - 1
                 ));
             }
@@ -164,6 +168,7 @@ impl fmt::Display for Command {
             }
             Command::Delay { id, ms } => write!(f, "delay 0x{id:03X} {ms}"),
             Command::Repeat(id) => write!(f, "repeat 0x{id:03X}"),
+            Command::Reorder(id) => write!(f, "reorder 0x{id:03X}"),
             Command::Insert { id, data } => {
                 write!(f, "insert 0x{id:03X}")?;
                 data.iter().try_for_each(|byte| write!(f, " {byte:02x}"))
@@ -245,6 +250,7 @@ mod tests {
             "corrupt 0x101 0 0x01",
             "delay 0x101 30",
             "repeat 0x101",
+            "reorder 0x101",
             "insert 0x101 00 ff",
             "insert 0x000",
             "mute node1a",

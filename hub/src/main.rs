@@ -323,6 +323,7 @@ impl Hosts {
                 Fault::Delay(shared::Duration::from_millis(*ms)),
             )),
             Command::Repeat(id) => hub.inject(Injection::new(next(*id), Fault::Repeat)),
+            Command::Reorder(id) => hub.inject(Injection::new(next(*id), Fault::Reorder)),
             Command::Insert { id, data } => {
                 let frame = shared::CanId::new(*id)
                     .ok()

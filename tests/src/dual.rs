@@ -290,7 +290,7 @@ impl DualNetwork {
                     }
                     frame = CanFrame::from_parts(frame.id(), frame.dlc(), data).ok()?;
                 }
-                Fault::Delay(_) | Fault::Repeat => {}
+                Fault::Delay(_) | Fault::Repeat | Fault::Reorder => {}
             }
         }
         Some(frame)
