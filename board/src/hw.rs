@@ -266,7 +266,6 @@ fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
 /// Initialises the board, spawns the peripheral tasks and runs the channel until reset.
 pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, role: R) -> ! {
     let input_objects = device.inputs;
-    crate::stack::paint();
     let p = embassy_stm32::init(clocks());
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();

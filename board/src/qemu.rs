@@ -252,7 +252,6 @@ fn arguments() -> crate::Arguments {
 
 /// Starts the board (SysTick, USARTs), runs the self-tests and then the channel.
 pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, role: R) -> ! {
-    crate::stack::paint();
     let Some(mut core) = cortex_m::Peripherals::take() else {
         exit(false);
     };
