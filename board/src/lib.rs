@@ -19,6 +19,8 @@ pub mod hw;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 pub mod qemu;
 #[cfg(target_os = "none")]
+pub mod ram;
+#[cfg(target_os = "none")]
 pub mod stack;
 
 /// What a board layer needs to know about the device it runs.
@@ -172,8 +174,9 @@ fn image() -> (&'static [u8], &'static [u8]) {
 }
 
 /// The start-up self-tests both layers run before the channel starts: the image CRC against
-/// its seal, RAM (a dedicated 1 KiB area, March C-) and the link CRC's known answer. `false`
-/// when one fails; the caller stays in the safe state.
+/// its seal, the RAM test's verdict (March C- over all RAM, run before RAM was initialised:
+/// [`ram`]) and the link CRC's known answer. `false` when one fails; the caller stays in the
+/// safe state.
 #[cfg(target_os = "none")]
 pub fn self_tests() -> bool {
     use dual_channel::selftest;
@@ -189,12 +192,11 @@ pub fn self_tests() -> bool {
             return false;
         }
     }
-    static mut AREA: [u32; 256] = [0; 256];
-    // SAFETY: this is the only access to `AREA`, made once at start-up before any task runs;
-    // `self_tests` is called once per boot by the board layer.
-    let area = unsafe { &mut *core::ptr::addr_of_mut!(AREA) };
-    match selftest::march(area.as_mut_slice()) {
-        Ok(()) => defmt::info!("self-test: RAM (1 KiB, March C-) passed"),
+    match ram::verdict() {
+        Ok(bytes) => defmt::info!(
+            "self-test: RAM (March C-, {=usize} bytes, before start-up) passed",
+            bytes
+        ),
         Err(fault) => {
             defmt::error!("self-test: RAM failed {}", fault);
             return false;
