@@ -246,17 +246,16 @@ impl Control {
         }
     }
 
-    /// Reads status lines until `until` holds for the latest statuses (returns the hub time
-    /// of the line that made it hold) or `patience` runs out (`None`).
+    /// Reads status lines until one arrives after which `until` holds for the latest statuses
+    /// (returns that line's hub time) or `patience` runs out (`None`). A condition that held
+    /// already before the call is not enough: the time returned is always that of a report
+    /// received during the wait, so a latency measured with it is never of an older report.
     pub fn wait_for(
         &mut self,
         patience: Duration,
         mut until: impl FnMut(&HashMap<String, (f64, Status)>) -> bool,
     ) -> io::Result<Option<f64>> {
         let give_up = Instant::now() + patience;
-        if until(&self.latest) {
-            return Ok(self.history.last().map(|(_, t, _)| *t));
-        }
         loop {
             let left = give_up.saturating_duration_since(Instant::now());
             if left.is_zero() {

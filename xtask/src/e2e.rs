@@ -219,10 +219,10 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     let mut network = Network::start(root)?;
     println!("\n## End-to-end tests on the emulated network");
     let outcome = run_all(&mut network);
-    let stall = network.longest_stall_ms();
-    let link_gap = network.longest_link_gap_ms();
-    let busy = network.longest_busy_ms();
-    let stack = network.stack_used();
+    let stall = network.worst(|s| s.longest_stall_ms);
+    let link_gap = network.worst(|s| s.longest_link_gap_ms);
+    let busy = network.worst(|s| s.longest_busy_ms);
+    let stack = network.worst(|s| s.stack_used);
     let dir = network.dir().to_path_buf();
     let _ = network.stop()?;
     if let Ok(results) = &outcome {

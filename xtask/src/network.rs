@@ -330,42 +330,13 @@ impl Network {
         table(&self.control.latest)
     }
 
-    /// The longest gap between two link receptions any channel reported, in milliseconds.
-    pub fn longest_link_gap_ms(&self) -> u16 {
+    /// The largest value of one of the channels' measured figures (`|s| s.stack_used`, the
+    /// longest stall, link gap or loop wake-up) over every channel's latest report.
+    pub fn worst(&self, figure: fn(&Status) -> u16) -> u16 {
         self.control
             .latest
             .values()
-            .map(|(_, s)| s.longest_link_gap_ms)
-            .max()
-            .unwrap_or(0)
-    }
-
-    /// The longest time any channel's loop spent on one wake-up, in milliseconds.
-    pub fn longest_busy_ms(&self) -> u16 {
-        self.control
-            .latest
-            .values()
-            .map(|(_, s)| s.longest_busy_ms)
-            .max()
-            .unwrap_or(0)
-    }
-
-    /// The deepest stack any channel reported, in bytes.
-    pub fn stack_used(&self) -> u16 {
-        self.control
-            .latest
-            .values()
-            .map(|(_, s)| s.stack_used)
-            .max()
-            .unwrap_or(0)
-    }
-
-    /// The longest stall any emulated MCU reported, in milliseconds.
-    pub fn longest_stall_ms(&self) -> u16 {
-        self.control
-            .latest
-            .values()
-            .map(|(_, s)| s.longest_stall_ms)
+            .map(|(_, status)| figure(status))
             .max()
             .unwrap_or(0)
     }

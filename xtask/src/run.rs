@@ -254,7 +254,7 @@ pub fn task(
 
 fn summary(network: Network, seen: &Observed, outcome: Result<()>) -> Result<()> {
     let latest = network.control.latest.clone();
-    let stall = network.longest_stall_ms();
+    let stall = network.worst(|s| s.longest_stall_ms);
     let dir = network.dir().to_path_buf();
     let faults = network.stop()?;
     println!("\n## Summary\n{}", network::table(&latest));
