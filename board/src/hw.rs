@@ -136,9 +136,14 @@ impl Flash for ParameterFlash<'_> {
 
     fn erase(&mut self, slot: Slot) -> Result<(), StorageError> {
         let from = SLOT_OFFSETS[slot as usize];
-        self.flash
-            .blocking_erase(from, from + SLOT_LEN)
-            .map_err(|_| StorageError::Medium)
+        let window = EraseWindow::open().ok_or(StorageError::Medium)?;
+        let erased = self.flash.blocking_erase(from, from + SLOT_LEN);
+        if window.close().is_none() {
+            // The loop's watchdog is not back: stop feeding it, so the MCU resets (at most
+            // the wide window later) and starts again with it configured.
+            halt_safe("watchdog window not restored after a flash erase");
+        }
+        erased.map_err(|_| StorageError::Medium)
     }
 
     fn write(&mut self, slot: Slot, offset: usize, data: &[u8]) -> Result<(), StorageError> {
@@ -162,6 +167,65 @@ impl Flash for ParameterFlash<'_> {
             word_at += 4;
         }
         Ok(())
+    }
+}
+
+/// The independent watchdog widened for one sector erase.
+///
+/// Erasing a 128 KiB sector holds the CPU for up to 2 s (STM32F405 datasheet, t_ERASE128KB at
+/// x32 parallelism), a hundred times the loop's watchdog time, so an erase would reset the MCU
+/// in the middle of every store. Stores happen only outside Operational (0x1010 and 0x1011
+/// are refused there), with the output low; for the erase alone the watchdog is set to
+/// /64 and 4095 counts: 8.2 s at the LSI's nominal 32 kHz and still 5.6 s at its fastest
+/// (47 kHz), then put back to the loop's window exactly as it was.
+#[must_use = "the watchdog stays wide until the window is closed"]
+struct EraseWindow {
+    prescaler: embassy_stm32::pac::iwdg::vals::Pr,
+    reload: u16,
+}
+
+impl EraseWindow {
+    /// Spins for the watchdog's register update; `None` when it never completes (the LSI
+    /// has stopped).
+    fn updated() -> Option<()> {
+        let iwdg = embassy_stm32::pac::IWDG;
+        // An update takes at most 5 LSI periods (RM0090 21.3.6), microseconds at 168 MHz:
+        // far fewer than these iterations.
+        for _ in 0..100_000 {
+            let status = iwdg.sr().read();
+            if !status.pvu() && !status.rvu() {
+                return Some(());
+            }
+        }
+        None
+    }
+
+    fn set(prescaler: embassy_stm32::pac::iwdg::vals::Pr, reload: u16) -> Option<()> {
+        use embassy_stm32::pac::iwdg::vals::Key;
+        let iwdg = embassy_stm32::pac::IWDG;
+        Self::updated()?;
+        iwdg.kr().write(|w| w.set_key(Key::ENABLE));
+        iwdg.pr().write(|w| w.set_pr(prescaler));
+        iwdg.rlr().write(|w| w.set_rl(reload));
+        // The counter takes the new reload value only once the update is through.
+        Self::updated()?;
+        iwdg.kr().write(|w| w.set_key(Key::RESET));
+        Some(())
+    }
+
+    fn open() -> Option<EraseWindow> {
+        let iwdg = embassy_stm32::pac::IWDG;
+        Self::updated()?;
+        let window = EraseWindow {
+            prescaler: iwdg.pr().read().pr(),
+            reload: iwdg.rlr().read().rl(),
+        };
+        Self::set(embassy_stm32::pac::iwdg::vals::Pr::DIVIDE_BY64, 0x0FFF)?;
+        Some(window)
+    }
+
+    fn close(self) -> Option<()> {
+        Self::set(self.prescaler, self.reload)
     }
 }
 

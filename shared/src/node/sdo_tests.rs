@@ -221,7 +221,8 @@ fn sink_clear(sink: &mut Recorder) {
 }
 
 /// EN 50325-5 8.2.2: in Operational, every write to a safety object is refused with
-/// 0800 0022h, over the bus, and changes nothing.
+/// 0800 0022h, over the bus, and changes nothing; so are store (0x1010) and restore (0x1011),
+/// whose erase would stall the channel's loop.
 #[test]
 fn en50325_5_8_2_2_safety_objects_are_read_only_in_operational_over_the_bus() {
     let (mut node, mut sink) = fresh(33);
@@ -229,11 +230,14 @@ fn en50325_5_8_2_2_safety_objects_are_read_only_in_operational_over_the_bus() {
     nmt(&mut node, &mut sink, NmtCommand::Start);
     assert_eq!(node.nmt_state(), NmtState::Operational);
     let before = node.safety_config().clone();
+    let untouched = node.flash().clone().into_inner();
     for (index, sub, data) in [
         (0x1301u16, 2u8, &[100u8, 0][..]),
         (0x1381, 0, &[0]),
         (0x13FE, 0, &[0]),
         (0x13FF, 1, &[0, 0]),
+        (0x1010, 1, b"save"),
+        (0x1011, 1, b"load"),
     ] {
         assert_eq!(
             abort_of(write(&mut node, &mut sink, index, sub, data)),
@@ -242,6 +246,11 @@ fn en50325_5_8_2_2_safety_objects_are_read_only_in_operational_over_the_bus() {
         );
     }
     assert_eq!(node.safety_config(), &before);
+    assert_eq!(
+        node.flash().clone().into_inner(),
+        untouched,
+        "nothing was written"
+    );
 }
 
 /// CiA 301 7.5.2.13: a stored configuration survives a reset and brings the node back to
