@@ -3,6 +3,7 @@
 //! Reference wiring (both MCUs alike): CAN1 RX PB8 / TX PB9 to the shared transceiver, the
 //! link on USART3 TX PB10 / RX PB11 (crossed to the other MCU), the channel's safety input on
 //! PC0 (its own contact, closed = 1), its safety output on PC1 (its own relay, 1 = enabled),
+//! the node-ID switches on PC2 (bit 0) to PC8 (bit 6), closed = 1, read at start-up,
 //! 8 MHz HSE crystal.
 //!
 //! One task owns the channel runtime and wakes for whatever comes first: a CAN frame, link
@@ -10,16 +11,17 @@
 //! between the bxCAN and static channels, and drain the link transmit pipe into the USART. The
 //! independent watchdog is fed by the runtime loop only.
 
+use dual_channel::can_loopback::{LoopbackCheck, LoopbackFault};
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either4, select4};
-use embassy_stm32::can::filter::Mask32;
+use embassy_stm32::can::filter::{ListEntry32, Mask32};
 use embassy_stm32::can::{
     Can, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler, StandardId,
     TxInterruptHandler,
 };
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
-use embassy_stm32::peripherals::{CAN1, USART3};
+use embassy_stm32::peripherals::{CAN1, IWDG, USART3};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
@@ -266,11 +268,89 @@ impl Io for BoardIo<'_, '_> {
     }
 }
 
+/// How long a loop-back burst may take to come back: three frames take under 1 ms at
+/// [`BIT_RATE`].
+const LOOPBACK_WAIT: embassy_time::Duration = embassy_time::Duration::from_millis(5);
+/// How long the test goes on listening after a burst is back, for frames that should not come.
+const LOOPBACK_SETTLE: embassy_time::Duration = embassy_time::Duration::from_millis(1);
+
+/// CiA 304 9.5: the controller's message buffers and filters, tested in silent loop-back mode
+/// before it joins the bus (plan and verdict: [`dual_channel::can_loopback`]). Leaves the
+/// controller in initialisation mode, out of loop-back, for [`can_task`] to configure.
+async fn loopback_test(
+    can: &mut Can<'_>,
+    watchdog: &mut IndependentWatchdog<'_, IWDG>,
+) -> Result<(), LoopbackFault> {
+    use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1, PLAN};
+    // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the
+    // test as missing.
+    let listed = |ids: [u16; 2]| {
+        ids.map(|id| {
+            ListEntry32::data_frames_with_id(StandardId::new(id).unwrap_or(StandardId::ZERO))
+        })
+    };
+    can.modify_config().set_loopback(true).set_silent(true);
+    can.modify_filters()
+        .clear()
+        .enable_bank(0, Fifo::Fifo0, listed(ACCEPT_FIFO0))
+        .enable_bank(1, Fifo::Fifo1, listed(ACCEPT_FIFO1));
+    // In queue order, so that a burst fills mailboxes 0, 1 and 2 one after the other.
+    can.set_tx_fifo_scheduling(true);
+    can.enable().await;
+
+    let mut check = LoopbackCheck::new();
+    let mut index = 0;
+    for (number, burst) in PLAN.iter().enumerate() {
+        // A burst takes at most LOOPBACK_WAIT + LOOPBACK_SETTLE, well inside the watchdog's time.
+        watchdog.pet();
+        check.start_burst(number);
+        for plan in burst.iter() {
+            let queued = to_bxcan(&plan.frame())
+                .and_then(|frame| can.try_write(&frame).ok())
+                .map(|status| status.mailbox() as u8);
+            check.on_queued(index, queued);
+            index += 1;
+        }
+        let mut until = embassy_time::Instant::now() + LOOPBACK_WAIT;
+        let mut settling = false;
+        loop {
+            if !settling && check.burst_complete(number) {
+                settling = true;
+                until = until.min(embassy_time::Instant::now() + LOOPBACK_SETTLE);
+            }
+            match embassy_time::with_deadline(until, can.read()).await {
+                Ok(Ok(envelope)) => match from_bxcan(&envelope.frame) {
+                    Some(frame) => check.on_received(&frame),
+                    None => {
+                        check.on_unreadable(raw_id(&envelope.frame), envelope.frame.header().len())
+                    }
+                },
+                Ok(Err(_)) => check.on_bus_error(),
+                Err(_) => break,
+            }
+        }
+    }
+    can.set_tx_fifo_scheduling(false);
+    // Out of loop-back; dropping the configuration proxy leaves initialisation mode, and
+    // `can_task` takes the controller onto the bus with its own filters.
+    can.modify_config().set_loopback(false).set_silent(false);
+    check.verdict()
+}
+
+/// A received frame's identifier as far as it fits (extended identifiers cut to 16 bits), for
+/// the report of a frame that is not CANopen's.
+fn raw_id(frame: &Frame) -> u16 {
+    match frame.id() {
+        embassy_stm32::can::Id::Standard(id) => id.as_raw(),
+        embassy_stm32::can::Id::Extended(id) => id.as_raw() as u16,
+    }
+}
+
 #[embassy_executor::task]
 async fn can_task(mut can: Can<'static>) {
     can.modify_filters()
+        .clear()
         .enable_bank(0, Fifo::Fifo0, Mask32::accept_all());
-    can.set_bitrate(BIT_RATE);
     can.enable().await;
     let (mut tx, mut rx) = can.split();
     loop {
@@ -305,16 +385,21 @@ async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
     }
 }
 
-/// A standard data or remote frame from the bxCAN; extended frames are not CANopen's.
+/// A standard data or remote frame from the bxCAN. Extended frames are not CANopen's, and
+/// neither is a length code over 8 (ISO 11898-1 allows 9 to 15 for 8 bytes; CANopen frames
+/// never carry them): both are dropped, and the consumers' timers catch a frame lost so.
+/// The length is checked before the data is touched: embassy-stm32's `Frame::data` would
+/// panic on a length over 8.
 fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
     let embassy_stm32::can::Id::Standard(id) = frame.id() else {
         return None;
     };
     let id = CanId::new(id.as_raw()).ok()?;
+    let len = frame.header().len();
     if frame.header().rtr() {
-        CanFrame::remote(id, frame.header().len()).ok()
+        CanFrame::remote(id, len).ok()
     } else {
-        CanFrame::new(id, frame.data()).ok()
+        CanFrame::new(id, frame.raw_data().get(..usize::from(len))?).ok()
     }
 }
 
@@ -337,7 +422,44 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     let mut output = Output::new(p.PC1, Level::Low, Speed::Low);
     let input = Input::new(p.PC0, Pull::Down);
 
-    let can = Can::new(p.CAN1, p.PB8, p.PB9, Irqs);
+    let switches = [
+        Input::new(p.PC2, Pull::Down),
+        Input::new(p.PC3, Pull::Down),
+        Input::new(p.PC4, Pull::Down),
+        Input::new(p.PC5, Pull::Down),
+        Input::new(p.PC6, Pull::Down),
+        Input::new(p.PC7, Pull::Down),
+        Input::new(p.PC8, Pull::Down),
+    ];
+    let read_switches = || {
+        switches
+            .iter()
+            .enumerate()
+            .fold(0u8, |id, (bit, pin)| id | (u8::from(pin.is_high()) << bit))
+    };
+    let first = read_switches();
+    Timer::after_millis(1).await;
+    let node_id = match crate::node_id_from_switches(first, read_switches()) {
+        Ok(id) => {
+            defmt::info!("node-ID {=u8} from the switches", id.raw());
+            id
+        }
+        Err(fault) => {
+            defmt::error!("node-ID switches refused: {}", fault);
+            halt_safe("no valid node-ID");
+        }
+    };
+    drop(switches);
+
+    let mut can = Can::new(p.CAN1, p.PB8, p.PB9, Irqs);
+    can.set_bitrate(BIT_RATE);
+    match loopback_test(&mut can, &mut watchdog).await {
+        Ok(()) => defmt::info!("self-test: CAN loop-back (3 mailboxes, 2 FIFOs, filters) passed"),
+        Err(fault) => {
+            defmt::error!("self-test: CAN loop-back failed {}", fault);
+            halt_safe("CAN controller self-test failed");
+        }
+    }
     static LINK_TX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     static LINK_RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     let mut link_config = usart::Config::default();
@@ -364,7 +486,7 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     let parameters = ParameterFlash {
         flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
     };
-    let config = (device.describe)(device.default_id);
+    let config = (device.describe)(node_id);
     let mut runtime = match Runtime::new(config, parameters, role, now(), LINK_PERIOD) {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),

@@ -28,7 +28,8 @@ pub mod stack;
 pub struct Device {
     /// The device description for a node-ID.
     pub describe: fn(NodeId) -> NodeConfig,
-    /// The node-ID when the board has none of its own (the hardware image's build setting).
+    /// The node-ID when the emulated run is given none (`SAFETY_NODE_ID` at build time, default
+    /// 1); the hardware layer reads its switches instead ([`node_id_from_switches`]).
     pub default_id: NodeId,
     /// The channel's safety input objects.
     pub inputs: InputObjects,
@@ -43,7 +44,7 @@ static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
 
 impl Device {
     /// The demo device (`dual_channel::device`) named `describe` gives, with the node-ID the
-    /// image was built for (`SAFETY_NODE_ID`, default 1; a real device reads its switches).
+    /// image was built for (`SAFETY_NODE_ID`, default 1) for an emulated run without one.
     pub fn built(describe: fn(NodeId) -> NodeConfig) -> Result<Device, u8> {
         let raw = option_env!("SAFETY_NODE_ID")
             .and_then(|text| text.parse::<u8>().ok())
@@ -57,6 +58,35 @@ impl Device {
             },
         })
     }
+}
+
+/// Why the node-ID switches were not accepted: the node stays in the safe state, silent on
+/// the bus, and says why in its log.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum SwitchFault {
+    /// Two readings 1 ms apart differ (a switch between positions, or a broken contact).
+    Unsettled {
+        /// The first reading.
+        first: u8,
+        /// The second reading.
+        second: u8,
+    },
+    /// The reading is not a node-ID (CiA 301 7.5.2: 1 to 127): all switches open.
+    Invalid(u8),
+}
+
+/// The node-ID on the board's seven switches (bit 0 first, closed = 1), from two readings
+/// taken 1 ms apart at start-up; a change later takes effect at the next reset, as CiA 301
+/// has it for node-IDs. Readings that differ, or 0, are refused. Both channels read the
+/// switches; channels that read different IDs cannot both follow the tool's SDO requests, so
+/// their signatures differ and the link's signature cross-check keeps the node from
+/// Operational.
+pub fn node_id_from_switches(first: u8, second: u8) -> Result<NodeId, SwitchFault> {
+    if first != second {
+        return Err(SwitchFault::Unsettled { first, second });
+    }
+    NodeId::new(first).map_err(|_| SwitchFault::Invalid(first))
 }
 
 /// The arguments of an emulated run (QEMU semihosting command line, words separated by
@@ -109,6 +139,25 @@ pub fn parse_arguments(line: &[u8]) -> Arguments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cia301_7_5_2_node_id_from_switches() {
+        assert_eq!(node_id_from_switches(33, 33).map(NodeId::raw), Ok(33));
+        assert_eq!(node_id_from_switches(127, 127).map(NodeId::raw), Ok(127));
+        assert_eq!(node_id_from_switches(1, 1).map(NodeId::raw), Ok(1));
+        assert_eq!(node_id_from_switches(0, 0), Err(SwitchFault::Invalid(0)));
+        assert_eq!(
+            node_id_from_switches(128, 128),
+            Err(SwitchFault::Invalid(128))
+        );
+        assert_eq!(
+            node_id_from_switches(33, 32),
+            Err(SwitchFault::Unsettled {
+                first: 33,
+                second: 32
+            })
+        );
+    }
 
     #[test]
     fn emulated_run_arguments() {
