@@ -31,11 +31,12 @@ use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
-use shared::canopen::storage::{Flash, Slot, StorageError};
-use shared::{CanFrame, CanId, Duration, Instant};
+use shared::canopen::storage::StorageError;
+use shared::{CanFrame, Duration, Instant};
 use static_cell::StaticCell;
 
 use crate::Device;
+use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 
 bind_interrupts!(struct Irqs {
     CAN1_RX0 => Rx0InterruptHandler<CAN1>;
@@ -97,49 +98,22 @@ fn clocks() -> Config {
     config
 }
 
-/// The stored parameters in flash sectors 10 and 11 (slots A and B, `memory.x` region
-/// PARAMETERS), through embassy-stm32's flash driver.
-///
-/// The driver programs whole 32-bit words; the storage layer writes at any byte offset. A
-/// write therefore reads each word it touches, clears the new bytes' zero bits into it and
-/// programs it again: the STM32F4 flash has no ECC and allows programming more zero bits into
-/// a word, and the storage layer only ever writes erased bytes (its records are checked by
-/// CRC-32 on the way back, so a word the hardware refused shows as a bad record).
-pub struct ParameterFlash<'d> {
+/// embassy-stm32's blocking flash driver as the word-programmed medium of the parameter
+/// slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`].
+pub struct Stm32Sectors<'d> {
     flash: embassy_stm32::flash::Flash<'d, embassy_stm32::flash::Blocking>,
 }
 
-/// Flash offsets (from 0x0800_0000) of the two slots, and their length: sectors 10 and 11.
-const SLOT_OFFSETS: [u32; 2] = [0x000C_0000, 0x000E_0000];
-const SLOT_LEN: u32 = 0x0002_0000;
-
-impl ParameterFlash<'_> {
-    fn base(slot: Slot, offset: usize, len: usize) -> Result<u32, StorageError> {
-        let end = offset.checked_add(len).ok_or(StorageError::OutOfBounds)?;
-        if end > SLOT_LEN as usize {
-            return Err(StorageError::OutOfBounds);
-        }
-        // `offset` < SLOT_LEN, so it fits.
-        Ok(SLOT_OFFSETS[slot as usize] + offset as u32)
-    }
-}
-
-impl Flash for ParameterFlash<'_> {
-    fn slot_len(&self) -> usize {
-        SLOT_LEN as usize
-    }
-
-    fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
-        let at = Self::base(slot, offset, buf.len())?;
+impl Sectors for Stm32Sectors<'_> {
+    fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError> {
         self.flash
             .blocking_read(at, buf)
             .map_err(|_| StorageError::Medium)
     }
 
-    fn erase(&mut self, slot: Slot) -> Result<(), StorageError> {
-        let from = SLOT_OFFSETS[slot as usize];
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), StorageError> {
         let window = EraseWindow::open().ok_or(StorageError::Medium)?;
-        let erased = self.flash.blocking_erase(from, from + SLOT_LEN);
+        let erased = self.flash.blocking_erase(from, to);
         if window.close().is_none() {
             // The loop's watchdog is not back: stop feeding it, so the MCU resets (at most
             // the wide window later) and starts again with it configured.
@@ -148,27 +122,10 @@ impl Flash for ParameterFlash<'_> {
         erased.map_err(|_| StorageError::Medium)
     }
 
-    fn write(&mut self, slot: Slot, offset: usize, data: &[u8]) -> Result<(), StorageError> {
-        let start = Self::base(slot, offset, data.len())?;
-        let end = start + data.len() as u32;
-        let mut word_at = start & !3;
-        while word_at < end {
-            let mut word = [0u8; 4];
-            self.flash
-                .blocking_read(word_at, &mut word)
-                .map_err(|_| StorageError::Medium)?;
-            for (i, byte) in word.iter_mut().enumerate() {
-                let address = word_at + i as u32;
-                if (start..end).contains(&address) {
-                    *byte &= data[(address - start) as usize];
-                }
-            }
-            self.flash
-                .blocking_write(word_at, &word)
-                .map_err(|_| StorageError::Medium)?;
-            word_at += 4;
-        }
-        Ok(())
+    fn program(&mut self, at: u32, word: [u8; 4]) -> Result<(), StorageError> {
+        self.flash
+            .blocking_write(at, &word)
+            .map_err(|_| StorageError::Medium)
     }
 }
 
@@ -385,22 +342,21 @@ async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
     }
 }
 
-/// A standard data or remote frame from the bxCAN. Extended frames are not CANopen's, and
-/// neither is a length code over 8 (ISO 11898-1 allows 9 to 15 for 8 bytes; CANopen frames
-/// never carry them): both are dropped, and the consumers' timers catch a frame lost so.
-/// The length is checked before the data is touched: embassy-stm32's `Frame::data` would
-/// panic on a length over 8.
+/// A standard data or remote frame from the bxCAN ([`crate::received_frame`] has the rules).
+/// The length is taken from the header and the data from the raw registers: embassy-stm32's
+/// `Frame::data` would panic on a length code over 8.
 fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
     let embassy_stm32::can::Id::Standard(id) = frame.id() else {
         return None;
     };
-    let id = CanId::new(id.as_raw()).ok()?;
-    let len = frame.header().len();
-    if frame.header().rtr() {
-        CanFrame::remote(id, len).ok()
-    } else {
-        CanFrame::new(id, frame.raw_data().get(..usize::from(len))?).ok()
-    }
+    let mut data = [0u8; 8];
+    data.copy_from_slice(frame.raw_data().get(..8)?);
+    crate::received_frame(
+        id.as_raw(),
+        frame.header().rtr(),
+        frame.header().len(),
+        &data,
+    )
 }
 
 fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
@@ -483,9 +439,12 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     if !crate::self_tests() {
         halt_safe("start-up self-test failed");
     }
-    let parameters = ParameterFlash {
-        flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
-    };
+    let parameters = SectorSlots::new(
+        Stm32Sectors {
+            flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
+        },
+        STM32F405_SLOTS,
+    );
     let config = (device.describe)(node_id);
     let mut runtime = match Runtime::new(config, parameters, role, now(), LINK_PERIOD) {
         Ok(runtime) => runtime,

@@ -7,15 +7,19 @@
 //!
 //! Both run a channel [`Runtime`](dual_channel::runtime::Runtime); the logic it drives is
 //! host-tested in `dual-channel`, `channel-a` and `channel-b`. On the host this crate holds
-//! only the types both layers share.
+//! the types both layers share and what the hardware layer needs that is not hardware:
+//! [`parameter_flash`] (the parameter slots on word-programmed flash), the node-ID switches'
+//! decoding and the emulated run's arguments, all host-tested.
 #![no_std]
 
 use shared::canopen::NodeId;
 use shared::canopen::od::Address;
 use shared::node::NodeConfig;
+use shared::{CanFrame, CanId};
 
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;
+pub mod parameter_flash;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 pub mod qemu;
 #[cfg(target_os = "none")]
@@ -57,6 +61,19 @@ impl Device {
                 inverted: dual_channel::device::INPUT_INVERTED,
             },
         })
+    }
+}
+
+/// A received standard frame as the CAN controller reports it (identifier, remote flag,
+/// length code, the eight data registers), or `None` when it is not CANopen's: a length code
+/// over 8 (ISO 11898-1 allows 9 to 15 for 8 bytes; CANopen frames never carry them) is
+/// dropped like an extended frame, and the consumers' timers catch a frame lost so.
+pub fn received_frame(id: u16, remote: bool, dlc: u8, data: &[u8; 8]) -> Option<CanFrame> {
+    let id = CanId::new(id).ok()?;
+    if remote {
+        CanFrame::remote(id, dlc).ok()
+    } else {
+        CanFrame::new(id, data.get(..usize::from(dlc))?).ok()
     }
 }
 
@@ -139,6 +156,24 @@ pub fn parse_arguments(line: &[u8]) -> Arguments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// CiA 301 7.2.2 / ISO 11898-1: every length code a controller can report, for data and
+    /// remote frames; none panics, and only 0 to 8 make a frame.
+    #[test]
+    fn every_received_length_code_is_handled() {
+        let data = [1, 2, 3, 4, 5, 6, 7, 8];
+        for dlc in 0..=15u8 {
+            let frame = received_frame(0x181, false, dlc, &data);
+            let remote = received_frame(0x181, true, dlc, &data);
+            if dlc <= 8 {
+                assert_eq!(frame.unwrap().data(), &data[..usize::from(dlc)]);
+                assert!(remote.is_some_and(|r| r.is_remote() && r.dlc() == dlc));
+            } else {
+                assert!(frame.is_none() && remote.is_none(), "length {dlc}");
+            }
+        }
+        assert!(received_frame(0x800, false, 1, &data).is_none());
+    }
 
     #[test]
     fn cia301_7_5_2_node_id_from_switches() {
