@@ -11,7 +11,7 @@
 //! between the bxCAN and static channels, and drain the link transmit pipe into the USART. The
 //! independent watchdog is fed by the runtime loop only.
 
-use dual_channel::can_loopback::{LoopbackCheck, LoopbackFault};
+use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either4, select4};
@@ -225,20 +225,45 @@ impl Io for BoardIo<'_, '_> {
     }
 }
 
-/// How long a loop-back burst may take to come back: three frames take under 1 ms at
-/// [`BIT_RATE`].
-const LOOPBACK_WAIT: embassy_time::Duration = embassy_time::Duration::from_millis(5);
-/// How long the test goes on listening after a burst is back, for frames that should not come.
-const LOOPBACK_SETTLE: embassy_time::Duration = embassy_time::Duration::from_millis(1);
+/// The bxCAN in silent loop-back mode, for [`dual_channel::can_loopback::run`].
+struct Loopback<'a, 'd> {
+    can: &'a mut Can<'d>,
+}
+
+impl LoopbackController for Loopback<'_, '_> {
+    fn now(&self) -> Instant {
+        now()
+    }
+
+    fn queue(&mut self, frame: &CanFrame) -> Option<u8> {
+        let frame = to_bxcan(frame)?;
+        let status = self.can.try_write(&frame).ok()?;
+        Some(status.mailbox() as u8)
+    }
+
+    async fn receive(&mut self, until: Instant) -> Received {
+        match embassy_time::with_deadline(embassy_instant(until), self.can.read()).await {
+            Ok(Ok(envelope)) => match from_bxcan(&envelope.frame) {
+                Some(frame) => Received::Frame(frame),
+                None => Received::Unreadable {
+                    id: raw_id(&envelope.frame),
+                    dlc: envelope.frame.header().len(),
+                },
+            },
+            Ok(Err(_)) => Received::BusError,
+            Err(_) => Received::Nothing,
+        }
+    }
+}
 
 /// CiA 304 9.5: the controller's message buffers and filters, tested in silent loop-back mode
-/// before it joins the bus (plan and verdict: [`dual_channel::can_loopback`]). Leaves the
-/// controller in initialisation mode, out of loop-back, for [`can_task`] to configure.
+/// before it joins the bus (plan, loop and verdict: [`dual_channel::can_loopback`]). Leaves
+/// the controller out of loop-back, for [`can_task`] to set its filters and enable it.
 async fn loopback_test(
     can: &mut Can<'_>,
     watchdog: &mut IndependentWatchdog<'_, IWDG>,
 ) -> Result<(), LoopbackFault> {
-    use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1, PLAN};
+    use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
     // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the
     // test as missing.
     let listed = |ids: [u16; 2]| {
@@ -254,44 +279,13 @@ async fn loopback_test(
     // In queue order, so that a burst fills mailboxes 0, 1 and 2 one after the other.
     can.set_tx_fifo_scheduling(true);
     can.enable().await;
-
-    let mut check = LoopbackCheck::new();
-    let mut index = 0;
-    for (number, burst) in PLAN.iter().enumerate() {
-        // A burst takes at most LOOPBACK_WAIT + LOOPBACK_SETTLE, well inside the watchdog's time.
-        watchdog.pet();
-        check.start_burst(number);
-        for plan in burst.iter() {
-            let queued = to_bxcan(&plan.frame())
-                .and_then(|frame| can.try_write(&frame).ok())
-                .map(|status| status.mailbox() as u8);
-            check.on_queued(index, queued);
-            index += 1;
-        }
-        let mut until = embassy_time::Instant::now() + LOOPBACK_WAIT;
-        let mut settling = false;
-        loop {
-            if !settling && check.burst_complete(number) {
-                settling = true;
-                until = until.min(embassy_time::Instant::now() + LOOPBACK_SETTLE);
-            }
-            match embassy_time::with_deadline(until, can.read()).await {
-                Ok(Ok(envelope)) => match from_bxcan(&envelope.frame) {
-                    Some(frame) => check.on_received(&frame),
-                    None => {
-                        check.on_unreadable(raw_id(&envelope.frame), envelope.frame.header().len())
-                    }
-                },
-                Ok(Err(_)) => check.on_bus_error(),
-                Err(_) => break,
-            }
-        }
-    }
+    // Each burst takes at most BURST_WAIT (5 ms), well inside the watchdog's time.
+    let verdict =
+        dual_channel::can_loopback::run(&mut Loopback { can: &mut *can }, || watchdog.pet()).await;
     can.set_tx_fifo_scheduling(false);
-    // Out of loop-back; dropping the configuration proxy leaves initialisation mode, and
-    // `can_task` takes the controller onto the bus with its own filters.
+    // Out of loop-back; dropping the configuration proxy leaves initialisation mode.
     can.modify_config().set_loopback(false).set_silent(false);
-    check.verdict()
+    verdict
 }
 
 /// A received frame's identifier as far as it fits (extended identifiers cut to 16 bits), for

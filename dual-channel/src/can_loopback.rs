@@ -23,7 +23,7 @@
 //! filter passes its identifiers and not those one bit away; nor are the filter registers'
 //! other bits covered.
 
-use shared::{CanFrame, CanId};
+use shared::{CanFrame, CanId, Duration, Instant};
 
 /// The identifiers receive FIFO 0's filter bank lists (complementary in all 11 bits).
 pub const ACCEPT_FIFO0: [u16; 2] = [0x555, 0x2AA];
@@ -251,9 +251,82 @@ impl LoopbackCheck {
     }
 }
 
+/// How long a burst may take to come back: three frames take under 1 ms at 500 kbit/s.
+pub const BURST_WAIT: Duration = Duration::from_millis(5);
+/// How long the test goes on listening once a burst is back, for frames that should not come
+/// (a doubled frame, a filter that leaks).
+pub const SETTLE: Duration = Duration::from_millis(1);
+
+/// What came out of the controller's receive side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Received {
+    /// A CANopen frame.
+    Frame(CanFrame),
+    /// A frame that is not CANopen's (extended identifier, length over 8), as received.
+    Unreadable {
+        /// Identifier, cut to 16 bits.
+        id: u16,
+        /// Length code.
+        dlc: u8,
+    },
+    /// The controller reported a bus error.
+    BusError,
+    /// Nothing came before the deadline.
+    Nothing,
+}
+
+/// The CAN controller in silent loop-back mode, with the two filter banks of [`ACCEPT_FIFO0`]
+/// and [`ACCEPT_FIFO1`] set: the hardware layer's side of the test.
+pub trait LoopbackController {
+    /// Now, on the board's clock.
+    fn now(&self) -> Instant;
+    /// Queues `frame` for transmission at once; the mailbox it took, or `None` when refused.
+    fn queue(&mut self, frame: &CanFrame) -> Option<u8>;
+    /// The next frame from either receive FIFO, or [`Received::Nothing`] at `until`.
+    #[allow(async_fn_in_trait)] // reason: the firmware's executor is single-threaded; no `Send` bound is wanted
+    async fn receive(&mut self, until: Instant) -> Received;
+}
+
+/// Runs the whole plan on `controller` (and calls `between_bursts` before each burst, for
+/// the watchdog): each burst queued back to back, then read back until every accepted frame of
+/// it is there and [`SETTLE`] more has passed, or [`BURST_WAIT`] is over.
+pub async fn run<C: LoopbackController>(
+    controller: &mut C,
+    mut between_bursts: impl FnMut(),
+) -> Result<(), LoopbackFault> {
+    let mut check = LoopbackCheck::new();
+    let mut index = 0;
+    for (number, burst) in PLAN.iter().enumerate() {
+        between_bursts();
+        check.start_burst(number);
+        for plan in burst.iter() {
+            let mailbox = controller.queue(&plan.frame());
+            check.on_queued(index, mailbox);
+            index += 1;
+        }
+        let mut until = controller.now() + BURST_WAIT;
+        let mut settling = false;
+        loop {
+            if !settling && check.burst_complete(number) {
+                settling = true;
+                until = until.min(controller.now() + SETTLE);
+            }
+            match controller.receive(until).await {
+                Received::Frame(frame) => check.on_received(&frame),
+                Received::Unreadable { id, dlc } => check.on_unreadable(id, dlc),
+                Received::BusError => check.on_bus_error(),
+                Received::Nothing => break,
+            }
+        }
+    }
+    check.verdict()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::cell::Cell;
+    use std::rc::Rc;
     use std::vec::Vec;
 
     /// Where a bit is stuck.
@@ -338,52 +411,123 @@ mod tests {
             })
         }
 
-        /// Runs the whole plan as the hardware layer does and returns the verdict.
+        /// What one frame becomes on its way through mailbox `mailbox`, the filters and a
+        /// FIFO: the FIFO it lands in and what the software reads, or `None` when filtered.
+        fn deliver(&self, mailbox: usize, plan: &CanFrame) -> Option<Received> {
+            let mut register = (plan.id().raw(), plan.dlc(), [0u8; 8]);
+            register.2[..usize::from(plan.dlc())].copy_from_slice(plan.data());
+            if let Some(stuck) = self.stuck_at(Place::Mailbox(mailbox)) {
+                register = apply(stuck, register);
+            }
+            let id = register.0;
+            let fifo = if ACCEPT_FIFO0.contains(&id) {
+                0
+            } else if ACCEPT_FIFO1.contains(&id) {
+                1
+            } else if self.filters_open {
+                usize::from(id & 1)
+            } else {
+                return None;
+            };
+            if fifo == 1 && self.fifo1_lost {
+                return None;
+            }
+            if let Some(stuck) = self.stuck_at(Place::Fifo(fifo)) {
+                register = apply(stuck, register);
+            }
+            let (id, dlc, data) = register;
+            // A length over 8 is not a CANopen frame.
+            Some(match data.get(..usize::from(dlc)) {
+                Some(data) => {
+                    Received::Frame(CanFrame::new(CanId::new(id).unwrap(), data).unwrap())
+                }
+                None => Received::Unreadable { id, dlc },
+            })
+        }
+
+        /// Runs the whole plan through [`run`], as the hardware layer does.
         fn run(self) -> Result<(), LoopbackFault> {
-            let mut check = LoopbackCheck::new();
-            let mut index = 0;
-            for (number, burst) in PLAN.iter().enumerate() {
-                check.start_burst(number);
-                for (slot, plan) in burst.iter().enumerate() {
-                    let mailbox = if self.one_mailbox { 0 } else { slot };
-                    check.on_queued(index, Some(mailbox as u8));
-                    index += 1;
-                    let mut register = (plan.id, plan.dlc, [0u8; 8]);
-                    register.2[..usize::from(plan.dlc)].fill(plan.fill);
-                    if let Some(stuck) = self.stuck_at(Place::Mailbox(mailbox)) {
-                        register = apply(stuck, register);
-                    }
-                    let (id, dlc, data) = register;
-                    let fifo = if ACCEPT_FIFO0.contains(&id) {
-                        0
-                    } else if ACCEPT_FIFO1.contains(&id) {
-                        1
-                    } else if self.filters_open {
-                        usize::from(id & 1)
-                    } else {
-                        continue;
-                    };
-                    if fifo == 1 && self.fifo1_lost {
-                        continue;
-                    }
-                    let mut register = (id, dlc, data);
-                    if let Some(stuck) = self.stuck_at(Place::Fifo(fifo)) {
-                        register = apply(stuck, register);
-                    }
-                    let (id, dlc, data) = register;
-                    // A length over 8 is not a CANopen frame.
-                    let Some(data) = data.get(..usize::from(dlc)) else {
-                        check.on_unreadable(id, dlc);
-                        continue;
-                    };
-                    let frame = CanFrame::new(CanId::new(id).unwrap(), data).unwrap();
-                    check.on_received(&frame);
-                    if self.doubled {
-                        check.on_received(&frame);
-                    }
+            let mut bus = Simulated::new(self);
+            let verdict = block_on(run(&mut bus, || {}));
+            assert_eq!(bus.queued, FRAMES, "every frame was queued");
+            verdict
+        }
+    }
+
+    /// Simulated time and the controller: frames leave one after the other, each `latency`
+    /// after the one before, and free their mailbox when they have come back; the lowest free
+    /// mailbox takes the next frame. An empty wait moves time to its deadline.
+    struct Simulated {
+        controller: Controller,
+        now: Rc<Cell<Instant>>,
+        latency: Duration,
+        /// When each mailbox is free again.
+        busy_until: [Instant; 3],
+        /// Frames that arrive, in time order.
+        pending: Vec<(Instant, Received)>,
+        queued: usize,
+    }
+
+    impl Simulated {
+        fn new(controller: Controller) -> Self {
+            Simulated {
+                controller,
+                now: Rc::new(Cell::new(Instant::from_millis(0))),
+                latency: Duration::from_micros(250),
+                busy_until: [Instant::from_millis(0); 3],
+                pending: Vec::new(),
+                queued: 0,
+            }
+        }
+    }
+
+    impl LoopbackController for Simulated {
+        fn now(&self) -> Instant {
+            self.now.get()
+        }
+
+        fn queue(&mut self, frame: &CanFrame) -> Option<u8> {
+            let now = self.now.get();
+            let free = (0..3).find(|&m| self.busy_until[m] <= now)?;
+            let mailbox = if self.controller.one_mailbox { 0 } else { free };
+            let leaves = self.busy_until.iter().copied().max().unwrap().max(now);
+            let at = leaves + self.latency;
+            self.busy_until[mailbox] = at;
+            self.queued += 1;
+            if let Some(received) = self.controller.deliver(mailbox, frame) {
+                self.pending.push((at, received));
+                if self.controller.doubled {
+                    self.pending.push((at + self.latency, received));
+                }
+                self.pending.sort_by_key(|(at, _)| *at);
+            }
+            Some(mailbox as u8)
+        }
+
+        async fn receive(&mut self, until: Instant) -> Received {
+            match self.pending.first().copied() {
+                Some((at, received)) if at <= until => {
+                    self.pending.remove(0);
+                    self.now.set(self.now.get().max(at));
+                    received
+                }
+                _ => {
+                    self.now.set(self.now.get().max(until));
+                    Received::Nothing
                 }
             }
-            check.verdict()
+        }
+    }
+
+    /// Polls a future that never waits on anything outside it (the simulated controller
+    /// answers at once) to its end.
+    fn block_on<F: core::future::Future>(future: F) -> F::Output {
+        let mut future = core::pin::pin!(future);
+        let mut context = core::task::Context::from_waker(core::task::Waker::noop());
+        loop {
+            if let core::task::Poll::Ready(output) = future.as_mut().poll(&mut context) {
+                return output;
+            }
         }
     }
 
@@ -463,6 +607,49 @@ mod tests {
         let mut errored = LoopbackCheck::new();
         errored.on_bus_error();
         assert_eq!(errored.verdict(), Err(LoopbackFault::BusError));
+    }
+
+    /// The watchdog is fed before every burst, and no burst keeps the test longer than
+    /// [`BURST_WAIT`]: a healthy run ends after about 1.75 ms per burst (three frames and
+    /// [`SETTLE`]), a controller too slow to answer within the wait fails.
+    #[test]
+    fn bursts_end_in_time_and_a_slow_controller_fails() {
+        for (latency_us, healthy) in [(250, true), (2_000, false)] {
+            let mut bus = Simulated::new(Controller::default());
+            bus.latency = Duration::from_micros(latency_us);
+            let clock = bus.now.clone();
+            let mut fed = Vec::new();
+            let verdict = block_on(run(&mut bus, || fed.push(clock.get())));
+            fed.push(clock.get());
+            assert_eq!(fed.len(), PLAN.len() + 1);
+            let longest = fed
+                .windows(2)
+                .map(|w| w[1].as_micros() - w[0].as_micros())
+                .max()
+                .unwrap();
+            assert!(
+                longest <= BURST_WAIT.as_micros(),
+                "a burst took {longest} µs"
+            );
+            if healthy {
+                assert_eq!(verdict, Ok(()));
+                assert!(
+                    clock.get() <= Instant::from_micros(6 * 1_750),
+                    "{:?}",
+                    clock.get()
+                );
+            } else {
+                // Frames still in flight when the wait ends: the next burst finds the
+                // mailboxes busy, or the frames are missing at the verdict.
+                assert!(
+                    matches!(
+                        verdict,
+                        Err(LoopbackFault::Refused(_) | LoopbackFault::Missing(_))
+                    ),
+                    "{verdict:?}"
+                );
+            }
+        }
     }
 
     #[test]
