@@ -96,9 +96,10 @@ pub enum SwitchFault {
 /// The node-ID on the board's seven switches (bit 0 first, closed = 1), from two readings
 /// taken 1 ms apart at start-up; a change later takes effect at the next reset, as CiA 301
 /// has it for node-IDs. Readings that differ, or 0, are refused. Both channels read the
-/// switches; channels that read different IDs cannot both follow the tool's SDO requests, so
-/// their signatures differ and the link's signature cross-check keeps the node from
-/// Operational.
+/// switches; when they read different IDs, channel B does not follow the tool's requests for
+/// channel A's node, keeps its unvalidated defaults and stays out of Operational, and the
+/// link's NMT cross-check puts both channels in the safe state (host test
+/// `channels_with_different_node_ids_never_leave_the_safe_state`).
 pub fn node_id_from_switches(first: u8, second: u8) -> Result<NodeId, SwitchFault> {
     if first != second {
         return Err(SwitchFault::Unsettled { first, second });

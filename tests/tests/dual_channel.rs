@@ -491,3 +491,55 @@ fn the_status_report_goes_out_on_change_and_every_period() {
         "only SRDO frames count"
     );
 }
+
+/// The two channels of node 33 read different node-IDs from their switches (33 and 34): the
+/// node never drives its outputs. Channel B does not follow the tool's requests for node 33,
+/// so it keeps unvalidated defaults and refuses Operational; channel A, Operational alone,
+/// sees the NMT states differ, and both channels go to the safe state.
+#[test]
+fn channels_with_different_node_ids_never_leave_the_safe_state() {
+    use channel_b::role::ChannelB;
+    use dual_channel::runtime::Runtime;
+    use shared::canopen::storage::RamFlash;
+    let mut net = DualNetwork::new(500_000, &[1, 33]);
+    net.node_mut(33).b = Runtime::new(
+        system_tests::network::device_config(34, "dual node, channel B"),
+        RamFlash::new(),
+        ChannelB::new(&[(0x6000, 1, 1)]).expect("valid inputs"),
+        Instant::ZERO,
+        system_tests::dual::LINK_PERIOD,
+    )
+    .expect("valid device");
+    // The tool configures node 33 as usual; only channel A answers it.
+    net.configure_and_start()
+        .expect("channel A answers the tool");
+    for _ in 0..2_000 {
+        net.run_for(Duration::from_millis(1));
+        let node = net.node(33);
+        assert_eq!(
+            (node.a.output(1), node.b.output(1)),
+            (0, 0),
+            "at {:?}",
+            net.now
+        );
+    }
+    let node = net.node(33);
+    assert!(!node.a.is_working() && !node.b.is_working());
+    // Each channel says why: B holds unvalidated defaults, A sees the NMT states differ.
+    let said = |side: Side, what: &dyn Fn(&ChannelEvent) -> bool| {
+        net.log
+            .iter()
+            .any(|(_, id, s, event)| *id == 33 && *s == side && what(event))
+    };
+    assert!(said(Side::B, &|e| matches!(
+        e,
+        ChannelEvent::Node(Event::ConfigurationRefused(fault))
+            if fault.error == shared::safety::config::ConfigError::NotDeclaredValid
+    )));
+    assert!(said(Side::A, &|e| matches!(
+        e,
+        ChannelEvent::Fault(ChannelFault::NmtMismatch)
+    )));
+    // Node 1 runs normally: the fault is node 33's alone.
+    assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
+}
