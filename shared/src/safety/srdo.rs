@@ -9,6 +9,11 @@
 //! ([`time::expired`]). A consumer checks its timers on every frame as well as when polled, so
 //! a frame that arrives after a deadline the caller has not yet polled for is still judged
 //! late.
+//!
+//! A consumer discards, without a fault, the two frames CAN produces on a healthy bus (see
+//! [`Discarded`]): an exact repeat of the pending plain frame and an inverted frame with no
+//! plain frame pending. Any other deviation from "plain, then its inverse within SRVT" is a
+//! fault.
 
 use super::config::ResolvedMapping;
 use super::types::SrdoNumber;
