@@ -3,8 +3,9 @@
 //! Random frames, time steps and faults go into a real node (node-ID 33, receive SRDO 1 on
 //! 0x141/0x142, SCT 50 ms, SRVT 20 ms, one mapped byte and its inverted copy) and into a small
 //! reference model written here from the standard's rules, independent of the crate's code.
-//! After every step the two must agree on whether the node is still working, and the node must
-//! never deliver data the model did not see arrive as a valid pair within SCT and SRVT.
+//! After every step the two must agree on whether the node is still working and on how many
+//! frames were discarded as CAN double receptions (ISO 11898-1), and the node must never
+//! deliver data the model did not see arrive as a valid pair within SCT and SRVT.
 
 use proptest::prelude::*;
 use shared::canopen::NodeId;
@@ -97,17 +98,33 @@ fn started() -> ModelNode {
     node
 }
 
+/// A frame's data field as it is on the bus: `dlc` bytes, the rest of the buffer 0.
+fn on_the_bus(dlc: u8, data: [u8; 8]) -> (u8, [u8; 8]) {
+    let mut field = data;
+    for (position, byte) in field.iter_mut().enumerate() {
+        if position >= usize::from(dlc) {
+            *byte = 0;
+        }
+    }
+    (dlc, field)
+}
+
 /// The reference model: the consumer rules, straight from the standard.
 #[derive(Debug, Default)]
 struct Model {
     failed: bool,
-    /// The plain byte waiting for its inverted frame, and when it arrived.
-    pending: Option<(u8, u64)>,
+    /// The plain frame waiting for its inverted frame (length and data field as on the bus),
+    /// and when it arrived.
+    pending: Option<((u8, [u8; 8]), u64)>,
     /// When the last valid pair completed (entering Operational counts, at t = 0).
     last_pair: u64,
     /// Data of the last valid pair (0 before any: the safe state).
     output: u8,
     pairs: u32,
+    /// Exact repeats of the pending plain frame, discarded (ISO 11898-1 double reception).
+    plain_repeated: u32,
+    /// Inverted frames with no plain frame pending, discarded.
+    inverted_without_plain: u32,
 }
 
 impl Model {
@@ -138,16 +155,22 @@ impl Model {
         self.pending = None;
     }
 
-    fn plain(&mut self, now: u64, dlc: u8, byte: u8) {
+    fn plain(&mut self, now: u64, dlc: u8, data: [u8; 8]) {
         self.timers(now);
         if self.failed {
             return;
         }
-        if dlc < 1 || self.pending.is_some() {
-            // Too short (7.1.3), or a second plain frame before the inverted one (CiA 304 9.5).
-            return self.fail();
+        let frame = on_the_bus(dlc, data);
+        match self.pending {
+            // The same frame again before its inverted frame: a double reception, discarded;
+            // SRVT keeps running from the first copy.
+            Some((pending, _)) if pending == frame => self.plain_repeated += 1,
+            // Another plain frame before the inverted one (CiA 304 9.5).
+            Some(_) => self.fail(),
+            // Too short (7.1.3).
+            None if dlc < 1 => self.fail(),
+            None => self.pending = Some((frame, now)),
         }
-        self.pending = Some((byte, now));
     }
 
     fn inverted(&mut self, now: u64, dlc: u8, byte: u8) {
@@ -156,13 +179,16 @@ impl Model {
             return;
         }
         match self.pending.take() {
-            Some((plain, _)) if dlc >= 1 && byte == !plain => {
-                self.output = plain;
+            Some(((_, plain), _)) if dlc >= 1 && byte == !plain[0] => {
+                self.output = plain[0];
                 self.last_pair = now;
                 self.pairs += 1;
             }
-            // Too short, not inverted, or no plain frame pending.
-            _ => self.fail(),
+            // No plain frame pending: a double reception of the last inverted frame, or
+            // monitoring started after its plain frame; discarded, SCT keeps running.
+            None => self.inverted_without_plain += 1,
+            // Too short, or not inverted.
+            Some(_) => self.fail(),
         }
     }
 }
@@ -179,6 +205,12 @@ enum Step {
         data: [u8; 8],
         correct: bool,
     },
+    /// The last plain (or inverted) frame sent, once more: a CAN double reception.
+    Repeat {
+        inverted: bool,
+    },
+    /// The last plain frame's data, one byte longer (a 0 appended): no repeat.
+    Longer,
     Remote {
         inverted: bool,
     },
@@ -200,6 +232,8 @@ fn step() -> impl Strategy<Value = (u64, Step)> {
         4 => (0u8..=8, any::<[u8; 8]>()).prop_map(|(dlc, data)| Step::Plain { dlc, data }),
         4 => (0u8..=8, any::<[u8; 8]>(), prop::bool::weighted(0.85))
             .prop_map(|(dlc, data, correct)| Step::Inverted { dlc, data, correct }),
+        2 => any::<bool>().prop_map(|inverted| Step::Repeat { inverted }),
+        1 => Just(Step::Longer),
         1 => any::<bool>().prop_map(|inverted| Step::Remote { inverted }),
         1 => Just(Step::Unrelated),
         2 => Just(Step::Poll),
@@ -217,6 +251,20 @@ fn mostly_valid() -> impl Strategy<Value = Vec<(u64, Step)>> {
                 data[0] = byte;
                 vec![(gap, Step::Plain { dlc: 1, data }), (300, Step::Inverted { dlc: 1, data: [0; 8], correct: true })]
             }),
+            // A valid pair with one of its frames received twice (ISO 11898-1), or with the
+            // consumer having missed the plain frame.
+            2 => (20_000u64..30_000, any::<u8>(), 0u8..3).prop_map(|(gap, byte, which)| {
+                let mut data = [0u8; 8];
+                data[0] = byte;
+                let plain = (gap, Step::Plain { dlc: 1, data });
+                let inverted = (150, Step::Inverted { dlc: 1, data: [0; 8], correct: true });
+                match which {
+                    0 => vec![plain, (130, Step::Repeat { inverted: false }), inverted],
+                    1 if byte == 0 => vec![plain, (130, Step::Longer), inverted],
+                    1 => vec![plain, inverted, (130, Step::Repeat { inverted: true })],
+                    _ => vec![(gap, Step::Inverted { dlc: 1, data: [!byte; 8], correct: false })],
+                }
+            }),
             1 => step().prop_map(|s| vec![s]),
         ],
         1..40,
@@ -230,25 +278,55 @@ fn check(steps: Vec<(u64, Step)>) -> Result<(), TestCaseError> {
     let mut sink = Recorder::default();
     let mut now = 0u64;
     let id = |raw| CanId::new(raw).unwrap();
+    let mut last_plain = None;
+    let mut last_inverted = None;
     for (advance, step) in steps {
         now += advance;
         let at = Instant::from_micros(now);
         let frame = match step {
             Step::Plain { dlc, data } => {
-                model.plain(now, dlc, data[0]);
-                Some(CanFrame::from_parts(id(0x141), dlc, data).unwrap())
+                model.plain(now, dlc, data);
+                let frame = CanFrame::from_parts(id(0x141), dlc, data).unwrap();
+                last_plain = Some(frame);
+                Some(frame)
             }
             Step::Inverted {
                 dlc,
                 mut data,
                 correct,
             } => {
-                if let (true, Some((plain, _))) = (correct, model.pending) {
-                    data[0] = !plain;
+                if let (true, Some(((_, plain), _))) = (correct, model.pending) {
+                    data[0] = !plain[0];
                 }
                 model.inverted(now, dlc, data[0]);
-                Some(CanFrame::from_parts(id(0x142), dlc, data).unwrap())
+                let frame = CanFrame::from_parts(id(0x142), dlc, data).unwrap();
+                last_inverted = Some(frame);
+                Some(frame)
             }
+            Step::Repeat { inverted } => {
+                let again = if inverted { last_inverted } else { last_plain };
+                match again {
+                    Some(frame) if inverted => {
+                        model.inverted(now, frame.dlc(), frame.raw_data()[0]);
+                    }
+                    Some(frame) => model.plain(now, frame.dlc(), *frame.raw_data()),
+                    None => model.timers(now),
+                }
+                again
+            }
+            Step::Longer => match last_plain {
+                Some(frame) if frame.dlc() < 8 => {
+                    let dlc = frame.dlc() + 1;
+                    model.plain(now, dlc, *frame.raw_data());
+                    let longer = CanFrame::from_parts(frame.id(), dlc, *frame.raw_data()).unwrap();
+                    last_plain = Some(longer);
+                    Some(longer)
+                }
+                _ => {
+                    model.timers(now);
+                    None
+                }
+            },
             Step::Remote { inverted } => {
                 model.timers(now);
                 Some(CanFrame::remote(id(if inverted { 0x142 } else { 0x141 }), 1).unwrap())
@@ -290,6 +368,13 @@ fn check(steps: Vec<(u64, Step)>) -> Result<(), TestCaseError> {
         // Safety: nothing is delivered that the model did not see as a valid, timely pair,
         // and the delivered value is that pair's plain data; 0 in the safe state (SC_REQ_05).
         prop_assert_eq!(sink.delivered, model.pairs, "at {} µs", now);
+        let discarded = node.double_reception();
+        prop_assert_eq!(
+            (discarded.plain_repeated, discarded.inverted_without_plain),
+            (model.plain_repeated, model.inverted_without_plain),
+            "at {} µs",
+            now
+        );
         prop_assert_eq!(output[0], model.output, "at {} µs", now);
         if model.failed {
             prop_assert_eq!(output[0], 0);
@@ -301,7 +386,8 @@ fn check(steps: Vec<(u64, Step)>) -> Result<(), TestCaseError> {
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(600))]
 
-    /// EN 50325-5 7.1.2, 7.1.3, CiA 304 9.5: random traffic, timing and faults.
+    /// EN 50325-5 7.1.2, 7.1.3, CiA 304 9.5, ISO 11898-1 double reception: random traffic,
+    /// timing and faults.
     #[test]
     fn en50325_5_7_1_2_consumer_matches_reference_model_on_random_traffic(
         steps in proptest::collection::vec(step(), 1..50)

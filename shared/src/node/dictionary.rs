@@ -1,7 +1,8 @@
 //! The device's object dictionary as the SDO server sees it: communication objects
-//! (0x1000..0x1018), the safety objects (0x1300..0x13FF) and the application objects.
+//! (0x1000..0x1018), the safety objects (0x1300..0x13FF), the double-reception counters
+//! ([`DOUBLE_RECEPTION_INDEX`], manufacturer area) and the application objects.
 
-use super::{Core, Event, persist};
+use super::{Core, DOUBLE_RECEPTION_INDEX, Event, persist};
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{AbortCode, Address, ObjectDictionary};
 use crate::canopen::storage::Flash;
@@ -51,9 +52,18 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
                 ),
                 _ => Err(AbortCode::NoSubIndex),
             },
-            0x1300 if sub == 0 => put(buf, &[self.gfc_parameter]),
+            gfc::GFC_PARAMETER if sub == 0 => put(buf, &[self.gfc_parameter]),
             0x1000 | 0x1001 | 0x1008 | 0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
             index if SafetyConfig::<N>::owns(index) => self.safety.read(address, buf),
+            DOUBLE_RECEPTION_INDEX => match sub {
+                0 => put(buf, &[2]),
+                1 => put(buf, &self.double_reception.plain_repeated.to_le_bytes()),
+                2 => put(
+                    buf,
+                    &self.double_reception.inverted_without_plain.to_le_bytes(),
+                ),
+                _ => Err(AbortCode::NoSubIndex),
+            },
             0x2000..=0x9FFF => self.image.read(address, buf),
             _ => Err(AbortCode::NoObject),
         }
@@ -63,7 +73,7 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
         let Address { index, sub } = address;
         let operational = self.state == NmtState::Operational;
         match index {
-            0x1000 | 0x1001 | 0x1008 | 0x1018 => {
+            0x1000 | 0x1001 | 0x1008 | 0x1018 | DOUBLE_RECEPTION_INDEX => {
                 let mut scratch = [0u8; 64];
                 self.read(address, &mut scratch)?;
                 Err(AbortCode::ReadOnly)
@@ -90,11 +100,13 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
                 self.heartbeat.set_period(period, self.now);
                 Ok(())
             }
-            0x1300 if sub == 0 => {
-                // EN 50325-5 8.2.2: the GFC parameter stays writable in Operational.
+            gfc::GFC_PARAMETER if sub == 0 => {
+                // EN 50325-5 8.2.2: the GFC parameter stays writable in Operational. It only
+                // indicates (6.4.2.1): 0 clears the indication, 1 changes nothing and never
+                // sends a GFC (see `gfc::GFC_PARAMETER` for other stacks' reading).
                 match exact::<1>(data)? {
                     [gfc::GFC_NOT_VALID] => self.gfc_parameter = gfc::GFC_NOT_VALID,
-                    [gfc::GFC_VALID] => self.gfc_requested = true,
+                    [gfc::GFC_VALID] => {}
                     _ => return Err(AbortCode::ValueTooHigh),
                 }
                 Ok(())
@@ -145,7 +157,13 @@ impl<F: Flash, const N: usize> Core<F, N> {
         if signature != SAVE {
             return Err(AbortCode::CannotStore);
         }
-        persist::store(&mut self.flash, &self.safety, self.heartbeat.period_ms()).map_err(|error| {
+        persist::store(
+            &mut self.flash,
+            &self.safety,
+            self.heartbeat.period_ms(),
+            self.config.node_id,
+        )
+        .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
             AbortCode::HardwareError
         })

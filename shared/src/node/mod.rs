@@ -39,7 +39,9 @@ use crate::canopen::storage::{Flash, StorageError};
 use crate::frame::{CanFrame, CanId};
 use crate::process_image::{AppObject, ProcessImage, TableError};
 use crate::safety::config::{ConfigFault, ResolvedMapping, SafetyConfig};
-use crate::safety::srdo::{self, Consumer, Producer, SrdoFault, SrdoFaultCause};
+use crate::safety::srdo::{
+    self, Consumer, Discarded, InvertedOutcome, PlainOutcome, Producer, SrdoFault, SrdoFaultCause,
+};
 use crate::safety::types::{Direction, SrdoNumber};
 use crate::safety::{MAX_SRDOS, gfc};
 use crate::time::{Duration, Instant};
@@ -128,6 +130,15 @@ pub enum Event {
     /// The configuration did not pass the Operational-entry check; the device stays in its
     /// NMT state and in the safe state (EN 50325-5 8.3.1).
     ConfigurationRefused(ConfigFault),
+    /// A consumer discarded a frame as a CAN double reception (or an inverted frame seen
+    /// first after monitoring started); nothing was delivered and nothing failed. Counted in
+    /// [`Node::double_reception`].
+    FrameDiscarded {
+        /// The SRDO.
+        srdo: SrdoNumber,
+        /// Which frame, and why.
+        discarded: Discarded,
+    },
     /// A remote frame (RTR) on an SRDO identifier was ignored (EN 50325-5 6.2.1).
     RemoteFrameIgnored(SrdoNumber),
     /// An NMT frame was not obeyed.
@@ -138,6 +149,13 @@ pub enum Event {
     StoredParametersRejected(PersistError),
     /// Storing or reading parameters failed in the medium.
     StorageFailed(StorageError),
+    /// The restored configuration was validated on another node-ID: it is kept for a tool to
+    /// see and change, but it is not valid here (0x13FE reads 0) until it is validated again
+    /// for this node-ID (IEC 61784-3 addressing: its identifiers may belong to another node).
+    ValidatedForAnotherNodeId {
+        /// The node-ID the stored configuration was validated for.
+        validated_for: NodeId,
+    },
 }
 
 /// Why an application call was refused.
@@ -150,6 +168,8 @@ pub enum ApiError {
     WrongLength,
     /// The object access was refused.
     Object(AbortCode),
+    /// Only in NMT Operational (a GFC, EN 50325-5 8.2.2; CiA 301 Table 2).
+    NotOperational,
 }
 
 /// Why a node could not be built.
@@ -160,6 +180,8 @@ pub enum NodeError {
     SrdoCount,
     /// The application object table is not valid.
     Table(TableError),
+    /// An application object uses an index the node answers itself.
+    ReservedIndex(u16),
 }
 
 /// Run-time state of one SRDO in Operational.
@@ -193,6 +215,32 @@ impl SrdoRuntime {
 /// no particular SRDO). Distinct from every [`ConfigError`](crate::safety::config::ConfigError)
 /// cause code.
 pub const STORED_PARAMETERS_REJECTED: u8 = 0xF0;
+
+/// EMCY 6300h detail byte 1 when the restored configuration was validated on another node-ID
+/// (byte 2 is that node-ID). Distinct from every
+/// [`ConfigError`](crate::safety::config::ConfigError) cause code.
+pub const VALIDATED_FOR_ANOTHER_NODE_ID: u8 = 0xF1;
+
+/// How often a consumer discarded a frame that CAN double reception (ISO 11898-1: a receiver
+/// may accept a frame that its transmitter repeats after an error in the last bit of the
+/// end-of-frame field) or a start of monitoring between a plain and its inverted frame
+/// produces. Counted since power-on or the last NMT reset, over all SRDOs; readable in
+/// object [`DOUBLE_RECEPTION_INDEX`]. The counters saturate.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DoubleReception {
+    /// Exact repeats of the pending plain frame (same identifier, length and data),
+    /// discarded (sub-index 1).
+    pub plain_repeated: u32,
+    /// Inverted frames with no plain frame pending, discarded (sub-index 2).
+    pub inverted_without_plain: u32,
+}
+
+/// The manufacturer-specific object (EN 50325-5 leaves 2000h..5FFFh to the manufacturer)
+/// that holds [`DoubleReception`]: sub-index 0 = 2, sub-index 1 = repeated plain frames
+/// discarded, sub-index 2 = inverted frames without plain frame discarded, each UNSIGNED32,
+/// read-only. No application object may use this index.
+pub const DOUBLE_RECEPTION_INDEX: u16 = 0x5C00;
 
 /// RAM per SRDO, in bytes: its run-time state with the resolved mapping ([`SrdoRuntime`]) and
 /// its configuration record. The identifier table (128 bytes) and the rest of the node are per
@@ -238,6 +286,7 @@ struct Core<F: Flash, const N: usize> {
     gfc_requested: bool,
     error_register: u8,
     remote_frames_ignored: u32,
+    double_reception: DoubleReception,
     deferred_event: Option<Event>,
     /// The time of the SDO request being served (the object dictionary has no `now`).
     now: Instant,
@@ -253,6 +302,9 @@ impl<F: Flash, const N: usize> Node<F, N> {
             return Err(NodeError::SrdoCount);
         }
         let image = ProcessImage::new(config.app_objects).map_err(NodeError::Table)?;
+        if image.has_index(DOUBLE_RECEPTION_INDEX) {
+            return Err(NodeError::ReservedIndex(DOUBLE_RECEPTION_INDEX));
+        }
         let mut core = Core {
             config,
             state: NmtState::Initialising,
@@ -269,6 +321,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
             gfc_requested: false,
             error_register: 0,
             remote_frames_ignored: 0,
+            double_reception: DoubleReception::default(),
             deferred_event: None,
             now: Instant::ZERO,
             flash,
@@ -499,10 +552,23 @@ impl<F: Flash, const N: usize> Node<F, N> {
         self.core.next_deadline = Instant::ZERO;
     }
 
-    /// Requests a GFC (EN 50325-5 6.3), sent at the next poll; sets 0x1300 to 1.
-    pub fn request_gfc(&mut self) {
+    /// Requests a GFC (EN 50325-5 6.3), sent at the next poll, which sets 0x1300 to 1.
+    /// Refused outside Operational: SRDO and GFC communication is enabled in Operational only
+    /// (EN 50325-5 8.2.2), and in Stopped a device sends only NMT error control (CiA 301
+    /// Table 2).
+    #[must_use = "a refused request sends no GFC"]
+    pub fn request_gfc(&mut self) -> Result<(), ApiError> {
+        if self.core.state != NmtState::Operational {
+            return Err(ApiError::NotOperational);
+        }
         self.core.gfc_requested = true;
         self.core.next_deadline = Instant::ZERO;
+        Ok(())
+    }
+
+    /// Frames the consumers discarded as double receptions, since power-on or reset.
+    pub fn double_reception(&self) -> DoubleReception {
+        self.core.double_reception
     }
 }
 
@@ -518,10 +584,13 @@ impl<F: Flash, const N: usize> Core<F, N> {
 
     /// Power-on or reset: boot-up message, then Pre-operational (CiA 301 7.3.2.2.1).
     fn boot(&mut self, now: Instant, sink: &mut impl Sink) {
-        let rejected = matches!(
-            self.deferred_event,
-            Some(Event::StoredParametersRejected(_))
-        );
+        let refused = match self.deferred_event {
+            Some(Event::StoredParametersRejected(_)) => Some([0, STORED_PARAMETERS_REJECTED, 0]),
+            Some(Event::ValidatedForAnotherNodeId { validated_for }) => {
+                Some([0, VALIDATED_FOR_ANOTHER_NODE_ID, validated_for.raw()])
+            }
+            _ => None,
+        };
         if let Some(event) = self.deferred_event.take() {
             sink.event(event);
         }
@@ -531,15 +600,12 @@ impl<F: Flash, const N: usize> Core<F, N> {
         ));
         self.heartbeat.set_period(self.heartbeat.period_ms(), now);
         self.change_state(NmtState::PreOperational, sink);
-        if rejected {
-            // The stored configuration is unusable and the defaults (not validated) are in
-            // force: say so on the bus, after the boot-up message (CiA 301 7.2.7).
+        if let Some([srdo, cause, node_id]) = refused {
+            // The stored configuration is unusable (the defaults, not validated, are in
+            // force) or not valid for this node-ID: say so on the bus, after the boot-up
+            // message (CiA 301 7.2.7).
             self.error_register |= emcy::register::GENERIC | emcy::register::PROFILE;
-            self.send_emergency(
-                emcy::code::DATA_SET,
-                [0, STORED_PARAMETERS_REJECTED, 0, 0, 0],
-                sink,
-            );
+            self.send_emergency(emcy::code::DATA_SET, [srdo, cause, node_id, 0, 0], sink);
         }
     }
 
@@ -556,6 +622,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         self.gfc_requested = false;
         self.error_register = 0;
         self.remote_frames_ignored = 0;
+        self.double_reception = DoubleReception::default();
         self.restore_parameters(now);
         self.state = NmtState::Initialising;
         sink.event(Event::NmtState(NmtState::Initialising));
@@ -568,8 +635,17 @@ impl<F: Flash, const N: usize> Core<F, N> {
         self.safety = Self::defaults(&self.config);
         self.deferred_event =
             match persist::load(&mut self.flash, &mut self.safety, &mut heartbeat_ms) {
-                Ok(true) => Some(Event::ParametersRestored),
-                Ok(false) => None,
+                Ok(Some(stored_by)) if stored_by == self.config.node_id => {
+                    Some(Event::ParametersRestored)
+                }
+                Ok(Some(validated_for)) => {
+                    // Validated (if at all) on another node-ID: its identifiers may belong
+                    // to another node here (IEC 61784-3 addressing). Kept for the tool, not
+                    // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
+                    self.safety.configuration_valid = 0;
+                    Some(Event::ValidatedForAnotherNodeId { validated_for })
+                }
+                Ok(None) => None,
                 Err(error) => {
                     self.safety = Self::defaults(&self.config);
                     heartbeat_ms = self.config.heartbeat_ms;
@@ -591,7 +667,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
 
     /// Pre-operational (or Stopped) to Operational: only with a configuration that passes the
     /// check (EN 50325-5 8.3.1, CiA 304 9.5); otherwise the device stays where it is, in the
-    /// safe state, and says which SRDO failed and why.
+    /// safe state, sets 0x13FE to 0, and says which SRDO failed and why.
     fn enter_operational(&mut self, now: Instant, sink: &mut impl Sink) {
         self.stop_srdos();
         let node_id = self.config.node_id.raw();
@@ -634,6 +710,10 @@ impl<F: Flash, const N: usize> Core<F, N> {
             Ok(()) => self.change_state(NmtState::Operational, sink),
             Err(fault) => {
                 self.stop_srdos();
+                // The node has just refused this configuration, so 0x13FE must not go on
+                // reading A5h (EN 50325-5 6.4.1.6). In the object dictionary only: the stored
+                // record stays as written.
+                self.safety.configuration_valid = 0;
                 self.error_register |= emcy::register::GENERIC | emcy::register::PROFILE;
                 let srdo = fault.srdo.map_or(0, SrdoNumber::get);
                 self.send_emergency(
@@ -694,31 +774,54 @@ impl<F: Flash, const N: usize> Core<F, N> {
             let srvt = Duration::from_millis(u64::from(record.srvt));
             consumer
                 .on_plain(now, frame.raw_data(), frame.dlc(), len, srvt)
-                .map(|()| {
-                    self.next_deadline = self.next_deadline.min(consumer.deadline());
+                .map(|outcome| match outcome {
+                    PlainOutcome::Pending => {
+                        self.next_deadline = self.next_deadline.min(consumer.deadline());
+                        None
+                    }
+                    PlainOutcome::Discarded(discarded) => Some(discarded),
                 })
         } else {
             let sct = Duration::from_millis(u64::from(record.cycle_time));
             consumer
                 .on_inverted(now, frame.raw_data(), frame.dlc(), len, sct)
-                .map(|(plain, inverted)| {
-                    srdo::deliver(&mut self.image, &runtime.mapping, plain, inverted);
-                    runtime.pairs = runtime.pairs.wrapping_add(1);
-                    sink.event(Event::SrdoReceived {
-                        srdo: number,
-                        data: plain & srdo::payload_mask(len),
-                    });
+                .map(|outcome| match outcome {
+                    InvertedOutcome::Pair { plain, inverted } => {
+                        srdo::deliver(&mut self.image, &runtime.mapping, plain, inverted);
+                        runtime.pairs = runtime.pairs.wrapping_add(1);
+                        sink.event(Event::SrdoReceived {
+                            srdo: number,
+                            data: plain & srdo::payload_mask(len),
+                        });
+                        None
+                    }
+                    InvertedOutcome::Discarded(discarded) => Some(discarded),
                 })
         };
-        if let Err(cause) = result {
-            self.latch(
+        match result {
+            Ok(None) => {}
+            Ok(Some(discarded)) => self.discarded(number, discarded, sink),
+            Err(cause) => self.latch(
                 SafeStateCause::Srdo(SrdoFault {
                     srdo: number,
                     cause,
                 }),
                 sink,
-            );
+            ),
         }
+    }
+
+    /// Counts and reports a frame a consumer discarded as a double reception. Cold: kept out
+    /// of the receive hot path.
+    #[cold]
+    #[inline(never)]
+    fn discarded(&mut self, srdo: SrdoNumber, discarded: Discarded, sink: &mut impl Sink) {
+        let counter = match discarded {
+            Discarded::PlainRepeated => &mut self.double_reception.plain_repeated,
+            Discarded::InvertedWithoutPlain => &mut self.double_reception.inverted_without_plain,
+        };
+        *counter = counter.saturating_add(1);
+        sink.event(Event::FrameDiscarded { srdo, discarded });
     }
 
     /// A frame on CAN-ID 001h. Any frame on the GFC identifier in Operational is obeyed,
@@ -770,7 +873,11 @@ impl<F: Flash, const N: usize> Core<F, N> {
         self.error_register |= emcy::register::GENERIC | emcy::register::COMMUNICATION;
         self.send_emergency(code, detail, sink);
         sink.event(Event::SafeState(cause));
-        if self.config.gfc_on_fault && cause != SafeStateCause::Gfc {
+        // A GFC only in Operational (EN 50325-5 8.2.2; CiA 301 Table 2).
+        if self.config.gfc_on_fault
+            && cause != SafeStateCause::Gfc
+            && self.state == NmtState::Operational
+        {
             self.gfc_requested = true;
             self.next_deadline = Instant::ZERO;
         }
@@ -799,12 +906,16 @@ impl<F: Flash, const N: usize> Core<F, N> {
             self.run_srdos(now, sink);
         }
         // Last, so that a fault found by the SRDO timers above sends its GFC in this same
-        // poll (EN 50325-5 6.3) rather than at the next one.
+        // poll (EN 50325-5 6.3) rather than at the next one. A request left over from
+        // Operational when the node has left it since is dropped: no GFC outside
+        // Operational (EN 50325-5 8.2.2; CiA 301 Table 2).
         if self.gfc_requested {
             self.gfc_requested = false;
-            self.gfc_parameter = gfc::GFC_VALID;
-            sink.transmit(gfc::frame());
-            sink.event(Event::GfcSent);
+            if self.state == NmtState::Operational {
+                self.gfc_parameter = gfc::GFC_VALID;
+                sink.transmit(gfc::frame());
+                sink.event(Event::GfcSent);
+            }
         }
     }
 

@@ -170,7 +170,11 @@ fn cia301_7_2_4_3_17_every_abort_code_the_device_sends() {
     // Safety objects (EN 50325-5 8.2, CiA 304 Table 2).
     expect(AbortCode::ValueTooHigh, write(n, s, 0x1301, 1, &[3]));
     expect(AbortCode::ValueTooLow, write(n, s, 0x1301, 2, &[0, 0]));
-    expect(AbortCode::InvalidValue, write(n, s, 0x1301, 4, &[1]));
+    expect(AbortCode::ReadOnly, write(n, s, 0x1301, 4, &[254]));
+    expect(
+        AbortCode::InvalidValue,
+        write(n, s, 0x1301, 5, &0x143u32.to_le_bytes()),
+    );
     expect(AbortCode::DeviceState, write(n, s, 0x1381, 0, &[0]));
     write(n, s, 0x1301, 1, &[0]).unwrap();
     expect(
@@ -352,7 +356,7 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
     let mut bad = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
     bad.srdos[0].signature = signature::compute(&bad.srdos[0]) ^ 1;
     bad.configuration_valid = 0xA5;
-    persist::store(&mut medium, &bad, 0).unwrap();
+    persist::store(&mut medium, &bad, 0, node_id(33)).unwrap();
     let (mut node, mut sink) = node_on(33, medium);
     nmt(&mut node, &mut sink, NmtCommand::Start);
     assert_eq!(node.nmt_state(), NmtState::PreOperational);
@@ -390,4 +394,166 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
     nmt(&mut node, &mut sink, NmtCommand::Start);
     assert!(!node.is_working());
     let _ = SrdoRecord::DELETED;
+}
+
+/// EN 50325-5 Table 5: sub-index 04h (transmission type, fixed at 254) is a read-only entry,
+/// answered outside Operational with 0601 0002h like every other read-only entry, whatever
+/// the value or its length; in Operational with 0800 0022h like every safety object
+/// (EN 50325-5 8.2.2).
+#[test]
+fn en50325_5_table5_transmission_type_is_read_only() {
+    let (mut node, mut sink) = fresh(33);
+    for data in [&[254u8][..], &[1][..], &[254, 0][..]] {
+        assert_eq!(
+            abort_of(write(&mut node, &mut sink, 0x1301, 4, data)),
+            AbortCode::ReadOnly,
+            "{data:?}"
+        );
+    }
+    assert_eq!(read(&mut node, &mut sink, 0x1301, 4), Ok(vec![254]));
+    configure_consumer(&mut node, &mut sink, 50);
+    nmt(&mut node, &mut sink, NmtCommand::Start);
+    assert_eq!(node.nmt_state(), NmtState::Operational);
+    assert_eq!(
+        abort_of(write(&mut node, &mut sink, 0x1301, 4, &[254])),
+        AbortCode::DeviceState
+    );
+}
+
+/// EN 50325-5 6.4.1.6, 8.3.1: when NMT start refuses a restored configuration (a signature
+/// that does not match), 0x13FE reads 0 at once, with the EMCY naming the SRDO and the reason;
+/// the stored record stays as written.
+#[test]
+fn en50325_5_6_4_1_6_configuration_valid_reads_0_after_a_refused_start() {
+    let mut medium = PowerCutFlash::new(RamFlash::new(), None);
+    let mut bad = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
+    bad.srdos[0].signature = signature::compute(&bad.srdos[0]) ^ 1;
+    bad.configuration_valid = 0xA5;
+    persist::store(&mut medium, &bad, 0, node_id(33)).unwrap();
+    let (mut node, mut sink) = node_on(33, medium);
+    assert_eq!(read(&mut node, &mut sink, 0x13FE, 0), Ok(vec![0xA5]));
+    sink_clear(&mut sink);
+    nmt(&mut node, &mut sink, NmtCommand::Start);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    let emcy = sink.emergencies();
+    assert_eq!(emcy.len(), 1);
+    assert_eq!(emcy[0].code, crate::canopen::emcy::code::DATA_SET);
+    assert_eq!(
+        emcy[0].detail[..2],
+        [1, ConfigError::SignatureMismatch.cause_code()]
+    );
+    assert_eq!(read(&mut node, &mut sink, 0x13FE, 0), Ok(vec![0]));
+    // The stored record is untouched: a reset restores it as written.
+    let (node, _) = node_on(33, node.flash().clone());
+    assert_eq!(node.safety_config().configuration_valid, 0xA5);
+}
+
+fn node_id(id: u8) -> NodeId {
+    NodeId::new(id).unwrap()
+}
+
+/// IEC 61784-3 (addressing, masquerade), EN 50325-5 6.4.1.6: a configuration validated on
+/// node-ID 33 and restored on node-ID 34 is not valid there: 0x13FE reads 0, an EMCY says so
+/// at boot (naming the node-ID it was validated for), and the node stays in the safe state
+/// until a tool reconfigures and validates it for the new node-ID.
+#[test]
+fn iec61784_3_a_configuration_validated_for_another_node_id_is_not_valid() {
+    let (mut node, mut sink) = fresh(33);
+    configure_consumer(&mut node, &mut sink, 60);
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    let stored = node.safety_config().clone();
+    let medium = node.flash().clone();
+
+    let (mut node, mut sink) = node_on(34, medium);
+    assert!(sink.events.contains(&Event::ValidatedForAnotherNodeId {
+        validated_for: node_id(33)
+    }));
+    let emcy = sink.emergencies();
+    assert_eq!(emcy.len(), 1);
+    assert_eq!(emcy[0].code, crate::canopen::emcy::code::DATA_SET);
+    assert_eq!(emcy[0].detail[..3], [0, VALIDATED_FOR_ANOTHER_NODE_ID, 33]);
+    assert_eq!(
+        node.safety_config().srdos,
+        stored.srdos,
+        "the configuration is kept for the tool to see and change"
+    );
+    assert_eq!(read(&mut node, &mut sink, 0x13FE, 0), Ok(vec![0]));
+    nmt(&mut node, &mut sink, NmtCommand::Start);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    assert!(!node.is_working());
+
+    // Reconfigured and validated for node-ID 34, stored: it runs, also after a reset.
+    write(&mut node, &mut sink, 0x1301, 2, &70u16.to_le_bytes()).unwrap();
+    let crc = signature::compute(&node.safety_config().srdos[0]);
+    write(&mut node, &mut sink, 0x13FF, 1, &crc.to_le_bytes()).unwrap();
+    write(&mut node, &mut sink, 0x13FE, 0, &[0xA5]).unwrap();
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    let (mut node, mut sink) = node_on(34, node.flash().clone());
+    assert!(sink.events.contains(&Event::ParametersRestored));
+    nmt(&mut node, &mut sink, NmtCommand::Start);
+    assert_eq!(node.nmt_state(), NmtState::Operational);
+
+    // The same medium back on node-ID 33 is now the other node's configuration.
+    let (mut node, mut sink) = node_on(33, node.flash().clone());
+    nmt(&mut node, &mut sink, NmtCommand::Start);
+    assert_eq!(node.nmt_state(), NmtState::PreOperational);
+    assert_eq!(read(&mut node, &mut sink, 0x13FE, 0), Ok(vec![0]));
+}
+
+/// EN 50325-5 Table 5, CiA 304 8.3.3: with nothing stored, the pre-defined connection set
+/// follows the node-ID.
+#[test]
+fn en50325_5_table5_defaults_follow_the_node_id() {
+    for (id, first) in [(33u8, 0x141u32), (34, 0x143), (2, 0x103)] {
+        let (mut node, mut sink) = fresh(id);
+        assert_eq!(
+            read(&mut node, &mut sink, 0x1301, 5),
+            Ok(first.to_le_bytes().to_vec()),
+            "node-ID {id}"
+        );
+        assert_eq!(
+            read(&mut node, &mut sink, 0x1301, 6),
+            Ok((first + 1).to_le_bytes().to_vec())
+        );
+    }
+}
+
+/// A record stored by the previous format (version 1, which did not say which node-ID it was
+/// validated for) is not misread as a valid configuration: it is reported, and the node runs
+/// on its defaults, not validated, in the safe state.
+#[test]
+fn en50325_5_8_3_1_a_record_of_the_previous_format_is_reported_not_used() {
+    // Version 1 layout: version, heartbeat (2), 0x13FE, SRDO count, then the records.
+    let defaults = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
+    let mut image = std::vec![1u8, 0, 0, 0xA5, 4];
+    for record in &defaults.srdos {
+        image.push(record.direction);
+        image.extend_from_slice(&record.cycle_time.to_le_bytes());
+        image.push(record.srvt);
+        image.extend_from_slice(&record.cob_id_1.to_le_bytes());
+        image.extend_from_slice(&record.cob_id_2.to_le_bytes());
+        image.push(record.mapping_count);
+        for entry in record.entries() {
+            image.extend_from_slice(&entry.to_le_bytes());
+        }
+        image.extend_from_slice(&signature::compute(record).to_le_bytes());
+    }
+    let mut medium = PowerCutFlash::new(RamFlash::new(), None);
+    crate::canopen::storage::store(&mut medium, &image).unwrap();
+    let (mut node, mut sink) = node_on(33, medium);
+    assert!(sink.events.contains(&Event::StoredParametersRejected(
+        PersistError::PreviousFormat(1)
+    )));
+    assert!(
+        sink.emergencies()
+            .iter()
+            .any(|e| e.detail[..2] == [0, STORED_PARAMETERS_REJECTED])
+    );
+    assert_eq!(node.safety_config(), &defaults_unsigned());
+    nmt(&mut node, &mut sink, NmtCommand::Start);
+    assert!(!node.is_working());
+}
+
+fn defaults_unsigned() -> SafetyConfig<4> {
+    SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108])
 }

@@ -431,29 +431,222 @@ fn en50325_5_7_1_2_a_late_inverted_frame_is_refused_even_before_the_timer_is_pol
     );
 }
 
+/// ISO 11898-1 double reception, or a consumer that started monitoring between a producer's
+/// plain and inverted frames: an inverted frame with no plain frame pending is discarded and
+/// counted, and the valid pair that follows is delivered.
 #[test]
-fn cia304_9_5_inverted_frame_without_plain_frame_is_an_error() {
+fn iso11898_1_double_reception_an_inverted_frame_without_plain_is_discarded_and_counted() {
     let (mut node, mut sink) = operational(33);
     node.handle_frame(ms(10), &frame(0x142, &[0xFE]), &mut sink);
+    assert!(node.is_working(), "no fault for a lone inverted frame");
+    assert!(sink.emergencies().is_empty());
+    assert_eq!(output(&node, 0x6200, 1), 0, "nothing delivered");
+    assert_eq!(node.srdo_pairs(SrdoNumber::new(1).unwrap()), 0);
+    pair(&mut node, ms(20), 0x5A, &mut sink);
+    assert!(node.is_working());
+    assert_eq!(
+        output(&node, 0x6200, 1),
+        0x5A,
+        "the following valid pair is delivered"
+    );
+    assert_eq!(node.srdo_pairs(SrdoNumber::new(1).unwrap()), 1);
+    // The inverted frame of a completed pair received twice: the copy is discarded too.
+    node.handle_frame(ms(21), &frame(0x142, &[!0x5A]), &mut sink);
+    assert!(node.is_working());
+    assert_eq!(
+        node.srdo_pairs(SrdoNumber::new(1).unwrap()),
+        1,
+        "delivered once"
+    );
+    assert_eq!(
+        node.double_reception(),
+        DoubleReception {
+            plain_repeated: 0,
+            inverted_without_plain: 2,
+        }
+    );
+}
+
+/// The double-reception counters are readable in the manufacturer area (object 5C00h,
+/// read-only), so an assessor sees how often it happened; NMT reset communication clears
+/// them.
+#[test]
+fn iso11898_1_double_reception_counters_are_readable_in_object_5c00() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(1), &frame(0x142, &[0xFE]), &mut sink);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    for _ in 0..3 {
+        node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    }
+    node.handle_frame(ms(11), &frame(0x142, &[0xFE]), &mut sink);
+    assert!(node.is_working());
+    let discarded = |srdo, discarded| Event::FrameDiscarded {
+        srdo: SrdoNumber::new(srdo).unwrap(),
+        discarded,
+    };
+    assert_eq!(
+        sink.events
+            .iter()
+            .filter(|e| **e == discarded(1, srdo::Discarded::PlainRepeated))
+            .count(),
+        3
+    );
+    assert!(
+        sink.events
+            .contains(&discarded(1, srdo::Discarded::InvertedWithoutPlain))
+    );
+    let mut buf = [0u8; 8];
+    let index = DOUBLE_RECEPTION_INDEX;
+    assert_eq!(node.core.read(Address::new(index, 0), &mut buf), Ok(1));
+    assert_eq!(buf[0], 2);
+    assert_eq!(node.core.read(Address::new(index, 1), &mut buf), Ok(4));
+    assert_eq!(u32::from_le_bytes(buf[..4].try_into().unwrap()), 3);
+    assert_eq!(node.core.read(Address::new(index, 2), &mut buf), Ok(4));
+    assert_eq!(u32::from_le_bytes(buf[..4].try_into().unwrap()), 1);
+    assert_eq!(
+        node.core.read(Address::new(index, 3), &mut buf),
+        Err(AbortCode::NoSubIndex)
+    );
+    assert_eq!(
+        node.core.write(Address::new(index, 1), &[0, 0, 0, 0]),
+        Err(AbortCode::ReadOnly)
+    );
+    node.handle_frame(
+        ms(12),
+        &nmt::command_frame(NmtCommand::ResetCommunication, 0),
+        &mut sink,
+    );
+    assert_eq!(node.double_reception(), DoubleReception::default());
+}
+
+/// When no valid pair follows a discarded inverted frame, SCT fires as usual (EN 50325-5
+/// 7.1.2): the discard does not restart SCT.
+#[test]
+fn en50325_5_7_1_2_a_discarded_inverted_frame_does_not_restart_sct() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(40), &frame(0x142, &[0xFE]), &mut sink);
+    assert!(node.is_working());
+    node.poll(ms(50), &mut sink);
+    assert_safe(&node, &sink, SrdoFaultCause::SctElapsed, code::RPDO_TIMEOUT);
+}
+
+/// ISO 11898-1 double reception of a plain frame: the exact repeat (same identifier, same
+/// data) is discarded and counted; the pair completes with its inverted frame and is
+/// delivered once.
+#[test]
+fn iso11898_1_double_reception_an_exact_repeat_of_the_plain_frame_is_discarded_and_counted() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(11), &frame(0x141, &[1]), &mut sink);
+    assert!(node.is_working(), "no fault for an exact repeat");
+    node.handle_frame(ms(12), &frame(0x142, &[0xFE]), &mut sink);
+    assert!(node.is_working());
+    assert_eq!(output(&node, 0x6200, 1), 1);
+    let delivered = sink
+        .events
+        .iter()
+        .filter(|e| matches!(e, Event::SrdoReceived { .. }))
+        .count();
+    assert_eq!(delivered, 1, "delivered once");
+    assert_eq!(
+        node.double_reception(),
+        DoubleReception {
+            plain_repeated: 1,
+            inverted_without_plain: 0,
+        }
+    );
+}
+
+/// A discarded repeat of the plain frame keeps the SRVT of the first copy (EN 50325-5 7.1.2):
+/// when the inverted frame does not follow, SRVT fires 20 ms after the first copy.
+#[test]
+fn en50325_5_7_1_2_a_repeated_plain_frame_keeps_the_srvt_of_the_first() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(25), &frame(0x141, &[1]), &mut sink);
+    assert!(node.is_working());
+    node.poll(ms(30), &mut sink);
     assert_safe(
         &node,
         &sink,
-        SrdoFaultCause::InvertedWithoutPlain,
+        SrdoFaultCause::SrvtElapsed,
+        code::RPDO_TIMEOUT,
+    );
+}
+
+/// CiA 304 9.5: a second plain frame with *different* data (or another length) before the
+/// inverted one is a sequence error; it is no double reception.
+#[test]
+fn cia304_9_5_second_plain_frame_with_other_data_before_the_inverted_one_is_an_error() {
+    for second in [&[2u8][..], &[1, 0][..]] {
+        let (mut node, mut sink) = operational(33);
+        node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+        node.handle_frame(ms(11), &frame(0x141, second), &mut sink);
+        assert_safe(
+            &node,
+            &sink,
+            SrdoFaultCause::PlainRepeated,
+            code::PROTOCOL_ERROR,
+        );
+    }
+}
+
+/// CiA 304 9.5: an inverted frame that is not the inverse of the pending plain frame stays a
+/// fault, also when a discarded repeat came before it.
+#[test]
+fn cia304_9_5_after_a_discarded_repeat_a_wrong_inverted_frame_is_still_a_fault() {
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(11), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(12), &frame(0x142, &[0xFD]), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::NotInverted,
         code::PROTOCOL_ERROR,
     );
 }
 
+/// A consumer that starts monitoring at any instant relative to a running producer reaches its
+/// working state and delivers: a grid of start offsets over one 25 ms period, every
+/// microsecond between a plain frame and its inverted frame included (EN 50325-5 7.1.2,
+/// CiA 304 9.5).
 #[test]
-fn cia304_9_5_second_plain_frame_before_the_inverted_one_is_an_error() {
-    let (mut node, mut sink) = operational(33);
-    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
-    node.handle_frame(ms(11), &frame(0x141, &[1]), &mut sink);
-    assert_safe(
-        &node,
-        &sink,
-        SrdoFaultCause::PlainRepeated,
-        code::PROTOCOL_ERROR,
-    );
+fn en50325_5_7_1_2_a_consumer_started_at_any_instant_of_a_running_producer_works() {
+    const PERIOD: u64 = 25_000;
+    const GAP: u64 = 230; // plain to inverted, about one 8-byte frame at 500 kbit/s
+    let offsets = (0..PERIOD).step_by(250).chain(0..=GAP + 1);
+    for offset in offsets {
+        let (mut node, mut sink) = booted(33, |_| {});
+        validate(&mut node);
+        let start_at = us(10 * PERIOD + offset);
+        let mut started = false;
+        for cycle in 0..20u64 {
+            let plain_at = us(cycle * PERIOD);
+            let value = cycle as u8 | 1;
+            for (at, id, data) in [
+                (plain_at, 0x141, value),
+                (plain_at + Duration::from_micros(GAP), 0x142, !value),
+            ] {
+                if !started && at >= start_at {
+                    start(&mut node, start_at, &mut sink);
+                    started = true;
+                }
+                node.handle_frame(at, &frame(id, &[data]), &mut sink);
+                node.poll(at, &mut sink);
+            }
+        }
+        assert!(
+            node.is_working(),
+            "start offset {offset} µs: {:?}",
+            node.fault()
+        );
+        assert!(
+            node.srdo_pairs(SrdoNumber::new(1).unwrap()) >= 8,
+            "start offset {offset} µs: pairs delivered"
+        );
+        assert_eq!(output(&node, 0x6200, 1), 19 | 1, "start offset {offset} µs");
+    }
 }
 
 #[test]
@@ -536,7 +729,8 @@ fn en50325_5_8_2_2_leaving_operational_puts_outputs_in_the_safe_state() {
 #[test]
 fn safe_state_is_latched_until_nmt_resets_communication() {
     let (mut node, mut sink) = operational(33);
-    node.handle_frame(ms(10), &frame(0x142, &[0xFE]), &mut sink);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(10), &frame(0x142, &[0xFF]), &mut sink);
     assert!(node.fault().is_some());
     // Valid pairs no longer deliver data.
     pair(&mut node, ms(11), 0x3C, &mut sink);
@@ -620,17 +814,97 @@ fn en50325_5_8_2_2_gfc_outside_operational_is_ignored() {
 #[test]
 fn en50325_5_6_3_gfc_producer_on_request_and_on_a_detected_fault() {
     let (mut node, mut sink) = operational(33);
-    node.request_gfc();
+    assert_eq!(node.request_gfc(), Ok(()));
     node.poll(ms(1), &mut sink);
     assert_eq!(sink.frames, [gfc::frame()]);
     assert!(sink.events.contains(&Event::GfcSent));
+    assert_eq!(gfc_parameter(&mut node), 1, "EN 50325-5 6.4.2.1: requested");
 
     let (mut node, mut sink) = booted(33, |config| config.gfc_on_fault = true);
     validate(&mut node);
     start(&mut node, Instant::ZERO, &mut sink);
+    node.handle_frame(ms(1), &frame(0x141, &[1]), &mut sink);
     node.handle_frame(ms(1), &frame(0x142, &[0]), &mut sink);
     node.poll(ms(1), &mut sink);
     assert!(sink.frames.contains(&gfc::frame()));
+}
+
+/// 0x1300 as the dictionary reads it.
+fn gfc_parameter(node: &mut TestNode) -> u8 {
+    let mut buf = [0u8; 1];
+    assert_eq!(node.core.read(Address::new(0x1300, 0), &mut buf), Ok(1));
+    buf[0]
+}
+
+fn gfc_frames(sink: &Recorder) -> usize {
+    sink.frames.iter().filter(|f| **f == gfc::frame()).count()
+}
+
+/// CiA 301 Table 2, EN 50325-5 8.2.2: outside Operational (in Stopped only NMT error control
+/// is sent) a GFC request is refused and a fault with `gfc_on_fault` sends no GFC.
+#[test]
+fn cia301_table2_no_gfc_outside_operational() {
+    for state in [NmtCommand::Stop, NmtCommand::EnterPreOperational] {
+        let (mut node, mut sink) = booted(33, |config| config.gfc_on_fault = true);
+        node.handle_frame(ms(1), &nmt::command_frame(state, 0), &mut sink);
+        assert_eq!(
+            node.request_gfc(),
+            Err(ApiError::NotOperational),
+            "{state:?}"
+        );
+        node.enter_safe_state(3, &mut sink);
+        for step in 2..10 {
+            node.poll(ms(step), &mut sink);
+        }
+        assert_eq!(gfc_frames(&sink), 0, "{state:?}");
+        assert!(!sink.events.contains(&Event::GfcSent), "{state:?}");
+        assert_eq!(gfc_parameter(&mut node), 0, "{state:?}: no GFC requested");
+        // A request refused outside Operational is not sent later either.
+        validate(&mut node);
+        start(&mut node, ms(10), &mut sink);
+        node.poll(ms(11), &mut sink);
+        assert_eq!(gfc_frames(&sink), 0, "{state:?}: nothing left over");
+    }
+}
+
+/// EN 50325-5 6.4.2.1: 0x1300 *indicates* a requested or received GFC. Writing 1 sends
+/// nothing (in any NMT state) and leaves the indication as it is; writing 0 clears it; values
+/// above 1 are refused (0609 0031h). Other stacks read 0x1300 as "GFC enabled": a tool that
+/// writes 1 to enable must not trip the bus.
+#[test]
+fn en50325_5_6_4_2_1_writing_0x1300_never_sends_a_gfc() {
+    let (mut node, mut sink) = booted(33, |_| {});
+    assert_eq!(node.core.write(Address::new(0x1300, 0), &[1]), Ok(()));
+    node.poll(ms(1), &mut sink);
+    assert_eq!(gfc_frames(&sink), 0, "Pre-operational");
+    assert_eq!(
+        gfc_parameter(&mut node),
+        0,
+        "a write of 1 indicates nothing"
+    );
+
+    let (mut node, mut sink) = operational(33);
+    assert_eq!(node.core.write(Address::new(0x1300, 0), &[1]), Ok(()));
+    node.poll(ms(1), &mut sink);
+    assert_eq!(gfc_frames(&sink), 0, "Operational");
+    assert!(node.is_working(), "nothing happened");
+    assert_eq!(gfc_parameter(&mut node), 0);
+    assert_eq!(
+        node.core.write(Address::new(0x1300, 0), &[2]),
+        Err(AbortCode::ValueTooHigh)
+    );
+
+    node.handle_frame(ms(2), &frame(0x001, &[]), &mut sink);
+    assert_eq!(gfc_parameter(&mut node), 1, "indicated");
+    assert_eq!(node.core.write(Address::new(0x1300, 0), &[1]), Ok(()));
+    assert_eq!(
+        gfc_parameter(&mut node),
+        1,
+        "a write of 1 leaves the indication"
+    );
+    assert_eq!(node.core.write(Address::new(0x1300, 0), &[0]), Ok(()));
+    assert_eq!(gfc_parameter(&mut node), 0, "a write of 0 clears it");
+    assert_eq!(gfc_frames(&sink), 0, "this node never sent a GFC");
 }
 
 // ---- Polling ------------------------------------------------------------------------------
@@ -660,6 +934,13 @@ fn node_rejects_a_bad_object_table_and_srdo_count() {
     assert!(matches!(
         Node::<RamFlash<64>, 0>::new(config(1), RamFlash::new()),
         Err(NodeError::SrdoCount)
+    ));
+    static SHADOWED: [AppObject; 1] = [object(0x5C00, 1, 4, Access::ReadOnly, Mappable::No)];
+    let mut shadowed = config(1);
+    shadowed.app_objects = &SHADOWED;
+    assert!(matches!(
+        TestNode::new(shadowed, RamFlash::new()),
+        Err(NodeError::ReservedIndex(DOUBLE_RECEPTION_INDEX))
     ));
 }
 

@@ -121,8 +121,6 @@ pub enum ConfigError {
     CobIdInUse,
     /// A COB-ID cannot be changed while the SRDO exists (CiA 304 8.4.2.2).
     CobIdChangedWhileExists,
-    /// The transmission type is fixed at 254 (CiA 304 8.4.2.2).
-    TransmissionTypeFixed,
     /// The mapping cannot be changed while the SRDO exists; delete it first
     /// (EN 50325-5 6.4.1.4).
     MappingWhileExists,
@@ -164,9 +162,7 @@ impl ConfigError {
             CycleTimeZero | SrvtZero => AbortCode::ValueTooLow,
             CobIdTooLow => AbortCode::ValueTooLow,
             CobIdTooHigh => AbortCode::ValueTooHigh,
-            CobIdParity | CobIdChangedWhileExists | TransmissionTypeFixed | MappingCountOdd => {
-                AbortCode::InvalidValue
-            }
+            CobIdParity | CobIdChangedWhileExists | MappingCountOdd => AbortCode::InvalidValue,
             SrvtNotBelowSct | CobIdsNotConsecutive | CobIdInUse | MappingEmpty
             | PairLengthMismatch | PairSameObject | SignatureMismatch | NotDeclaredValid => {
                 AbortCode::ParameterIncompatible
@@ -180,7 +176,8 @@ impl ConfigError {
         }
     }
 
-    /// A stable number for this reason, sent in the manufacturer-specific bytes of EMCY.
+    /// A stable number for this reason, sent in the manufacturer-specific bytes of EMCY. (11
+    /// was "transmission type fixed", now answered as a read-only entry; it is not reused.)
     pub const fn cause_code(self) -> u8 {
         use ConfigError::*;
         match self {
@@ -194,7 +191,6 @@ impl ConfigError {
             CobIdsNotConsecutive => 8,
             CobIdInUse => 9,
             CobIdChangedWhileExists => 10,
-            TransmissionTypeFixed => 11,
             MappingWhileExists => 12,
             MappingNotDisabled => 13,
             MappingCountOdd => 14,
@@ -627,10 +623,8 @@ impl<const N: usize> SafetyConfig<N> {
                     return Err(ConfigError::SrvtZero.abort_code());
                 }
             }
-            4 => {
-                let [_] = exact(data)?;
-                return Err(ConfigError::TransmissionTypeFixed.abort_code());
-            }
+            // Transmission type, fixed at 254: a read-only entry (EN 50325-5 Table 5).
+            4 => return Err(AbortCode::ReadOnly),
             5 | 6 => {
                 let raw = u32::from_le_bytes(exact(data)?);
                 let stored = if sub == 5 {

@@ -97,11 +97,14 @@ fn en50325_5_8_2_2_every_safety_object_is_read_only_in_operational_with_0800_002
     );
 }
 
+/// EN 50325-5 Table 5: sub-index 04h is a read-only entry (fixed at 254), answered 0601 0002h
+/// like every other read-only entry, whatever the value and its length.
 #[test]
-fn cia304_8_4_2_2_transmission_type_write_aborts_0609_0030() {
+fn en50325_5_table5_transmission_type_write_aborts_0601_0002() {
     let mut config = config();
-    refused(&mut config, 0x1301, 4, &[254], AbortCode::InvalidValue);
-    refused(&mut config, 0x1301, 4, &[1], AbortCode::InvalidValue);
+    refused(&mut config, 0x1301, 4, &[254], AbortCode::ReadOnly);
+    refused(&mut config, 0x1301, 4, &[1], AbortCode::ReadOnly);
+    refused(&mut config, 0x1301, 4, &[254, 0], AbortCode::ReadOnly);
     let mut buf = [0u8; 1];
     assert_eq!(config.read(Address::new(0x1301, 4), &mut buf), Ok(1));
     assert_eq!(buf[0], 254);
@@ -465,7 +468,6 @@ fn every_config_error_has_a_distinct_cause_code() {
         CobIdsNotConsecutive,
         CobIdInUse,
         CobIdChangedWhileExists,
-        TransmissionTypeFixed,
         MappingWhileExists,
         MappingNotDisabled,
         MappingCountOdd,

@@ -9,6 +9,11 @@
 //! ([`time::expired`]). A consumer checks its timers on every frame as well as when polled, so
 //! a frame that arrives after a deadline the caller has not yet polled for is still judged
 //! late.
+//!
+//! A consumer discards, without a fault, the two frames CAN produces on a healthy bus (see
+//! [`Discarded`]): an exact repeat of the pending plain frame and an inverted frame with no
+//! plain frame pending. Any other deviation from "plain, then its inverse within SRVT" is a
+//! fault.
 
 use super::config::ResolvedMapping;
 use super::types::SrdoNumber;
@@ -25,10 +30,9 @@ pub enum SrdoFaultCause {
     /// The inverted frame did not arrive within SRVT of its plain frame (EN 50325-5 7.1.2,
     /// SRVT event).
     SrvtElapsed,
-    /// An inverted frame arrived with no plain frame pending (CiA 304 9.5: chronological
-    /// order).
-    InvertedWithoutPlain,
-    /// A second plain frame arrived before the inverted frame of the first (CiA 304 9.5).
+    /// A second plain frame with other data (or another length) arrived before the inverted
+    /// frame of the first (CiA 304 9.5: chronological order). An exact repeat is not a
+    /// fault: see [`Discarded::PlainRepeated`].
     PlainRepeated,
     /// The inverted frame's data is not the bitwise inverse of the plain frame's
     /// (EN 50325-5 7.1.1; CiA 304 9.5: compared bit by bit).
@@ -42,12 +46,12 @@ pub enum SrdoFaultCause {
 }
 
 impl SrdoFaultCause {
-    /// A stable number for this cause, sent in the manufacturer-specific bytes of EMCY.
+    /// A stable number for this cause, sent in the manufacturer-specific bytes of EMCY. (3
+    /// was "inverted frame without plain frame", no longer a fault; it is not reused.)
     pub const fn cause_code(self) -> u8 {
         match self {
             SrdoFaultCause::SctElapsed => 1,
             SrdoFaultCause::SrvtElapsed => 2,
-            SrdoFaultCause::InvertedWithoutPlain => 3,
             SrdoFaultCause::PlainRepeated => 4,
             SrdoFaultCause::NotInverted => 5,
             SrdoFaultCause::TooShort => 6,
@@ -61,9 +65,7 @@ impl SrdoFaultCause {
         match self {
             SrdoFaultCause::SctElapsed | SrdoFaultCause::SrvtElapsed => code::RPDO_TIMEOUT,
             SrdoFaultCause::TooShort => code::PDO_LENGTH,
-            SrdoFaultCause::InvertedWithoutPlain
-            | SrdoFaultCause::PlainRepeated
-            | SrdoFaultCause::NotInverted => code::PROTOCOL_ERROR,
+            SrdoFaultCause::PlainRepeated | SrdoFaultCause::NotInverted => code::PROTOCOL_ERROR,
             SrdoFaultCause::TransmitHalvesNotInverted => code::INTERNAL_SOFTWARE,
         }
     }
@@ -89,6 +91,48 @@ pub const fn is_inverse(plain: u64, inverted: u64, len: u8) -> bool {
     (plain ^ inverted) & mask == mask
 }
 
+/// A frame a consumer discarded without a fault, because CAN itself produces it on a healthy
+/// bus.
+///
+/// ISO 11898-1 lets a receiver accept a frame twice: it takes a frame as valid at the
+/// last-but-one bit of the end-of-frame field, and a transmitter that sees an error in the
+/// last bit repeats the frame. And a consumer that starts monitoring (enters Operational)
+/// between a producer's plain and inverted frames sees an inverted frame first. Neither
+/// delivers anything: only a plain frame and the inverted frame that follows it within SRVT
+/// make a pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Discarded {
+    /// An exact repeat of the pending plain frame (same identifier, length and data). The
+    /// pending frame's SRVT keeps running from the first copy.
+    PlainRepeated,
+    /// An inverted frame with no plain frame pending. SCT keeps running.
+    InvertedWithoutPlain,
+}
+
+/// What a consumer made of a plain frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlainOutcome {
+    /// The plain frame is pending; its inverted frame is due within SRVT.
+    Pending,
+    /// The frame was discarded: an exact repeat of the pending one.
+    Discarded(Discarded),
+}
+
+/// What a consumer made of an inverted frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InvertedOutcome {
+    /// A valid pair: the plain and the inverted payload, both to be delivered.
+    Pair {
+        /// The plain payload, little-endian.
+        plain: u64,
+        /// The inverted payload as received, little-endian.
+        inverted: u64,
+    },
+    /// The frame was discarded: no plain frame was pending.
+    Discarded(Discarded),
+}
+
 /// Receive side of one SRDO (EN 50325-5 7.1.2, 7.1.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Consumer {
@@ -97,8 +141,47 @@ pub struct Consumer {
     /// The pending plain frame's inverted partner must arrive before this; `NEVER` when no
     /// plain frame is pending.
     srvt_deadline: Instant,
-    /// The pending plain frame's data.
+    /// The pending plain frame's data bytes (those beyond its length are 0).
     pending: u64,
+    /// The pending plain frame's data length code, to tell an exact repeat.
+    pending_dlc: DataLength,
+}
+
+/// A classic CAN data length code, 0..=8 (ISO 11898-1).
+///
+/// An enum rather than a `u8` so that its unused values leave a niche: the compiler keeps the
+/// node's per-SRDO role tag in it, and the pending length costs no RAM per SRDO (checked at
+/// compile time against the 160-byte budget in `node`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+enum DataLength {
+    L0,
+    L1,
+    L2,
+    L3,
+    L4,
+    L5,
+    L6,
+    L7,
+    L8,
+}
+
+impl DataLength {
+    /// The length of a [`CanFrame`](crate::CanFrame), whose data length code is at most 8
+    /// by construction; a larger value (impossible there) reads as 8.
+    const fn new(dlc: u8) -> Self {
+        match dlc {
+            0 => DataLength::L0,
+            1 => DataLength::L1,
+            2 => DataLength::L2,
+            3 => DataLength::L3,
+            4 => DataLength::L4,
+            5 => DataLength::L5,
+            6 => DataLength::L6,
+            7 => DataLength::L7,
+            _ => DataLength::L8,
+        }
+    }
 }
 
 impl Consumer {
@@ -108,6 +191,7 @@ impl Consumer {
             sct_deadline: now + sct,
             srvt_deadline: Instant::NEVER,
             pending: 0,
+            pending_dlc: DataLength::L0,
         }
     }
 
@@ -134,7 +218,11 @@ impl Consumer {
         }
     }
 
-    /// The plain frame (COB-ID 1) arrived at `now` with `dlc` bytes of `data`.
+    /// The plain frame (COB-ID 1) arrived at `now` with `dlc` bytes of `data` (bytes beyond
+    /// `dlc` are 0, as in every [`CanFrame`](crate::CanFrame)).
+    ///
+    /// With a plain frame pending, an exact repeat of it is discarded (CAN double reception)
+    /// and any other plain frame is a sequence error (CiA 304 9.5).
     #[inline]
     pub fn on_plain(
         &mut self,
@@ -143,21 +231,29 @@ impl Consumer {
         dlc: u8,
         len: u8,
         srvt: Duration,
-    ) -> Result<(), SrdoFaultCause> {
+    ) -> Result<PlainOutcome, SrdoFaultCause> {
         self.check_timers(now)?;
+        let data = u64::from_le_bytes(*data);
+        let length = DataLength::new(dlc);
         if self.srvt_deadline != Instant::NEVER {
-            return Err(SrdoFaultCause::PlainRepeated);
+            return if data == self.pending && length == self.pending_dlc {
+                Ok(PlainOutcome::Discarded(Discarded::PlainRepeated))
+            } else {
+                Err(SrdoFaultCause::PlainRepeated)
+            };
         }
         if dlc < len {
             return Err(SrdoFaultCause::TooShort);
         }
-        self.pending = u64::from_le_bytes(*data);
+        self.pending = data;
+        self.pending_dlc = length;
         self.srvt_deadline = now + srvt;
-        Ok(())
+        Ok(PlainOutcome::Pending)
     }
 
-    /// The inverted frame (COB-ID 2) arrived at `now`. On success returns the plain payload
-    /// and the inverted payload, both to be delivered, and restarts SCT.
+    /// The inverted frame (COB-ID 2) arrived at `now`. A valid pair restarts SCT; with no
+    /// plain frame pending the frame is discarded (CAN double reception, or monitoring that
+    /// started between the two frames) and SCT keeps running.
     #[inline]
     pub fn on_inverted(
         &mut self,
@@ -166,11 +262,11 @@ impl Consumer {
         dlc: u8,
         len: u8,
         sct: Duration,
-    ) -> Result<(u64, u64), SrdoFaultCause> {
-        if self.srvt_deadline == Instant::NEVER {
-            return Err(SrdoFaultCause::InvertedWithoutPlain);
-        }
+    ) -> Result<InvertedOutcome, SrdoFaultCause> {
         self.check_timers(now)?;
+        if self.srvt_deadline == Instant::NEVER {
+            return Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain));
+        }
         if dlc < len {
             return Err(SrdoFaultCause::TooShort);
         }
@@ -180,9 +276,10 @@ impl Consumer {
         }
         let plain = self.pending;
         self.pending = 0;
+        self.pending_dlc = DataLength::L0;
         self.srvt_deadline = Instant::NEVER;
         self.sct_deadline = now + sct;
-        Ok((plain, inverted))
+        Ok(InvertedOutcome::Pair { plain, inverted })
     }
 }
 
@@ -333,7 +430,10 @@ mod tests {
         assert_eq!(consumer.deadline(), at(30_000), "SRVT now the earliest");
         assert_eq!(
             consumer.on_inverted(at(10_200), &bytes(0xA5), 1, 1, SCT),
-            Ok((0x5A, 0xA5))
+            Ok(InvertedOutcome::Pair {
+                plain: 0x5A,
+                inverted: 0xA5
+            })
         );
         assert_eq!(consumer.deadline(), at(60_200));
     }
@@ -364,17 +464,43 @@ mod tests {
     }
 
     #[test]
-    fn cia304_9_5_order_is_checked_in_both_directions() {
+    fn cia304_9_5_order_is_checked_and_double_receptions_are_discarded() {
         let mut consumer = Consumer::start(at(0), SCT);
         assert_eq!(
             consumer.on_inverted(at(1), &bytes(0xFE), 1, 1, SCT),
-            Err(SrdoFaultCause::InvertedWithoutPlain)
+            Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain))
         );
-        consumer.on_plain(at(2), &bytes(1), 1, 1, SRVT).unwrap();
+        assert_eq!(consumer.deadline(), at(50_000), "SCT keeps running");
+        assert_eq!(
+            consumer.on_plain(at(2), &bytes(1), 1, 1, SRVT),
+            Ok(PlainOutcome::Pending)
+        );
         assert_eq!(
             consumer.on_plain(at(3), &bytes(1), 1, 1, SRVT),
-            Err(SrdoFaultCause::PlainRepeated)
+            Ok(PlainOutcome::Discarded(Discarded::PlainRepeated))
         );
+        assert_eq!(consumer.deadline(), at(20_002), "SRVT of the first copy");
+        for (data, dlc) in [(2, 1), (1, 2), (0x0101, 2)] {
+            let mut copy = consumer;
+            assert_eq!(
+                copy.on_plain(at(4), &bytes(data), dlc, 1, SRVT),
+                Err(SrdoFaultCause::PlainRepeated),
+                "{data:#x} length {dlc}"
+            );
+        }
+        assert_eq!(
+            consumer.on_inverted(at(5), &bytes(0xFE), 1, 1, SCT),
+            Ok(InvertedOutcome::Pair {
+                plain: 1,
+                inverted: 0xFE
+            })
+        );
+        assert_eq!(
+            consumer.on_inverted(at(6), &bytes(0xFE), 1, 1, SCT),
+            Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain)),
+            "a repeat of the inverted frame"
+        );
+        assert_eq!(consumer.deadline(), at(50_005));
     }
 
     #[test]
@@ -399,9 +525,11 @@ mod tests {
         consumer
             .on_plain(at(1), &[0x01, 0xAA, 0xBB, 0, 0, 0, 0, 0], 3, 1, SRVT)
             .unwrap();
-        let (plain, inverted) = consumer
-            .on_inverted(at(2), &[0xFE, 0x00, 0x00, 0, 0, 0, 0, 0], 3, 1, SCT)
-            .unwrap();
+        let Ok(InvertedOutcome::Pair { plain, inverted }) =
+            consumer.on_inverted(at(2), &[0xFE, 0x00, 0x00, 0, 0, 0, 0, 0], 3, 1, SCT)
+        else {
+            panic!("a valid pair");
+        };
         assert_eq!((plain as u8, inverted as u8), (0x01, 0xFE));
     }
 
