@@ -25,6 +25,7 @@
 //! but stop for good when their own two halves disagree.
 
 mod dictionary;
+mod integrity;
 mod persist;
 
 use heapless::Vec;
@@ -44,6 +45,7 @@ use crate::safety::types::{Direction, SrdoNumber};
 use crate::safety::{MAX_SRDOS, gfc};
 use crate::time::{Duration, Instant};
 
+pub use integrity::{IDLE_PERIOD as INTEGRITY_IDLE_PERIOD, IntegrityFault};
 pub use persist::PersistError;
 
 /// What a device is: its identity, its application objects, and the defaults of its
@@ -102,6 +104,9 @@ pub enum SafeStateCause {
         /// The application's cause code (EMCY detail byte 1).
         detail: u8,
     },
+    /// The periodic check in Operational found the configuration in use damaged (EMCY 6300h;
+    /// detail byte 1 F1h..F4h names what differed). Producers stop too.
+    Integrity(IntegrityFault),
 }
 
 /// Something the application should know.
@@ -239,6 +244,7 @@ struct Core<F: Flash, const N: usize> {
     error_register: u8,
     remote_frames_ignored: u32,
     deferred_event: Option<Event>,
+    integrity: integrity::Integrity,
     /// The time of the SDO request being served (the object dictionary has no `now`).
     now: Instant,
     flash: F,
@@ -270,6 +276,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
             error_register: 0,
             remote_frames_ignored: 0,
             deferred_event: None,
+            integrity: integrity::Integrity::IDLE,
             now: Instant::ZERO,
             flash,
         };
@@ -631,7 +638,10 @@ impl<F: Flash, const N: usize> Core<F, N> {
             let _ = active.push(slot as u8);
         });
         match result {
-            Ok(()) => self.change_state(NmtState::Operational, sink),
+            Ok(()) => {
+                self.start_integrity(now);
+                self.change_state(NmtState::Operational, sink);
+            }
             Err(fault) => {
                 self.stop_srdos();
                 self.error_register |= emcy::register::GENERIC | emcy::register::PROFILE;
@@ -656,6 +666,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         }
         self.active.clear();
         self.lookup = [0; SRDO_IDS];
+        self.integrity = integrity::Integrity::IDLE;
     }
 
     /// A frame on an SRDO identifier (the hot path of a consumer).
@@ -745,7 +756,9 @@ impl<F: Flash, const N: usize> Core<F, N> {
                     self.producers_halted = true;
                 }
             }
-            SafeStateCause::Application { .. } => self.producers_halted = true,
+            SafeStateCause::Application { .. } | SafeStateCause::Integrity(_) => {
+                self.producers_halted = true;
+            }
             SafeStateCause::Gfc => {}
         }
         if self.fault.is_some() {
@@ -766,6 +779,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
             SafeStateCause::Application { detail } => {
                 (emcy::code::APPLICATION_FAULT, [0, detail, 0, 0, 0])
             }
+            SafeStateCause::Integrity(fault) => (emcy::code::DATA_SET, fault.emergency_detail()),
         };
         self.error_register |= emcy::register::GENERIC | emcy::register::COMMUNICATION;
         self.send_emergency(code, detail, sink);
@@ -797,6 +811,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         }
         if self.state == NmtState::Operational {
             self.run_srdos(now, sink);
+            self.poll_integrity(now, sink);
         }
         // Last, so that a fault found by the SRDO timers above sends its GFC in this same
         // poll (EN 50325-5 6.3) rather than at the next one.
@@ -869,6 +884,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         if self.state != NmtState::Operational {
             return next;
         }
+        next = next.min(self.integrity.deadline());
         for &slot in &self.active {
             let deadline = match self
                 .runtime
