@@ -76,7 +76,9 @@
 //!   the medium; the first must load the new record (the store had verified it), so the second
 //!   does too. Either way what loads is the newest record and it verifies by its CRC: the flip
 //!   cannot bring back an older record, nor let a damaged one through.
-//! - *Limits.* Two independent faults (a flip in the new record's retired word *and* in its
+//! - *Limits.* Two intact records with one sequence number are reported as damage, but no
+//!   store writes them (a new record is newer than every intact one), and a store over them
+//!   can leave one of them in force if it is torn. Two independent faults (a flip in the new record's retired word *and* in its
 //!   record) are outside this argument: the slot then looks like a torn erase and an older live
 //!   record could load. A torn erase that erased a retired slot's retired word completely while
 //!   leaving its commit word programmed makes that slot damaged: the load fails safe
@@ -348,7 +350,15 @@ fn commit<F: Flash>(flash: &mut F, kind: u8, payload: &[u8]) -> Result<(), Stora
         [_, Content::Damaged] => Slot::A,
         _ => newest.map_or(Slot::A, |(slot, _, _)| slot.other()),
     };
-    let sequence = newest.map_or(0, |(_, header, _)| header.sequence.wrapping_add(1));
+    // Newer than every intact record on the medium, whichever is in force.
+    let sequence = found
+        .iter()
+        .filter_map(|content| match content {
+            Content::Live(header) | Content::Retiring(header) => Some(*header),
+            Content::Ignored | Content::Damaged => None,
+        })
+        .reduce(|a, b| if b.is_newer_than(a) { b } else { a })
+        .map_or(0, |header| header.sequence.wrapping_add(1));
     let header = Header {
         kind,
         sequence,
@@ -887,6 +897,46 @@ mod tests {
         }
         // The sweep reached the state it is about.
         assert!(both > 0);
+    }
+
+    /// A store onto a medium that reports damage, torn at every byte: afterwards the medium
+    /// reports the damage or holds the new record; the older record behind the damaged one
+    /// never loads (the damaged slot is kept until the new record is committed).
+    #[test]
+    fn en50325_5_8_3_1_a_torn_store_over_a_damaged_record_never_brings_back_an_older_one() {
+        let old = b"old configuration";
+        for damage_at in [
+            COMMIT_AT + WORD,
+            HEADER_AT,
+            HEADER_AT + 8,
+            PAYLOAD_AT,
+            PAYLOAD_AT + 4,
+        ] {
+            // Old and new both committed (a cut before the old one was retired), then the
+            // new one damaged (retired word, magic, sequence, payload, CRC).
+            let mut base = Medium::new();
+            committed(&mut base, Slot::A, 3, old);
+            committed(&mut base, Slot::B, 4, b"new");
+            base.slot_mut(Slot::B)[damage_at] ^= 0x10;
+            assert_eq!(loaded(&mut base), Err(StorageError::Corrupt));
+            for budget in 0.. {
+                let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
+                let result = store(&mut flash, b"fresh");
+                let completed = flash.powered();
+                flash.power_on();
+                let after = loaded(&mut flash);
+                assert!(
+                    after == Err(StorageError::Corrupt) || after == Ok(Some(b"fresh".to_vec())),
+                    "damage at {damage_at}, budget {budget}: {after:?}"
+                );
+                if result.is_ok() {
+                    assert_eq!(after, Ok(Some(b"fresh".to_vec())));
+                }
+                if completed {
+                    break;
+                }
+            }
+        }
     }
 
     #[test]
