@@ -10,7 +10,7 @@
 //! identifier table (CAN identifier → SRDO slot, plain or inverted, transmit or receive), each
 //! running SRDO's resolved mapping and role, and the list of running SRDOs. The configuration
 //! digest the two channels of a dual-channel device compare covers the records only. Here,
-//! every [`Integrity::period`], the same Operational-entry check runs again on the records
+//! every period (see below), the same Operational-entry check runs again on the records
 //! (each signature, 0x13FE) and the tables are derived again, independently of the ones in
 //! use, and compared with them entry by entry. Any difference latches the safe state
 //! ([`super::SafeStateCause::Integrity`]) with EMCY 6300h (data set) and an event naming
