@@ -11,8 +11,10 @@
 //! running SRDO's resolved mapping and role, and the list of running SRDOs. The configuration
 //! digest the two channels of a dual-channel device compare covers the records only. Here,
 //! every period (see below), the same Operational-entry check runs again on the records
-//! (each signature, 0x13FE) and the tables are derived again, independently of the ones in
-//! use, and compared with them entry by entry. Any difference latches the safe state
+//! (each signature, 0x13FE) and the tables are derived again into fresh ones and compared
+//! with the ones in use entry by entry. The derivation goes through the same validation
+//! functions as at Operational entry: this finds damage in memory, not a fault in that code
+//! (which the configuration tests cover). Any difference latches the safe state
 //! ([`super::SafeStateCause::Integrity`]) with EMCY 6300h (data set) and an event naming
 //! what differed. Not covered: the SRDO state machines' own timers and counters (they are
 //! state, not configuration; a damaged timer shows as an SCT or SRVT fault), and mapping
