@@ -80,6 +80,8 @@ impl Diagnostics {
                     SafeStateCause::Srdo(fault) => fault.cause.cause_code(),
                     SafeStateCause::Gfc => GFC_CAUSE,
                     SafeStateCause::Application { detail } => *detail,
+                    // F2h..F5h, as in EMCY 6300h byte 1.
+                    SafeStateCause::Integrity(fault) => fault.emergency_detail()[1],
                 };
             }
             ChannelEvent::Fault(fault) => self.status.cause = fault.cause_code(),

@@ -3,7 +3,7 @@
 //! functions (`--toggle-collect`), and divides by the iterations.
 //!
 //! ```text
-//! hot_paths <validated-pair|produced-pair|idle-poll> <iterations>
+//! hot_paths <validated-pair|produced-pair|idle-poll|integrity-check> <iterations>
 //! ```
 //!
 //! - `validated-pair`: an 8-byte SRDO pair received by an Operational consumer (node 33):
@@ -13,6 +13,10 @@
 //!   poll that finds it due gathers the mapped data, checks the halves and hands both frames
 //!   to the sink.
 //! - `idle-poll`: a poll with nothing due.
+//! - `integrity-check`: the poll at which the periodic integrity check in Operational is due
+//!   (node 1, one producer: the Operational-entry check again, the tables derived again and
+//!   compared). It runs once per refresh time, in a poll of its own; `produced-pair` counts
+//!   only the polls that transmit.
 
 use shared::canopen::od::Address;
 use shared::canopen::sdo_client;
@@ -151,6 +155,13 @@ pub fn produce(node: &mut BenchNode, due: Instant, sink: &mut Counter) -> Instan
     node.poll(due, sink)
 }
 
+/// Measured: the poll at which the integrity check is due.
+#[inline(never)]
+pub fn check(node: &mut BenchNode, due: Instant, sink: &mut Counter) -> Instant {
+    // Not the same body as `produce`, so the two are never folded into one function.
+    black_box(node.poll(due, sink))
+}
+
 /// Measured: a poll with nothing due.
 #[inline(never)]
 pub fn idle(node: &mut BenchNode, now: Instant, sink: &mut Counter) -> Instant {
@@ -170,15 +181,31 @@ fn validated_pair(iterations: u64) -> Counter {
     sink
 }
 
-fn produced_pair(iterations: u64) -> Counter {
+/// The producer's refresh time (the pre-defined 25 ms), and so the integrity check's period.
+const REFRESH_US: u64 = 25_000;
+
+/// `iterations` transmissions of node 1's SRDO 1 and the integrity checks between them: the
+/// transmissions are due 0.5 ms after entering Operational and every refresh time after
+/// (DSP 304 9.5), the check every refresh time from the entry itself, so every poll is one
+/// or the other; each goes through its own measured function.
+fn producer_polls(iterations: u64) -> Counter {
     let mut node = operational(1);
     let mut sink = Counter::default();
-    // The first transmission is due 0.5 ms after entering Operational (DSP 304 9.5).
     let mut due = node.poll(Instant::ZERO, &mut sink);
-    for _ in 0..iterations {
-        due = produce(&mut node, due, &mut sink);
+    let (mut produced, mut checked) = (0, 0);
+    while produced < iterations || checked < iterations {
+        let before = sink.frames;
+        if due.as_micros() % REFRESH_US == 0 {
+            due = check(&mut node, due, &mut sink);
+            assert_eq!(sink.frames, before, "the check sends nothing");
+            checked += 1;
+        } else {
+            due = produce(&mut node, due, &mut sink);
+            assert_eq!(sink.frames, before + 2, "a pair per transmitting poll");
+            produced += 1;
+        }
     }
-    assert_eq!(sink.frames as u64, 2 * iterations, "a pair per poll");
+    assert!(node.is_working(), "the check found nothing");
     sink
 }
 
@@ -198,7 +225,9 @@ fn idle_poll(iterations: u64) -> Counter {
 fn main() {
     let mut args = std::env::args().skip(1);
     let (Some(path), Some(iterations)) = (args.next(), args.next()) else {
-        eprintln!("usage: hot_paths <validated-pair|produced-pair|idle-poll> <iterations>");
+        eprintln!(
+            "usage: hot_paths <validated-pair|produced-pair|idle-poll|integrity-check> <iterations>"
+        );
         std::process::exit(2);
     };
     let Ok(iterations) = iterations.parse::<u64>() else {
@@ -207,7 +236,7 @@ fn main() {
     };
     let sink = match path.as_str() {
         "validated-pair" => validated_pair(iterations),
-        "produced-pair" => produced_pair(iterations),
+        "produced-pair" | "integrity-check" => producer_polls(iterations),
         "idle-poll" => idle_poll(iterations),
         other => {
             eprintln!("unknown hot path {other:?}");

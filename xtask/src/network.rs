@@ -400,6 +400,7 @@ pub fn cause(code: u8) -> &'static str {
         0x33 => "input discrepancy",
         0x40 => "other channel safe",
         0x50 => "GFC",
+        0xF2..=0xF5 => "configuration in use damaged",
         _ => "other",
     }
 }

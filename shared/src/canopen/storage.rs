@@ -1,38 +1,123 @@
 //! Atomic parameter storage on two flash slots (CiA 301 7.5.2.13 / 7.5.2.14, 0x1010 / 0x1011).
 //!
-//! A store must never leave a mix of the old and the new parameters, whatever moment the
-//! power fails at: a device that restores half of a new configuration and half of an old one
-//! could run with a signature that matches neither. The scheme is the classic A/B one:
+//! Two promises, whatever moment the power fails at and whatever single bit of a stored record
+//! flips afterwards:
 //!
-//! - The medium offers two equal slots ([`Flash`]). Every record goes into the slot that does
-//!   *not* hold the newest valid record, so the newest valid record is never erased or written
-//!   while a store is in progress.
-//! - A record is a header (magic, layout version, kind, sequence number, payload length), the
-//!   payload, and a CRC-32 over header and payload. The CRC is written last and is the commit:
-//!   until it is complete and matches, the record does not exist.
-//! - [`load`] takes the valid record with the newest sequence number (serial-number arithmetic,
-//!   so the counter may wrap). A *defaults marker* record ([`restore_defaults`]) says "use the
-//!   defaults at the next reset" and is committed the same way.
+//! 1. A store leaves the old or the new record, whole, never a mix: a device that restored half
+//!    of a new configuration and half of an old one could run with a signature matching neither.
+//! 2. Once a new record is committed, no older record ever loads again: when the newest record
+//!    is damaged, [`load`] reports [`StorageError::Corrupt`]. An older configuration is
+//!    internally consistent (its signatures match, 0x13FE says A5h), so a node that fell back
+//!    to it would validate it and run a configuration the user has replaced (EN 50325-5 8.3.1).
+//!
+//! # Slot layout (layout version 2)
+//!
+//! All integers little-endian; every field starts on a 32-bit word, and no word is programmed
+//! twice between two erases (so word-programmed flash needs no re-programming of a programmed
+//! word).
+//!
+//! | offset | bytes | field |
+//! |-------:|------:|-------|
+//! | 0 | 4 | commit word: erased (FFFF FFFFh) until the record below was written and verified, then programmed to 0 |
+//! | 4 | 4 | retired word: erased while the record is in force; programmed to 0 once a newer record is committed in the other slot, and before the slot is erased |
+//! | 8 | 16 | header: magic "CSP2", layout (2), kind, reserved (0, 0), sequence number, payload length |
+//! | 24 | `len` | payload |
+//! | 24 + `len` | 0..=3 | padding to a word, erased (FFh) |
+//! | 24 + ⌈`len`⌉₄ | 4 | CRC-32 over header, payload and padding |
+//!
+//! # Storing
+//!
+//! 1. The target is the slot that holds neither the newest record nor a damaged one. It is
+//!    *retired* (retired word programmed) and erased.
+//! 2. Header, payload and CRC are written and read back; only a record that verifies is
+//!    committed, by programming the commit word.
+//! 3. The other slot is retired, then erased (up to 2 s on the STM32F405).
+//!
+//! The new record's sequence number is one more than the newest one found (serial-number
+//! arithmetic, RFC 1982, so the counter may wrap).
+//!
+//! # Loading: what each slot says
+//!
+//! A slot is judged first by its two words, which sit at fixed offsets and so do not depend
+//! on the header being intact:
+//!
+//! | commit word | retired word | record | the slot is |
+//! |---|---|---|---|
+//! | erased | any | any | *uncommitted*: erased, a store torn before its commit, or what a torn erase of a retired slot left; ignored |
+//! | not erased | 0 | any | *retired*: superseded or about to be erased; ignored |
+//! | not erased | erased | verifies | *live* |
+//! | not erased | erased | does not verify | *damaged*: it was complete and verified when committed, so it is damage, whichever byte (header included) changed |
+//! | not erased | partly programmed | verifies | *retiring*: its retirement was torn by a power cut (then a newer live record is in the other slot), or its retired word is damaged |
+//! | not erased | partly programmed | does not verify | a torn erase of a retired slot; ignored |
+//!
+//! Then: any damaged slot makes the load [`StorageError::Corrupt`]. Otherwise the newest of the
+//! live and retiring records (by sequence number, which is CRC-protected in both) decides: a
+//! live one loads, a retiring one is damage (a record is retired only after a newer one was
+//! committed, so a retiring record can never legitimately be the newest). No live or retiring
+//! record: nothing is stored.
+//!
+//! # Why this is right
+//!
+//! - *Old or new after a power cut.* Until the commit word is programmed, the target is
+//!   uncommitted and ignored, and the old record is untouched and live. A commit word torn by
+//!   the power cut is not erased, and the record behind it had already verified, so the new
+//!   record is live. Between the commit and the old slot's retirement both slots are live and
+//!   the sequence number (intact in both: both verify) picks the new one. A torn retirement
+//!   makes the old slot retiring, older than the live new one. A torn erase hits only retired
+//!   (or uncommitted) slots.
+//! - *Never older after damage.* In every state in which the new record is committed, a flip in
+//!   its header, payload, padding or CRC makes it damaged, and a flip in its retired word (from
+//!   erased to one bit programmed) makes it retiring and newest; both are
+//!   [`StorageError::Corrupt`], whether or not the old record is still in the other slot. A
+//!   flip in the damaged slot's header cannot hide it, because the commit and retired words,
+//!   not the header, say whether a slot holds a committed record.
+//! - *The one exception, by necessity:* the commit word's last programming step. A commit word
+//!   torn by a power cut and a programmed commit word with a bit flipped are the same bits on
+//!   the medium; the first must load the new record (the store had verified it), so the second
+//!   does too. Either way what loads is the newest record and it verifies by its CRC: the flip
+//!   cannot bring back an older record, nor let a damaged one through.
+//! - *Limits.* Two intact records with one sequence number are reported as damage, but no
+//!   store writes them (a new record is newer than every intact one), and a store over them
+//!   can leave one of them in force if it is torn. Two independent faults (a flip in the new record's retired word *and* in its
+//!   record) are outside this argument: the slot then looks like a torn erase and an older live
+//!   record could load. A torn erase that erased a retired slot's retired word completely while
+//!   leaving its commit word programmed makes that slot damaged: the load fails safe
+//!   ([`StorageError::Corrupt`]) though an intact record is in the other slot.
 //!
 //! [`RamFlash`] models NOR flash on the host (erased = 0xFF, a write can only clear bits);
 //! [`PowerCutFlash`] wraps a medium and loses power after a given number of bytes, tearing the
-//! write or erase in progress. The tests cut the power at every byte of a store.
+//! write or erase in progress. The tests cut the power at every byte of a store, and damage
+//! every bit of the new record in every state a cut can leave.
 //!
 //! The hardware image implements [`Flash`] on two flash sectors; nothing here knows about
 //! sectors, alignment or timing beyond what the trait says.
 
 use crc::{CRC_32_ISO_HDLC, Crc, Digest};
 
-/// CRC-32 (ISO-HDLC, as Ethernet and zip use it) that commits a record.
+/// CRC-32 (ISO-HDLC, as Ethernet and zip use it) that seals a record.
 const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
-/// "CSP1": marks the start of a record.
-const MAGIC: u32 = u32::from_le_bytes(*b"CSP1");
-/// Record layout version.
-const LAYOUT: u8 = 1;
+/// "CSP2": marks the start of a record header.
+const MAGIC: u32 = u32::from_le_bytes(*b"CSP2");
+/// Slot layout version (the module documentation's table).
+const LAYOUT: u8 = 2;
+/// Offset of the commit word.
+const COMMIT_AT: usize = 0;
+/// Offset of the retired word.
+const RETIRED_AT: usize = 4;
+/// Offset of the header.
+const HEADER_AT: usize = 8;
 /// Header: magic (4), layout (1), kind (1), reserved (2), sequence (4), payload length (4).
 const HEADER_LEN: usize = 16;
-/// The CRC that follows the payload.
+/// Offset of the payload.
+const PAYLOAD_AT: usize = HEADER_AT + HEADER_LEN;
+/// The CRC that follows the padded payload.
 const CRC_LEN: usize = 4;
+/// A word of flash: the unit every field is aligned to.
+const WORD: usize = 4;
+/// An erased word.
+const ERASED: [u8; WORD] = [0xFF; WORD];
+/// What the commit and retired words are programmed to.
+const PROGRAMMED: [u8; WORD] = [0; WORD];
 /// Record kind: the payload is the stored parameters.
 const KIND_PAYLOAD: u8 = 1;
 /// Record kind: use the defaults (no payload).
@@ -70,7 +155,8 @@ pub enum StorageError {
     Medium,
     /// What was written does not read back (worn or failing flash).
     VerifyFailed,
-    /// No committed record is left, but a damaged one is: the stored parameters are lost.
+    /// A committed record is damaged (any byte of it, header included): the stored parameters
+    /// are lost, and no older record is used instead.
     Corrupt,
     /// The power failed during the operation (reported by [`PowerCutFlash`]).
     PowerLost,
@@ -126,110 +212,187 @@ impl Header {
     /// `true` when `self` was written after `other` (RFC 1982 serial-number comparison).
     fn is_newer_than(self, other: Header) -> bool {
         // Reinterpreting the wrapped difference as signed is the point of the comparison.
-        #[allow(clippy::cast_possible_wrap)]
+        #[expect(
+            clippy::cast_possible_wrap,
+            reason = "serial-number arithmetic reads the wrapped difference as signed"
+        )]
         let ahead = self.sequence.wrapping_sub(other.sequence) as i32;
         ahead > 0
     }
 }
 
-/// What a slot holds.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Content {
-    /// No record header (erased, or a store torn before its header was complete).
-    Empty,
-    /// A complete header whose CRC does not match: a torn store, or a damaged record.
-    Damaged,
-    /// A committed record.
-    Committed(Header),
+/// The padded payload length and the offset of the CRC for a payload of `len` bytes, when the
+/// whole record fits in a slot of `slot_len` bytes.
+fn layout(len: usize, slot_len: usize) -> Option<(usize, usize)> {
+    let padded = len.checked_next_multiple_of(WORD)?;
+    let crc_at = PAYLOAD_AT.checked_add(padded)?;
+    (crc_at.checked_add(CRC_LEN)? <= slot_len).then_some((padded, crc_at))
 }
 
-/// Reads the header of `slot` and checks the record's CRC, streaming the payload through a
-/// small scratch buffer so no buffer of the payload's size is needed.
-fn content<F: Flash>(flash: &mut F, slot: Slot) -> Result<Content, StorageError> {
+/// What a slot holds (the module documentation's table).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Content {
+    /// Commit word erased, or retired (fully, or a torn erase of a retired slot): ignored.
+    Ignored,
+    /// Committed, not retired, intact.
+    Live(Header),
+    /// Committed, not retired, and the record does not verify.
+    Damaged,
+    /// Committed, retired word partly programmed, intact.
+    Retiring(Header),
+}
+
+/// Reads one word of `slot`.
+fn word<F: Flash>(flash: &mut F, slot: Slot, at: usize) -> Result<[u8; WORD], StorageError> {
+    let mut bytes = [0u8; WORD];
+    flash.read(slot, at, &mut bytes)?;
+    Ok(bytes)
+}
+
+/// The header of the record in `slot`, when header, payload, padding and CRC verify. Streams
+/// the payload through a small scratch buffer so no buffer of the payload's size is needed.
+fn verified<F: Flash>(flash: &mut F, slot: Slot) -> Result<Option<Header>, StorageError> {
     let mut raw = [0u8; HEADER_LEN];
-    flash.read(slot, 0, &mut raw)?;
+    flash.read(slot, HEADER_AT, &mut raw)?;
     let Some(header) = Header::decode(&raw) else {
-        return Ok(Content::Empty);
+        return Ok(None);
     };
-    let len = header.len as usize;
-    let fits = len
-        .checked_add(HEADER_LEN + CRC_LEN)
-        .is_some_and(|total| total <= flash.slot_len());
-    if !fits || (header.kind == KIND_DEFAULTS && len != 0) {
-        return Ok(Content::Damaged);
+    let Some((padded, crc_at)) = layout(header.len as usize, flash.slot_len()) else {
+        return Ok(None);
+    };
+    if header.kind == KIND_DEFAULTS && header.len != 0 {
+        return Ok(None);
     }
     let mut digest = CRC.digest();
     digest.update(&raw);
     let mut scratch = [0u8; 64];
     let mut at = 0;
-    while at < len {
-        let chunk = (len - at).min(scratch.len());
-        flash.read(slot, HEADER_LEN + at, &mut scratch[..chunk])?;
+    while at < padded {
+        let chunk = (padded - at).min(scratch.len());
+        flash.read(slot, PAYLOAD_AT + at, &mut scratch[..chunk])?;
         digest.update(&scratch[..chunk]);
         at += chunk;
     }
-    let mut stored = [0u8; CRC_LEN];
-    flash.read(slot, HEADER_LEN + len, &mut stored)?;
-    Ok(if digest.finalize() == u32::from_le_bytes(stored) {
-        Content::Committed(header)
-    } else {
-        Content::Damaged
+    let stored = word(flash, slot, crc_at)?;
+    Ok((digest.finalize() == u32::from_le_bytes(stored)).then_some(header))
+}
+
+/// Judges `slot` by its commit and retired words, then its record.
+fn content<F: Flash>(flash: &mut F, slot: Slot) -> Result<Content, StorageError> {
+    let commit = word(flash, slot, COMMIT_AT)?;
+    let retired = word(flash, slot, RETIRED_AT)?;
+    if commit == ERASED || retired == PROGRAMMED {
+        return Ok(Content::Ignored);
+    }
+    Ok(match (retired == ERASED, verified(flash, slot)?) {
+        (true, Some(header)) => Content::Live(header),
+        (true, None) => Content::Damaged,
+        (false, Some(header)) => Content::Retiring(header),
+        (false, None) => Content::Ignored,
     })
 }
 
-/// Both slots: the newest committed record, if any, and whether a slot holds a damaged one.
-fn scan<F: Flash>(flash: &mut F) -> Result<(Option<(Slot, Header)>, bool), StorageError> {
-    let a = content(flash, Slot::A)?;
-    let b = content(flash, Slot::B)?;
-    let damaged = a == Content::Damaged || b == Content::Damaged;
-    let newest = match (a, b) {
-        (Content::Committed(a), Content::Committed(b)) if b.is_newer_than(a) => Some((Slot::B, b)),
-        (Content::Committed(a), _) => Some((Slot::A, a)),
-        (_, Content::Committed(b)) => Some((Slot::B, b)),
-        _ => None,
-    };
-    Ok((newest, damaged))
+/// Both slots, judged.
+fn contents<F: Flash>(flash: &mut F) -> Result<[Content; 2], StorageError> {
+    Ok([content(flash, Slot::A)?, content(flash, Slot::B)?])
 }
 
-/// Writes a record of `kind` into the slot that does not hold the newest one, then erases
-/// the superseded record, so that a later corruption of the new record cannot make an older
-/// configuration come back: with no committed record left, [`load`] reports
-/// [`StorageError::Corrupt`] instead.
+/// The newest of the live and retiring records, with `true` when it is live.
+fn newest(contents: [Content; 2]) -> Result<Option<(Slot, Header, bool)>, StorageError> {
+    let candidate = |slot: Slot| match contents[slot as usize] {
+        Content::Live(header) => Some((slot, header, true)),
+        Content::Retiring(header) => Some((slot, header, false)),
+        Content::Ignored | Content::Damaged => None,
+    };
+    Ok(match (candidate(Slot::A), candidate(Slot::B)) {
+        (Some(a), Some(b)) if b.1.is_newer_than(a.1) => Some(b),
+        (Some(a), Some(b)) if a.1.is_newer_than(b.1) => Some(a),
+        // Two records with one sequence number: no store writes that.
+        (Some(_), Some(_)) => return Err(StorageError::Corrupt),
+        (Some(one), None) | (None, Some(one)) => Some(one),
+        (None, None) => None,
+    })
+}
+
+/// The record in force: `None` when nothing is stored; [`StorageError::Corrupt`] when a
+/// committed record is damaged or the newest one is retiring.
+fn in_force(contents: [Content; 2]) -> Result<Option<(Slot, Header)>, StorageError> {
+    if contents.contains(&Content::Damaged) {
+        return Err(StorageError::Corrupt);
+    }
+    match newest(contents)? {
+        Some((slot, header, true)) => Ok(Some((slot, header))),
+        Some((_, _, false)) => Err(StorageError::Corrupt),
+        None => Ok(None),
+    }
+}
+
+/// Retires `slot` (unless its retired word is programmed already: no word is programmed
+/// twice), then erases it.
+fn retire<F: Flash>(flash: &mut F, slot: Slot) -> Result<(), StorageError> {
+    if word(flash, slot, RETIRED_AT)? == ERASED {
+        flash.write(slot, RETIRED_AT, &PROGRAMMED)?;
+    }
+    flash.erase(slot)
+}
+
+/// Writes a record of `kind` into the slot that holds neither the newest record nor a
+/// damaged one, commits it once it verifies, then retires and erases the other slot.
 fn commit<F: Flash>(flash: &mut F, kind: u8, payload: &[u8]) -> Result<(), StorageError> {
     let len = u32::try_from(payload.len()).map_err(|_| StorageError::TooLarge)?;
-    if HEADER_LEN + payload.len() + CRC_LEN > flash.slot_len() {
-        return Err(StorageError::TooLarge);
-    }
-    let (target, sequence) = match scan(flash)?.0 {
-        Some((slot, header)) => (slot.other(), header.sequence.wrapping_add(1)),
-        None => (Slot::A, 0),
+    let (padded, crc_at) = layout(payload.len(), flash.slot_len()).ok_or(StorageError::TooLarge)?;
+    let found = contents(flash)?;
+    // A damaged slot is kept until the new record is committed (it keeps the medium reporting
+    // damage if this store is torn); otherwise the newest record is kept.
+    let newest = newest(found).ok().flatten();
+    let target = match found {
+        [Content::Damaged, _] => Slot::B,
+        [_, Content::Damaged] => Slot::A,
+        _ => newest.map_or(Slot::A, |(slot, _, _)| slot.other()),
     };
+    // Newer than every intact record on the medium, whichever is in force.
+    let sequence = found
+        .iter()
+        .filter_map(|content| match content {
+            Content::Live(header) | Content::Retiring(header) => Some(*header),
+            Content::Ignored | Content::Damaged => None,
+        })
+        .reduce(|a, b| if b.is_newer_than(a) { b } else { a })
+        .map_or(0, |header| header.sequence.wrapping_add(1));
     let header = Header {
         kind,
         sequence,
         len,
     };
     let encoded = header.encode();
+    let padding = &ERASED[..padded - payload.len()];
     let mut digest: Digest<'_, u32> = CRC.digest();
     digest.update(&encoded);
     digest.update(payload);
+    digest.update(padding);
     let crc = digest.finalize().to_le_bytes();
 
-    flash.erase(target)?;
-    flash.write(target, 0, &encoded)?;
-    flash.write(target, HEADER_LEN, payload)?;
-    // The commit: only a complete, matching CRC makes the record exist.
-    flash.write(target, HEADER_LEN + payload.len(), &crc)?;
-    if content(flash, target)? != Content::Committed(header) {
+    retire(flash, target)?;
+    flash.write(target, HEADER_AT, &encoded)?;
+    flash.write(target, PAYLOAD_AT, payload)?;
+    flash.write(target, crc_at, &crc)?;
+    // Only a record that reads back whole is committed.
+    let words_erased =
+        word(flash, target, COMMIT_AT)? == ERASED && word(flash, target, RETIRED_AT)? == ERASED;
+    if !words_erased || verified(flash, target)? != Some(header) {
         return Err(StorageError::VerifyFailed);
     }
-    // The new record is committed; the old one goes. A power cut before this erase leaves
-    // two committed records and the newer one wins.
-    flash.erase(target.other())
+    // The commit.
+    flash.write(target, COMMIT_AT, &PROGRAMMED)?;
+    if content(flash, target)? != Content::Live(header) {
+        return Err(StorageError::VerifyFailed);
+    }
+    // The new record is in force; the other slot goes.
+    retire(flash, target.other())
 }
 
 /// Stores `payload` atomically: after a power failure at any point, [`load`] returns either
-/// the previous record or `payload`, never a mix.
+/// the previous record or `payload`, never a mix; once this returns `Ok`, never the previous.
 pub fn store<F: Flash>(flash: &mut F, payload: &[u8]) -> Result<(), StorageError> {
     commit(flash, KIND_PAYLOAD, payload)
 }
@@ -241,30 +404,29 @@ pub fn restore_defaults<F: Flash>(flash: &mut F) -> Result<(), StorageError> {
 }
 
 /// Copies the newest stored payload into `buf` and returns its length; `None` when nothing is
-/// stored or the newest record asks for the defaults.
+/// stored or the newest record asks for the defaults; [`StorageError::Corrupt`] when the newest
+/// record is damaged (never an older record instead).
 pub fn load<F: Flash>(flash: &mut F, buf: &mut [u8]) -> Result<Option<usize>, StorageError> {
-    let (newest, damaged) = scan(flash)?;
-    let Some((slot, header)) = newest else {
-        return if damaged {
-            Err(StorageError::Corrupt)
-        } else {
-            Ok(None)
-        };
+    let Some((slot, header)) = in_force(contents(flash)?)? else {
+        return Ok(None);
     };
     if header.kind == KIND_DEFAULTS {
         return Ok(None);
     }
     let len = header.len as usize;
+    let (padded, crc_at) = layout(len, flash.slot_len()).ok_or(StorageError::Corrupt)?;
     let target = buf.get_mut(..len).ok_or(StorageError::TooLarge)?;
-    flash.read(slot, HEADER_LEN, target)?;
-    // Read again and compare with the CRC checked in `newest`: the bytes handed out are the
+    flash.read(slot, PAYLOAD_AT, target)?;
+    // Read again and compare with the CRC checked in `in_force`: the bytes handed out are the
     // bytes that were verified, even if the medium changed in between.
     let mut digest = CRC.digest();
     digest.update(&header.encode());
     digest.update(target);
-    let mut stored = [0u8; CRC_LEN];
-    flash.read(slot, HEADER_LEN + len, &mut stored)?;
-    if digest.finalize() != u32::from_le_bytes(stored) {
+    let mut padding = [0u8; WORD];
+    let padding = &mut padding[..padded - len];
+    flash.read(slot, PAYLOAD_AT + len, padding)?;
+    digest.update(padding);
+    if digest.finalize() != u32::from_le_bytes(word(flash, slot, crc_at)?) {
         return Err(StorageError::VerifyFailed);
     }
     Ok(Some(len))
@@ -357,8 +519,9 @@ impl<const N: usize> Flash for RamFlash<N> {
 const INDETERMINATE: [u8; 16] = [0xA5; 16];
 
 /// A medium that loses power after `budget` more bytes have been written (an erase counts as
-/// one unit). The write in progress is torn: its first bytes land, the rest do not; an erase in
-/// progress leaves the first half of the slot erased and the rest indeterminate. Every access
+/// two units). The write in progress is torn: its first bytes land, the rest do not. An erase
+/// cut at its first unit leaves the slot as it was (the power failed as it began); cut at its
+/// second, it leaves the first half of the slot erased and the rest indeterminate. Every access
 /// after the cut fails with [`StorageError::PowerLost`] until [`PowerCutFlash::power_on`].
 #[derive(Clone, Debug)]
 pub struct PowerCutFlash<F> {
@@ -430,8 +593,12 @@ impl<F: Flash> Flash for PowerCutFlash<F> {
     }
 
     fn erase(&mut self, slot: Slot) -> Result<(), StorageError> {
-        if self.spend(1)? == 1 {
-            return self.inner.erase(slot);
+        match self.spend(2)? {
+            2 => return self.inner.erase(slot),
+            // The power failed as the erase began: the slot is as it was (an erase that had
+            // not yet changed a cell), which leaves both records of a store behind.
+            0 => return Err(StorageError::PowerLost),
+            _ => {}
         }
         // Torn erase: the first half of the slot ends up erased, the second half in an
         // indeterminate state (modelled as a fixed bit pattern).
@@ -506,10 +673,10 @@ mod tests {
     fn a_payload_too_large_for_a_slot_is_refused_and_changes_nothing() {
         let mut flash = Medium::new();
         store(&mut flash, b"kept").unwrap();
-        let big = [7u8; 256 - HEADER_LEN - CRC_LEN + 1];
+        let big = [7u8; 256 - PAYLOAD_AT - CRC_LEN + 1];
         assert_eq!(store(&mut flash, &big), Err(StorageError::TooLarge));
         assert_eq!(loaded(&mut flash), Ok(Some(b"kept".to_vec())));
-        let exact = [7u8; 256 - HEADER_LEN - CRC_LEN];
+        let exact = [7u8; 256 - PAYLOAD_AT - CRC_LEN];
         store(&mut flash, &exact).unwrap();
         let mut small = [0u8; 8];
         assert_eq!(load(&mut flash, &mut small), Err(StorageError::TooLarge));
@@ -521,7 +688,7 @@ mod tests {
         store(&mut flash, b"old").unwrap();
         store(&mut flash, b"new").unwrap();
         // One bit of the committed payload flips in slot B.
-        flash.slot_mut(Slot::B)[HEADER_LEN] ^= 0x01;
+        flash.slot_mut(Slot::B)[PAYLOAD_AT] ^= 0x01;
         assert_eq!(loaded(&mut flash), Err(StorageError::Corrupt));
         // A new store still works, and is then what loads.
         store(&mut flash, b"fresh").unwrap();
@@ -541,34 +708,48 @@ mod tests {
         assert!(!at(5).is_newer_than(at(5)));
     }
 
+    /// Writes a committed record of `sequence` into `slot` by hand, as a store would.
+    fn committed(flash: &mut Medium, slot: Slot, sequence: u32, payload: &[u8]) {
+        let header = Header {
+            kind: KIND_PAYLOAD,
+            sequence,
+            len: payload.len() as u32,
+        };
+        let (padded, crc_at) = layout(payload.len(), 256).unwrap();
+        let mut digest = CRC.digest();
+        digest.update(&header.encode());
+        digest.update(payload);
+        digest.update(&ERASED[..padded - payload.len()]);
+        flash.write(slot, HEADER_AT, &header.encode()).unwrap();
+        flash.write(slot, PAYLOAD_AT, payload).unwrap();
+        flash
+            .write(slot, crc_at, &digest.finalize().to_le_bytes())
+            .unwrap();
+        flash.write(slot, COMMIT_AT, &PROGRAMMED).unwrap();
+    }
+
     #[test]
     fn both_slots_committed_means_the_newer_wins_whichever_slot_it_is_in() {
-        // A power cut between the commit and the erase of the old record leaves both.
+        // A power cut between the commit and the retirement of the old record leaves both.
         for (first, second) in [(Slot::A, Slot::B), (Slot::B, Slot::A)] {
             let mut flash = Medium::new();
-            let mut write = |slot: Slot, sequence: u32, payload: &[u8]| {
-                let header = Header {
-                    kind: KIND_PAYLOAD,
-                    sequence,
-                    len: payload.len() as u32,
-                }
-                .encode();
-                let mut digest = CRC.digest();
-                digest.update(&header);
-                digest.update(payload);
-                flash.write(slot, 0, &header).unwrap();
-                flash.write(slot, HEADER_LEN, payload).unwrap();
-                flash
-                    .write(
-                        slot,
-                        HEADER_LEN + payload.len(),
-                        &digest.finalize().to_le_bytes(),
-                    )
-                    .unwrap();
-            };
-            write(first, u32::MAX, b"older");
-            write(second, 0, b"newer");
+            committed(&mut flash, first, u32::MAX, b"older");
+            committed(&mut flash, second, 0, b"newer");
             assert_eq!(loaded(&mut flash), Ok(Some(b"newer".to_vec())));
+            // Retiring the older one changes nothing; retiring the newer one is damage (no
+            // store retires the newest record).
+            let mut retired = flash.clone();
+            retired.write(first, RETIRED_AT, &PROGRAMMED).unwrap();
+            assert_eq!(loaded(&mut retired), Ok(Some(b"newer".to_vec())));
+            let mut torn = flash.clone();
+            torn.write(second, RETIRED_AT, &[0xFE, 0xFF, 0xFF, 0xFF])
+                .unwrap();
+            assert_eq!(loaded(&mut torn), Err(StorageError::Corrupt));
+            // Two records with one sequence number are damage too.
+            let mut twins = Medium::new();
+            committed(&mut twins, first, 7, b"one");
+            committed(&mut twins, second, 7, b"two");
+            assert_eq!(loaded(&mut twins), Err(StorageError::Corrupt));
         }
     }
 
@@ -582,11 +763,11 @@ mod tests {
         let mut base = Medium::new();
         store(&mut base, b"oldest").unwrap();
         store(&mut base, old).unwrap();
-        let total = HEADER_LEN + new.len() + CRC_LEN + 2;
         let mut outcomes = [0usize; 2];
-        for budget in 0..=total + 1 {
+        for budget in 0.. {
             let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
             let result = store(&mut flash, new);
+            let completed = flash.powered();
             flash.power_on();
             let after = loaded(&mut flash).unwrap().unwrap();
             if result.is_ok() {
@@ -602,6 +783,9 @@ mod tests {
             // And the medium stays usable: the next store completes and is what loads.
             store(&mut flash, b"next").unwrap();
             assert_eq!(loaded(&mut flash), Ok(Some(b"next".to_vec())));
+            if completed {
+                break;
+            }
         }
         // Both outcomes really occurred: the sweep covered the commit point.
         assert!(outcomes[0] > 0 && outcomes[1] > 0, "{outcomes:?}");
@@ -625,6 +809,132 @@ mod tests {
                         || after == Ok(None),
                     "cuts at {first}/{second}: {after:?}"
                 );
+            }
+        }
+    }
+
+    /// The bytes of the record `store` writes for a payload of `len` bytes.
+    fn extent(len: usize) -> usize {
+        layout(len, 256).unwrap().1 + CRC_LEN
+    }
+
+    /// The slot that holds a record (the other one erased).
+    fn holding(flash: &mut Medium) -> Slot {
+        if flash.slot_mut(Slot::A).iter().any(|&b| b != 0xFF) {
+            Slot::A
+        } else {
+            Slot::B
+        }
+    }
+
+    /// EN 50325-5 8.3.1: every single-bit flip anywhere in the stored record (header
+    /// included) is reported as damage, never read as "nothing stored" or as an older record.
+    #[test]
+    fn en50325_5_8_3_1_every_single_bit_flip_of_a_record_is_reported_as_damage() {
+        let new = b"NEW configuration";
+        let mut base = Medium::new();
+        store(&mut base, b"old configuration").unwrap();
+        store(&mut base, new).unwrap();
+        let slot = holding(&mut base);
+        for bit in 0..extent(new.len()) * 8 {
+            let mut flash = base.clone();
+            flash.slot_mut(slot)[bit / 8] ^= 1 << (bit % 8);
+            let after = loaded(&mut flash);
+            assert!(
+                after == Err(StorageError::Corrupt) || after == Ok(Some(new.to_vec())),
+                "bit {bit}: {after:?}"
+            );
+            if !commit_word(bit) {
+                assert_eq!(after, Err(StorageError::Corrupt), "bit {bit}");
+            }
+        }
+    }
+
+    /// `true` for a bit of the commit word (see the module documentation).
+    fn commit_word(bit: usize) -> bool {
+        (COMMIT_AT..COMMIT_AT + WORD).contains(&(bit / 8))
+    }
+
+    /// EN 50325-5 8.3.1: a power cut after the new record is committed but before the
+    /// superseded one is erased leaves both; a damaged new record must then be reported, never
+    /// replaced by the old one. Every cut of the sweep, then every bit of the new record.
+    #[test]
+    fn en50325_5_8_3_1_new_committed_old_not_erased_then_new_damaged_never_loads_the_old() {
+        let old = b"old configuration, the one the user replaced";
+        let new = b"NEW configuration";
+        let mut base = Medium::new();
+        store(&mut base, old).unwrap();
+        let old_slot = holding(&mut base);
+        let mut both = 0;
+        for budget in 0.. {
+            let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
+            let result = store(&mut flash, new);
+            flash.power_on();
+            let mut medium = flash.into_inner();
+            if result.is_ok() {
+                break;
+            }
+            let old_left = medium.slot_mut(old_slot).iter().any(|&b| b != 0xFF);
+            if loaded(&mut medium) != Ok(Some(new.to_vec())) || !old_left {
+                continue;
+            }
+            both += 1;
+            for bit in 0..extent(new.len()) * 8 {
+                let mut damaged = medium.clone();
+                damaged.slot_mut(old_slot.other())[bit / 8] ^= 1 << (bit % 8);
+                let after = loaded(&mut damaged);
+                assert_ne!(after, Ok(Some(old.to_vec())), "budget {budget} bit {bit}");
+                if commit_word(bit) {
+                    assert_eq!(after, Ok(Some(new.to_vec())), "budget {budget} bit {bit}");
+                } else {
+                    assert_eq!(
+                        after,
+                        Err(StorageError::Corrupt),
+                        "budget {budget} bit {bit}"
+                    );
+                }
+            }
+        }
+        // The sweep reached the state it is about.
+        assert!(both > 0);
+    }
+
+    /// A store onto a medium that reports damage, torn at every byte: afterwards the medium
+    /// reports the damage or holds the new record; the older record behind the damaged one
+    /// never loads (the damaged slot is kept until the new record is committed).
+    #[test]
+    fn en50325_5_8_3_1_a_torn_store_over_a_damaged_record_never_brings_back_an_older_one() {
+        let old = b"old configuration";
+        for damage_at in [
+            COMMIT_AT + WORD,
+            HEADER_AT,
+            HEADER_AT + 8,
+            PAYLOAD_AT,
+            PAYLOAD_AT + 4,
+        ] {
+            // Old and new both committed (a cut before the old one was retired), then the
+            // new one damaged (retired word, magic, sequence, payload, CRC).
+            let mut base = Medium::new();
+            committed(&mut base, Slot::A, 3, old);
+            committed(&mut base, Slot::B, 4, b"new");
+            base.slot_mut(Slot::B)[damage_at] ^= 0x10;
+            assert_eq!(loaded(&mut base), Err(StorageError::Corrupt));
+            for budget in 0.. {
+                let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
+                let result = store(&mut flash, b"fresh");
+                let completed = flash.powered();
+                flash.power_on();
+                let after = loaded(&mut flash);
+                assert!(
+                    after == Err(StorageError::Corrupt) || after == Ok(Some(b"fresh".to_vec())),
+                    "damage at {damage_at}, budget {budget}: {after:?}"
+                );
+                if result.is_ok() {
+                    assert_eq!(after, Ok(Some(b"fresh".to_vec())));
+                }
+                if completed {
+                    break;
+                }
             }
         }
     }

@@ -25,6 +25,7 @@
 //! but stop for good when their own two halves disagree.
 
 mod dictionary;
+mod integrity;
 mod persist;
 
 use heapless::Vec;
@@ -46,6 +47,7 @@ use crate::safety::types::{Direction, SrdoNumber};
 use crate::safety::{MAX_SRDOS, gfc};
 use crate::time::{Duration, Instant};
 
+pub use integrity::{IDLE_PERIOD as INTEGRITY_IDLE_PERIOD, IntegrityFault};
 pub use persist::PersistError;
 
 /// What a device is: its identity, its application objects, and the defaults of its
@@ -104,6 +106,9 @@ pub enum SafeStateCause {
         /// The application's cause code (EMCY detail byte 1).
         detail: u8,
     },
+    /// The periodic check in Operational found the configuration in use damaged (EMCY 6300h;
+    /// detail byte 1 F2h..F5h names what differed). Producers stop too.
+    Integrity(IntegrityFault),
 }
 
 /// Something the application should know.
@@ -288,6 +293,7 @@ struct Core<F: Flash, const N: usize> {
     remote_frames_ignored: u32,
     double_reception: DoubleReception,
     deferred_event: Option<Event>,
+    integrity: integrity::Integrity,
     /// The time of the SDO request being served (the object dictionary has no `now`).
     now: Instant,
     flash: F,
@@ -323,6 +329,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
             remote_frames_ignored: 0,
             double_reception: DoubleReception::default(),
             deferred_event: None,
+            integrity: integrity::Integrity::IDLE,
             now: Instant::ZERO,
             flash,
         };
@@ -707,7 +714,10 @@ impl<F: Flash, const N: usize> Core<F, N> {
             let _ = active.push(slot as u8);
         });
         match result {
-            Ok(()) => self.change_state(NmtState::Operational, sink),
+            Ok(()) => {
+                self.start_integrity(now);
+                self.change_state(NmtState::Operational, sink);
+            }
             Err(fault) => {
                 self.stop_srdos();
                 // The node has just refused this configuration, so 0x13FE must not go on
@@ -736,6 +746,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         }
         self.active.clear();
         self.lookup = [0; SRDO_IDS];
+        self.integrity = integrity::Integrity::IDLE;
     }
 
     /// A frame on an SRDO identifier (the hot path of a consumer).
@@ -848,7 +859,9 @@ impl<F: Flash, const N: usize> Core<F, N> {
                     self.producers_halted = true;
                 }
             }
-            SafeStateCause::Application { .. } => self.producers_halted = true,
+            SafeStateCause::Application { .. } | SafeStateCause::Integrity(_) => {
+                self.producers_halted = true;
+            }
             SafeStateCause::Gfc => {}
         }
         if self.fault.is_some() {
@@ -869,6 +882,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
             SafeStateCause::Application { detail } => {
                 (emcy::code::APPLICATION_FAULT, [0, detail, 0, 0, 0])
             }
+            SafeStateCause::Integrity(fault) => (emcy::code::DATA_SET, fault.emergency_detail()),
         };
         self.error_register |= emcy::register::GENERIC | emcy::register::COMMUNICATION;
         self.send_emergency(code, detail, sink);
@@ -904,6 +918,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         }
         if self.state == NmtState::Operational {
             self.run_srdos(now, sink);
+            self.poll_integrity(now, sink);
         }
         // Last, so that a fault found by the SRDO timers above sends its GFC in this same
         // poll (EN 50325-5 6.3) rather than at the next one. A request left over from
@@ -980,6 +995,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
         if self.state != NmtState::Operational {
             return next;
         }
+        next = next.min(self.integrity.deadline());
         for &slot in &self.active {
             let deadline = match self
                 .runtime

@@ -388,7 +388,7 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
             )))
     );
     assert_eq!(node.safety_config().srdos[0], {
-        let defaults = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
+        let defaults = defaults_unsigned();
         defaults.srdos[0]
     });
     nmt(&mut node, &mut sink, NmtCommand::Start);
@@ -524,7 +524,7 @@ fn en50325_5_table5_defaults_follow_the_node_id() {
 #[test]
 fn en50325_5_8_3_1_a_record_of_the_previous_format_is_reported_not_used() {
     // Version 1 layout: version, heartbeat (2), 0x13FE, SRDO count, then the records.
-    let defaults = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
+    let defaults = defaults_unsigned();
     let mut image = std::vec![1u8, 0, 0, 0xA5, 4];
     for record in &defaults.srdos {
         image.push(record.direction);
@@ -556,4 +556,80 @@ fn en50325_5_8_3_1_a_record_of_the_previous_format_is_reported_not_used() {
 
 fn defaults_unsigned() -> SafetyConfig<4> {
     SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108])
+}
+
+/// EN 50325-5 8.3.1 and CiA 301 7.2.7: damage anywhere in the stored record (its header as
+/// much as its payload) is reported the same way at boot: `StoredParametersRejected`, EMCY
+/// 6300h naming the stored parameters, the defaults in force and the node kept out of its
+/// working state. Every single bit of the record is flipped in turn, in a medium that also
+/// still holds the older record (a power cut after the commit); the one exception is the
+/// commit word, whose flip still restores the newest configuration, intact (see
+/// `canopen::storage`): an older one never comes back.
+#[test]
+fn en50325_5_8_3_1_every_bit_flip_of_the_stored_record_is_reported_with_emcy_6300() {
+    let (mut node, mut sink) = fresh(33);
+    configure_consumer(&mut node, &mut sink, 60);
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    let old = node.safety_config().clone();
+    let old_medium = node.flash().clone().into_inner();
+    configure_consumer(&mut node, &mut sink, 90);
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    let new = node.safety_config().clone();
+    let mut medium = node.flash().clone().into_inner();
+    // Put the old record back beside the new one: the state a power cut between the commit
+    // and the erase of the superseded slot leaves.
+    let new_slot = if medium.slot_mut(Slot::A).iter().any(|&b| b != 0xFF) {
+        Slot::A
+    } else {
+        Slot::B
+    };
+    *medium.slot_mut(new_slot.other()) = *old_medium.clone().slot_mut(new_slot.other());
+    let (_, sink) = node_on(33, PowerCutFlash::new(medium.clone(), None));
+    assert!(sink.events.contains(&Event::ParametersRestored));
+
+    let used = medium
+        .slot_mut(new_slot)
+        .iter()
+        .rposition(|&b| b != 0xFF)
+        .unwrap()
+        + 1;
+    let defaults = defaults_unsigned();
+    let (mut rejected, mut restored) = (0, 0);
+    for bit in 0..used * 8 {
+        let mut damaged = medium.clone();
+        damaged.slot_mut(new_slot)[bit / 8] ^= 1 << (bit % 8);
+        let (mut node, mut sink) = node_on(33, PowerCutFlash::new(damaged, None));
+        assert_ne!(
+            node.safety_config(),
+            &old,
+            "bit {bit}: the older configuration"
+        );
+        if node.safety_config() == &new {
+            assert!(
+                sink.events.contains(&Event::ParametersRestored),
+                "bit {bit}"
+            );
+            restored += 1;
+            continue;
+        }
+        rejected += 1;
+        assert!(
+            sink.events
+                .contains(&Event::StoredParametersRejected(PersistError::Storage(
+                    crate::canopen::storage::StorageError::Corrupt
+                ))),
+            "bit {bit}: {:?}",
+            sink.events
+        );
+        let emcy = sink.emergencies();
+        assert_eq!(emcy.len(), 1, "bit {bit}");
+        assert_eq!(emcy[0].code, crate::canopen::emcy::code::DATA_SET);
+        assert_eq!(emcy[0].detail[..2], [0, STORED_PARAMETERS_REJECTED]);
+        assert_eq!(node.safety_config(), &defaults, "bit {bit}");
+        nmt(&mut node, &mut sink, NmtCommand::Start);
+        assert!(!node.is_working(), "bit {bit}");
+    }
+    // Only the commit word's 32 bits restore; everything else is damage.
+    assert_eq!(restored, 32);
+    assert_eq!(rejected, used * 8 - 32);
 }
