@@ -90,6 +90,22 @@ pub enum Message {
         /// Cause code (the EMCY detail byte 1 the sender reported).
         cause: u8,
     },
+    /// Channel A puts this plain frame of a transmit SRDO on the bus (sent before the frame
+    /// itself): channel B co-signs only a plain frame on the bus that equals it (CiA 304 9.5).
+    PlainFrame {
+        /// CAN identifier (the SRDO's COB-ID 1).
+        id: u16,
+        /// Data length in bytes (0..=8).
+        len: u8,
+        /// The data, little-endian, bytes beyond `len` 0.
+        data: u64,
+    },
+    /// The sender saw a frame on one of the node's transmit SRDO identifiers that the node
+    /// did not send: the receiver goes to the safe state for it and sends a GFC.
+    ForeignFrame {
+        /// The identifier.
+        id: u16,
+    },
 }
 
 /// Why the link is not trustworthy.
