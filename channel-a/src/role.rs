@@ -13,7 +13,7 @@
 //! disturbed is sent again and received twice): an exact copy of the inverted frame just
 //! accepted, within [`SAMPLE_WINDOW`], is ignored; it carries the newest data, not older.
 
-use dual_channel::runtime::{ChannelFault, Role, SAMPLE_WINDOW, fold_signatures};
+use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
 use shared::safety::config::SafetyConfig;
 use shared::safety::signature;
@@ -41,16 +41,37 @@ struct Awaited {
 /// node's pair is broken either way, and A reports it (CiA 304 9.5; the in-operation check of
 /// the CAN message path). Without it A would wait for ever and the node would fall silent
 /// without saying why.
+///
+/// Both lists are fixed slots, never shifted (shifting pulls a 1.5 KiB `memmove` into the
+/// image; see [`FrameSlots`]).
 #[derive(Clone, Debug, Default)]
 pub struct ChannelA {
     /// Plain frames whose inverted frame has not been seen on the bus yet.
-    awaiting: heapless::Vec<Awaited, 8>,
+    awaiting: [Option<Awaited>; 8],
     /// The newest plain frame per SRDO produced meanwhile, sent once the pair before it is
     /// complete (a pair's frames are never interleaved with the next pair's).
-    deferred: heapless::Vec<CanFrame, 8>,
+    deferred: FrameSlots<8>,
     /// The last inverted frame accepted, and when: its copy within the window is a double
     /// reception.
     last_inverted: Option<(CanFrame, Instant)>,
+}
+
+impl ChannelA {
+    /// `frame`, the plain frame of `srdo`, goes on the bus: its inverted frame is awaited.
+    /// A full list means more transmit SRDOs in flight than this role tracks: the frame goes
+    /// without tracking rather than never (B's check still guards it; its inverted frame is
+    /// then reported as foreign, the safe side).
+    fn await_inverted(&mut self, frame: CanFrame, srdo: Transmit) {
+        if let Some(slot) = self.awaiting.iter_mut().find(|slot| slot.is_none()) {
+            *slot = Some(Awaited {
+                frame,
+                plain: srdo.plain,
+                srdo: srdo.srdo,
+                limit: srdo.refresh,
+                since: None,
+            });
+        }
+    }
 }
 
 /// `true` when `inverted` is the exact inverse of `plain`: same length, every bit flipped.
@@ -97,25 +118,19 @@ impl<const N: usize> Role<N> for ChannelA {
         if plain != id {
             return None; // The inverted frame is channel B's.
         }
-        if self.awaiting.iter().any(|awaited| awaited.plain == plain) {
+        if self
+            .awaiting
+            .iter()
+            .flatten()
+            .any(|awaited| awaited.plain == plain)
+        {
             // The previous pair is not complete: keep only the newest data for later.
-            self.deferred
-                .retain(|deferred| deferred.id().raw() != plain);
             // Capacity is the number of transmit SRDOs awaited, at most 8 here; a frame that
             // does not fit is dropped and the next cycle carries the data.
-            let _ = self.deferred.push(frame);
+            let _ = self.deferred.keep(frame);
             return None;
         }
-        // A full list means more transmit SRDOs in flight than this role tracks: the frame
-        // goes without tracking rather than never (B's check still guards it; its inverted
-        // frame is then reported as foreign, the safe side).
-        let _ = self.awaiting.push(Awaited {
-            frame,
-            plain,
-            srdo: srdo.srdo,
-            limit: srdo.refresh,
-            since: None,
-        });
+        self.await_inverted(frame, srdo);
         Some(frame)
     }
 
@@ -135,10 +150,11 @@ impl<const N: usize> Role<N> for ChannelA {
         if srdo.plain == id {
             return Err(ChannelFault::ForeignFrame { id }); // Never our own: we do not receive it.
         }
-        let Some(position) = self
+        let Some(awaited) = self
             .awaiting
-            .iter()
-            .position(|awaited| awaited.plain == srdo.plain)
+            .iter_mut()
+            .find(|slot| slot.is_some_and(|awaited| awaited.plain == srdo.plain))
+            .and_then(Option::take)
         else {
             let copy = self.last_inverted.is_some_and(|(last, at)| {
                 last == *frame && !shared::time::expired(at + SAMPLE_WINDOW, now)
@@ -149,27 +165,15 @@ impl<const N: usize> Role<N> for ChannelA {
                 Err(ChannelFault::ForeignFrame { id })
             };
         };
-        let awaited = self.awaiting.swap_remove(position);
         if !is_inverse(&awaited.frame, frame) {
             self.deferred.clear();
             return Err(ChannelFault::InvertedMismatch { srdo: srdo.srdo });
         }
         self.last_inverted = Some((*frame, now));
-        let Some(position) = self
-            .deferred
-            .iter()
-            .position(|deferred| deferred.id().raw() == srdo.plain)
-        else {
+        let Some(next) = self.deferred.take(awaited.frame.id()) else {
             return Ok(None);
         };
-        let next = self.deferred.swap_remove(position);
-        let _ = self.awaiting.push(Awaited {
-            frame: next,
-            plain: srdo.plain,
-            srdo: srdo.srdo,
-            limit: srdo.refresh,
-            since: None,
-        });
+        self.await_inverted(next, srdo);
         Ok(Some(next))
     }
 
@@ -185,11 +189,11 @@ impl<const N: usize> Role<N> for ChannelA {
     }
 
     fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {
-        for awaited in &mut self.awaiting {
+        for awaited in self.awaiting.iter_mut().flatten() {
             let since = *awaited.since.get_or_insert(now);
             if shared::time::expired(since + awaited.limit, now) {
                 let srdo = awaited.srdo;
-                self.awaiting.clear();
+                self.awaiting = [None; 8];
                 self.deferred.clear();
                 return Err(ChannelFault::TransmitMismatch { srdo });
             }
@@ -198,7 +202,7 @@ impl<const N: usize> Role<N> for ChannelA {
     }
 
     fn reset(&mut self) {
-        self.awaiting.clear();
+        self.awaiting = [None; 8];
         self.deferred.clear();
         self.last_inverted = None;
     }
@@ -206,6 +210,7 @@ impl<const N: usize> Role<N> for ChannelA {
     fn deadline(&self) -> Instant {
         self.awaiting
             .iter()
+            .flatten()
             .map(|awaited| match awaited.since {
                 Some(since) => since + awaited.limit,
                 // Not stamped yet: the next poll does it.

@@ -34,7 +34,10 @@ mod firmware {
         let Ok(device) = Device::built(|id| device::config(id, "safety node, channel B")) else {
             panic!("SAFETY_NODE_ID must be 1..=127");
         };
-        #[cfg_attr(feature = "hw", expect(unused_mut, reason = "only QEMU widens the window"))]
+        #[cfg_attr(
+            feature = "hw",
+            expect(unused_mut, reason = "only QEMU widens the window")
+        )]
         let mut role = match ChannelB::new(&[(0x6000, 1, 1)]) {
             Ok(role) => role,
             Err(_) => panic!("channel B input table"),

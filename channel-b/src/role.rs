@@ -31,7 +31,7 @@
 
 use crate::diverse::{DiverseError, InputTable, compare_and_invert};
 use crate::signature::{Parameters, signature};
-use dual_channel::runtime::{ChannelFault, Role, SAMPLE_WINDOW, fold_signatures};
+use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
 use shared::safety::config::{SafetyConfig, SrdoRecord};
 use shared::{CanFrame, CanId, Duration, Instant};
@@ -62,7 +62,7 @@ pub struct ChannelB {
     /// A plain frame on the bus not announced by channel A yet.
     unannounced: Option<Held>,
     /// Channel A's announced plain frame per SRDO not seen on the bus yet.
-    announced: heapless::Vec<CanFrame, 4>,
+    announced: FrameSlots<4>,
     /// The last plain frame seen on the bus, and when (its copy within the window is a double
     /// reception).
     last_plain: Option<(CanFrame, Instant)>,
@@ -81,7 +81,7 @@ impl ChannelB {
             previous: None,
             held: None,
             unannounced: None,
-            announced: heapless::Vec::new(),
+            announced: FrameSlots::default(),
             last_plain: None,
             window: DEFAULT_WINDOW,
         })
@@ -186,15 +186,8 @@ impl<const N: usize> Role<N> for ChannelB {
             .last_plain
             .is_some_and(|(last, at)| last == *frame && now.saturating_since(at) < self.window);
         self.last_plain = Some((*frame, now));
-        let announced = self
-            .announced
-            .iter()
-            .position(|announced| announced.id() == frame.id());
-        match (announced, self.unannounced) {
-            (Some(position), _) if self.announced[position] == *frame => {
-                self.announced.swap_remove(position);
-                self.co_sign(now, frame, srdo, record)
-            }
+        match (self.announced.take(frame.id()), self.unannounced) {
+            (Some(announced), _) if announced == *frame => self.co_sign(now, frame, srdo, record),
             (Some(_), _) => Err(ChannelFault::ForeignFrame { id }),
             // The same frame twice before its announcement: received twice.
             (None, Some(seen)) if seen.frame == *frame => Ok(None),
@@ -236,12 +229,10 @@ impl<const N: usize> Role<N> for ChannelB {
             }
             other => {
                 self.unannounced = other;
-                self.announced
-                    .retain(|announced| announced.id() != frame.id());
-                // One announcement per transmit SRDO in flight: more than four transmit
-                // SRDOs in flight at once drop the oldest-kept one, which then is reported
-                // as a foreign frame (the safe side).
-                let _ = self.announced.push(*frame);
+                // One announcement per transmit SRDO in flight; with more than four in flight
+                // at once the newest is not kept, and its frame is reported as foreign (the
+                // safe side).
+                let _ = self.announced.keep(*frame);
                 Ok(None)
             }
         }

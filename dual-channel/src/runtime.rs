@@ -337,9 +337,9 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     peer_pairs: [u32; N],
     /// Transmit SRDO frames with changed data that wait for the channels' samples to agree
     /// (at most [`SAMPLE_WINDOW`]); the newest per identifier.
-    waiting: heapless::Vec<CanFrame, N>,
+    waiting: FrameSlots<N>,
     /// The last transmit SRDO frame per identifier this channel's core handed on.
-    handed_on: heapless::Vec<CanFrame, N>,
+    handed_on: FrameSlots<N>,
 }
 
 impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
@@ -374,8 +374,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             outputs: [0; N],
             pairs: [0; N],
             peer_pairs: [0; N],
-            waiting: heapless::Vec::new(),
-            handed_on: heapless::Vec::new(),
+            waiting: FrameSlots::default(),
+            handed_on: FrameSlots::default(),
         })
     }
 
@@ -620,24 +620,18 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     /// changed data while the channels' samples differ (for less than [`SAMPLE_WINDOW`]).
     fn core_frame(&mut self, now: Instant, frame: CanFrame, io: &mut impl Io) {
         let id = frame.id();
-        let changed = self
-            .handed_on
-            .iter()
-            .find(|last| last.id() == id)
-            .is_none_or(|last| *last != frame);
+        let changed = self.handed_on.get(id).is_none_or(|last| *last != frame);
         let samples_differ = self
             .inputs_differ_since
             .is_some_and(|since| !shared::time::expired(since + SAMPLE_WINDOW, now));
         if changed && samples_differ {
-            self.waiting.retain(|waiting| waiting.id() != id);
             // One entry per transmit SRDO, and `N` is the SRDO count: it fits.
-            let _ = self.waiting.push(frame);
+            let _ = self.waiting.keep(frame);
             return;
         }
         // A frame handed on supersedes one still waiting for the same SRDO.
-        self.waiting.retain(|waiting| waiting.id() != id);
-        self.handed_on.retain(|last| last.id() != id);
-        let _ = self.handed_on.push(frame);
+        let _ = self.waiting.take(id);
+        let _ = self.handed_on.keep(frame);
         if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
             self.put_on_bus(frame, io);
         }
@@ -648,8 +642,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if self.waiting.is_empty() || self.waiting_deadline() > now {
             return;
         }
-        let waiting = core::mem::take(&mut self.waiting);
-        for frame in waiting {
+        // Handed on now (the samples agree, or the window has passed), none waits again.
+        while let Some(frame) = self.waiting.take_any() {
             if self.fault.is_none() {
                 self.core_frame(now, frame, io);
             }
@@ -1047,6 +1041,70 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     }
 }
 
+/// At most one frame per identifier, in `C` fixed slots. Entries are never shifted: shifting
+/// (`retain`, `swap_remove`) compiles to a `memmove` call here, which pulls 1.5 KiB into the
+/// channel images.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameSlots<const C: usize> {
+    slots: [Option<CanFrame>; C],
+}
+
+impl<const C: usize> Default for FrameSlots<C> {
+    fn default() -> Self {
+        FrameSlots { slots: [None; C] }
+    }
+}
+
+impl<const C: usize> FrameSlots<C> {
+    /// The frame kept for identifier `id`, if any.
+    pub fn get(&self, id: shared::CanId) -> Option<&CanFrame> {
+        self.slots.iter().flatten().find(|kept| kept.id() == id)
+    }
+
+    /// Keeps `frame` as the one for its identifier, replacing an older one; `false` when
+    /// every slot holds another identifier.
+    pub fn keep(&mut self, frame: CanFrame) -> bool {
+        let same = self
+            .slots
+            .iter()
+            .position(|slot| slot.is_some_and(|kept| kept.id() == frame.id()));
+        let free = || self.slots.iter().position(Option::is_none);
+        match same
+            .or_else(free)
+            .and_then(|index| self.slots.get_mut(index))
+        {
+            Some(slot) => {
+                *slot = Some(frame);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Removes and returns the frame kept for identifier `id`.
+    pub fn take(&mut self, id: shared::CanId) -> Option<CanFrame> {
+        self.slots
+            .iter_mut()
+            .find(|slot| slot.is_some_and(|kept| kept.id() == id))
+            .and_then(Option::take)
+    }
+
+    /// Removes and returns any one frame.
+    pub fn take_any(&mut self) -> Option<CanFrame> {
+        self.slots.iter_mut().find_map(Option::take)
+    }
+
+    /// `true` when no frame is kept.
+    pub fn is_empty(&self) -> bool {
+        self.slots.iter().all(Option::is_none)
+    }
+
+    /// Forgets every frame.
+    pub fn clear(&mut self) {
+        self.slots = [None; C];
+    }
+}
+
 /// `true` for identifiers in the SRDO range 0x101..=0x180.
 fn is_srdo(frame: &CanFrame) -> bool {
     (0x101..=0x180).contains(&frame.id().raw())
@@ -1061,4 +1119,34 @@ pub fn fold_signatures(signatures: impl Iterator<Item = u16>) -> u32 {
         digest.update(&signature.to_le_bytes());
     }
     digest.finalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::CanId;
+
+    fn frame(id: u16, value: u8) -> CanFrame {
+        CanFrame::new(CanId::new(id).unwrap(), &[value]).unwrap()
+    }
+
+    /// One frame per identifier: the newest replaces the older, a full set refuses another
+    /// identifier, and what is taken is gone.
+    #[test]
+    fn frame_slots_keep_the_newest_frame_per_identifier() {
+        let mut slots = FrameSlots::<2>::default();
+        assert!(slots.is_empty());
+        assert!(slots.keep(frame(0x101, 1)));
+        assert!(slots.keep(frame(0x101, 2)));
+        assert_eq!(slots.get(frame(0x101, 0).id()), Some(&frame(0x101, 2)));
+        assert!(slots.keep(frame(0x103, 3)));
+        assert!(!slots.keep(frame(0x105, 4)), "full");
+        assert_eq!(slots.take(frame(0x101, 0).id()), Some(frame(0x101, 2)));
+        assert_eq!(slots.take(frame(0x101, 0).id()), None);
+        assert_eq!(slots.take_any(), Some(frame(0x103, 3)));
+        assert!(slots.is_empty());
+        assert!(slots.keep(frame(0x105, 4)));
+        slots.clear();
+        assert_eq!(slots.take_any(), None);
+    }
 }
