@@ -890,7 +890,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 }
             }
             Message::SafeState { cause } => {
-                if self.fault.is_none() {
+                // A channel already in its safe state (its own core found the fault too, say:
+                // both see the same bus) keeps its own cause, which is what it reports.
+                if self.fault.is_none() && self.node.fault().is_none() {
                     self.latch(ChannelFault::PeerSafeState { cause }, io);
                 }
             }

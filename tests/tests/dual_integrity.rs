@@ -485,3 +485,35 @@ fn cia304_9_5_one_channels_srdo_fault_reaches_the_other_at_once() {
         assert_eq!(net.output(33), 0);
     }
 }
+
+/// CiA 304 9.5: an SRDO fault both channels' cores find (both see the same bus) is reported by
+/// each as its own cause; the other channel's safe-state message adds nothing (the status
+/// report and the emulated network's checks read the cause).
+#[test]
+fn cia304_9_5_a_fault_both_channels_found_keeps_each_channels_own_cause() {
+    let mut net = running();
+    let since = net.log.len();
+    net.inject(
+        Match::next_with_id(INVERTED, net.now),
+        Fault::Corrupt {
+            byte: 0,
+            mask: 0x04,
+        },
+    );
+    net.run_for(Duration::from_millis(60));
+    for side in [Side::A, Side::B] {
+        assert!(
+            net.first_event(since, 33, |s, e| {
+                s == side && matches!(e, ChannelEvent::Node(Event::SafeState(_)))
+            })
+            .is_some(),
+            "channel {side:?} of node 33 found the fault"
+        );
+    }
+    assert_eq!(
+        faulted(&net, 33, since),
+        vec![],
+        "no cause but each core's own"
+    );
+    assert_eq!(net.output(33), 0);
+}
