@@ -198,7 +198,7 @@ mod tests {
         assert_eq!(check.local(t, 2, valid(1, 0x55)), Ok(Some(valid(1, 0x55))));
     }
 
-    /// Issue 4: a disagreement puts both outputs in the safe state.
+    /// EN 50325-5 Annex A.4: a disagreement puts both outputs in the safe state.
     #[test]
     fn different_data_validity_or_pair_is_a_disagreement() {
         let t = Instant::ZERO;
@@ -229,7 +229,7 @@ mod tests {
         assert_eq!(check.remote(t, 1, invalid), Ok(None));
     }
 
-    /// Issue 4: a verdict not confirmed in time is a fault, at the deadline itself.
+    /// EN 50325-5 Annex A.4: a verdict not confirmed in time is a fault, at the deadline itself.
     #[test]
     fn an_unconfirmed_verdict_times_out() {
         let mut check = VerdictCheck::<1>::new(TIMEOUT);

@@ -19,7 +19,7 @@ use shared::safety::config::SrdoRecord;
 use shared::{CanFrame, CanId, Duration, Instant};
 use std::collections::VecDeque;
 
-/// A link heartbeat every 10 ms: five per SCT of 50 ms (the issue asks for at least four).
+/// A link heartbeat every 10 ms: five per SCT of 50 ms (the link supervision asks for at least four).
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
 /// Time per byte on the link USART (1 Mbit/s, 10 bits per byte).
 pub const LINK_BYTE_TIME: Duration = Duration::from_micros(10);

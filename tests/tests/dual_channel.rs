@@ -1,6 +1,6 @@
 //! Two dual-channel nodes on one simulated bus: node 1 (emergency stop, SRDO producer) and
 //! node 33 (safe output, SRDO consumer), each channel A and channel B with their link. The
-//! scenarios of the firmware and emulated-network issues, on the host, with the same channel
+//! scenarios of the firmware and the emulated network, on the host, with the same channel
 //! code as the firmware (EN 50325-5 Annex A.4, Model III; CiA 304 9.5).
 
 use dual_channel::crosscheck::CrossFault;

@@ -18,9 +18,9 @@
 //! # Faults
 //!
 //! A corrupt, malformed, missing (sequence gap), repeated or late message is a [`LinkFault`];
-//! the channel treats every one as a reason for the safe state (issue: "a missing, late,
-//! repeated or corrupt message is a fault"). The receiver resynchronises afterwards so that the
-//! channels can agree again after an NMT reset.
+//! the channel treats every one as a reason for the safe state (Model III: the link is part of
+//! the safety function). The receiver resynchronises afterwards so that the channels can agree
+//! again after an NMT reset.
 
 use crate::cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};

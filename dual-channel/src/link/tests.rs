@@ -1,4 +1,4 @@
-//! Link framing and receiver checks: round trips, and every fault the issue names (missing,
+//! Link framing and receiver checks: round trips, and every fault the link must detect (missing,
 //! late, repeated, corrupt), plus no panic on any byte stream.
 
 use super::*;
