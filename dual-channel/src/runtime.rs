@@ -27,7 +27,9 @@
 //!   transmit identifiers. Anything else (inserted, replayed, a second sender) is a
 //!   [`ChannelFault::ForeignFrame`]: the node's safe state, EMCY FF02h naming the identifier,
 //!   and a GFC (EN 50325-5 7.2.1), so that every consumer is in its safe state within about a
-//!   frame time. Why a GFC and not a pair carrying the safe value: consumers cannot tell our
+//!   frame time. Watched in Operational, also once latched (every further foreign frame sends
+//!   another GFC); an exact copy of the frame just received, within [`SAMPLE_WINDOW`], is CAN's
+//!   double reception, not foreign. Why a GFC and not a pair carrying the safe value: consumers cannot tell our
 //!   pair from the foreign sender's, so a safe-value pair would be followed by the foreign
 //!   sender's next one and the output would come back on; the GFC latches every consumer until
 //!   NMT reset. It stops every safety node on the bus, not only this SRDO's consumers: a
