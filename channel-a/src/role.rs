@@ -1,8 +1,19 @@
 //! Channel A's part in the pair (CiA 304 9.5, EN 50325-5 Annex A.4): it speaks for the node on
 //! the bus (SDO answers, NMT boot-up and heartbeat, EMCY, GFC) and sends the plain frame of
-//! every transmit SRDO, built by the protocol core. The inverted frame is channel B's.
+//! every transmit SRDO, built by the protocol core. The inverted frame is channel B's; channel
+//! A checks that it is the exact inverse of its own plain frame.
+//!
+//! # Frames on the node's identifiers
+//!
+//! A CAN controller does not receive the frames it sends itself (one transceiver, Model III),
+//! so every frame channel A receives on a plain identifier of its transmit SRDOs was sent by
+//! another device, and every frame on an inverted identifier must be channel B's answer to the
+//! plain frame A is waiting on. Anything else is a [`ChannelFault::ForeignFrame`]. The one
+//! exception is CAN's double reception (ISO 11898-1: a frame whose last end-of-frame bit was
+//! disturbed is sent again and received twice): an exact copy of the inverted frame just
+//! accepted, within [`SAMPLE_WINDOW`], is ignored; it carries the newest data, not older.
 
-use dual_channel::runtime::{Role, fold_signatures};
+use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
 use shared::safety::config::SafetyConfig;
 use shared::safety::signature;
@@ -12,6 +23,8 @@ use shared::{CanFrame, Duration, Instant};
 /// A plain frame sent, waiting for channel B's inverted frame on the bus.
 #[derive(Clone, Copy, Debug)]
 struct Awaited {
+    /// The plain frame sent.
+    frame: CanFrame,
     plain: u16,
     srdo: u8,
     /// The SRDO's refresh time: the next pair is due then, so this one must be complete.
@@ -28,13 +41,47 @@ struct Awaited {
 /// node's pair is broken either way, and A reports it (CiA 304 9.5; the in-operation check of
 /// the CAN message path). Without it A would wait for ever and the node would fall silent
 /// without saying why.
+///
+/// Both lists are fixed slots, never shifted (shifting pulls a 1.5 KiB `memmove` into the
+/// image; see [`FrameSlots`]).
 #[derive(Clone, Debug, Default)]
 pub struct ChannelA {
     /// Plain frames whose inverted frame has not been seen on the bus yet.
-    awaiting: heapless::Vec<Awaited, 8>,
+    awaiting: [Option<Awaited>; 8],
     /// The newest plain frame per SRDO produced meanwhile, sent once the pair before it is
     /// complete (a pair's frames are never interleaved with the next pair's).
-    deferred: heapless::Vec<CanFrame, 8>,
+    deferred: FrameSlots<8>,
+    /// The last inverted frame accepted, and when: its copy within the window is a double
+    /// reception.
+    last_inverted: Option<(CanFrame, Instant)>,
+}
+
+impl ChannelA {
+    /// `frame`, the plain frame of `srdo`, goes on the bus: its inverted frame is awaited.
+    /// A full list means more transmit SRDOs in flight than this role tracks: the frame goes
+    /// without tracking rather than never (B's check still guards it; its inverted frame is
+    /// then reported as foreign, the safe side).
+    fn await_inverted(&mut self, frame: CanFrame, srdo: Transmit) {
+        if let Some(slot) = self.awaiting.iter_mut().find(|slot| slot.is_none()) {
+            *slot = Some(Awaited {
+                frame,
+                plain: srdo.plain,
+                srdo: srdo.srdo,
+                limit: srdo.refresh,
+                since: None,
+            });
+        }
+    }
+}
+
+/// `true` when `inverted` is the exact inverse of `plain`: same length, every bit flipped.
+fn is_inverse(plain: &CanFrame, inverted: &CanFrame) -> bool {
+    plain.data().len() == inverted.data().len()
+        && plain
+            .data()
+            .iter()
+            .zip(inverted.data())
+            .all(|(plain, inverted)| *plain == !*inverted)
 }
 
 /// A transmit SRDO of the configuration.
@@ -71,51 +118,62 @@ impl<const N: usize> Role<N> for ChannelA {
         if plain != id {
             return None; // The inverted frame is channel B's.
         }
-        if self.awaiting.iter().any(|awaited| awaited.plain == plain) {
+        if self
+            .awaiting
+            .iter()
+            .flatten()
+            .any(|awaited| awaited.plain == plain)
+        {
             // The previous pair is not complete: keep only the newest data for later.
-            self.deferred
-                .retain(|deferred| deferred.id().raw() != plain);
             // Capacity is the number of transmit SRDOs awaited, at most 8 here; a frame that
             // does not fit is dropped and the next cycle carries the data.
-            let _ = self.deferred.push(frame);
+            let _ = self.deferred.keep(frame);
             return None;
         }
-        // A full list means more transmit SRDOs in flight than this role tracks: the frame
-        // goes without tracking rather than never (B's check still guards it).
-        let _ = self.awaiting.push(Awaited {
-            plain,
-            srdo: srdo.srdo,
-            limit: srdo.refresh,
-            since: None,
-        });
+        self.await_inverted(frame, srdo);
         Some(frame)
     }
 
     fn observe(
         &mut self,
-        _now: Instant,
+        now: Instant,
         frame: &CanFrame,
         config: &SafetyConfig<N>,
-    ) -> Result<Option<CanFrame>, u8> {
+    ) -> Result<Option<CanFrame>, ChannelFault> {
         let id = frame.id().raw();
-        let Some(srdo) = transmit_srdos(config).find(|t| t.inverted == id) else {
+        if frame.is_remote() {
+            return Ok(None); // Remote frames on SRDO identifiers are ignored (EN 50325-5 6.2.1).
+        }
+        let Some(srdo) = transmit_srdos(config).find(|t| t.inverted == id || t.plain == id) else {
             return Ok(None);
         };
-        self.awaiting.retain(|awaited| awaited.plain != srdo.plain);
-        let Some(position) = self
-            .deferred
-            .iter()
-            .position(|deferred| deferred.id().raw() == srdo.plain)
+        if srdo.plain == id {
+            return Err(ChannelFault::ForeignFrame { id }); // Never our own: we do not receive it.
+        }
+        let Some(awaited) = self
+            .awaiting
+            .iter_mut()
+            .find(|slot| slot.is_some_and(|awaited| awaited.plain == srdo.plain))
+            .and_then(Option::take)
         else {
+            let copy = self.last_inverted.is_some_and(|(last, at)| {
+                last == *frame && !shared::time::expired(at + SAMPLE_WINDOW, now)
+            });
+            return if copy {
+                Ok(None)
+            } else {
+                Err(ChannelFault::ForeignFrame { id })
+            };
+        };
+        if !is_inverse(&awaited.frame, frame) {
+            self.deferred.clear();
+            return Err(ChannelFault::InvertedMismatch { srdo: srdo.srdo });
+        }
+        self.last_inverted = Some((*frame, now));
+        let Some(next) = self.deferred.take(awaited.frame.id()) else {
             return Ok(None);
         };
-        let next = self.deferred.swap_remove(position);
-        let _ = self.awaiting.push(Awaited {
-            plain: srdo.plain,
-            srdo: srdo.srdo,
-            limit: srdo.refresh,
-            since: None,
-        });
+        self.await_inverted(next, srdo);
         Ok(Some(next))
     }
 
@@ -125,32 +183,34 @@ impl<const N: usize> Role<N> for ChannelA {
         _address: Address,
         _value: &[u8],
         _config: &SafetyConfig<N>,
-    ) -> Result<Option<CanFrame>, u8> {
+    ) -> Result<Option<CanFrame>, ChannelFault> {
         // Channel A's inputs live in its core's process image, written by the runtime.
         Ok(None)
     }
 
-    fn poll(&mut self, now: Instant) -> Result<(), u8> {
-        for awaited in &mut self.awaiting {
+    fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {
+        for awaited in self.awaiting.iter_mut().flatten() {
             let since = *awaited.since.get_or_insert(now);
             if shared::time::expired(since + awaited.limit, now) {
                 let srdo = awaited.srdo;
-                self.awaiting.clear();
+                self.awaiting = [None; 8];
                 self.deferred.clear();
-                return Err(srdo);
+                return Err(ChannelFault::TransmitMismatch { srdo });
             }
         }
         Ok(())
     }
 
     fn reset(&mut self) {
-        self.awaiting.clear();
+        self.awaiting = [None; 8];
         self.deferred.clear();
+        self.last_inverted = None;
     }
 
     fn deadline(&self) -> Instant {
         self.awaiting
             .iter()
+            .flatten()
             .map(|awaited| match awaited.since {
                 Some(since) => since + awaited.limit,
                 // Not stamped yet: the next poll does it.
@@ -179,6 +239,11 @@ mod tests {
         CanFrame::new(CanId::new(id).unwrap(), &[1]).unwrap()
     }
 
+    /// Channel B's inverted frame for plain data `value`.
+    fn inverted(value: u8) -> CanFrame {
+        CanFrame::new(CanId::new(0x102).unwrap(), &[!value]).unwrap()
+    }
+
     /// Channel A sends the plain frame and everything else, never the inverted frame of a
     /// transmit SRDO.
     #[test]
@@ -188,7 +253,7 @@ mod tests {
         assert!(a.outgoing(frame(0x101), &config).is_some());
         assert!(a.outgoing(frame(0x102), &config).is_none());
         // B's inverted frame completes the pair.
-        assert_eq!(a.observe(Instant::ZERO, &frame(0x102), &config), Ok(None));
+        assert_eq!(a.observe(Instant::ZERO, &inverted(1), &config), Ok(None));
         assert!(a.outgoing(frame(0x701), &config).is_some());
         assert!(a.outgoing(frame(0x581), &config).is_some());
         // A receive SRDO's identifiers are not A's to filter (it never sends them anyway).
@@ -207,15 +272,15 @@ mod tests {
         assert_eq!(a.outgoing(data(2), &config), None);
         assert_eq!(a.outgoing(data(3), &config), None);
         assert_eq!(
-            a.observe(Instant::ZERO, &frame(0x102), &config),
+            a.observe(Instant::ZERO, &inverted(1), &config),
             Ok(Some(data(3)))
         );
         assert_eq!(a.outgoing(data(4), &config), None);
         assert_eq!(
-            a.observe(Instant::ZERO, &frame(0x102), &config),
+            a.observe(Instant::ZERO, &inverted(3), &config),
             Ok(Some(data(4)))
         );
-        assert_eq!(a.observe(Instant::ZERO, &frame(0x102), &config), Ok(None));
+        assert_eq!(a.observe(Instant::ZERO, &inverted(4), &config), Ok(None));
         assert_eq!(a.outgoing(data(5), &config), Some(data(5)));
     }
 
@@ -235,12 +300,68 @@ mod tests {
             Role::<2>::poll(&mut a, Instant::from_micros(119_999)),
             Ok(())
         );
-        assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(120)), Err(1));
+        assert_eq!(
+            Role::<2>::poll(&mut a, Instant::from_millis(120)),
+            Err(ChannelFault::TransmitMismatch { srdo: 1 })
+        );
         assert_eq!(Role::<2>::deadline(&a), Instant::NEVER, "reported once");
         // A completed pair is not reported.
         assert!(a.outgoing(frame(0x101), &config).is_some());
         assert_eq!(Role::<2>::poll(&mut a, sent), Ok(()));
-        assert_eq!(a.observe(sent, &frame(0x102), &config), Ok(None));
+        assert_eq!(a.observe(sent, &inverted(1), &config), Ok(None));
         assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(500)), Ok(()));
+    }
+
+    /// CiA 304 9.5, EN 50325-5 7.1.1: the inverted frame on the bus must be the exact inverse
+    /// of channel A's plain frame; another one is reported, not taken as the pair's end.
+    #[test]
+    fn cia304_9_5_a_wrong_inverted_frame_is_reported() {
+        let config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        let mut a = ChannelA::default();
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        assert_eq!(
+            a.observe(Instant::ZERO, &inverted(3), &config),
+            Err(ChannelFault::InvertedMismatch { srdo: 1 })
+        );
+        // A longer frame with the right first byte is not the inverse either.
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        let longer = CanFrame::new(CanId::new(0x102).unwrap(), &[0xFE, 0x00]).unwrap();
+        assert_eq!(
+            a.observe(Instant::ZERO, &longer, &config),
+            Err(ChannelFault::InvertedMismatch { srdo: 1 })
+        );
+    }
+
+    /// EN 50325-5 7.2.1: channel A never receives its own plain frame, so any frame on the
+    /// plain identifier is foreign, and an inverted frame nobody waits for is too; a copy of
+    /// the inverted frame just accepted (CAN double reception) within the window is not.
+    #[test]
+    fn en50325_5_7_2_1_frames_a_did_not_send_or_await_are_foreign() {
+        let config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        let mut a = ChannelA::default();
+        let foreign = |id| Err(ChannelFault::ForeignFrame { id });
+        assert_eq!(
+            a.observe(Instant::ZERO, &frame(0x101), &config),
+            foreign(0x101)
+        );
+        assert_eq!(
+            a.observe(Instant::ZERO, &inverted(1), &config),
+            foreign(0x102)
+        );
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        let t = Instant::from_millis(10);
+        assert_eq!(a.observe(t, &inverted(1), &config), Ok(None));
+        assert_eq!(
+            a.observe(t + Duration::from_micros(300), &inverted(1), &config),
+            Ok(None)
+        );
+        assert_eq!(a.observe(t, &inverted(0), &config), foreign(0x102));
+        assert_eq!(
+            a.observe(t + SAMPLE_WINDOW, &inverted(1), &config),
+            foreign(0x102)
+        );
+        // Remote frames are the core's to ignore.
+        let remote = CanFrame::remote(CanId::new(0x101).unwrap(), 1).unwrap();
+        assert_eq!(a.observe(t, &remote, &config), Ok(None));
     }
 }

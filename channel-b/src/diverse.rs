@@ -265,7 +265,7 @@ mod tests {
     }
 
     proptest! {
-        /// CiA 304 9.5 / issue: any single-bit difference between A's frame and B's inputs
+        /// CiA 304 9.5: any single-bit difference between A's frame and B's inputs
         /// means B sends nothing.
         #[test]
         fn any_bit_difference_is_a_mismatch(value in any::<u32>(), bit in 0u32..32) {

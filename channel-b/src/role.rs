@@ -1,8 +1,20 @@
 //! Channel B's part in the pair (CiA 304 9.5, EN 50325-5 Annex A.4): silent on the bus except
 //! for the inverted frame of each transmit SRDO, which it builds by its own path
-//! ([`crate::diverse`]) and sends only after channel A's plain frame matched its own result bit
-//! by bit. It follows SDO requests into its own copy of the object dictionary (the core does
-//! that), and signs the configuration with its own CRC ([`crate::signature`]).
+//! ([`crate::diverse`]) and sends only for a plain frame on the bus that channel A announced
+//! over the link and that matched B's own result bit by bit. It follows SDO requests into its
+//! own copy of the object dictionary (the core does that), and signs the configuration with
+//! its own CRC ([`crate::signature`]).
+//!
+//! # Only what channel A sent
+//!
+//! Channel A announces each plain frame over the link before it puts it on the bus. Channel B
+//! co-signs a plain frame only when it equals that announcement; whichever of the two arrives
+//! first waits for the other for up to the window. A plain frame that differs from the
+//! announcement, or is never announced, was not sent by channel A (inserted, replayed,
+//! corrupted on the bus in a way the CAN CRC missed): a [`ChannelFault::ForeignFrame`], and
+//! nothing is co-signed. A CAN controller does not receive its own frames, so any frame on an
+//! inverted identifier is foreign to channel B. An exact copy of the plain frame just seen,
+//! within the window, is CAN's double reception (ISO 11898-1), not a foreign frame.
 //!
 //! # Discrepancy window
 //!
@@ -11,18 +23,21 @@
 //! B therefore accepts A's plain frame when it matches B's current inputs, or B's previous
 //! inputs if they changed less than [`ChannelB::window`] ago; otherwise it holds the frame for
 //! up to the window, waiting for its own next sample. Only a frame that matches none of these
-//! is a discrepancy. The window must stay well below the smallest SRVT of the consumers (the
-//! inverted frame may leave up to one window late); the default is 5 ms.
+//! is a discrepancy. (Channel A, for its part, holds a frame with changed data until B's
+//! sample agrees, for up to the same window: `dual_channel::runtime`; so the window applies
+//! alike whichever contact moved first.) The window must stay well below the smallest SRVT of
+//! the consumers (the inverted frame may leave up to one window late) and above the link
+//! latency; the default is [`SAMPLE_WINDOW`], 5 ms.
 
 use crate::diverse::{DiverseError, InputTable, compare_and_invert};
 use crate::signature::{Parameters, signature};
-use dual_channel::runtime::{Role, fold_signatures};
+use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
 use shared::safety::config::{SafetyConfig, SrdoRecord};
 use shared::{CanFrame, CanId, Duration, Instant};
 
 /// The default discrepancy window.
-pub const DEFAULT_WINDOW: Duration = Duration::from_millis(5);
+pub const DEFAULT_WINDOW: Duration = SAMPLE_WINDOW;
 
 /// A plain frame channel B could not confirm yet.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -30,6 +45,9 @@ struct Held {
     frame: CanFrame,
     srdo: u8,
     since: Instant,
+    /// An exact copy of the plain frame seen before it, within the window: if no
+    /// announcement comes for it, it was that frame received twice.
+    copy: bool,
 }
 
 /// Channel B's role: its own inputs, in its own layout, and the discrepancy window.
@@ -38,7 +56,16 @@ pub struct ChannelB {
     inputs: InputTable,
     /// The inputs before the latest change, and when they were replaced.
     previous: Option<(InputTable, Instant)>,
+    /// A plain frame announced by channel A, confirmed by B's sample, waiting for B's next
+    /// sample.
     held: Option<Held>,
+    /// A plain frame on the bus not announced by channel A yet.
+    unannounced: Option<Held>,
+    /// Channel A's announced plain frame per SRDO not seen on the bus yet.
+    announced: FrameSlots<4>,
+    /// The last plain frame seen on the bus, and when (its copy within the window is a double
+    /// reception).
+    last_plain: Option<(CanFrame, Instant)>,
     window: Duration,
 }
 
@@ -53,6 +80,9 @@ impl ChannelB {
             inputs: table,
             previous: None,
             held: None,
+            unannounced: None,
+            announced: FrameSlots::default(),
+            last_plain: None,
             window: DEFAULT_WINDOW,
         })
     }
@@ -74,6 +104,50 @@ impl ChannelB {
         let id = CanId::new((record.cob_id_2 & 0x7FF) as u16).ok()?;
         CanFrame::new(id, &inverted[..frame.data().len()]).ok()
     }
+
+    /// A plain frame both on the bus and announced by channel A: the inverted frame if B's
+    /// current sample, or its previous one within the window, agrees; otherwise it waits for
+    /// B's next sample.
+    fn co_sign(
+        &mut self,
+        now: Instant,
+        frame: &CanFrame,
+        srdo: u8,
+        record: &SrdoRecord,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        if let Some(held) = self.held.take() {
+            // A new plain frame while the last one is unconfirmed: the last one stays
+            // unconfirmed for good.
+            return Err(ChannelFault::TransmitMismatch { srdo: held.srdo });
+        }
+        if let Some(inverted) = Self::confirm(frame, record, &self.inputs) {
+            return Ok(Some(inverted));
+        }
+        let recent = self
+            .previous
+            .as_ref()
+            .filter(|(_, replaced)| now.saturating_since(*replaced) < self.window);
+        if let Some((previous, _)) = recent {
+            if let Some(inverted) = Self::confirm(frame, record, previous) {
+                return Ok(Some(inverted));
+            }
+        }
+        self.held = Some(Held {
+            frame: *frame,
+            srdo,
+            since: now,
+            copy: false,
+        });
+        Ok(None)
+    }
+}
+
+/// `true` when `id` is the inverted identifier (COB-ID 2) of a transmit SRDO of `config`.
+fn is_inverted_id<const N: usize>(config: &SafetyConfig<N>, id: u16) -> bool {
+    config
+        .srdos
+        .iter()
+        .any(|record| record.direction == 1 && record.cob_id_2 & 0x7FF == u32::from(id))
 }
 
 /// The transmit SRDO whose plain COB-ID is `id`, read by channel B itself from the raw
@@ -97,36 +171,71 @@ impl<const N: usize> Role<N> for ChannelB {
         now: Instant,
         frame: &CanFrame,
         config: &SafetyConfig<N>,
-    ) -> Result<Option<CanFrame>, u8> {
+    ) -> Result<Option<CanFrame>, ChannelFault> {
         if frame.is_remote() {
-            return Ok(None);
+            return Ok(None); // Remote frames on SRDO identifiers are ignored (EN 50325-5 6.2.1).
         }
-        let Some((srdo, record)) = transmit_srdo(config, frame.id().raw()) else {
+        let id = frame.id().raw();
+        if is_inverted_id(config, id) {
+            return Err(ChannelFault::ForeignFrame { id }); // Never our own: we do not receive it.
+        }
+        let Some((srdo, record)) = transmit_srdo(config, id) else {
             return Ok(None);
         };
-        if let Some(held) = self.held.take() {
-            // A new plain frame while the last one is unconfirmed: the last one stays
-            // unconfirmed for good.
-            return Err(held.srdo);
-        }
-        if let Some(inverted) = Self::confirm(frame, record, &self.inputs) {
-            return Ok(Some(inverted));
-        }
-        let recent = self
-            .previous
-            .as_ref()
-            .filter(|(_, replaced)| now.saturating_since(*replaced) < self.window);
-        if let Some((previous, _)) = recent {
-            if let Some(inverted) = Self::confirm(frame, record, previous) {
-                return Ok(Some(inverted));
+        let copy = self
+            .last_plain
+            .is_some_and(|(last, at)| last == *frame && now.saturating_since(at) < self.window);
+        self.last_plain = Some((*frame, now));
+        match (self.announced.take(frame.id()), self.unannounced) {
+            (Some(announced), _) if announced == *frame => self.co_sign(now, frame, srdo, record),
+            (Some(_), _) => Err(ChannelFault::ForeignFrame { id }),
+            // The same frame twice before its announcement: received twice.
+            (None, Some(seen)) if seen.frame == *frame => Ok(None),
+            (None, Some(_)) => Err(ChannelFault::ForeignFrame { id }),
+            (None, None) => {
+                // Channel A may send the same data twice in a row, and the announcement may
+                // come after the frame: a copy waits for its announcement like any frame, and
+                // only one never announced is a double reception (dropped) rather than foreign.
+                self.unannounced = Some(Held {
+                    frame: *frame,
+                    srdo,
+                    since: now,
+                    copy,
+                });
+                Ok(None)
             }
         }
-        self.held = Some(Held {
-            frame: *frame,
-            srdo,
-            since: now,
-        });
-        Ok(None)
+    }
+
+    fn announced(
+        &mut self,
+        now: Instant,
+        frame: &CanFrame,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        let id = frame.id().raw();
+        let Some((srdo, record)) = transmit_srdo(config, id) else {
+            // Channel A announces only plain frames of transmit SRDOs: its configuration is
+            // not ours (the configuration cross-check reports that too).
+            return Err(ChannelFault::ConfigurationMismatch);
+        };
+        match self.unannounced.take() {
+            Some(seen) if seen.frame.id() == frame.id() => {
+                if seen.frame == *frame {
+                    self.co_sign(now, frame, srdo, record)
+                } else {
+                    Err(ChannelFault::ForeignFrame { id })
+                }
+            }
+            other => {
+                self.unannounced = other;
+                // One announcement per transmit SRDO in flight; with more than four in flight
+                // at once the newest is not kept, and its frame is reported as foreign (the
+                // safe side).
+                let _ = self.announced.keep(*frame);
+                Ok(None)
+            }
+        }
     }
 
     fn input(
@@ -135,7 +244,7 @@ impl<const N: usize> Role<N> for ChannelB {
         address: Address,
         value: &[u8],
         config: &SafetyConfig<N>,
-    ) -> Result<Option<CanFrame>, u8> {
+    ) -> Result<Option<CanFrame>, ChannelFault> {
         let mut bytes = [0u8; 8];
         let len = value.len().min(8);
         bytes[..len].copy_from_slice(&value[..len]);
@@ -152,7 +261,7 @@ impl<const N: usize> Role<N> for ChannelB {
         };
         let Some((_, record)) = transmit_srdo(config, held.frame.id().raw()) else {
             self.held = None;
-            return Err(held.srdo);
+            return Err(ChannelFault::TransmitMismatch { srdo: held.srdo });
         };
         match Self::confirm(&held.frame, record, &self.inputs) {
             Some(inverted) => {
@@ -166,21 +275,40 @@ impl<const N: usize> Role<N> for ChannelB {
     fn reset(&mut self) {
         // The pair in progress is forgotten; the input samples are not (they are the pins).
         self.held = None;
+        self.unannounced = None;
+        self.announced.clear();
+        self.last_plain = None;
     }
 
-    fn poll(&mut self, now: Instant) -> Result<(), u8> {
+    fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {
+        if let Some(seen) = self
+            .unannounced
+            .filter(|seen| shared::time::expired(seen.since + self.window, now))
+        {
+            self.unannounced = None;
+            if !seen.copy {
+                return Err(ChannelFault::ForeignFrame {
+                    id: seen.frame.id().raw(),
+                });
+            }
+        }
         match self.held {
             Some(held) if shared::time::expired(held.since + self.window, now) => {
                 self.held = None;
-                Err(held.srdo)
+                Err(ChannelFault::TransmitMismatch { srdo: held.srdo })
             }
             _ => Ok(()),
         }
     }
 
     fn deadline(&self) -> Instant {
-        self.held
-            .map_or(Instant::NEVER, |held| held.since + self.window)
+        let held = self
+            .held
+            .map_or(Instant::NEVER, |held| held.since + self.window);
+        let unannounced = self
+            .unannounced
+            .map_or(Instant::NEVER, |seen| seen.since + self.window);
+        held.min(unannounced)
     }
 
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32 {
@@ -218,17 +346,28 @@ mod tests {
 
     const T: Instant = Instant::from_millis(100);
 
+    /// Channel A announces `frame` over the link and puts it on the bus: what B answers.
+    fn sent(
+        b: &mut ChannelB,
+        now: Instant,
+        frame: &CanFrame,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        assert_eq!(b.announced(now, frame, &config()), Ok(None));
+        b.observe(now, frame, &config())
+    }
+
+    const MISMATCH: Result<(), ChannelFault> = Err(ChannelFault::TransmitMismatch { srdo: 1 });
+
     /// CiA 304 9.5: B answers A's plain frame with the inverted frame when its own input
     /// agrees; B never sends what its core produces.
     #[test]
     fn cia304_9_5_b_sends_the_inverted_frame_after_a_bit_exact_match() {
         let mut b = b_with(0x01);
         assert_eq!(
-            b.observe(T, &frame(0x101, &[0x01]), &config()),
+            sent(&mut b, T, &frame(0x101, &[0x01])),
             Ok(Some(frame(0x102, &[0xFE])))
         );
         // Not a transmit SRDO's plain frame: nothing to do.
-        assert_eq!(b.observe(T, &frame(0x102, &[0xFE]), &config()), Ok(None));
         assert_eq!(b.observe(T, &frame(0x701, &[0x05]), &config()), Ok(None));
         assert_eq!(b.outgoing(frame(0x581, &[0; 8]), &config()), None);
     }
@@ -239,13 +378,13 @@ mod tests {
     #[test]
     fn cia304_9_5_a_lasting_difference_is_a_discrepancy() {
         let mut b = b_with(0x01);
-        assert_eq!(b.observe(T, &frame(0x101, &[0x00]), &config()), Ok(None));
+        assert_eq!(sent(&mut b, T, &frame(0x101, &[0x00])), Ok(None));
         assert_eq!(Role::<1>::deadline(&b), T + DEFAULT_WINDOW);
         assert_eq!(
             Role::<1>::poll(&mut b, T + Duration::from_micros(4_999)),
             Ok(())
         );
-        assert_eq!(Role::<1>::poll(&mut b, T + DEFAULT_WINDOW), Err(1));
+        assert_eq!(Role::<1>::poll(&mut b, T + DEFAULT_WINDOW), MISMATCH);
         assert_eq!(Role::<1>::deadline(&b), Instant::NEVER);
     }
 
@@ -258,12 +397,14 @@ mod tests {
             .unwrap();
         let soon = T + Duration::from_millis(1);
         assert_eq!(
-            b.observe(soon, &frame(0x101, &[0x01]), &config()),
+            sent(&mut b, soon, &frame(0x101, &[0x01])),
             Ok(Some(frame(0x102, &[0xFE])))
         );
-        let late = T + DEFAULT_WINDOW;
-        assert_eq!(b.observe(late, &frame(0x101, &[0x01]), &config()), Ok(None));
-        assert_eq!(Role::<1>::poll(&mut b, late + DEFAULT_WINDOW), Err(1));
+        // The next frame, once the window has passed (a copy within it would be a double
+        // reception).
+        let late = soon + DEFAULT_WINDOW;
+        assert_eq!(sent(&mut b, late, &frame(0x101, &[0x01])), Ok(None));
+        assert_eq!(Role::<1>::poll(&mut b, late + DEFAULT_WINDOW), MISMATCH);
     }
 
     /// A's frame carrying a change B has not sampled yet is held, and sent as soon as B's
@@ -271,7 +412,7 @@ mod tests {
     #[test]
     fn a_frame_ahead_of_bs_sample_is_held_until_b_agrees() {
         let mut b = b_with(0x00);
-        assert_eq!(b.observe(T, &frame(0x101, &[0x01]), &config()), Ok(None));
+        assert_eq!(sent(&mut b, T, &frame(0x101, &[0x01])), Ok(None));
         let sampled = T + Duration::from_millis(2);
         assert_eq!(
             b.input(sampled, Address::new(0x6000, 1), &[0x01], &config()),
@@ -284,8 +425,82 @@ mod tests {
     #[test]
     fn a_second_plain_frame_while_one_is_held_is_a_discrepancy() {
         let mut b = b_with(0x00);
-        b.observe(T, &frame(0x101, &[0x01]), &config()).unwrap();
-        assert_eq!(b.observe(T, &frame(0x101, &[0x00]), &config()), Err(1));
+        sent(&mut b, T, &frame(0x101, &[0x01])).unwrap();
+        assert_eq!(
+            sent(&mut b, T, &frame(0x101, &[0x00])),
+            Err(ChannelFault::TransmitMismatch { srdo: 1 })
+        );
+    }
+
+    /// CiA 304 9.5: B co-signs only the plain frame channel A announced, whichever of the two
+    /// arrives first; a plain frame that differs from the announcement, or is never announced
+    /// within the window, is foreign, even when it agrees with B's own sample.
+    #[test]
+    fn cia304_9_5_b_co_signs_only_what_a_announced() {
+        let plain = frame(0x101, &[0x01]);
+        let inverted = Ok(Some(frame(0x102, &[0xFE])));
+        let foreign = Err(ChannelFault::ForeignFrame { id: 0x101 });
+        // The bus first, then the link.
+        let mut b = b_with(0x01);
+        assert_eq!(b.observe(T, &plain, &config()), Ok(None));
+        assert_eq!(Role::<1>::deadline(&b), T + DEFAULT_WINDOW);
+        assert_eq!(b.announced(T, &plain, &config()), inverted);
+        assert_eq!(Role::<1>::deadline(&b), Instant::NEVER);
+        // Announced otherwise than it came on the bus (inserted, or corrupted past the CRC).
+        let mut b = b_with(0x01);
+        assert_eq!(b.observe(T, &plain, &config()), Ok(None));
+        assert_eq!(b.announced(T, &frame(0x101, &[0x00]), &config()), foreign);
+        let mut b = b_with(0x01);
+        assert_eq!(b.announced(T, &frame(0x101, &[0x00]), &config()), Ok(None));
+        assert_eq!(b.observe(T, &plain, &config()), foreign);
+        // Never announced: foreign at the end of the window.
+        let mut b = b_with(0x01);
+        assert_eq!(b.observe(T, &plain, &config()), Ok(None));
+        assert_eq!(
+            Role::<1>::poll(&mut b, T + Duration::from_micros(4_999)),
+            Ok(())
+        );
+        assert_eq!(
+            Role::<1>::poll(&mut b, T + DEFAULT_WINDOW),
+            foreign.map(|_: Option<CanFrame>| ())
+        );
+        // An announcement is used once: a replay of the same frame later is foreign.
+        let mut b = b_with(0x01);
+        assert_eq!(sent(&mut b, T, &plain), inverted);
+        let later = T + DEFAULT_WINDOW;
+        assert_eq!(b.observe(later, &plain, &config()), Ok(None));
+        assert_eq!(
+            Role::<1>::poll(&mut b, later + DEFAULT_WINDOW),
+            foreign.map(|_: Option<CanFrame>| ())
+        );
+        // A frame on the inverted identifier is never B's own (B does not receive it).
+        let mut b = b_with(0x01);
+        assert_eq!(
+            b.observe(T, &frame(0x102, &[0xFE]), &config()),
+            Err(ChannelFault::ForeignFrame { id: 0x102 })
+        );
+    }
+
+    /// ISO 11898-1 double reception: an exact copy of the plain frame just seen, within the
+    /// window, is ignored; it is not a second frame to co-sign nor a foreign one.
+    #[test]
+    fn cia304_9_5_a_plain_frame_received_twice_is_co_signed_once() {
+        let plain = frame(0x101, &[0x01]);
+        let mut b = b_with(0x01);
+        assert_eq!(sent(&mut b, T, &plain), Ok(Some(frame(0x102, &[0xFE]))));
+        let copy = T + Duration::from_micros(250);
+        assert_eq!(b.observe(copy, &plain, &config()), Ok(None));
+        assert_eq!(Role::<1>::poll(&mut b, copy + DEFAULT_WINDOW), Ok(()));
+        assert_eq!(Role::<1>::deadline(&b), Instant::NEVER);
+        // Channel A sending the same data again at once is a new pair, not a copy: once it is
+        // announced (here after the frame), it is co-signed.
+        let mut b = b_with(0x01);
+        assert_eq!(sent(&mut b, T, &plain), Ok(Some(frame(0x102, &[0xFE]))));
+        assert_eq!(b.observe(copy, &plain, &config()), Ok(None));
+        assert_eq!(
+            b.announced(copy, &plain, &config()),
+            Ok(Some(frame(0x102, &[0xFE])))
+        );
     }
 
     /// Both channels fold the same signatures, each computed its own way.

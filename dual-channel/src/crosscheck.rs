@@ -14,7 +14,9 @@
 //!
 //! The policy for outputs that goes with it (in the channel logic): an output moves towards
 //! the safe state (0) as soon as the channel's own core says so, and away from it only with a
-//! confirmed pair.
+//! confirmed pair that is the newest pair each channel accepted. A confirmation can come
+//! after a newer pair (its verdict was on the link while the newer one arrived on the bus);
+//! the confirmed [`Verdict`] therefore names its pair, so that the channel can discard it.
 
 use shared::{Duration, Instant};
 
@@ -86,14 +88,15 @@ impl<const N: usize> VerdictCheck<N> {
         }
     }
 
-    /// This channel's verdict on SRDO `srdo` (1-based) at `now`. Returns the confirmed data
-    /// when the other channel's verdict was already there and agrees.
+    /// This channel's verdict on SRDO `srdo` (1-based) at `now`. Returns the confirmed
+    /// verdict (valid, with its pair and data) when the other channel's verdict was already
+    /// there and agrees.
     pub fn local(
         &mut self,
         now: Instant,
         srdo: u8,
         verdict: Verdict,
-    ) -> Result<Option<u64>, CrossFault> {
+    ) -> Result<Option<Verdict>, CrossFault> {
         self.arrive(now, srdo, verdict, Side::Local)
     }
 
@@ -103,7 +106,7 @@ impl<const N: usize> VerdictCheck<N> {
         now: Instant,
         srdo: u8,
         verdict: Verdict,
-    ) -> Result<Option<u64>, CrossFault> {
+    ) -> Result<Option<Verdict>, CrossFault> {
         self.arrive(now, srdo, verdict, Side::Remote)
     }
 
@@ -113,7 +116,7 @@ impl<const N: usize> VerdictCheck<N> {
         srdo: u8,
         verdict: Verdict,
         side: Side,
-    ) -> Result<Option<u64>, CrossFault> {
+    ) -> Result<Option<Verdict>, CrossFault> {
         let slot = usize::from(srdo)
             .checked_sub(1)
             .and_then(|index| self.slots.get_mut(index))
@@ -134,7 +137,7 @@ impl<const N: usize> VerdictCheck<N> {
             }
             // Agreement: the data when the pair was valid; nothing to drive when both found
             // the same fault (each channel is then in its safe state already).
-            Some((other, _)) if other == verdict => Ok(verdict.valid.then_some(verdict.data)),
+            Some((other, _)) if other == verdict => Ok(verdict.valid.then_some(verdict)),
             Some(_) => Err(CrossFault::Disagreement { srdo }),
         }
     }
@@ -189,13 +192,13 @@ mod tests {
         let t = Instant::from_millis(1);
         assert_eq!(check.local(t, 1, valid(1, 0xAA)), Ok(None));
         assert_eq!(check.deadline(), t + TIMEOUT);
-        assert_eq!(check.remote(t, 1, valid(1, 0xAA)), Ok(Some(0xAA)));
+        assert_eq!(check.remote(t, 1, valid(1, 0xAA)), Ok(Some(valid(1, 0xAA))));
         assert_eq!(check.deadline(), Instant::NEVER);
         assert_eq!(check.remote(t, 2, valid(1, 0x55)), Ok(None));
-        assert_eq!(check.local(t, 2, valid(1, 0x55)), Ok(Some(0x55)));
+        assert_eq!(check.local(t, 2, valid(1, 0x55)), Ok(Some(valid(1, 0x55))));
     }
 
-    /// Issue 4: a disagreement puts both outputs in the safe state.
+    /// EN 50325-5 Annex A.4: a disagreement puts both outputs in the safe state.
     #[test]
     fn different_data_validity_or_pair_is_a_disagreement() {
         let t = Instant::ZERO;
@@ -226,7 +229,7 @@ mod tests {
         assert_eq!(check.remote(t, 1, invalid), Ok(None));
     }
 
-    /// Issue 4: a verdict not confirmed in time is a fault, at the deadline itself.
+    /// EN 50325-5 Annex A.4: a verdict not confirmed in time is a fault, at the deadline itself.
     #[test]
     fn an_unconfirmed_verdict_times_out() {
         let mut check = VerdictCheck::<1>::new(TIMEOUT);
@@ -257,9 +260,9 @@ mod tests {
         let t = Instant::from_millis(1);
         assert_eq!(check.local(t, 1, valid(8, 0)), Ok(None));
         assert_eq!(check.local(t, 1, valid(9, 1)), Ok(None));
-        assert_eq!(check.remote(t, 1, valid(8, 0)), Ok(Some(0)));
+        assert_eq!(check.remote(t, 1, valid(8, 0)), Ok(Some(valid(8, 0))));
         assert_eq!(check.deadline(), t + TIMEOUT, "pair 9 still waits");
-        assert_eq!(check.remote(t, 1, valid(9, 1)), Ok(Some(1)));
+        assert_eq!(check.remote(t, 1, valid(9, 1)), Ok(Some(valid(9, 1))));
         assert_eq!(check.deadline(), Instant::NEVER);
         // Out of order is a disagreement.
         check.local(t, 1, valid(10, 0)).unwrap();

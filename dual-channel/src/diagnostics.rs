@@ -8,17 +8,16 @@
 //! noticed.
 
 use crate::can_serial::Status;
-use crate::runtime::{ChannelEvent, Io, Role, Runtime};
+use crate::runtime::{ChannelEvent, Io, Role, Runtime, safe_state_code};
 use shared::canopen::storage::Flash;
-use shared::node::{Event, SafeStateCause};
+use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
 
 /// The longest time between two reports.
 pub const PERIOD: Duration = Duration::from_millis(250);
 
-/// The cause code reported for a received GFC (EN 50325-5 7.2.1); the other codes are those
-/// of `SrdoFaultCause::cause_code` (1..) and `ChannelFault::cause_code` (10h..).
-pub const GFC_CAUSE: u8 = 0x50;
+/// The cause code reported for a received GFC (EN 50325-5 7.2.1).
+pub use crate::runtime::GFC_CAUSE;
 
 /// The SRDO identifier range (CiA 304 Table 3: 101h..180h), for counting SRDO frames sent.
 const SRDO_IDS: core::ops::RangeInclusive<u16> = 0x101..=0x180;
@@ -76,13 +75,7 @@ impl Diagnostics {
                 self.status.validated = self.status.validated.wrapping_add(1);
             }
             ChannelEvent::Node(Event::SafeState(cause)) => {
-                self.status.cause = match cause {
-                    SafeStateCause::Srdo(fault) => fault.cause.cause_code(),
-                    SafeStateCause::Gfc => GFC_CAUSE,
-                    SafeStateCause::Application { detail } => *detail,
-                    // F2h..F5h, as in EMCY 6300h byte 1.
-                    SafeStateCause::Integrity(fault) => fault.emergency_detail()[1],
-                };
+                self.status.cause = safe_state_code(cause);
             }
             ChannelEvent::Fault(fault) => self.status.cause = fault.cause_code(),
             _ => {}

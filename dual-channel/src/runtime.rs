@@ -13,7 +13,27 @@
 //! - **Receive cross-check.** Each valid pair the core delivers becomes a verdict sent over the
 //!   link and compared with the other channel's ([`VerdictCheck`]). An output moves towards the
 //!   safe state at once (bitwise AND with the new data) and away from it only with data both
-//!   channels confirmed.
+//!   channels confirmed, and only when the confirmed pair is the newest this channel accepted
+//!   and the newest the other channel reported: a confirmation that arrives after a newer pair
+//!   (its verdict was on the link meanwhile) may lower an output, never raise it (SC_REQ_05).
+//! - **Co-signing only what channel A sent.** Channel A announces every plain frame over the
+//!   link ([`Message::PlainFrame`]) before it puts the frame on the bus; channel B sends the
+//!   inverted frame only for a plain frame on the bus that equals the announcement and agrees
+//!   with B's own sample; channel A checks that the inverted frame on the bus is the exact
+//!   inverse of its plain frame ([`ChannelFault::InvertedMismatch`]).
+//! - **Frames on our identifiers that we did not send.** A CAN controller does not receive its
+//!   own frames (one transceiver, Model III): channel A sees channel B's inverted frames and
+//!   channel B sees channel A's plain frames, and nothing else should appear on the node's
+//!   transmit identifiers. Anything else (inserted, replayed, a second sender) is a
+//!   [`ChannelFault::ForeignFrame`]: the node's safe state, EMCY FF02h naming the identifier,
+//!   and a GFC (EN 50325-5 7.2.1), so that every consumer is in its safe state within about a
+//!   frame time. Watched in Operational, also once latched (every further foreign frame sends
+//!   another GFC); an exact copy of the frame just received, within [`SAMPLE_WINDOW`], is CAN's
+//!   double reception, not foreign. Why a GFC and not a pair carrying the safe value: consumers cannot tell our
+//!   pair from the foreign sender's, so a safe-value pair would be followed by the foreign
+//!   sender's next one and the output would come back on; the GFC latches every consumer until
+//!   NMT reset. It stops every safety node on the bus, not only this SRDO's consumers: a
+//!   device sending on another's identifiers is a fault of the network, not of one SRDO.
 //! - **Link supervision.** A heartbeat every `link_period` (at least four per smallest SCT);
 //!   a missing, late, repeated or corrupt message is a fault ([`Receiver`]).
 //! - **Configuration and NMT cross-check.** Every heartbeat carries the sender's NMT state and
@@ -25,20 +45,30 @@
 //! - **Input cross-check.** Each channel sends a digest of its input samples on every change
 //!   and with every heartbeat; samples that differ for longer than [`INPUT_DISCREPANCY`] are a
 //!   fault (a stuck or broken contact), even when no SRDO carries them.
+//! - **Symmetric sample window.** The two contacts of one input never move at exactly the same
+//!   moment. A transmit SRDO frame carrying changed data waits while the channels' samples
+//!   differ, for at most [`SAMPLE_WINDOW`]; it goes as soon as the other channel's sample
+//!   agrees (its input digest arrives). Channel B accepts channel A's frame against its
+//!   current sample or, within the same window, its previous one (`channel_b::role`). So a
+//!   difference shorter than the window is tolerated whichever contact moved first or alone,
+//!   and a longer one is a transmit mismatch whichever it was. (Before, channel A sent a
+//!   changed sample at once: a short blip on A's contact alone went on the bus, B never
+//!   agreed, and the node tripped, while the same blip on B's contact was tolerated.)
 //! - **Start-up together.** A core boots only once the other channel has been heard on the
 //!   link, and the channel that speaks for the node (A) only once the other's core has booted
 //!   (its heartbeat says so): the node's boot-up message means both channels follow the bus. A
 //!   channel whose partner never speaks stays silent and reports the link time-out.
 //! - **Latched safe state.** Any fault: outputs 0, the core's own safe state (EMCY FF02h, its
-//!   producers stop), the other channel told. Cleared only by NMT reset node or communication,
-//!   which both channels see on the bus.
+//!   producers stop), the other channel told at once, also when the fault is one the core
+//!   found itself (an SRDO fault in this channel's receive path the other cannot see).
+//!   Cleared only by NMT reset node or communication, which both channels see on the bus.
 
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
 use crate::link::{LinkFault, Message, Receiver, Sender};
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::storage::Flash;
-use shared::node::{Event, Node, NodeConfig, NodeError, Sink};
+use shared::node::{Event, Node, NodeConfig, NodeError, SafeStateCause, Sink};
 use shared::safety::config::SafetyConfig;
 use shared::{CanFrame, Duration, Instant};
 
@@ -51,20 +81,56 @@ pub const STARTUP: Duration = Duration::from_millis(1000);
 /// stop never open at exactly the same moment. Longer is a fault (a contact stuck or broken).
 pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 
+/// How long a transmit SRDO frame with changed data waits for the other channel's sample to
+/// agree, and how long channel B accepts its previous sample or waits for its next one and
+/// for channel A's announcement of a plain frame. It must stay well below the consumers'
+/// smallest SRVT (the inverted frame can follow the plain frame up to one window late) and
+/// above the link latency between the channels (USART at 1 Mbit/s: about 0.2 ms).
+pub const SAMPLE_WINDOW: Duration = Duration::from_millis(5);
+
+/// The cause code of a GFC received (EN 50325-5 7.2.1) in the link's safe-state message and
+/// the status report; the other codes are those of `SrdoFaultCause::cause_code` (1..) and
+/// [`ChannelFault::cause_code`] (10h..).
+pub const GFC_CAUSE: u8 = 0x50;
+
+/// The cause code of a safe state the core reported (the EMCY detail byte 1 it sent).
+pub fn safe_state_code(cause: &SafeStateCause) -> u8 {
+    match cause {
+        SafeStateCause::Srdo(fault) => fault.cause.cause_code(),
+        SafeStateCause::Gfc => GFC_CAUSE,
+        SafeStateCause::Application { detail } => *detail,
+        // F2h..F5h, as in EMCY 6300h byte 1.
+        SafeStateCause::Integrity(fault) => fault.emergency_detail()[1],
+    }
+}
+
 /// What differs between channel A and channel B.
 pub trait Role<const N: usize> {
     /// A frame this channel's core wants to send; what goes on the bus (`None`: nothing).
     fn outgoing(&mut self, frame: CanFrame, config: &SafetyConfig<N>) -> Option<CanFrame>;
 
-    /// A frame seen on the bus at `now`, before the core handles it: a frame to send in reply
-    /// (channel B's inverted frame), or `Err(srdo)` when it is the plain frame of transmit SRDO
-    /// `srdo` and cannot be confirmed.
+    /// A frame seen on the bus at `now` in Operational, before the core handles it: a frame
+    /// to send in reply (channel B's inverted frame, channel A's next plain frame), or the
+    /// fault it shows (a pair that cannot be confirmed, a frame on a transmit identifier the
+    /// node did not send).
     fn observe(
         &mut self,
         now: Instant,
         frame: &CanFrame,
         config: &SafetyConfig<N>,
-    ) -> Result<Option<CanFrame>, u8>;
+    ) -> Result<Option<CanFrame>, ChannelFault>;
+
+    /// The other channel announced over the link at `now` that it puts `frame` (a plain
+    /// frame) on the bus ([`Message::PlainFrame`]): channel B's inverted frame if the plain
+    /// frame is already there and agrees.
+    fn announced(
+        &mut self,
+        _now: Instant,
+        _frame: &CanFrame,
+        _config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        Ok(None)
+    }
 
     /// This channel's safety input `address` was sampled as `value` at `now` (channel B keeps
     /// its own copy, in its own layout). May release a frame that was waiting for it.
@@ -74,10 +140,11 @@ pub trait Role<const N: usize> {
         address: Address,
         value: &[u8],
         config: &SafetyConfig<N>,
-    ) -> Result<Option<CanFrame>, u8>;
+    ) -> Result<Option<CanFrame>, ChannelFault>;
 
-    /// Time-outs of the role's own (channel B: a plain frame it could not confirm in time).
-    fn poll(&mut self, now: Instant) -> Result<(), u8>;
+    /// Time-outs of the role's own (channel B: a plain frame it could not confirm in time, or
+    /// one never announced).
+    fn poll(&mut self, now: Instant) -> Result<(), ChannelFault>;
 
     /// When [`Role::poll`] next has something to do.
     fn deadline(&self) -> Instant;
@@ -107,10 +174,24 @@ pub enum ChannelFault {
     /// The channels' verdicts on a received SRDO disagree or were not confirmed.
     Cross(CrossFault),
     /// A transmit SRDO's plain half differs between the channels (CiA 304 9.5): found by
-    /// channel B, or reported to channel A by channel B.
+    /// channel B, or reported to channel A by channel B; or channel A's pair was left
+    /// incomplete for a refresh time.
     TransmitMismatch {
         /// SRDO number.
         srdo: u8,
+    },
+    /// The inverted frame on the bus is not the exact inverse of channel A's plain frame
+    /// (CiA 304 9.5, EN 50325-5 7.1.1): found by channel A.
+    InvertedMismatch {
+        /// SRDO number.
+        srdo: u8,
+    },
+    /// A frame on one of the node's transmit SRDO identifiers that the node did not send
+    /// (inserted, replayed, a second sender, or a plain frame that differs from what channel
+    /// A announced). Also sends a GFC (EN 50325-5 7.2.1).
+    ForeignFrame {
+        /// The identifier (named in EMCY FF02h, bytes 5..=6).
+        id: u16,
     },
     /// In Operational the channels hold different configurations (0x13FE or signatures).
     ConfigurationMismatch,
@@ -142,6 +223,8 @@ impl ChannelFault {
             ChannelFault::ConfigurationMismatch => 0x31,
             ChannelFault::NmtMismatch => 0x32,
             ChannelFault::InputDiscrepancy => 0x33,
+            ChannelFault::ForeignFrame { .. } => 0x34,
+            ChannelFault::InvertedMismatch { .. } => 0x35,
             ChannelFault::PeerSafeState { .. } => 0x40,
         }
     }
@@ -252,7 +335,15 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     /// then may an output leave the safe state.
     configuration_confirmed: bool,
     outputs: [u64; N],
+    /// Valid pairs per receive SRDO this channel's core accepted in this Operational period.
     pairs: [u32; N],
+    /// The newest pair per receive SRDO the other channel reported a verdict on.
+    peer_pairs: [u32; N],
+    /// Transmit SRDO frames with changed data that wait for the channels' samples to agree
+    /// (at most [`SAMPLE_WINDOW`]); the newest per identifier.
+    waiting: FrameSlots<N>,
+    /// The last transmit SRDO frame per identifier this channel's core handed on.
+    handed_on: FrameSlots<N>,
 }
 
 impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
@@ -286,6 +377,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             configuration_confirmed: false,
             outputs: [0; N],
             pairs: [0; N],
+            peer_pairs: [0; N],
+            waiting: FrameSlots::default(),
+            handed_on: FrameSlots::default(),
         })
     }
 
@@ -329,9 +423,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if !self.link_up {
             return; // The core has not booted: the node is not on the bus yet.
         }
-        if self.fault.is_none() {
+        if self.node.nmt_state() == NmtState::Operational {
+            // Also in the safe state: a foreign sender on our identifiers is reported (and a
+            // GFC sent) whenever it sends, not only the first time.
             let reply = self.role.observe(now, frame, self.node.safety_config());
-            self.role_reply(reply, io);
+            self.role_reply(now, reply, io);
         }
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
@@ -395,14 +491,15 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let reply = self
             .role
             .input(now, plain, value, self.node.safety_config());
-        if self.fault.is_none() {
-            self.role_reply(reply, io);
-        }
+        self.role_reply(now, reply, io);
         if self.link_up {
             let mut collect = Collect::new();
             self.node.poll(now, &mut collect);
             self.after_core(now, collect, io);
         }
+        // After the core's frame for this sample: a sample back where it was supersedes the
+        // frame of the short difference, which never goes on the bus.
+        self.release_waiting(now, io);
         Ok(())
     }
 
@@ -416,9 +513,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         } else {
             Instant::NEVER
         };
-        if let Err(srdo) = self.role.poll(now) {
-            self.role_reply(Err(srdo), io);
+        if let Err(fault) = self.role.poll(now) {
+            self.role_reply(now, Err(fault), io);
         }
+        self.release_waiting(now, io);
         if let Err(fault) = self.receiver.poll(now) {
             self.latch(ChannelFault::Link(fault), io);
         }
@@ -451,6 +549,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 .map_or(Instant::NEVER, |since| since + self.grace()),
             self.inputs_differ_since
                 .map_or(Instant::NEVER, |since| since + INPUT_DISCREPANCY),
+            self.waiting_deadline(),
         ];
         supervision
             .into_iter()
@@ -458,15 +557,111 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             .fold(node_deadline.min(self.next_heartbeat), Instant::min)
     }
 
-    /// What the role answered: a frame to send, or a transmit SRDO it could not confirm.
-    fn role_reply(&mut self, reply: Result<Option<CanFrame>, u8>, io: &mut impl Io) {
+    /// What the role answered: a frame to send (not in the safe state), or a fault.
+    fn role_reply(
+        &mut self,
+        now: Instant,
+        reply: Result<Option<CanFrame>, ChannelFault>,
+        io: &mut impl Io,
+    ) {
         match reply {
-            Ok(Some(frame)) => io.transmit(frame),
-            Ok(None) => {}
-            Err(srdo) => {
-                self.send(&Message::TransmitMismatch { srdo }, io);
-                self.latch(ChannelFault::TransmitMismatch { srdo }, io);
+            Ok(Some(frame)) => {
+                if self.fault.is_none() {
+                    self.put_on_bus(frame, io);
+                }
             }
+            Ok(None) => {}
+            Err(ChannelFault::ForeignFrame { id }) => {
+                self.send(&Message::ForeignFrame { id }, io);
+                self.foreign_frame(now, id, io);
+            }
+            Err(fault) => {
+                if self.fault.is_none() {
+                    if let ChannelFault::TransmitMismatch { srdo } = fault {
+                        self.send(&Message::TransmitMismatch { srdo }, io);
+                    }
+                    self.latch(fault, io);
+                }
+            }
+        }
+    }
+
+    /// A frame on the node's transmit identifier `id` that the node did not send, found by
+    /// this channel or the other: the safe state (EMCY naming `id`) and a GFC at once, each
+    /// time one is seen (EN 50325-5 7.2.1). Only channel A's GFC reaches the bus; channel B's
+    /// core records it (0x1300) like channel A's.
+    fn foreign_frame(&mut self, now: Instant, id: u16, io: &mut impl Io) {
+        self.latch(ChannelFault::ForeignFrame { id }, io);
+        // Foreign frames are watched in Operational only, where the core accepts the request;
+        // outside Operational no GFC may go out (CiA 301 Table 2) and the latch is the reaction.
+        let _ = self.node.request_gfc();
+        let mut collect = Collect::new();
+        self.node.poll(now, &mut collect);
+        self.after_core(now, collect, io);
+    }
+
+    /// Puts `frame` on the bus; a plain SRDO frame of channel A is first announced to channel
+    /// B over the link, so that B co-signs only what A sent.
+    fn put_on_bus(&mut self, frame: CanFrame, io: &mut impl Io) {
+        if self.role.speaks_for_the_node() && is_srdo(&frame) {
+            let mut data = [0u8; 8];
+            let len = frame.data().len();
+            if let Some(bytes) = data.get_mut(..len) {
+                bytes.copy_from_slice(frame.data());
+            }
+            self.send(
+                &Message::PlainFrame {
+                    id: frame.id().raw(),
+                    // `len` <= 8.
+                    len: len as u8,
+                    data: u64::from_le_bytes(data),
+                },
+                io,
+            );
+        }
+        io.transmit(frame);
+    }
+
+    /// A transmit SRDO frame of this channel's core: on towards the bus, unless it carries
+    /// changed data while the channels' samples differ (for less than [`SAMPLE_WINDOW`]).
+    fn core_frame(&mut self, now: Instant, frame: CanFrame, io: &mut impl Io) {
+        let id = frame.id();
+        let changed = self.handed_on.get(id).is_none_or(|last| *last != frame);
+        let samples_differ = self
+            .inputs_differ_since
+            .is_some_and(|since| !shared::time::expired(since + SAMPLE_WINDOW, now));
+        if changed && samples_differ {
+            // One entry per transmit SRDO, and `N` is the SRDO count: it fits.
+            let _ = self.waiting.keep(frame);
+            return;
+        }
+        // A frame handed on supersedes one still waiting for the same SRDO.
+        let _ = self.waiting.take(id);
+        let _ = self.handed_on.keep(frame);
+        if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
+            self.put_on_bus(frame, io);
+        }
+    }
+
+    /// Hands on the waiting frames once the samples agree or the window has passed.
+    fn release_waiting(&mut self, now: Instant, io: &mut impl Io) {
+        if self.waiting.is_empty() || self.waiting_deadline() > now {
+            return;
+        }
+        // Handed on now (the samples agree, or the window has passed), none waits again.
+        while let Some(frame) = self.waiting.take_any() {
+            if self.fault.is_none() {
+                self.core_frame(now, frame, io);
+            }
+        }
+    }
+
+    /// Until when the waiting frames wait ([`Instant::ZERO`]: not at all any more).
+    fn waiting_deadline(&self) -> Instant {
+        match (self.waiting.is_empty(), self.inputs_differ_since) {
+            (true, _) => Instant::NEVER,
+            (false, Some(since)) => since + SAMPLE_WINDOW,
+            (false, None) => Instant::ZERO,
         }
     }
 
@@ -506,10 +701,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     /// What the core handed out: frames through the role, events through the cross-checks.
     fn after_core(&mut self, now: Instant, collect: Collect, io: &mut impl Io) {
         for frame in collect.frames {
-            if self.fault.is_some() && is_srdo(&frame) {
-                continue;
-            }
-            if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
+            if is_srdo(&frame) {
+                if self.fault.is_none() {
+                    self.core_frame(now, frame, io);
+                }
+            } else if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
                 io.transmit(frame);
             }
         }
@@ -522,6 +718,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 Event::NmtState(NmtState::Initialising) => {
                     self.epoch = self.epoch.wrapping_add(1);
                     self.role.reset();
+                    self.waiting.clear();
+                    self.handed_on.clear();
                     // A difference seen before the reset must last its full time after it to
                     // count again: the reset clears the latch, and the other channel's news
                     // (its new input digest, say) may be on the link behind the reset.
@@ -534,7 +732,22 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                     self.restore_inputs(io);
                     self.follow_core(io);
                 }
-                Event::SafeState(_) | Event::NmtState(_) => self.follow_core(io),
+                Event::SafeState(cause) => {
+                    if !matches!(cause, SafeStateCause::Application { .. }) {
+                        // A fault the core found (an SRDO fault, a GFC): the other channel,
+                        // whose receive path may not show it, is told at once rather than
+                        // through the verdict time-out. Application causes are this
+                        // channel's own latch, which tells it already.
+                        self.send(
+                            &Message::SafeState {
+                                cause: safe_state_code(&cause),
+                            },
+                            io,
+                        );
+                    }
+                    self.follow_core(io);
+                }
+                Event::NmtState(_) => self.follow_core(io),
                 _ => {}
             }
         }
@@ -559,6 +772,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if self.node.nmt_state() != NmtState::Operational {
             self.verdicts.reset();
             self.pairs = [0; N];
+            self.peer_pairs = [0; N];
             self.configuration_confirmed = false;
         }
         if matches!(
@@ -625,6 +839,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             Message::Inputs { sample } => {
                 self.peer_inputs = Some(sample);
                 self.compare_inputs(now);
+                self.release_waiting(now, io);
             }
             Message::Verdict {
                 srdo,
@@ -632,6 +847,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 data,
                 valid,
             } => {
+                if let Some(newest) = usize::from(srdo)
+                    .checked_sub(1)
+                    .and_then(|index| self.peer_pairs.get_mut(index))
+                {
+                    *newest = pair;
+                }
                 let verdict = Verdict { pair, valid, data };
                 match self.verdicts.remote(now, srdo, verdict) {
                     Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
@@ -642,6 +863,21 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             Message::TransmitMismatch { srdo } => {
                 self.latch(ChannelFault::TransmitMismatch { srdo }, io);
             }
+            Message::PlainFrame { id, len, data } => {
+                let bytes = data.to_le_bytes();
+                let frame = shared::CanId::new(id)
+                    .ok()
+                    .zip(bytes.get(..usize::from(len)))
+                    .and_then(|(id, data)| CanFrame::new(id, data).ok());
+                match frame {
+                    Some(frame) => {
+                        let reply = self.role.announced(now, &frame, self.node.safety_config());
+                        self.role_reply(now, reply, io);
+                    }
+                    None => self.latch(ChannelFault::Link(LinkFault::Malformed), io),
+                }
+            }
+            Message::ForeignFrame { id } => self.foreign_frame(now, id, io),
             Message::Configuration {
                 nmt,
                 valid,
@@ -660,7 +896,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 }
             }
             Message::SafeState { cause } => {
-                if self.fault.is_none() {
+                // A channel already in its safe state (its own core found the fault too, say:
+                // both see the same bus) keeps its own cause, which is what it reports.
+                if self.fault.is_none() && self.node.fault().is_none() {
                     self.latch(ChannelFault::PeerSafeState { cause }, io);
                 }
             }
@@ -728,16 +966,29 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
-    fn confirmed(&mut self, srdo: u8, data: u64, io: &mut impl Io) {
+    /// Both channels confirmed `verdict` on receive SRDO `srdo`. It drives the output only if
+    /// it is the newest pair this channel accepted and the newest the other channel reported;
+    /// an older one (its verdict crossed the link while a newer pair arrived) may only lower
+    /// the output (SC_REQ_05: a stale confirmation never switches an output back on).
+    fn confirmed(&mut self, srdo: u8, verdict: Verdict, io: &mut impl Io) {
+        let data = verdict.data;
         io.event(ChannelEvent::Confirmed { srdo, data });
         if !self.configuration_confirmed {
             // Both channels agree on the data, but not yet (in Operational) on the
             // configuration that produced it: the output stays where it is.
             return;
         }
-        if let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) {
-            self.drive(index, data, io);
-        }
+        let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) else {
+            return;
+        };
+        let newest = self.pairs.get(index) == Some(&verdict.pair)
+            && self.peer_pairs.get(index) == Some(&verdict.pair);
+        let value = if newest {
+            data
+        } else {
+            self.outputs[index] & data
+        };
+        self.drive(index, value, io);
     }
 
     fn drive(&mut self, index: usize, data: u64, io: &mut impl Io) {
@@ -764,6 +1015,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             return;
         }
         self.fault = Some(fault);
+        self.waiting.clear();
         self.clear_outputs(io);
         io.event(ChannelEvent::Fault(fault));
         if !matches!(fault, ChannelFault::PeerSafeState { .. }) {
@@ -775,7 +1027,15 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             );
         }
         let mut collect = Collect::new();
-        self.node.enter_safe_state(fault.cause_code(), &mut collect);
+        let named = match fault {
+            ChannelFault::ForeignFrame { id } => {
+                let [low, high] = id.to_le_bytes();
+                [low, high, 0]
+            }
+            _ => [0; 3],
+        };
+        self.node
+            .enter_safe_state_with(fault.cause_code(), named, &mut collect);
         for frame in collect.frames {
             if !is_srdo(&frame) {
                 if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
@@ -786,6 +1046,70 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         for event in collect.events {
             io.event(ChannelEvent::Node(event));
         }
+    }
+}
+
+/// At most one frame per identifier, in `C` fixed slots. Entries are never shifted: shifting
+/// (`retain`, `swap_remove`) compiles to a `memmove` call here, which pulls 1.5 KiB into the
+/// channel images.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameSlots<const C: usize> {
+    slots: [Option<CanFrame>; C],
+}
+
+impl<const C: usize> Default for FrameSlots<C> {
+    fn default() -> Self {
+        FrameSlots { slots: [None; C] }
+    }
+}
+
+impl<const C: usize> FrameSlots<C> {
+    /// The frame kept for identifier `id`, if any.
+    pub fn get(&self, id: shared::CanId) -> Option<&CanFrame> {
+        self.slots.iter().flatten().find(|kept| kept.id() == id)
+    }
+
+    /// Keeps `frame` as the one for its identifier, replacing an older one; `false` when
+    /// every slot holds another identifier.
+    pub fn keep(&mut self, frame: CanFrame) -> bool {
+        let same = self
+            .slots
+            .iter()
+            .position(|slot| slot.is_some_and(|kept| kept.id() == frame.id()));
+        let free = || self.slots.iter().position(Option::is_none);
+        match same
+            .or_else(free)
+            .and_then(|index| self.slots.get_mut(index))
+        {
+            Some(slot) => {
+                *slot = Some(frame);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Removes and returns the frame kept for identifier `id`.
+    pub fn take(&mut self, id: shared::CanId) -> Option<CanFrame> {
+        self.slots
+            .iter_mut()
+            .find(|slot| slot.is_some_and(|kept| kept.id() == id))
+            .and_then(Option::take)
+    }
+
+    /// Removes and returns any one frame.
+    pub fn take_any(&mut self) -> Option<CanFrame> {
+        self.slots.iter_mut().find_map(Option::take)
+    }
+
+    /// `true` when no frame is kept.
+    pub fn is_empty(&self) -> bool {
+        self.slots.iter().all(Option::is_none)
+    }
+
+    /// Forgets every frame.
+    pub fn clear(&mut self) {
+        self.slots = [None; C];
     }
 }
 
@@ -803,4 +1127,34 @@ pub fn fold_signatures(signatures: impl Iterator<Item = u16>) -> u32 {
         digest.update(&signature.to_le_bytes());
     }
     digest.finalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::CanId;
+
+    fn frame(id: u16, value: u8) -> CanFrame {
+        CanFrame::new(CanId::new(id).unwrap(), &[value]).unwrap()
+    }
+
+    /// One frame per identifier: the newest replaces the older, a full set refuses another
+    /// identifier, and what is taken is gone.
+    #[test]
+    fn frame_slots_keep_the_newest_frame_per_identifier() {
+        let mut slots = FrameSlots::<2>::default();
+        assert!(slots.is_empty());
+        assert!(slots.keep(frame(0x101, 1)));
+        assert!(slots.keep(frame(0x101, 2)));
+        assert_eq!(slots.get(frame(0x101, 0).id()), Some(&frame(0x101, 2)));
+        assert!(slots.keep(frame(0x103, 3)));
+        assert!(!slots.keep(frame(0x105, 4)), "full");
+        assert_eq!(slots.take(frame(0x101, 0).id()), Some(frame(0x101, 2)));
+        assert_eq!(slots.take(frame(0x101, 0).id()), None);
+        assert_eq!(slots.take_any(), Some(frame(0x103, 3)));
+        assert!(slots.is_empty());
+        assert!(slots.keep(frame(0x105, 4)));
+        slots.clear();
+        assert_eq!(slots.take_any(), None);
+    }
 }

@@ -18,9 +18,9 @@
 //! # Faults
 //!
 //! A corrupt, malformed, missing (sequence gap), repeated or late message is a [`LinkFault`];
-//! the channel treats every one as a reason for the safe state (issue: "a missing, late,
-//! repeated or corrupt message is a fault"). The receiver resynchronises afterwards so that the
-//! channels can agree again after an NMT reset.
+//! the channel treats every one as a reason for the safe state (Model III: the link is part of
+//! the safety function). The receiver resynchronises afterwards so that the channels can agree
+//! again after an NMT reset.
 
 use crate::cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};
@@ -89,6 +89,22 @@ pub enum Message {
     SafeState {
         /// Cause code (the EMCY detail byte 1 the sender reported).
         cause: u8,
+    },
+    /// Channel A puts this plain frame of a transmit SRDO on the bus (sent before the frame
+    /// itself): channel B co-signs only a plain frame on the bus that equals it (CiA 304 9.5).
+    PlainFrame {
+        /// CAN identifier (the SRDO's COB-ID 1).
+        id: u16,
+        /// Data length in bytes (0..=8).
+        len: u8,
+        /// The data, little-endian, bytes beyond `len` 0.
+        data: u64,
+    },
+    /// The sender saw a frame on one of the node's transmit SRDO identifiers that the node
+    /// did not send: the receiver goes to the safe state for it and sends a GFC.
+    ForeignFrame {
+        /// The identifier.
+        id: u16,
     },
 }
 

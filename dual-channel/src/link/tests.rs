@@ -1,4 +1,4 @@
-//! Link framing and receiver checks: round trips, and every fault the issue names (missing,
+//! Link framing and receiver checks: round trips, and every fault the link must detect (missing,
 //! late, repeated, corrupt), plus no panic on any byte stream.
 
 use super::*;
@@ -6,7 +6,7 @@ use proptest::prelude::*;
 
 const TIMEOUT: Duration = Duration::from_millis(10);
 
-fn messages() -> [Message; 6] {
+fn messages() -> [Message; 8] {
     [
         Message::Heartbeat {
             nmt: 0x05,
@@ -29,6 +29,12 @@ fn messages() -> [Message; 6] {
             signatures: 0x1234_5678,
         },
         Message::SafeState { cause: 0xFF },
+        Message::PlainFrame {
+            id: 0x7FF,
+            len: 8,
+            data: u64::MAX,
+        },
+        Message::ForeignFrame { id: 0x7FF },
     ]
 }
 

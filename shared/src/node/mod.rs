@@ -294,6 +294,9 @@ struct Core<F: Flash, const N: usize> {
     double_reception: DoubleReception,
     deferred_event: Option<Event>,
     integrity: integrity::Integrity,
+    /// Bytes 2..=4 of the EMCY's manufacturer-specific field for the next application cause
+    /// ([`Node::enter_safe_state_with`]).
+    application_data: [u8; 3],
     /// The time of the SDO request being served (the object dictionary has no `now`).
     now: Instant,
     flash: F,
@@ -330,6 +333,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
             double_reception: DoubleReception::default(),
             deferred_event: None,
             integrity: integrity::Integrity::IDLE,
+            application_data: [0; 3],
             now: Instant::ZERO,
             flash,
         };
@@ -554,6 +558,14 @@ impl<F: Flash, const N: usize> Node<F, N> {
     /// Puts the device in its latched safe state for a fault the application found (EMCY
     /// FF02h with `detail`); producers stop. Cleared only by NMT reset, like every other cause.
     pub fn enter_safe_state(&mut self, detail: u8, sink: &mut impl Sink) {
+        self.enter_safe_state_with(detail, [0; 3], sink);
+    }
+
+    /// Like [`Node::enter_safe_state`], with what the application names with its cause in
+    /// bytes 2..=4 of the EMCY's manufacturer-specific field, after `detail` (a dual-channel
+    /// device names the identifier of a frame it did not send, for example).
+    pub fn enter_safe_state_with(&mut self, detail: u8, data: [u8; 3], sink: &mut impl Sink) {
+        self.core.application_data = data;
         self.core
             .latch(SafeStateCause::Application { detail }, sink);
         self.core.next_deadline = Instant::ZERO;
@@ -880,7 +892,11 @@ impl<F: Flash, const N: usize> Core<F, N> {
             ),
             SafeStateCause::Gfc => (emcy::code::GLOBAL_FAIL_SAFE, [0; 5]),
             SafeStateCause::Application { detail } => {
-                (emcy::code::APPLICATION_FAULT, [0, detail, 0, 0, 0])
+                let [first, second, third] = self.application_data;
+                (
+                    emcy::code::APPLICATION_FAULT,
+                    [0, detail, first, second, third],
+                )
             }
             SafeStateCause::Integrity(fault) => (emcy::code::DATA_SET, fault.emergency_detail()),
         };
