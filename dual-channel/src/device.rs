@@ -32,6 +32,17 @@ pub const INPUT: Address = Address::new(0x6000, 1);
 pub const INPUT_INVERTED: Address = Address::new(0x6001, 1);
 /// Safety output (plain).
 pub const OUTPUT: Address = Address::new(0x6200, 1);
+/// Safety output (inverted copy).
+pub const OUTPUT_INVERTED: Address = Address::new(0x6201, 1);
+
+/// The names a person uses for the application objects (in a network file, in a tool's
+/// output), one per entry of [`OBJECTS`].
+pub static OBJECT_NAMES: [(&str, Address); 4] = [
+    ("input", INPUT),
+    ("input_inverted", INPUT_INVERTED),
+    ("output", OUTPUT),
+    ("output_inverted", OUTPUT_INVERTED),
+];
 
 /// The device description for node-ID `id` (1..=127).
 pub fn config(id: NodeId, name: &'static str) -> NodeConfig {
@@ -47,5 +58,23 @@ pub fn config(id: NodeId, name: &'static str) -> NodeConfig {
         sdo_timeout: Duration::from_millis(500),
         event_driven: true,
         gfc_on_fault: false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every application object has exactly one name, and every name an object.
+    #[test]
+    fn every_object_has_one_name() {
+        for object in &OBJECTS {
+            let named = OBJECT_NAMES
+                .iter()
+                .filter(|(_, address)| *address == object.address)
+                .count();
+            assert_eq!(named, 1, "{:?}", object.address);
+        }
+        assert_eq!(OBJECT_NAMES.len(), OBJECTS.len());
     }
 }

@@ -6,8 +6,10 @@
 //!   a candump trace.
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
+//! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
 
 pub use can_hub::bus;
 pub mod dual;
 pub mod network;
 pub mod scenario;
+pub mod tool_bus;

@@ -114,6 +114,51 @@ impl AbortCode {
         self as u32
     }
 
+    /// What the code means, in the words of CiA 301 7.2.4.3.17 (the variant's doc comment), for
+    /// tools that print an abort as a sentence.
+    pub const fn meaning(self) -> &'static str {
+        match self {
+            AbortCode::ToggleBit => "Toggle bit not alternated.",
+            AbortCode::Timeout => "SDO protocol timed out.",
+            AbortCode::InvalidCommand => "Client/server command specifier not valid or unknown.",
+            AbortCode::OutOfMemory => "Out of memory.",
+            AbortCode::UnsupportedAccess => "Unsupported access to an object.",
+            AbortCode::WriteOnly => "Attempt to read a write only object.",
+            AbortCode::ReadOnly => "Attempt to write a read only object.",
+            AbortCode::NoObject => "Object does not exist in the object dictionary.",
+            AbortCode::NotMappable => {
+                "Object cannot be mapped to the PDO (here: to the SRDO in this direction)."
+            }
+            AbortCode::MappingTooLong => {
+                "The number and length of the objects to be mapped would exceed the PDO (SRDO) length."
+            }
+            AbortCode::ParameterIncompatible => "General parameter incompatibility reason.",
+            AbortCode::InternalIncompatible => "General internal incompatibility in the device.",
+            AbortCode::HardwareError => "Access failed due to a hardware error.",
+            AbortCode::LengthMismatch => {
+                "Data type does not match, length of service parameter does not match."
+            }
+            AbortCode::LengthTooHigh => {
+                "Data type does not match, length of service parameter too high."
+            }
+            AbortCode::LengthTooLow => {
+                "Data type does not match, length of service parameter too low."
+            }
+            AbortCode::NoSubIndex => "Sub-index does not exist.",
+            AbortCode::InvalidValue => "Invalid value for parameter (download only).",
+            AbortCode::ValueTooHigh => "Value of parameter written too high (download only).",
+            AbortCode::ValueTooLow => "Value of parameter written too low (download only).",
+            AbortCode::General => "General error.",
+            AbortCode::CannotStore => "Data cannot be transferred or stored to the application.",
+            AbortCode::LocalControl => {
+                "Data cannot be transferred or stored to the application because of local control."
+            }
+            AbortCode::DeviceState => {
+                "Data cannot be transferred or stored to the application because of the present device state."
+            }
+        }
+    }
+
     /// The abort code with the value `code`, if this crate knows it.
     pub fn from_code(code: u32) -> Option<AbortCode> {
         AbortCode::ALL
@@ -149,5 +194,18 @@ mod tests {
         }
         assert_eq!(AbortCode::from_code(0x1234_5678), None);
         assert_eq!(AbortCode::DeviceState.code(), 0x0800_0022);
+    }
+
+    #[test]
+    fn cia301_abort_code_meanings_are_sentences() {
+        for abort in AbortCode::ALL {
+            let meaning = abort.meaning();
+            assert!(!meaning.is_empty() && meaning.ends_with('.'), "{abort:?}");
+        }
+        assert_eq!(
+            AbortCode::DeviceState.meaning(),
+            "Data cannot be transferred or stored to the application because of the present \
+             device state."
+        );
     }
 }

@@ -1,0 +1,182 @@
+//! Every error of the tool, as a sentence that names the node and the object (Display is the
+//! message a person reads; `Debug` is never shown).
+
+use crate::transport::TransportError;
+use shared::canopen::od::{AbortCode, Address};
+
+/// An object named for a person: `0x1301:05 (SRDO 1 COB-ID 1)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Object(pub Address);
+
+impl std::fmt::Display for Object {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let Address { index, sub } = self.0;
+        write!(f, "object {index:04X}h:{sub:02X}h")?;
+        if let Some(name) = object_name(self.0) {
+            write!(f, " ({name})")?;
+        }
+        Ok(())
+    }
+}
+
+/// What the object is, for the objects this tool reads and writes.
+pub fn object_name(address: Address) -> Option<String> {
+    let Address { index, sub } = address;
+    let comm = |n: u16| -> Option<String> {
+        let field = match sub {
+            0 => "highest sub-index",
+            1 => "information direction",
+            2 => "refresh time / SCT",
+            3 => "SRVT",
+            4 => "transmission type",
+            5 => "COB-ID 1",
+            6 => "COB-ID 2",
+            _ => return None,
+        };
+        Some(format!("SRDO {n} {field}"))
+    };
+    match index {
+        0x1010 => Some("store parameters".into()),
+        0x1018 => Some(
+            match sub {
+                1 => "identity: vendor-ID",
+                2 => "identity: product code",
+                3 => "identity: revision",
+                4 => "identity: serial number",
+                _ => "identity",
+            }
+            .into(),
+        ),
+        0x1300 => Some("GFC parameter".into()),
+        0x1301..=0x1340 => comm(index - 0x1300),
+        0x1381..=0x13C0 if sub == 0 => Some(format!("SRDO {} mapping count", index - 0x1380)),
+        0x1381..=0x13C0 => Some(format!("SRDO {} mapping entry {sub}", index - 0x1380)),
+        0x13FE => Some("configuration valid".into()),
+        0x13FF => Some(format!("signature of SRDO {sub}")),
+        _ => dual_channel::device::OBJECT_NAMES
+            .iter()
+            .find(|(_, object)| *object == address)
+            .map(|(name, _)| (*name).to_owned()),
+    }
+}
+
+/// The CiA 301 meaning of an abort code, also for codes the node's crate does not know.
+pub fn abort_meaning(code: u32) -> &'static str {
+    AbortCode::from_code(code).map_or("an abort code this tool does not know", AbortCode::meaning)
+}
+
+/// What went wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum ToolError {
+    /// The node refused an SDO transfer.
+    #[error("node {node}: {object}: the node aborted the SDO {action} with {code:08X}h: {meaning}", meaning = abort_meaning(*code))]
+    Aborted {
+        /// The node-ID.
+        node: u8,
+        /// The object.
+        object: Object,
+        /// `read` or `write`.
+        action: &'static str,
+        /// The abort code.
+        code: u32,
+    },
+    /// The node did not answer in time.
+    #[error(
+        "node {node} did not answer within {timeout_ms} ms (SDO {action} of {object}); is it on the bus, powered, at this node-ID and bit rate?"
+    )]
+    Timeout {
+        /// The node-ID.
+        node: u8,
+        /// The object.
+        object: Object,
+        /// `read` or `write`.
+        action: &'static str,
+        /// The SDO timeout in milliseconds.
+        timeout_ms: u64,
+    },
+    /// The node's answer did not follow the SDO protocol.
+    #[error(
+        "node {node}: {object}: the answer to the SDO {action} does not follow the SDO protocol (CiA 301 7.2.4)"
+    )]
+    Protocol {
+        /// The node-ID.
+        node: u8,
+        /// The object.
+        object: Object,
+        /// `read` or `write`.
+        action: &'static str,
+    },
+    /// A value is longer than an SDO transfer of this tool carries.
+    #[error("node {node}: {object}: the value is longer than {max} bytes")]
+    TooLong {
+        /// The node-ID.
+        node: u8,
+        /// The object.
+        object: Object,
+        /// The limit.
+        max: usize,
+    },
+    /// A value read back has a length other than its object's data type.
+    #[error(
+        "node {node}: {object}: the node answered {got} bytes where the data type has {expected}"
+    )]
+    Length {
+        /// The node-ID.
+        node: u8,
+        /// The object.
+        object: Object,
+        /// Bytes expected.
+        expected: usize,
+        /// Bytes received.
+        got: usize,
+    },
+    /// The CAN interface failed.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The node's identity is not the one the network file expects (SC_REQ_37/38).
+    #[error(
+        "node {node} is not the device the network file expects: {differences}; nothing was written (pass --accept-identity to configure it anyway)"
+    )]
+    IdentityMismatch {
+        /// The node-ID.
+        node: u8,
+        /// The fields that differ, as `serial number: file 2, node 7`.
+        differences: String,
+    },
+    /// What the node holds after configuration is not what the file says.
+    #[error(
+        "node {node}: read-back differs from the network file, configuration left invalid (0x13FE not A5h):\n{diff}"
+    )]
+    ReadBackMismatch {
+        /// The node-ID.
+        node: u8,
+        /// One line per difference.
+        diff: String,
+    },
+    /// The node did not keep the validity declaration.
+    #[error(
+        "node {node}: 0x13FE reads {value:02X}h after {when}, not A5h: the node does not hold a valid configuration"
+    )]
+    NotValid {
+        /// The node-ID.
+        node: u8,
+        /// The value read.
+        value: u8,
+        /// After which step.
+        when: &'static str,
+    },
+    /// The network file could not be read.
+    #[error("cannot read the network file {path}: {source}")]
+    ReadFile {
+        /// The path.
+        path: String,
+        /// Why not.
+        source: std::io::Error,
+    },
+    /// The network file is not right.
+    #[error(transparent)]
+    NetworkFile(#[from] crate::network_file::FileError),
+    /// The interface specification on the command line is not one this tool knows.
+    #[error("{0}")]
+    Usage(String),
+}

@@ -1,0 +1,26 @@
+//! A configuration tool for CANopen Safety nodes (EN 50325-5): configure and verify a network
+//! of nodes from one file, over any CAN interface.
+//!
+//! - [`transport`]: the one CAN transport trait (send; receive with a deadline) and the
+//!   adapters: [`socketcand`] (TCP), [`slcan`] (serial adapters), `socketcan` (Linux, behind
+//!   the `socketcan` feature). The host simulation's adapter lives in the `system-tests`
+//!   crate, which depends on this one.
+//! - [`client`]: SDO and NMT over a transport, with errors that name the node and the object.
+//! - [`network_file`]: the network file (TOML) and its errors with line and column.
+//! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
+//! - [`procedure`]: `configure` and `verify` (EN 50325-5 8.3.1), `scan`.
+//! - [`error`]: every error as a sentence.
+
+pub mod client;
+pub mod error;
+pub mod network_file;
+pub mod procedure;
+pub mod signature;
+pub mod slcan;
+#[cfg(feature = "socketcan")]
+pub mod socketcan;
+pub mod socketcand;
+pub mod transport;
+
+pub use error::ToolError;
+pub use transport::Transport;

@@ -1,0 +1,433 @@
+//! `safety-config`: configure, verify and inspect CANopen Safety nodes (EN 50325-5) from a
+//! network file, over socketcand, an SLCAN adapter or SocketCAN.
+
+use clap::{Parser, Subcommand, ValueEnum};
+use safety_config::client::Client;
+use safety_config::network_file::{self, NodeSpec};
+use safety_config::procedure::{self, NodeResult, Operator, Verdict};
+use safety_config::{ToolError, Transport};
+use shared::canopen::nmt::NmtCommand;
+use shared::canopen::od::Address;
+use std::io::{IsTerminal, Write};
+use std::process::ExitCode;
+use std::time::Duration;
+
+/// Configure, verify and inspect CANopen Safety nodes (EN 50325-5 / CiA 304).
+///
+/// The bus is named with --bus:
+///   socketcand:HOST:PORT[/BUS]   a socketcand server (e.g. socketcand:127.0.0.1:29536/can0)
+///   slcan:DEVICE[@BITRATE]       an SLCAN serial adapter (e.g. slcan:/dev/ttyACM0@500000)
+///   socketcan:INTERFACE          Linux SocketCAN (built with the `socketcan` feature)
+#[derive(Parser)]
+#[command(version, verbatim_doc_comment)]
+struct Cli {
+    /// The CAN interface (see above).
+    #[arg(long, global = true, default_value = "socketcand:127.0.0.1:29536/can0")]
+    bus: String,
+    /// How long one SDO request waits for its answer, in milliseconds (the network file's
+    /// `sdo_timeout_ms` wins for configure and verify).
+    #[arg(long, global = true, default_value_t = 500)]
+    sdo_timeout_ms: u64,
+    /// Print the result as JSON (for scripts) instead of sentences.
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Listen for boot-up and heartbeat messages, then read each node's identity (0x1018).
+    Scan {
+        /// How long to listen, in milliseconds.
+        #[arg(long, default_value_t = 1000)]
+        listen_ms: u64,
+    },
+    /// Send an NMT command to one node or to all.
+    Nmt {
+        /// The command.
+        command: Nmt,
+        /// A node-ID (1..=127), or `all`.
+        target: String,
+    },
+    /// Read an object (SDO upload, expedited or segmented).
+    Read {
+        /// The node-ID.
+        node: u8,
+        /// The object, as INDEX:SUB (hexadecimal, e.g. 1018:4 or 0x1301:5).
+        object: String,
+    },
+    /// Write an object (SDO download, expedited or segmented).
+    Write {
+        /// The node-ID.
+        node: u8,
+        /// The object, as INDEX:SUB (hexadecimal).
+        object: String,
+        /// The value: a number (decimal or 0x-hexadecimal) written in --len bytes, or with
+        /// --bytes hexadecimal octets (e.g. "73 61 76 65").
+        value: String,
+        /// Bytes of a numeric value (1, 2 or 4).
+        #[arg(long, default_value_t = 4)]
+        len: usize,
+        /// Take the value as hexadecimal octets.
+        #[arg(long)]
+        bytes: bool,
+    },
+    /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9).
+    Sign {
+        /// The network file.
+        file: String,
+    },
+    /// Configure, read back, sign, validate and store every node of a network file
+    /// (EN 50325-5 8.3.1).
+    Configure {
+        /// The network file.
+        file: String,
+        /// Start the nodes (NMT start) when every node was configured.
+        #[arg(long)]
+        start: bool,
+        /// Configure a node although its identity (0x1018) differs from the file.
+        #[arg(long)]
+        accept_identity: bool,
+    },
+    /// Read every node's safety configuration and compare it with a network file.
+    Verify {
+        /// The network file.
+        file: String,
+    },
+    /// Send the global fail-safe command (GFC, CAN-ID 001h): every safety node in
+    /// Operational goes to its safe state.
+    Gfc,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Nmt {
+    Start,
+    Stop,
+    PreOperational,
+    ResetNode,
+    ResetCommunication,
+}
+
+/// Prints progress on stderr; asks on a terminal when an identity differs.
+struct Person {
+    accept_identity: bool,
+    quiet: bool,
+}
+
+impl Operator for Person {
+    fn note(&mut self, line: &str) {
+        if !self.quiet {
+            eprintln!("{line}");
+        }
+    }
+
+    fn confirm_identity(&mut self, node: &NodeSpec, differences: &str) -> bool {
+        if self.accept_identity {
+            eprintln!(
+                "node {}: identity differs ({differences}); accepted by --accept-identity",
+                node.id
+            );
+            return true;
+        }
+        if !std::io::stdin().is_terminal() {
+            return false;
+        }
+        eprint!(
+            "node {} is not the device the file expects ({differences}).\nConfigure this physical node anyway? Type yes: ",
+            node.id
+        );
+        let _ = std::io::stderr().flush();
+        let mut answer = String::new();
+        std::io::stdin().read_line(&mut answer).is_ok() && answer.trim() == "yes"
+    }
+}
+
+fn open_bus(spec: &str) -> Result<Box<dyn Transport>, ToolError> {
+    let usage = || {
+        ToolError::Usage(format!(
+            "--bus {spec:?} is not socketcand:HOST:PORT[/BUS], slcan:DEVICE[@BITRATE] or socketcan:INTERFACE"
+        ))
+    };
+    let (kind, rest) = spec.split_once(':').ok_or_else(usage)?;
+    match kind {
+        "socketcand" => {
+            let (address, bus) = rest.split_once('/').unwrap_or((rest, "can0"));
+            Ok(Box::new(
+                safety_config::socketcand::SocketcandClient::connect(address, bus)?,
+            ))
+        }
+        "slcan" => {
+            let (device, rate) = match rest.split_once('@') {
+                Some((device, rate)) => (device, rate.parse().map_err(|_| usage())?),
+                None => (rest, 500_000),
+            };
+            Ok(Box::new(safety_config::slcan::Slcan::open_path(
+                device, rate,
+            )?))
+        }
+        #[cfg(feature = "socketcan")]
+        "socketcan" => Ok(Box::new(safety_config::socketcan::SocketCan::open(rest)?)),
+        #[cfg(not(feature = "socketcan"))]
+        "socketcan" => Err(ToolError::Usage(
+            "this build has no SocketCAN: build with `--features socketcan`".into(),
+        )),
+        _ => Err(usage()),
+    }
+}
+
+fn parse_object(text: &str) -> Result<Address, ToolError> {
+    let bad = || {
+        ToolError::Usage(format!(
+            "{text:?} is not an object INDEX:SUB (hexadecimal, e.g. 1018:4)"
+        ))
+    };
+    let (index, sub) = text.split_once(':').ok_or_else(bad)?;
+    let hex = |part: &str| {
+        part.trim_start_matches("0x")
+            .trim_start_matches("0X")
+            .to_owned()
+    };
+    let index = u16::from_str_radix(&hex(index), 16).map_err(|_| bad())?;
+    let sub = u8::from_str_radix(&hex(sub), 16).map_err(|_| bad())?;
+    Ok(Address::new(index, sub))
+}
+
+fn load(file: &str) -> Result<network_file::Network, ToolError> {
+    let text = std::fs::read_to_string(file).map_err(|source| ToolError::ReadFile {
+        path: file.to_owned(),
+        source,
+    })?;
+    Ok(network_file::parse(&text, file)?)
+}
+
+fn json(value: &impl serde::Serialize) -> String {
+    serde_json::to_string_pretty(value)
+        .unwrap_or_else(|error| format!("{{\"error\": \"{error}\"}}"))
+}
+
+fn run(cli: Cli) -> Result<bool, ToolError> {
+    let timeout = Duration::from_millis(cli.sdo_timeout_ms);
+    if let Command::Sign { file } = &cli.command {
+        let network = load(file)?;
+        let signatures = procedure::offline_signatures(&network);
+        if cli.json {
+            let rows: Vec<_> = signatures
+                .iter()
+                .map(|(node, srdo, value)| serde_json::json!({"node": node, "srdo": srdo, "signature": value}))
+                .collect();
+            println!("{}", json(&rows));
+        } else {
+            for (node, srdo, value) in signatures {
+                println!("node {node} SRDO {srdo}: signature {value:04X}h (0x13FF:{srdo:02X})");
+            }
+        }
+        return Ok(true);
+    }
+    let mut client = Client::new(open_bus(&cli.bus)?, timeout);
+    match cli.command {
+        Command::Sign { .. } => Ok(true),
+        Command::Scan { listen_ms } => {
+            let found = procedure::scan(&mut client, Duration::from_millis(listen_ms))?;
+            if cli.json {
+                println!("{}", json(&found));
+            } else if found.is_empty() {
+                println!("no node sent a boot-up or heartbeat message in {listen_ms} ms");
+            } else {
+                for node in &found {
+                    match &node.identity {
+                        Ok(identity) => {
+                            println!("node {:3}: {}, {identity}", node.node, node.state)
+                        }
+                        Err(error) => println!(
+                            "node {:3}: {}, identity not read: {error}",
+                            node.node, node.state
+                        ),
+                    }
+                }
+            }
+            Ok(true)
+        }
+        Command::Nmt { command, target } => {
+            let node = if target == "all" {
+                0
+            } else {
+                target
+                    .parse::<u8>()
+                    .ok()
+                    .filter(|id| (1..=127).contains(id))
+                    .ok_or_else(|| {
+                        ToolError::Usage(format!("{target:?} is not a node-ID 1..=127 or `all`"))
+                    })?
+            };
+            let command = match command {
+                Nmt::Start => NmtCommand::Start,
+                Nmt::Stop => NmtCommand::Stop,
+                Nmt::PreOperational => NmtCommand::EnterPreOperational,
+                Nmt::ResetNode => NmtCommand::ResetNode,
+                Nmt::ResetCommunication => NmtCommand::ResetCommunication,
+            };
+            client.nmt(command, node)?;
+            if cli.json {
+                println!(
+                    "{}",
+                    json(&serde_json::json!({"sent": true, "target": node}))
+                );
+            }
+            Ok(true)
+        }
+        Command::Read { node, object } => {
+            let address = parse_object(&object)?;
+            let value = client.read(node, address)?;
+            if cli.json {
+                println!(
+                    "{}",
+                    json(
+                        &serde_json::json!({"node": node, "index": address.index, "sub": address.sub, "bytes": value})
+                    )
+                );
+            } else {
+                let hex: Vec<String> = value.iter().map(|b| format!("{b:02X}")).collect();
+                let mut line = format!("{}: {}", procedure::describe(address), hex.join(" "));
+                if (1..=4).contains(&value.len()) {
+                    let mut raw = [0u8; 4];
+                    raw[..value.len()].copy_from_slice(&value);
+                    let number = u32::from_le_bytes(raw);
+                    line.push_str(&format!(" = {number} ({number:X}h)"));
+                }
+                println!("{line}");
+            }
+            Ok(true)
+        }
+        Command::Write {
+            node,
+            object,
+            value,
+            len,
+            bytes,
+        } => {
+            let address = parse_object(&object)?;
+            let data = if bytes {
+                let words: Vec<String> = value.split_whitespace().map(str::to_owned).collect();
+                safety_config::socketcand::parse_hex_data(&words)?
+            } else {
+                let number = match value.strip_prefix("0x") {
+                    Some(hex) => u64::from_str_radix(hex, 16),
+                    None => value.parse(),
+                }
+                .map_err(|_| ToolError::Usage(format!("{value:?} is not a number")))?;
+                if !matches!(len, 1 | 2 | 4) || number >> (8 * len) != 0 {
+                    return Err(ToolError::Usage(format!(
+                        "{value} does not fit {len} byte(s) (1, 2 or 4)"
+                    )));
+                }
+                number.to_le_bytes()[..len].to_vec()
+            };
+            client.write(node, address, &data)?;
+            if cli.json {
+                println!(
+                    "{}",
+                    json(&serde_json::json!({"node": node, "written": true}))
+                );
+            }
+            Ok(true)
+        }
+        Command::Configure {
+            file,
+            start,
+            accept_identity,
+        } => {
+            let network = load(&file)?;
+            client.sdo_timeout = network.sdo_timeout;
+            let mut person = Person {
+                accept_identity,
+                quiet: cli.json,
+            };
+            let report = procedure::configure(&mut client, &network, start, &mut person)?;
+            if cli.json {
+                println!("{}", json(&report));
+            } else {
+                for result in &report.nodes {
+                    match result {
+                        NodeResult::Done(done) => println!(
+                            "node {}: configured and valid; signatures {}",
+                            done.node,
+                            done.signatures
+                                .iter()
+                                .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ),
+                        NodeResult::Failed { node, error } => {
+                            println!("node {node}: NOT configured: {error}")
+                        }
+                    }
+                }
+                if report.started {
+                    println!("all nodes started");
+                } else if start {
+                    println!("no node was started, because not every node was configured");
+                }
+            }
+            Ok(report.success())
+        }
+        Command::Verify { file } => {
+            let network = load(&file)?;
+            client.sdo_timeout = network.sdo_timeout;
+            let verdicts = procedure::verify(&mut client, &network)?;
+            if cli.json {
+                println!("{}", json(&verdicts));
+            } else {
+                for verdict in &verdicts {
+                    match verdict {
+                        Verdict::Matches { node } => {
+                            println!("node {node}: matches the file, valid (0x13FE = A5h)")
+                        }
+                        Verdict::Differs { node, diff } => {
+                            println!("node {node}: DIFFERS from the file (file vs node):");
+                            for line in diff {
+                                println!("  {line}");
+                            }
+                        }
+                        Verdict::NotValidated {
+                            node,
+                            configuration_valid,
+                        } => println!(
+                            "node {node}: matches the file but is NOT validated (0x13FE = {configuration_valid:02X}h)"
+                        ),
+                        Verdict::Unreachable { node, error } => {
+                            println!("node {node}: not verified: {error}")
+                        }
+                    }
+                }
+            }
+            Ok(verdicts
+                .iter()
+                .all(|verdict| matches!(verdict, Verdict::Matches { .. })))
+        }
+        Command::Gfc => {
+            client.transport.send(&shared::safety::gfc::frame())?;
+            if cli.json {
+                println!("{}", json(&serde_json::json!({"sent": "gfc"})));
+            }
+            Ok(true)
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let as_json = cli.json;
+    match run(cli) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::FAILURE,
+        Err(error) => {
+            if as_json {
+                println!("{}", json(&serde_json::json!({"error": error.to_string()})));
+            } else {
+                eprintln!("error: {error}");
+            }
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,611 @@
+//! What the tool does to nodes: `configure` and `verify` (EN 50325-5 8.3.1), `scan`, and the
+//! offline signatures.
+//!
+//! `configure` writes in the order of EN 50325-5 8.3.1 and never lets a node look valid unless
+//! every value it holds was read back, by another path than the write, and equals the file:
+//!
+//! 1. read the identity (0x1018) and refuse a node that is not the file's (SC_REQ_37/38);
+//! 2. NMT enter pre-operational;
+//! 3. every SRDO's direction to 0 (deleted, so its parameters may change);
+//! 4. the mapping of each SRDO of the file (count 0, entries, count);
+//! 5. the communication parameters (refresh time/SCT, SRVT, COB-IDs, direction last);
+//! 6. read back every record after all writes, in the reverse order (last SRDO first, each
+//!    record's sub-indices from the highest), and compare with the file;
+//! 7. compute every signature with the tool's own CRC ([`crate::signature`]), write 0x13FF,
+//!    read it back;
+//! 8. 0x13FE = A5h, read it back; store (0x1010); read 0x13FE again.
+//!
+//! Any mismatch or silence stops the node's configuration with an error, and 0x13FE is set to
+//! 0 (best effort; every accepted write to a safety object already sets it to 0, EN 50325-5
+//! 6.4.1.6, and A5h is only written after every check passed).
+
+use crate::client::Client;
+use crate::error::{Object, ToolError, object_name};
+use crate::network_file::{Identity, Network, NodeSpec};
+use crate::signature::{SrdoSettings, signature};
+use crate::transport::Transport;
+use shared::canopen::nmt::NmtCommand;
+use shared::canopen::od::Address;
+use shared::safety::config::{CONFIGURATION_VALID, TRANSMISSION_TYPE};
+use std::time::Duration;
+
+/// Whoever runs the tool: told what happens, asked when a node is not the file's.
+pub trait Operator {
+    /// A line of progress for the person.
+    fn note(&mut self, line: &str);
+    /// Whether to configure `node` although its identity differs (`differences`).
+    fn confirm_identity(&mut self, node: &NodeSpec, differences: &str) -> bool;
+}
+
+/// An operator that prints nothing and accepts a differing identity only when told to.
+pub struct Quiet {
+    /// Accept a node whose identity differs from the file (`--accept-identity`).
+    pub accept_identity: bool,
+}
+
+impl Operator for Quiet {
+    fn note(&mut self, _line: &str) {}
+    fn confirm_identity(&mut self, _node: &NodeSpec, _differences: &str) -> bool {
+        self.accept_identity
+    }
+}
+
+/// The identity read from a node.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct NodeIdentity {
+    /// Vendor-ID.
+    pub vendor: u32,
+    /// Product code.
+    pub product: u32,
+    /// Revision number.
+    pub revision: u32,
+    /// Serial number.
+    pub serial: u32,
+}
+
+impl std::fmt::Display for NodeIdentity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "vendor {:08X}h, product {:08X}h, revision {:08X}h, serial {}",
+            self.vendor, self.product, self.revision, self.serial
+        )
+    }
+}
+
+/// Reads 0x1018 sub-indices 1 to 4.
+pub fn read_identity<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+) -> Result<NodeIdentity, ToolError> {
+    let mut field = |sub| client.read_unsigned(node, Address::new(0x1018, sub), 4);
+    Ok(NodeIdentity {
+        vendor: field(1)?,
+        product: field(2)?,
+        revision: field(3)?,
+        serial: field(4)?,
+    })
+}
+
+/// The fields in which `actual` differs from `expected`, as a sentence; empty when none.
+pub fn identity_differences(expected: &Identity, actual: &NodeIdentity) -> String {
+    let mut differences = Vec::new();
+    let mut compare = |what: &str, file: u32, node: u32| {
+        if file != node {
+            differences.push(format!("{what}: file {file:X}h, node {node:X}h"));
+        }
+    };
+    compare("vendor-ID", expected.vendor, actual.vendor);
+    compare("product code", expected.product, actual.product);
+    if let Some(revision) = expected.revision {
+        compare("revision", revision, actual.revision);
+    }
+    compare("serial number", expected.serial, actual.serial);
+    differences.join("; ")
+}
+
+/// One SRDO record as read from a node.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ReadRecord {
+    /// The parameters of Table 9.
+    pub settings: SrdoSettings,
+    /// Sub-index 04h (not part of the signature; always 254).
+    pub transmission_type: u8,
+}
+
+/// Reads SRDO `n`'s whole record, every sub-index from the highest down (the reverse of the
+/// write order): communication parameters 06h..01h, then the mapping count and its entries
+/// from the last.
+pub fn read_record<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    n: u8,
+) -> Result<ReadRecord, ToolError> {
+    let comm = 0x1300 + u16::from(n);
+    let map = 0x1380 + u16::from(n);
+    let cob_id_2 = client.read_unsigned(node, Address::new(comm, 6), 4)?;
+    let cob_id_1 = client.read_unsigned(node, Address::new(comm, 5), 4)?;
+    let transmission_type = client.read_unsigned(node, Address::new(comm, 4), 1)? as u8;
+    let srvt = client.read_unsigned(node, Address::new(comm, 3), 1)? as u8;
+    let cycle_time = client.read_unsigned(node, Address::new(comm, 2), 2)? as u16;
+    let direction = client.read_unsigned(node, Address::new(comm, 1), 1)? as u8;
+    let count = client.read_unsigned(node, Address::new(map, 0), 1)?.min(16) as u8;
+    let mut mapping = vec![0; usize::from(count)];
+    for sub in (1..=count).rev() {
+        mapping[usize::from(sub) - 1] = client.read_unsigned(node, Address::new(map, sub), 4)?;
+    }
+    Ok(ReadRecord {
+        settings: SrdoSettings {
+            direction,
+            cycle_time,
+            srvt,
+            cob_id_1,
+            cob_id_2,
+            mapping,
+        },
+        transmission_type,
+    })
+}
+
+/// The differences between what the file wants for SRDO `n` (`None`: deleted) and what the
+/// node holds, one line each: `SRDO 1 COB-ID 1 (1301h:05h): file 101h, node 103h`.
+pub fn record_diff(n: u8, wanted: Option<&SrdoSettings>, node: &ReadRecord) -> Vec<String> {
+    let comm = 0x1300 + u16::from(n);
+    let map = 0x1380 + u16::from(n);
+    let mut lines = Vec::new();
+    let mut compare = |address: Address, file: u32, held: u32| {
+        if file != held {
+            lines.push(format!(
+                "{} ({:04X}h:{:02X}h): file {file:X}h, node {held:X}h",
+                object_name(address).unwrap_or_default(),
+                address.index,
+                address.sub
+            ));
+        }
+    };
+    let held = &node.settings;
+    let Some(file) = wanted else {
+        compare(Address::new(comm, 1), 0, u32::from(held.direction));
+        return lines;
+    };
+    compare(
+        Address::new(comm, 1),
+        u32::from(file.direction),
+        u32::from(held.direction),
+    );
+    compare(
+        Address::new(comm, 2),
+        u32::from(file.cycle_time),
+        u32::from(held.cycle_time),
+    );
+    compare(
+        Address::new(comm, 3),
+        u32::from(file.srvt),
+        u32::from(held.srvt),
+    );
+    compare(
+        Address::new(comm, 4),
+        u32::from(TRANSMISSION_TYPE),
+        u32::from(node.transmission_type),
+    );
+    compare(Address::new(comm, 5), file.cob_id_1, held.cob_id_1);
+    compare(Address::new(comm, 6), file.cob_id_2, held.cob_id_2);
+    compare(
+        Address::new(map, 0),
+        file.mapping.len() as u32,
+        held.mapping.len() as u32,
+    );
+    for (sub, (file, held)) in (1u8..).zip(file.mapping.iter().zip(&held.mapping)) {
+        compare(Address::new(map, sub), *file, *held);
+    }
+    lines
+}
+
+/// What configuring one node did.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Configured {
+    /// The node-ID.
+    pub node: u8,
+    /// The identity it reported.
+    pub identity: NodeIdentity,
+    /// The signature written for each SRDO (number, value).
+    pub signatures: Vec<(u8, u16)>,
+    /// SDO requests this node's configuration took.
+    pub sdo_requests: u64,
+}
+
+/// The number of SRDOs `node` has (0x13FF sub-index 0).
+fn srdo_count<T: Transport>(client: &mut Client<T>, node: u8) -> Result<u8, ToolError> {
+    Ok(client.read_unsigned(node, Address::new(0x13FF, 0), 1)? as u8)
+}
+
+/// Configures one node from its part of the network file (the order is the module's).
+pub fn configure_node<T: Transport>(
+    client: &mut Client<T>,
+    spec: &NodeSpec,
+    operator: &mut dyn Operator,
+) -> Result<Configured, ToolError> {
+    let node = spec.id;
+    let before = client.requests;
+    let identity = read_identity(client, node)?;
+    let label = spec
+        .name
+        .as_deref()
+        .map(|name| format!(" ({name})"))
+        .unwrap_or_default();
+    operator.note(&format!("node {node}{label}: {identity}"));
+    let differences = identity_differences(&spec.identity, &identity);
+    if !differences.is_empty() && !operator.confirm_identity(spec, &differences) {
+        return Err(ToolError::IdentityMismatch { node, differences });
+    }
+    client.nmt(NmtCommand::EnterPreOperational, node)?;
+    match write_and_check(client, spec, operator) {
+        Ok(signatures) => Ok(Configured {
+            node,
+            identity,
+            signatures,
+            sdo_requests: client.requests - before,
+        }),
+        Err(error) => {
+            // Best effort: a node that stopped answering cannot be told; every write it
+            // accepted has already set 0x13FE to 0.
+            if client.write(node, Address::new(0x13FE, 0), &[0]).is_ok() {
+                operator.note(&format!(
+                    "node {node}: 0x13FE set to 0 (configuration not valid)"
+                ));
+            }
+            Err(error)
+        }
+    }
+}
+
+fn write_and_check<T: Transport>(
+    client: &mut Client<T>,
+    spec: &NodeSpec,
+    operator: &mut dyn Operator,
+) -> Result<Vec<(u8, u16)>, ToolError> {
+    let node = spec.id;
+    let count = srdo_count(client, node)?;
+    if let Some(extra) = spec.srdos.iter().find(|srdo| srdo.number > count) {
+        return Err(ToolError::Usage(format!(
+            "node {node} has {count} SRDO(s), but the network file configures SRDO {}",
+            extra.number
+        )));
+    }
+    let wanted = |n: u8| {
+        spec.srdos
+            .iter()
+            .find(|srdo| srdo.number == n)
+            .map(|srdo| &srdo.settings)
+    };
+    operator.note(&format!(
+        "node {node}: deleting SRDOs 1..={count} (direction 0)"
+    ));
+    for n in 1..=count {
+        client.write(node, Address::new(0x1300 + u16::from(n), 1), &[0])?;
+    }
+    if spec.clear_gfc_indication {
+        client.write(node, Address::new(0x1300, 0), &[0])?;
+    }
+    for srdo in &spec.srdos {
+        let map = 0x1380 + u16::from(srdo.number);
+        client.write(node, Address::new(map, 0), &[0])?;
+        for (sub, entry) in (1u8..).zip(&srdo.settings.mapping) {
+            client.write(node, Address::new(map, sub), &entry.to_le_bytes())?;
+        }
+        client.write(
+            node,
+            Address::new(map, 0),
+            &[srdo.settings.mapping.len() as u8],
+        )?;
+    }
+    for srdo in &spec.srdos {
+        let comm = 0x1300 + u16::from(srdo.number);
+        let settings = &srdo.settings;
+        client.write(
+            node,
+            Address::new(comm, 2),
+            &settings.cycle_time.to_le_bytes(),
+        )?;
+        client.write(node, Address::new(comm, 3), &[settings.srvt])?;
+        client.write(
+            node,
+            Address::new(comm, 5),
+            &settings.cob_id_1.to_le_bytes(),
+        )?;
+        client.write(
+            node,
+            Address::new(comm, 6),
+            &settings.cob_id_2.to_le_bytes(),
+        )?;
+        client.write(node, Address::new(comm, 1), &[settings.direction])?;
+    }
+    operator.note(&format!("node {node}: reading every record back"));
+    let mut diff = Vec::new();
+    let mut signed = Vec::new();
+    for n in (1..=count).rev() {
+        let held = read_record(client, node, n)?;
+        diff.extend(record_diff(n, wanted(n), &held));
+        // A deleted SRDO is signed over what it holds; a configured one over the file's values
+        // (equal to what it holds when the diff is empty).
+        let settings = wanted(n).cloned().unwrap_or(held.settings);
+        signed.push((n, signature(&settings)));
+    }
+    if !diff.is_empty() {
+        return Err(ToolError::ReadBackMismatch {
+            node,
+            diff: diff.join("\n"),
+        });
+    }
+    signed.reverse();
+    for &(n, value) in &signed {
+        client.write(node, Address::new(0x13FF, n), &value.to_le_bytes())?;
+    }
+    for &(n, value) in signed.iter().rev() {
+        let held = client.read_unsigned(node, Address::new(0x13FF, n), 2)? as u16;
+        if held != value {
+            diff.push(format!(
+                "signature of SRDO {n} (13FFh:{n:02X}h): tool {value:04X}h, node {held:04X}h"
+            ));
+        }
+    }
+    if !diff.is_empty() {
+        return Err(ToolError::ReadBackMismatch {
+            node,
+            diff: diff.join("\n"),
+        });
+    }
+    client.write(node, Address::new(0x13FE, 0), &[CONFIGURATION_VALID])?;
+    check_valid(client, node, "writing it")?;
+    client.write(node, Address::new(0x1010, 1), b"save")?;
+    check_valid(client, node, "storing (0x1010)")?;
+    operator.note(&format!(
+        "node {node}: configured, signed, valid and stored"
+    ));
+    Ok(signed)
+}
+
+fn check_valid<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    when: &'static str,
+) -> Result<(), ToolError> {
+    let value = client.read_unsigned(node, Address::new(0x13FE, 0), 1)? as u8;
+    if value == CONFIGURATION_VALID {
+        Ok(())
+    } else {
+        Err(ToolError::NotValid { node, value, when })
+    }
+}
+
+/// The outcome of `configure` for each node, in file order.
+#[derive(Debug, serde::Serialize)]
+pub struct ConfigureReport {
+    /// Per node: what was done, or the error as a sentence.
+    pub nodes: Vec<NodeResult<Configured>>,
+    /// Whether the nodes were started.
+    pub started: bool,
+}
+
+/// One node's result: done, or the error's sentence.
+#[derive(Debug, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NodeResult<T> {
+    /// It worked.
+    Done(T),
+    /// It did not; the sentence says why.
+    Failed {
+        /// The node-ID.
+        node: u8,
+        /// The error, as a sentence.
+        error: String,
+    },
+}
+
+impl ConfigureReport {
+    /// Whether every node was configured.
+    pub fn success(&self) -> bool {
+        self.nodes
+            .iter()
+            .all(|result| matches!(result, NodeResult::Done(_)))
+    }
+}
+
+/// Configures every node of `network`; starts them (NMT start, each node) only when `start`
+/// is set and every node was configured. A node that fails does not stop the others from
+/// being tried, but no node is started then.
+pub fn configure<T: Transport>(
+    client: &mut Client<T>,
+    network: &Network,
+    start: bool,
+    operator: &mut dyn Operator,
+) -> Result<ConfigureReport, ToolError> {
+    let mut nodes = Vec::new();
+    for spec in &network.nodes {
+        match configure_node(client, spec, operator) {
+            Ok(done) => nodes.push(NodeResult::Done(done)),
+            Err(ToolError::Transport(error)) => return Err(ToolError::Transport(error)),
+            Err(error) => {
+                operator.note(&error.to_string());
+                nodes.push(NodeResult::Failed {
+                    node: spec.id,
+                    error: error.to_string(),
+                });
+            }
+        }
+    }
+    let mut report = ConfigureReport {
+        nodes,
+        started: false,
+    };
+    if start && report.success() {
+        for spec in &network.nodes {
+            client.nmt(NmtCommand::Start, spec.id)?;
+        }
+        report.started = true;
+    }
+    Ok(report)
+}
+
+/// What `verify` found on one node.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(tag = "status", rename_all = "snake_case")]
+pub enum Verdict {
+    /// Everything the node holds equals the file, every signature is right, 0x13FE is A5h.
+    Matches {
+        /// The node-ID.
+        node: u8,
+    },
+    /// The node holds something else than the file (or a wrong signature).
+    Differs {
+        /// The node-ID.
+        node: u8,
+        /// One line per difference (file vs node).
+        diff: Vec<String>,
+    },
+    /// The node holds the file's configuration but has not declared it valid.
+    NotValidated {
+        /// The node-ID.
+        node: u8,
+        /// The value of 0x13FE.
+        configuration_valid: u8,
+    },
+    /// The node could not be read.
+    Unreachable {
+        /// The node-ID.
+        node: u8,
+        /// Why, as a sentence.
+        error: String,
+    },
+}
+
+/// Reads the whole safety configuration of one node and judges it against the file.
+pub fn verify_node<T: Transport>(
+    client: &mut Client<T>,
+    spec: &NodeSpec,
+) -> Result<Verdict, ToolError> {
+    let node = spec.id;
+    let mut diff = Vec::new();
+    let identity = read_identity(client, node)?;
+    let differences = identity_differences(&spec.identity, &identity);
+    if !differences.is_empty() {
+        diff.push(format!("identity (1018h): {differences}"));
+    }
+    let valid = client.read_unsigned(node, Address::new(0x13FE, 0), 1)? as u8;
+    let count = srdo_count(client, node)?;
+    for srdo in spec.srdos.iter().filter(|srdo| srdo.number > count) {
+        diff.push(format!(
+            "SRDO {}: in the file, but the node has {count}",
+            srdo.number
+        ));
+    }
+    for n in 1..=count {
+        let held = read_record(client, node, n)?;
+        let wanted = spec
+            .srdos
+            .iter()
+            .find(|srdo| srdo.number == n)
+            .map(|srdo| &srdo.settings);
+        diff.extend(record_diff(n, wanted, &held));
+        let expected = signature(&held.settings);
+        let stored = client.read_unsigned(node, Address::new(0x13FF, n), 2)? as u16;
+        if stored != expected {
+            diff.push(format!(
+                "signature of SRDO {n} (13FFh:{n:02X}h): computed from the node's values {expected:04X}h, node holds {stored:04X}h"
+            ));
+        }
+    }
+    Ok(if !diff.is_empty() {
+        Verdict::Differs { node, diff }
+    } else if valid != CONFIGURATION_VALID {
+        Verdict::NotValidated {
+            node,
+            configuration_valid: valid,
+        }
+    } else {
+        Verdict::Matches { node }
+    })
+}
+
+/// Verifies every node of `network`; a node that does not answer is reported, not fatal.
+pub fn verify<T: Transport>(
+    client: &mut Client<T>,
+    network: &Network,
+) -> Result<Vec<Verdict>, ToolError> {
+    let mut verdicts = Vec::new();
+    for spec in &network.nodes {
+        match verify_node(client, spec) {
+            Ok(verdict) => verdicts.push(verdict),
+            Err(ToolError::Transport(error)) => return Err(ToolError::Transport(error)),
+            Err(error) => verdicts.push(Verdict::Unreachable {
+                node: spec.id,
+                error: error.to_string(),
+            }),
+        }
+    }
+    Ok(verdicts)
+}
+
+/// A node found by `scan`.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Found {
+    /// The node-ID.
+    pub node: u8,
+    /// The NMT state its last boot-up or heartbeat reported (CiA 301 7.2.8.3.2.1).
+    pub state: &'static str,
+    /// Its identity, or why it could not be read.
+    pub identity: Result<NodeIdentity, String>,
+}
+
+/// The NMT state of a heartbeat byte, in words.
+pub fn heartbeat_state(byte: u8) -> &'static str {
+    match byte & 0x7F {
+        0x00 => "boot-up",
+        0x04 => "stopped",
+        0x05 => "operational",
+        0x7F => "pre-operational",
+        _ => "unknown state",
+    }
+}
+
+/// Listens for boot-up and heartbeat messages for `listen`, then reads each node's identity.
+pub fn scan<T: Transport>(
+    client: &mut Client<T>,
+    listen: Duration,
+) -> Result<Vec<Found>, ToolError> {
+    let mut seen: std::collections::BTreeMap<u8, u8> = Default::default();
+    for (_, frame) in client.listen(listen)? {
+        let id = frame.id().raw();
+        if (0x701..=0x77F).contains(&id) && frame.data().len() == 1 {
+            seen.insert((id - 0x700) as u8, frame.data()[0]);
+        }
+    }
+    let mut found = Vec::new();
+    for (node, state) in seen {
+        let identity = read_identity(client, node).map_err(|error| error.to_string());
+        found.push(Found {
+            node,
+            state: heartbeat_state(state),
+            identity,
+        });
+    }
+    Ok(found)
+}
+
+/// The signatures of every SRDO in the file, computed offline: (node, SRDO, signature).
+pub fn offline_signatures(network: &Network) -> Vec<(u8, u8, u16)> {
+    network
+        .nodes
+        .iter()
+        .flat_map(|node| {
+            node.srdos
+                .iter()
+                .map(move |srdo| (node.id, srdo.number, signature(&srdo.settings)))
+        })
+        .collect()
+}
+
+/// `object`, for messages outside this module.
+pub fn describe(address: Address) -> String {
+    Object(address).to_string()
+}

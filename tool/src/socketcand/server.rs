@@ -1,0 +1,156 @@
+//! The server side of socketcand (linux-can/socketcand `doc/protocol.md`), as a sans-I/O
+//! session per connection: fed the client's bytes, it hands back replies to write and frames
+//! to put on the bus; the caller pushes bus frames with [`Session::frame_message`] once the
+//! client is in raw mode ([`Session::is_raw`]).
+//!
+//! What clients rely on (python-can's `socketcand` interface compares each handshake reply
+//! from one `recv` by exact equality): each [`Output::Reply`] is to be written on its own, and
+//! no frame is pushed before the client has switched to raw mode.
+
+use super::{parse_hex_data, take_messages};
+use crate::transport::frame_from_parts;
+use shared::CanFrame;
+use std::time::Duration;
+
+/// The greeting a server sends when a client connects.
+pub const GREETING: &str = "< hi >";
+
+/// Where a session is in the protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Connected, no bus opened.
+    NoBus,
+    /// A bus is open, broadcast-manager mode (only `rawmode` and `echo` are served here).
+    Bcm,
+    /// Raw mode: frames flow both ways.
+    Raw,
+}
+
+/// What the caller does for the session.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Output {
+    /// Write this message to the client, in a write of its own.
+    Reply(String),
+    /// Put this frame on the bus.
+    Send(CanFrame),
+    /// Close the connection (after the replies before it).
+    Close,
+}
+
+/// One client connection.
+#[derive(Debug)]
+pub struct Session {
+    bus: String,
+    mode: Mode,
+    buffer: String,
+}
+
+impl Session {
+    /// A session serving the bus named `bus` (e.g. `can0`); write [`GREETING`] first.
+    pub fn new(bus: &str) -> Self {
+        Session {
+            bus: bus.to_owned(),
+            mode: Mode::NoBus,
+            buffer: String::new(),
+        }
+    }
+
+    /// The session's mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Whether bus frames may be pushed to this client.
+    pub fn is_raw(&self) -> bool {
+        self.mode == Mode::Raw
+    }
+
+    /// Handles bytes from the client.
+    pub fn feed(&mut self, bytes: &[u8]) -> Vec<Output> {
+        self.buffer.push_str(&String::from_utf8_lossy(bytes));
+        let mut outputs = Vec::new();
+        for words in take_messages(&mut self.buffer) {
+            self.handle(&words, &mut outputs);
+            if outputs.last() == Some(&Output::Close) {
+                break;
+            }
+        }
+        outputs
+    }
+
+    fn handle(&mut self, words: &[String], outputs: &mut Vec<Output>) {
+        let reply = |text: &str| Output::Reply(text.to_owned());
+        let command = words.first().map(String::as_str).unwrap_or("");
+        match (self.mode, command) {
+            (_, "echo") => outputs.push(reply("< echo >")),
+            (Mode::NoBus, "open") => {
+                if words.get(1) == Some(&self.bus) && words.len() == 2 {
+                    self.mode = Mode::Bcm;
+                    outputs.push(reply("< ok >"));
+                } else {
+                    outputs.push(reply("< error could not open bus >"));
+                    outputs.push(Output::Close);
+                }
+            }
+            (Mode::Bcm | Mode::Raw, "rawmode") => {
+                self.mode = Mode::Raw;
+                outputs.push(reply("< ok >"));
+            }
+            (Mode::Raw, "bcmmode") => {
+                self.mode = Mode::Bcm;
+                outputs.push(reply("< ok >"));
+            }
+            (Mode::Bcm | Mode::Raw, "send" | "sendrtr") => match parse_send(words) {
+                Ok(frame) => outputs.push(Output::Send(frame)),
+                Err(reason) => outputs.push(Output::Reply(format!("< error {reason} >"))),
+            },
+            _ => outputs.push(reply("< error unknown command >")),
+        }
+    }
+
+    /// The raw-mode message for a bus frame received at `at` (bus time), as the daemon writes
+    /// it: identifier in three hexadecimal digits, time as seconds.microseconds, the data as
+    /// hexadecimal octets without spaces.
+    pub fn frame_message(frame: &CanFrame, at: Duration) -> String {
+        let id = frame.id().raw();
+        let seconds = at.as_secs();
+        let micros = at.subsec_micros();
+        if frame.is_remote() {
+            return format!("< rtr {id:03X} {seconds}.{micros:06} {} >", frame.dlc());
+        }
+        let data: String = frame.data().iter().map(|b| format!("{b:02X}")).collect();
+        if data.is_empty() {
+            format!("< frame {id:03X} {seconds}.{micros:06} >")
+        } else {
+            format!("< frame {id:03X} {seconds}.{micros:06} {data} >")
+        }
+    }
+}
+
+/// The frame of a `send ID LEN B...` or `sendrtr ID LEN` command.
+fn parse_send(words: &[String]) -> Result<CanFrame, String> {
+    let (Some(id), Some(len)) = (words.get(1), words.get(2)) else {
+        return Err("send needs an identifier and a length".into());
+    };
+    let id = u32::from_str_radix(id, 16).map_err(|_| format!("{id} is not an identifier"))?;
+    let len: usize = len.parse().map_err(|_| format!("{len} is not a length"))?;
+    if words[0] == "sendrtr" {
+        let id = frame_from_parts(id, &[]).map_err(|e| e.to_string())?.id();
+        let dlc = u8::try_from(len).map_err(|_| format!("{len} is not a DLC"))?;
+        return CanFrame::remote(id, dlc).map_err(|_| format!("DLC {dlc} is more than 8"));
+    }
+    // One word per octet (`1 F1`, as the protocol's example writes them) or all in one.
+    let octets = &words[3..];
+    let data = if octets.len() == len {
+        octets
+            .iter()
+            .map(|word| u8::from_str_radix(word, 16).map_err(|_| format!("{word} is not an octet")))
+            .collect::<Result<Vec<u8>, String>>()?
+    } else {
+        parse_hex_data(octets).map_err(|e| e.to_string())?
+    };
+    if data.len() != len {
+        return Err(format!("{len} bytes announced, {} given", data.len()));
+    }
+    frame_from_parts(id, &data).map_err(|e| e.to_string())
+}

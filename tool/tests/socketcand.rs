@@ -1,0 +1,118 @@
+//! The socketcand client against an in-process server built from the tool's own server
+//! session (`socketcand::server`), over real TCP on the loopback address: handshake, frames
+//! both ways, receive deadlines, extended frames ignored.
+
+use safety_config::Transport;
+use safety_config::socketcand::SocketcandClient;
+use safety_config::socketcand::server::{GREETING, Output, Session};
+use shared::{CanFrame, CanId};
+use std::io::{Read, Write};
+use std::net::TcpListener;
+use std::time::Duration;
+
+/// Serves one client: every frame it sends is answered by the same data on the identifier
+/// 80h lower (as an SDO server answers 600h + n on 580h + n), preceded by an extended frame
+/// the client must ignore.
+fn serve_one() -> (String, std::thread::JoinHandle<Vec<String>>) {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap().to_string();
+    let handle = std::thread::spawn(move || {
+        let (mut stream, _) = listener.accept().unwrap();
+        stream
+            .set_read_timeout(Some(Duration::from_secs(5)))
+            .unwrap();
+        stream.write_all(GREETING.as_bytes()).unwrap();
+        let mut session = Session::new("can0");
+        let mut seen = Vec::new();
+        let mut buffer = [0u8; 1024];
+        loop {
+            let count = match stream.read(&mut buffer) {
+                Ok(0) | Err(_) => return seen,
+                Ok(count) => count,
+            };
+            seen.push(String::from_utf8_lossy(&buffer[..count]).into_owned());
+            for output in session.feed(&buffer[..count]) {
+                match output {
+                    Output::Reply(text) => stream.write_all(text.as_bytes()).unwrap(),
+                    Output::Send(frame) => {
+                        assert!(session.is_raw());
+                        stream.write_all(b"< frame 1AAAAAAA 1.000000 01 >").unwrap();
+                        let id = CanId::new(frame.id().raw() - 0x80).unwrap();
+                        let answer = CanFrame::new(id, frame.data()).unwrap();
+                        let message =
+                            Session::frame_message(&answer, Duration::from_micros(1_500_042));
+                        stream.write_all(message.as_bytes()).unwrap();
+                    }
+                    Output::Close => return seen,
+                }
+            }
+        }
+    });
+    (address, handle)
+}
+
+#[test]
+fn socketcand_raw_mode_round_trip() {
+    let (address, server) = serve_one();
+    let mut client = SocketcandClient::connect(&address, "can0").unwrap();
+    let request = CanFrame::new(
+        CanId::new(0x621).unwrap(),
+        &[0x40, 0x18, 0x10, 1, 0, 0, 0, 0],
+    )
+    .unwrap();
+    client.send(&request).unwrap();
+    let deadline = client.now() + Duration::from_secs(5);
+    let answer = client.receive(deadline).unwrap().expect("an answer");
+    assert_eq!(answer.id().raw(), 0x5A1);
+    assert_eq!(answer.data(), request.data());
+    // Nothing more: the deadline passes and the client says so.
+    let soon = client.now() + Duration::from_millis(50);
+    assert_eq!(client.receive(soon).unwrap(), None);
+    drop(client);
+    let seen = server.join().unwrap().concat();
+    assert!(seen.starts_with("< open can0 >< rawmode >"), "{seen}");
+    assert!(
+        seen.contains("< send 621 8 40 18 10 01 00 00 00 00 >"),
+        "{seen}"
+    );
+}
+
+#[test]
+fn socketcand_session_refuses_frames_before_raw_mode_and_unknown_buses() {
+    let mut session = Session::new("can0");
+    assert_eq!(
+        session.feed(b"< send 123 1 01 >"),
+        vec![Output::Reply("< error unknown command >".into())]
+    );
+    assert_eq!(
+        session.feed(b"< open can1 >"),
+        vec![
+            Output::Reply("< error could not open bus >".into()),
+            Output::Close
+        ]
+    );
+    let mut session = Session::new("can0");
+    // Split across reads, two messages in one.
+    assert_eq!(session.feed(b"< open ca"), vec![]);
+    assert_eq!(
+        session.feed(b"n0 >< rawmode >"),
+        vec![
+            Output::Reply("< ok >".into()),
+            Output::Reply("< ok >".into())
+        ]
+    );
+    assert!(session.is_raw());
+    let frame = CanFrame::new(CanId::new(0x1AA).unwrap(), &[0x01, 0xF1]).unwrap();
+    assert_eq!(
+        session.feed(b"< send 1AA 2 1 F1 >"),
+        vec![Output::Send(frame)]
+    );
+    assert_eq!(
+        session.feed(b"< send 1AA 2 01F1 >"),
+        vec![Output::Send(frame)]
+    );
+    assert_eq!(
+        Session::frame_message(&frame, Duration::from_micros(23_424_242)),
+        "< frame 1AA 23.424242 01F1 >"
+    );
+}
