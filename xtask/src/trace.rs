@@ -392,7 +392,8 @@ impl TestCase {
 }
 
 /// Reads nextest's JUnit report (`<testcase name classname>` with `<failure>`, `<error>` or
-/// `<skipped>` children).
+/// `<skipped>` children), sorted by binary and path: nextest writes them in the order they
+/// finished, and the matrix must not change with that.
 pub fn parse_junit(xml: &str) -> Result<Vec<TestCase>> {
     let document = roxmltree::Document::parse(xml).context("the JUnit report is not XML")?;
     let mut cases = Vec::new();
@@ -429,6 +430,7 @@ pub fn parse_junit(xml: &str) -> Result<Vec<TestCase>> {
             outcome,
         });
     }
+    cases.sort_by(|a, b| (&a.binary, &a.path).cmp(&(&b.binary, &b.path)));
     Ok(cases)
 }
 
