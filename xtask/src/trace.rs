@@ -636,7 +636,9 @@ pub fn ensure_nextest() -> Result<()> {
         eprintln!("xtask: cargo-nextest: installed");
         return Ok(());
     }
-    eprintln!("xtask: installing cargo-nextest from crates.io (a source build of several minutes)");
+    eprintln!(
+        "xtask: installing cargo-nextest from crates.io (a source build: about 12 minutes of CPU)"
+    );
     crate::run(crate::cargo().args(["install", "cargo-nextest", "--locked"]))
 }
 
