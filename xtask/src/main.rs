@@ -90,8 +90,16 @@ enum Task {
         #[arg(long)]
         check: bool,
     },
-    /// Write docs/traceability.md: each clause and the tests that verify it, from test names.
-    Trace,
+    /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
+    /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
+    /// target/traceability/traceability.html. Fails on a failed test, a test that names an
+    /// unknown requirement, and a requirement to be verified by test that has none.
+    Trace {
+        /// Build the matrix from the JUnit report of the last test run instead of running
+        /// the tests.
+        #[arg(long)]
+        report_only: bool,
+    },
     /// Run every fuzz target for a while (needs the nightly toolchain and cargo-fuzz).
     Fuzz {
         /// Seconds per target.
@@ -143,7 +151,7 @@ fn main() -> Result<()> {
         }
         Task::Bench { check } => bench::run(&root, check),
         Task::Fuzz { seconds } => fuzz(&root, seconds),
-        Task::Trace => trace::run(&root),
+        Task::Trace { report_only } => trace::task(&root, report_only),
     }
 }
 
@@ -161,9 +169,15 @@ fn test(root: &Path) -> Result<()> {
         "-D",
         "warnings",
     ]))?;
-    step("tests");
+    step("tests (nextest, whose JUnit report the traceability matrix is built from)");
     toolchain::ensure_tshark()?;
-    run(cargo().args(["test", "--workspace"]))?;
+    if !trace::run_tests(root)? {
+        step("traceability matrix");
+        trace::report(root)?;
+        bail!("tests failed");
+    }
+    step("doc tests (nextest does not run them)");
+    run(cargo().args(["test", "--workspace", "--doc"]))?;
     step("shared for thumbv7em-none-eabihf (no_std, no heap)");
     run(&mut cross
         .cargo(root)
@@ -217,7 +231,7 @@ fn test(root: &Path) -> Result<()> {
     step("end-to-end tests on the emulated network");
     e2e::task(root)?;
     step("traceability matrix");
-    trace::run(root)?;
+    trace::report(root)?;
     step("all checks passed");
     Ok(())
 }
