@@ -197,7 +197,7 @@ mod tests {
     }
 
     #[test]
-    fn cia301_abort_code_meanings_are_sentences() {
+    fn cia301_7_2_4_3_17_abort_code_meanings_are_sentences() {
         for abort in AbortCode::ALL {
             let meaning = abort.meaning();
             assert!(!meaning.is_empty() && meaning.ends_with('.'), "{abort:?}");
