@@ -388,6 +388,13 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         &self.node
     }
 
+    /// The channel's core, for fault injection in system tests (feature `fault-injection`,
+    /// which no firmware image enables).
+    #[cfg(feature = "fault-injection")]
+    pub fn node_mut(&mut self) -> &mut Node<F, N> {
+        &mut self.node
+    }
+
     /// The channel's role.
     pub fn role(&self) -> &R {
         &self.role

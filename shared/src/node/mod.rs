@@ -589,6 +589,26 @@ impl<F: Flash, const N: usize> Node<F, N> {
     pub fn double_reception(&self) -> DoubleReception {
         self.core.double_reception
     }
+
+    /// Fault injection for system tests (feature `fault-injection`, which no firmware image
+    /// enables): flips bit `bit` (0..=7) of byte `byte` of the identifier table the receive
+    /// path looks frames up in, as a memory fault would. Out-of-range positions flip nothing.
+    #[cfg(feature = "fault-injection")]
+    pub fn inject_identifier_table_flip(&mut self, byte: usize, bit: u8) {
+        if let Some(entry) = self.core.lookup.get_mut(byte) {
+            *entry ^= 1 << (bit % 8);
+        }
+    }
+
+    /// Fault injection for system tests (feature `fault-injection`): flips bit `bit` (0..=15)
+    /// of the refresh time / SCT field of the record of SRDO `index` (0-based) the node runs,
+    /// as a memory fault in the configuration would. Out-of-range positions flip nothing.
+    #[cfg(feature = "fault-injection")]
+    pub fn inject_record_flip(&mut self, index: usize, bit: u8) {
+        if let Some(record) = self.core.safety.srdos.get_mut(index) {
+            record.cycle_time ^= 1 << (bit % 16);
+        }
+    }
 }
 
 impl<F: Flash, const N: usize> Core<F, N> {
