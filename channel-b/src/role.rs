@@ -272,11 +272,18 @@ impl<const N: usize> Role<N> for ChannelB {
         }
     }
 
+    fn window(&self) -> Duration {
+        self.window
+    }
+
     fn reset(&mut self) {
-        // The pair in progress is forgotten; the input samples are not (they are the pins).
+        // The pair in progress is forgotten; the input samples are not (they are the pins),
+        // and neither are channel A's announcements: one may have arrived just before this
+        // channel's own reset, for A's first plain frame after it (A handled the NMT frames
+        // first). An announcement only ever lets through a bus frame equal to it, and a newer
+        // one for the same SRDO replaces it.
         self.held = None;
         self.unannounced = None;
-        self.announced.clear();
         self.last_plain = None;
     }
 

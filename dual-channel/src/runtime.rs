@@ -162,6 +162,12 @@ pub trait Role<const N: usize> {
     fn speaks_for_the_node(&self) -> bool {
         false
     }
+
+    /// How long a frame of the other channel's half may wait for this channel (its sample,
+    /// an announcement, its own entry into Operational).
+    fn window(&self) -> Duration {
+        SAMPLE_WINDOW
+    }
 }
 
 /// Why a channel went to the safe state on its own account (faults of the SRDOs themselves
@@ -342,6 +348,10 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     /// Transmit SRDO frames with changed data that wait for the channels' samples to agree
     /// (at most [`SAMPLE_WINDOW`]); the newest per identifier.
     waiting: FrameSlots<N>,
+    /// SRDO frames seen while this channel's core was not yet Operational, with when: the
+    /// other channel may have handled NMT start first and sent its half already. Handed to
+    /// the role on entering Operational if still within its window.
+    early: heapless::Vec<(Instant, CanFrame), 4>,
     /// The last transmit SRDO frame per identifier this channel's core handed on.
     handed_on: FrameSlots<N>,
 }
@@ -379,6 +389,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             pairs: [0; N],
             peer_pairs: [0; N],
             waiting: FrameSlots::default(),
+            early: heapless::Vec::new(),
             handed_on: FrameSlots::default(),
         })
     }
@@ -435,6 +446,13 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             // GFC sent) whenever it sends, not only the first time.
             let reply = self.role.observe(now, frame, self.node.safety_config());
             self.role_reply(now, reply, io);
+        } else if is_srdo(frame) && !frame.is_remote() {
+            // Not Operational yet, but perhaps about to be: each channel handles NMT start in
+            // its own loop, and the other's half of a pair may come first. Kept for the window.
+            let window = self.role.window();
+            self.early
+                .retain(|(at, _)| !shared::time::expired(*at + window, now));
+            let _ = self.early.push((now, *frame)); // Full: the oldest ones are kept.
         }
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
@@ -672,6 +690,19 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
+    /// The SRDO frames seen just before this channel entered Operational, still within the
+    /// role's window, observed now as if they had come after (see [`Runtime::on_frame`]).
+    fn observe_early(&mut self, now: Instant, io: &mut impl Io) {
+        let window = self.role.window();
+        let early = core::mem::take(&mut self.early);
+        for (at, frame) in early {
+            if self.fault.is_none() && !shared::time::expired(at + window, now) {
+                let reply = self.role.observe(now, &frame, self.node.safety_config());
+                self.role_reply(now, reply, io);
+            }
+        }
+    }
+
     fn grace(&self) -> Duration {
         Duration::from_micros(2 * self.link_period.as_micros())
     }
@@ -754,6 +785,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                     }
                     self.follow_core(io);
                 }
+                Event::NmtState(NmtState::Operational) => {
+                    self.follow_core(io);
+                    self.observe_early(now, io);
+                }
                 Event::NmtState(_) => self.follow_core(io),
                 _ => {}
             }
@@ -835,7 +870,14 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.check_nmt(now);
             return;
         }
-        if self.peer_epoch.is_some_and(|epoch| epoch != self.epoch) {
+        // An announcement of a plain frame counts whatever the epochs: it says what channel A
+        // puts on the bus now, and channel B uses it only for a bus frame equal to it. After an
+        // NMT reset and start, A's first announcement can overtake B's own handling of those
+        // NMT frames (each channel runs its own loop); dropping it would make A's first plain
+        // frame look foreign to B. A replay of an announced frame by another device is still
+        // caught by A, which never receives its own frames.
+        let announcement = matches!(message, Message::PlainFrame { .. });
+        if !announcement && self.peer_epoch.is_some_and(|epoch| epoch != self.epoch) {
             // Sent before a reset that one of us has been through and the other not yet (the
             // link may lag the bus): not about the present. Epochs that stay apart are an NMT
             // mismatch (`check_nmt`).

@@ -94,8 +94,11 @@ pub struct DualNode {
     /// Faults on this node's link.
     pub link_faults: LinkFaults,
     /// Frames this channel's CAN controller receives are altered by these faults (a fault in
-    /// one channel's receive path only).
+    /// one channel's receive path only). [`Fault::Delay`] here holds a frame back from that
+    /// channel alone: its loop handles the frame later than the other channel's does.
     pub receive_faults: Vec<(Side, Injection)>,
+    /// Frames held back by a receive delay: (when the channel handles it, which channel, frame).
+    held_back: Vec<(Instant, Side, CanFrame)>,
 }
 
 /// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
@@ -148,6 +151,7 @@ impl DualNetwork {
                 deadlines: [Instant::ZERO; 2],
                 link_faults: LinkFaults::default(),
                 receive_faults: Vec::new(),
+                held_back: Vec::new(),
             })
             .collect();
         DualNetwork {
@@ -206,6 +210,10 @@ impl DualNetwork {
     fn next_activity(&self) -> Instant {
         let deliveries = self.in_flight.iter().map(|d| d.at);
         let channels = self.nodes.iter().flat_map(|node| node.deadlines);
+        let held_back = self
+            .nodes
+            .iter()
+            .flat_map(|node| node.held_back.iter().map(|(at, ..)| *at));
         let links = self.nodes.iter().flat_map(|node| {
             node.a_to_b
                 .bytes
@@ -216,6 +224,7 @@ impl DualNetwork {
         });
         deliveries
             .chain(channels)
+            .chain(held_back)
             .chain(links)
             .chain(self.bus.next_start(self.now))
             .min()
@@ -246,6 +255,20 @@ impl DualNetwork {
                         _ => {}
                     });
                 }
+            }
+        }
+        for index in 0..self.nodes.len() {
+            let (due, later): (Vec<_>, Vec<_>) = self.nodes[index]
+                .held_back
+                .drain(..)
+                .partition(|(at, ..)| *at <= now);
+            self.nodes[index].held_back = later;
+            for (_, side, frame) in due {
+                self.with_channel(index, side, |now, a, b, out| match (a, b) {
+                    (Some(a), _) => a.on_frame(now, &frame, out),
+                    (_, Some(b)) => b.on_frame(now, &frame, out),
+                    _ => {}
+                });
             }
         }
         for index in 0..self.nodes.len() {
@@ -296,7 +319,11 @@ impl DualNetwork {
                     }
                     frame = CanFrame::from_parts(frame.id(), frame.dlc(), data).ok()?;
                 }
-                Fault::Delay(_) | Fault::Repeat | Fault::Reorder => {}
+                Fault::Delay(delay) => {
+                    self.nodes[index].held_back.push((now + delay, side, frame));
+                    return None;
+                }
+                Fault::Repeat | Fault::Reorder => {}
             }
         }
         Some(frame)

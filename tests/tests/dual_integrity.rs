@@ -14,7 +14,7 @@
 //!   channel's SRDO fault reaches the other at once.
 
 use dual_channel::runtime::ChannelEvent;
-use shared::canopen::nmt::NmtState;
+use shared::canopen::nmt::{NmtCommand, NmtState};
 use shared::node::Event;
 use shared::{CanFrame, CanId, Duration, Instant};
 use system_tests::bus::{Fault, Injection, Match};
@@ -516,4 +516,69 @@ fn cia304_9_5_a_fault_both_channels_found_keeps_each_channels_own_cause() {
         "no cause but each core's own"
     );
     assert_eq!(net.output(33), 0);
+}
+
+/// CiA 304 9.5 with NMT reset (CiA 301 7.3.2): channel B may take longer than channel A to
+/// handle an NMT frame both received at the same instant (each runs its own loop), so channel
+/// A's announcement of its first plain frame after a reset and start can reach B before B has
+/// itself been reset. B keeps that announcement (it states what A sends, whatever A's reset
+/// count) and co-signs the frame: no foreign frame, no fault, the node works. Checked with B's
+/// NMT frames held back by 1 to 8 ms, inside the two link periods the NMT cross-check allows.
+#[test]
+fn cia304_9_5_an_announcement_that_overtakes_channel_bs_nmt_reset_is_kept() {
+    for lag_ms in [1u64, 2, 4, 8] {
+        let mut net = running();
+        let since = net.log.len();
+        let now = net.now;
+        net.node_mut(1).receive_faults.push((
+            Side::B,
+            Injection::new(
+                Match {
+                    id: Some(0x000),
+                    from: None,
+                    after: now,
+                    count: None,
+                },
+                Fault::Delay(Duration::from_millis(lag_ms)),
+            ),
+        ));
+        net.nmt(NmtCommand::ResetNode, 0);
+        // The tool starts the nodes as soon as node 1 (channel A) has announced itself.
+        let boot_up = loop {
+            if let Some((at, ..)) = net.first_event(since, 1, |side, event| {
+                side == Side::A
+                    && matches!(
+                        event,
+                        ChannelEvent::Node(Event::NmtState(NmtState::PreOperational))
+                    )
+            }) {
+                break at;
+            }
+            assert!(
+                net.now < now + Duration::from_millis(500),
+                "node 1 never booted"
+            );
+            net.run_for(us(100));
+        };
+        assert!(
+            boot_up < now + Duration::from_millis(lag_ms),
+            "A booted before B reset"
+        );
+        net.nmt(NmtCommand::Start, 0);
+        net.run_for(Duration::from_millis(300));
+        let faults = faulted(&net, 1, since);
+        assert!(
+            faults.is_empty(),
+            "lag {lag_ms} ms: node 1 faulted: {faults:?}"
+        );
+        let node = net.node(1);
+        assert!(
+            node.a.is_working() && node.b.is_working(),
+            "lag {lag_ms} ms: node 1 not working"
+        );
+        assert!(
+            net.node(33).a.is_working(),
+            "lag {lag_ms} ms: node 33 not working"
+        );
+    }
 }
