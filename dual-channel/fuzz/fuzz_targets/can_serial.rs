@@ -9,7 +9,10 @@
 #![no_main]
 
 #[path = "reference.rs"]
-#[allow(dead_code, reason = "each target uses the reference encoders of its own line only")]
+#[allow(
+    dead_code,
+    reason = "each target uses the reference encoders of its own line only"
+)]
 mod reference;
 
 use arbitrary::Arbitrary;
@@ -19,9 +22,18 @@ use shared::{CanFrame, CanId};
 
 #[derive(Arbitrary, Debug)]
 enum Message {
-    Can { id: u16, remote: bool, dlc: u8, data: [u8; 8] },
+    Can {
+        id: u16,
+        remote: bool,
+        dlc: u8,
+        data: [u8; 8],
+    },
     Input(u8),
-    Status { bytes: [u8; 5], flags: (bool, bool), counters: [u16; 6] },
+    Status {
+        bytes: [u8; 5],
+        flags: (bool, bool),
+        counters: [u16; 6],
+    },
 }
 
 #[derive(Arbitrary, Debug)]
@@ -36,7 +48,12 @@ enum Step {
 
 fn wire(message: &Message) -> Option<Wire> {
     Some(match *message {
-        Message::Can { id, remote, dlc, data } => {
+        Message::Can {
+            id,
+            remote,
+            dlc,
+            data,
+        } => {
             let id = CanId::new(id & 0x07FF).ok()?;
             let dlc = dlc % 9;
             Wire::Can(if remote {
@@ -46,7 +63,11 @@ fn wire(message: &Message) -> Option<Wire> {
             })
         }
         Message::Input(value) => Wire::Input(value),
-        Message::Status { bytes, flags, counters } => Wire::Status(Status {
+        Message::Status {
+            bytes,
+            flags,
+            counters,
+        } => Wire::Status(Status {
             nmt: bytes[0],
             working: flags.0,
             link_up: flags.1,
@@ -92,7 +113,9 @@ fuzz_target!(|steps: Vec<Step>| {
     for step in steps.iter().take(256) {
         let (bytes, sent) = match step {
             Step::Encoded(message) => {
-                let Some(message) = wire(message) else { continue };
+                let Some(message) = wire(message) else {
+                    continue;
+                };
                 let bytes = encode_wire(&message).to_vec();
                 assert_eq!(bytes, reference_encoding(&message), "{message:?}");
                 if let Wire::Can(can) = message {
@@ -100,7 +123,10 @@ fuzz_target!(|steps: Vec<Step>| {
                 }
                 (bytes, Some(message))
             }
-            Step::Body(body) => (reference::cobs(&reference::serial_raw(&body[..body.len().min(40)])), None),
+            Step::Body(body) => (
+                reference::cobs(&reference::serial_raw(&body[..body.len().min(40)])),
+                None,
+            ),
             Step::Raw(bytes) => (bytes.clone(), None),
         };
         let at_boundary = frame.is_empty();
@@ -114,13 +140,21 @@ fuzz_target!(|steps: Vec<Step>| {
             }
             if let Some(Ok(message)) = result {
                 frame.push(0);
-                assert_eq!(encode_wire(&message).to_vec(), frame, "decode then encode is the identity");
+                assert_eq!(
+                    encode_wire(&message).to_vec(),
+                    frame,
+                    "decode then encode is the identity"
+                );
             }
             results.extend(result);
             frame.clear();
         }
         if let (Some(message), true) = (sent, at_boundary) {
-            assert_eq!(results, vec![Ok(message)], "encode then decode is the identity");
+            assert_eq!(
+                results,
+                vec![Ok(message)],
+                "encode then decode is the identity"
+            );
         }
     }
 });

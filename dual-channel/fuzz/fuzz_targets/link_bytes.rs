@@ -6,7 +6,10 @@
 #![no_main]
 
 #[path = "reference.rs"]
-#[allow(dead_code, reason = "each target uses the reference encoders of its own line only")]
+#[allow(
+    dead_code,
+    reason = "each target uses the reference encoders of its own line only"
+)]
 mod reference;
 
 use dual_channel::link::{LinkFault, Message, Receiver};
@@ -14,7 +17,9 @@ use libfuzzer_sys::fuzz_target;
 use shared::{Duration, Instant};
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&timing, bytes)) = data.split_first() else { return };
+    let Some((&timing, bytes)) = data.split_first() else {
+        return;
+    };
     // Low nibble: the timeout in ms (1..=16); high nibble: microseconds per byte (times 16).
     let timeout = Duration::from_millis(1 + u64::from(timing & 0x0F));
     let per_byte = Duration::from_micros(u64::from(timing >> 4) * 16);
@@ -41,7 +46,10 @@ fuzz_target!(|data: &[u8]| {
             Some(Err(LinkFault::Timeout)) => panic!("a timeout is reported by poll, not receive"),
             Some(Err(_)) => assert!(up, "no fault before the first valid message"),
         }
-        assert!(receiver.deadline() >= deadline, "the deadline never moves back");
+        assert!(
+            receiver.deadline() >= deadline,
+            "the deadline never moves back"
+        );
         deadline = receiver.deadline();
         assert_eq!(receiver.poll(now).is_err(), now >= deadline);
         if byte == 0 {
@@ -69,5 +77,9 @@ fn check_reencodes(frame: &[u8], message: &Message) {
     let body = postcard::to_slice(message, &mut body).unwrap_or_else(|_| unreachable!());
     let mut expected = reference::cobs(&reference::link_raw(sequence, body));
     expected.pop();
-    assert_eq!(frame, &expected[..], "a received message re-encodes to the bytes received");
+    assert_eq!(
+        frame,
+        &expected[..],
+        "a received message re-encodes to the bytes received"
+    );
 }

@@ -16,7 +16,10 @@
 #![no_main]
 
 #[path = "reference.rs"]
-#[allow(dead_code, reason = "each target uses the reference encoders of its own line only")]
+#[allow(
+    dead_code,
+    reason = "each target uses the reference encoders of its own line only"
+)]
 mod reference;
 
 use arbitrary::Arbitrary;
@@ -71,9 +74,15 @@ impl Model {
             self.deadline = now + self.timeout;
             Ok(message)
         } else if ahead < 0x8000 {
-            Err(LinkFault::Missing { expected, received: sequence })
+            Err(LinkFault::Missing {
+                expected,
+                received: sequence,
+            })
         } else {
-            Err(LinkFault::Repeated { expected, received: sequence })
+            Err(LinkFault::Repeated {
+                expected,
+                received: sequence,
+            })
         })
     }
 
@@ -90,7 +99,9 @@ fn message_from(bytes: &[u8]) -> Option<(Message, Vec<u8>)> {
 
 fn serialise(message: &Message) -> Vec<u8> {
     let mut buf = [0u8; 64];
-    postcard::to_slice(message, &mut buf).map(|body| body.to_vec()).unwrap_or_else(|_| unreachable!())
+    postcard::to_slice(message, &mut buf)
+        .map(|body| body.to_vec())
+        .unwrap_or_else(|_| unreachable!())
 }
 
 /// Feeds `wire` at `now`; the result of its last byte (every earlier byte must give none).
@@ -114,7 +125,11 @@ fuzz_target!(|input: Input| {
     let mut now = Instant::ZERO;
     let startup = Duration::from_millis(u64::from(input.startup_ms));
     let mut receiver = Receiver::new(now, timeout, startup);
-    let mut model = Model { expected: None, deadline: now + startup, timeout };
+    let mut model = Model {
+        expected: None,
+        deadline: now + startup,
+        timeout,
+    };
     let mut sender = Sender::new();
     let mut sender_sequence = 0u16;
     let mut sequence = input.first_sequence;
@@ -123,10 +138,17 @@ fuzz_target!(|input: Input| {
     for step in input.steps.iter().take(256) {
         let (wire, expected) = match step {
             Step::Send { message } => {
-                let Some((message, body)) = message_from(message) else { continue };
+                let Some((message, body)) = message_from(message) else {
+                    continue;
+                };
                 // The product's encoder against the reference, at its own sequence numbers.
-                let encoded = sender.encode(&message).unwrap_or_else(|_| unreachable!("every message fits"));
-                assert_eq!(&encoded[..], &reference::cobs(&reference::link_raw(sender_sequence, &body))[..]);
+                let encoded = sender
+                    .encode(&message)
+                    .unwrap_or_else(|_| unreachable!("every message fits"));
+                assert_eq!(
+                    &encoded[..],
+                    &reference::cobs(&reference::link_raw(sender_sequence, &body))[..]
+                );
                 sender_sequence = sender_sequence.wrapping_add(1);
                 let wire = reference::cobs(&reference::link_raw(sequence, &body));
                 let expected = model.valid(now, sequence, message);
@@ -139,8 +161,10 @@ fuzz_target!(|input: Input| {
                 continue;
             }
             Step::Replay { back } => {
-                let Some((wire, replayed, message)) =
-                    sent.len().checked_sub(1 + usize::from(*back)).map(|at| sent[at].clone())
+                let Some((wire, replayed, message)) = sent
+                    .len()
+                    .checked_sub(1 + usize::from(*back))
+                    .map(|at| sent[at].clone())
                 else {
                     continue;
                 };
@@ -148,7 +172,9 @@ fuzz_target!(|input: Input| {
                 (wire, expected)
             }
             Step::Corrupt { message, at, mask } => {
-                let Some((_, body)) = message_from(message) else { continue };
+                let Some((_, body)) = message_from(message) else {
+                    continue;
+                };
                 let mut raw = reference::link_raw(sequence, &body);
                 let at = usize::from(*at) % raw.len();
                 raw[at] ^= if *mask == 0 { 0x01 } else { *mask };
@@ -174,7 +200,10 @@ fuzz_target!(|input: Input| {
                 (reference::cobs(&raw), expected)
             }
             Step::Noise { extra, fill } => {
-                let mut wire = vec![if *fill == 0 { 0x55 } else { *fill }; dual_channel::link::MAX_WIRE + 1 + usize::from(*extra)];
+                let mut wire = vec![
+                    if *fill == 0 { 0x55 } else { *fill };
+                    dual_channel::link::MAX_WIRE + 1 + usize::from(*extra)
+                ];
                 wire.push(0);
                 (wire, model.broken(LinkFault::Malformed))
             }
@@ -184,9 +213,20 @@ fuzz_target!(|input: Input| {
                 (Vec::new(), None)
             }
         };
-        assert_eq!(deliver(&mut receiver, now, &wire), expected, "step {step:?}");
+        assert_eq!(
+            deliver(&mut receiver, now, &wire),
+            expected,
+            "step {step:?}"
+        );
         assert_eq!(receiver.deadline(), model.deadline);
         let late = now >= model.deadline;
-        assert_eq!(receiver.poll(now), if late { Err(LinkFault::Timeout) } else { Ok(()) });
+        assert_eq!(
+            receiver.poll(now),
+            if late {
+                Err(LinkFault::Timeout)
+            } else {
+                Ok(())
+            }
+        );
     }
 });

@@ -19,15 +19,18 @@
 #![no_main]
 
 #[path = "common.rs"]
-#[allow(dead_code, reason = "this target records what the node reports itself; it uses the device description only")]
+#[allow(
+    dead_code,
+    reason = "this target records what the node reports itself; it uses the device description only"
+)]
 mod common;
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
 use shared::canopen::nmt::NmtState;
 use shared::canopen::storage::{self, RamFlash, Slot};
-use shared::safety::config::SafetyConfig;
 use shared::node::{Event, Node, STORED_PARAMETERS_REJECTED, Sink};
+use shared::safety::config::SafetyConfig;
 use shared::{CanFrame, CanId, Instant};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -131,7 +134,9 @@ fn download(node: &mut Device, sink: &mut Recorder, index: u16, sub: u8, data: &
     let frame = CanFrame::new(id, &request).unwrap_or_else(|_| unreachable!());
     sink.sdo_responses.clear();
     node.handle_frame(Instant::ZERO, &frame, sink);
-    sink.sdo_responses.first().is_some_and(|response| response[0] == 0x60)
+    sink.sdo_responses
+        .first()
+        .is_some_and(|response| response[0] == 0x60)
 }
 
 /// The configuration as stored: mapping entries past the mapping count are not part of it
@@ -240,7 +245,10 @@ fuzz_target!(|input: Input| {
     assert!(!node.is_working(), "a node powers on in the safe state");
     assert!(!(sink.restored && sink.rejected));
     if sink.rejected {
-        assert!(sink.rejected_emcy, "a rejected stored configuration is reported by EMCY 6300h");
+        assert!(
+            sink.rejected_emcy,
+            "a rejected stored configuration is reported by EMCY 6300h"
+        );
     }
     if payload == original && stored_payload.as_deref() == Some(&original[..]) {
         assert!(sink.restored, "the saved configuration is restored");
