@@ -10,6 +10,30 @@ use shared::{CanFrame, Duration, Instant};
 /// Bit rates CANopen devices commonly run at (CiA 301 Table 1 subset).
 pub const BIT_RATES: [u32; 4] = [125_000, 250_000, 500_000, 1_000_000];
 
+/// Frames one participant may have waiting for the bus in the hub ([`Bus::try_send`]): its
+/// transmit FIFO. More than a node ever has pending (heartbeat, EMCY, an SRDO pair, an SDO
+/// response), so only a sender that floods the bus reaches it; at 500 kbit/s the bus drains
+/// it in about 7 ms. A participant whose FIFO is full waits, as a real CAN controller with
+/// every transmit mailbox busy does: the hub stops taking its bytes until there is room.
+pub const TRANSMIT_QUEUE: usize = 32;
+
+/// [`Bus::try_send`] refused a frame: the participant's transmit FIFO is full.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct QueueFull {
+    /// The participant.
+    pub from: usize,
+}
+
+impl std::fmt::Display for QueueFull {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "participant {}'s transmit queue is full ({TRANSMIT_QUEUE} frames waiting for the bus)",
+            self.from
+        )
+    }
+}
+
 /// Bits one standard (11-bit) frame occupies on the bus: SOF to the end of the CRC with its
 /// stuff bits, then CRC delimiter, ACK slot and delimiter, end of frame and the 3-bit
 /// intermission (ISO 11898-1 10.4, 10.5).
@@ -216,12 +240,35 @@ impl Bus {
     }
 
     /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO). A
-    /// participant not seen before joins the bus.
+    /// participant not seen before joins the bus. For the host simulation, whose senders are
+    /// the test's own code; input from outside goes through [`Bus::try_send`].
     pub fn send(&mut self, from: usize, frame: CanFrame) {
         if from >= self.queues.len() {
             self.queues.resize(from + 1, Default::default());
         }
         self.queues[from].push_back(frame);
+    }
+
+    /// [`Bus::send`] with the transmit FIFO bounded at [`TRANSMIT_QUEUE`] frames: a frame
+    /// beyond it is refused, and the caller makes its sender wait ([`Bus::has_room`]).
+    pub fn try_send(&mut self, from: usize, frame: CanFrame) -> Result<(), QueueFull> {
+        if !self.has_room(from) {
+            return Err(QueueFull { from });
+        }
+        self.send(from, frame);
+        Ok(())
+    }
+
+    /// Frames participant `from` has waiting for the bus.
+    pub fn queued(&self, from: usize) -> usize {
+        self.queues
+            .get(from)
+            .map_or(0, std::collections::VecDeque::len)
+    }
+
+    /// `true` while participant `from` can queue another frame with [`Bus::try_send`].
+    pub fn has_room(&self, from: usize) -> bool {
+        self.queued(from) < TRANSMIT_QUEUE
     }
 
     /// Forgets what participant `from` still had queued (it left the bus).
@@ -414,6 +461,34 @@ mod tests {
         let third = bus.arbitrate(second[0].at);
         assert_eq!(third[0].frame.id().raw(), 0x701);
         assert_eq!(bus.next_start(third[0].at), None);
+    }
+
+    /// A participant's transmit FIFO holds `TRANSMIT_QUEUE` frames; one more is refused (the
+    /// sender has to wait) and nothing queued is lost; once the bus has taken a frame there is
+    /// room again.
+    #[test]
+    fn a_full_transmit_queue_refuses_the_next_frame_and_loses_none() {
+        let mut bus = Bus::new(500_000, 2);
+        for n in 0..TRANSMIT_QUEUE {
+            assert_eq!(bus.try_send(0, frame(0x200, &[n as u8])), Ok(()));
+        }
+        assert_eq!(
+            bus.try_send(0, frame(0x200, &[0xEE])),
+            Err(QueueFull { from: 0 })
+        );
+        assert_eq!(bus.queued(0), TRANSMIT_QUEUE);
+        assert!(bus.has_room(1), "the other participant's FIFO is its own");
+        let first = bus.arbitrate(Instant::ZERO);
+        assert_eq!(first[0].frame.data(), &[0]);
+        assert!(bus.has_room(0));
+        let mut now = first[0].at;
+        let mut delivered = vec![0u8];
+        while let Some(start) = bus.next_start(now) {
+            now = start;
+            delivered.extend(bus.arbitrate(now).iter().map(|d| d.frame.data()[0]));
+        }
+        let expected: Vec<u8> = (0..TRANSMIT_QUEUE as u8).collect();
+        assert_eq!(delivered, expected, "every queued frame, in order");
     }
 
     #[test]

@@ -15,6 +15,7 @@
 //! → cut node33-link           the link relay stops passing bytes, both ways
 //! → clear                     every injected bus fault is removed
 //! ← ok <command> t=<seconds on the hub's clock>   or   error <why>
+//!   (a line longer than MAX_LINE bytes, or not UTF-8, is refused with `error <why>`)
 //! ← status node1a t=1.234567 nmt=5 working=1 link=1 output=1 input=1 cause=0x00 sent=12
 //!          validated=0 stall_ms=3 link_gap_ms=52 busy_ms=1
 //!          stack=5400
@@ -22,6 +23,61 @@
 
 use dual_channel::can_serial::Status;
 use std::fmt;
+use std::io::BufRead;
+
+/// The longest control line accepted, in bytes without its line end: ample for any command
+/// (the longest, `insert` with eight data bytes, is under 40), and it keeps a client that
+/// never sends a line end from making the hub hold an ever longer line.
+pub const MAX_LINE: usize = 256;
+
+/// The longest delay `delay` accepts, in milliseconds: far longer than any SCT, short enough
+/// that the frame arrives within the run.
+pub const MAX_DELAY_MS: u64 = 60_000;
+
+/// Reads one line from a control client: `Ok(None)` at the end of the stream, `Ok(Some(Ok))`
+/// for a line (line end and a trailing carriage return removed), `Ok(Some(Err(why)))` for a
+/// line refused because it is longer than [`MAX_LINE`] or not UTF-8. Holds at most
+/// [`MAX_LINE`] bytes: the rest of a long line is read and discarded up to its line end.
+pub fn read_line(reader: &mut impl BufRead) -> std::io::Result<Option<Result<String, String>>> {
+    let mut line = Vec::new();
+    let mut too_long = false;
+    let mut any = false;
+    loop {
+        let available = reader.fill_buf()?;
+        if available.is_empty() {
+            if !any {
+                return Ok(None);
+            }
+            break;
+        }
+        any = true;
+        let (chunk, end) = match available.iter().position(|&b| b == b'\n') {
+            Some(at) => (&available[..at], Some(at + 1)),
+            None => (available, None),
+        };
+        if line.len() + chunk.len() > MAX_LINE + 1 {
+            too_long = true;
+        } else {
+            line.extend_from_slice(chunk);
+        }
+        let consumed = end.unwrap_or(available.len());
+        reader.consume(consumed);
+        if end.is_some() {
+            break;
+        }
+    }
+    if line.last() == Some(&b'\r') {
+        line.pop();
+    }
+    if too_long || line.len() > MAX_LINE {
+        return Ok(Some(Err(format!(
+            "line longer than {MAX_LINE} bytes: refused"
+        ))));
+    }
+    Ok(Some(String::from_utf8(line).map_err(|_| {
+        "line is not UTF-8 text: refused".to_string()
+    })))
+}
 
 /// A command on the control port.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -116,10 +172,18 @@ impl Command {
                     mask,
                 }
             }
-            ["delay", id, ms] => Command::Delay {
-                id: identifier(id)?,
-                ms: number(ms, "a delay in milliseconds")?,
-            },
+            ["delay", id, ms] => {
+                let ms: u64 = number(ms, "a delay in milliseconds")?;
+                if ms > MAX_DELAY_MS {
+                    return Err(format!(
+                        "a delay of {ms} ms is longer than {MAX_DELAY_MS} ms"
+                    ));
+                }
+                Command::Delay {
+                    id: identifier(id)?,
+                    ms,
+                }
+            }
             ["repeat", id] => Command::Repeat(identifier(id)?),
             ["reorder", id] => Command::Reorder(identifier(id)?),
             ["insert", id, bytes @ ..] => {
@@ -241,6 +305,40 @@ pub fn parse_status(line: &str) -> Option<(String, f64, Status)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A line past `MAX_LINE` bytes is refused with a sentence, held no longer than the bound,
+    /// and the next line is read as usual; so are lines that are not UTF-8.
+    #[test]
+    fn an_over_long_or_non_text_control_line_is_refused_and_the_next_one_read() {
+        let mut input = Vec::new();
+        input.extend(std::iter::repeat_n(b'x', 1_000_000));
+        input.extend_from_slice(b"\nclear\r\n");
+        input.extend_from_slice(&[0xFF, 0xFE, b'\n']);
+        input.extend_from_slice(&[b'y'; MAX_LINE]);
+        input.extend_from_slice(b"\nlast");
+        // A small buffer, so a long line arrives in many pieces.
+        let mut reader = std::io::BufReader::with_capacity(64, &input[..]);
+        let error = read_line(&mut reader).unwrap().unwrap().unwrap_err();
+        assert!(error.contains("longer than 256 bytes"), "{error}");
+        assert_eq!(read_line(&mut reader).unwrap(), Some(Ok("clear".into())));
+        let error = read_line(&mut reader).unwrap().unwrap().unwrap_err();
+        assert!(error.contains("not UTF-8"), "{error}");
+        let longest = read_line(&mut reader).unwrap().unwrap().unwrap();
+        assert_eq!(
+            longest.len(),
+            MAX_LINE,
+            "a line of exactly MAX_LINE bytes is taken"
+        );
+        assert_eq!(read_line(&mut reader).unwrap(), Some(Ok("last".into())));
+        assert_eq!(read_line(&mut reader).unwrap(), None);
+    }
+
+    #[test]
+    fn a_delay_longer_than_a_minute_is_refused() {
+        assert!(Command::parse("delay 0x101 60000").is_ok());
+        let error = Command::parse("delay 0x101 18446744073709551615").unwrap_err();
+        assert!(error.contains("longer than 60000 ms"), "{error}");
+    }
 
     #[test]
     fn commands_parse_and_print_back() {

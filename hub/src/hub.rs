@@ -3,7 +3,7 @@
 //! Sans-I/O like the rest: the program feeds it the bytes each participant sent and the time,
 //! and asks it what to write to whom and when to wake next.
 
-use crate::bus::{Bus, Delivery, Injection};
+use crate::bus::{Bus, Delivery, Injection, QueueFull};
 use dual_channel::can_serial::{Decoder, SerialError, Status, Wire, encode, encode_wire};
 use shared::{CanFrame, Instant};
 
@@ -78,23 +78,40 @@ impl Hub {
 
     /// Bytes participant `id` sent at `now`: CAN frames go on the bus, status reports to
     /// [`Hub::statuses`]. An input message is for boards, not from them: malformed.
-    pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) {
+    ///
+    /// Returns how many bytes were taken: all of them unless the participant's transmit FIFO
+    /// filled ([`crate::bus::TRANSMIT_QUEUE`]); then the sender waits, and the caller hands the
+    /// rest again after [`Hub::poll`] has put frames on the bus.
+    pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) -> usize {
         self.join(id);
-        for &byte in bytes {
+        for (taken, &byte) in bytes.iter().enumerate() {
+            if !self.bus.has_room(id) {
+                return taken;
+            }
             match self.decoders[id].push(byte) {
-                Some(Ok(Wire::Can(frame))) => self.bus.send(id, frame),
+                // `has_room` was checked before this byte, so the frame is queued.
+                Some(Ok(Wire::Can(frame))) => {
+                    let _ = self.bus.try_send(id, frame);
+                }
                 Some(Ok(Wire::Status(status))) => self.statuses.push((now, id, status)),
                 Some(Ok(Wire::Input(_))) => self.malformed.push((id, SerialError::Malformed)),
                 Some(Err(error)) => self.malformed.push((id, error)),
                 None => {}
             }
         }
+        bytes.len()
+    }
+
+    /// `true` while participant `id` can queue another frame (its bytes are taken).
+    pub fn has_room(&self, id: usize) -> bool {
+        self.bus.has_room(id)
     }
 
     /// `frame` goes on the bus from participant `id` (the hub's own sender, say), which need
-    /// not be connected; it competes in arbitration like any other.
-    pub fn send(&mut self, id: usize, frame: CanFrame) {
-        self.bus.send(id, frame);
+    /// not be connected; it competes in arbitration like any other. Refused when that
+    /// participant's transmit FIFO is full.
+    pub fn send(&mut self, id: usize, frame: CanFrame) -> Result<(), QueueFull> {
+        self.bus.try_send(id, frame)
     }
 
     /// The bytes that set a board's input pin to `value`.
@@ -226,6 +243,41 @@ mod tests {
         assert!(out.is_empty(), "dropped");
         hub.receive(Instant::ZERO, 1, &[0x05, 0x01, 0x00]);
         assert_eq!(hub.malformed.len(), 1);
+    }
+
+    /// A participant that sends faster than the bus takes frames waits: the hub takes its
+    /// bytes up to a full transmit FIFO, the rest once the bus has room, and every frame
+    /// reaches the others, in order.
+    #[test]
+    fn a_flooding_sender_waits_for_the_bus_and_loses_nothing() {
+        let mut hub = Hub::new(1_000_000);
+        hub.join(0);
+        hub.join(1);
+        let frames = 3 * crate::bus::TRANSMIT_QUEUE;
+        let mut pending: Vec<u8> = (0..frames)
+            .flat_map(|n| encode(&frame(0x300, &(n as u16).to_le_bytes())).to_vec())
+            .collect();
+        let first = hub.receive(Instant::ZERO, 0, &pending);
+        assert!(first < pending.len(), "a full FIFO makes the sender wait");
+        assert!(!hub.has_room(0));
+        pending.drain(..first);
+        let mut now = Instant::ZERO;
+        let mut received = Vec::new();
+        loop {
+            let (out, next) = hub.poll(now);
+            received.extend(out.iter().filter(|o| o.to == 1).map(|o| decode(&o.bytes)));
+            let taken = hub.receive(now, 0, &pending);
+            pending.drain(..taken);
+            match next {
+                Some(next) => now = next,
+                None if pending.is_empty() => break,
+                None => {}
+            }
+        }
+        let expected: Vec<CanFrame> = (0..frames)
+            .map(|n| frame(0x300, &(n as u16).to_le_bytes()))
+            .collect();
+        assert_eq!(received, expected);
     }
 
     #[test]

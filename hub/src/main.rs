@@ -15,22 +15,29 @@
 //! tool connections on `--tcp`. A `--link` relays the bytes between two QEMU instances' link
 //! USARTs until the control port cuts it. The control port's line protocol is in
 //! `can_hub::control`. The hub runs until killed.
+//!
+//! Nothing a participant sends makes the hub hold more and more: a participant whose transmit
+//! FIFO is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus. Its bytes stay with
+//! the hub only up to `BACKLOG` bytes; past that the hub stops reading its socket, so the
+//! sender's writes block. A control line is at most `can_hub::control::MAX_LINE` bytes, and a
+//! tool or control client that does not read what the hub writes for `WRITE_TIMEOUT` is
+//! disconnected instead of stalling the bus.
 
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
-use can_hub::control::{Command, status_line};
+use can_hub::control::{self, Command, status_line};
 use can_hub::hub::Hub;
 use can_hub::trace::{PcapWriter, candump_line};
 use clap::Parser;
 use shared::Instant;
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, BufWriter, Read, Write};
 use std::net::TcpListener;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -66,24 +73,39 @@ struct Args {
     drop: Vec<String>,
 }
 
+/// Bytes a participant may have sent that the hub has not yet taken (its transmit FIFO was
+/// full); past this the hub stops reading its socket until the bus has taken frames.
+const BACKLOG: usize = 4096;
+
+/// How long a write to a tool or control client may block before the client is disconnected.
+const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
+
 /// What the connection threads tell the hub.
 enum Input {
-    Joined(usize, Box<dyn Write + Send>),
+    /// A participant joined: how to write to it, and its count of bytes not yet taken.
+    Joined(usize, Box<dyn Write + Send>, Arc<AtomicUsize>),
     Bytes(usize, Vec<u8>),
     Left(usize),
     ControlJoined(usize, Box<dyn Write + Send>),
-    Control(usize, String),
+    /// A control line, or why it was refused.
+    Control(usize, Result<String, String>),
 }
 
-fn reader(id: usize, mut stream: impl Read, tx: Sender<Input>) {
+/// Reads participant `id`'s bytes for the hub while fewer than [`BACKLOG`] are waiting
+/// (`pending`, which the hub lowers as it takes them); otherwise waits, and the sender with it.
+fn reader(id: usize, mut stream: impl Read, tx: Sender<Input>, pending: Arc<AtomicUsize>) {
     let mut buf = [0u8; 256];
     loop {
+        while pending.load(Ordering::Acquire) >= BACKLOG {
+            std::thread::sleep(Duration::from_millis(1));
+        }
         match stream.read(&mut buf) {
             Ok(0) | Err(_) => {
                 let _ = tx.send(Input::Left(id));
                 return;
             }
             Ok(n) => {
+                pending.fetch_add(n, Ordering::AcqRel);
                 if tx.send(Input::Bytes(id, buf[..n].to_vec())).is_err() {
                     return;
                 }
@@ -209,8 +231,9 @@ fn start(args: &Args) -> Result<(), String> {
                 return;
             };
             if let Ok(writer) = stream.try_clone() {
-                let _ = tx.send(Input::Joined(id, Box::new(writer)));
-                reader(id, stream, tx);
+                let pending = Arc::new(AtomicUsize::new(0));
+                let _ = tx.send(Input::Joined(id, Box::new(writer), pending.clone()));
+                reader(id, stream, tx, pending);
             }
         });
     }
@@ -241,11 +264,13 @@ fn start(args: &Args) -> Result<(), String> {
             for (offset, stream) in listener.incoming().enumerate() {
                 let Ok(stream) = stream else { continue };
                 let _ = stream.set_nodelay(true);
+                let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
                 let id = first + offset;
                 if let Ok(writer) = stream.try_clone() {
-                    let _ = tx.send(Input::Joined(id, Box::new(writer)));
+                    let pending = Arc::new(AtomicUsize::new(0));
+                    let _ = tx.send(Input::Joined(id, Box::new(writer), pending.clone()));
                     let tx = tx.clone();
-                    std::thread::spawn(move || reader(id, stream, tx));
+                    std::thread::spawn(move || reader(id, stream, tx, pending));
                 }
             }
         });
@@ -258,12 +283,13 @@ fn start(args: &Args) -> Result<(), String> {
             for (client, stream) in listener.incoming().enumerate() {
                 let Ok(stream) = stream else { continue };
                 let _ = stream.set_nodelay(true);
+                let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
                 if let Ok(writer) = stream.try_clone() {
                     let _ = tx.send(Input::ControlJoined(client, Box::new(writer)));
                     let tx = tx.clone();
                     std::thread::spawn(move || {
-                        for line in BufReader::new(stream).lines() {
-                            let Ok(line) = line else { return };
+                        let mut reader = BufReader::new(stream);
+                        while let Ok(Some(line)) = control::read_line(&mut reader) {
                             if tx.send(Input::Control(client, line)).is_err() {
                                 return;
                             }
@@ -282,6 +308,9 @@ fn start(args: &Args) -> Result<(), String> {
 struct Hosts {
     names: Vec<String>,
     writers: HashMap<usize, Box<dyn Write + Send>>,
+    /// Bytes each participant sent that the hub has not taken yet, and the count its reader
+    /// thread waits on.
+    backlogs: HashMap<usize, (Vec<u8>, Arc<AtomicUsize>)>,
     controls: HashMap<usize, Box<dyn Write + Send>>,
     cuts: HashMap<String, Arc<AtomicBool>>,
 }
@@ -329,7 +358,13 @@ impl Hosts {
                     .ok()
                     .and_then(|id| shared::CanFrame::new(id, data).ok())
                     .ok_or_else(|| format!("{command} is not a CAN frame"))?;
-                hub.send(self.names.len(), frame);
+                hub.send(self.names.len(), frame).map_err(|_| {
+                    format!(
+                        "the hub's own transmit queue is full ({} frames waiting for the \
+                             bus): {command} not sent",
+                        can_hub::bus::TRANSMIT_QUEUE
+                    )
+                })?;
             }
             Command::Mute(name, true) => {
                 let id = self.participant(name)?;
@@ -349,6 +384,22 @@ impl Hosts {
             Command::Clear => hub.retain_faults(|_| false),
         }
         Ok(())
+    }
+
+    /// Hands each participant's waiting bytes to the hub as far as its transmit FIFO has
+    /// room; `true` when any were taken.
+    fn feed(&mut self, hub: &mut Hub, now: Instant) -> bool {
+        let mut fed = false;
+        for (id, (bytes, pending)) in &mut self.backlogs {
+            if bytes.is_empty() {
+                continue;
+            }
+            let taken = hub.receive(now, *id, bytes);
+            bytes.drain(..taken);
+            pending.fetch_sub(taken, Ordering::AcqRel);
+            fed |= taken > 0;
+        }
+        fed
     }
 
     fn tell_controls(&mut self, line: &str) {
@@ -387,6 +438,7 @@ fn run(
     let mut hosts = Hosts {
         names,
         writers: HashMap::new(),
+        backlogs: HashMap::new(),
         controls: HashMap::new(),
         cuts,
     };
@@ -396,21 +448,28 @@ fn run(
             Duration::from_micros(at.as_micros().saturating_sub(now().as_micros()))
         });
         match rx.recv_timeout(timeout) {
-            Ok(Input::Joined(id, writer)) => {
+            Ok(Input::Joined(id, writer, pending)) => {
                 hub.join(id);
                 hosts.writers.insert(id, writer);
+                hosts.backlogs.insert(id, (Vec::new(), pending));
             }
-            Ok(Input::Bytes(id, bytes)) => hub.receive(now(), id, &bytes),
+            Ok(Input::Bytes(id, bytes)) => {
+                if let Some((backlog, _)) = hosts.backlogs.get_mut(&id) {
+                    backlog.extend_from_slice(&bytes);
+                }
+            }
             Ok(Input::Left(id)) => {
                 hub.leave(id);
                 hosts.writers.remove(&id);
+                hosts.backlogs.remove(&id);
             }
             Ok(Input::ControlJoined(client, writer)) => {
                 hosts.controls.insert(client, writer);
             }
             Ok(Input::Control(client, line)) => {
                 let at = now();
-                let reply = match Command::parse(&line)
+                let reply = match line
+                    .and_then(|line| Command::parse(&line))
                     .and_then(|command| hosts.apply(hub, at, &command).map(|()| command))
                 {
                     Ok(command) => format!("ok {command} t={:.6}", seconds(at)),
@@ -427,7 +486,15 @@ fn run(
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => return Ok(()),
         }
-        let (out, next) = hub.poll(now());
+        // Bytes first (frames join their senders' FIFOs), then the bus; arbitration makes room,
+        // so waiting bytes are offered again and the bus asked once more.
+        hosts.feed(hub, now());
+        let (mut out, mut next) = hub.poll(now());
+        if hosts.feed(hub, now()) {
+            let (more, later) = hub.poll(now());
+            out.extend(more);
+            next = later;
+        }
         wake = next;
         for outgoing in out {
             let failed = hosts

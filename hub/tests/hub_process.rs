@@ -174,3 +174,61 @@ fn the_control_port_inserts_injects_and_cuts() {
     let mut buf = [0u8; 4];
     assert!(right.read(&mut buf).is_err(), "nothing passes a cut link");
 }
+
+/// The control port refuses a line longer than `control::MAX_LINE` bytes with a sentence (a
+/// client that sends no line end does not make the hub hold an ever longer line), and answers
+/// the next command as usual.
+#[test]
+fn an_over_long_control_line_is_refused_and_the_port_keeps_working() {
+    use std::io::BufRead;
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 2;
+    let control_port = port + 20_000;
+    let dir = std::env::temp_dir().join(format!("can-hub-long-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
+        .args(["--control", &format!("127.0.0.1:{control_port}")])
+        .spawn()
+        .unwrap();
+    let _hub = Hub { child, dir };
+    let mut control = connect(control_port);
+    let mut replies = std::io::BufReader::new(control.try_clone().unwrap());
+    let long = vec![b'x'; 1 << 20];
+    control.write_all(&long).unwrap();
+    control.write_all(b"\nclear\n").unwrap();
+    let mut reply = String::new();
+    replies.read_line(&mut reply).unwrap();
+    assert!(
+        reply.starts_with("error line longer than 256 bytes"),
+        "{reply}"
+    );
+    reply.clear();
+    replies.read_line(&mut reply).unwrap();
+    assert!(reply.starts_with("ok clear"), "{reply}");
+}
+
+/// A tool that sends far faster than the bus carries frames waits (its transmit FIFO in the
+/// hub is bounded, and the hub stops reading it): every frame still reaches the other tool,
+/// in order, none lost.
+#[test]
+fn a_flooding_tool_waits_for_the_bus_and_every_frame_arrives_in_order() {
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 3;
+    let hub = start(port);
+    let mut sender = connect(port);
+    let mut receiver = connect(port);
+    std::thread::sleep(Duration::from_millis(200));
+    const FRAMES: u16 = 2000;
+    let frames: Vec<CanFrame> = (0..FRAMES)
+        .map(|n| CanFrame::new(CanId::new(0x300).unwrap(), &n.to_le_bytes()).unwrap())
+        .collect();
+    let writer = std::thread::spawn(move || {
+        let bytes: Vec<u8> = frames.iter().flat_map(|f| encode(f).to_vec()).collect();
+        sender.write_all(&bytes).unwrap();
+        sender
+    });
+    for n in 0..FRAMES {
+        let frame = receive(&mut receiver);
+        assert_eq!(frame.data(), n.to_le_bytes(), "frame {n}");
+    }
+    let _sender = writer.join().unwrap();
+    drop(hub);
+}

@@ -35,6 +35,10 @@ enum Task {
         /// Also install probe-rs-tools and defmt-print (about 7 minutes of compiling).
         #[arg(long)]
         probe_rs: bool,
+        /// Also install what `cargo xtask fuzz` needs: the nightly toolchain (rustup) and
+        /// cargo-fuzz (about 2 minutes of compiling).
+        #[arg(long)]
+        fuzz: bool,
     },
     /// Build both firmware images (release) and check their size against the budgets.
     Build,
@@ -68,11 +72,11 @@ enum Task {
     /// hub), configured and started, shown live; keys press the emergency stop and inject
     /// faults. Ends with a summary; fails unless both nodes exchanged valid SRDOs.
     Run {
-        /// Run unattended for this long (e.g. `30s`), then print the summary.
+        /// Run unattended for this long (e.g. `30s`, at most 24 h), then print the summary.
         #[arg(long = "for", value_parser = run::parse_duration)]
         duration: Option<std::time::Duration>,
         /// Schedule an action: `5s:press` (press, release, drop, corrupt, stop, b-differs,
-        /// cut-link, reset; repeatable).
+        /// cut-link, reset; repeatable; before the end of a `--for` run).
         #[arg(long, value_parser = run::parse_at)]
         at: Vec<(std::time::Duration, run::Action)>,
     },
@@ -100,11 +104,17 @@ enum Task {
         #[arg(long)]
         report_only: bool,
     },
-    /// Run every fuzz target for a while (needs the nightly toolchain and cargo-fuzz).
+    /// Run every fuzz target of every fuzz crate (shared/fuzz, dual-channel/fuzz) for a while,
+    /// optimised, then each again with debug assertions and overflow checks. Installs the
+    /// nightly toolchain and cargo-fuzz when they are missing.
     Fuzz {
-        /// Seconds per target.
+        /// Seconds per target, optimised (`cargo fuzz run -O`); 0 skips that pass.
         #[arg(long, default_value_t = 60)]
         seconds: u32,
+        /// Seconds per target with debug assertions and overflow checks (`cargo fuzz run -a`);
+        /// 0 skips that pass.
+        #[arg(long, default_value_t = 10)]
+        checked_seconds: u32,
     },
 }
 
@@ -112,7 +122,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let root = workspace_root();
     match cli.command {
-        Task::Setup { probe_rs } => toolchain::setup(probe_rs),
+        Task::Setup { probe_rs, fuzz } => toolchain::setup(probe_rs, fuzz),
         Task::Build => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)
@@ -150,7 +160,10 @@ fn main() -> Result<()> {
             run(&mut command)
         }
         Task::Bench { check } => bench::run(&root, check),
-        Task::Fuzz { seconds } => fuzz(&root, seconds),
+        Task::Fuzz {
+            seconds,
+            checked_seconds,
+        } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
     }
 }
@@ -236,14 +249,52 @@ fn test(root: &Path) -> Result<()> {
     Ok(())
 }
 
-fn fuzz(root: &Path, seconds: u32) -> Result<()> {
-    let fuzz_dir = root.join("shared/fuzz");
-    for target in ["node_frames", "sdo_server", "stored_parameters"] {
-        step(&format!("fuzz {target} for {seconds} s"));
-        run(Command::new("cargo")
-            .current_dir(&fuzz_dir)
-            .args(["+nightly", "fuzz", "run", target, "-O", "--"])
-            .arg(format!("-max_total_time={seconds}")))?;
+/// The fuzz crates, each its own workspace (nightly and sanitizer flags stay out of the
+/// product's). Their targets are read from the crates (`cargo fuzz list`), so a new target is
+/// run without being named here.
+const FUZZ_CRATES: [&str; 2] = ["shared/fuzz", "dual-channel/fuzz"];
+
+/// `cargo +nightly fuzz <args…>` in `dir`.
+fn cargo_fuzz(dir: &Path, args: &[&str]) -> Command {
+    let mut command = Command::new("cargo");
+    command
+        .current_dir(dir)
+        .args(["+nightly", "fuzz"])
+        .args(args);
+    command
+}
+
+/// [`cargo_fuzz`] for `build` and `run`, building into one target directory for both crates
+/// (their common dependencies, libFuzzer among them, are built once).
+fn cargo_fuzz_into(root: &Path, dir: &Path, args: &[&str]) -> Command {
+    let mut command = cargo_fuzz(dir, args);
+    command.arg("--target-dir").arg(root.join("target/fuzz"));
+    command
+}
+
+/// `cargo xtask fuzz`: every target for `seconds` optimised, then for `checked_seconds` with
+/// debug assertions and overflow checks. Fails at the first target that finds a crash (the
+/// input is in that crate's `artifacts/`).
+fn fuzz(root: &Path, seconds: u32, checked_seconds: u32) -> Result<()> {
+    toolchain::ensure_fuzzing()?;
+    // A pass of 0 s is skipped (libFuzzer would read 0 as "no limit").
+    let passes = [("-O", seconds), ("-a", checked_seconds)];
+    for (profile, seconds) in passes.into_iter().filter(|(_, seconds)| *seconds > 0) {
+        for dir in FUZZ_CRATES {
+            let dir = root.join(dir);
+            step(&format!("fuzz: build {} ({profile})", dir.display()));
+            run(&mut cargo_fuzz_into(root, &dir, &["build", profile]))?;
+            let list = cargo_fuzz(&dir, &["list"]).output()?;
+            if !list.status.success() {
+                bail!("`cargo fuzz list` failed in {}", dir.display());
+            }
+            let targets = String::from_utf8_lossy(&list.stdout).into_owned();
+            for target in targets.split_whitespace() {
+                step(&format!("fuzz {target} ({profile}) for {seconds} s"));
+                run(cargo_fuzz_into(root, &dir, &["run", target, profile, "--"])
+                    .arg(format!("-max_total_time={seconds}")))?;
+            }
+        }
     }
     Ok(())
 }

@@ -78,7 +78,12 @@ impl Action {
     }
 }
 
-/// A duration such as `30s`, `500ms`, `2m` or `45` (seconds).
+/// The longest unattended run, and the latest time an action can be scheduled at: one day.
+/// Longer is a soak test, which wants its own task (the traces and status log grow with the
+/// run); the bound also keeps every value far inside what `Duration` can hold.
+pub const LONGEST_RUN: Duration = Duration::from_secs(24 * 60 * 60);
+
+/// A duration such as `30s`, `500ms`, `2m` or `45` (seconds), at most [`LONGEST_RUN`].
 pub fn parse_duration(text: &str) -> Result<Duration, String> {
     let (number, unit) = match text.find(|c: char| !c.is_ascii_digit() && c != '.') {
         Some(at) => text.split_at(at),
@@ -95,7 +100,28 @@ pub fn parse_duration(text: &str) -> Result<Duration, String> {
         "m" | "min" => value * 60.0,
         _ => return Err(format!("`{text}`: unit `{unit}` is not ms, s or m")),
     };
-    Ok(Duration::from_secs_f64(seconds))
+    Duration::try_from_secs_f64(seconds)
+        .ok()
+        .filter(|duration| *duration <= LONGEST_RUN)
+        .ok_or_else(|| format!("`{text}` is longer than the longest run, 24 h (86400s)"))
+}
+
+/// Every scheduled action happens before an unattended run of `duration` ends.
+pub fn check_schedule(
+    duration: Option<Duration>,
+    schedule: &[(Duration, Action)],
+) -> Result<(), String> {
+    let Some(duration) = duration else {
+        return Ok(());
+    };
+    match schedule.iter().find(|(at, _)| *at >= duration) {
+        Some((at, action)) => Err(format!(
+            "--at {:.3}s ({action:?}) is at or after the run ends (--for {:.3}s): it would never happen",
+            at.as_secs_f64(),
+            duration.as_secs_f64()
+        )),
+        None => Ok(()),
+    }
 }
 
 /// `5s:press` → when and what.
@@ -172,6 +198,7 @@ pub fn task(
     duration: Option<Duration>,
     mut schedule: Vec<(Duration, Action)>,
 ) -> Result<()> {
+    check_schedule(duration, &schedule).map_err(anyhow::Error::msg)?;
     let interrupted = Arc::new(AtomicBool::new(false));
     {
         let interrupted = interrupted.clone();
@@ -305,5 +332,40 @@ mod tests {
                 .contains("not an action")
         );
         assert!(parse_at("press").unwrap_err().contains("TIME:ACTION"));
+    }
+
+    /// A duration too long for `Duration` (or for a run) is a clear error, not a panic, for
+    /// `--for` and `--at` alike; the longest accepted is `LONGEST_RUN` itself.
+    #[test]
+    fn durations_past_the_longest_run_are_refused_with_a_sentence() {
+        for text in [
+            "100000000000000000000000s",
+            "86401s",
+            "1441m",
+            "999999999999ms",
+        ] {
+            let error = parse_duration(text).unwrap_err();
+            assert!(error.contains("longest run"), "{text}: {error}");
+        }
+        let error = parse_at("100000000000000000000000s:press").unwrap_err();
+        assert!(error.contains("longest run"), "{error}");
+        assert_eq!(parse_duration("86400s"), Ok(LONGEST_RUN));
+        assert_eq!(parse_duration("1440m"), Ok(LONGEST_RUN));
+        for text in ["", "s", ".", "-5s", "NaNs", "infs", "1.2.3s", "1e400"] {
+            assert!(parse_duration(text).is_err(), "{text:?}");
+        }
+    }
+
+    /// An action scheduled at or after the end of an unattended run would never happen: refused.
+    #[test]
+    fn a_scheduled_action_after_the_end_of_the_run_is_refused() {
+        let press = (Duration::from_secs(8), Action::Press);
+        assert_eq!(
+            check_schedule(Some(Duration::from_secs(20)), &[press]),
+            Ok(())
+        );
+        assert_eq!(check_schedule(None, &[press]), Ok(()));
+        let error = check_schedule(Some(Duration::from_secs(5)), &[press]).unwrap_err();
+        assert!(error.contains("after the run ends"), "{error}");
     }
 }

@@ -172,7 +172,7 @@ fn install_debian() -> Result<()> {
 }
 
 /// `cargo xtask setup`.
-pub fn setup(probe_rs: bool) -> Result<()> {
+pub fn setup(probe_rs: bool, fuzz: bool) -> Result<()> {
     let cross = ensure()?;
     match &cross {
         Cross::Rustup => eprintln!("xtask: {TARGET}: rustup target installed"),
@@ -203,6 +203,9 @@ pub fn setup(probe_rs: bool) -> Result<()> {
             }
         }
     }
+    if fuzz {
+        ensure_fuzzing()?;
+    }
     ensure_qemu()?;
     ensure_defmt_print()?;
     ensure_tshark()?;
@@ -210,6 +213,31 @@ pub fn setup(probe_rs: bool) -> Result<()> {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
     }
     Ok(())
+}
+
+/// The nightly toolchain (rustup, minimal profile) and cargo-fuzz (`cargo install --locked`),
+/// for `cargo xtask fuzz`: libFuzzer's instrumentation needs nightly flags.
+pub fn ensure_fuzzing() -> Result<()> {
+    let nightly = output("rustup", &["toolchain", "list"])
+        .is_some_and(|list| list.lines().any(|line| line.starts_with("nightly")));
+    if nightly {
+        eprintln!("xtask: nightly toolchain: installed");
+    } else {
+        eprintln!("xtask: installing the nightly toolchain (rustup, minimal profile)");
+        super::run(Command::new("rustup").args([
+            "toolchain",
+            "install",
+            "nightly",
+            "--profile",
+            "minimal",
+        ]))?;
+    }
+    if output("cargo", &["fuzz", "--version"]).is_some() {
+        eprintln!("xtask: cargo-fuzz: installed");
+        return Ok(());
+    }
+    eprintln!("xtask: installing cargo-fuzz (cargo install --locked), for the fuzz targets");
+    super::run(Command::new("cargo").args(["install", "--locked", "cargo-fuzz"]))
 }
 
 /// defmt-print, which decodes the QEMU images' logs (about a minute of compiling).

@@ -231,7 +231,7 @@ impl Receiver {
         Some(result)
     }
 
-    /// Checks a decoded frame: length, CRC, message, sequence.
+    /// Checks a decoded frame: length, CRC, message (in its one encoding), sequence.
     fn check(&mut self, now: Instant, raw: &[u8]) -> Result<Message, LinkFault> {
         if raw.len() < 2 + 1 + 4 {
             return Err(LinkFault::Malformed);
@@ -245,6 +245,14 @@ impl Receiver {
         let (message, rest) = postcard::take_from_bytes::<Message>(&payload[2..])
             .map_err(|_| LinkFault::Malformed)?;
         if !rest.is_empty() {
+            return Err(LinkFault::Malformed);
+        }
+        // One message, one encoding: postcard also reads over-long varints, so the body must
+        // be exactly what the sender's encoder writes for the message it decoded to.
+        let mut canonical = [0u8; MAX_RAW];
+        let body =
+            postcard::to_slice(&message, &mut canonical).map_err(|_| LinkFault::Malformed)?;
+        if *body != payload[2..] {
             return Err(LinkFault::Malformed);
         }
         let expected = self.expected.unwrap_or(sequence);

@@ -258,3 +258,29 @@ proptest! {
         }
     }
 }
+
+/// A frame with a valid CRC whose message is not in its one encoding (postcard reads an
+/// over-long varint, `155, 0`, as 27) is malformed: each message has exactly one frame, so
+/// what the CRC protects is exactly what the sender's encoder wrote (EN 50325-5 Annex A.4).
+#[test]
+fn en50325_5_a_4_a_message_in_a_non_canonical_encoding_is_malformed() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let first = sender.encode(&Message::Inputs { sample: 27 }).unwrap();
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &first),
+        [Ok(Message::Inputs { sample: 27 })]
+    );
+    // Sequence 1, variant 1 (Inputs), 27 as an over-long varint.
+    let mut raw = vec![1, 0, 1, 155, 0];
+    let crc = CRC.checksum(&raw);
+    raw.extend_from_slice(&crc.to_le_bytes());
+    let mut wire = [0u8; MAX_WIRE];
+    let len = cobs::encode(&raw, &mut wire);
+    let mut frame = wire[..len].to_vec();
+    frame.push(0);
+    assert_eq!(
+        feed(&mut receiver, Instant::ZERO, &frame),
+        [Err(LinkFault::Malformed)]
+    );
+}

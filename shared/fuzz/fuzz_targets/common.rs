@@ -6,7 +6,12 @@ use shared::process_image::{Access, AppObject, Mappable};
 use shared::{CanFrame, Duration};
 
 const fn object(index: u16, sub: u8, len: u8, mappable: Mappable) -> AppObject {
-    AppObject { address: Address::new(index, sub), len, access: Access::ReadOnly, mappable }
+    AppObject {
+        address: Address::new(index, sub),
+        len,
+        access: Access::ReadOnly,
+        mappable,
+    }
 }
 
 /// Inputs and outputs with inverted copies, plus a writable parameter.
@@ -17,13 +22,19 @@ pub static OBJECTS: [AppObject; 7] = [
     object(0x6201, 1, 1, Mappable::Receive),
     object(0x6100, 1, 4, Mappable::Transmit),
     object(0x6101, 1, 4, Mappable::Transmit),
-    AppObject { address: Address::new(0x2000, 1), len: 2, access: Access::ReadWrite, mappable: Mappable::No },
+    AppObject {
+        address: Address::new(0x2000, 1),
+        len: 2,
+        access: Access::ReadWrite,
+        mappable: Mappable::No,
+    },
 ];
 
 /// A device with node-ID `node_id`.
 pub fn config(node_id: u8, event_driven: bool) -> NodeConfig {
     NodeConfig {
-        node_id: shared::canopen::NodeId::new(node_id.clamp(1, 127)).unwrap_or_else(|_| unreachable!()),
+        node_id: shared::canopen::NodeId::new(node_id.clamp(1, 127))
+            .unwrap_or_else(|_| unreachable!()),
         device_type: 0x0001_0191,
         device_name: "fuzzed safety node with a name longer than four bytes",
         identity: [1, 2, 3, 4],
