@@ -263,7 +263,7 @@ proptest! {
 /// over-long varint, `155, 0`, as 27) is malformed: each message has exactly one frame, so
 /// what the CRC protects is exactly what the sender's encoder wrote (EN 50325-5 Annex A.4).
 #[test]
-fn en50325_5_a_4_a_message_in_a_non_canonical_encoding_is_malformed() {
+fn cia304_9_5_a_link_message_in_a_non_canonical_encoding_is_malformed() {
     let mut sender = Sender::new();
     let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     let first = sender.encode(&Message::Inputs { sample: 27 }).unwrap();
