@@ -68,14 +68,18 @@ pub struct Status {
     pub longest_busy_ms: u16,
     /// The stack's high-water mark in bytes (saturating), for the report.
     pub stack_used: u16,
+    /// SRDO frames the core discarded as CAN double reception (exact repeats of a pending
+    /// plain frame, inverted frames with no plain frame pending; ISO 11898-1), since power-on
+    /// or NMT reset, saturating: object 5C00h sub-indices 1 and 2 added up.
+    pub discarded: u16,
 }
 
 impl Status {
     /// Bytes of an encoded status.
-    pub const LEN: usize = 18;
+    pub const LEN: usize = 20;
 
     /// The fixed little-endian layout: nmt, flags (bit 0 working, bit 1 link up), output,
-    /// input, cause, pad, sent, validated, longest stall, longest link gap, longest busy, stack used.
+    /// input, cause, pad, sent, validated, longest stall, longest link gap, longest busy, stack used, discarded.
     pub fn to_bytes(&self) -> [u8; Self::LEN] {
         let mut out = [0u8; Self::LEN];
         out[0] = self.nmt;
@@ -89,6 +93,7 @@ impl Status {
         out[12..14].copy_from_slice(&self.longest_link_gap_ms.to_le_bytes());
         out[14..16].copy_from_slice(&self.longest_busy_ms.to_le_bytes());
         out[16..18].copy_from_slice(&self.stack_used.to_le_bytes());
+        out[18..20].copy_from_slice(&self.discarded.to_le_bytes());
         out
     }
 
@@ -110,6 +115,7 @@ impl Status {
             longest_link_gap_ms: u16::from_le_bytes([body[12], body[13]]),
             longest_busy_ms: u16::from_le_bytes([body[14], body[15]]),
             stack_used: u16::from_le_bytes([body[16], body[17]]),
+            discarded: u16::from_le_bytes([body[18], body[19]]),
         })
     }
 }
@@ -252,9 +258,9 @@ mod tests {
         #[test]
         fn board_messages_round_trip(
             input: u8, nmt: u8, working: bool, link_up: bool, output: u8, cause: u8,
-            sent: u16, validated: u16, longest_stall_ms: u16, longest_link_gap_ms: u16, longest_busy_ms: u16, stack_used: u16,
+            sent: u16, validated: u16, longest_stall_ms: u16, longest_link_gap_ms: u16, longest_busy_ms: u16, stack_used: u16, discarded: u16,
         ) {
-            let status = Status { nmt, working, link_up, output, input, cause, sent, validated, longest_stall_ms, longest_link_gap_ms, longest_busy_ms, stack_used };
+            let status = Status { nmt, working, link_up, output, input, cause, sent, validated, longest_stall_ms, longest_link_gap_ms, longest_busy_ms, stack_used, discarded };
             let mut decoder = Decoder::new();
             for message in [Wire::Input(input), Wire::Status(status)] {
                 let results: Vec<_> = encode_wire(&message).iter().filter_map(|&b| decoder.push(b)).collect();

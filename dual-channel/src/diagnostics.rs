@@ -54,6 +54,7 @@ impl Diagnostics {
                 longest_link_gap_ms: 0,
                 longest_busy_ms: 0,
                 stack_used: 0,
+                discarded: 0,
             },
             last_link: None,
             last_reported: None,
@@ -126,6 +127,13 @@ impl Diagnostics {
         self.status.link_up = runtime.link_up();
         // The output pin is the lowest byte of receive SRDO 1 (the demo device's relay).
         self.status.output = runtime.output(1) as u8;
+        let discarded = runtime.node().double_reception();
+        self.status.discarded = u16::try_from(
+            discarded
+                .plain_repeated
+                .saturating_add(discarded.inverted_without_plain),
+        )
+        .unwrap_or(u16::MAX);
         let changed = self.last_reported.is_none_or(|last| {
             (
                 last.nmt,

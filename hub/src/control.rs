@@ -18,7 +18,7 @@
 //!   (a line longer than MAX_LINE bytes, or not UTF-8, is refused with `error <why>`)
 //! ← status node1a t=1.234567 nmt=5 working=1 link=1 output=1 input=1 cause=0x00 sent=12
 //!          validated=0 stall_ms=3 link_gap_ms=52 busy_ms=1
-//!          stack=5400
+//!          stack=5400 discarded=0
 //! ```
 
 use dual_channel::can_serial::Status;
@@ -249,7 +249,7 @@ impl fmt::Display for Command {
 pub fn status_line(name: &str, t: f64, status: &Status) -> String {
     format!(
         "status {name} t={t:.6} nmt={} working={} link={} output={} input={} cause=0x{:02X} \
-         sent={} validated={} stall_ms={} link_gap_ms={} busy_ms={} stack={}",
+         sent={} validated={} stall_ms={} link_gap_ms={} busy_ms={} stack={} discarded={}",
         status.nmt,
         u8::from(status.working),
         u8::from(status.link_up),
@@ -261,7 +261,8 @@ pub fn status_line(name: &str, t: f64, status: &Status) -> String {
         status.longest_stall_ms,
         status.longest_link_gap_ms,
         status.longest_busy_ms,
-        status.stack_used
+        status.stack_used,
+        status.discarded
     )
 }
 
@@ -296,6 +297,7 @@ pub fn parse_status(line: &str) -> Option<(String, f64, Status)> {
             "link_gap_ms" => status.longest_link_gap_ms = int()?,
             "busy_ms" => status.longest_busy_ms = int()?,
             "stack" => status.stack_used = int()?,
+            "discarded" => status.discarded = int()?,
             _ => return None,
         }
     }
@@ -390,6 +392,7 @@ mod tests {
             longest_link_gap_ms: 60,
             longest_busy_ms: 3,
             stack_used: 5400,
+            discarded: 2,
         };
         let line = status_line("node33a", 12.5, &status);
         assert_eq!(

@@ -244,6 +244,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     let link_gap = network.worst(|s| s.longest_link_gap_ms);
     let busy = network.worst(|s| s.longest_busy_ms);
     let stack = network.worst(|s| s.stack_used);
+    let discarded = network.worst(|s| s.discarded);
     let dir = network.dir().to_path_buf();
     let _ = network.stop()?;
     if let Ok(results) = &outcome {
@@ -256,6 +257,10 @@ pub fn task(root: &std::path::Path) -> Result<()> {
         "   longest stall of an emulated MCU: {stall} ms, longest link gap: {link_gap} ms, \
          longest loop wake-up: {busy} ms, deepest stack: {stack} bytes (reserve {} bytes)",
         crate::images::STACK_RESERVE
+    );
+    println!(
+        "   most SRDO frames one channel discarded as CAN double reception (since its last \
+         reset): {discarded}"
     );
     println!("   traces and logs: {}", dir.display());
     outcome?;

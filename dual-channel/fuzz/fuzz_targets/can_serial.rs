@@ -32,7 +32,7 @@ enum Message {
     Status {
         bytes: [u8; 5],
         flags: (bool, bool),
-        counters: [u16; 6],
+        counters: [u16; 7],
     },
 }
 
@@ -80,6 +80,7 @@ fn wire(message: &Message) -> Option<Wire> {
             longest_link_gap_ms: counters[3],
             longest_busy_ms: counters[4],
             stack_used: counters[5],
+            discarded: counters[6],
         }),
     })
 }
