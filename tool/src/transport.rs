@@ -21,6 +21,17 @@ pub enum TransportError {
     /// The other end closed the connection.
     #[error("the CAN interface closed the connection")]
     Closed,
+    /// No socketcand server answered at the address.
+    #[error(
+        "no socketcand server at {address}: {source} (start one there, or name another \
+         interface with --bus)"
+    )]
+    Connect {
+        /// The address tried (`host:port`).
+        address: String,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
 }
 
 /// A CAN interface the tool talks through.

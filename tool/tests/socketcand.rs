@@ -116,3 +116,19 @@ fn socketcand_session_refuses_frames_before_raw_mode_and_unknown_buses() {
         "< frame 1AA 23.424242 01F1 >"
     );
 }
+
+/// A bus address where nothing listens is reported as a sentence naming that address.
+#[test]
+fn no_server_is_reported_with_its_address() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("a free port");
+    let address = listener.local_addr().expect("its address").to_string();
+    drop(listener);
+    let error = match safety_config::socketcand::SocketcandClient::connect(&address, "can0") {
+        Ok(_) => panic!("connected to a closed port"),
+        Err(error) => error.to_string(),
+    };
+    assert!(
+        error.starts_with(&format!("no socketcand server at {address}: ")),
+        "{error}"
+    );
+}

@@ -73,7 +73,10 @@ pub struct SocketcandClient {
 impl SocketcandClient {
     /// Connects to the socketcand server at `address` (`host:port`) and opens `bus` in raw mode.
     pub fn connect(address: &str, bus: &str) -> Result<Self, TransportError> {
-        let stream = TcpStream::connect(address)?;
+        let stream = TcpStream::connect(address).map_err(|source| TransportError::Connect {
+            address: address.to_owned(),
+            source,
+        })?;
         stream.set_nodelay(true)?;
         let mut client = SocketcandClient {
             stream,
