@@ -118,7 +118,24 @@ enum Task {
     },
 }
 
-fn main() -> Result<()> {
+/// Runs the task; a failure is printed as its sentences (the error and its causes), without a
+/// backtrace whatever `RUST_BACKTRACE` says: these are the failures a user meets (a node that
+/// did not come up, a missing tool, a check that failed), each saying where its logs are. A bug
+/// in xtask itself panics, and a panic keeps its backtrace.
+fn main() -> std::process::ExitCode {
+    match task() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("Error: {error}");
+            for cause in error.chain().skip(1) {
+                eprintln!("\nCaused by:\n{cause}");
+            }
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn task() -> Result<()> {
     let cli = Cli::parse();
     let root = workspace_root();
     match cli.command {
