@@ -38,29 +38,32 @@ impl std::fmt::Display for QueueFull {
 /// stuff bits, then CRC delimiter, ACK slot and delimiter, end of frame and the 3-bit
 /// intermission (ISO 11898-1 10.4, 10.5).
 pub fn frame_bits(frame: &CanFrame) -> u32 {
-    let mut bits = Vec::with_capacity(98);
-    let mut push = |value: u32, width: u32| {
+    // SOF to the end of the CRC: at most 19 + 64 + 15 = 98 bits, kept on the stack (this runs
+    // once per frame in the simulations: no allocation).
+    let mut bits = [false; 98];
+    let mut len = 0usize;
+    let mut push = |bits: &mut [bool; 98], value: u32, width: u32| {
         for bit in (0..width).rev() {
-            bits.push(value >> bit & 1 == 1);
+            bits[len] = value >> bit & 1 == 1;
+            len += 1;
         }
+        len
     };
-    push(0, 1); // SOF
-    push(u32::from(frame.id().raw()), 11);
-    push(u32::from(frame.is_remote()), 1); // RTR
-    push(0, 1); // IDE
-    push(0, 1); // r0
-    push(u32::from(frame.dlc()), 4);
+    push(&mut bits, 0, 1); // SOF
+    push(&mut bits, u32::from(frame.id().raw()), 11);
+    push(&mut bits, u32::from(frame.is_remote()), 1); // RTR
+    push(&mut bits, 0, 1); // IDE
+    push(&mut bits, 0, 1); // r0
+    let mut end = push(&mut bits, u32::from(frame.dlc()), 4);
     if !frame.is_remote() {
         for &byte in frame.data() {
-            push(u32::from(byte), 8);
+            end = push(&mut bits, u32::from(byte), 8);
         }
     }
-    let crc = crc15(&bits);
-    for bit in (0..15).rev() {
-        bits.push(crc >> bit & 1 == 1);
-    }
-    let stuffed = stuff_bits(&bits);
-    bits.len() as u32 + stuffed + 3 + 7 + 3
+    let crc = crc15(&bits[..end]);
+    let end = push(&mut bits, u32::from(crc), 15);
+    let stuffed = stuff_bits(&bits[..end]);
+    end as u32 + stuffed + 3 + 7 + 3
 }
 
 /// The CAN CRC-15 (polynomial 0x4599) over a bit stream (ISO 11898-1 10.4.2.6).
@@ -96,6 +99,12 @@ fn stuff_bits(bits: &[bool]) -> u32 {
         }
     }
     stuffed
+}
+
+/// Where a frame stands in arbitration: lower wins (identifier, then a data frame before a
+/// remote frame).
+fn priority(frame: &CanFrame) -> (u16, bool) {
+    (frame.id().raw(), frame.is_remote())
 }
 
 /// How long `frame` occupies the bus at `bit_rate`.
@@ -209,6 +218,15 @@ pub struct Delivery {
 pub struct Bus {
     bit_rate: u32,
     queues: Vec<std::collections::VecDeque<CanFrame>>,
+    /// How many frames at the front of each queue compete for the bus (transmit mailboxes):
+    /// 1 is a FIFO; see [`Bus::set_transmit_mailboxes`].
+    mailboxes: usize,
+    /// Each non-empty queue's candidate (its best frame among the mailboxes) by arbitration
+    /// order (identifier, then a data frame before a remote frame, then the lower
+    /// participant), so that an arbitration among hundreds of participants does not look at
+    /// each of them; and each participant's entry in it.
+    heads: std::collections::BTreeSet<(u16, bool, usize)>,
+    candidates: Vec<Option<(u16, bool, usize)>>,
     /// The bus is busy until then.
     free_at: Instant,
     injections: Vec<Injection>,
@@ -226,6 +244,9 @@ impl Bus {
         Bus {
             bit_rate,
             queues: vec![Default::default(); participants],
+            mailboxes: 1,
+            heads: std::collections::BTreeSet::new(),
+            candidates: vec![None; participants],
             free_at: Instant::ZERO,
             injections: Vec::new(),
             held: None,
@@ -247,6 +268,47 @@ impl Bus {
             self.queues.resize(from + 1, Default::default());
         }
         self.queues[from].push_back(frame);
+        if self.queues[from].len() <= self.mailboxes {
+            self.update_candidate(from);
+        }
+    }
+
+    /// Lets the first `mailboxes` frames of each participant's queue compete for the bus by
+    /// identifier, the rest waiting in order behind them: a bxCAN (three transmit mailboxes,
+    /// TXFP = 0: the pending mailbox with the lowest identifier goes first) behind a software
+    /// FIFO, as `board::hw::can_task` drives it. The default, 1, is a plain FIFO. Set it before
+    /// anything is queued.
+    pub fn set_transmit_mailboxes(&mut self, mailboxes: usize) {
+        self.mailboxes = mailboxes.max(1);
+        for from in 0..self.queues.len() {
+            self.update_candidate(from);
+        }
+    }
+
+    /// The position in participant `from`'s queue of the frame that competes for the bus.
+    fn candidate(&self, from: usize) -> Option<usize> {
+        self.queues[from]
+            .iter()
+            .take(self.mailboxes)
+            .enumerate()
+            .min_by_key(|(_, frame)| priority(frame))
+            .map(|(position, _)| position)
+    }
+
+    /// Keeps `heads` in step with participant `from`'s queue.
+    fn update_candidate(&mut self, from: usize) {
+        if from >= self.candidates.len() {
+            self.candidates.resize(from + 1, None);
+        }
+        if let Some(old) = self.candidates[from].take() {
+            self.heads.remove(&old);
+        }
+        if let Some(position) = self.candidate(from) {
+            let (id, remote) = priority(&self.queues[from][position]);
+            let key = (id, remote, from);
+            self.heads.insert(key);
+            self.candidates[from] = Some(key);
+        }
     }
 
     /// [`Bus::send`] with the transmit FIFO bounded at [`TRANSMIT_QUEUE`] frames: a frame
@@ -275,6 +337,7 @@ impl Bus {
     pub fn leave(&mut self, from: usize) {
         if let Some(queue) = self.queues.get_mut(from) {
             queue.clear();
+            self.update_candidate(from);
         }
     }
 
@@ -295,30 +358,36 @@ impl Bus {
 
     /// When the next arbitration can start, if anything is waiting.
     pub fn next_start(&self, now: Instant) -> Option<Instant> {
-        self.queues
-            .iter()
-            .any(|queue| !queue.is_empty())
-            .then(|| self.free_at.max(now))
+        (!self.heads.is_empty()).then(|| self.free_at.max(now))
     }
 
     /// Runs one arbitration at `now` (the bus must be free): the lowest identifier among the
-    /// queue heads wins; returns the deliveries it causes (none for a dropped or muted frame,
+    /// queue heads (the frames in the transmit mailboxes) wins; returns the deliveries it causes (none for a dropped or muted frame,
     /// two for a repeated one).
     pub fn arbitrate(&mut self, now: Instant) -> Vec<Delivery> {
+        let mut deliveries = Vec::new();
+        self.arbitrate_into(now, &mut deliveries);
+        deliveries
+    }
+
+    /// [`Bus::arbitrate`], appending the deliveries to `deliveries` (no allocation once
+    /// `deliveries` has room: the simulations call this for every frame).
+    pub fn arbitrate_into(&mut self, now: Instant, deliveries: &mut Vec<Delivery>) {
         if now < self.free_at {
-            return Vec::new();
+            return;
         }
-        // Identifier order; at equal identifiers a data frame wins over a remote frame.
-        let winner = self
-            .queues
-            .iter()
-            .enumerate()
-            .filter_map(|(index, queue)| queue.front().map(|frame| (index, *frame)))
-            .min_by_key(|(_, frame)| (frame.id().raw(), frame.is_remote()));
-        let Some((from, frame)) = winner else {
-            return Vec::new();
+        // Identifier order; at equal identifiers a data frame wins over a remote frame, and
+        // at equal frames the lower participant (the order `heads` keeps).
+        let Some(&(_, _, from)) = self.heads.first() else {
+            return;
         };
-        self.queues[from].pop_front();
+        let Some(frame) = self
+            .candidate(from)
+            .and_then(|position| self.queues[from].remove(position))
+        else {
+            return;
+        };
+        self.update_candidate(from);
         let mut delivered = frame;
         let mut at = now;
         let mut copies = 1;
@@ -329,7 +398,7 @@ impl Bus {
             }
             injection.applied += 1;
             match injection.fault {
-                Fault::Mute => return Vec::new(),
+                Fault::Mute => return,
                 Fault::Drop => copies = 0,
                 Fault::Corrupt { byte, mask } => {
                     let mut data = *delivered.raw_data();
@@ -352,7 +421,7 @@ impl Bus {
         self.frames_sent += 1;
         self.bits_sent += u64::from(frame_bits(&frame));
         let end = at + duration;
-        let mut deliveries = Vec::new();
+        let first = deliveries.len();
         for copy in 0..copies {
             // A repeated frame occupies the bus again right after the first.
             let extra = Duration::from_micros(duration.as_micros() * copy);
@@ -368,16 +437,15 @@ impl Bus {
         if reorder && self.held.is_none() {
             // Held back: it reaches the receivers just after the next frame does.
             self.held = deliveries.pop();
-            deliveries.clear();
+            deliveries.truncate(first);
         } else if let Some(mut held) = self.held.take() {
-            if let Some(last) = deliveries.last() {
+            if let Some(last) = deliveries[first..].last() {
                 held.at = last.at + Duration::from_micros(1);
                 deliveries.push(held);
             } else {
                 self.held = Some(held);
             }
         }
-        deliveries
     }
 }
 
@@ -461,6 +529,33 @@ mod tests {
         let third = bus.arbitrate(second[0].at);
         assert_eq!(third[0].frame.id().raw(), 0x701);
         assert_eq!(bus.next_start(third[0].at), None);
+    }
+
+    /// With three transmit mailboxes a node's own low-priority frame queued first does not hold
+    /// back its higher-priority one (bxCAN, TXFP = 0); a fourth frame waits for a mailbox, and
+    /// with one mailbox the queue is a FIFO.
+    #[test]
+    fn transmit_mailboxes_send_by_identifier_and_the_rest_in_order() {
+        let order = |mailboxes: usize| {
+            let mut bus = Bus::new(500_000, 2);
+            bus.set_transmit_mailboxes(mailboxes);
+            for id in [0x701, 0x705, 0x703, 0x101] {
+                bus.send(0, frame(id, &[0]));
+            }
+            bus.send(1, frame(0x200, &[0]));
+            let mut now = Instant::ZERO;
+            let mut ids = Vec::new();
+            while let Some(start) = bus.next_start(now) {
+                now = start;
+                let delivered = bus.arbitrate(now);
+                now = delivered[0].at;
+                ids.push(delivered[0].frame.id().raw());
+            }
+            ids
+        };
+        assert_eq!(order(3), [0x200, 0x701, 0x101, 0x703, 0x705]);
+        assert_eq!(order(1), [0x200, 0x701, 0x705, 0x703, 0x101]);
+        assert_eq!(order(8), [0x101, 0x200, 0x701, 0x703, 0x705]);
     }
 
     /// A participant's transmit FIFO holds `TRANSMIT_QUEUE` frames; one more is refused (the

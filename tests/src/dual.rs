@@ -121,7 +121,7 @@ pub struct DualNetwork {
 }
 
 /// Channel B of the demo device samples the same input object as channel A (its own contact).
-const B_INPUTS: [(u16, u8, u8); 1] = [(0x6000, 1, 1)];
+pub const B_INPUTS: [(u16, u8, u8); 1] = [(0x6000, 1, 1)];
 
 impl DualNetwork {
     /// Dual-channel nodes with these node-IDs on a bus at `bit_rate`, powered on at t = 0.

@@ -5,11 +5,13 @@
 //! - [`network`]: devices, a configuration tool speaking SDO and NMT over the bus, the log and
 //!   a candump trace.
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
+//! - [`fullnet`]: the full network at scale (127 dual-channel nodes) and reaction times.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
 //! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
 
 pub use can_hub::bus;
 pub mod dual;
+pub mod fullnet;
 pub mod network;
 pub mod scenario;
 pub mod tool_bus;
