@@ -109,8 +109,12 @@ fn priority(frame: &CanFrame) -> (u16, bool) {
 
 /// How long `frame` occupies the bus at `bit_rate`.
 pub fn frame_time(frame: &CanFrame, bit_rate: u32) -> Duration {
-    let bits = u64::from(frame_bits(frame));
-    Duration::from_micros((bits * 1_000_000).div_ceil(u64::from(bit_rate)))
+    bits_time(frame_bits(frame), bit_rate)
+}
+
+/// How long `bits` bits take at `bit_rate`, rounded up to the microsecond.
+fn bits_time(bits: u32, bit_rate: u32) -> Duration {
+    Duration::from_micros((u64::from(bits) * 1_000_000).div_ceil(u64::from(bit_rate)))
 }
 
 /// Which frames a fault applies to.
@@ -211,6 +215,8 @@ pub struct Delivery {
     pub frame: CanFrame,
     /// Who sent it (it is not delivered back to the sender).
     pub from: usize,
+    /// Bits the frame occupied on the bus, stuff bits included ([`frame_bits`]).
+    pub bits: u32,
 }
 
 /// The bus: one transmit queue per participant, arbitration, timing and faults.
@@ -416,10 +422,11 @@ impl Bus {
                 Fault::Reorder => reorder = true,
             }
         }
-        let duration = frame_time(&frame, self.bit_rate);
+        let bits = frame_bits(&frame);
+        let duration = bits_time(bits, self.bit_rate);
         self.free_at = now + duration;
         self.frames_sent += 1;
-        self.bits_sent += u64::from(frame_bits(&frame));
+        self.bits_sent += u64::from(bits);
         let end = at + duration;
         let first = deliveries.len();
         for copy in 0..copies {
@@ -429,6 +436,7 @@ impl Bus {
                 at: end + extra,
                 frame: delivered,
                 from,
+                bits,
             });
         }
         if copies == 2 {

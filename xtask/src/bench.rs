@@ -193,7 +193,10 @@ fn render(rows: &[(&HotPath, f64)], ram: u32, rustc: &str) -> String {
          - *RAM per SRDO*: `shared::node::RAM_PER_SRDO` as compiled into the channel-a image \
          (read from the ELF symbol `SHARED_RAM_PER_SRDO`); a compile-time assertion keeps it \
          at or below {RAM_TARGET} on every target.\n\n\
-         Wall time: `cargo bench -p shared --bench wall_time` (criterion; machine-dependent)."
+         Wall time: `cargo bench -p shared --bench wall_time` (criterion; machine-dependent).\n\n\
+         The full network at scale (127 dual-channel nodes at 1 Mbit/s) and the measured \
+         reaction times: [network-performance.md](network-performance.md) (`cargo xtask \
+         fullnet`, `cargo xtask reaction`)."
     );
     md
 }

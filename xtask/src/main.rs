@@ -5,6 +5,7 @@
 
 mod bench;
 mod e2e;
+mod fullnet;
 mod images;
 mod network;
 mod qemu;
@@ -94,6 +95,35 @@ enum Task {
         #[arg(long)]
         check: bool,
     },
+    /// The full network by simulation: 64 producers and 64 consumers (127 dual-channel nodes)
+    /// at 1 Mbit/s with background traffic; bus load, SCT and SRVT margins per SRDO, reaction
+    /// times, wall time. Writes its block of docs/network-performance.md; fails when a channel
+    /// reported a fault or a margin was not positive.
+    Fullnet {
+        /// Bus time after the NMT start, in minutes (fractions allowed).
+        #[arg(long, default_value_t = 60.0)]
+        minutes: f64,
+        /// Seed of the input changes and the background phases.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print the results only; leave docs/network-performance.md as it is (CI).
+        #[arg(long)]
+        print_only: bool,
+    },
+    /// Reaction times of node 1 → node 33 by event-driven SRDO, GFC and SCT expiry at 125,
+    /// 250, 500 and 1000 kbit/s, with and without higher-priority traffic (min / mean / max
+    /// over seeded random phases). Writes its block of docs/network-performance.md.
+    Reaction {
+        /// Changes per case.
+        #[arg(long, default_value_t = 200)]
+        repetitions: u32,
+        /// Seed of the phases.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print the results only; leave docs/network-performance.md as it is (CI).
+        #[arg(long)]
+        print_only: bool,
+    },
     /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
     /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
     /// target/traceability/traceability.html. Fails on a failed test, a test that names an
@@ -177,6 +207,36 @@ fn task() -> Result<()> {
             run(&mut command)
         }
         Task::Bench { check } => bench::run(&root, check),
+        Task::Fullnet {
+            minutes,
+            seed,
+            print_only,
+        } => fullnet::task(
+            &root,
+            fullnet::Part::Network,
+            &[
+                "--minutes".into(),
+                minutes.to_string(),
+                "--seed".into(),
+                seed.to_string(),
+            ],
+            print_only,
+        ),
+        Task::Reaction {
+            repetitions,
+            seed,
+            print_only,
+        } => fullnet::task(
+            &root,
+            fullnet::Part::Reaction,
+            &[
+                "--repetitions".into(),
+                repetitions.to_string(),
+                "--seed".into(),
+                seed.to_string(),
+            ],
+            print_only,
+        ),
         Task::Fuzz {
             seconds,
             checked_seconds,

@@ -18,9 +18,9 @@ struct Args {
 enum Part {
     /// 64 producers and 64 consumers (127 dual-channel nodes) at 1 Mbit/s.
     Network {
-        /// Bus time after the NMT start, in minutes.
-        #[arg(long, default_value_t = 60)]
-        minutes: u64,
+        /// Bus time after the NMT start, in minutes (fractions allowed).
+        #[arg(long, default_value_t = 60.0)]
+        minutes: f64,
         /// Seed of the input changes and the background phases.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -39,7 +39,11 @@ enum Part {
 fn main() -> ExitCode {
     match Args::parse().part {
         Part::Network { minutes, seed } => {
-            let bus_time = Duration::from_micros(minutes * 60_000_000);
+            if !(minutes > 0.0 && minutes <= 24.0 * 60.0) {
+                eprintln!("fullnet: --minutes must be above 0 and at most 1440 (24 h)");
+                return ExitCode::FAILURE;
+            }
+            let bus_time = Duration::from_micros((minutes * 60e6) as u64);
             match network::run(bus_time, seed, false) {
                 Ok(result) => {
                     print!("{}", report::full_network(&result));
@@ -52,7 +56,9 @@ fn main() -> ExitCode {
                             || srdo.first_us >= sct
                     });
                     if result.monitor.faults > 0 || violated {
-                        eprintln!("fullnet: a channel reported a fault or a margin was not positive");
+                        eprintln!(
+                            "fullnet: a channel reported a fault or a margin was not positive"
+                        );
                         return ExitCode::FAILURE;
                     }
                     ExitCode::SUCCESS

@@ -165,5 +165,8 @@ pub fn stored_image(spec: &NodeSpec) -> Result<(RamFlash<8192>, u64), ToolError>
             accept_identity: false,
         },
     )?;
-    Ok((client.transport.node.flash().clone(), configured.sdo_requests))
+    Ok((
+        client.transport.node.flash().clone(),
+        configured.sdo_requests,
+    ))
 }

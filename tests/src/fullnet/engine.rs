@@ -47,8 +47,9 @@ const IDENTIFIERS: usize = 2048;
 /// What the simulation tells whoever watches it. Every method has a default that does
 /// nothing, so an observer implements only what it measures.
 pub trait Observer {
-    /// A frame reached the receivers at `at` (sent by participant `from`).
-    fn delivered(&mut self, _at: Instant, _frame: &CanFrame, _from: usize) {}
+    /// A frame reached the receivers at `at` (sent by participant `from`) after occupying the
+    /// bus for `bits` bits.
+    fn delivered(&mut self, _at: Instant, _frame: &CanFrame, _from: usize, _bits: u32) {}
     /// The effective output of node `node` (index), both channels' outputs in series (AND),
     /// for its watched receive SRDO, changed to `value` at `at`.
     fn output(&mut self, _at: Instant, _node: usize, _value: u64) {}
@@ -466,7 +467,7 @@ impl<O: Observer> Engine<O> {
     fn deliver(&mut self, delivery: &Delivery) {
         let now = self.now;
         self.observer
-            .delivered(delivery.at, &delivery.frame, delivery.from);
+            .delivered(delivery.at, &delivery.frame, delivery.from, delivery.bits);
         if let Some(trace) = &mut self.trace {
             trace.push((delivery.at, delivery.frame, delivery.from));
         }
@@ -713,7 +714,8 @@ impl<O: Observer> Transport for Engine<O> {
         &mut self,
         deadline: std::time::Duration,
     ) -> Result<Option<CanFrame>, TransportError> {
-        let deadline = Instant::from_micros(u64::try_from(deadline.as_micros()).unwrap_or(u64::MAX));
+        let deadline =
+            Instant::from_micros(u64::try_from(deadline.as_micros()).unwrap_or(u64::MAX));
         loop {
             if let Some(frame) = self.tool_inbox.pop_front() {
                 return Ok(Some(frame));

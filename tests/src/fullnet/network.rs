@@ -6,7 +6,6 @@
 use super::configure::{node_spec, receive, stored_image, transmit};
 use super::engine::{Engine, Observer, Periodic};
 use super::plan::{self, BIT_RATE, PRODUCERS, Role, Timing};
-use crate::bus::frame_bits;
 use crate::dual::Side;
 use dual_channel::runtime::ChannelEvent;
 use rand::{Rng, SeedableRng};
@@ -14,8 +13,8 @@ use rand_chacha::ChaCha8Rng;
 use shared::canopen::nmt::NmtCommand;
 use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
-use std::collections::BinaryHeap;
 use std::cmp::Reverse;
+use std::collections::BinaryHeap;
 
 /// What the monitor measured for one SRDO, from the frames on the bus.
 #[derive(Clone, Debug, Default)]
@@ -161,8 +160,8 @@ impl Monitor {
 }
 
 impl Observer for Monitor {
-    fn delivered(&mut self, at: Instant, frame: &CanFrame, _from: usize) {
-        let bits = u64::from(frame_bits(frame));
+    fn delivered(&mut self, at: Instant, frame: &CanFrame, _from: usize, bits: u32) {
+        let bits = u64::from(bits);
         self.bits_total += bits;
         let id = frame.id().raw();
         if id == 0 && frame.data().first() == Some(&0x01) && self.started.is_none() {
@@ -303,8 +302,8 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     let mut nodes = Vec::new();
     let mut sdo_requests = 0;
     for spec in &specs {
-        let (image, requests) = stored_image(spec)
-            .map_err(|error| format!("configuring node {}: {error}", spec.id))?;
+        let (image, requests) =
+            stored_image(spec).map_err(|error| format!("configuring node {}: {error}", spec.id))?;
         sdo_requests += requests;
         nodes.push((spec.id, Some(image)));
     }

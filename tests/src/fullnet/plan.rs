@@ -80,8 +80,7 @@ pub struct Stream {
 impl Stream {
     /// Its worst-case share of the bus at `bit_rate`.
     pub fn utilisation(&self, bit_rate: u32) -> f64 {
-        f64::from(self.count) * worst_case_micros(self.len, bit_rate) as f64
-            / self.period_us as f64
+        f64::from(self.count) * worst_case_micros(self.len, bit_rate) as f64 / self.period_us as f64
     }
 }
 
@@ -218,7 +217,7 @@ mod tests {
     /// 64 producers on the 64 CiA 304 pairs, 64 consumers, each pair consumed exactly once,
     /// node-IDs 1..=127 each once.
     #[test]
-    fn cia304_every_srdo_pair_has_one_producer_and_one_consumer() {
+    fn cia304_8_3_3_every_srdo_pair_has_one_producer_and_one_consumer_in_the_full_network() {
         let roles = roles();
         assert_eq!(roles.len(), 127);
         let mut ids: Vec<u8> = roles.iter().map(|r| r.id).collect();
@@ -234,12 +233,16 @@ mod tests {
                 1
             );
         }
-        assert!(roles.iter().all(|r| r.consumes.is_none_or(|(p, _)| Some(p) != r.produces)));
+        assert!(
+            roles
+                .iter()
+                .all(|r| r.consumes.is_none_or(|(p, _)| Some(p) != r.produces))
+        );
     }
 
     /// The worst case of the formula is reached by a real frame and never exceeded by any.
     #[test]
-    fn worst_case_bits_bounds_every_frame() {
+    fn worst_case_frame_bits_bound_every_frame() {
         use shared::{CanFrame, CanId};
         for len in 0..=8u8 {
             let mut worst = 0;

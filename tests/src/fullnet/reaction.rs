@@ -88,8 +88,8 @@ struct Watch {
 }
 
 impl Observer for Watch {
-    fn delivered(&mut self, _at: Instant, frame: &shared::CanFrame, _from: usize) {
-        self.bits += u64::from(crate::bus::frame_bits(frame));
+    fn delivered(&mut self, _at: Instant, _frame: &shared::CanFrame, _from: usize, bits: u32) {
+        self.bits += u64::from(bits);
     }
     fn output(&mut self, at: Instant, _node: usize, value: u64) {
         if let Some((since, wanted)) = self.waiting {
@@ -120,8 +120,8 @@ fn start(bit_rate: u32, loaded: bool) -> Result<Engine<Watch>, String> {
         node_spec(1, vec![transmit(1, 1, REFRESH_MS, SRVT_MS)]),
         node_spec(33, vec![receive(1, 1, SCT_MS, SRVT_MS)]),
     ] {
-        let (image, _) =
-            stored_image(&spec).map_err(|error| format!("configuring node {}: {error}", spec.id))?;
+        let (image, _) = stored_image(&spec)
+            .map_err(|error| format!("configuring node {}: {error}", spec.id))?;
         nodes.push((spec.id, Some(image)));
     }
     let mut engine = Engine::new(bit_rate, nodes, LINK_PERIOD, Watch::default());

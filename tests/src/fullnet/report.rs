@@ -41,7 +41,7 @@ pub fn full_network(report: &Report) -> String {
          consume pairs 1..63, node 1 also consumes pair 64 (127 node-IDs for 128 roles; \
          `tests/src/fullnet/plan.rs`). Each producer's input changes at intervals drawn from \
          {}..{} ms (event-driven pairs).",
-        report.bus_time.as_micros() / 60_000_000,
+        report.bus_time.as_micros() as f64 / 60e6,
         BIT_RATE / 1000,
         plan::INPUT_CHANGE_MS.0,
         plan::INPUT_CHANGE_MS.1,
