@@ -248,6 +248,9 @@ pub struct Report {
     pub sdo_requests: u64,
     /// Wall time of the simulation (boot and the run).
     pub simulation_wall: std::time::Duration,
+    /// CPU time the simulating thread got meanwhile, where the system says
+    /// ([`thread_cpu_time`]): on a shared machine the wall time includes waiting for a core.
+    pub simulation_cpu: Option<std::time::Duration>,
     /// The monitor.
     pub monitor: Monitor,
     /// Bits the bus model counted since power-on, and bits of frames not yet delivered at
@@ -310,6 +313,7 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     let configuration_wall = configuration.elapsed();
 
     let simulation = std::time::Instant::now();
+    let cpu_before = thread_cpu_time();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut engine = Engine::new(BIT_RATE, nodes, timing.link_period, Monitor::new(&roles));
     if keep_trace {
@@ -379,6 +383,9 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     }
     engine.run_until(end);
     let simulation_wall = simulation.elapsed();
+    let simulation_cpu = thread_cpu_time()
+        .zip(cpu_before)
+        .map(|(after, before)| after.saturating_sub(before));
     Ok(Report {
         timing,
         bus_time,
@@ -386,10 +393,19 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
         configuration_wall,
         sdo_requests,
         simulation_wall,
+        simulation_cpu,
         bus_bits: engine.bus.bits_sent,
         bus_frames: engine.bus.frames_sent,
         bit_rate: BIT_RATE,
         trace: engine.trace.take(),
         monitor: engine.observer,
     })
+}
+
+/// The CPU time this thread has run for, from Linux's `/proc/thread-self/schedstat` (its first
+/// field, in nanoseconds); `None` where there is no such file.
+pub fn thread_cpu_time() -> Option<std::time::Duration> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let nanos: u64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(std::time::Duration::from_nanos(nanos))
 }
