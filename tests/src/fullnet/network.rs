@@ -1,4 +1,4 @@
-//! The full network run: 64 producers and 64 consumers ([`plan`](super::plan)) at 1 Mbit/s
+//! The full network run: 64 producers and 64 consumers ([`super::plan`]) at 1 Mbit/s
 //! with heartbeats and PDO-like background load, every producer's input changing at seeded
 //! random moments; what the bus and the outputs show, measured by a monitor that sees only
 //! the frames on the bus and the nodes' outputs.

@@ -115,7 +115,8 @@ impl Timing {
     /// - SCT: covers both a refresh interval stretched by a whole refresh time of jitter
     ///   (2 × refresh) and the CiA 304 9.5 start-up stagger of the last producer (0.5 ms ×
     ///   node-ID) plus one refresh time, the first pair a consumer waits for;
-    /// - link period: the runtime's 10 ms, four per SCT at most.
+    /// - link period: the simulation's 10 ms ([`crate::dual::LINK_PERIOD`]), at least four
+    ///   per SCT as the channel runtime asks.
     pub fn derive(producers: u8, nodes: u32, bit_rate: u32) -> Self {
         let background = vec![
             Stream {

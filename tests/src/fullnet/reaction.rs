@@ -14,7 +14,7 @@
 //!
 //! Node 1 refreshes every 25 ms, node 33 allows SCT 50 ms and SRVT 20 ms (CiA 304's
 //! pre-defined connection set, as in the demo). Higher-priority traffic: 8-byte frames on
-//! identifier 0x090 (above every SRDO identifier) taking [`HIGH_PRIORITY_SHARE`] of the bus in
+//! identifier 0x090 (above every SRDO identifier) taking [`HIGHER_PRIORITY_SHARE`] of the bus in
 //! worst-case bits.
 
 use super::configure::{node_spec, receive, stored_image, transmit};
