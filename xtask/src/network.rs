@@ -68,20 +68,25 @@ impl Drop for Network {
     }
 }
 
-fn qemu_instance(image: &Path, node: u8, can: &Path, link: &Path, log: &Path) -> Result<Child> {
+/// One emulated MCU: USART2 on the hub's socket `can` (CAN frames, the link to the other
+/// channel, the input pin, its status and the virtual time, `paced`); USART1 and USART3
+/// unused.
+fn qemu_instance(image: &Path, node: u8, can: &Path, log: &Path) -> Result<Child> {
     Command::new("qemu-system-arm")
         .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
         .args([
             "-semihosting-config",
-            &format!("enable=on,target=native,arg=node={node}"),
+            &format!("enable=on,target=native,arg=node={node},arg=paced"),
         ])
         .args(["-chardev", &format!("socket,id=can,path={}", can.display())])
         .args([
-            "-chardev",
-            &format!("socket,id=link,path={}", link.display()),
+            "-serial",
+            "null",
+            "-serial",
+            "chardev:can",
+            "-serial",
+            "null",
         ])
-        .args(["-serial", "null", "-serial", "chardev:can"])
-        .args(["-serial", "chardev:link"])
         .arg("-kernel")
         .arg(image)
         // Its own process group: Ctrl-C reaches `cargo xtask`, which ends the run in order
@@ -130,17 +135,14 @@ impl Network {
         let socket = |name: &str| sockets.join(format!("{name}.sock"));
 
         let mut hub = Command::new(root.join("target/debug/can-hub"));
-        hub.args(["--tcp", HUB_TCP, "--control", HUB_CONTROL]);
+        hub.args(["--tcp", HUB_TCP, "--control", HUB_CONTROL, "--paced"]);
         for (name, _, _) in CHANNELS {
             hub.arg("--socket")
                 .arg(format!("{name}={}", socket(name).display()));
         }
         for node in ["node1", "node33"] {
-            hub.arg("--link").arg(format!(
-                "{node}-link={},{}",
-                socket(&format!("{node}a-link")).display(),
-                socket(&format!("{node}b-link")).display()
-            ));
+            hub.arg("--link")
+                .arg(format!("{node}-link={node}a,{node}b"));
         }
         hub.arg("--candump")
             .arg(dir.join("bus.log"))
@@ -173,9 +175,8 @@ impl Network {
         };
         for (name, node, channel) in CHANNELS {
             let image = qemu::image(&network.cross, root, channel);
-            let link = socket(&format!("{name}-link"));
             let log = network.dir.join(format!("{name}.defmt"));
-            let child = qemu_instance(&image, node, &socket(name), &link, &log)?;
+            let child = qemu_instance(&image, node, &socket(name), &log)?;
             network.children.push((name.to_string(), child));
         }
         if let Err(error) = network.configure() {
@@ -339,6 +340,28 @@ impl Network {
             .map(|(_, status)| figure(status))
             .max()
             .unwrap_or(0)
+    }
+
+    /// What the hub's pacing did (`can_hub::pace`), as a sentence for the summary: how much
+    /// virtual time passed in how much host time, the longest hold and the grants' round trips.
+    pub fn pace_summary(&self) -> String {
+        let Some(pace) = &self.control.pace else {
+            return "virtual time: no report from the hub yet".to_string();
+        };
+        let ms = |d: shared::Duration| d.as_micros() as f64 / 1000.0;
+        let virtual_s = pace.virtual_time.as_micros() as f64 / 1e6;
+        let host_s = virtual_s + ms(pace.behind) / 1000.0;
+        format!(
+            "virtual time: {virtual_s:.1} s in {host_s:.1} s of host time ({:.0} %), held at most \
+             {:.0} ms at a time; grant round trips (host time) median {:.1} ms, 99 % within \
+             {:.1} ms, longest {:.0} ms ({} grants)",
+            100.0 * virtual_s / host_s.max(1e-9),
+            ms(pace.longest_hold),
+            ms(pace.round_trip_median),
+            ms(pace.round_trip_p99),
+            ms(pace.round_trip_max),
+            pace.round_trips,
+        )
     }
 
     /// Stops every process, decodes the defmt logs into `target/emulate/<name>.log`, and
