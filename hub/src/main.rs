@@ -186,6 +186,19 @@ fn parse_link(spec: &str, names: &[String]) -> Result<(String, usize, usize), St
     Ok((name.to_string(), a, b))
 }
 
+/// Why the hub cannot listen on the TCP `address`, as a sentence with what to do.
+fn cannot_listen(address: &str, error: &std::io::Error) -> String {
+    if error.kind() == std::io::ErrorKind::AddrInUse {
+        format!(
+            "cannot listen on {address}: something else listens there already (another \
+             can-hub, say, from a `cargo xtask run` or `e2e` still running); stop it or give \
+             another address"
+        )
+    } else {
+        format!("cannot listen on {address}: {error}")
+    }
+}
+
 fn listen(path: &PathBuf) -> Result<UnixListener, String> {
     let _ = std::fs::remove_file(path);
     UnixListener::bind(path)
@@ -255,8 +268,7 @@ fn start(args: &Args) -> Result<(), String> {
         });
     }
     if let Some(address) = &args.tcp {
-        let listener =
-            TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
+        let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
         // After the sockets: the hub's own sender (`insert` on the control port).
         let first = sockets.len() + 1;
@@ -276,8 +288,7 @@ fn start(args: &Args) -> Result<(), String> {
         });
     }
     if let Some(address) = &args.control {
-        let listener =
-            TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
+        let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
         std::thread::spawn(move || {
             for (client, stream) in listener.incoming().enumerate() {
@@ -546,10 +557,8 @@ fn run(
         let links: Vec<_> = hub.links.drain(..).collect();
         for (from, bytes) in links {
             let Some(&to) = hosts.links.peer.get(&from) else {
-                eprintln!(
-                    "can-hub: `{}` sent link bytes but has no --link",
-                    hosts.names[from]
-                );
+                let name = hosts.names.get(from).map_or("a tool", String::as_str);
+                eprintln!("can-hub: {name} (participant {from}) sent link bytes but has no --link");
                 continue;
             };
             if !hosts.links.cut.contains(&from) {

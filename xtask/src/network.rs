@@ -96,7 +96,28 @@ fn qemu_instance(image: &Path, node: u8, can: &Path, log: &Path) -> Result<Child
         .stdout(std::fs::File::create(log)?)
         .stderr(std::fs::File::create(log.with_extension("err"))?)
         .spawn()
-        .context("starting qemu-system-arm")
+        .map_err(|error| {
+            anyhow!("qemu-system-arm could not be started ({error}): run `cargo xtask setup`")
+        })
+}
+
+/// Fails with a sentence when one of the hub's TCP addresses is taken already: otherwise
+/// the hub would exit and the tool might talk to whatever listens there (another engineer's
+/// emulated network, say).
+fn ports_free() -> Result<()> {
+    for address in [HUB_TCP, HUB_CONTROL] {
+        if let Err(error) = std::net::TcpListener::bind(address) {
+            if error.kind() == std::io::ErrorKind::AddrInUse {
+                bail!(
+                    "{address} is in use: another emulated network (`cargo xtask run` or \
+                     `cargo xtask e2e`) is probably running on this machine; end it, or wait \
+                     until it has ended"
+                );
+            }
+            bail!("cannot listen on {address}: {error}");
+        }
+    }
+    Ok(())
 }
 
 /// `true` when every channel of `node` (1 or 33) is Operational and working.
@@ -150,6 +171,7 @@ impl Network {
             .arg(dir.join("bus.pcap"))
             .stderr(std::fs::File::create(dir.join("hub.err"))?)
             .process_group(0);
+        ports_free()?;
         let hub = hub.spawn().context("starting can-hub")?;
         let mut children = vec![("hub".to_string(), hub)];
         // The tool and the control port join first, so they see the boot-up messages.
@@ -162,9 +184,21 @@ impl Network {
                 for (_, child) in &mut children {
                     let _ = child.kill();
                 }
-                bail!("the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL}: {error}");
+                bail!(
+                    "the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL} ({error}); \
+                     its log: {}",
+                    dir.join("hub.err").display()
+                );
             }
         };
+        // Connected to our hub, not to one that was there before it (it would have exited).
+        if let Some(status) = children[0].1.try_wait()? {
+            let log = std::fs::read_to_string(dir.join("hub.err")).unwrap_or_default();
+            bail!(
+                "the hub exited at once ({status}): {}",
+                log.trim().trim_start_matches("can-hub: ")
+            );
+        }
         let mut network = Network {
             children,
             tool,
@@ -181,7 +215,10 @@ impl Network {
         }
         if let Err(error) = network.configure() {
             let _ = network.save_logs();
-            return Err(error.context(format!("logs and traces in {}", network.dir.display())));
+            return Err(error.context(format!(
+                "the emulated network did not come up (logs and traces in {})",
+                network.dir.display()
+            )));
         }
         Ok(network)
     }
@@ -190,7 +227,11 @@ impl Network {
     pub fn check_alive(&mut self) -> Result<()> {
         for (name, child) in &mut self.children {
             if let Some(status) = child.try_wait()? {
-                bail!("{name} ended ({status}): a panic, HardFault or refused start");
+                bail!(
+                    "{name} ended ({status}): a panic, HardFault or refused start; its log is \
+                     {}",
+                    self.dir.join(format!("{name}.log")).display()
+                );
             }
         }
         Ok(())
@@ -227,7 +268,16 @@ impl Network {
         })?;
         self.check_alive()?;
         if booted != [true, true] {
-            bail!("no boot-up from node 1 and node 33 within 20 s (booted: {booted:?})");
+            let silent: Vec<&str> = [("node 1", booted[0]), ("node 33", booted[1])]
+                .into_iter()
+                .filter(|(_, up)| !up)
+                .map(|(node, _)| node)
+                .collect();
+            bail!(
+                "no boot-up message from {} within 20 s (a node boots once both its channels \
+                 have heard each other over the link: the channels' logs say why not)",
+                silent.join(" and ")
+            );
         }
         eprintln!("xtask: configuring over SDO: node 33 consumes node 1's SRDO 1 (101h/102h)");
         let tool = &mut self.tool;
