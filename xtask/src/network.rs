@@ -237,15 +237,44 @@ impl Network {
         Ok(())
     }
 
-    /// Waits up to `patience` for the statuses to satisfy `until`; returns the hub time.
+    /// Waits up to `patience` of the network's time (the hub's virtual clock, which host
+    /// load slows down: `can_hub::pace`) for the statuses to satisfy `until`; returns the
+    /// hub time. A network that stops reporting altogether is given up on after ten times
+    /// `patience` of host time, plus ten seconds.
     pub fn wait_for(
         &mut self,
         patience: Duration,
-        until: impl FnMut(&HashMap<String, (f64, Status)>) -> bool,
+        mut until: impl FnMut(&HashMap<String, (f64, Status)>) -> bool,
     ) -> Result<Option<f64>> {
-        let found = self.control.wait_for(patience, until)?;
-        self.check_alive()?;
-        Ok(found)
+        let start = self.hub_time();
+        let give_up = std::time::Instant::now() + patience * 10 + Duration::from_secs(10);
+        loop {
+            let slice = Duration::from_millis(200).min(patience);
+            let found = self.control.wait_for(slice, &mut until)?;
+            self.check_alive()?;
+            if found.is_some() {
+                return Ok(found);
+            }
+            let waited = self.hub_time() - start;
+            if waited >= patience.as_secs_f64() || std::time::Instant::now() >= give_up {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// The latest hub time known from the control port (seconds): of the newest status or
+    /// pace report.
+    fn hub_time(&self) -> f64 {
+        let pace = self
+            .control
+            .pace
+            .as_ref()
+            .map_or(0.0, |pace| pace.virtual_time.as_micros() as f64 / 1e6);
+        self.control
+            .latest
+            .values()
+            .map(|(t, _)| *t)
+            .fold(pace, f64::max)
     }
 
     /// A control command that must be accepted; returns the hub time it took effect.
