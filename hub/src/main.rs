@@ -314,6 +314,14 @@ fn start(args: &Args) -> Result<(), String> {
     run(&mut hub, &rx, args, names, links).map_err(|error| error.to_string())
 }
 
+/// A trace file that cannot be created, as a sentence naming it.
+fn cannot_create(what: &str, path: &std::path::Path, error: std::io::Error) -> std::io::Error {
+    std::io::Error::new(
+        error.kind(),
+        format!("cannot create the {what} {}: {error}", path.display()),
+    )
+}
+
 /// The links between the channels of a node: each end's peer, by name, and which are cut.
 #[derive(Default)]
 struct Links {
@@ -452,7 +460,11 @@ fn run(
     let mut candump = args
         .candump
         .as_ref()
-        .map(|path| File::create(path).map(BufWriter::new))
+        .map(|path| {
+            File::create(path)
+                .map(BufWriter::new)
+                .map_err(|error| cannot_create("candump log", path, error))
+        })
         .transpose()?;
     let mut pcap = args
         .pcap
@@ -461,6 +473,7 @@ fn run(
             File::create(path)
                 .map(BufWriter::new)
                 .and_then(PcapWriter::new)
+                .map_err(|error| cannot_create("pcap trace", path, error))
         })
         .transpose()?;
     let epoch = SystemTime::now()
