@@ -12,9 +12,11 @@
 //!   or that the host does not schedule sees its time stand still instead of frames arriving
 //!   late, and the hub holds the time of the whole network for it (`can_hub::pace`,
 //!   `docs/emulation.md`). Unpaced (an image run alone) the clock is the host's (semihosting
-//!   `SYS_ELAPSED`). Alarms are checked on every SysTick interrupt (1 kHz) and on every
-//!   grant, so a wake-up is at most 1 ms late, the emulator's timing resolution, not the
-//!   core's: the core judges every timer against `now`. How long the host did not run the
+//!   `SYS_ELAPSED`). The channel loop waits with WFI (`wait`) and checks its deadline on
+//!   every interrupt (SysTick at 1 kHz, USART2), so a wake-up is at most 1 ms late, the
+//!   emulator's timing resolution, not the core's: the core judges every timer against
+//!   `now`. (embassy-time alarms, which nothing in this layer uses any more, are still
+//!   served, on SysTick and on every grant.) How long the host did not run the
 //!   MCU (its tick came late, host time) is measured
 //!   ([`Status::longest_stall_ms`](dual_channel::can_serial::Status::longest_stall_ms)) and
 //!   reported;
