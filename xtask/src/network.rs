@@ -333,12 +333,11 @@ impl Network {
             Ok(())
         };
         configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
-        // An NMT start right after the store reached the two channels of a node up to 177 ms
-        // apart in some runs, which their NMT cross-check rightly calls a fault. The channels'
-        // loops were not the cause (their longest wake-up is reported: up to 18 ms); the
-        // delay lies outside them, presumably on the emulated serial path, and is not yet
-        // understood. A status report comes
-        // only from a channel whose loop runs: the start waits for one from every channel.
+        // An NMT start right after the store used to reach the two channels of a node up to
+        // 177 ms apart: each channel worked through the frames queued for it on QEMU's USART
+        // at its own pace (docs/emulation.md). On the paced virtual time that cannot happen
+        // any more; the start still waits for a status report from every channel after the
+        // store (a report comes only from a channel whose loop runs).
         let stored = self.command("clear")?;
         let free = self.wait_for(Duration::from_secs(5), |latest| {
             CHANNELS
