@@ -77,6 +77,18 @@ pub fn received_frame(id: u16, remote: bool, dlc: u8, data: &[u8; 8]) -> Option<
     }
 }
 
+/// The virtual time (microseconds) a paced emulated channel's clock shows at host time
+/// `host`: the last grant `granted`, handled at host time `host_at_grant`, plus the host time
+/// since, but at most `lookahead` past the grant, and never less than `last`, the time
+/// handed out before (the clock never goes backwards; the hub's grants only grow, and one
+/// older than `last` holds the clock there). So the clock is never more than `lookahead`
+/// past the newest grant handled, or past what it showed already: the bound the argument in
+/// `docs/emulation.md` rests on. Saturating, it cannot overflow.
+pub fn paced_clock(last: u64, granted: u64, host_at_grant: u64, host: u64, lookahead: u64) -> u64 {
+    let since = host.saturating_sub(host_at_grant).min(lookahead);
+    last.max(granted.saturating_add(since))
+}
+
 /// Why the node-ID switches were not accepted: the node stays in the safe state, silent on
 /// the bus, and says why in its log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -108,7 +120,8 @@ pub fn node_id_from_switches(first: u8, second: u8) -> Result<NodeId, SwitchFaul
 }
 
 /// The arguments of an emulated run (QEMU semihosting command line, words separated by
-/// spaces): `selftest` stops after the start-up self-tests; `node=N` sets the node-ID.
+/// spaces): `selftest` stops after the start-up self-tests; `node=N` sets the node-ID;
+/// `paced` puts the clock on the hub's virtual time.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Arguments {
     /// Stop after the self-tests.
@@ -118,6 +131,9 @@ pub struct Arguments {
     /// Panic right after the self-tests (`crash`), to check that a panic ends the emulated
     /// run with failure instead of hanging.
     pub crash: bool,
+    /// The clock follows the emulated network's virtual time, granted by the hub (`paced`,
+    /// given by `cargo xtask run` and `e2e`); otherwise it is the host's.
+    pub paced: bool,
     /// A word that was not understood (the run refuses to start).
     pub unknown: bool,
 }
@@ -138,6 +154,8 @@ pub fn parse_arguments(line: &[u8]) -> Arguments {
             arguments.selftest = true;
         } else if word == b"crash" {
             arguments.crash = true;
+        } else if word == b"paced" {
+            arguments.paced = true;
         } else if let Some(value) = word.strip_prefix(b"node=") {
             let id = core::str::from_utf8(value)
                 .ok()
@@ -176,6 +194,42 @@ mod tests {
         assert!(received_frame(0x800, false, 1, &data).is_none());
     }
 
+    /// The paced clock runs with the host from a grant, stands still at the lookahead past it
+    /// until the next grant, never goes backwards, and does not overflow.
+    #[test]
+    fn a_paced_clock_never_runs_more_than_the_lookahead_past_its_grant() {
+        let lookahead = 10_000;
+        // Granted 1 s at host 5 s: host time runs on up to the lookahead, then stops.
+        assert_eq!(
+            paced_clock(0, 1_000_000, 5_000_000, 5_000_000, lookahead),
+            1_000_000
+        );
+        assert_eq!(
+            paced_clock(0, 1_000_000, 5_000_000, 5_004_000, lookahead),
+            1_004_000
+        );
+        assert_eq!(
+            paced_clock(0, 1_000_000, 5_000_000, 5_900_000, lookahead),
+            1_010_000
+        );
+        // A grant older than what was handed out holds the clock: never backwards.
+        assert_eq!(
+            paced_clock(1_010_000, 1_002_000, 6_000_000, 6_001_000, lookahead),
+            1_010_000
+        );
+        assert_eq!(
+            paced_clock(1_010_000, 1_002_000, 6_000_000, 6_009_000, lookahead),
+            1_011_000
+        );
+        // A host clock read before the grant was handled adds nothing.
+        assert_eq!(paced_clock(0, 7, 100, 50, lookahead), 7);
+        assert_eq!(paced_clock(0, u64::MAX, 0, u64::MAX, lookahead), u64::MAX);
+        for host in (0..100_000_000).step_by(777_777) {
+            let shown = paced_clock(0, 42, 0, host, lookahead);
+            assert!(shown <= 42 + lookahead, "{shown} at host {host}");
+        }
+    }
+
     #[test]
     fn cia301_7_5_2_node_id_from_switches() {
         assert_eq!(node_id_from_switches(33, 33).map(NodeId::raw), Ok(33));
@@ -206,6 +260,9 @@ mod tests {
         assert!(parse_arguments(b"node=x").unknown);
         assert!(parse_arguments(b"verbose").unknown);
         assert!(parse_arguments(b"crash").crash);
+        let paced = parse_arguments(b"node=33 paced");
+        assert!(paced.paced && !paced.unknown);
+        assert!(!parse_arguments(b"node=33").paced);
         let path = parse_arguments(b"target/qemu/channel-a node=2");
         assert_eq!((path.unknown, path.node.map(NodeId::raw)), (false, Some(2)));
         assert!(parse_arguments(b"node=2 target/qemu/channel-a").unknown);

@@ -4,16 +4,28 @@
 //! clock tree's ready flags, bxCAN, GPIO or timer compare interrupts, so `embassy_stm32::init`
 //! cannot run here. This layer therefore brings its own:
 //!
-//! - an embassy-time driver whose clock is the host's (semihosting `SYS_ELAPSED`, to the
-//!   microsecond) and whose alarms are checked on every SysTick interrupt (1 kHz), so a
-//!   wake-up is at most 1 ms late, which is the emulator's timing resolution, not the core's:
-//!   the core judges every timer against `now`. The host clock, not a count of ticks, because
-//!   an emulated MCU that the host does not schedule for a while loses ticks; with the host
-//!   clock every instance and the hub share one time base, and such a stall is seen for what
-//!   it is (a late message), measured ([`Status::longest_stall_ms`](dual_channel::can_serial::Status::longest_stall_ms)) and reported;
-//! - interrupt-driven, register-level USART2 (CAN frames over serial to the host-side bus hub,
-//!   [`dual_channel::can_serial`], which also carries the input pin's value from the hub and
-//!   the channel's [`Status`] to it) and USART3 (the link to the other channel);
+//! - an embassy-time driver on the emulated network's shared virtual time (argument `paced`,
+//!   which `cargo xtask run` and `e2e` give): the clock is the last time the hub granted
+//!   ([`Wire::Time`]) plus the host time since, but never more than
+//!   [`can_serial::LOOKAHEAD`] past that grant; each grant is acknowledged once everything the
+//!   hub sent before it has been handed to the runtime. So a channel whose serial line lags
+//!   or that the host does not schedule sees its time stand still instead of frames arriving
+//!   late, and the hub holds the time of the whole network for it (`can_hub::pace`,
+//!   `docs/emulation.md`). Unpaced (an image run alone) the clock is the host's (semihosting
+//!   `SYS_ELAPSED`). The channel loop waits with WFI (`wait`) and checks its deadline on
+//!   every interrupt (SysTick at 1 kHz, USART2), so a wake-up is at most 1 ms late, the
+//!   emulator's timing resolution, not the core's: the core judges every timer against
+//!   `now`. (embassy-time alarms, which nothing in this layer uses any more, are still
+//!   served, on SysTick and on every grant.) How long the host did not run the
+//!   MCU (its tick came late, host time) is measured
+//!   ([`Status::longest_stall_ms`](dual_channel::can_serial::Status::longest_stall_ms)) and
+//!   reported;
+//! - interrupt-driven, register-level USART2: CAN frames over serial to the host-side bus hub
+//!   ([`dual_channel::can_serial`]), which also carries the input pin's value from the hub,
+//!   the channel's [`Status`] to it, the time grants and the link to the other channel
+//!   ([`Wire::Link`], relayed by the hub): one ordered line, so that a frame and a link
+//!   message the hub sent in one order arrive in that order (on hardware the link is USART3,
+//!   a line of its own with a latency of about 0.2 ms);
 //! - semihosting for the run's arguments (`selftest` to stop after the start-up self-tests) and
 //!   the exit code; a panic or HardFault exits QEMU with failure, never hangs;
 //! - parameters in RAM ([`RamFlash`]).
@@ -28,19 +40,17 @@ use cortex_m::peripheral::NVIC;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use critical_section::Mutex;
-use dual_channel::can_serial::{self, Wire};
+use dual_channel::can_serial::{self, LinkBytes, Wire};
 use dual_channel::diagnostics::{Diagnostics, Observed};
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use embassy_executor::Spawner;
-use embassy_futures::select::{Either3, select3};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
-use embassy_time::Timer;
 use embassy_time_queue_utils::Queue;
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
 use shared::{CanFrame, Duration, Instant};
 use static_cell::ConstStaticCell;
-use stm32_metapac::{Interrupt, RCC, USART2, USART3, interrupt};
+use stm32_metapac::{Interrupt, RCC, USART2, interrupt};
 
 use crate::Device;
 
@@ -50,35 +60,38 @@ const CPU_HZ: u32 = 168_000_000;
 const TICK_HZ: u32 = 1_000;
 /// SysTick reload value for one tick.
 const RELOAD: u32 = CPU_HZ / TICK_HZ - 1;
-/// Link heartbeat period under emulation: 100 ms (a time-out after 200 ms). With 50 ms, link
-/// time-outs (a gap over 100 ms) were seen during configuration in some runs of `cargo xtask
-/// e2e`, although no emulated MCU stalled or stayed busy that long (measured: stalls up to
-/// 30 ms, loop wake-ups up to 18 ms): the delay lies outside the channel's loop, presumably
-/// on the emulated serial path, and is not yet understood. 100 ms still gives five heartbeats per SCT of the
-/// emulated network's consumer (500 ms); the hardware layer uses 10 ms.
+/// Link heartbeat period under emulation: 100 ms (a time-out after 200 ms), five heartbeats
+/// per SCT of the emulated network's consumer (500 ms); the hardware layer uses 10 ms. (With
+/// 50 ms and the host's clock, link time-outs were seen during configuration: QEMU's USART
+/// takes one byte per round trip through its main loop, so the bytes queued for a channel
+/// were delivered late when the host was busy, `docs/emulation.md`. On the virtual time such
+/// a lag holds the clock instead.)
 const LINK_PERIOD: Duration = Duration::from_millis(100);
 
-/// Bytes received on USART2 (CAN bridge) and USART3 (link), filled by their interrupts.
+/// Bytes received on USART2 (CAN bridge, link, time grants), filled by its interrupt.
 static CAN_RX: Pipe<CriticalSectionRawMutex, 4096> = Pipe::new();
-static LINK_RX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
 /// Set when the CAN receive pipe overflowed (reported by the main loop).
 static CAN_RX_LOST: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
-/// The longest gap between two SysTick interrupts beyond one tick, in real milliseconds.
+/// The longest gap between two SysTick interrupts beyond one tick, in host milliseconds.
 static LONGEST_STALL_MS: AtomicU32 = AtomicU32::new(0);
 
-/// The time driver: the host's clock, alarms checked on SysTick.
-struct HostClockDriver {
+/// The time driver: the virtual time the hub grants (or the host's clock, unpaced), alarms
+/// checked on SysTick and on every grant.
+struct VirtualClockDriver {
     /// The last time handed out (the clock never goes backwards) and the host clock at the
-    /// last SysTick interrupt.
+    /// last SysTick interrupt (host microseconds).
     last: Mutex<Cell<u64>>,
     last_tick: Mutex<Cell<u64>>,
+    /// `Some((granted, host))`: paced; the last grant and the host clock when it was handled.
+    grant: Mutex<Cell<Option<(u64, u64)>>>,
     queue: Mutex<RefCell<Queue>>,
 }
 
-embassy_time_driver::time_driver_impl!(static DRIVER: HostClockDriver = HostClockDriver {
+embassy_time_driver::time_driver_impl!(static DRIVER: VirtualClockDriver = VirtualClockDriver {
     last: Mutex::new(Cell::new(0)),
     last_tick: Mutex::new(Cell::new(0)),
+    grant: Mutex::new(Cell::new(None)),
     queue: Mutex::new(RefCell::new(Queue::new())),
 });
 
@@ -102,21 +115,58 @@ fn host_ticks() -> Option<u64> {
     (result == 0).then_some(u64::from(block.high) << 32 | u64::from(block.low))
 }
 
-impl HostClockDriver {
+/// Host microseconds since QEMU started.
+fn host_micros() -> u64 {
+    let hz = u64::from(HOST_TICK_HZ.load(Ordering::Relaxed)).max(1);
+    host_ticks().map_or(0, |ticks| {
+        (u128::from(ticks) * 1_000_000 / u128::from(hz)) as u64
+    })
+}
+
+impl VirtualClockDriver {
     /// Microseconds since start, never less than the last value handed out.
     fn micros(&self, cs: critical_section::CriticalSection<'_>) -> u64 {
-        let hz = u64::from(HOST_TICK_HZ.load(Ordering::Relaxed)).max(1);
-        let host = host_ticks().map_or(0, |ticks| {
-            (u128::from(ticks) * 1_000_000 / u128::from(hz)) as u64
-        });
+        self.micros_at(cs, host_micros())
+    }
+
+    fn micros_at(&self, cs: critical_section::CriticalSection<'_>, host: u64) -> u64 {
         let last = self.last.borrow(cs);
-        let now = host.max(last.get());
+        let now = match self.grant.borrow(cs).get() {
+            Some((granted, at)) => crate::paced_clock(
+                last.get(),
+                granted,
+                at,
+                host,
+                can_serial::LOOKAHEAD.as_micros(),
+            ),
+            None => host.max(last.get()),
+        };
         last.set(now);
         now
     }
+
+    /// From now on the clock is paced by the hub's grants: until the first, it shows at
+    /// most the lookahead past zero.
+    fn pace(&self) {
+        critical_section::with(|cs| {
+            self.last.borrow(cs).set(0);
+            self.grant.borrow(cs).set(Some((0, host_micros())));
+        });
+    }
+
+    /// The hub granted the virtual time `granted` (microseconds); wakes what is due.
+    fn granted(&self, granted: u64) {
+        critical_section::with(|cs| {
+            if self.grant.borrow(cs).get().is_some() {
+                self.grant.borrow(cs).set(Some((granted, host_micros())));
+            }
+            let now = self.micros(cs);
+            self.queue.borrow(cs).borrow_mut().next_expiration(now);
+        });
+    }
 }
 
-impl embassy_time_driver::Driver for HostClockDriver {
+impl embassy_time_driver::Driver for VirtualClockDriver {
     fn now(&self) -> u64 {
         critical_section::with(|cs| self.micros(cs))
     }
@@ -135,14 +185,15 @@ impl embassy_time_driver::Driver for HostClockDriver {
 #[exception]
 fn SysTick() {
     critical_section::with(|cs| {
-        let now = DRIVER.micros(cs);
+        let host = host_micros();
         let last_tick = DRIVER.last_tick.borrow(cs);
-        let gap_ms = now.saturating_sub(last_tick.get()) / 1000;
+        let gap_ms = host.saturating_sub(last_tick.get()) / 1000;
         if last_tick.get() != 0 && gap_ms > 1 {
             let stall = u32::try_from(gap_ms - 1).unwrap_or(u32::MAX);
             LONGEST_STALL_MS.fetch_max(stall, Ordering::Relaxed);
         }
-        last_tick.set(now);
+        last_tick.set(host);
+        let now = DRIVER.micros_at(cs, host);
         DRIVER.queue.borrow(cs).borrow_mut().next_expiration(now);
     });
 }
@@ -164,15 +215,6 @@ fn USART2() {
         if CAN_RX.try_write(&[byte]).is_err() {
             CAN_RX_LOST.store(true, core::sync::atomic::Ordering::Relaxed);
         }
-    }
-}
-
-#[interrupt]
-fn USART3() {
-    while USART3.sr().read().rxne() {
-        let byte = USART3.dr().read().dr() as u8;
-        // A lost byte is a link fault at the other end of the framing: safe state.
-        let _ = LINK_RX.try_write(&[byte]);
     }
 }
 
@@ -210,7 +252,13 @@ impl Io for QemuIo {
         usart_write(USART2, &can_serial::encode(&frame));
     }
     fn link(&mut self, bytes: &[u8]) {
-        usart_write(USART3, bytes);
+        // On the CAN bridge's line, relayed by the hub to the other channel (see the module
+        // documentation); a link message is at most a few dozen bytes.
+        for chunk in bytes.chunks(can_serial::LINK_CHUNK) {
+            if let Some(chunk) = LinkBytes::new(chunk) {
+                send(&Wire::Link(chunk));
+            }
+        }
     }
     fn output(&mut self, srdo: u8, data: u64) {
         defmt::info!("output of SRDO {=u8} = {=u64}", srdo, data);
@@ -271,18 +319,18 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     core.SYST.clear_current();
     core.SYST.enable_interrupt();
     core.SYST.enable_counter();
-    RCC.apb1enr().modify(|w| {
-        w.set_usart2en(true);
-        w.set_usart3en(true);
-    });
-    usart_init(USART2, Interrupt::USART2);
-    usart_init(USART3, Interrupt::USART3);
-
     let arguments = arguments();
     if arguments.unknown {
-        defmt::error!("semihosting arguments not understood (use `selftest`, `node=N`)");
+        defmt::error!("semihosting arguments not understood (use `selftest`, `node=N`, `paced`)");
         exit(false);
     }
+    if arguments.paced {
+        DRIVER.pace();
+    }
+    RCC.apb1enr().modify(|w| {
+        w.set_usart2en(true);
+    });
+    usart_init(USART2, Interrupt::USART2);
     let passed = crate::self_tests();
     // QEMU has no bxCAN: the controller's loop-back test (`dual_channel::can_loopback`) runs
     // in the hardware layer only; its plan and verdict are host-tested.
@@ -312,6 +360,15 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
             exit(false);
         }
     }
+    let mut can = can_serial::Decoder::new();
+    // QEMU models no GPIO: the input reads as released until the hub sets it.
+    let mut input = 1u8;
+    if arguments.paced {
+        // The channel powers on at the network's virtual time, not at zero: the hub may have
+        // run for a while before this MCU joined, and a clock that jumped from zero to the
+        // first grant once the runtime ran would look like a link time-out.
+        input = first_grant(&mut can).unwrap_or(input);
+    }
     let Ok(mut runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
     else {
         defmt::error!("device description refused");
@@ -319,8 +376,6 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     };
     let mut board = QemuIo;
     let mut diagnostics = Diagnostics::new();
-    // QEMU models no GPIO: the input reads as released until the hub sets it.
-    let mut input = 1u8;
     let mut io = Observed {
         io: &mut board,
         diagnostics: &mut diagnostics,
@@ -338,9 +393,7 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         exit(false);
     }
     io.diagnostics.input(input);
-    let mut can = can_serial::Decoder::new();
     let mut can_buf = [0u8; 64];
-    let mut link_buf = [0u8; 64];
     let mut woke = now();
     loop {
         let at = now();
@@ -353,21 +406,19 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
             send(&Wire::Status(status));
         }
         let deadline = deadline.min(io.diagnostics.deadline());
-        let wake = embassy_time::Instant::from_micros(deadline.as_micros());
         io.diagnostics.busy(woke, now());
-        let event = select3(
-            CAN_RX.read(&mut can_buf),
-            LINK_RX.read(&mut link_buf),
-            Timer::at(wake),
-        )
-        .await;
+        let received = wait(deadline, &mut can_buf);
+        // An await in the loop keeps the runtime and the loop's state in the task's static
+        // storage, as before: without one, they lived on the stack (measured: 17,412 bytes
+        // deepest, over the 16 KiB reserve). The task is ready again at once: no idle here.
+        embassy_futures::yield_now().await;
         woke = now();
-        match event {
-            Either3::First(n) => {
+        if received > 0 {
+            {
                 if CAN_RX_LOST.swap(false, core::sync::atomic::Ordering::Relaxed) {
                     defmt::warn!("CAN receive pipe overflowed: bytes lost");
                 }
-                for &byte in &can_buf[..n] {
+                for &byte in &can_buf[..received] {
                     match can.push(byte) {
                         Some(Ok(Wire::Can(frame))) => {
                             defmt::debug!(
@@ -398,6 +449,20 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
                                 exit(false);
                             }
                         }
+                        Some(Ok(Wire::Link(bytes))) => {
+                            let at = now();
+                            io.diagnostics.link_received(at);
+                            for &byte in bytes.as_slice() {
+                                runtime.on_link_byte(at, byte, &mut io);
+                            }
+                        }
+                        Some(Ok(Wire::Time(granted))) => {
+                            // Everything the hub sent before this grant has been handed to
+                            // the runtime: the clock may run to it (plus the lookahead), and
+                            // the hub may move the network's time on.
+                            DRIVER.granted(granted);
+                            send(&Wire::Time(granted));
+                        }
                         Some(Ok(Wire::Status(_))) => {
                             defmt::warn!("CAN bridge: status from the hub")
                         }
@@ -406,14 +471,58 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
                     }
                 }
             }
-            Either3::Second(n) => {
-                let at = now();
-                io.diagnostics.link_received(at);
-                for &byte in &link_buf[..n] {
-                    runtime.on_link_byte(at, byte, &mut io);
+        }
+    }
+}
+
+/// Waits for the hub's first grant of the virtual time and acknowledges it; returns the last
+/// input pin value the hub set meanwhile, if any. Frames and link bytes before it are not
+/// for this channel yet: it has not powered on (on hardware, a controller that is not on the
+/// bus yet does not receive them either).
+fn first_grant(can: &mut can_serial::Decoder) -> Option<u8> {
+    // One byte at a time: what follows the grant stays in the pipe for the channel loop.
+    let mut buf = [0u8; 1];
+    let mut input = None;
+    loop {
+        let received = wait(Instant::NEVER, &mut buf);
+        for &byte in &buf[..received] {
+            match can.push(byte) {
+                Some(Ok(Wire::Time(granted))) => {
+                    DRIVER.granted(granted);
+                    send(&Wire::Time(granted));
+                    return input;
                 }
+                Some(Ok(Wire::Input(value))) => input = Some(value),
+                _ => {}
             }
-            Either3::Third(()) => {}
+        }
+    }
+}
+
+/// Waits with the core halted (WFI) until bytes arrived on USART2 (returns how many, read
+/// into `buf`) or the clock reached `deadline` (returns 0).
+///
+/// Not embassy's executor idle: it waits with WFE, which QEMU 10.0 implements as a yield,
+/// not a halt, so an idle emulated MCU kept a host core busy (measured: 6.4 s of CPU in 12 s
+/// alone, 54 %), and four of them on two host cores starved each other and the hub
+/// (`docs/emulation.md`). This layer's channel loop is the image's only task, so it may
+/// block here. The check runs with interrupts masked: an interrupt that arrives after it
+/// still ends the WFI (a pending interrupt wakes the core whatever PRIMASK says) and runs
+/// once they are unmasked, so no wake-up is lost; SysTick (1 kHz) ends every WFI within a
+/// millisecond, the layer's timing resolution.
+fn wait(deadline: Instant, buf: &mut [u8]) -> usize {
+    loop {
+        cortex_m::interrupt::disable();
+        let received = CAN_RX.try_read(buf).unwrap_or(0);
+        let due = received > 0 || now() >= deadline;
+        if !due {
+            cortex_m::asm::wfi();
+        }
+        // SAFETY: the channel loop calls this outside any critical section (interrupts were
+        // enabled when it masked them above), so unmasking breaks none.
+        unsafe { cortex_m::interrupt::enable() };
+        if due {
+            return received;
         }
     }
 }

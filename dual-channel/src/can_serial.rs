@@ -6,12 +6,20 @@
 //! channel's safety input ([`Wire::Input`]) and the channel reports its state and output
 //! ([`Wire::Status`]). These never reach the bus.
 //!
+//! Under emulation the line also carries the channel's link to the other channel
+//! ([`Wire::Link`]) and the shared virtual time ([`Wire::Time`]): one ordered stream per
+//! channel, so that a channel handles every frame, link byte and input change the hub sent it
+//! before its clock passes the time the hub granted after them (`docs/emulation.md`).
+//!
 //! ```text
 //! COBS( word: u16 LE | body | CRC-16/XMODEM LE ) 0x00
 //!   word bits 14..11 = 0: a CAN frame, bits 10..0 = identifier, bit 15 = RTR;
 //!                         body = dlc: u8 | data[dlc] (none for RTR)
 //!   word = 0x4001:        Input, body = value: u8
 //!   word = 0x4002:        Status, body = Status::LEN bytes (see Status::to_bytes)
+//!   word = 0x4003:        Time, body = microseconds: u64 LE (hub to channel: a grant;
+//!                         channel to hub: the grant it has handled)
+//!   word = 0x4004:        Link, body = 1..=LINK_CHUNK link bytes
 //! ```
 
 use crate::cobs_frames::{Completed, Reassembler};
@@ -19,10 +27,29 @@ use crc::{CRC_16_XMODEM, Crc};
 use shared::{CanFrame, CanId};
 
 const CRC: Crc<u16> = Crc::<u16>::new(&CRC_16_XMODEM);
-/// Largest unencoded message: word, the status body, CRC.
-const MAX_RAW: usize = 2 + Status::LEN + 2;
+/// The lookahead of the emulated network's shared virtual time: a paced channel's clock runs
+/// at most this far past the last [`Wire::Time`] grant it handled, and the hub's clock at most
+/// this far past the oldest grant a channel acknowledged (`can_hub::pace`,
+/// `docs/emulation.md`). It bounds, whatever the host load, how much later than the hub sent
+/// it a channel handles a frame, and how far apart the two channels of a node handle one.
+pub const LOOKAHEAD: shared::Duration = shared::Duration::from_millis(20);
+
+/// How often (virtual time) the hub grants time to each paced channel; well below
+/// [`LOOKAHEAD`], so that a channel that keeps up is never held.
+pub const GRANT_PERIOD: shared::Duration = shared::Duration::from_millis(5);
+
+/// Most link bytes one [`Wire::Link`] message carries.
+pub const LINK_CHUNK: usize = 32;
+/// Largest unencoded message: word, the longest body (link bytes), CRC.
+const MAX_RAW: usize = 2 + const_max(Status::LEN, LINK_CHUNK) + 2;
 const INPUT: u16 = 0x4001;
 const STATUS: u16 = 0x4002;
+const TIME: u16 = 0x4003;
+const LINK: u16 = 0x4004;
+
+const fn const_max(a: usize, b: usize) -> usize {
+    if a > b { a } else { b }
+}
 /// Largest encoded frame, delimiter included.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
 
@@ -130,6 +157,42 @@ pub enum Wire {
     Input(u8),
     /// Channel to hub: the channel's state.
     Status(Status),
+    /// Hub to channel: the shared virtual time, in microseconds, up to which the hub has sent
+    /// the channel everything (a grant); channel to hub: the grant the channel has handled,
+    /// with everything before it (an acknowledgement).
+    Time(u64),
+    /// Bytes of the link between the two channels of a node, relayed by the hub.
+    Link(LinkBytes),
+}
+
+/// 1 to [`LINK_CHUNK`] bytes of the link between two channels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkBytes {
+    len: u8,
+    /// The bytes, zero past `len` (so that equality compares the bytes carried).
+    bytes: [u8; LINK_CHUNK],
+}
+
+impl LinkBytes {
+    /// `bytes` as one message, or `None` when empty or longer than [`LINK_CHUNK`].
+    pub fn new(bytes: &[u8]) -> Option<LinkBytes> {
+        if bytes.is_empty() || bytes.len() > LINK_CHUNK {
+            return None;
+        }
+        let mut out = [0u8; LINK_CHUNK];
+        out[..bytes.len()].copy_from_slice(bytes);
+        Some(LinkBytes {
+            // `bytes.len()` <= LINK_CHUNK = 32.
+            len: bytes.len() as u8,
+            bytes: out,
+        })
+    }
+
+    /// The bytes carried.
+    pub fn as_slice(&self) -> &[u8] {
+        self.bytes.get(..usize::from(self.len)).unwrap_or_default()
+    }
 }
 
 /// The bytes for `frame`, delimiter included.
@@ -162,6 +225,17 @@ pub fn encode_wire(message: &Wire) -> heapless::Vec<u8, MAX_WIRE> {
             raw[..2].copy_from_slice(&STATUS.to_le_bytes());
             raw[2..2 + Status::LEN].copy_from_slice(&status.to_bytes());
             2 + Status::LEN
+        }
+        Wire::Time(micros) => {
+            raw[..2].copy_from_slice(&TIME.to_le_bytes());
+            raw[2..10].copy_from_slice(&micros.to_le_bytes());
+            10
+        }
+        Wire::Link(bytes) => {
+            let bytes = bytes.as_slice();
+            raw[..2].copy_from_slice(&LINK.to_le_bytes());
+            raw[2..2 + bytes.len()].copy_from_slice(bytes);
+            2 + bytes.len()
         }
     };
     let crc = CRC.checksum(&raw[..end]);
@@ -215,6 +289,12 @@ fn parse(raw: &[u8]) -> Result<Wire, SerialError> {
             _ => Err(SerialError::Malformed),
         },
         STATUS => Status::from_bytes(&body[2..]).map(Wire::Status),
+        TIME => <[u8; 8]>::try_from(&body[2..])
+            .map(|micros| Wire::Time(u64::from_le_bytes(micros)))
+            .map_err(|_| SerialError::Malformed),
+        LINK => LinkBytes::new(&body[2..])
+            .map(Wire::Link)
+            .ok_or(SerialError::Malformed),
         _ if word & 0x7800 != 0 => Err(SerialError::Malformed),
         _ => parse_frame(word, body).map(Wire::Can),
     }
@@ -269,11 +349,52 @@ mod tests {
         }
 
         #[test]
+        fn time_and_link_round_trip(
+            micros: u64, link in proptest::collection::vec(any::<u8>(), 1..=LINK_CHUNK),
+        ) {
+            let link = LinkBytes::new(&link).unwrap();
+            let mut decoder = Decoder::new();
+            for message in [Wire::Time(micros), Wire::Link(link)] {
+                let results: Vec<_> = encode_wire(&message).iter().filter_map(|&b| decoder.push(b)).collect();
+                prop_assert_eq!(results, vec![Ok(message)]);
+            }
+        }
+
+        #[test]
         fn noise_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
             let mut decoder = Decoder::new();
             for byte in bytes {
                 let _ = decoder.push(byte);
             }
         }
+    }
+
+    /// A link message carries 1 to `LINK_CHUNK` bytes; a time is exactly 8 bytes. Anything
+    /// else with a valid CRC is refused, not truncated.
+    #[test]
+    fn link_and_time_bodies_of_the_wrong_length_are_refused() {
+        assert!(LinkBytes::new(&[]).is_none());
+        assert!(LinkBytes::new(&[0; LINK_CHUNK + 1]).is_none());
+        assert_eq!(LinkBytes::new(&[1, 2]).unwrap().as_slice(), &[1, 2]);
+        let sealed = |raw: &[u8]| {
+            let mut raw = raw.to_vec();
+            raw.extend_from_slice(&CRC.checksum(&raw).to_le_bytes());
+            let mut wire = [0u8; MAX_WIRE];
+            let len = cobs::encode(&raw, &mut wire);
+            let mut decoder = Decoder::new();
+            wire[..len]
+                .iter()
+                .chain(&[0])
+                .find_map(|&b| decoder.push(b))
+        };
+        assert_eq!(
+            sealed(&[0x03, 0x40, 1, 2, 3, 4, 5, 6, 7]),
+            Some(Err(SerialError::Malformed))
+        );
+        assert_eq!(sealed(&[0x04, 0x40]), Some(Err(SerialError::Malformed)));
+        assert_eq!(
+            sealed(&[0x03, 0x40, 1, 0, 0, 0, 0, 0, 0, 0]),
+            Some(Ok(Wire::Time(1)))
+        );
     }
 }

@@ -19,6 +19,10 @@
 //! ← status node1a t=1.234567 nmt=5 working=1 link=1 output=1 input=1 cause=0x00 sent=12
 //!          validated=0 stall_ms=3 link_gap_ms=52 busy_ms=1
 //!          stack=5400 discarded=0
+//! ← pace t=12.345678 behind_ms=420.0 hold_ms=61.2 round_trips=20112 rtt_median_ms=0.41
+//!          rtt_p99_ms=6.20 rtt_max_ms=48.90
+//!   (every second while the emulated MCUs are paced, `can_hub::pace`: how far the virtual
+//!   time is behind the host clock, its longest hold, the grants' round trips in host time)
 //! ```
 
 use dual_channel::can_serial::Status;
@@ -266,6 +270,50 @@ pub fn status_line(name: &str, t: f64, status: &Status) -> String {
     )
 }
 
+/// A pace line as the hub sends it (see the module documentation).
+pub fn pace_line(report: &crate::pace::PaceReport) -> String {
+    let ms = |d: shared::Duration| d.as_micros() as f64 / 1000.0;
+    format!(
+        "pace t={:.6} behind_ms={:.1} hold_ms={:.1} round_trips={} rtt_median_ms={:.2} \
+         rtt_p99_ms={:.2} rtt_max_ms={:.2}",
+        report.virtual_time.as_micros() as f64 / 1e6,
+        ms(report.behind),
+        ms(report.longest_hold),
+        report.round_trips,
+        ms(report.round_trip_median),
+        ms(report.round_trip_p99),
+        ms(report.round_trip_max),
+    )
+}
+
+/// Reads a pace line back (durations rounded as written).
+pub fn parse_pace(line: &str) -> Option<crate::pace::PaceReport> {
+    let mut words = line.split_whitespace();
+    if words.next()? != "pace" {
+        return None;
+    }
+    let mut report = crate::pace::PaceReport::default();
+    for word in words {
+        let (key, value) = word.split_once('=')?;
+        let number: f64 = value
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite() && *v >= 0.0)?;
+        let ms = shared::Duration::from_micros((number * 1000.0).round() as u64);
+        match key {
+            "t" => report.virtual_time = shared::Instant::from_micros((number * 1e6) as u64),
+            "behind_ms" => report.behind = ms,
+            "hold_ms" => report.longest_hold = ms,
+            "round_trips" => report.round_trips = number as usize,
+            "rtt_median_ms" => report.round_trip_median = ms,
+            "rtt_p99_ms" => report.round_trip_p99 = ms,
+            "rtt_max_ms" => report.round_trip_max = ms,
+            _ => return None,
+        }
+    }
+    Some(report)
+}
+
 /// Reads a status line back: (participant, t, status).
 pub fn parse_status(line: &str) -> Option<(String, f64, Status)> {
     let mut words = line.split_whitespace();
@@ -307,6 +355,24 @@ pub fn parse_status(line: &str) -> Option<(String, f64, Status)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pace line reads back as written (to the precision written).
+    #[test]
+    fn pace_lines_round_trip() {
+        use shared::{Duration, Instant};
+        let report = crate::pace::PaceReport {
+            virtual_time: Instant::from_micros(12_345_678),
+            behind: Duration::from_micros(420_000),
+            longest_hold: Duration::from_micros(61_200),
+            round_trips: 20_112,
+            round_trip_median: Duration::from_micros(410),
+            round_trip_p99: Duration::from_micros(6_200),
+            round_trip_max: Duration::from_micros(48_900),
+        };
+        assert_eq!(parse_pace(&pace_line(&report)), Some(report));
+        assert_eq!(parse_pace("pace t=1 hold_ms=-1"), None);
+        assert_eq!(parse_pace("status node1a t=1"), None);
+    }
 
     /// A line past `MAX_LINE` bytes is refused with a sentence, held no longer than the bound,
     /// and the next line is read as usual; so are lines that are not UTF-8.

@@ -4,7 +4,9 @@
 //! and asks it what to write to whom and when to wake next.
 
 use crate::bus::{Bus, Delivery, Injection, QueueFull};
-use dual_channel::can_serial::{Decoder, SerialError, Status, Wire, encode, encode_wire};
+use dual_channel::can_serial::{
+    Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire,
+};
 use shared::{CanFrame, Instant};
 
 /// Bytes for one participant.
@@ -28,6 +30,11 @@ pub struct Hub {
     pub malformed: Vec<(usize, SerialError)>,
     /// Status reports of the participants' boards: (arrival, participant, status).
     pub statuses: Vec<(Instant, usize, Status)>,
+    /// Link bytes the participants sent, for the channel at the other end of their link, in
+    /// the order they came: (participant, bytes).
+    pub links: Vec<(usize, LinkBytes)>,
+    /// Grants the participants acknowledged (`crate::pace`): (participant, virtual time).
+    pub acknowledgements: Vec<(usize, Instant)>,
 }
 
 impl Hub {
@@ -41,6 +48,8 @@ impl Hub {
             completed: Vec::new(),
             malformed: Vec::new(),
             statuses: Vec::new(),
+            links: Vec::new(),
+            acknowledgements: Vec::new(),
         }
     }
 
@@ -77,7 +86,8 @@ impl Hub {
     }
 
     /// Bytes participant `id` sent at `now`: CAN frames go on the bus, status reports to
-    /// [`Hub::statuses`]. An input message is for boards, not from them: malformed.
+    /// [`Hub::statuses`], link bytes to [`Hub::links`], acknowledgements of grants to
+    /// [`Hub::acknowledgements`]. An input message is for boards, not from them: malformed.
     ///
     /// Returns how many bytes were taken: all of them unless the participant's transmit FIFO
     /// filled ([`crate::bus::TRANSMIT_QUEUE`]); then the sender waits, and the caller hands the
@@ -94,6 +104,10 @@ impl Hub {
                     let _ = self.bus.try_send(id, frame);
                 }
                 Some(Ok(Wire::Status(status))) => self.statuses.push((now, id, status)),
+                Some(Ok(Wire::Link(bytes))) => self.links.push((id, bytes)),
+                Some(Ok(Wire::Time(micros))) => self
+                    .acknowledgements
+                    .push((id, Instant::from_micros(micros))),
                 Some(Ok(Wire::Input(_))) => self.malformed.push((id, SerialError::Malformed)),
                 Some(Err(error)) => self.malformed.push((id, error)),
                 None => {}
@@ -117,6 +131,16 @@ impl Hub {
     /// The bytes that set a board's input pin to `value`.
     pub fn input(value: u8) -> Vec<u8> {
         encode_wire(&Wire::Input(value)).to_vec()
+    }
+
+    /// The bytes that grant a board the virtual time `time` (`crate::pace`).
+    pub fn grant(time: Instant) -> Vec<u8> {
+        encode_wire(&Wire::Time(time.as_micros())).to_vec()
+    }
+
+    /// The bytes that hand a board link bytes from the other channel of its node.
+    pub fn link(bytes: &LinkBytes) -> Vec<u8> {
+        encode_wire(&Wire::Link(*bytes)).to_vec()
     }
 
     /// Everything due at `now`: frames that ended go to every present participant but their
@@ -278,6 +302,29 @@ mod tests {
             .map(|n| frame(0x300, &(n as u16).to_le_bytes()))
             .collect();
         assert_eq!(received, expected);
+    }
+
+    /// Link bytes and acknowledgements of grants are kept off the bus, in the order they came.
+    #[test]
+    fn link_bytes_and_acknowledgements_are_kept_off_the_bus() {
+        let mut hub = Hub::new(500_000);
+        hub.join(0);
+        hub.join(1);
+        let hello = LinkBytes::new(b"hello").unwrap();
+        let mut bytes = encode_wire(&Wire::Link(hello)).to_vec();
+        bytes.extend_from_slice(&encode_wire(&Wire::Time(1_234)));
+        hub.receive(Instant::ZERO, 0, &bytes);
+        assert_eq!(hub.links, [(0, hello)]);
+        assert_eq!(hub.acknowledgements, [(0, Instant::from_micros(1_234))]);
+        let (out, next) = hub.poll(Instant::ZERO);
+        assert!(out.is_empty() && next.is_none(), "nothing on the bus");
+        let mut decoder = Decoder::new();
+        let relayed: Vec<_> = Hub::link(&hello)
+            .into_iter()
+            .chain(Hub::grant(Instant::from_micros(7)))
+            .filter_map(|b| decoder.push(b))
+            .collect();
+        assert_eq!(relayed, [Ok(Wire::Link(hello)), Ok(Wire::Time(7))]);
     }
 
     #[test]

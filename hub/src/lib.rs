@@ -6,11 +6,14 @@
 //! - [`trace`]: candump log and pcap (SocketCAN link type) writers.
 //! - [`hub`]: participants that speak CAN-over-serial ([`dual_channel::can_serial`]) joined
 //!   to one [`bus::Bus`] in real time (the `can-hub` program).
+//! - [`pace`]: the shared virtual time of the emulated MCUs: the hub's clock waits for the
+//!   slowest of them, so host load slows the network down but does not change its verdicts.
 //! - [`control`]: the hub's control port (input pins, faults, link cuts, status reports).
 //! - [`tool`]: a configuration tool's and a test's connection to the hub.
 
 pub mod bus;
 pub mod control;
 pub mod hub;
+pub mod pace;
 pub mod tool;
 pub mod trace;

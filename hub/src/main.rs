@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! can-hub --socket node1a=/tmp/bus/node1a.sock --socket node1b=/tmp/bus/node1b.sock \
-//!         --link node1-link=/tmp/bus/node1a-link.sock,/tmp/bus/node1b-link.sock \
+//!         --link node1-link=node1a,node1b --paced \
 //!         --tcp 127.0.0.1:29536 --control 127.0.0.1:29537 \
 //!         --candump bus.log --pcap bus.pcap --bit-rate 500000
 //! ```
@@ -12,9 +12,13 @@
 //! Every participant speaks CAN-over-serial (`dual_channel::can_serial`). The hub listens on
 //! each `--socket` path for one QEMU instance (start QEMU with `-chardev
 //! socket,id=can,path=PATH` and `-serial null -serial chardev:can`), and accepts any number of
-//! tool connections on `--tcp`. A `--link` relays the bytes between two QEMU instances' link
-//! USARTs until the control port cuts it. The control port's line protocol is in
-//! `can_hub::control`. The hub runs until killed.
+//! tool connections on `--tcp`. A `--link` relays the link messages (`Wire::Link`) between
+//! two of the `--socket` participants (the two channels of a node) until the control port
+//! cuts it: on the same serial line as their frames, so that each channel receives
+//! everything in the order the hub sent it. With `--paced` the `--socket` participants share
+//! the hub's virtual time (`can_hub::pace`): the hub grants it to them and waits for the
+//! slowest. The control port's line protocol is in `can_hub::control`. The hub runs until
+//! killed.
 //!
 //! Nothing a participant sends makes the hub hold more and more: a participant whose transmit
 //! FIFO is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus. Its bytes stay with
@@ -26,6 +30,7 @@
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
 use can_hub::control::{self, Command, status_line};
 use can_hub::hub::Hub;
+use can_hub::pace::{self, Pacer};
 use can_hub::trace::{PcapWriter, candump_line};
 use clap::Parser;
 use shared::Instant;
@@ -33,11 +38,11 @@ use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::net::TcpListener;
-use std::os::unix::net::{UnixListener, UnixStream};
+use std::os::unix::net::UnixListener;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -51,10 +56,14 @@ struct Args {
     /// (default: the file stem) is how the control port addresses it.
     #[arg(long)]
     socket: Vec<String>,
-    /// `NAME=PATH_A,PATH_B`: relay the bytes between the two QEMU instances that connect to
-    /// these sockets (a link between two channels), until the control port cuts it.
+    /// `NAME=PARTICIPANT_A,PARTICIPANT_B`: relay the link messages between these two
+    /// `--socket` participants (the two channels of a node), until the control port cuts it.
     #[arg(long)]
     link: Vec<String>,
+    /// The `--socket` participants are emulated MCUs on the hub's virtual time: grant it to
+    /// them and let it advance only as far as the slowest has acknowledged (`can_hub::pace`).
+    #[arg(long)]
+    paced: bool,
     /// A TCP address to accept tools on (e.g. 127.0.0.1:29536).
     #[arg(long)]
     tcp: Option<String>,
@@ -151,34 +160,49 @@ fn parse_socket(spec: &str) -> Result<(String, PathBuf), String> {
     Ok((name, path))
 }
 
-/// `NAME=PATH_A,PATH_B`.
-fn parse_link(spec: &str) -> Result<(String, PathBuf, PathBuf), String> {
-    let (name, paths) = spec
+/// `NAME=PARTICIPANT_A,PARTICIPANT_B`, with the participants' indices among `names`.
+fn parse_link(spec: &str, names: &[String]) -> Result<(String, usize, usize), String> {
+    let (name, ends) = spec
         .split_once('=')
-        .ok_or_else(|| format!("--link {spec}: expected NAME=PATH_A,PATH_B"))?;
-    let (a, b) = paths
+        .ok_or_else(|| format!("--link {spec}: expected NAME=PARTICIPANT_A,PARTICIPANT_B"))?;
+    let (a, b) = ends
         .split_once(',')
-        .ok_or_else(|| format!("--link {spec}: expected two paths separated by a comma"))?;
+        .ok_or_else(|| format!("--link {spec}: expected two participants separated by a comma"))?;
     if name.is_empty() || name.contains(char::is_whitespace) {
         return Err(format!("--link {spec}: `{name}` is not a usable name"));
     }
-    Ok((name.to_string(), PathBuf::from(a), PathBuf::from(b)))
+    let index = |end: &str| {
+        names
+            .iter()
+            .position(|n| n == end)
+            .ok_or_else(|| format!("--link {spec}: `{end}` is not a --socket participant"))
+    };
+    let (a, b) = (index(a)?, index(b)?);
+    if a == b {
+        return Err(format!(
+            "--link {spec}: a link joins two different participants"
+        ));
+    }
+    Ok((name.to_string(), a, b))
+}
+
+/// Why the hub cannot listen on the TCP `address`, as a sentence with what to do.
+fn cannot_listen(address: &str, error: &std::io::Error) -> String {
+    if error.kind() == std::io::ErrorKind::AddrInUse {
+        format!(
+            "cannot listen on {address}: something else listens there already (another \
+             can-hub, say, from a `cargo xtask run` or `e2e` still running); stop it or give \
+             another address"
+        )
+    } else {
+        format!("cannot listen on {address}: {error}")
+    }
 }
 
 fn listen(path: &PathBuf) -> Result<UnixListener, String> {
     let _ = std::fs::remove_file(path);
     UnixListener::bind(path)
         .map_err(|error| format!("cannot listen on {}: {error}", path.display()))
-}
-
-/// Copies `from` to `to` while the link is not cut; a cut link swallows the bytes.
-fn relay(mut from: UnixStream, mut to: UnixStream, cut: Arc<AtomicBool>) {
-    let mut buf = [0u8; 256];
-    while let Ok(n @ 1..) = from.read(&mut buf) {
-        if !cut.load(Ordering::Relaxed) && to.write_all(&buf[..n]).is_err() {
-            return;
-        }
-    }
 }
 
 fn main() -> ExitCode {
@@ -212,15 +236,21 @@ fn start(args: &Args) -> Result<(), String> {
         .iter()
         .map(|spec| parse_socket(spec))
         .collect::<Result<Vec<_>, _>>()?;
-    let links = args
-        .link
-        .iter()
-        .map(|spec| parse_link(spec))
-        .collect::<Result<Vec<_>, _>>()?;
     let mut names: Vec<String> = sockets.iter().map(|(name, _)| name.clone()).collect();
     names.sort();
     if names.windows(2).any(|pair| pair[0] == pair[1]) {
         return Err("two --socket options have the same name".into());
+    }
+    let names: Vec<String> = sockets.iter().map(|(name, _)| name.clone()).collect();
+    let mut links = Links::default();
+    for spec in &args.link {
+        let (name, a, b) = parse_link(spec, &names)?;
+        if links.peer.contains_key(&a) || links.peer.contains_key(&b) {
+            return Err(format!("--link {spec}: a participant has one link only"));
+        }
+        links.peer.insert(a, b);
+        links.peer.insert(b, a);
+        links.named.insert(name, (a, b));
     }
     let (tx, rx) = mpsc::channel();
     for (id, (_, path)) in sockets.iter().enumerate() {
@@ -237,26 +267,8 @@ fn start(args: &Args) -> Result<(), String> {
             }
         });
     }
-    let mut cuts = HashMap::new();
-    for (name, a, b) in &links {
-        let (a, b) = (listen(a)?, listen(b)?);
-        let cut = Arc::new(AtomicBool::new(false));
-        cuts.insert(name.clone(), cut.clone());
-        std::thread::spawn(move || {
-            let (Ok((a, _)), Ok((b, _))) = (a.accept(), b.accept()) else {
-                return;
-            };
-            let (Ok(a2), Ok(b2)) = (a.try_clone(), b.try_clone()) else {
-                return;
-            };
-            let back = cut.clone();
-            std::thread::spawn(move || relay(b2, a2, back));
-            relay(a, b, cut);
-        });
-    }
     if let Some(address) = &args.tcp {
-        let listener =
-            TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
+        let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
         // After the sockets: the hub's own sender (`insert` on the control port).
         let first = sockets.len() + 1;
@@ -276,8 +288,7 @@ fn start(args: &Args) -> Result<(), String> {
         });
     }
     if let Some(address) = &args.control {
-        let listener =
-            TcpListener::bind(address).map_err(|e| format!("cannot listen on {address}: {e}"))?;
+        let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
         std::thread::spawn(move || {
             for (client, stream) in listener.incoming().enumerate() {
@@ -300,8 +311,23 @@ fn start(args: &Args) -> Result<(), String> {
         });
     }
     drop(tx);
-    let names = sockets.into_iter().map(|(name, _)| name).collect();
-    run(&mut hub, &rx, args, names, cuts).map_err(|error| error.to_string())
+    run(&mut hub, &rx, args, names, links).map_err(|error| error.to_string())
+}
+
+/// A trace file that cannot be created, as a sentence naming it.
+fn cannot_create(what: &str, path: &std::path::Path, error: std::io::Error) -> std::io::Error {
+    std::io::Error::new(
+        error.kind(),
+        format!("cannot create the {what} {}: {error}", path.display()),
+    )
+}
+
+/// The links between the channels of a node: each end's peer, by name, and which are cut.
+#[derive(Default)]
+struct Links {
+    peer: HashMap<usize, usize>,
+    named: HashMap<String, (usize, usize)>,
+    cut: std::collections::HashSet<usize>,
 }
 
 /// The state the main loop keeps besides the hub.
@@ -312,7 +338,7 @@ struct Hosts {
     /// thread waits on.
     backlogs: HashMap<usize, (Vec<u8>, Arc<AtomicUsize>)>,
     controls: HashMap<usize, Box<dyn Write + Send>>,
-    cuts: HashMap<String, Arc<AtomicBool>>,
+    links: Links,
 }
 
 impl Hosts {
@@ -376,11 +402,14 @@ impl Hosts {
                     !(injection.fault == Fault::Mute && injection.when.from == Some(id))
                 });
             }
-            Command::Cut(name) => self
-                .cuts
-                .get(name)
-                .ok_or_else(|| format!("no link `{name}`"))?
-                .store(true, Ordering::Relaxed),
+            Command::Cut(name) => {
+                let (a, b) = *self
+                    .links
+                    .named
+                    .get(name)
+                    .ok_or_else(|| format!("no link `{name}`"))?;
+                self.links.cut.extend([a, b]);
+            }
             Command::Clear => hub.retain_faults(|_| false),
         }
         Ok(())
@@ -402,6 +431,19 @@ impl Hosts {
         fed
     }
 
+    /// Writes `bytes` to participant `to`; one that cannot be written to has left.
+    fn write(&mut self, hub: &mut Hub, pacer: &mut Pacer, to: usize, bytes: &[u8]) {
+        let failed = self
+            .writers
+            .get_mut(&to)
+            .is_some_and(|writer| writer.write_all(bytes).is_err());
+        if failed {
+            self.writers.remove(&to);
+            hub.leave(to);
+            pacer.leave(to);
+        }
+    }
+
     fn tell_controls(&mut self, line: &str) {
         self.controls
             .retain(|_, writer| writeln!(writer, "{line}").is_ok());
@@ -413,12 +455,16 @@ fn run(
     rx: &Receiver<Input>,
     args: &Args,
     names: Vec<String>,
-    cuts: HashMap<String, Arc<AtomicBool>>,
+    links: Links,
 ) -> std::io::Result<()> {
     let mut candump = args
         .candump
         .as_ref()
-        .map(|path| File::create(path).map(BufWriter::new))
+        .map(|path| {
+            File::create(path)
+                .map(BufWriter::new)
+                .map_err(|error| cannot_create("candump log", path, error))
+        })
         .transpose()?;
     let mut pcap = args
         .pcap
@@ -427,29 +473,46 @@ fn run(
             File::create(path)
                 .map(BufWriter::new)
                 .and_then(PcapWriter::new)
+                .map_err(|error| cannot_create("pcap trace", path, error))
         })
         .transpose()?;
     let epoch = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64);
     let start = std::time::Instant::now();
-    let now = || Instant::from_micros(start.elapsed().as_micros() as u64);
+    let host = || Instant::from_micros(start.elapsed().as_micros() as u64);
+    // The bus, the traces and the control port run on the virtual time: the host's clock,
+    // held back while a paced participant lags (`can_hub::pace`); unpaced, they are the same.
+    let mut pacer = Pacer::new(pace::LOOKAHEAD, pace::GRANT_PERIOD);
+    let paced = |id: usize| args.paced && id < names.len();
     let seconds = |at: Instant| at.as_micros() as f64 / 1e6;
     let mut hosts = Hosts {
-        names,
+        names: names.clone(),
         writers: HashMap::new(),
         backlogs: HashMap::new(),
         controls: HashMap::new(),
-        cuts,
+        links,
     };
     let mut wake: Option<Instant> = None;
+    let mut next_report = Instant::ZERO;
     loop {
-        let timeout = wake.map_or(Duration::from_millis(100), |at| {
-            Duration::from_micros(at.as_micros().saturating_sub(now().as_micros()))
-        });
+        let now = pacer.advance(host());
+        // The virtual time runs at most as fast as the host's; held, an acknowledgement
+        // (input) wakes the loop; at the latest after a resend period.
+        let timeout = match [wake, pacer.next_grant()].into_iter().flatten().min() {
+            Some(at) => Duration::from_micros(
+                at.as_micros()
+                    .saturating_sub(now.as_micros())
+                    .clamp(100, pace::RESEND.as_micros()),
+            ),
+            None => Duration::from_micros(pace::RESEND.as_micros()),
+        };
         match rx.recv_timeout(timeout) {
             Ok(Input::Joined(id, writer, pending)) => {
                 hub.join(id);
+                if paced(id) {
+                    pacer.join(id);
+                }
                 hosts.writers.insert(id, writer);
                 hosts.backlogs.insert(id, (Vec::new(), pending));
             }
@@ -460,6 +523,7 @@ fn run(
             }
             Ok(Input::Left(id)) => {
                 hub.leave(id);
+                pacer.leave(id);
                 hosts.writers.remove(&id);
                 hosts.backlogs.remove(&id);
             }
@@ -467,7 +531,7 @@ fn run(
                 hosts.controls.insert(client, writer);
             }
             Ok(Input::Control(client, line)) => {
-                let at = now();
+                let at = pacer.advance(host());
                 let reply = match line
                     .and_then(|line| Command::parse(&line))
                     .and_then(|command| hosts.apply(hub, at, &command).map(|()| command))
@@ -488,23 +552,45 @@ fn run(
         }
         // Bytes first (frames join their senders' FIFOs), then the bus; arbitration makes room,
         // so waiting bytes are offered again and the bus asked once more.
-        hosts.feed(hub, now());
-        let (mut out, mut next) = hub.poll(now());
-        if hosts.feed(hub, now()) {
-            let (more, later) = hub.poll(now());
+        let now = pacer.advance(host());
+        hosts.feed(hub, now);
+        for (id, time) in hub.acknowledgements.drain(..) {
+            pacer.acknowledged(id, time, host());
+        }
+        let now = pacer.advance(host());
+        let (mut out, mut next) = hub.poll(now);
+        if hosts.feed(hub, now) {
+            let (more, later) = hub.poll(now);
             out.extend(more);
             next = later;
         }
         wake = next;
-        for outgoing in out {
-            let failed = hosts
-                .writers
-                .get_mut(&outgoing.to)
-                .is_some_and(|writer| writer.write_all(&outgoing.bytes).is_err());
-            if failed {
-                hosts.writers.remove(&outgoing.to);
-                hub.leave(outgoing.to);
+        // Link messages go to the other end at once, in the order they came, on the same
+        // line as the frames (so before any grant that follows them).
+        let links: Vec<_> = hub.links.drain(..).collect();
+        for (from, bytes) in links {
+            let Some(&to) = hosts.links.peer.get(&from) else {
+                let name = hosts.names.get(from).map_or("a tool", String::as_str);
+                eprintln!("can-hub: {name} (participant {from}) sent link bytes but has no --link");
+                continue;
+            };
+            if !hosts.links.cut.contains(&from) {
+                out.push(can_hub::hub::Outgoing {
+                    to,
+                    bytes: Hub::link(&bytes),
+                });
             }
+        }
+        for outgoing in out {
+            hosts.write(hub, &mut pacer, outgoing.to, &outgoing.bytes);
+        }
+        // After every frame and link message up to `now`: the grant of `now`.
+        for id in pacer.grants_due(host()) {
+            hosts.write(hub, &mut pacer, id, &Hub::grant(now));
+        }
+        if args.paced && host() >= next_report {
+            next_report = host() + shared::Duration::from_millis(1000);
+            hosts.tell_controls(&control::pace_line(&pacer.report(host())));
         }
         for (at, frame, _) in hub.completed.drain(..) {
             let stamp = epoch + at.as_micros();

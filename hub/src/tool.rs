@@ -167,6 +167,8 @@ pub struct Control {
     pub latest: HashMap<String, (f64, Status)>,
     /// Every status line received, in order: (participant, hub time, status).
     pub history: Vec<(String, f64, Status)>,
+    /// The latest pace line (`crate::pace`), when the hub paces its participants.
+    pub pace: Option<crate::pace::PaceReport>,
 }
 
 impl Control {
@@ -186,6 +188,7 @@ impl Control {
             writer: stream,
             latest: HashMap::new(),
             history: Vec::new(),
+            pace: None,
         })
     }
 
@@ -202,6 +205,8 @@ impl Control {
                 if let Some((name, t, status)) = parse_status(&line) {
                     self.latest.insert(name.clone(), (t, status));
                     self.history.push((name, t, status));
+                } else if let Some(pace) = crate::control::parse_pace(&line) {
+                    self.pace = Some(pace);
                 }
                 Ok(Some(line))
             }

@@ -245,6 +245,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     let busy = network.worst(|s| s.longest_busy_ms);
     let stack = network.worst(|s| s.stack_used);
     let discarded = network.worst(|s| s.discarded);
+    let pace = network.pace_summary();
     let dir = network.dir().to_path_buf();
     let _ = network.stop()?;
     if let Ok(results) = &outcome {
@@ -254,7 +255,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
         }
     }
     println!(
-        "   longest stall of an emulated MCU: {stall} ms, longest link gap: {link_gap} ms, \
+        "   longest stall of an emulated MCU (host time it did not run): {stall} ms, longest link gap: {link_gap} ms, \
          longest loop wake-up: {busy} ms, deepest stack: {stack} bytes (reserve {} bytes)",
         crate::images::STACK_RESERVE
     );
@@ -262,6 +263,7 @@ pub fn task(root: &std::path::Path) -> Result<()> {
         "   most SRDO frames one channel discarded as CAN double reception (since its last \
          reset): {discarded}"
     );
+    println!("   {pace}");
     println!("   traces and logs: {}", dir.display());
     outcome?;
     if u64::from(stack) > crate::images::STACK_RESERVE {

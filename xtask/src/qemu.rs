@@ -41,7 +41,8 @@ pub fn run_alone(image: &Path, arguments: &[&str], limit: Duration) -> Result<(i
             "none",
         ])
         .args(["-semihosting-config", &semihosting])
-        // USART1 unused, USART2 the CAN bridge, USART3 the link: nothing attached when alone.
+        // USART1 and USART3 unused, USART2 the CAN bridge (and, on a network, the link through
+        // the hub): nothing attached when alone.
         .args([
             "-serial", "null", "-serial", "null", "-serial", "null", "-kernel",
         ])

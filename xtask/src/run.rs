@@ -282,13 +282,15 @@ pub fn task(
 fn summary(network: Network, seen: &Observed, outcome: Result<()>) -> Result<()> {
     let latest = network.control.latest.clone();
     let stall = network.worst(|s| s.longest_stall_ms);
+    let pace = network.pace_summary();
     let dir = network.dir().to_path_buf();
     let faults = network.stop()?;
     println!("\n## Summary\n{}", network::table(&latest));
     for ms in &seen.latencies_ms {
         println!("emergency stop → node 33's output 0: {ms:.1} ms");
     }
-    println!("longest stall of an emulated MCU: {stall} ms");
+    println!("longest stall of an emulated MCU (host time it did not run): {stall} ms");
+    println!("{pace}");
     for (name, lines) in &faults {
         if let Some(last) = lines.last() {
             println!("{name}: {} safe-state report(s), last: {last}", lines.len());

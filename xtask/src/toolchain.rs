@@ -280,9 +280,17 @@ pub fn ensure_qemu() -> Result<()> {
         "grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/ || \
         echo 'deb http://deb.debian.org/debian bookworm-backports main' > /etc/apt/sources.list.d/backports.list",
     )?;
-    as_root("apt-get update -qq && apt-get install -y -qq -t bookworm-backports qemu-system-arm")?;
+    as_root("apt-get update -qq && apt-get install -y -qq -t bookworm-backports qemu-system-arm")
+        .context(
+        "qemu-system-arm 8 or later is missing and could not be installed from Debian's \
+             bookworm-backports (the output above says why); install QEMU 8 or later \
+             yourself, then run this again",
+    )?;
     if qemu_major().is_none_or(|major| major < 8) {
-        bail!("qemu-system-arm 8 or later is still not available");
+        bail!(
+            "qemu-system-arm 8 or later is still not available after installing it: check that \
+             `qemu-system-arm --version` runs and says 8 or later"
+        );
     }
     Ok(())
 }

@@ -16,7 +16,7 @@
 mod reference;
 
 use arbitrary::Arbitrary;
-use dual_channel::can_serial::{Decoder, Status, Wire, encode, encode_wire};
+use dual_channel::can_serial::{Decoder, LinkBytes, Status, Wire, encode, encode_wire};
 use libfuzzer_sys::fuzz_target;
 use shared::{CanFrame, CanId};
 
@@ -34,6 +34,8 @@ enum Message {
         flags: (bool, bool),
         counters: [u16; 7],
     },
+    Time(u64),
+    Link(Vec<u8>),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -63,6 +65,8 @@ fn wire(message: &Message) -> Option<Wire> {
             })
         }
         Message::Input(value) => Wire::Input(value),
+        Message::Time(micros) => Wire::Time(micros),
+        Message::Link(ref bytes) => Wire::Link(LinkBytes::new(bytes)?),
         Message::Status {
             bytes,
             flags,
@@ -101,6 +105,14 @@ fn reference_encoding(message: &Wire) -> Vec<u8> {
         Wire::Status(status) => {
             raw.extend_from_slice(&[0x02, 0x40]);
             raw.extend_from_slice(&status.to_bytes());
+        }
+        Wire::Time(micros) => {
+            raw.extend_from_slice(&[0x03, 0x40]);
+            raw.extend_from_slice(&micros.to_le_bytes());
+        }
+        Wire::Link(bytes) => {
+            raw.extend_from_slice(&[0x04, 0x40]);
+            raw.extend_from_slice(bytes.as_slice());
         }
     }
     reference::cobs(&reference::serial_raw(&raw))
