@@ -19,6 +19,8 @@ use shared::{CanFrame, CanId};
 
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;
+#[cfg(target_os = "none")]
+mod panic;
 pub mod parameter_flash;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 pub mod qemu;
