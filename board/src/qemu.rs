@@ -10,9 +10,9 @@
 //!   the core judges every timer against `now`. The host clock, not a count of ticks, because
 //!   an emulated MCU that the host does not schedule for a while loses ticks; with the host
 //!   clock every instance and the hub share one time base, and such a stall is seen for what
-//!   it is (a late message), measured ([`Status::longest_stall_ms`](dual_channel::can_serial::Status::longest_stall_ms)) and reported;
+//!   it is (a late message), measured ([`Status::longest_stall_ms`](emulation_wire::Status::longest_stall_ms)) and reported;
 //! - interrupt-driven, register-level USART2 (CAN frames over serial to the host-side bus hub,
-//!   [`dual_channel::can_serial`], which also carries the input pin's value from the hub and
+//!   [`emulation_wire`], which also carries the input pin's value from the hub and
 //!   the channel's [`Status`] to it) and USART3 (the link to the other channel);
 //! - semihosting for the run's arguments (`selftest` to stop after the start-up self-tests) and
 //!   the exit code; a panic or HardFault exits QEMU with failure, never hangs;
@@ -21,6 +21,7 @@
 //! QEMU models no GPIO: the input pin's value comes from the hub ([`Wire::Input`]; released,
 //! 1, until the hub says otherwise) and the output pin's value goes to it in the status.
 
+use crate::diagnostics::{Diagnostics, Observed};
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
@@ -28,8 +29,6 @@ use cortex_m::peripheral::NVIC;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use critical_section::Mutex;
-use dual_channel::can_serial::{self, Wire};
-use dual_channel::diagnostics::{Diagnostics, Observed};
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
@@ -37,6 +36,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embassy_time_queue_utils::Queue;
+use emulation_wire::{self as can_serial, Wire};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
 use shared::{CanFrame, Duration, Instant};
 use static_cell::ConstStaticCell;

@@ -51,6 +51,12 @@ pub enum CrossFault {
         /// The SRDO number received.
         srdo: u8,
     },
+    /// More verdicts on one SRDO waited for the other channel's than it can be behind by
+    /// ([`DEPTH`]): it lost some, or is not validating at all.
+    QueueFull {
+        /// SRDO number.
+        srdo: u8,
+    },
 }
 
 /// How many verdicts per SRDO and channel may wait for the other channel's.
@@ -131,7 +137,7 @@ impl<const N: usize> VerdictCheck<N> {
                     // More verdicts waiting than the other channel can be behind by: it lost
                     // some, or is not validating at all.
                     *slot = Slot::default();
-                    return Err(CrossFault::Unconfirmed { srdo });
+                    return Err(CrossFault::QueueFull { srdo });
                 }
                 Ok(None)
             }
@@ -240,15 +246,23 @@ mod tests {
             check.poll(Instant::from_millis(15)),
             Err(CrossFault::Unconfirmed { srdo: 1 })
         );
-        // More verdicts from one side than may wait is a fault too.
+    }
+
+    /// EN 50325-5 Annex A.4: more verdicts from one side than may wait is a fault too, and it
+    /// says so: the queue is full, no verdict has timed out yet.
+    #[test]
+    fn more_verdicts_waiting_than_the_queue_holds_is_a_full_queue() {
         let mut check = VerdictCheck::<1>::new(TIMEOUT);
+        let t = Instant::from_millis(10);
         for pair in 1..=DEPTH as u32 {
             check.local(t, 1, valid(pair, 1)).unwrap();
         }
         assert_eq!(
             check.local(t, 1, valid(DEPTH as u32 + 1, 1)),
-            Err(CrossFault::Unconfirmed { srdo: 1 })
+            Err(CrossFault::QueueFull { srdo: 1 })
         );
+        // The slot starts over: the fault is reported once, not at every later verdict.
+        assert_eq!(check.local(t, 1, valid(DEPTH as u32 + 2, 1)), Ok(None));
     }
 
     /// Found on the emulated network: an emergency stop pressed and released at once sends two

@@ -69,7 +69,9 @@ use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::storage::Flash;
 use shared::node::{Event, Node, NodeConfig, NodeError, SafeStateCause, Sink};
+use shared::safety::cause::Cause;
 use shared::safety::config::SafetyConfig;
+use shared::safety::types::SRDO_IDENTIFIERS;
 use shared::{CanFrame, Duration, Instant};
 
 /// How long after power-on the other channel's first link message may take (its self-tests
@@ -89,9 +91,8 @@ pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 pub const SAMPLE_WINDOW: Duration = Duration::from_millis(5);
 
 /// The cause code of a GFC received (EN 50325-5 7.2.1) in the link's safe-state message and
-/// the status report; the other codes are those of `SrdoFaultCause::cause_code` (1..) and
-/// [`ChannelFault::cause_code`] (10h..).
-pub const GFC_CAUSE: u8 = 0x50;
+/// the status report; every code and its name are in [`Cause`].
+pub const GFC_CAUSE: u8 = Cause::Gfc.code();
 
 /// The cause code of a safe state the core reported (the EMCY detail byte 1 it sent).
 pub fn safe_state_code(cause: &SafeStateCause) -> u8 {
@@ -206,6 +207,15 @@ pub enum ChannelFault {
     /// The two channels' input samples differed for longer than [`INPUT_DISCREPANCY`] (a
     /// stuck or broken contact on one channel).
     InputDiscrepancy,
+    /// The core handed the channel more frames or events in one call than the channel holds:
+    /// it cannot have seen (or sent) everything, a design limit exceeded, not data.
+    CoreOutputFull,
+    /// More safety inputs were sampled than the channel's input table holds: a design limit
+    /// exceeded (the device description declares more inputs than the channel tracks).
+    InputTableFull,
+    /// After NMT reset node an input sample written before could not be written back into
+    /// the core's objects: the core is not what it was.
+    InputRestoreFailed,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -214,25 +224,35 @@ pub enum ChannelFault {
 }
 
 impl ChannelFault {
-    /// The cause code sent to the other channel and in EMCY FF02h (byte 1).
-    pub const fn cause_code(self) -> u8 {
+    /// This fault's cause code and name ([`Cause`]).
+    pub const fn cause(self) -> Cause {
         match self {
-            ChannelFault::Link(LinkFault::Corrupt) => 0x10,
-            ChannelFault::Link(LinkFault::Malformed) => 0x11,
-            ChannelFault::Link(LinkFault::Missing { .. }) => 0x12,
-            ChannelFault::Link(LinkFault::Repeated { .. }) => 0x13,
-            ChannelFault::Link(LinkFault::Timeout) => 0x14,
-            ChannelFault::Cross(CrossFault::Disagreement { .. }) => 0x20,
-            ChannelFault::Cross(CrossFault::Unconfirmed { .. }) => 0x21,
-            ChannelFault::Cross(CrossFault::UnknownSrdo { .. }) => 0x22,
-            ChannelFault::TransmitMismatch { .. } => 0x30,
-            ChannelFault::ConfigurationMismatch => 0x31,
-            ChannelFault::NmtMismatch => 0x32,
-            ChannelFault::InputDiscrepancy => 0x33,
-            ChannelFault::ForeignFrame { .. } => 0x34,
-            ChannelFault::InvertedMismatch { .. } => 0x35,
-            ChannelFault::PeerSafeState { .. } => 0x40,
+            ChannelFault::Link(LinkFault::Corrupt) => Cause::LinkCorrupt,
+            ChannelFault::Link(LinkFault::Malformed) => Cause::LinkMalformed,
+            ChannelFault::Link(LinkFault::Missing { .. }) => Cause::LinkMissing,
+            ChannelFault::Link(LinkFault::Repeated { .. }) => Cause::LinkRepeated,
+            ChannelFault::Link(LinkFault::Timeout) => Cause::LinkTimeout,
+            ChannelFault::Cross(CrossFault::Disagreement { .. }) => Cause::VerdictsDisagree,
+            ChannelFault::Cross(CrossFault::Unconfirmed { .. }) => Cause::VerdictUnconfirmed,
+            ChannelFault::Cross(CrossFault::UnknownSrdo { .. }) => Cause::VerdictForUnknownSrdo,
+            ChannelFault::Cross(CrossFault::QueueFull { .. }) => Cause::VerdictQueueFull,
+            ChannelFault::TransmitMismatch { .. } => Cause::TransmitMismatch,
+            ChannelFault::ConfigurationMismatch => Cause::ConfigurationMismatch,
+            ChannelFault::NmtMismatch => Cause::NmtMismatch,
+            ChannelFault::InputDiscrepancy => Cause::InputDiscrepancy,
+            ChannelFault::ForeignFrame { .. } => Cause::ForeignFrame,
+            ChannelFault::InvertedMismatch { .. } => Cause::InvertedMismatch,
+            ChannelFault::CoreOutputFull => Cause::CoreOutputFull,
+            ChannelFault::InputTableFull => Cause::InputTableFull,
+            ChannelFault::InputRestoreFailed => Cause::InputRestoreFailed,
+            ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
         }
+    }
+
+    /// The cause code sent to the other channel and in EMCY FF02h (byte 1): the code of
+    /// [`ChannelFault::cause`].
+    pub const fn cause_code(self) -> u8 {
+        self.cause().code()
     }
 }
 
@@ -506,7 +526,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             None => {
                 if self.inputs.push(sample).is_err() {
                     // More inputs than the cross-check tracks: a design error, not data.
-                    self.latch(ChannelFault::InputDiscrepancy, io);
+                    self.latch(ChannelFault::InputTableFull, io);
                 }
             }
         }
@@ -794,7 +814,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             }
         }
         if collect.overflow {
-            self.latch(ChannelFault::Cross(CrossFault::Unconfirmed { srdo: 0 }), io);
+            self.latch(ChannelFault::CoreOutputFull, io);
         }
         if nmt_changed {
             // The other channel learns a new NMT state at once, not at the next heartbeat:
@@ -977,7 +997,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             .iter()
             .any(|sample| Self::write_input(&mut self.node, sample).is_err());
         if failed {
-            self.latch(ChannelFault::InputDiscrepancy, io);
+            self.latch(ChannelFault::InputRestoreFailed, io);
         }
     }
 
@@ -1162,9 +1182,9 @@ impl<const C: usize> FrameSlots<C> {
     }
 }
 
-/// `true` for identifiers in the SRDO range 0x101..=0x180.
-fn is_srdo(frame: &CanFrame) -> bool {
-    (0x101..=0x180).contains(&frame.id().raw())
+/// `true` for identifiers in the SRDO range ([`SRDO_IDENTIFIERS`]).
+pub fn is_srdo(frame: &CanFrame) -> bool {
+    SRDO_IDENTIFIERS.contains(&frame.id().raw())
 }
 
 /// CRC-32 over signatures, as [`Role::signature_digest`] folds them for the link: each

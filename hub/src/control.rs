@@ -21,7 +21,7 @@
 //!          stack=5400 discarded=0
 //! ```
 
-use dual_channel::can_serial::Status;
+use emulation_wire::Status;
 use std::fmt;
 use std::io::BufRead;
 

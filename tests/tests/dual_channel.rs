@@ -459,12 +459,12 @@ fn a_link_message_from_before_an_nmt_reset_is_ignored_after_it() {
     assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
 }
 
-/// The board's status report (`dual_channel::diagnostics`): at once when what a watcher acts
+/// The board's status report (`board::diagnostics`): at once when what a watcher acts
 /// on changes, otherwise every period; counters and the cause of the last safe state follow
 /// what the channel did.
 #[test]
 fn the_status_report_goes_out_on_change_and_every_period() {
-    use dual_channel::diagnostics::{Diagnostics, PERIOD};
+    use board::diagnostics::{Diagnostics, PERIOD};
     use shared::safety::srdo::SrdoFault;
     let net = running();
     let a = &net.node(33).a;

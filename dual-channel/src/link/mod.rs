@@ -22,7 +22,7 @@
 //! the safety function). The receiver resynchronises afterwards so that the channels can agree
 //! again after an NMT reset.
 
-use crate::cobs_frames::{Completed, Reassembler};
+use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};
 use serde::{Deserialize, Serialize};
 use shared::{Duration, Instant};

@@ -74,10 +74,14 @@ impl Direction {
     }
 }
 
+/// The SRDO identifiers: 101h..=180h, COB-ID 1 odd, COB-ID 2 even (EN 50325-5 Table 5;
+/// CiA 304 8.4.2.2, sub-indices 5h and 6h). The one statement of the range: the node's
+/// identifier table, the channels' SRDO frame filters and their counters all use it.
+pub const SRDO_IDENTIFIERS: core::ops::RangeInclusive<u16> = 0x101..=0x180;
 /// Lowest COB-ID 1 of the SRDO range (EN 50325-5 Table 5: 257).
-pub const FIRST_COB_ID_MIN: u32 = 0x101;
-/// Highest COB-ID 1 of the SRDO range (EN 50325-5 Table 5: 383).
-pub const FIRST_COB_ID_MAX: u32 = 0x17F;
+pub const FIRST_COB_ID_MIN: u32 = *SRDO_IDENTIFIERS.start() as u32;
+/// Highest COB-ID 1 of the SRDO range (EN 50325-5 Table 5: 383): the last odd identifier.
+pub const FIRST_COB_ID_MAX: u32 = *SRDO_IDENTIFIERS.end() as u32 - 1;
 
 /// The two identifiers of one SRDO: COB-ID 1 (plain data) is odd in `0x101..=0x17F`, COB-ID 2
 /// (inverted data) is the even identifier right after it (EN 50325-5 6.4.1.3, 7.1.1).

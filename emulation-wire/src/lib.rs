@@ -1,4 +1,5 @@
-//! CAN frames over a serial line, for the emulated network: QEMU models no CAN controller, so
+//! CAN frames over a serial line, for the emulated network (the emulation's own wire format: the
+//! safety runtime does not depend on it, and the hub depends on nothing else of the node): QEMU models no CAN controller, so
 //! the QEMU board layer sends and receives CAN frames on USART2, and a host-side bus hub puts
 //! them on the simulated bus.
 //!
@@ -14,7 +15,10 @@
 //!   word = 0x4002:        Status, body = Status::LEN bytes (see Status::to_bytes)
 //! ```
 
-use crate::cobs_frames::{Completed, Reassembler};
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_16_XMODEM, Crc};
 use shared::{CanFrame, CanId};
 
@@ -50,8 +54,8 @@ pub struct Status {
     pub output: u8,
     /// The channel's safety input as it last sampled it.
     pub input: u8,
-    /// The cause code of the last safe state latched (0: none since power-on or reset; the
-    /// codes of `SrdoFaultCause::cause_code` and `ChannelFault::cause_code`, 0x50 for GFC).
+    /// The cause code of the last safe state latched (0: none since power-on or reset; every
+    /// code and its name are in `shared::safety::cause::Cause`, see [`Status::latched_cause`]).
     pub cause: u8,
     /// SRDO frames this channel sent.
     pub sent: u16,
@@ -75,6 +79,17 @@ pub struct Status {
 }
 
 impl Status {
+    /// The NMT state [`Status::nmt`] names, `None` for a byte that is no heartbeat state code.
+    pub const fn nmt_state(&self) -> Option<shared::canopen::nmt::NmtState> {
+        shared::canopen::nmt::NmtState::from_heartbeat_code(self.nmt)
+    }
+
+    /// The cause [`Status::cause`] names, `None` for a byte that is no cause code (an
+    /// application's own detail byte).
+    pub fn latched_cause(&self) -> Option<shared::safety::cause::Cause> {
+        shared::safety::cause::Cause::from_code(self.cause)
+    }
+
     /// Bytes of an encoded status.
     pub const LEN: usize = 20;
 

@@ -7,8 +7,8 @@
 //! cause), and otherwise every [`PERIOD`], so counters stay fresh and a silent channel is
 //! noticed.
 
-use crate::can_serial::Status;
-use crate::runtime::{ChannelEvent, Io, Role, Runtime, safe_state_code};
+use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime, is_srdo, safe_state_code};
+use emulation_wire::Status;
 use shared::canopen::storage::Flash;
 use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
@@ -17,10 +17,7 @@ use shared::{CanFrame, Duration, Instant};
 pub const PERIOD: Duration = Duration::from_millis(250);
 
 /// The cause code reported for a received GFC (EN 50325-5 7.2.1).
-pub use crate::runtime::GFC_CAUSE;
-
-/// The SRDO identifier range (CiA 304 Table 3: 101h..180h), for counting SRDO frames sent.
-const SRDO_IDS: core::ops::RangeInclusive<u16> = 0x101..=0x180;
+pub use dual_channel::runtime::GFC_CAUSE;
 
 /// A channel's diagnostics.
 #[derive(Clone, Debug)]
@@ -64,7 +61,7 @@ impl Diagnostics {
 
     /// The channel sent `frame`.
     pub fn transmitted(&mut self, frame: &CanFrame) {
-        if SRDO_IDS.contains(&frame.id().raw()) {
+        if is_srdo(frame) {
             self.status.sent = self.status.sent.wrapping_add(1);
         }
     }
