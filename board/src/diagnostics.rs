@@ -11,6 +11,7 @@ use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime, is_srdo, safe_state
 use emulation_wire::Status;
 use shared::canopen::storage::Flash;
 use shared::node::Event;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 
 /// The longest time between two reports.
@@ -123,7 +124,7 @@ impl Diagnostics {
         self.status.working = runtime.is_working();
         self.status.link_up = runtime.link_up();
         // The output pin is the lowest byte of receive SRDO 1 (the demo device's relay).
-        self.status.output = runtime.output(1) as u8;
+        self.status.output = runtime.output(SrdoNumber::FIRST) as u8;
         let discarded = runtime.node().double_reception();
         self.status.discarded = u16::try_from(
             discarded
@@ -178,7 +179,7 @@ impl<I: Io> Io for Observed<'_, I> {
     fn link(&mut self, bytes: &[u8]) {
         self.io.link(bytes);
     }
-    fn output(&mut self, srdo: u8, data: u64) {
+    fn output(&mut self, srdo: SrdoNumber, data: u64) {
         self.io.output(srdo, data);
     }
     fn event(&mut self, event: ChannelEvent) {

@@ -32,6 +32,7 @@ use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::StorageError;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::StaticCell;
 
@@ -214,7 +215,7 @@ impl Io for BoardIo<'_, '_> {
         }
     }
 
-    fn output(&mut self, _srdo: u8, data: u64) {
+    fn output(&mut self, _srdo: SrdoNumber, data: u64) {
         // One relay per channel: energised only for a non-zero confirmed value.
         self.output
             .set_level(if data != 0 { Level::High } else { Level::Low });

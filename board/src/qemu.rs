@@ -38,6 +38,7 @@ use embassy_time::Timer;
 use embassy_time_queue_utils::Queue;
 use emulation_wire::{self as can_serial, Wire};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::ConstStaticCell;
 use stm32_metapac::{Interrupt, RCC, USART2, USART3, interrupt};
@@ -212,8 +213,8 @@ impl Io for QemuIo {
     fn link(&mut self, bytes: &[u8]) {
         usart_write(USART3, bytes);
     }
-    fn output(&mut self, srdo: u8, data: u64) {
-        defmt::info!("output of SRDO {=u8} = {=u64}", srdo, data);
+    fn output(&mut self, srdo: SrdoNumber, data: u64) {
+        defmt::info!("output of SRDO {=u8} = {=u64}", srdo.get(), data);
     }
     fn event(&mut self, event: ChannelEvent) {
         defmt::info!("{}", event);

@@ -71,7 +71,7 @@ use shared::canopen::storage::Flash;
 use shared::node::{Event, Node, NodeConfig, NodeError, SafeStateCause, Sink};
 use shared::safety::cause::Cause;
 use shared::safety::config::SafetyConfig;
-use shared::safety::types::SRDO_IDENTIFIERS;
+use shared::safety::types::{SRDO_IDENTIFIERS, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
 
 /// How long after power-on the other channel's first link message may take (its self-tests
@@ -185,13 +185,13 @@ pub enum ChannelFault {
     /// incomplete for a refresh time.
     TransmitMismatch {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
     },
     /// The inverted frame on the bus is not the exact inverse of channel A's plain frame
     /// (CiA 304 9.5, EN 50325-5 7.1.1): found by channel A.
     InvertedMismatch {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
     },
     /// A frame on one of the node's transmit SRDO identifiers that the node did not send
     /// (inserted, replayed, a second sender, or a plain frame that differs from what channel
@@ -267,7 +267,7 @@ pub enum ChannelEvent {
     /// Both channels confirmed this data for a receive SRDO.
     Confirmed {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
         /// The data.
         data: u64,
     },
@@ -280,7 +280,7 @@ pub trait Io {
     /// Writes `bytes` to the link.
     fn link(&mut self, bytes: &[u8]);
     /// Drives the physical output(s) behind receive SRDO `srdo` to `data` (0: safe state).
-    fn output(&mut self, srdo: u8, data: u64);
+    fn output(&mut self, srdo: SrdoNumber, data: u64);
     /// Reports an event (log, diagnostics).
     fn event(&mut self, event: ChannelEvent);
 }
@@ -436,13 +436,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         self.fault
     }
 
-    /// The value the channel drives on the output(s) of receive SRDO `srdo` (1-based).
-    pub fn output(&self, srdo: u8) -> u64 {
-        usize::from(srdo)
-            .checked_sub(1)
-            .and_then(|index| self.outputs.get(index))
-            .copied()
-            .unwrap_or(0)
+    /// The value the channel drives on the output(s) of receive SRDO `srdo`.
+    pub fn output(&self, srdo: SrdoNumber) -> u64 {
+        self.outputs.get(srdo.index()).copied().unwrap_or(0)
     }
 
     /// `true` while neither the core nor the channel is in its safe state.
@@ -623,6 +619,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             Err(fault) => {
                 if self.fault.is_none() {
                     if let ChannelFault::TransmitMismatch { srdo } = fault {
+                        let srdo = srdo.get();
                         self.send(&Message::TransmitMismatch { srdo }, io);
                     }
                     self.latch(fault, io);
@@ -772,7 +769,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             io.event(ChannelEvent::Node(event));
             nmt_changed |= matches!(event, Event::NmtState(_));
             match event {
-                Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
+                Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo, data, io),
                 Event::NmtState(NmtState::Initialising) => {
                     self.epoch = self.epoch.wrapping_add(1);
                     self.role.reset();
@@ -847,10 +844,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
-    fn local_pair(&mut self, now: Instant, srdo: u8, data: u64, io: &mut impl Io) {
-        let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) else {
+    fn local_pair(&mut self, now: Instant, srdo: SrdoNumber, data: u64, io: &mut impl Io) {
+        let index = srdo.index();
+        if index >= N {
             return;
-        };
+        }
         self.pairs[index] = self.pairs[index].wrapping_add(1);
         let verdict = Verdict {
             pair: self.pairs[index],
@@ -859,7 +857,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         };
         self.send(
             &Message::Verdict {
-                srdo,
+                srdo: srdo.get(),
                 pair: verdict.pair,
                 data,
                 valid: true,
@@ -868,7 +866,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         );
         // Towards the safe state at once: any bit this pair clears is cleared now.
         let safer = self.outputs[index] & data;
-        self.drive(index, safer, io);
+        self.drive(srdo, safer, io);
         match self.verdicts.local(now, srdo, verdict) {
             Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
             Ok(None) => {}
@@ -924,13 +922,25 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 }
                 let verdict = Verdict { pair, valid, data };
                 match self.verdicts.remote(now, srdo, verdict) {
-                    Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
+                    // A confirmed verdict names one of the check's SRDOs, so it has a number.
+                    Ok(Some(confirmed)) => match SrdoNumber::new(srdo) {
+                        Some(srdo) => self.confirmed(srdo, confirmed, io),
+                        None => {
+                            self.latch(ChannelFault::Cross(CrossFault::UnknownSrdo { srdo }), io)
+                        }
+                    },
                     Ok(None) => {}
                     Err(fault) => self.latch(ChannelFault::Cross(fault), io),
                 }
             }
             Message::TransmitMismatch { srdo } => {
-                self.latch(ChannelFault::TransmitMismatch { srdo }, io);
+                // The other channel reports a mismatch either way: the safe state. A number
+                // that is no SRDO makes the message no message of the set.
+                let fault = SrdoNumber::new(srdo)
+                    .map_or(ChannelFault::Link(LinkFault::Malformed), |srdo| {
+                        ChannelFault::TransmitMismatch { srdo }
+                    });
+                self.latch(fault, io);
             }
             Message::PlainFrame { id, len, data } => {
                 let bytes = data.to_le_bytes();
@@ -1039,7 +1049,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     /// it is the newest pair this channel accepted and the newest the other channel reported;
     /// an older one (its verdict crossed the link while a newer pair arrived) may only lower
     /// the output (SC_REQ_05: a stale confirmation never switches an output back on).
-    fn confirmed(&mut self, srdo: u8, verdict: Verdict, io: &mut impl Io) {
+    fn confirmed(&mut self, srdo: SrdoNumber, verdict: Verdict, io: &mut impl Io) {
         let data = verdict.data;
         io.event(ChannelEvent::Confirmed { srdo, data });
         if !self.configuration_confirmed {
@@ -1047,9 +1057,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             // configuration that produced it: the output stays where it is.
             return;
         }
-        let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) else {
+        let index = srdo.index();
+        if index >= N {
             return;
-        };
+        }
         let newest = self.pairs.get(index) == Some(&verdict.pair)
             && self.peer_pairs.get(index) == Some(&verdict.pair);
         let value = if newest {
@@ -1057,23 +1068,30 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         } else {
             self.outputs[index] & data
         };
-        self.drive(index, value, io);
+        self.drive(srdo, value, io);
     }
 
-    fn drive(&mut self, index: usize, data: u64, io: &mut impl Io) {
+    /// Drives receive SRDO `srdo`'s output(s) to `data` (0 outside the working state). The
+    /// callers checked that `srdo` is one of the node's (`srdo.index() < N`).
+    fn drive(&mut self, srdo: SrdoNumber, data: u64, io: &mut impl Io) {
         let value = if self.is_working() { data } else { 0 };
-        if self.outputs[index] != value {
-            self.outputs[index] = value;
-            // `index` < N <= 64.
-            io.output((index + 1) as u8, value);
+        let Some(output) = self.outputs.get_mut(srdo.index()) else {
+            return;
+        };
+        if *output != value {
+            *output = value;
+            io.output(srdo, value);
         }
     }
 
     fn clear_outputs(&mut self, io: &mut impl Io) {
-        for index in 0..N {
-            if self.outputs[index] != 0 {
-                self.outputs[index] = 0;
-                io.output((index + 1) as u8, 0);
+        // N <= 64 (the core refuses more), so every slot has a number.
+        for (index, output) in self.outputs.iter_mut().enumerate() {
+            if *output != 0 {
+                *output = 0;
+                if let Some(srdo) = SrdoNumber::of_slot(index) {
+                    io.output(srdo, 0);
+                }
             }
         }
     }

@@ -38,6 +38,17 @@ pub enum SerialError {
     Malformed,
 }
 
+/// The variant's doc comment.
+impl core::fmt::Display for SerialError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SerialError::Malformed => {
+                f.write_str("bad COBS, bad length, bad CRC, or an identifier or DLC out of range")
+            }
+        }
+    }
+}
+
 /// What one channel tells the hub about itself (the emulated board's diagnostics and output
 /// pin). Counters wrap.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -259,6 +270,14 @@ fn parse_frame(word: u16, body: &[u8]) -> Result<CanFrame, SerialError> {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn a_serial_error_reads_as_its_doc_comment() {
+        assert_eq!(
+            SerialError::Malformed.to_string(),
+            "bad COBS, bad length, bad CRC, or an identifier or DLC out of range"
+        );
+    }
 
     proptest! {
         #[test]

@@ -527,7 +527,7 @@ fn run(
             hosts.tell_controls(&status_line(&name, seconds(at), &status));
         }
         for (id, error) in hub.malformed.drain(..) {
-            eprintln!("can-hub: participant {id}: {error:?}");
+            eprintln!("can-hub: participant {id}: a message refused: {error}");
         }
     }
 }

@@ -253,7 +253,7 @@ impl Network {
             }
             Ok(())
         };
-        configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
+        configure(tool).map_err(|error| anyhow!("configuration refused: {error}"))?;
         // An NMT start right after the store reached the two channels of a node up to 177 ms
         // apart in some runs, which their NMT cross-check rightly calls a fault. The channels'
         // loops were not the cause (their longest wake-up is reported: up to 18 ms); the

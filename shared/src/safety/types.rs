@@ -13,6 +13,9 @@ use super::config::ConfigError;
 pub struct SrdoNumber(u8);
 
 impl SrdoNumber {
+    /// SRDO 1.
+    pub const FIRST: SrdoNumber = SrdoNumber(1);
+
     /// SRDO `number`, if it is in `1..=64`.
     pub const fn new(number: u8) -> Option<Self> {
         if number >= 1 && number as usize <= MAX_SRDOS {
@@ -26,6 +29,16 @@ impl SrdoNumber {
     pub(crate) const fn from_index(index: usize) -> Self {
         // Callers iterate over at most MAX_SRDOS slots, so `index + 1 <= 64` fits in a u8.
         SrdoNumber((index as u8).wrapping_add(1))
+    }
+
+    /// The SRDO whose zero-based slot is `index`, if it is in `0..64`.
+    pub const fn of_slot(index: usize) -> Option<Self> {
+        if index < MAX_SRDOS {
+            // `index + 1 <= 64` fits in a u8.
+            Some(SrdoNumber(index as u8 + 1))
+        } else {
+            None
+        }
     }
 
     /// The number, `1..=64`.
