@@ -65,6 +65,7 @@
 
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
 use crate::link::{LinkFault, Message, Receiver, Sender};
+use crate::supervision::{ConfigurationCheck, InputCheck, NmtCheck};
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::storage::Flash;
@@ -340,26 +341,20 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     verdicts: VerdictCheck<N>,
     link_period: Duration,
     next_heartbeat: Instant,
-    /// The other channel's NMT state from its last heartbeat (none yet: nothing to compare).
-    peer_nmt: Option<u8>,
-    /// NMT resets since power-on (modulo 256), this channel's and the other's as its last
-    /// heartbeat said: messages sent in another epoch than ours are ignored.
-    epoch: u8,
-    peer_epoch: Option<u8>,
-    nmt_differs_since: Option<Instant>,
+    /// The NMT cross-check, with this channel's epoch (NMT resets since power-on) and the
+    /// other's: messages sent in another epoch than ours are ignored.
+    nmt: NmtCheck,
     fault: Option<ChannelFault>,
     /// The other channel has been heard: the core may boot.
     link_up: bool,
     /// This channel's inputs as last sampled, folded into [`Message::Inputs`] and written
     /// back to the core after an NMT reset.
     inputs: heapless::Vec<InputSample, 8>,
-    /// The other channel's last input digest.
-    peer_inputs: Option<u32>,
-    /// Since when the two input digests differ.
-    inputs_differ_since: Option<Instant>,
-    /// In this Operational period the other channel's configuration digest matched ours: only
-    /// then may an output leave the safe state.
-    configuration_confirmed: bool,
+    /// The input cross-check against the other channel's digest.
+    input_check: InputCheck,
+    /// The configuration cross-check: only once the other channel's configuration digest
+    /// matched ours in this Operational period may an output leave the safe state.
+    configuration: ConfigurationCheck,
     outputs: [u64; N],
     /// Valid pairs per receive SRDO this channel's core accepted in this Operational period.
     pairs: [u32; N],
@@ -395,16 +390,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             verdicts: VerdictCheck::new(timeout),
             link_period,
             next_heartbeat: now,
-            peer_nmt: None,
-            epoch: 0,
-            peer_epoch: None,
-            nmt_differs_since: None,
+            nmt: NmtCheck::new(timeout),
             fault: None,
             link_up: false,
             inputs: heapless::Vec::new(),
-            peer_inputs: None,
-            inputs_differ_since: None,
-            configuration_confirmed: false,
+            input_check: InputCheck::new(INPUT_DISCREPANCY),
+            configuration: ConfigurationCheck::new(),
             outputs: [0; N],
             pairs: [0; N],
             peer_pairs: [0; N],
@@ -564,17 +555,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if let Err(fault) = self.verdicts.poll(now) {
             self.latch(ChannelFault::Cross(fault), io);
         }
-        if self
-            .nmt_differs_since
-            .is_some_and(|since| shared::time::expired(since + self.grace(), now))
-        {
-            self.latch(ChannelFault::NmtMismatch, io);
+        if let Err(fault) = self.nmt.poll(now) {
+            self.latch(fault, io);
         }
-        if self
-            .inputs_differ_since
-            .is_some_and(|since| shared::time::expired(since + INPUT_DISCREPANCY, now))
-        {
-            self.latch(ChannelFault::InputDiscrepancy, io);
+        if let Err(fault) = self.input_check.poll(now) {
+            self.latch(fault, io);
         }
         if shared::time::expired(self.next_heartbeat, now) {
             self.heartbeat(io);
@@ -586,10 +571,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.role.deadline(),
             self.receiver.deadline(),
             self.verdicts.deadline(),
-            self.nmt_differs_since
-                .map_or(Instant::NEVER, |since| since + self.grace()),
-            self.inputs_differ_since
-                .map_or(Instant::NEVER, |since| since + INPUT_DISCREPANCY),
+            self.nmt.deadline(),
+            self.input_check.deadline(),
             self.waiting_deadline(),
         ];
         supervision
@@ -670,7 +653,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let id = frame.id();
         let changed = self.handed_on.get(id).is_none_or(|last| *last != frame);
         let samples_differ = self
-            .inputs_differ_since
+            .input_check
+            .differ_since()
             .is_some_and(|since| !shared::time::expired(since + SAMPLE_WINDOW, now));
         if changed && samples_differ {
             // One entry per transmit SRDO, and `N` is the SRDO count: it fits.
@@ -700,7 +684,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     /// Until when the waiting frames wait ([`Instant::ZERO`]: not at all any more).
     fn waiting_deadline(&self) -> Instant {
-        match (self.waiting.is_empty(), self.inputs_differ_since) {
+        match (self.waiting.is_empty(), self.input_check.differ_since()) {
             (true, _) => Instant::NEVER,
             (false, Some(since)) => since + SAMPLE_WINDOW,
             (false, None) => Instant::ZERO,
@@ -720,10 +704,6 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
-    fn grace(&self) -> Duration {
-        Duration::from_micros(2 * self.link_period.as_micros())
-    }
-
     fn heartbeat(&mut self, io: &mut impl Io) {
         let nmt = self.node.nmt_state().heartbeat_code();
         let config = self.node.safety_config();
@@ -735,7 +715,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let heartbeat = Message::Heartbeat {
             nmt,
             working: self.is_working(),
-            epoch: self.epoch,
+            epoch: self.nmt.epoch(),
         };
         let inputs = Message::Inputs {
             sample: self.input_digest(),
@@ -771,16 +751,14 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             match event {
                 Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo, data, io),
                 Event::NmtState(NmtState::Initialising) => {
-                    self.epoch = self.epoch.wrapping_add(1);
+                    self.nmt.reset();
                     self.role.reset();
                     self.waiting.clear();
                     self.handed_on.clear();
                     // A difference seen before the reset must last its full time after it to
                     // count again: the reset clears the latch, and the other channel's news
                     // (its new input digest, say) may be on the link behind the reset.
-                    if self.inputs_differ_since.is_some() {
-                        self.inputs_differ_since = Some(now);
-                    }
+                    self.input_check.restart(now);
                     self.follow_core(io);
                 }
                 Event::NmtState(NmtState::PreOperational) => {
@@ -820,7 +798,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.heartbeat(io);
             self.next_heartbeat = now + self.link_period;
         }
-        self.check_nmt(now);
+        let own = self.node.nmt_state();
+        self.nmt.compare(now, own);
     }
 
     /// The core left the working state (a fault of its own, or NMT): outputs 0.
@@ -832,7 +811,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.verdicts.reset();
             self.pairs = [0; N];
             self.peer_pairs = [0; N];
-            self.configuration_confirmed = false;
+            self.configuration.reset();
         }
         if matches!(
             self.node.nmt_state(),
@@ -883,9 +862,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             defmt::debug!("link: {}", message);
         }
         if let Message::Heartbeat { nmt, epoch, .. } = message {
-            self.peer_nmt = Some(nmt);
-            self.peer_epoch = Some(epoch);
-            self.check_nmt(now);
+            self.nmt.peer(now, nmt, epoch, self.node.nmt_state());
             return;
         }
         // An announcement of a plain frame counts whatever the epochs: it says what channel A
@@ -895,17 +872,17 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         // frame look foreign to B. A replay of an announced frame by another device is still
         // caught by A, which never receives its own frames.
         let announcement = matches!(message, Message::PlainFrame { .. });
-        if !announcement && self.peer_epoch.is_some_and(|epoch| epoch != self.epoch) {
+        if !announcement && !self.nmt.same_epoch() {
             // Sent before a reset that one of us has been through and the other not yet (the
             // link may lag the bus): not about the present. Epochs that stay apart are an NMT
-            // mismatch (`check_nmt`).
+            // mismatch ([`NmtCheck`]).
             return;
         }
         match message {
             Message::Heartbeat { .. } => {}
             Message::Inputs { sample } => {
-                self.peer_inputs = Some(sample);
-                self.compare_inputs(now);
+                let own = self.input_digest();
+                self.input_check.peer(now, sample, own);
                 self.release_waiting(now, io);
             }
             Message::Verdict {
@@ -962,16 +939,16 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 valid,
                 signatures,
             } => {
-                let operational = NmtState::Operational.heartbeat_code();
                 let own = self.node.safety_config();
                 let differs = valid != own.configuration_valid
                     || signatures != self.role.signature_digest(own);
-                if nmt == operational && self.node.nmt_state() == NmtState::Operational {
-                    if differs {
-                        self.latch(ChannelFault::ConfigurationMismatch, io);
-                    } else {
-                        self.configuration_confirmed = true;
-                    }
+                let checked = self.configuration.peer(
+                    nmt == NmtState::Operational.heartbeat_code(),
+                    self.node.nmt_state() == NmtState::Operational,
+                    differs,
+                );
+                if let Err(fault) = checked {
+                    self.latch(fault, io);
                 }
             }
             Message::SafeState { cause } => {
@@ -1023,26 +1000,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         digest.finalize()
     }
 
-    /// Starts or stops the input discrepancy timer.
+    /// Starts or stops the input discrepancy timer against this channel's digest now.
     fn compare_inputs(&mut self, now: Instant) {
-        let differ = self
-            .peer_inputs
-            .is_some_and(|peer| peer != self.input_digest());
-        match (differ, self.inputs_differ_since) {
-            (true, None) => self.inputs_differ_since = Some(now),
-            (false, _) => self.inputs_differ_since = None,
-            (true, Some(_)) => {}
-        }
-    }
-
-    fn check_nmt(&mut self, now: Instant) {
-        let own = self.node.nmt_state().heartbeat_code();
-        let same_epoch = self.peer_epoch.is_none_or(|epoch| epoch == self.epoch);
-        if same_epoch && self.peer_nmt.is_none_or(|peer| peer == own) {
-            self.nmt_differs_since = None;
-        } else if self.nmt_differs_since.is_none() {
-            self.nmt_differs_since = Some(now);
-        }
+        let own = self.input_digest();
+        self.input_check.compare(now, own);
     }
 
     /// Both channels confirmed `verdict` on receive SRDO `srdo`. It drives the output only if
@@ -1052,7 +1013,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     fn confirmed(&mut self, srdo: SrdoNumber, verdict: Verdict, io: &mut impl Io) {
         let data = verdict.data;
         io.event(ChannelEvent::Confirmed { srdo, data });
-        if !self.configuration_confirmed {
+        if !self.configuration.confirmed() {
             // Both channels agree on the data, but not yet (in Operational) on the
             // configuration that produced it: the output stays where it is.
             return;
