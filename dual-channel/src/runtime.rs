@@ -394,7 +394,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             fault: None,
             link_up: false,
             inputs: heapless::Vec::new(),
-            input_check: InputCheck::new(INPUT_DISCREPANCY),
+            input_check: InputCheck::new(),
             configuration: ConfigurationCheck::new(),
             outputs: [0; N],
             pairs: [0; N],

@@ -4,7 +4,7 @@
 //! Annex A.4, Model III: each channel checks the other).
 //!
 //! - [`InputCheck`]: the two channels' input samples agree, or differ for less than
-//!   [`INPUT_DISCREPANCY`](crate::runtime::INPUT_DISCREPANCY);
+//!   [`INPUT_DISCREPANCY`];
 //! - [`NmtCheck`]: the two channels are in the same NMT state and the same epoch (NMT resets
 //!   since power-on), or differ for less than their grace time;
 //! - [`ConfigurationCheck`]: in Operational both channels hold the same configuration
@@ -14,15 +14,15 @@
 //! Each check's deadline is at the instant its fault is due; a poll at the deadline itself
 //! reports it, as every timer of the core does.
 
-use crate::runtime::ChannelFault;
+use crate::runtime::{ChannelFault, INPUT_DISCREPANCY};
 use shared::canopen::nmt::NmtState;
 use shared::time::expired;
 use shared::{Duration, Instant};
 
-/// The input cross-check: this channel's input digest against the other's.
-#[derive(Clone, Copy, Debug)]
+/// The input cross-check: this channel's input digest against the other's, a fault when they
+/// differ for [`INPUT_DISCREPANCY`].
+#[derive(Clone, Copy, Debug, Default)]
 pub struct InputCheck {
-    limit: Duration,
     /// The other channel's last input digest.
     peer: Option<u32>,
     /// Since when the two digests differ.
@@ -30,10 +30,9 @@ pub struct InputCheck {
 }
 
 impl InputCheck {
-    /// A check that reports a difference lasting `limit`.
-    pub const fn new(limit: Duration) -> Self {
+    /// Nothing compared yet.
+    pub const fn new() -> Self {
         InputCheck {
-            limit,
             peer: None,
             differ_since: None,
         }
@@ -70,10 +69,13 @@ impl InputCheck {
         self.differ_since
     }
 
-    /// [`ChannelFault::InputDiscrepancy`] once the samples have differed for the limit.
+    /// [`ChannelFault::InputDiscrepancy`] once the samples have differed for
+    /// [`INPUT_DISCREPANCY`].
     pub fn poll(&self, now: Instant) -> Result<(), ChannelFault> {
         match self.differ_since {
-            Some(since) if expired(since + self.limit, now) => Err(ChannelFault::InputDiscrepancy),
+            Some(since) if expired(since + INPUT_DISCREPANCY, now) => {
+                Err(ChannelFault::InputDiscrepancy)
+            }
             _ => Ok(()),
         }
     }
@@ -82,7 +84,7 @@ impl InputCheck {
     #[must_use]
     pub fn deadline(&self) -> Instant {
         self.differ_since
-            .map_or(Instant::NEVER, |since| since + self.limit)
+            .map_or(Instant::NEVER, |since| since + INPUT_DISCREPANCY)
     }
 }
 
@@ -211,19 +213,20 @@ impl ConfigurationCheck {
 mod tests {
     use super::*;
 
-    const LIMIT: Duration = Duration::from_millis(200);
+    const LIMIT: Duration = INPUT_DISCREPANCY;
 
     /// EN 50325-5 Annex A.4: samples that differ for the limit are a fault, at the deadline
     /// itself; agreement before it stops the timer.
     #[test]
     fn differing_input_samples_are_a_fault_at_the_limit_and_agreement_stops_the_timer() {
-        let mut check = InputCheck::new(LIMIT);
+        let mut check = InputCheck::new();
         let t = Instant::from_millis(10);
         check.compare(t, 1);
         assert_eq!(check.deadline(), Instant::NEVER, "no peer digest yet");
         check.peer(t, 2, 1);
         assert_eq!(check.deadline(), t + LIMIT);
-        assert_eq!(check.poll(Instant::from_micros(209_999)), Ok(()));
+        let just_before = Instant::from_micros((t + LIMIT).as_micros() - 1);
+        assert_eq!(check.poll(just_before), Ok(()));
         assert_eq!(check.poll(t + LIMIT), Err(ChannelFault::InputDiscrepancy));
         // Still different later: the timer keeps its start.
         check.compare(Instant::from_millis(100), 3);
@@ -239,7 +242,7 @@ mod tests {
     /// A difference seen before an NMT reset counts from the reset on.
     #[test]
     fn an_nmt_reset_restarts_a_running_input_discrepancy_timer_only() {
-        let mut check = InputCheck::new(LIMIT);
+        let mut check = InputCheck::new();
         check.restart(Instant::from_millis(5));
         assert_eq!(check.deadline(), Instant::NEVER);
         check.peer(Instant::from_millis(10), 2, 1);
@@ -261,7 +264,8 @@ mod tests {
             0,
             NmtState::Operational,
         );
-        assert_eq!(check.poll(Instant::from_micros(49_999)), Ok(()));
+        let just_before = Instant::from_micros((t + grace).as_micros() - 1);
+        assert_eq!(check.poll(just_before), Ok(()));
         assert_eq!(check.poll(t + grace), Err(ChannelFault::NmtMismatch));
         check.peer(
             t,
