@@ -91,6 +91,10 @@ pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 /// above the link latency between the channels (USART at 1 Mbit/s: about 0.2 ms).
 pub const SAMPLE_WINDOW: Duration = Duration::from_millis(5);
 
+/// How many safety inputs (plain objects) a channel samples and cross-checks; one more is
+/// [`ChannelFault::InputTableFull`].
+pub const MAX_INPUTS: usize = 8;
+
 /// The cause code of a GFC received (EN 50325-5 7.2.1) in the link's safe-state message and
 /// the status report; every code and its name are in [`Cause`].
 pub const GFC_CAUSE: u8 = Cause::Gfc.code();
@@ -349,7 +353,7 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     link_up: bool,
     /// This channel's inputs as last sampled, folded into [`Message::Inputs`] and written
     /// back to the core after an NMT reset.
-    inputs: heapless::Vec<InputSample, 8>,
+    inputs: heapless::Vec<InputSample, MAX_INPUTS>,
     /// The input cross-check against the other channel's digest.
     input_check: InputCheck,
     /// The configuration cross-check: only once the other channel's configuration digest
@@ -1184,6 +1188,110 @@ mod tests {
 
     fn frame(id: u16, value: u8) -> CanFrame {
         CanFrame::new(CanId::new(id).unwrap(), &[value]).unwrap()
+    }
+
+    /// Eighteen input objects, nine plain and nine inverted, one byte each.
+    static MANY_INPUTS: [shared::process_image::AppObject; 18] = {
+        use shared::process_image::{Access, AppObject, Mappable};
+        let mut objects = [AppObject {
+            address: Address::new(0x6000, 1),
+            len: 1,
+            access: Access::ReadOnly,
+            mappable: Mappable::Transmit,
+        }; 18];
+        let mut index = 0;
+        while index < 18 {
+            objects[index].address = Address::new(0x6000 + index as u16, 1);
+            index += 1;
+        }
+        objects
+    };
+
+    /// A role that does nothing: the input table is the runtime's own.
+    struct Quiet;
+
+    impl Role<1> for Quiet {
+        fn outgoing(&mut self, frame: CanFrame, _: &SafetyConfig<1>) -> Option<CanFrame> {
+            Some(frame)
+        }
+        fn observe(
+            &mut self,
+            _: Instant,
+            _: &CanFrame,
+            _: &SafetyConfig<1>,
+        ) -> Result<Option<CanFrame>, ChannelFault> {
+            Ok(None)
+        }
+        fn input(
+            &mut self,
+            _: Instant,
+            _: Address,
+            _: &[u8],
+            _: &SafetyConfig<1>,
+        ) -> Result<Option<CanFrame>, ChannelFault> {
+            Ok(None)
+        }
+        fn poll(&mut self, _: Instant) -> Result<(), ChannelFault> {
+            Ok(())
+        }
+        fn deadline(&self) -> Instant {
+            Instant::NEVER
+        }
+        fn signature_digest(&self, _: &SafetyConfig<1>) -> u32 {
+            0
+        }
+    }
+
+    /// What the runtime did, as far as the test looks.
+    #[derive(Default)]
+    struct Seen {
+        faults: std::vec::Vec<ChannelFault>,
+    }
+
+    impl Io for Seen {
+        fn transmit(&mut self, _: CanFrame) {}
+        fn link(&mut self, _: &[u8]) {}
+        fn output(&mut self, _: SrdoNumber, _: u64) {}
+        fn event(&mut self, event: ChannelEvent) {
+            if let ChannelEvent::Fault(fault) = event {
+                self.faults.push(fault);
+            }
+        }
+    }
+
+    /// More safety inputs than the channel's input table holds is a limit of the channel's
+    /// design, and the fault says so: not an input discrepancy, which is the other channel's
+    /// sample differing from this one's.
+    #[test]
+    fn more_inputs_than_the_input_table_holds_is_a_full_table_not_a_discrepancy() {
+        let mut config =
+            crate::device::config(shared::canopen::NodeId::new(1).unwrap(), "input table test");
+        config.app_objects = &MANY_INPUTS;
+        let mut runtime = Runtime::new(
+            config,
+            shared::canopen::storage::RamFlash::<4096>::new(),
+            Quiet,
+            Instant::ZERO,
+            Duration::from_millis(10),
+        )
+        .unwrap();
+        let mut seen = Seen::default();
+        let now = Instant::from_millis(1);
+        for input in 0..MAX_INPUTS as u16 {
+            let plain = Address::new(0x6000 + 2 * input, 1);
+            let inverted = Address::new(0x6001 + 2 * input, 1);
+            runtime
+                .set_input(now, plain, inverted, &[1], &mut seen)
+                .unwrap();
+        }
+        assert_eq!(runtime.fault(), None, "{:?}", seen.faults);
+        let (plain, inverted) = (Address::new(0x6010, 1), Address::new(0x6011, 1));
+        runtime
+            .set_input(now, plain, inverted, &[1], &mut seen)
+            .unwrap();
+        assert_eq!(runtime.fault(), Some(ChannelFault::InputTableFull));
+        assert_eq!(seen.faults, [ChannelFault::InputTableFull]);
+        assert_eq!(ChannelFault::InputTableFull.cause_code(), 0x37);
     }
 
     /// One frame per identifier: the newest replaces the older, a full set refuses another
