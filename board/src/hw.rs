@@ -32,6 +32,7 @@ use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::StorageError;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::StaticCell;
 
@@ -214,7 +215,7 @@ impl Io for BoardIo<'_, '_> {
         }
     }
 
-    fn output(&mut self, _srdo: u8, data: u64) {
+    fn output(&mut self, _srdo: SrdoNumber, data: u64) {
         // One relay per channel: energised only for a non-zero confirmed value.
         self.output
             .set_level(if data != 0 { Level::High } else { Level::Low });
@@ -402,7 +403,14 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     drop(switches);
 
     let mut can = Can::new(p.CAN1, p.PB8, p.PB9, Irqs);
-    can.set_bitrate(BIT_RATE);
+    // `Can::set_bitrate` unwraps the timing calculation, which links the `Debug` formatting of
+    // its error into the image (`docs/footprint.md`); the same calculation, refused by name.
+    let clock = embassy_stm32::rcc::frequency::<embassy_stm32::peripherals::CAN1>();
+    match embassy_stm32::can::util::calc_can_timings(clock, BIT_RATE) {
+        // The configuration leaves initialisation mode when it is dropped, as in `set_bitrate`.
+        Ok(timing) => drop(can.modify_config().set_bit_timing(timing)),
+        Err(_) => halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock"),
+    }
     match loopback_test(&mut can, &mut watchdog).await {
         Ok(()) => defmt::info!("self-test: CAN loop-back (3 mailboxes, 2 FIFOs, filters) passed"),
         Err(fault) => {

@@ -8,8 +8,9 @@
 //! Both run a channel [`Runtime`](dual_channel::runtime::Runtime); the logic it drives is
 //! host-tested in `dual-channel`, `channel-a` and `channel-b`. On the host this crate holds
 //! the types both layers share and what the hardware layer needs that is not hardware:
-//! [`parameter_flash`] (the parameter slots on word-programmed flash), the node-ID switches'
-//! decoding and the emulated run's arguments, all host-tested.
+//! [`parameter_flash`] (the parameter slots on word-programmed flash), [`diagnostics`] (the
+//! status a channel reports on the emulated board's line), the node-ID switches' decoding and
+//! the emulated run's arguments, all host-tested.
 #![no_std]
 
 use shared::canopen::NodeId;
@@ -17,8 +18,11 @@ use shared::canopen::od::Address;
 use shared::node::NodeConfig;
 use shared::{CanFrame, CanId};
 
+pub mod diagnostics;
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;
+#[cfg(target_os = "none")]
+mod panic;
 pub mod parameter_flash;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 pub mod qemu;

@@ -18,10 +18,10 @@
 //!   `now`. (embassy-time alarms, which nothing in this layer uses any more, are still
 //!   served, on SysTick and on every grant.) How long the host did not run the
 //!   MCU (its tick came late, host time) is measured
-//!   ([`Status::longest_stall_ms`](dual_channel::can_serial::Status::longest_stall_ms)) and
+//!   ([`Status::longest_stall_ms`](emulation_wire::Status::longest_stall_ms)) and
 //!   reported;
 //! - interrupt-driven, register-level USART2: CAN frames over serial to the host-side bus hub
-//!   ([`dual_channel::can_serial`]), which also carries the input pin's value from the hub,
+//!   ([`emulation_wire`]), which also carries the input pin's value from the hub,
 //!   the channel's [`Status`] to it, the time grants and the link to the other channel
 //!   ([`Wire::Link`], relayed by the hub): one ordered line, so that a frame and a link
 //!   message the hub sent in one order arrive in that order (on hardware the link is USART3,
@@ -33,6 +33,7 @@
 //! QEMU models no GPIO: the input pin's value comes from the hub ([`Wire::Input`]; released,
 //! 1, until the hub says otherwise) and the output pin's value goes to it in the status.
 
+use crate::diagnostics::{Diagnostics, Observed};
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
@@ -40,14 +41,14 @@ use cortex_m::peripheral::NVIC;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use critical_section::Mutex;
-use dual_channel::can_serial::{self, LinkBytes, Wire};
-use dual_channel::diagnostics::{Diagnostics, Observed};
 use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
+use emulation_wire::{self as can_serial, LinkBytes, Wire};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::ConstStaticCell;
 use stm32_metapac::{Interrupt, RCC, USART2, interrupt};
@@ -260,8 +261,8 @@ impl Io for QemuIo {
             }
         }
     }
-    fn output(&mut self, srdo: u8, data: u64) {
-        defmt::info!("output of SRDO {=u8} = {=u64}", srdo, data);
+    fn output(&mut self, srdo: SrdoNumber, data: u64) {
+        defmt::info!("output of SRDO {=u8} = {=u64}", srdo.get(), data);
     }
     fn event(&mut self, event: ChannelEvent) {
         defmt::info!("{}", event);

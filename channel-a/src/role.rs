@@ -17,7 +17,7 @@ use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_
 use shared::canopen::od::Address;
 use shared::safety::config::SafetyConfig;
 use shared::safety::signature;
-use shared::safety::types::Direction;
+use shared::safety::types::{Direction, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
 
 /// A plain frame sent, waiting for channel B's inverted frame on the bus.
@@ -26,7 +26,7 @@ struct Awaited {
     /// The plain frame sent.
     frame: CanFrame,
     plain: u16,
-    srdo: u8,
+    srdo: SrdoNumber,
     /// The SRDO's refresh time: the next pair is due then, so this one must be complete.
     limit: Duration,
     /// When the wait was first seen by [`Role::poll`] (`outgoing` has no clock).
@@ -87,7 +87,7 @@ fn is_inverse(plain: &CanFrame, inverted: &CanFrame) -> bool {
 /// A transmit SRDO of the configuration.
 #[derive(Clone, Copy)]
 struct Transmit {
-    srdo: u8,
+    srdo: SrdoNumber,
     plain: u16,
     inverted: u16,
     refresh: Duration,
@@ -100,11 +100,14 @@ fn transmit_srdos<const N: usize>(config: &SafetyConfig<N>) -> impl Iterator<Ite
         .iter()
         .enumerate()
         .filter(|(_, record)| record.parsed_direction() == Ok(Direction::Transmit))
-        .map(|(index, record)| Transmit {
-            srdo: (index + 1) as u8,
-            plain: (record.cob_id_1 & 0x7FF) as u16,
-            inverted: (record.cob_id_2 & 0x7FF) as u16,
-            refresh: Duration::from_millis(u64::from(record.cycle_time)),
+        // A configuration holds at most 64 SRDOs, so every one has a number.
+        .filter_map(|(index, record)| {
+            Some(Transmit {
+                srdo: SrdoNumber::of_slot(index)?,
+                plain: (record.cob_id_1 & 0x7FF) as u16,
+                inverted: (record.cob_id_2 & 0x7FF) as u16,
+                refresh: Duration::from_millis(u64::from(record.cycle_time)),
+            })
         })
 }
 
@@ -302,7 +305,9 @@ mod tests {
         );
         assert_eq!(
             Role::<2>::poll(&mut a, Instant::from_millis(120)),
-            Err(ChannelFault::TransmitMismatch { srdo: 1 })
+            Err(ChannelFault::TransmitMismatch {
+                srdo: SrdoNumber::FIRST
+            })
         );
         assert_eq!(Role::<2>::deadline(&a), Instant::NEVER, "reported once");
         // A completed pair is not reported.
@@ -321,14 +326,18 @@ mod tests {
         assert!(a.outgoing(frame(0x101), &config).is_some());
         assert_eq!(
             a.observe(Instant::ZERO, &inverted(3), &config),
-            Err(ChannelFault::InvertedMismatch { srdo: 1 })
+            Err(ChannelFault::InvertedMismatch {
+                srdo: SrdoNumber::FIRST
+            })
         );
         // A longer frame with the right first byte is not the inverse either.
         assert!(a.outgoing(frame(0x101), &config).is_some());
         let longer = CanFrame::new(CanId::new(0x102).unwrap(), &[0xFE, 0x00]).unwrap();
         assert_eq!(
             a.observe(Instant::ZERO, &longer, &config),
-            Err(ChannelFault::InvertedMismatch { srdo: 1 })
+            Err(ChannelFault::InvertedMismatch {
+                srdo: SrdoNumber::FIRST
+            })
         );
     }
 

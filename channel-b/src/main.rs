@@ -26,7 +26,6 @@ mod firmware {
     use defmt_semihosting as _;
     use dual_channel::device;
     use embassy_executor::Spawner;
-    use panic_probe as _;
 
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {

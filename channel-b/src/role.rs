@@ -34,6 +34,7 @@ use crate::signature::{Parameters, signature};
 use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
 use shared::safety::config::{SafetyConfig, SrdoRecord};
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, CanId, Duration, Instant};
 
 /// The default discrepancy window.
@@ -43,7 +44,7 @@ pub const DEFAULT_WINDOW: Duration = SAMPLE_WINDOW;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Held {
     frame: CanFrame,
-    srdo: u8,
+    srdo: SrdoNumber,
     since: Instant,
     /// An exact copy of the plain frame seen before it, within the window: if no
     /// announcement comes for it, it was that frame received twice.
@@ -112,7 +113,7 @@ impl ChannelB {
         &mut self,
         now: Instant,
         frame: &CanFrame,
-        srdo: u8,
+        srdo: SrdoNumber,
         record: &SrdoRecord,
     ) -> Result<Option<CanFrame>, ChannelFault> {
         if let Some(held) = self.held.take() {
@@ -152,13 +153,17 @@ fn is_inverted_id<const N: usize>(config: &SafetyConfig<N>, id: u16) -> bool {
 
 /// The transmit SRDO whose plain COB-ID is `id`, read by channel B itself from the raw
 /// records (direction 1).
-fn transmit_srdo<const N: usize>(config: &SafetyConfig<N>, id: u16) -> Option<(u8, &SrdoRecord)> {
+fn transmit_srdo<const N: usize>(
+    config: &SafetyConfig<N>,
+    id: u16,
+) -> Option<(SrdoNumber, &SrdoRecord)> {
     config
         .srdos
         .iter()
         .enumerate()
         .find(|(_, record)| record.direction == 1 && record.cob_id_1 & 0x7FF == u32::from(id))
-        .map(|(position, record)| ((position + 1) as u8, record))
+        // A configuration holds at most 64 SRDOs, so every one has a number.
+        .and_then(|(position, record)| Some((SrdoNumber::of_slot(position)?, record)))
 }
 
 impl<const N: usize> Role<N> for ChannelB {
@@ -363,7 +368,9 @@ mod tests {
         b.observe(now, frame, &config())
     }
 
-    const MISMATCH: Result<(), ChannelFault> = Err(ChannelFault::TransmitMismatch { srdo: 1 });
+    const MISMATCH: Result<(), ChannelFault> = Err(ChannelFault::TransmitMismatch {
+        srdo: SrdoNumber::FIRST,
+    });
 
     /// CiA 304 9.5: B answers A's plain frame with the inverted frame when its own input
     /// agrees; B never sends what its core produces.
@@ -435,7 +442,9 @@ mod tests {
         sent(&mut b, T, &frame(0x101, &[0x01])).unwrap();
         assert_eq!(
             sent(&mut b, T, &frame(0x101, &[0x00])),
-            Err(ChannelFault::TransmitMismatch { srdo: 1 })
+            Err(ChannelFault::TransmitMismatch {
+                srdo: SrdoNumber::FIRST
+            })
         );
     }
 

@@ -18,6 +18,7 @@
 //! after a newer pair (its verdict was on the link while the newer one arrived on the bus);
 //! the confirmed [`Verdict`] therefore names its pair, so that the channel can discard it.
 
+use shared::safety::types::SrdoNumber;
 use shared::{Duration, Instant};
 
 /// One channel's verdict on one pair.
@@ -39,17 +40,23 @@ pub enum CrossFault {
     /// The two verdicts on the same SRDO differ (pair, validity or data).
     Disagreement {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
     },
     /// A verdict was not matched by the other channel in time.
     Unconfirmed {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
     },
     /// A verdict named an SRDO this node does not have.
     UnknownSrdo {
         /// The SRDO number received.
         srdo: u8,
+    },
+    /// More verdicts on one SRDO waited for the other channel's than it can be behind by
+    /// ([`DEPTH`]): it lost some, or is not validating at all.
+    QueueFull {
+        /// SRDO number.
+        srdo: SrdoNumber,
     },
 }
 
@@ -94,10 +101,10 @@ impl<const N: usize> VerdictCheck<N> {
     pub fn local(
         &mut self,
         now: Instant,
-        srdo: u8,
+        srdo: SrdoNumber,
         verdict: Verdict,
     ) -> Result<Option<Verdict>, CrossFault> {
-        self.arrive(now, srdo, verdict, Side::Local)
+        self.arrive(now, srdo.get(), verdict, Side::Local)
     }
 
     /// The other channel's verdict, received over the link.
@@ -117,10 +124,10 @@ impl<const N: usize> VerdictCheck<N> {
         verdict: Verdict,
         side: Side,
     ) -> Result<Option<Verdict>, CrossFault> {
-        let slot = usize::from(srdo)
-            .checked_sub(1)
-            .and_then(|index| self.slots.get_mut(index))
-            .ok_or(CrossFault::UnknownSrdo { srdo })?;
+        let unknown = CrossFault::UnknownSrdo { srdo };
+        let number = SrdoNumber::new(srdo).ok_or(unknown)?;
+        let slot = self.slots.get_mut(number.index()).ok_or(unknown)?;
+        let srdo = number;
         let (mine, theirs) = match side {
             Side::Local => (&mut slot.local, &mut slot.remote),
             Side::Remote => (&mut slot.remote, &mut slot.local),
@@ -131,7 +138,7 @@ impl<const N: usize> VerdictCheck<N> {
                     // More verdicts waiting than the other channel can be behind by: it lost
                     // some, or is not validating at all.
                     *slot = Slot::default();
-                    return Err(CrossFault::Unconfirmed { srdo });
+                    return Err(CrossFault::QueueFull { srdo });
                 }
                 Ok(None)
             }
@@ -147,9 +154,10 @@ impl<const N: usize> VerdictCheck<N> {
         for (index, slot) in self.slots.iter().enumerate() {
             for (_, since) in slot.local.iter().chain(slot.remote.iter()) {
                 if shared::time::expired(*since + self.timeout, now) {
-                    return Err(CrossFault::Unconfirmed {
-                        srdo: (index + 1) as u8,
-                    });
+                    // `slots` holds at most 64 SRDOs (`N`), so every slot has a number.
+                    if let Some(srdo) = SrdoNumber::of_slot(index) {
+                        return Err(CrossFault::Unconfirmed { srdo });
+                    }
                 }
             }
         }
@@ -176,6 +184,10 @@ impl<const N: usize> VerdictCheck<N> {
 mod tests {
     use super::*;
 
+    fn number(srdo: u8) -> SrdoNumber {
+        SrdoNumber::new(srdo).unwrap()
+    }
+
     const TIMEOUT: Duration = Duration::from_millis(5);
 
     fn valid(pair: u32, data: u64) -> Verdict {
@@ -190,12 +202,15 @@ mod tests {
     fn agreeing_verdicts_confirm_the_data_whichever_comes_first() {
         let mut check = VerdictCheck::<2>::new(TIMEOUT);
         let t = Instant::from_millis(1);
-        assert_eq!(check.local(t, 1, valid(1, 0xAA)), Ok(None));
+        assert_eq!(check.local(t, number(1), valid(1, 0xAA)), Ok(None));
         assert_eq!(check.deadline(), t + TIMEOUT);
         assert_eq!(check.remote(t, 1, valid(1, 0xAA)), Ok(Some(valid(1, 0xAA))));
         assert_eq!(check.deadline(), Instant::NEVER);
         assert_eq!(check.remote(t, 2, valid(1, 0x55)), Ok(None));
-        assert_eq!(check.local(t, 2, valid(1, 0x55)), Ok(Some(valid(1, 0x55))));
+        assert_eq!(
+            check.local(t, number(2), valid(1, 0x55)),
+            Ok(Some(valid(1, 0x55)))
+        );
     }
 
     /// EN 50325-5 Annex A.4: a disagreement puts both outputs in the safe state.
@@ -212,10 +227,10 @@ mod tests {
             },
         ] {
             let mut check = VerdictCheck::<1>::new(TIMEOUT);
-            check.local(t, 1, valid(1, 0xAA)).unwrap();
+            check.local(t, number(1), valid(1, 0xAA)).unwrap();
             assert_eq!(
                 check.remote(t, 1, other),
-                Err(CrossFault::Disagreement { srdo: 1 })
+                Err(CrossFault::Disagreement { srdo: number(1) })
             );
         }
         // Two invalid verdicts agree on the fault, but confirm no data.
@@ -225,7 +240,7 @@ mod tests {
             valid: false,
             data: 0,
         };
-        check.local(t, 1, invalid).unwrap();
+        check.local(t, number(1), invalid).unwrap();
         assert_eq!(check.remote(t, 1, invalid), Ok(None));
     }
 
@@ -238,16 +253,27 @@ mod tests {
         assert_eq!(check.poll(Instant::from_micros(14_999)), Ok(()));
         assert_eq!(
             check.poll(Instant::from_millis(15)),
-            Err(CrossFault::Unconfirmed { srdo: 1 })
+            Err(CrossFault::Unconfirmed { srdo: number(1) })
         );
-        // More verdicts from one side than may wait is a fault too.
+    }
+
+    /// EN 50325-5 Annex A.4: more verdicts from one side than may wait is a fault too, and it
+    /// says so: the queue is full, no verdict has timed out yet.
+    #[test]
+    fn more_verdicts_waiting_than_the_queue_holds_is_a_full_queue() {
         let mut check = VerdictCheck::<1>::new(TIMEOUT);
+        let t = Instant::from_millis(10);
         for pair in 1..=DEPTH as u32 {
-            check.local(t, 1, valid(pair, 1)).unwrap();
+            check.local(t, number(1), valid(pair, 1)).unwrap();
         }
         assert_eq!(
-            check.local(t, 1, valid(DEPTH as u32 + 1, 1)),
-            Err(CrossFault::Unconfirmed { srdo: 1 })
+            check.local(t, number(1), valid(DEPTH as u32 + 1, 1)),
+            Err(CrossFault::QueueFull { srdo: number(1) })
+        );
+        // The slot starts over: the fault is reported once, not at every later verdict.
+        assert_eq!(
+            check.local(t, number(1), valid(DEPTH as u32 + 2, 1)),
+            Ok(None)
         );
     }
 
@@ -258,18 +284,18 @@ mod tests {
     fn pairs_faster_than_the_link_are_matched_in_order() {
         let mut check = VerdictCheck::<1>::new(TIMEOUT);
         let t = Instant::from_millis(1);
-        assert_eq!(check.local(t, 1, valid(8, 0)), Ok(None));
-        assert_eq!(check.local(t, 1, valid(9, 1)), Ok(None));
+        assert_eq!(check.local(t, number(1), valid(8, 0)), Ok(None));
+        assert_eq!(check.local(t, number(1), valid(9, 1)), Ok(None));
         assert_eq!(check.remote(t, 1, valid(8, 0)), Ok(Some(valid(8, 0))));
         assert_eq!(check.deadline(), t + TIMEOUT, "pair 9 still waits");
         assert_eq!(check.remote(t, 1, valid(9, 1)), Ok(Some(valid(9, 1))));
         assert_eq!(check.deadline(), Instant::NEVER);
         // Out of order is a disagreement.
-        check.local(t, 1, valid(10, 0)).unwrap();
-        check.local(t, 1, valid(11, 1)).unwrap();
+        check.local(t, number(1), valid(10, 0)).unwrap();
+        check.local(t, number(1), valid(11, 1)).unwrap();
         assert_eq!(
             check.remote(t, 1, valid(11, 1)),
-            Err(CrossFault::Disagreement { srdo: 1 })
+            Err(CrossFault::Disagreement { srdo: number(1) })
         );
     }
 

@@ -3,8 +3,8 @@
 //! - [`link`]: the inter-MCU link, its message set, framing and checks;
 //! - [`crosscheck`]: the comparison of the two channels' verdicts on received SRDOs;
 //! - [`can_loopback`]: the start-up test of the CAN controller's message buffers and filters;
-//! - [`can_serial`], [`diagnostics`]: the emulated board's CAN-over-serial line and the
-//!   status a channel reports on it;
+//! - [`supervision`]: the runtime's checks of the other channel (inputs, NMT state and epoch,
+//!   configuration), each a small value with `poll` and `deadline`;
 //! - [`runtime`]: one channel around its copy of the protocol core: bus, link, cross-checks
 //!   and output, with the channel-specific parts ([`runtime::Role`]) supplied by channel A and
 //!   channel B.
@@ -15,11 +15,9 @@
 #![forbid(unsafe_code)]
 
 pub mod can_loopback;
-pub mod can_serial;
-pub mod cobs_frames;
 pub mod crosscheck;
 pub mod device;
-pub mod diagnostics;
 pub mod link;
 pub mod runtime;
 pub mod selftest;
+pub mod supervision;

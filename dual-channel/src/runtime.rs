@@ -65,11 +65,14 @@
 
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
 use crate::link::{LinkFault, Message, Receiver, Sender};
+use crate::supervision::{ConfigurationCheck, InputCheck, NmtCheck};
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::storage::Flash;
 use shared::node::{Event, Node, NodeConfig, NodeError, SafeStateCause, Sink};
+use shared::safety::cause::Cause;
 use shared::safety::config::SafetyConfig;
+use shared::safety::types::{SRDO_IDENTIFIERS, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
 
 /// How long after power-on the other channel's first link message may take (its self-tests
@@ -88,10 +91,13 @@ pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 /// above the link latency between the channels (USART at 1 Mbit/s: about 0.2 ms).
 pub const SAMPLE_WINDOW: Duration = Duration::from_millis(5);
 
+/// How many safety inputs (plain objects) a channel samples and cross-checks; one more is
+/// [`ChannelFault::InputTableFull`].
+pub const MAX_INPUTS: usize = 8;
+
 /// The cause code of a GFC received (EN 50325-5 7.2.1) in the link's safe-state message and
-/// the status report; the other codes are those of `SrdoFaultCause::cause_code` (1..) and
-/// [`ChannelFault::cause_code`] (10h..).
-pub const GFC_CAUSE: u8 = 0x50;
+/// the status report; every code and its name are in [`Cause`].
+pub const GFC_CAUSE: u8 = Cause::Gfc.code();
 
 /// The cause code of a safe state the core reported (the EMCY detail byte 1 it sent).
 pub fn safe_state_code(cause: &SafeStateCause) -> u8 {
@@ -184,13 +190,13 @@ pub enum ChannelFault {
     /// incomplete for a refresh time.
     TransmitMismatch {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
     },
     /// The inverted frame on the bus is not the exact inverse of channel A's plain frame
     /// (CiA 304 9.5, EN 50325-5 7.1.1): found by channel A.
     InvertedMismatch {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
     },
     /// A frame on one of the node's transmit SRDO identifiers that the node did not send
     /// (inserted, replayed, a second sender, or a plain frame that differs from what channel
@@ -206,6 +212,15 @@ pub enum ChannelFault {
     /// The two channels' input samples differed for longer than [`INPUT_DISCREPANCY`] (a
     /// stuck or broken contact on one channel).
     InputDiscrepancy,
+    /// The core handed the channel more frames or events in one call than the channel holds:
+    /// it cannot have seen (or sent) everything, a design limit exceeded, not data.
+    CoreOutputFull,
+    /// More safety inputs were sampled than the channel's input table holds: a design limit
+    /// exceeded (the device description declares more inputs than the channel tracks).
+    InputTableFull,
+    /// After NMT reset node an input sample written before could not be written back into
+    /// the core's objects: the core is not what it was.
+    InputRestoreFailed,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -214,25 +229,35 @@ pub enum ChannelFault {
 }
 
 impl ChannelFault {
-    /// The cause code sent to the other channel and in EMCY FF02h (byte 1).
-    pub const fn cause_code(self) -> u8 {
+    /// This fault's cause code and name ([`Cause`]).
+    pub const fn cause(self) -> Cause {
         match self {
-            ChannelFault::Link(LinkFault::Corrupt) => 0x10,
-            ChannelFault::Link(LinkFault::Malformed) => 0x11,
-            ChannelFault::Link(LinkFault::Missing { .. }) => 0x12,
-            ChannelFault::Link(LinkFault::Repeated { .. }) => 0x13,
-            ChannelFault::Link(LinkFault::Timeout) => 0x14,
-            ChannelFault::Cross(CrossFault::Disagreement { .. }) => 0x20,
-            ChannelFault::Cross(CrossFault::Unconfirmed { .. }) => 0x21,
-            ChannelFault::Cross(CrossFault::UnknownSrdo { .. }) => 0x22,
-            ChannelFault::TransmitMismatch { .. } => 0x30,
-            ChannelFault::ConfigurationMismatch => 0x31,
-            ChannelFault::NmtMismatch => 0x32,
-            ChannelFault::InputDiscrepancy => 0x33,
-            ChannelFault::ForeignFrame { .. } => 0x34,
-            ChannelFault::InvertedMismatch { .. } => 0x35,
-            ChannelFault::PeerSafeState { .. } => 0x40,
+            ChannelFault::Link(LinkFault::Corrupt) => Cause::LinkCorrupt,
+            ChannelFault::Link(LinkFault::Malformed) => Cause::LinkMalformed,
+            ChannelFault::Link(LinkFault::Missing { .. }) => Cause::LinkMissing,
+            ChannelFault::Link(LinkFault::Repeated { .. }) => Cause::LinkRepeated,
+            ChannelFault::Link(LinkFault::Timeout) => Cause::LinkTimeout,
+            ChannelFault::Cross(CrossFault::Disagreement { .. }) => Cause::VerdictsDisagree,
+            ChannelFault::Cross(CrossFault::Unconfirmed { .. }) => Cause::VerdictUnconfirmed,
+            ChannelFault::Cross(CrossFault::UnknownSrdo { .. }) => Cause::VerdictForUnknownSrdo,
+            ChannelFault::Cross(CrossFault::QueueFull { .. }) => Cause::VerdictQueueFull,
+            ChannelFault::TransmitMismatch { .. } => Cause::TransmitMismatch,
+            ChannelFault::ConfigurationMismatch => Cause::ConfigurationMismatch,
+            ChannelFault::NmtMismatch => Cause::NmtMismatch,
+            ChannelFault::InputDiscrepancy => Cause::InputDiscrepancy,
+            ChannelFault::ForeignFrame { .. } => Cause::ForeignFrame,
+            ChannelFault::InvertedMismatch { .. } => Cause::InvertedMismatch,
+            ChannelFault::CoreOutputFull => Cause::CoreOutputFull,
+            ChannelFault::InputTableFull => Cause::InputTableFull,
+            ChannelFault::InputRestoreFailed => Cause::InputRestoreFailed,
+            ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
         }
+    }
+
+    /// The cause code sent to the other channel and in EMCY FF02h (byte 1): the code of
+    /// [`ChannelFault::cause`].
+    pub const fn cause_code(self) -> u8 {
+        self.cause().code()
     }
 }
 
@@ -247,7 +272,7 @@ pub enum ChannelEvent {
     /// Both channels confirmed this data for a receive SRDO.
     Confirmed {
         /// SRDO number.
-        srdo: u8,
+        srdo: SrdoNumber,
         /// The data.
         data: u64,
     },
@@ -260,7 +285,7 @@ pub trait Io {
     /// Writes `bytes` to the link.
     fn link(&mut self, bytes: &[u8]);
     /// Drives the physical output(s) behind receive SRDO `srdo` to `data` (0: safe state).
-    fn output(&mut self, srdo: u8, data: u64);
+    fn output(&mut self, srdo: SrdoNumber, data: u64);
     /// Reports an event (log, diagnostics).
     fn event(&mut self, event: ChannelEvent);
 }
@@ -320,26 +345,20 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     verdicts: VerdictCheck<N>,
     link_period: Duration,
     next_heartbeat: Instant,
-    /// The other channel's NMT state from its last heartbeat (none yet: nothing to compare).
-    peer_nmt: Option<u8>,
-    /// NMT resets since power-on (modulo 256), this channel's and the other's as its last
-    /// heartbeat said: messages sent in another epoch than ours are ignored.
-    epoch: u8,
-    peer_epoch: Option<u8>,
-    nmt_differs_since: Option<Instant>,
+    /// The NMT cross-check, with this channel's epoch (NMT resets since power-on) and the
+    /// other's: messages sent in another epoch than ours are ignored.
+    nmt: NmtCheck,
     fault: Option<ChannelFault>,
     /// The other channel has been heard: the core may boot.
     link_up: bool,
     /// This channel's inputs as last sampled, folded into [`Message::Inputs`] and written
     /// back to the core after an NMT reset.
-    inputs: heapless::Vec<InputSample, 8>,
-    /// The other channel's last input digest.
-    peer_inputs: Option<u32>,
-    /// Since when the two input digests differ.
-    inputs_differ_since: Option<Instant>,
-    /// In this Operational period the other channel's configuration digest matched ours: only
-    /// then may an output leave the safe state.
-    configuration_confirmed: bool,
+    inputs: heapless::Vec<InputSample, MAX_INPUTS>,
+    /// The input cross-check against the other channel's digest.
+    input_check: InputCheck,
+    /// The configuration cross-check: only once the other channel's configuration digest
+    /// matched ours in this Operational period may an output leave the safe state.
+    configuration: ConfigurationCheck,
     outputs: [u64; N],
     /// Valid pairs per receive SRDO this channel's core accepted in this Operational period.
     pairs: [u32; N],
@@ -375,16 +394,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             verdicts: VerdictCheck::new(timeout),
             link_period,
             next_heartbeat: now,
-            peer_nmt: None,
-            epoch: 0,
-            peer_epoch: None,
-            nmt_differs_since: None,
+            nmt: NmtCheck::new(timeout),
             fault: None,
             link_up: false,
             inputs: heapless::Vec::new(),
-            peer_inputs: None,
-            inputs_differ_since: None,
-            configuration_confirmed: false,
+            input_check: InputCheck::new(),
+            configuration: ConfigurationCheck::new(),
             outputs: [0; N],
             pairs: [0; N],
             peer_pairs: [0; N],
@@ -416,13 +431,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         self.fault
     }
 
-    /// The value the channel drives on the output(s) of receive SRDO `srdo` (1-based).
-    pub fn output(&self, srdo: u8) -> u64 {
-        usize::from(srdo)
-            .checked_sub(1)
-            .and_then(|index| self.outputs.get(index))
-            .copied()
-            .unwrap_or(0)
+    /// The value the channel drives on the output(s) of receive SRDO `srdo`.
+    pub fn output(&self, srdo: SrdoNumber) -> u64 {
+        self.outputs.get(srdo.index()).copied().unwrap_or(0)
     }
 
     /// `true` while neither the core nor the channel is in its safe state.
@@ -506,7 +517,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             None => {
                 if self.inputs.push(sample).is_err() {
                     // More inputs than the cross-check tracks: a design error, not data.
-                    self.latch(ChannelFault::InputDiscrepancy, io);
+                    self.latch(ChannelFault::InputTableFull, io);
                 }
             }
         }
@@ -548,17 +559,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if let Err(fault) = self.verdicts.poll(now) {
             self.latch(ChannelFault::Cross(fault), io);
         }
-        if self
-            .nmt_differs_since
-            .is_some_and(|since| shared::time::expired(since + self.grace(), now))
-        {
-            self.latch(ChannelFault::NmtMismatch, io);
+        if let Err(fault) = self.nmt.poll(now) {
+            self.latch(fault, io);
         }
-        if self
-            .inputs_differ_since
-            .is_some_and(|since| shared::time::expired(since + INPUT_DISCREPANCY, now))
-        {
-            self.latch(ChannelFault::InputDiscrepancy, io);
+        if let Err(fault) = self.input_check.poll(now) {
+            self.latch(fault, io);
         }
         if shared::time::expired(self.next_heartbeat, now) {
             self.heartbeat(io);
@@ -570,10 +575,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.role.deadline(),
             self.receiver.deadline(),
             self.verdicts.deadline(),
-            self.nmt_differs_since
-                .map_or(Instant::NEVER, |since| since + self.grace()),
-            self.inputs_differ_since
-                .map_or(Instant::NEVER, |since| since + INPUT_DISCREPANCY),
+            self.nmt.deadline(),
+            self.input_check.deadline(),
             self.waiting_deadline(),
         ];
         supervision
@@ -603,6 +606,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             Err(fault) => {
                 if self.fault.is_none() {
                     if let ChannelFault::TransmitMismatch { srdo } = fault {
+                        let srdo = srdo.get();
                         self.send(&Message::TransmitMismatch { srdo }, io);
                     }
                     self.latch(fault, io);
@@ -653,7 +657,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let id = frame.id();
         let changed = self.handed_on.get(id).is_none_or(|last| *last != frame);
         let samples_differ = self
-            .inputs_differ_since
+            .input_check
+            .differ_since()
             .is_some_and(|since| !shared::time::expired(since + SAMPLE_WINDOW, now));
         if changed && samples_differ {
             // One entry per transmit SRDO, and `N` is the SRDO count: it fits.
@@ -683,7 +688,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     /// Until when the waiting frames wait ([`Instant::ZERO`]: not at all any more).
     fn waiting_deadline(&self) -> Instant {
-        match (self.waiting.is_empty(), self.inputs_differ_since) {
+        match (self.waiting.is_empty(), self.input_check.differ_since()) {
             (true, _) => Instant::NEVER,
             (false, Some(since)) => since + SAMPLE_WINDOW,
             (false, None) => Instant::ZERO,
@@ -703,10 +708,6 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
-    fn grace(&self) -> Duration {
-        Duration::from_micros(2 * self.link_period.as_micros())
-    }
-
     fn heartbeat(&mut self, io: &mut impl Io) {
         let nmt = self.node.nmt_state().heartbeat_code();
         let config = self.node.safety_config();
@@ -718,7 +719,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let heartbeat = Message::Heartbeat {
             nmt,
             working: self.is_working(),
-            epoch: self.epoch,
+            epoch: self.nmt.epoch(),
         };
         let inputs = Message::Inputs {
             sample: self.input_digest(),
@@ -752,18 +753,16 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             io.event(ChannelEvent::Node(event));
             nmt_changed |= matches!(event, Event::NmtState(_));
             match event {
-                Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo.get(), data, io),
+                Event::SrdoReceived { srdo, data } => self.local_pair(now, srdo, data, io),
                 Event::NmtState(NmtState::Initialising) => {
-                    self.epoch = self.epoch.wrapping_add(1);
+                    self.nmt.reset();
                     self.role.reset();
                     self.waiting.clear();
                     self.handed_on.clear();
                     // A difference seen before the reset must last its full time after it to
                     // count again: the reset clears the latch, and the other channel's news
                     // (its new input digest, say) may be on the link behind the reset.
-                    if self.inputs_differ_since.is_some() {
-                        self.inputs_differ_since = Some(now);
-                    }
+                    self.input_check.restart(now);
                     self.follow_core(io);
                 }
                 Event::NmtState(NmtState::PreOperational) => {
@@ -794,7 +793,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             }
         }
         if collect.overflow {
-            self.latch(ChannelFault::Cross(CrossFault::Unconfirmed { srdo: 0 }), io);
+            self.latch(ChannelFault::CoreOutputFull, io);
         }
         if nmt_changed {
             // The other channel learns a new NMT state at once, not at the next heartbeat:
@@ -803,7 +802,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.heartbeat(io);
             self.next_heartbeat = now + self.link_period;
         }
-        self.check_nmt(now);
+        let own = self.node.nmt_state();
+        self.nmt.compare(now, own);
     }
 
     /// The core left the working state (a fault of its own, or NMT): outputs 0.
@@ -815,7 +815,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.verdicts.reset();
             self.pairs = [0; N];
             self.peer_pairs = [0; N];
-            self.configuration_confirmed = false;
+            self.configuration.reset();
         }
         if matches!(
             self.node.nmt_state(),
@@ -827,10 +827,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
     }
 
-    fn local_pair(&mut self, now: Instant, srdo: u8, data: u64, io: &mut impl Io) {
-        let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) else {
+    fn local_pair(&mut self, now: Instant, srdo: SrdoNumber, data: u64, io: &mut impl Io) {
+        let index = srdo.index();
+        if index >= N {
             return;
-        };
+        }
         self.pairs[index] = self.pairs[index].wrapping_add(1);
         let verdict = Verdict {
             pair: self.pairs[index],
@@ -839,7 +840,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         };
         self.send(
             &Message::Verdict {
-                srdo,
+                srdo: srdo.get(),
                 pair: verdict.pair,
                 data,
                 valid: true,
@@ -848,7 +849,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         );
         // Towards the safe state at once: any bit this pair clears is cleared now.
         let safer = self.outputs[index] & data;
-        self.drive(index, safer, io);
+        self.drive(srdo, safer, io);
         match self.verdicts.local(now, srdo, verdict) {
             Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
             Ok(None) => {}
@@ -865,9 +866,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             defmt::debug!("link: {}", message);
         }
         if let Message::Heartbeat { nmt, epoch, .. } = message {
-            self.peer_nmt = Some(nmt);
-            self.peer_epoch = Some(epoch);
-            self.check_nmt(now);
+            self.nmt.peer(now, nmt, epoch, self.node.nmt_state());
             return;
         }
         // An announcement of a plain frame counts whatever the epochs: it says what channel A
@@ -877,17 +876,17 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         // frame look foreign to B. A replay of an announced frame by another device is still
         // caught by A, which never receives its own frames.
         let announcement = matches!(message, Message::PlainFrame { .. });
-        if !announcement && self.peer_epoch.is_some_and(|epoch| epoch != self.epoch) {
+        if !announcement && !self.nmt.same_epoch() {
             // Sent before a reset that one of us has been through and the other not yet (the
             // link may lag the bus): not about the present. Epochs that stay apart are an NMT
-            // mismatch (`check_nmt`).
+            // mismatch ([`NmtCheck`]).
             return;
         }
         match message {
             Message::Heartbeat { .. } => {}
             Message::Inputs { sample } => {
-                self.peer_inputs = Some(sample);
-                self.compare_inputs(now);
+                let own = self.input_digest();
+                self.input_check.peer(now, sample, own);
                 self.release_waiting(now, io);
             }
             Message::Verdict {
@@ -904,13 +903,25 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 }
                 let verdict = Verdict { pair, valid, data };
                 match self.verdicts.remote(now, srdo, verdict) {
-                    Ok(Some(confirmed)) => self.confirmed(srdo, confirmed, io),
+                    // A confirmed verdict names one of the check's SRDOs, so it has a number.
+                    Ok(Some(confirmed)) => match SrdoNumber::new(srdo) {
+                        Some(srdo) => self.confirmed(srdo, confirmed, io),
+                        None => {
+                            self.latch(ChannelFault::Cross(CrossFault::UnknownSrdo { srdo }), io)
+                        }
+                    },
                     Ok(None) => {}
                     Err(fault) => self.latch(ChannelFault::Cross(fault), io),
                 }
             }
             Message::TransmitMismatch { srdo } => {
-                self.latch(ChannelFault::TransmitMismatch { srdo }, io);
+                // The other channel reports a mismatch either way: the safe state. A number
+                // that is no SRDO makes the message no message of the set.
+                let fault = SrdoNumber::new(srdo)
+                    .map_or(ChannelFault::Link(LinkFault::Malformed), |srdo| {
+                        ChannelFault::TransmitMismatch { srdo }
+                    });
+                self.latch(fault, io);
             }
             Message::PlainFrame { id, len, data } => {
                 let bytes = data.to_le_bytes();
@@ -932,16 +943,16 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 valid,
                 signatures,
             } => {
-                let operational = NmtState::Operational.heartbeat_code();
                 let own = self.node.safety_config();
                 let differs = valid != own.configuration_valid
                     || signatures != self.role.signature_digest(own);
-                if nmt == operational && self.node.nmt_state() == NmtState::Operational {
-                    if differs {
-                        self.latch(ChannelFault::ConfigurationMismatch, io);
-                    } else {
-                        self.configuration_confirmed = true;
-                    }
+                let checked = self.configuration.peer(
+                    nmt == NmtState::Operational.heartbeat_code(),
+                    self.node.nmt_state() == NmtState::Operational,
+                    differs,
+                );
+                if let Err(fault) = checked {
+                    self.latch(fault, io);
                 }
             }
             Message::SafeState { cause } => {
@@ -977,7 +988,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             .iter()
             .any(|sample| Self::write_input(&mut self.node, sample).is_err());
         if failed {
-            self.latch(ChannelFault::InputDiscrepancy, io);
+            self.latch(ChannelFault::InputRestoreFailed, io);
         }
     }
 
@@ -993,43 +1004,28 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         digest.finalize()
     }
 
-    /// Starts or stops the input discrepancy timer.
+    /// Starts or stops the input discrepancy timer against this channel's digest now.
     fn compare_inputs(&mut self, now: Instant) {
-        let differ = self
-            .peer_inputs
-            .is_some_and(|peer| peer != self.input_digest());
-        match (differ, self.inputs_differ_since) {
-            (true, None) => self.inputs_differ_since = Some(now),
-            (false, _) => self.inputs_differ_since = None,
-            (true, Some(_)) => {}
-        }
-    }
-
-    fn check_nmt(&mut self, now: Instant) {
-        let own = self.node.nmt_state().heartbeat_code();
-        let same_epoch = self.peer_epoch.is_none_or(|epoch| epoch == self.epoch);
-        if same_epoch && self.peer_nmt.is_none_or(|peer| peer == own) {
-            self.nmt_differs_since = None;
-        } else if self.nmt_differs_since.is_none() {
-            self.nmt_differs_since = Some(now);
-        }
+        let own = self.input_digest();
+        self.input_check.compare(now, own);
     }
 
     /// Both channels confirmed `verdict` on receive SRDO `srdo`. It drives the output only if
     /// it is the newest pair this channel accepted and the newest the other channel reported;
     /// an older one (its verdict crossed the link while a newer pair arrived) may only lower
     /// the output (SC_REQ_05: a stale confirmation never switches an output back on).
-    fn confirmed(&mut self, srdo: u8, verdict: Verdict, io: &mut impl Io) {
+    fn confirmed(&mut self, srdo: SrdoNumber, verdict: Verdict, io: &mut impl Io) {
         let data = verdict.data;
         io.event(ChannelEvent::Confirmed { srdo, data });
-        if !self.configuration_confirmed {
+        if !self.configuration.confirmed() {
             // Both channels agree on the data, but not yet (in Operational) on the
             // configuration that produced it: the output stays where it is.
             return;
         }
-        let Some(index) = usize::from(srdo).checked_sub(1).filter(|&i| i < N) else {
+        let index = srdo.index();
+        if index >= N {
             return;
-        };
+        }
         let newest = self.pairs.get(index) == Some(&verdict.pair)
             && self.peer_pairs.get(index) == Some(&verdict.pair);
         let value = if newest {
@@ -1037,23 +1033,30 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         } else {
             self.outputs[index] & data
         };
-        self.drive(index, value, io);
+        self.drive(srdo, value, io);
     }
 
-    fn drive(&mut self, index: usize, data: u64, io: &mut impl Io) {
+    /// Drives receive SRDO `srdo`'s output(s) to `data` (0 outside the working state). The
+    /// callers checked that `srdo` is one of the node's (`srdo.index() < N`).
+    fn drive(&mut self, srdo: SrdoNumber, data: u64, io: &mut impl Io) {
         let value = if self.is_working() { data } else { 0 };
-        if self.outputs[index] != value {
-            self.outputs[index] = value;
-            // `index` < N <= 64.
-            io.output((index + 1) as u8, value);
+        let Some(output) = self.outputs.get_mut(srdo.index()) else {
+            return;
+        };
+        if *output != value {
+            *output = value;
+            io.output(srdo, value);
         }
     }
 
     fn clear_outputs(&mut self, io: &mut impl Io) {
-        for index in 0..N {
-            if self.outputs[index] != 0 {
-                self.outputs[index] = 0;
-                io.output((index + 1) as u8, 0);
+        // N <= 64 (the core refuses more), so every slot has a number.
+        for (index, output) in self.outputs.iter_mut().enumerate() {
+            if *output != 0 {
+                *output = 0;
+                if let Some(srdo) = SrdoNumber::of_slot(index) {
+                    io.output(srdo, 0);
+                }
             }
         }
     }
@@ -1162,9 +1165,9 @@ impl<const C: usize> FrameSlots<C> {
     }
 }
 
-/// `true` for identifiers in the SRDO range 0x101..=0x180.
-fn is_srdo(frame: &CanFrame) -> bool {
-    (0x101..=0x180).contains(&frame.id().raw())
+/// `true` for identifiers in the SRDO range ([`SRDO_IDENTIFIERS`]).
+pub fn is_srdo(frame: &CanFrame) -> bool {
+    SRDO_IDENTIFIERS.contains(&frame.id().raw())
 }
 
 /// CRC-32 over signatures, as [`Role::signature_digest`] folds them for the link: each
@@ -1185,6 +1188,110 @@ mod tests {
 
     fn frame(id: u16, value: u8) -> CanFrame {
         CanFrame::new(CanId::new(id).unwrap(), &[value]).unwrap()
+    }
+
+    /// Eighteen input objects, nine plain and nine inverted, one byte each.
+    static MANY_INPUTS: [shared::process_image::AppObject; 18] = {
+        use shared::process_image::{Access, AppObject, Mappable};
+        let mut objects = [AppObject {
+            address: Address::new(0x6000, 1),
+            len: 1,
+            access: Access::ReadOnly,
+            mappable: Mappable::Transmit,
+        }; 18];
+        let mut index = 0;
+        while index < 18 {
+            objects[index].address = Address::new(0x6000 + index as u16, 1);
+            index += 1;
+        }
+        objects
+    };
+
+    /// A role that does nothing: the input table is the runtime's own.
+    struct Quiet;
+
+    impl Role<1> for Quiet {
+        fn outgoing(&mut self, frame: CanFrame, _: &SafetyConfig<1>) -> Option<CanFrame> {
+            Some(frame)
+        }
+        fn observe(
+            &mut self,
+            _: Instant,
+            _: &CanFrame,
+            _: &SafetyConfig<1>,
+        ) -> Result<Option<CanFrame>, ChannelFault> {
+            Ok(None)
+        }
+        fn input(
+            &mut self,
+            _: Instant,
+            _: Address,
+            _: &[u8],
+            _: &SafetyConfig<1>,
+        ) -> Result<Option<CanFrame>, ChannelFault> {
+            Ok(None)
+        }
+        fn poll(&mut self, _: Instant) -> Result<(), ChannelFault> {
+            Ok(())
+        }
+        fn deadline(&self) -> Instant {
+            Instant::NEVER
+        }
+        fn signature_digest(&self, _: &SafetyConfig<1>) -> u32 {
+            0
+        }
+    }
+
+    /// What the runtime did, as far as the test looks.
+    #[derive(Default)]
+    struct Seen {
+        faults: std::vec::Vec<ChannelFault>,
+    }
+
+    impl Io for Seen {
+        fn transmit(&mut self, _: CanFrame) {}
+        fn link(&mut self, _: &[u8]) {}
+        fn output(&mut self, _: SrdoNumber, _: u64) {}
+        fn event(&mut self, event: ChannelEvent) {
+            if let ChannelEvent::Fault(fault) = event {
+                self.faults.push(fault);
+            }
+        }
+    }
+
+    /// More safety inputs than the channel's input table holds is a limit of the channel's
+    /// design, and the fault says so: not an input discrepancy, which is the other channel's
+    /// sample differing from this one's.
+    #[test]
+    fn more_inputs_than_the_input_table_holds_is_a_full_table_not_a_discrepancy() {
+        let mut config =
+            crate::device::config(shared::canopen::NodeId::new(1).unwrap(), "input table test");
+        config.app_objects = &MANY_INPUTS;
+        let mut runtime = Runtime::new(
+            config,
+            shared::canopen::storage::RamFlash::<4096>::new(),
+            Quiet,
+            Instant::ZERO,
+            Duration::from_millis(10),
+        )
+        .unwrap();
+        let mut seen = Seen::default();
+        let now = Instant::from_millis(1);
+        for input in 0..MAX_INPUTS as u16 {
+            let plain = Address::new(0x6000 + 2 * input, 1);
+            let inverted = Address::new(0x6001 + 2 * input, 1);
+            runtime
+                .set_input(now, plain, inverted, &[1], &mut seen)
+                .unwrap();
+        }
+        assert_eq!(runtime.fault(), None, "{:?}", seen.faults);
+        let (plain, inverted) = (Address::new(0x6010, 1), Address::new(0x6011, 1));
+        runtime
+            .set_input(now, plain, inverted, &[1], &mut seen)
+            .unwrap();
+        assert_eq!(runtime.fault(), Some(ChannelFault::InputTableFull));
+        assert_eq!(seen.faults, [ChannelFault::InputTableFull]);
+        assert_eq!(ChannelFault::InputTableFull.cause_code(), 0x37);
     }
 
     /// One frame per identifier: the newest replaces the older, a full set refuses another

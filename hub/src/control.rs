@@ -25,7 +25,7 @@
 //!   time is behind the host clock, its longest hold, the grants' round trips in host time)
 //! ```
 
-use dual_channel::can_serial::Status;
+use emulation_wire::Status;
 use std::fmt;
 use std::io::BufRead;
 

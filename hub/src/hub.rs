@@ -4,9 +4,7 @@
 //! and asks it what to write to whom and when to wake next.
 
 use crate::bus::{Bus, Delivery, Injection, QueueFull};
-use dual_channel::can_serial::{
-    Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire,
-};
+use emulation_wire::{Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire};
 use shared::{CanFrame, Instant};
 
 /// Bytes for one participant.

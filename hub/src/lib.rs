@@ -4,7 +4,7 @@
 //!   by identifier, each frame on the bus for its bit time with stuff bits, every participant
 //!   but the sender receives it, and the fault vocabulary.
 //! - [`trace`]: candump log and pcap (SocketCAN link type) writers.
-//! - [`hub`]: participants that speak CAN-over-serial ([`dual_channel::can_serial`]) joined
+//! - [`hub`]: participants that speak CAN-over-serial ([`emulation_wire`]) joined
 //!   to one [`bus::Bus`] in real time (the `can-hub` program).
 //! - [`pace`]: the shared virtual time of the emulated MCUs: the hub's clock waits for the
 //!   slowest of them, so host load slows the network down but does not change its verdicts.

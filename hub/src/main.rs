@@ -9,7 +9,7 @@
 //!         --candump bus.log --pcap bus.pcap --bit-rate 500000
 //! ```
 //!
-//! Every participant speaks CAN-over-serial (`dual_channel::can_serial`). The hub listens on
+//! Every participant speaks CAN-over-serial (`emulation_wire`). The hub listens on
 //! each `--socket` path for one QEMU instance (start QEMU with `-chardev
 //! socket,id=can,path=PATH` and `-serial null -serial chardev:can`), and accepts any number of
 //! tool connections on `--tcp`. A `--link` relays the link messages (`Wire::Link`) between
@@ -613,7 +613,7 @@ fn run(
             hosts.tell_controls(&status_line(&name, seconds(at), &status));
         }
         for (id, error) in hub.malformed.drain(..) {
-            eprintln!("can-hub: participant {id}: {error:?}");
+            eprintln!("can-hub: participant {id}: a message refused: {error}");
         }
     }
 }

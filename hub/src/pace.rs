@@ -20,7 +20,7 @@
 use shared::{Duration, Instant};
 use std::collections::{BTreeMap, VecDeque};
 
-pub use dual_channel::can_serial::{GRANT_PERIOD, LOOKAHEAD};
+pub use emulation_wire::{GRANT_PERIOD, LOOKAHEAD};
 
 /// A grant not acknowledged for this long (host time) is sent again: one sent before the
 /// board enabled its USART is lost.

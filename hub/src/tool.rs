@@ -3,8 +3,8 @@
 //! sequence (read back, sign, declare valid, store).
 
 use crate::control::parse_status;
-use dual_channel::can_serial::Status;
-use dual_channel::can_serial::{Decoder, Wire, encode};
+use emulation_wire::Status;
+use emulation_wire::{Decoder, Wire, encode};
 use shared::canopen::nmt::{self, NmtCommand};
 use shared::canopen::od::Address;
 use shared::canopen::sdo_client::{self, ClientError};

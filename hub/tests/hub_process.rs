@@ -2,7 +2,7 @@
 //! others (not itself), and the traces it writes are read by other tools: the candump log, and
 //! the pcap as tshark decodes it (CANopen over SocketCAN).
 
-use dual_channel::can_serial::{Decoder, LinkBytes, Wire, encode, encode_wire};
+use emulation_wire::{Decoder, LinkBytes, Wire, encode, encode_wire};
 use shared::{CanFrame, CanId};
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -59,7 +59,7 @@ fn receive(stream: &mut TcpStream) -> CanFrame {
         stream.read_exact(&mut byte).expect("a frame within 5 s");
         if let Some(result) = decoder.push(byte[0]) {
             match result.expect("well-formed") {
-                dual_channel::can_serial::Wire::Can(frame) => return frame,
+                emulation_wire::Wire::Can(frame) => return frame,
                 other => panic!("a frame expected, got {other:?}"),
             }
         }

@@ -16,6 +16,7 @@ use shared::canopen::od::Address;
 use shared::canopen::sdo_client::{self, ClientError};
 use shared::canopen::storage::RamFlash;
 use shared::safety::config::SrdoRecord;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, CanId, Duration, Instant};
 use std::collections::VecDeque;
 
@@ -45,8 +46,8 @@ impl Io for Out {
     fn link(&mut self, bytes: &[u8]) {
         self.link.extend_from_slice(bytes);
     }
-    fn output(&mut self, srdo: u8, data: u64) {
-        self.outputs.push((srdo, data));
+    fn output(&mut self, srdo: SrdoNumber, data: u64) {
+        self.outputs.push((srdo.get(), data));
     }
     fn event(&mut self, event: ChannelEvent) {
         self.events.push(event);
@@ -450,7 +451,7 @@ impl DualNetwork {
     /// The effective output of node `id`: both channels' outputs in series (AND).
     pub fn output(&self, id: u8) -> u64 {
         let node = self.node(id);
-        node.a.output(1) & node.b.output(1)
+        node.a.output(SrdoNumber::FIRST) & node.b.output(SrdoNumber::FIRST)
     }
 
     /// The tool sends an NMT command to `target` (0: all).

@@ -300,7 +300,7 @@ fn iso11898_1_dual_channel_nodes_agree_on_duplicated_frames() {
             "{repeated:x?}"
         );
         // The channel status (what the emulated board reports to the hub) carries the count.
-        let status = dual_channel::diagnostics::Diagnostics::new()
+        let status = board::diagnostics::Diagnostics::new()
             .report(net.now, &node.a)
             .expect("the first report goes out at once");
         assert_eq!(

@@ -9,6 +9,7 @@ use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use shared::canopen::nmt::{NmtCommand, NmtState};
 use shared::node::Event;
 use shared::safety::srdo::SrdoFaultCause;
+use shared::safety::types::SrdoNumber;
 use shared::{Duration, Instant};
 use system_tests::bus::{Fault, Injection, Match};
 use system_tests::dual::{DualNetwork, Side};
@@ -110,7 +111,12 @@ fn cia304_9_5_channel_b_disagreeing_with_channel_a_sends_nothing() {
     net.set_inputs(1, 1, 0);
     net.run_for(Duration::from_millis(100));
     let (_, _, fault) = fault_of(&net, since, 1).expect("node 1 reports");
-    assert_eq!(fault, ChannelFault::TransmitMismatch { srdo: 1 });
+    assert_eq!(
+        fault,
+        ChannelFault::TransmitMismatch {
+            srdo: SrdoNumber::FIRST
+        }
+    );
     for side in [Side::A, Side::B] {
         assert!(
             net.first_event(since, 1, |s, e| s == side
@@ -218,7 +224,9 @@ fn differing_verdicts_put_both_channels_in_the_safe_state() {
     assert!(
         matches!(
             fault,
-            ChannelFault::Cross(CrossFault::Disagreement { srdo: 1 })
+            ChannelFault::Cross(CrossFault::Disagreement {
+                srdo: SrdoNumber::FIRST
+            })
         ),
         "{fault:?}"
     );
@@ -331,7 +339,7 @@ fn outputs_follow_the_first_pair_once_the_configurations_were_compared_at_operat
     }
     assert!(confirmed(&net), "a pair was confirmed");
     assert_eq!(
-        net.node(33).a.output(1),
+        net.node(33).a.output(SrdoNumber::FIRST),
         1,
         "the first confirmed pair drives the output"
     );
@@ -421,7 +429,12 @@ fn cia304_9_5_a_lost_inverted_frame_is_reported_by_the_producer() {
     let (_, side, fault) = fault_of(&net, since, 1).expect("node 1 reports it");
     assert_eq!(
         (side, fault),
-        (Side::A, ChannelFault::TransmitMismatch { srdo: 1 })
+        (
+            Side::A,
+            ChannelFault::TransmitMismatch {
+                srdo: SrdoNumber::FIRST
+            }
+        )
     );
     assert_eq!(net.output(33), 0);
 }
@@ -459,12 +472,12 @@ fn a_link_message_from_before_an_nmt_reset_is_ignored_after_it() {
     assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
 }
 
-/// The board's status report (`dual_channel::diagnostics`): at once when what a watcher acts
+/// The board's status report (`board::diagnostics`): at once when what a watcher acts
 /// on changes, otherwise every period; counters and the cause of the last safe state follow
 /// what the channel did.
 #[test]
 fn the_status_report_goes_out_on_change_and_every_period() {
-    use dual_channel::diagnostics::{Diagnostics, PERIOD};
+    use board::diagnostics::{Diagnostics, PERIOD};
     use shared::safety::srdo::SrdoFault;
     let net = running();
     let a = &net.node(33).a;
@@ -524,7 +537,10 @@ fn channels_with_different_node_ids_never_leave_the_safe_state() {
         net.run_for(Duration::from_millis(1));
         let node = net.node(33);
         assert_eq!(
-            (node.a.output(1), node.b.output(1)),
+            (
+                node.a.output(SrdoNumber::FIRST),
+                node.b.output(SrdoNumber::FIRST)
+            ),
             (0, 0),
             "at {:?}",
             net.now

@@ -9,6 +9,7 @@
 
 use dual_channel::runtime::ChannelEvent;
 use shared::node::Event;
+use shared::safety::types::SrdoNumber;
 use shared::{Duration, Instant};
 use system_tests::dual::{DualNetwork, Side};
 
@@ -69,8 +70,16 @@ fn both_safe_within(net: &DualNetwork, id: u8, since: usize, from: Instant, boun
     }
     let node = net.node(id);
     assert!(!node.a.is_working() && !node.b.is_working(), "node {id}");
-    assert_eq!(node.a.output(1), 0, "node {id} channel A output");
-    assert_eq!(node.b.output(1), 0, "node {id} channel B output");
+    assert_eq!(
+        node.a.output(SrdoNumber::FIRST),
+        0,
+        "node {id} channel A output"
+    );
+    assert_eq!(
+        node.b.output(SrdoNumber::FIRST),
+        0,
+        "node {id} channel B output"
+    );
 }
 
 fn flip_then_check(id: u8, side: Side, what: &str, flip: impl FnOnce(&mut DualNetwork)) {

@@ -21,6 +21,7 @@
 
 use crate::network::{self, Network, output_33, working};
 use anyhow::{Result, bail};
+use shared::safety::cause::Cause;
 use std::time::Duration;
 
 /// The emulation's margin on top of each bound (see the module documentation).
@@ -39,7 +40,7 @@ pub struct Measured {
 /// Waits until node 33 is safe (both channels not working, output 0), one channel reporting
 /// one of `causes` and the other that too or 40h (told by the first over the link); returns
 /// the time after `since` (hub seconds), in milliseconds.
-fn node_33_safe(network: &mut Network, since: f64, causes: &[u8], bound_ms: u64) -> Result<f64> {
+fn node_33_safe(network: &mut Network, since: f64, causes: &[Cause], bound_ms: u64) -> Result<f64> {
     let patience = Duration::from_millis(bound_ms + 2_000);
     let at = network.wait_for(patience, |latest| {
         ["node33a", "node33b"].iter().all(|name| {
@@ -50,15 +51,20 @@ fn node_33_safe(network: &mut Network, since: f64, causes: &[u8], bound_ms: u64)
             // The channel that found the fault first reports it; the other may report that
             // (the same cause when both found it, 40h when it was told first over the link).
             let cause = |name: &str| latest.get(name).map(|(_, s)| s.cause);
-            let found = |cause: Option<u8>| cause.is_some_and(|c| causes.contains(&c));
-            let told = |cause: Option<u8>| found(cause) || cause == Some(0x40);
+            let found = |cause: Option<u8>| {
+                cause
+                    .and_then(Cause::from_code)
+                    .is_some_and(|c| causes.contains(&c))
+            };
+            let told =
+                |cause: Option<u8>| found(cause) || cause == Some(Cause::PeerSafeState.code());
             let (a, b) = (cause("node33a"), cause("node33b"));
             (found(a) && told(b)) || (found(b) && told(a))
         }
     })?;
     let Some(at) = at else {
         bail!(
-            "node 33 did not reach its safe state (one channel's cause one of {causes:02X?}, the other's that or 40h) within {} ms:\n{}",
+            "node 33 did not reach its safe state (one channel's cause one of {causes:?}, the other's that or 40h) within {} ms:\n{}",
             bound_ms + 2_000,
             network.table()
         );
@@ -68,8 +74,10 @@ fn node_33_safe(network: &mut Network, since: f64, causes: &[u8], bound_ms: u64)
 
 /// Waits until both channels of node 1 are safe, channel A with one of `causes` (or saying
 /// that its partner went safe first, 40h).
-fn node_1_reports(network: &mut Network, causes: &[u8]) -> Result<()> {
-    let expected = |cause: u8| causes.contains(&cause) || cause == 0x40;
+fn node_1_reports(network: &mut Network, causes: &[Cause]) -> Result<()> {
+    let expected = |cause: u8| {
+        Cause::from_code(cause).is_some_and(|c| causes.contains(&c) || c == Cause::PeerSafeState)
+    };
     let reported = network.wait_for(Duration::from_secs(2), |latest| {
         ["node1a", "node1b"].iter().all(|name| {
             latest
@@ -186,20 +194,25 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
     release(network)?;
 
     let at = network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
-    let ms = node_33_safe(network, at, &[2], REFRESH_MS + SRVT_MS + MARGIN_MS)?;
+    let ms = node_33_safe(
+        network,
+        at,
+        &[Cause::SrvtElapsed],
+        REFRESH_MS + SRVT_MS + MARGIN_MS,
+    )?;
     check(
         "inverted frame dropped → node 33 safe (SRVT)",
         ms,
         REFRESH_MS + SRVT_MS + MARGIN_MS,
     )?;
     // Node 1's channel A saw its pair left incomplete and says so (CiA 304 9.5).
-    node_1_reports(network, &[0x30])?;
+    node_1_reports(network, &[Cause::TransmitMismatch])?;
     reset(network)?;
 
     // The inverted frame: a corrupted plain frame is caught by node 1's channel B first (it
     // compares it with its own), which sends no inverted frame: that is the SRVT case.
     let at = network.command(&format!("corrupt 0x{:03X} 0 0x01", network::INVERTED))?;
-    let ms = node_33_safe(network, at, &[5], REFRESH_MS + MARGIN_MS)?;
+    let ms = node_33_safe(network, at, &[Cause::NotInverted], REFRESH_MS + MARGIN_MS)?;
     check(
         "inverted data corrupted → node 33 safe (not inverted)",
         ms,
@@ -209,7 +222,12 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
 
     let at = network.command("mute node1a")?;
     network.command("mute node1b")?;
-    let ms = node_33_safe(network, at, &[1], SCT_MS + REFRESH_MS + MARGIN_MS)?;
+    let ms = node_33_safe(
+        network,
+        at,
+        &[Cause::SctElapsed],
+        SCT_MS + REFRESH_MS + MARGIN_MS,
+    )?;
     check(
         "node 1 stopped → node 33 safe (SCT)",
         ms,
@@ -219,18 +237,23 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
 
     let at = network.command("input node1b 0")?;
     let bound = REFRESH_MS + SRVT_MS + MARGIN_MS;
-    let ms = node_33_safe(network, at, &[2], bound)?;
+    let ms = node_33_safe(network, at, &[Cause::SrvtElapsed], bound)?;
     check(
         "channel B of node 1 reads otherwise → node 33 safe",
         ms,
         bound,
     )?;
-    node_1_reports(network, &[0x30, 0x33])?;
+    node_1_reports(network, &[Cause::TransmitMismatch, Cause::InputDiscrepancy])?;
     reset(network)?;
 
     let at = network.command("cut node33-link")?;
     let bound = 2 * LINK_PERIOD_MS + MARGIN_MS;
-    let ms = node_33_safe(network, at, &[0x14, 0x12, 0x40], bound)?;
+    let ms = node_33_safe(
+        network,
+        at,
+        &[Cause::LinkTimeout, Cause::LinkMissing, Cause::PeerSafeState],
+        bound,
+    )?;
     check("link of node 33 cut → node 33 safe", ms, bound)?;
     Ok(results)
 }

@@ -5,6 +5,7 @@
 
 mod bench;
 mod e2e;
+mod footprint;
 mod fullnet;
 mod images;
 mod network;
@@ -43,6 +44,9 @@ enum Task {
     },
     /// Build both firmware images (release) and check their size against the budgets.
     Build,
+    /// Where the bytes of the firmware images go: builds both layers' images and writes flash
+    /// per crate (from the line tables) and the largest functions into docs/footprint.md.
+    Footprint,
     /// Build both images and flash one to a connected STM32F405RG with probe-rs, then show its
     /// defmt log (`probe-rs run`). Needs a probe; `cargo xtask setup --probe-rs` installs
     /// probe-rs.
@@ -173,6 +177,10 @@ fn task() -> Result<()> {
         Task::Build => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)
+        }
+        Task::Footprint => {
+            let cross = toolchain::ensure()?;
+            footprint::run(&root, &cross)
         }
         Task::Test => test(&root),
         Task::E2e => e2e::task(&root),

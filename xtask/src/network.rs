@@ -11,9 +11,10 @@ use crate::qemu;
 use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, anyhow, bail};
 use can_hub::tool::{Control, Tool};
-use dual_channel::can_serial::Status;
-use shared::canopen::nmt::NmtCommand;
+use emulation_wire::Status;
+use shared::canopen::nmt::{NmtCommand, NmtState};
 use shared::canopen::od::Address;
+use shared::safety::cause::Cause;
 use std::collections::HashMap;
 use std::os::unix::process::CommandExt as _;
 use std::path::{Path, PathBuf};
@@ -126,9 +127,9 @@ pub fn working(latest: &HashMap<String, (f64, Status)>, node: u8) -> bool {
         .iter()
         .filter(|(_, id, _)| *id == node)
         .all(|(name, _, _)| {
-            latest
-                .get(*name)
-                .is_some_and(|(_, s)| s.nmt == 5 && s.working && s.link_up)
+            latest.get(*name).is_some_and(|(_, s)| {
+                s.nmt_state() == Some(NmtState::Operational) && s.working && s.link_up
+            })
         })
 }
 
@@ -332,7 +333,7 @@ impl Network {
             }
             Ok(())
         };
-        configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
+        configure(tool).map_err(|error| anyhow!("configuration refused: {error}"))?;
         // An NMT start right after the store used to reach the two channels of a node up to
         // 177 ms apart: each channel worked through the frames queued for it on QEMU's USART
         // at its own pace (docs/emulation.md). On the paced virtual time that cannot happen
@@ -482,39 +483,14 @@ impl Network {
     }
 }
 
-/// A cause code as words.
+/// A cause code as words ([`Cause::describe`], the one table of them).
 pub fn cause(code: u8) -> &'static str {
-    match code {
-        0 => "-",
-        1 => "SCT elapsed",
-        2 => "SRVT elapsed",
-        4 => "plain frame repeated with other data",
-        5 => "not inverted",
-        6 => "frame too short",
-        7 => "transmit halves not inverted",
-        0x10..=0x14 => "link fault",
-        0x20..=0x22 => "verdicts differ",
-        0x30 => "transmit mismatch A/B",
-        0x31 => "configuration mismatch",
-        0x32 => "NMT mismatch",
-        0x33 => "input discrepancy",
-        0x34 => "frame on our identifier we did not send",
-        0x35 => "inverted frame not the inverse of ours",
-        0x40 => "other channel safe",
-        0x50 => "GFC",
-        0xF2..=0xF5 => "configuration in use damaged",
-        _ => "other",
-    }
+    Cause::describe_code(code)
 }
 
-fn nmt(code: u8) -> &'static str {
-    match code {
-        0 => "Initialising",
-        4 => "Stopped",
-        5 => "Operational",
-        127 => "Pre-operational",
-        _ => "?",
-    }
+/// A status's NMT state as words.
+fn nmt(status: &Status) -> &'static str {
+    status.nmt_state().map_or("?", NmtState::describe)
 }
 
 /// The statuses as a table.
@@ -533,7 +509,7 @@ pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
         out.push_str(&format!(
             "{node:>4} {}   {:<16} {:<8} {:<5} {:>5} {:>6} {:>11} {:>10}  {:02X}h {}\n",
             channel.to_uppercase(),
-            nmt(s.nmt),
+            nmt(s),
             if s.working { "working" } else { "SAFE" },
             match (s.cause, s.link_up) {
                 (0x10..=0x14, _) => "FAULT",

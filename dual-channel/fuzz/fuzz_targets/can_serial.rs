@@ -1,4 +1,4 @@
-//! The CAN-over-serial line (`dual_channel::can_serial`): any mix of messages the encoder
+//! The CAN-over-serial line (`emulation_wire`): any mix of messages the encoder
 //! makes, bodies with a valid CRC, and raw bytes, into one decoder.
 //!
 //! Checked: no panic; `encode_wire` equals the reference encoder (the layout in the module's
@@ -16,7 +16,7 @@
 mod reference;
 
 use arbitrary::Arbitrary;
-use dual_channel::can_serial::{Decoder, LinkBytes, Status, Wire, encode, encode_wire};
+use emulation_wire::{Decoder, LinkBytes, Status, Wire, encode, encode_wire};
 use libfuzzer_sys::fuzz_target;
 use shared::{CanFrame, CanId};
 

@@ -22,7 +22,7 @@
 //! the safety function). The receiver resynchronises afterwards so that the channels can agree
 //! again after an NMT reset.
 
-use crate::cobs_frames::{Completed, Reassembler};
+use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};
 use serde::{Deserialize, Serialize};
 use shared::{Duration, Instant};
@@ -165,8 +165,10 @@ impl Sender {
         let crc = CRC.checksum(&raw[..end]);
         raw[end..end + 4].copy_from_slice(&crc.to_le_bytes());
         let mut wire = [0u8; MAX_WIRE];
-        // `wire` holds the longest encoding of `MAX_RAW` bytes, so this cannot fail.
-        let len = cobs::encode(&raw[..end + 4], &mut wire);
+        // `wire` holds the longest encoding of `MAX_RAW` bytes, so this cannot fail; the
+        // checked form keeps `cobs::encode`'s `unwrap` (and its `Debug` formatting) out of the
+        // images.
+        let len = cobs::try_encode(&raw[..end + 4], &mut wire).map_err(|_| EncodeError)?;
         let mut out = heapless::Vec::new();
         out.extend_from_slice(&wire[..len])
             .map_err(|_| EncodeError)?;

@@ -31,6 +31,34 @@ impl NmtState {
             NmtState::PreOperational => 0x7F,
         }
     }
+
+    /// The state a heartbeat state byte names (CiA 301 7.2.8.3.2.2), `None` for any other
+    /// byte. The toggle bit (bit 7) is not part of the state: a caller masks it.
+    pub const fn from_heartbeat_code(code: u8) -> Option<NmtState> {
+        match code {
+            0x00 => Some(NmtState::Initialising),
+            0x04 => Some(NmtState::Stopped),
+            0x05 => Some(NmtState::Operational),
+            0x7F => Some(NmtState::PreOperational),
+            _ => None,
+        }
+    }
+
+    /// The state in words, as CiA 301 names it.
+    pub const fn describe(self) -> &'static str {
+        match self {
+            NmtState::Initialising => "Initialising",
+            NmtState::PreOperational => "Pre-operational",
+            NmtState::Operational => "Operational",
+            NmtState::Stopped => "Stopped",
+        }
+    }
+}
+
+impl core::fmt::Display for NmtState {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.describe())
+    }
 }
 
 /// An NMT command (CiA 301 7.2.8.3.1).
@@ -143,5 +171,26 @@ mod tests {
         assert_eq!(NmtState::Stopped.heartbeat_code(), 0x04);
         assert_eq!(NmtState::Operational.heartbeat_code(), 0x05);
         assert_eq!(NmtState::PreOperational.heartbeat_code(), 0x7F);
+    }
+
+    #[test]
+    fn cia301_7_2_8_3_2_2_a_heartbeat_state_byte_decodes_to_its_state_and_no_other_does() {
+        let states = [
+            NmtState::Initialising,
+            NmtState::PreOperational,
+            NmtState::Operational,
+            NmtState::Stopped,
+        ];
+        for state in states {
+            assert_eq!(
+                NmtState::from_heartbeat_code(state.heartbeat_code()),
+                Some(state)
+            );
+        }
+        let codes = states.map(NmtState::heartbeat_code);
+        for byte in (0..=u8::MAX).filter(|byte| !codes.contains(byte)) {
+            assert_eq!(NmtState::from_heartbeat_code(byte), None, "{byte:#04x}");
+        }
+        assert_eq!(NmtState::PreOperational.describe(), "Pre-operational");
     }
 }

@@ -14,9 +14,9 @@ use heapless::Vec;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ClientError {
-    /// The server aborted with this code.
+    /// The server aborted the transfer with this abort code.
     Aborted(AbortCode),
-    /// The server aborted with a code this crate does not know.
+    /// The server aborted the transfer with an abort code this crate does not know.
     UnknownAbort(u32),
     /// No answer came.
     NoResponse,
@@ -24,6 +24,36 @@ pub enum ClientError {
     Protocol,
     /// The value is longer than [`MAX_OBJECT_LEN`].
     TooLong,
+}
+
+/// The variant's doc comment, with the abort code (and its meaning, CiA 301 7.2.4.3.17) or
+/// the length where it names one.
+impl core::fmt::Display for ClientError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let abort = |f: &mut core::fmt::Formatter<'_>, code: u32| {
+            write!(f, "{:04X} {:04X}h", code >> 16, code & 0xFFFF)
+        };
+        match self {
+            ClientError::Aborted(code) => {
+                f.write_str("the server aborted the transfer with abort code ")?;
+                abort(f, code.code())?;
+                write!(f, " ({})", code.meaning().trim_end_matches('.'))
+            }
+            ClientError::UnknownAbort(code) => {
+                f.write_str(
+                    "the server aborted the transfer with an abort code this crate does not know, ",
+                )?;
+                abort(f, *code)
+            }
+            ClientError::NoResponse => f.write_str("no answer came"),
+            ClientError::Protocol => f.write_str(
+                "the answer does not fit the request (wrong specifier, object or toggle)",
+            ),
+            ClientError::TooLong => {
+                write!(f, "the value is longer than {MAX_OBJECT_LEN} bytes")
+            }
+        }
+    }
 }
 
 /// The abort code carried by `response`, if it is an abort frame.
@@ -151,6 +181,24 @@ pub fn upload(
 mod tests {
     use super::*;
     use crate::canopen::od::ObjectDictionary;
+
+    #[test]
+    fn a_client_error_reads_as_a_sentence_with_the_abort_code_and_its_meaning() {
+        use std::string::ToString;
+        assert_eq!(
+            ClientError::Aborted(AbortCode::ToggleBit).to_string(),
+            "the server aborted the transfer with abort code 0503 0000h (Toggle bit not alternated)"
+        );
+        assert_eq!(
+            ClientError::UnknownAbort(0x1234_5678).to_string(),
+            "the server aborted the transfer with an abort code this crate does not know, 1234 5678h"
+        );
+        assert_eq!(ClientError::NoResponse.to_string(), "no answer came");
+        assert_eq!(
+            ClientError::TooLong.to_string(),
+            std::format!("the value is longer than {MAX_OBJECT_LEN} bytes")
+        );
+    }
     use crate::canopen::sdo::SdoServer;
     use crate::time::{Duration, Instant};
     use proptest::prelude::*;

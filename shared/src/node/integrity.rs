@@ -63,14 +63,15 @@ pub const IDLE_PERIOD: Duration = Duration::from_millis(100);
 /// Distinct from every [`ConfigError`](crate::safety::config::ConfigError) cause code and
 /// from [`super::STORED_PARAMETERS_REJECTED`] and [`super::VALIDATED_FOR_ANOTHER_NODE_ID`].
 pub mod cause {
+    use crate::safety::cause::Cause;
     /// The records no longer pass the Operational-entry check (byte 2: the check's cause code).
-    pub const RECORDS: u8 = 0xF2;
+    pub const RECORDS: u8 = Cause::IntegrityRecords.code();
     /// The identifier table differs from the records.
-    pub const IDENTIFIER_TABLE: u8 = 0xF3;
+    pub const IDENTIFIER_TABLE: u8 = Cause::IntegrityIdentifierTable.code();
     /// An SRDO's resolved mapping or role differs from its record.
-    pub const RUNTIME: u8 = 0xF4;
+    pub const RUNTIME: u8 = Cause::IntegrityRuntime.code();
     /// The list of running SRDOs differs from the records.
-    pub const ACTIVE_LIST: u8 = 0xF5;
+    pub const ACTIVE_LIST: u8 = Cause::IntegrityActiveList.code();
 }
 
 /// What the integrity check found in Operational.

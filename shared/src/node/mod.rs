@@ -262,10 +262,10 @@ const _: () = assert!(RAM_PER_SRDO <= 160, "more than 160 bytes of RAM per SRDO"
 const LOOKUP_INVERTED: u8 = 0x80;
 const LOOKUP_TRANSMIT: u8 = 0x40;
 const LOOKUP_SLOT: u8 = 0x3F;
-/// First identifier of the SRDO range.
-const SRDO_ID_BASE: u16 = 0x101;
-/// Identifiers in the SRDO range `0x101..=0x180`.
-const SRDO_IDS: usize = 128;
+/// First identifier of the SRDO range ([`SRDO_IDENTIFIERS`](crate::safety::types::SRDO_IDENTIFIERS)).
+const SRDO_ID_BASE: u16 = *crate::safety::types::SRDO_IDENTIFIERS.start();
+/// Identifiers in the SRDO range (128).
+const SRDO_IDS: usize = (*crate::safety::types::SRDO_IDENTIFIERS.end() - SRDO_ID_BASE + 1) as usize;
 
 /// A CANopen Safety device with `N` SRDOs (`1..=64`), storing its parameters in `F`.
 pub struct Node<F: Flash, const N: usize> {

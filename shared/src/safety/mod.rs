@@ -9,6 +9,7 @@
 //! - [`srdo`]: the SRDO producer and consumer state machines (EN 50325-5 7.1).
 //! - [`gfc`]: the global fail-safe command (EN 50325-5 7.2).
 
+pub mod cause;
 pub mod config;
 pub mod gfc;
 pub mod signature;

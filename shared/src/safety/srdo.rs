@@ -46,17 +46,23 @@ pub enum SrdoFaultCause {
 }
 
 impl SrdoFaultCause {
-    /// A stable number for this cause, sent in the manufacturer-specific bytes of EMCY. (3
-    /// was "inverted frame without plain frame", no longer a fault; it is not reused.)
-    pub const fn cause_code(self) -> u8 {
+    /// This fault's cause code and name ([`Cause`](crate::safety::cause::Cause)).
+    pub const fn cause(self) -> crate::safety::cause::Cause {
+        use crate::safety::cause::Cause;
         match self {
-            SrdoFaultCause::SctElapsed => 1,
-            SrdoFaultCause::SrvtElapsed => 2,
-            SrdoFaultCause::PlainRepeated => 4,
-            SrdoFaultCause::NotInverted => 5,
-            SrdoFaultCause::TooShort => 6,
-            SrdoFaultCause::TransmitHalvesNotInverted => 7,
+            SrdoFaultCause::SctElapsed => Cause::SctElapsed,
+            SrdoFaultCause::SrvtElapsed => Cause::SrvtElapsed,
+            SrdoFaultCause::PlainRepeated => Cause::PlainRepeated,
+            SrdoFaultCause::NotInverted => Cause::NotInverted,
+            SrdoFaultCause::TooShort => Cause::TooShort,
+            SrdoFaultCause::TransmitHalvesNotInverted => Cause::TransmitHalvesNotInverted,
         }
+    }
+
+    /// A stable number for this cause, sent in the manufacturer-specific bytes of EMCY: the
+    /// code of [`SrdoFaultCause::cause`].
+    pub const fn cause_code(self) -> u8 {
+        self.cause().code()
     }
 
     /// The EMCY error code for this cause (EN 50325-5 7.1.3 mandates 8210h for a short frame).

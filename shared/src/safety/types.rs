@@ -13,6 +13,9 @@ use super::config::ConfigError;
 pub struct SrdoNumber(u8);
 
 impl SrdoNumber {
+    /// SRDO 1.
+    pub const FIRST: SrdoNumber = SrdoNumber(1);
+
     /// SRDO `number`, if it is in `1..=64`.
     pub const fn new(number: u8) -> Option<Self> {
         if number >= 1 && number as usize <= MAX_SRDOS {
@@ -26,6 +29,16 @@ impl SrdoNumber {
     pub(crate) const fn from_index(index: usize) -> Self {
         // Callers iterate over at most MAX_SRDOS slots, so `index + 1 <= 64` fits in a u8.
         SrdoNumber((index as u8).wrapping_add(1))
+    }
+
+    /// The SRDO whose zero-based slot is `index`, if it is in `0..64`.
+    pub const fn of_slot(index: usize) -> Option<Self> {
+        if index < MAX_SRDOS {
+            // `index + 1 <= 64` fits in a u8.
+            Some(SrdoNumber(index as u8 + 1))
+        } else {
+            None
+        }
     }
 
     /// The number, `1..=64`.
@@ -74,10 +87,14 @@ impl Direction {
     }
 }
 
+/// The SRDO identifiers: 101h..=180h, COB-ID 1 odd, COB-ID 2 even (EN 50325-5 Table 5;
+/// CiA 304 8.4.2.2, sub-indices 5h and 6h). The one statement of the range: the node's
+/// identifier table, the channels' SRDO frame filters and their counters all use it.
+pub const SRDO_IDENTIFIERS: core::ops::RangeInclusive<u16> = 0x101..=0x180;
 /// Lowest COB-ID 1 of the SRDO range (EN 50325-5 Table 5: 257).
-pub const FIRST_COB_ID_MIN: u32 = 0x101;
-/// Highest COB-ID 1 of the SRDO range (EN 50325-5 Table 5: 383).
-pub const FIRST_COB_ID_MAX: u32 = 0x17F;
+pub const FIRST_COB_ID_MIN: u32 = *SRDO_IDENTIFIERS.start() as u32;
+/// Highest COB-ID 1 of the SRDO range (EN 50325-5 Table 5: 383): the last odd identifier.
+pub const FIRST_COB_ID_MAX: u32 = *SRDO_IDENTIFIERS.end() as u32 - 1;
 
 /// The two identifiers of one SRDO: COB-ID 1 (plain data) is odd in `0x101..=0x17F`, COB-ID 2
 /// (inverted data) is the even identifier right after it (EN 50325-5 6.4.1.3, 7.1.1).

@@ -31,6 +31,7 @@ use safety_config::transport::{Transport, TransportError};
 use shared::canopen::nmt::{self, NmtCommand, NmtState};
 use shared::canopen::od::Address;
 use shared::canopen::storage::RamFlash;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
@@ -87,7 +88,7 @@ impl Io for Scratch {
     fn link(&mut self, bytes: &[u8]) {
         self.link.extend_from_slice(bytes);
     }
-    fn output(&mut self, _srdo: u8, _data: u64) {
+    fn output(&mut self, _srdo: SrdoNumber, _data: u64) {
         self.outputs += 1;
     }
     fn event(&mut self, event: ChannelEvent) {
@@ -116,13 +117,13 @@ pub struct SimNode {
     /// Whether each channel was Operational after its last call (filtered delivery).
     operational: [bool; 2],
     /// The receive SRDO whose effective output is reported to the observer.
-    watched: Option<u8>,
+    watched: Option<SrdoNumber>,
     output: u64,
 }
 
 impl SimNode {
     /// The effective output of receive SRDO `srdo`: both channels' outputs in series (AND).
-    pub fn output(&self, srdo: u8) -> u64 {
+    pub fn output(&self, srdo: SrdoNumber) -> u64 {
         self.a.output(srdo) & self.b.output(srdo)
     }
 }
@@ -307,7 +308,7 @@ impl<O: Observer> Engine<O> {
     }
 
     /// Reports the effective output of receive SRDO `srdo` of node `index` to the observer.
-    pub fn watch(&mut self, index: usize, srdo: u8) {
+    pub fn watch(&mut self, index: usize, srdo: SrdoNumber) {
         self.nodes[index].watched = Some(srdo);
         self.nodes[index].output = self.nodes[index].output(srdo);
     }

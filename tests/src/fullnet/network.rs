@@ -12,6 +12,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use shared::canopen::nmt::NmtCommand;
 use shared::node::Event;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -342,7 +343,10 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     for (index, role) in roles.iter().enumerate() {
         if let Some((pair, number)) = role.consumes {
             consumer_of[usize::from(pair)] = index;
-            engine.watch(index, number);
+            engine.watch(
+                index,
+                SrdoNumber::new(number).expect("the plan numbers receive SRDOs from 1"),
+            );
         }
     }
     for &index in &producers {

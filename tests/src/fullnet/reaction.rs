@@ -26,6 +26,7 @@ use crate::dual::{LINK_PERIOD, Side};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use shared::canopen::nmt::NmtCommand;
+use shared::safety::types::SrdoNumber;
 use shared::{Duration, Instant};
 
 /// Refresh time of node 1 (ms).
@@ -138,7 +139,7 @@ fn start(bit_rate: u32, loaded: bool) -> Result<Engine<Watch>, String> {
     if !engine.wait_for_boot(Duration::from_millis(2000)) {
         return Err("nodes 1 and 33 did not boot".into());
     }
-    engine.watch(1, 1);
+    engine.watch(1, SrdoNumber::FIRST);
     engine.set_inputs(0, 1, 1);
     restart(&mut engine)?;
     Ok(engine)

@@ -1,5 +1,9 @@
-//! Reassembling COBS-encoded, zero-delimited frames from a byte stream: what the link and the
-//! CAN-over-serial bridge share.
+//! Reassembling COBS-encoded, zero-delimited frames from a byte stream: what the inter-channel
+//! link (`dual-channel`) and the emulation's CAN-over-serial line (`emulation-wire`) share, in a
+//! crate of its own so that neither depends on the other.
+
+#![no_std]
+#![forbid(unsafe_code)]
 
 /// A frame in the making: bytes up to the next 0x00 delimiter.
 #[derive(Clone, Debug, Default)]

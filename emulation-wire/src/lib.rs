@@ -1,4 +1,5 @@
-//! CAN frames over a serial line, for the emulated network: QEMU models no CAN controller, so
+//! CAN frames over a serial line, for the emulated network (the emulation's own wire format: the
+//! safety runtime does not depend on it, and the hub depends on nothing else of the node): QEMU models no CAN controller, so
 //! the QEMU board layer sends and receives CAN frames on USART2, and a host-side bus hub puts
 //! them on the simulated bus.
 //!
@@ -22,7 +23,10 @@
 //!   word = 0x4004:        Link, body = 1..=LINK_CHUNK link bytes
 //! ```
 
-use crate::cobs_frames::{Completed, Reassembler};
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_16_XMODEM, Crc};
 use shared::{CanFrame, CanId};
 
@@ -61,6 +65,17 @@ pub enum SerialError {
     Malformed,
 }
 
+/// The variant's doc comment.
+impl core::fmt::Display for SerialError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SerialError::Malformed => {
+                f.write_str("bad COBS, bad length, bad CRC, or an identifier or DLC out of range")
+            }
+        }
+    }
+}
+
 /// What one channel tells the hub about itself (the emulated board's diagnostics and output
 /// pin). Counters wrap.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -77,8 +92,8 @@ pub struct Status {
     pub output: u8,
     /// The channel's safety input as it last sampled it.
     pub input: u8,
-    /// The cause code of the last safe state latched (0: none since power-on or reset; the
-    /// codes of `SrdoFaultCause::cause_code` and `ChannelFault::cause_code`, 0x50 for GFC).
+    /// The cause code of the last safe state latched (0: none since power-on or reset; every
+    /// code and its name are in `shared::safety::cause::Cause`, see [`Status::latched_cause`]).
     pub cause: u8,
     /// SRDO frames this channel sent.
     pub sent: u16,
@@ -102,6 +117,17 @@ pub struct Status {
 }
 
 impl Status {
+    /// The NMT state [`Status::nmt`] names, `None` for a byte that is no heartbeat state code.
+    pub const fn nmt_state(&self) -> Option<shared::canopen::nmt::NmtState> {
+        shared::canopen::nmt::NmtState::from_heartbeat_code(self.nmt)
+    }
+
+    /// The cause [`Status::cause`] names, `None` for a byte that is no cause code (an
+    /// application's own detail byte).
+    pub fn latched_cause(&self) -> Option<shared::safety::cause::Cause> {
+        shared::safety::cause::Cause::from_code(self.cause)
+    }
+
     /// Bytes of an encoded status.
     pub const LEN: usize = 20;
 
@@ -241,9 +267,13 @@ pub fn encode_wire(message: &Wire) -> heapless::Vec<u8, MAX_WIRE> {
     let crc = CRC.checksum(&raw[..end]);
     raw[end..end + 2].copy_from_slice(&crc.to_le_bytes());
     let mut wire = [0u8; MAX_WIRE];
-    // `wire` holds the longest encoding of `MAX_RAW` bytes.
-    let len = cobs::encode(&raw[..end + 2], &mut wire);
     let mut out = heapless::Vec::new();
+    // `wire` holds the longest encoding of `MAX_RAW` bytes, so this cannot fail (were it to,
+    // nothing would be sent, and the receivers' timers would act); the checked form keeps
+    // `cobs::encode`'s `unwrap` (and its `Debug` formatting) out of the images.
+    let Ok(len) = cobs::try_encode(&raw[..end + 2], &mut wire) else {
+        return out;
+    };
     // Cannot fail: `len` + 1 <= MAX_WIRE.
     let _ = out.extend_from_slice(&wire[..len]);
     let _ = out.push(0);
@@ -320,6 +350,14 @@ fn parse_frame(word: u16, body: &[u8]) -> Result<CanFrame, SerialError> {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn a_serial_error_reads_as_its_doc_comment() {
+        assert_eq!(
+            SerialError::Malformed.to_string(),
+            "bad COBS, bad length, bad CRC, or an identifier or DLC out of range"
+        );
+    }
 
     proptest! {
         #[test]

@@ -7,20 +7,18 @@
 //! cause), and otherwise every [`PERIOD`], so counters stay fresh and a silent channel is
 //! noticed.
 
-use crate::can_serial::Status;
-use crate::runtime::{ChannelEvent, Io, Role, Runtime, safe_state_code};
+use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime, is_srdo, safe_state_code};
+use emulation_wire::Status;
 use shared::canopen::storage::Flash;
 use shared::node::Event;
+use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 
 /// The longest time between two reports.
 pub const PERIOD: Duration = Duration::from_millis(250);
 
 /// The cause code reported for a received GFC (EN 50325-5 7.2.1).
-pub use crate::runtime::GFC_CAUSE;
-
-/// The SRDO identifier range (CiA 304 Table 3: 101h..180h), for counting SRDO frames sent.
-const SRDO_IDS: core::ops::RangeInclusive<u16> = 0x101..=0x180;
+pub use dual_channel::runtime::GFC_CAUSE;
 
 /// A channel's diagnostics.
 #[derive(Clone, Debug)]
@@ -64,7 +62,7 @@ impl Diagnostics {
 
     /// The channel sent `frame`.
     pub fn transmitted(&mut self, frame: &CanFrame) {
-        if SRDO_IDS.contains(&frame.id().raw()) {
+        if is_srdo(frame) {
             self.status.sent = self.status.sent.wrapping_add(1);
         }
     }
@@ -126,7 +124,7 @@ impl Diagnostics {
         self.status.working = runtime.is_working();
         self.status.link_up = runtime.link_up();
         // The output pin is the lowest byte of receive SRDO 1 (the demo device's relay).
-        self.status.output = runtime.output(1) as u8;
+        self.status.output = runtime.output(SrdoNumber::FIRST) as u8;
         let discarded = runtime.node().double_reception();
         self.status.discarded = u16::try_from(
             discarded
@@ -181,7 +179,7 @@ impl<I: Io> Io for Observed<'_, I> {
     fn link(&mut self, bytes: &[u8]) {
         self.io.link(bytes);
     }
-    fn output(&mut self, srdo: u8, data: u64) {
+    fn output(&mut self, srdo: SrdoNumber, data: u64) {
         self.io.output(srdo, data);
     }
     fn event(&mut self, event: ChannelEvent) {
