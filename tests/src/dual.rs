@@ -118,6 +118,10 @@ pub struct DualNetwork {
     pub trace: Vec<(Instant, CanFrame, usize)>,
     /// Every change of a channel's output: (time, node-ID, channel, receive SRDO, value).
     pub outputs: Vec<(Instant, u8, Side, u8, u64)>,
+    /// A wrapper around the bus (the campaigns' seeded faults, `crate::campaign`): every
+    /// delivery the bus makes goes through it, and what it returns is delivered instead
+    /// (altered, dropped, delayed, repeated, or with frames of its own added).
+    pub tap: Option<Box<dyn FnMut(Delivery) -> Vec<Delivery>>>,
 }
 
 /// Channel B of the demo device samples the same input object as channel A (its own contact).
@@ -163,6 +167,7 @@ impl DualNetwork {
             log: Vec::new(),
             trace: Vec::new(),
             outputs: Vec::new(),
+            tap: None,
         }
     }
 
@@ -285,7 +290,10 @@ impl DualNetwork {
         }
         if self.bus.next_start(now) == Some(now) {
             let deliveries = self.bus.arbitrate(now);
-            self.in_flight.extend(deliveries);
+            match self.tap.as_mut() {
+                Some(tap) => self.in_flight.extend(deliveries.into_iter().flat_map(tap)),
+                None => self.in_flight.extend(deliveries),
+            }
         }
     }
 

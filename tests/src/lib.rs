@@ -6,6 +6,8 @@
 //!   a candump trace.
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
+//! - [`campaign`]: seeded fault campaigns judged by an oracle that does not reuse the
+//!   implementation (`cargo xtask campaign`).
 //! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
 
 pub use can_hub::bus;
@@ -13,3 +15,4 @@ pub mod dual;
 pub mod network;
 pub mod scenario;
 pub mod tool_bus;
+pub mod campaign;
