@@ -337,7 +337,11 @@ pub fn tap_srdo(
         let index = count;
         count += 1;
         match alter(index, delivery) {
-            Some(instead) => {
+            Some(mut instead) => {
+                // Nothing reaches a receiver before it was on the bus.
+                for d in &mut instead {
+                    d.at = d.at.max(delivery.at);
+                }
                 if first.get().is_none() {
                     // The first added or altered delivery; the original's time when it was
                     // lost, altered or held back (it should have arrived then).

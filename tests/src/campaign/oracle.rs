@@ -347,7 +347,11 @@ pub fn judge(
     end: Instant,
 ) -> Judgement {
     let mut monitor = Monitor::new(srdo);
-    for (at, frame, from) in frames {
+    // In time order (stable: frames at the same instant keep the bus's order), whatever
+    // order the caller recorded them in.
+    let mut frames = frames.to_vec();
+    frames.sort_by_key(|(at, ..)| *at);
+    for (at, frame, from) in &frames {
         monitor.frame(at.as_micros(), frame, *from);
     }
     monitor.elapse(end.as_micros());
