@@ -11,8 +11,8 @@
 //! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
 
 pub use can_hub::bus;
+pub mod campaign;
 pub mod dual;
 pub mod network;
 pub mod scenario;
 pub mod tool_bus;
-pub mod campaign;

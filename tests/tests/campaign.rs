@@ -54,8 +54,17 @@ fn harmless(net: &mut DualNetwork, run: Duration, expected: u8) {
     let from = net.now;
     net.run_for(run);
     let verdict = verdict(net, from);
-    assert!(verdict.judgement.violations.is_empty(), "{:?}", verdict.judgement.violations);
-    assert_eq!(verdict.safe_at, None, "{}", campaign::timeline(net, from, net.now, "safe"));
+    assert!(
+        verdict.judgement.violations.is_empty(),
+        "{:?}",
+        verdict.judgement.violations
+    );
+    assert_eq!(
+        verdict.safe_at,
+        None,
+        "{}",
+        campaign::timeline(net, from, net.now, "safe")
+    );
     assert_eq!(net.output(CONSUMER), u64::from(expected));
     let node = net.node(CONSUMER);
     assert!(node.a.is_working() && node.b.is_working());
@@ -106,10 +115,18 @@ fn campaign_oracle_flags_unjustified_outputs() {
     assert!(!kept.violations.is_empty(), "kept beyond SCT");
     // Raised before the pair.
     let early = [(at(9), 0usize, 0x5Au64), (at(9), 1, 0x5A)];
-    assert!(!oracle::judge(WATCHED, &frames, &early, at(20)).violations.is_empty());
+    assert!(
+        !oracle::judge(WATCHED, &frames, &early, at(20))
+            .violations
+            .is_empty()
+    );
     // More bits than the pair carries.
     let more = [(at(10), 0usize, 0xFFu64), (at(10), 1, 0xFF)];
-    assert!(!oracle::judge(WATCHED, &frames, &more, at(20)).violations.is_empty());
+    assert!(
+        !oracle::judge(WATCHED, &frames, &more, at(20))
+            .violations
+            .is_empty()
+    );
     // An inverted frame that is not the inverse at 35 ms: 0 within the reaction allowance.
     let mut corrupted = frames.clone();
     corrupted.push((at(35), frame(0x101, &[0x5A]), 1));
@@ -118,13 +135,21 @@ fn campaign_oracle_flags_unjustified_outputs() {
     assert_eq!(judged.first_error.map(|(t, _)| t), Some(at(35)));
     assert!(!judged.violations.is_empty());
     let in_time = [follows[0], follows[1], (at(35) + REACTION, 1, 0)];
-    assert!(oracle::judge(WATCHED, &corrupted, &in_time, at(40)).violations.is_empty());
+    assert!(
+        oracle::judge(WATCHED, &corrupted, &in_time, at(40))
+            .violations
+            .is_empty()
+    );
     // A well-formed pair from another sender justifies nothing.
     let mut foreign = frames.clone();
     foreign.push((at(20), frame(0x101, &[0xFF]), 0));
     foreign.push((at(20), frame(0x102, &[0x00]), 0));
     let raised = [follows[0], follows[1], (at(21), 0, 0xFF), (at(21), 1, 0xFF)];
-    assert!(!oracle::judge(WATCHED, &foreign, &raised, at(30)).violations.is_empty());
+    assert!(
+        !oracle::judge(WATCHED, &foreign, &raised, at(30))
+            .violations
+            .is_empty()
+    );
     // A lone plain frame: SRVT after it the safe state is required.
     let mut lone = frames.clone();
     lone.push((at(30), frame(0x101, &[0x5A]), 1));
@@ -133,18 +158,28 @@ fn campaign_oracle_flags_unjustified_outputs() {
     // A second plain frame with other data: a sequence error; an exact copy is not.
     let mut copy = frames.clone();
     copy.insert(2, (at(10), frame(0x101, &[0x5A]), 1));
-    assert!(oracle::judge(WATCHED, &copy, &follows, at(55)).violations.is_empty());
+    assert!(
+        oracle::judge(WATCHED, &copy, &follows, at(55))
+            .violations
+            .is_empty()
+    );
     let mut other = frames.clone();
     other.insert(2, (at(10), frame(0x101, &[0x5B]), 1));
     assert_eq!(
-        oracle::judge(WATCHED, &other, &[], at(20)).first_error.map(|(t, _)| t),
+        oracle::judge(WATCHED, &other, &[], at(20))
+            .first_error
+            .map(|(t, _)| t),
         Some(at(10))
     );
     // After an NMT reset node the latch is cleared, but nothing is justified until a pair
     // follows a new start.
     let mut reset = corrupted.clone();
     reset.push((at(38), frame(0x000, &[0x81, 33]), 0));
-    reset.extend(start_and_pair(0x11, 45).into_iter().map(|(t, f, p)| (t + ms(40), f, p)));
+    reset.extend(
+        start_and_pair(0x11, 45)
+            .into_iter()
+            .map(|(t, f, p)| (t + ms(40), f, p)),
+    );
     let again = [
         follows[0],
         follows[1],
@@ -152,7 +187,11 @@ fn campaign_oracle_flags_unjustified_outputs() {
         (at(85), 0, 0x11),
         (at(85), 1, 0x11),
     ];
-    assert!(oracle::judge(WATCHED, &reset, &again, at(90)).violations.is_empty());
+    assert!(
+        oracle::judge(WATCHED, &reset, &again, at(90))
+            .violations
+            .is_empty()
+    );
 }
 
 /// The oracle's configuration is the one node 33 runs (read back over SDO, not taken from
@@ -168,8 +207,14 @@ fn campaign_oracle_configuration_matches_the_node() {
     };
     assert_eq!(read(&mut net, 0x1301, 5), u32::from(MONITORED.plain_id));
     assert_eq!(read(&mut net, 0x1301, 6), u32::from(MONITORED.inverted_id));
-    assert_eq!(u64::from(read(&mut net, 0x1301, 2)) * 1000, MONITORED.sct.as_micros());
-    assert_eq!(u64::from(read(&mut net, 0x1301, 3)) * 1000, MONITORED.srvt.as_micros());
+    assert_eq!(
+        u64::from(read(&mut net, 0x1301, 2)) * 1000,
+        MONITORED.sct.as_micros()
+    );
+    assert_eq!(
+        u64::from(read(&mut net, 0x1301, 3)) * 1000,
+        MONITORED.srvt.as_micros()
+    );
     assert_eq!(read(&mut net, 0x1381, 0), 2);
     // Each mapping entry is 8 bits (length in the low byte).
     assert_eq!(read(&mut net, 0x1381, 1) & 0xFF, 8 * MONITORED.len as u32);
@@ -239,7 +284,14 @@ fn iec61784_3_repetition_can_double_reception_changes_nothing() {
     let now = net.now;
     net.inject(Match::next_with_id(0x101, now), Fault::Repeat);
     harmless(&mut net, ms(150), INPUT);
-    assert!(net.node(CONSUMER).a.node().double_reception().plain_repeated >= 1);
+    assert!(
+        net.node(CONSUMER)
+            .a
+            .node()
+            .double_reception()
+            .plain_repeated
+            >= 1
+    );
 }
 
 /// A copy of the plain frame delivered 10 ms after its pair (a gateway repeating): a lone
@@ -248,7 +300,15 @@ fn iec61784_3_repetition_can_double_reception_changes_nothing() {
 fn iec61784_3_repetition_a_late_copy_of_the_plain_frame_is_safe_by_srvt() {
     let mut net = steady(INPUT);
     let effect = tap_srdo(&mut net, |_, d| {
-        (d.frame.id().raw() == 0x101).then(|| vec![d, Delivery { at: d.at + ms(10), ..d }])
+        (d.frame.id().raw() == 0x101).then(|| {
+            vec![
+                d,
+                Delivery {
+                    at: d.at + ms(10),
+                    ..d
+                },
+            ]
+        })
     });
     net.run_for(REFRESH);
     safe_within(&mut net, effect_of(&effect), plus(SRVT, REACTION), ms(80));
@@ -308,7 +368,11 @@ fn iec61784_3_loss_a_lost_inverted_frame_is_safe_at_srvt() {
     net.run_for(ms(30));
     safe_within(&mut net, effect_of(&effect), plus(SRVT, REACTION), ms(80));
     let verdict = verdict(&net, plain.get().unwrap());
-    assert_eq!(verdict.safe_at, Some(plain.get().unwrap() + SRVT), "at SRVT itself");
+    assert_eq!(
+        verdict.safe_at,
+        Some(plain.get().unwrap() + SRVT),
+        "at SRVT itself"
+    );
 }
 
 /// Every SRDO frame lost from now on: safe at SCT after the last pair.
@@ -371,7 +435,10 @@ fn iec61784_3_delay_a_pair_beyond_sct_is_safe_at_sct() {
             return None;
         }
         done = true;
-        Some(vec![Delivery { at: seen.get() + SCT + ms(1), ..d }])
+        Some(vec![Delivery {
+            at: seen.get() + SCT + ms(1),
+            ..d
+        }])
     });
     net.run_for(plus(REFRESH, REFRESH));
     safe_within(&mut net, effect_of(&effect), plus(SCT, REACTION), ms(80));
@@ -392,7 +459,12 @@ fn iec61784_3_insertion_a_foreign_plain_frame_is_safe_within_a_millisecond() {
         .map(|(at, ..)| *at)
         .unwrap();
     safe_within(&mut net, effect, ms(1), ms(80));
-    assert!(net.trace.iter().any(|(at, f, _)| *at >= effect && f.id().raw() == 0x001), "GFC");
+    assert!(
+        net.trace
+            .iter()
+            .any(|(at, f, _)| *at >= effect && f.id().raw() == 0x001),
+        "GFC"
+    );
 }
 
 /// A well-formed pair with other data from another sender after the emergency stop: the
@@ -431,8 +503,12 @@ fn iec61784_3_addressing_pairs_on_another_identifier_pair_are_safe_by_sct() {
     let effect = tap_srdo(&mut net, |_, d| {
         let id = d.frame.id().raw() + 2;
         Some(vec![Delivery {
-            frame: CanFrame::from_parts(CanId::new(id).unwrap(), d.frame.dlc(), *d.frame.raw_data())
-                .unwrap(),
+            frame: CanFrame::from_parts(
+                CanId::new(id).unwrap(),
+                d.frame.dlc(),
+                *d.frame.raw_data(),
+            )
+            .unwrap(),
             ..d
         }])
     });
@@ -473,7 +549,12 @@ fn cia304_9_5_a_corrupted_link_byte_is_safe_at_once() {
     let mut net = steady(INPUT);
     net.node_mut(CONSUMER).link_faults.corrupt_next_a_to_b = Some(0x04);
     let now = net.now;
-    safe_within(&mut net, now, plus(Duration::from_millis(10), REACTION), ms(60));
+    safe_within(
+        &mut net,
+        now,
+        plus(Duration::from_millis(10), REACTION),
+        ms(60),
+    );
 }
 
 /// Channel B of node 1 never sends its inverted frame: node 33 safe by SRVT after the next

@@ -71,9 +71,9 @@ fn main() -> ExitCode {
         }
         return ExitCode::SUCCESS;
     }
-    let threads = args.threads.unwrap_or_else(|| {
-        std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
-    });
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
     let started = WallClock::now();
     let mut results: Vec<(Class, Summary)> = Vec::new();
     for class in &classes {

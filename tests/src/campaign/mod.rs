@@ -24,10 +24,10 @@ pub mod report;
 use crate::bus::{Delivery, Fault, Injection, Match, frame_time};
 use crate::dual::{DualNetwork, Side};
 use dual_channel::runtime::{ChannelEvent, SAMPLE_WINDOW};
-use shared::node::Event;
 use oracle::{MonitoredSrdo, REACTION};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use shared::node::Event;
 use shared::{CanFrame, CanId, Duration, Instant};
 use std::cell::{Cell, RefCell};
 use std::fmt::Write as _;
@@ -158,9 +158,7 @@ impl Class {
             Class::Insertion => "IEC 61784-3 insertion",
             Class::Masquerade => "IEC 61784-3 masquerade",
             Class::Addressing => "IEC 61784-3 addressing",
-            Class::StuckInput | Class::BitFlip | Class::Link | Class::NoInverted => {
-                "CiA 304 9.5"
-            }
+            Class::StuckInput | Class::BitFlip | Class::Link | Class::NoInverted => "CiA 304 9.5",
             Class::ControllerSilent | Class::Babbling | Class::BusOff => "EN 50325-5 7.1.2",
         }
     }
@@ -309,7 +307,11 @@ fn participant(id: u8, side: Side) -> usize {
 }
 
 fn random_side(rng: &mut ChaCha8Rng) -> Side {
-    if rng.random_bool(0.5) { Side::A } else { Side::B }
+    if rng.random_bool(0.5) {
+        Side::A
+    } else {
+        Side::B
+    }
 }
 
 fn random_node(rng: &mut ChaCha8Rng) -> u8 {
@@ -321,7 +323,7 @@ fn random_node(rng: &mut ChaCha8Rng) -> u8 {
 }
 
 /// Installs a tap that applies `alter` to the genuine SRDO frames from the producer, counting
-/// them from 0; `alter` returns the deliveries to make instead and whether it altered
+/// them from 0 at the first plain frame (even: plain, odd: inverted); `alter` returns the deliveries to make instead and whether it altered
 /// anything (the first alteration is the moment the fault took effect).
 pub fn tap_srdo(
     net: &mut DualNetwork,
@@ -332,6 +334,11 @@ pub fn tap_srdo(
     let mut count = 0usize;
     net.tap = Some(Box::new(move |delivery: Delivery| {
         if !is_genuine_srdo(&delivery) {
+            return vec![delivery];
+        }
+        if count == 0 && delivery.frame.id().raw() == 0x102 {
+            // The inverted half of a pair whose plain frame was on its way when the tap was
+            // installed: counting starts at a plain frame, so even numbers are plain frames.
             return vec![delivery];
         }
         let index = count;
@@ -346,7 +353,11 @@ pub fn tap_srdo(
                     // The first added or altered delivery; the original's time when it was
                     // lost, altered or held back (it should have arrived then).
                     let kept = instead.contains(&delivery);
-                    let added = instead.iter().filter(|d| **d != delivery).map(|d| d.at).min();
+                    let added = instead
+                        .iter()
+                        .filter(|d| **d != delivery)
+                        .map(|d| d.at)
+                        .min();
                     let at = match (kept, added) {
                         (true, Some(at)) => at,
                         (false, Some(at)) => at.min(delivery.at),
@@ -398,7 +409,11 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
                     }
                     _ => {
                         // Another length: 0..=8 without the frame's own.
-                        let dlc = if new_dlc >= f.dlc() { new_dlc + 1 } else { new_dlc };
+                        let dlc = if new_dlc >= f.dlc() {
+                            new_dlc + 1
+                        } else {
+                            new_dlc
+                        };
                         let mut data = *f.raw_data();
                         data[usize::from(f.dlc())..].copy_from_slice(&fill[usize::from(f.dlc())..]);
                         *text.borrow_mut() =
@@ -411,8 +426,11 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
                     ..delivery
                 }])
             });
-            Injected::tapped(format!("SRDO frame #{target} after the start: {{}}"), effect)
-                .described_by(description)
+            Injected::tapped(
+                format!("SRDO frame #{target} after the start: {{}}"),
+                effect,
+            )
+            .described_by(description)
         }
         Class::Repetition => repetition(rng, net),
         Class::Sequence => sequence(rng, net, input),
@@ -469,7 +487,9 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
                 net.send_foreign(frame(id, 1, [posing, 0, 0, 0, 0, 0, 0, 0]));
                 let at = net.now;
                 return Injected::at(
-                    format!("producer sends {genuine:#04x}; non-safety frame {id:03X}h carries {posing:#04x}"),
+                    format!(
+                        "producer sends {genuine:#04x}; non-safety frame {id:03X}h carries {posing:#04x}"
+                    ),
                     at,
                 );
             }
@@ -477,7 +497,9 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             net.send_foreign(frame(0x102, 1, [!posing, 0, 0, 0, 0, 0, 0, 0]));
             foreign_effect(
                 net,
-                format!("producer sends {genuine:#04x}; a well-formed pair from another sender carries {posing:#04x}"),
+                format!(
+                    "producer sends {genuine:#04x}; a well-formed pair from another sender carries {posing:#04x}"
+                ),
             )
         }
         Class::Addressing => {
@@ -486,9 +508,15 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             let other = 0x101 + 2 * rng.random_range(1..=63u16);
             let which = rng.random_range(0..4u8);
             let what = match which {
-                0 => format!("both frames of {pairs} pair(s) on the pair {other:03X}h/{:03X}h", other + 1),
+                0 => format!(
+                    "both frames of {pairs} pair(s) on the pair {other:03X}h/{:03X}h",
+                    other + 1
+                ),
                 1 => format!("the plain frame of {pairs} pair(s) on {other:03X}h"),
-                2 => format!("the inverted frame of {pairs} pair(s) on {:03X}h", other + 1),
+                2 => format!(
+                    "the inverted frame of {pairs} pair(s) on {:03X}h",
+                    other + 1
+                ),
                 _ => format!("{pairs} pair(s) with their identifiers swapped"),
             };
             let effect = tap_srdo(net, move |index, delivery| {
@@ -518,7 +546,9 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             net.set_input(PRODUCER, moving, 0);
             let at = net.now;
             Injected::at(
-                format!("channel {stuck:?}'s input stuck at {input:#04x}; emergency stop pressed (channel {moving:?} reads 0)"),
+                format!(
+                    "channel {stuck:?}'s input stuck at {input:#04x}; emergency stop pressed (channel {moving:?} reads 0)"
+                ),
                 at,
             )
         }
@@ -572,7 +602,10 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             let id = random_node(rng);
             let side = random_side(rng);
             net.inject(Match::all_from(participant(id, side), now), Fault::Mute);
-            Injected::at(format!("node {id} channel {side:?}: CAN controller silent"), now)
+            Injected::at(
+                format!("node {id} channel {side:?}: CAN controller silent"),
+                now,
+            )
         }
         Class::Babbling => {
             let id = random_node(rng);
@@ -585,7 +618,9 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
                 net.bus.send(from, frame(babble, dlc, data));
             }
             Injected::at(
-                format!("node {id} channel {side:?}: CAN controller babbling {babble:03X}h [{dlc}]"),
+                format!(
+                    "node {id} channel {side:?}: CAN controller babbling {babble:03X}h [{dlc}]"
+                ),
                 now,
             )
         }
@@ -602,7 +637,10 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             net.node_mut(id)
                 .receive_faults
                 .push((side, Injection::new(everything, Fault::Drop)));
-            Injected::at(format!("node {id} channel {side:?}: CAN controller bus-off"), now)
+            Injected::at(
+                format!("node {id} channel {side:?}: CAN controller bus-off"),
+                now,
+            )
         }
         Class::NoInverted => {
             let wait = micros(0..25_000, rng);
@@ -614,7 +652,10 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             };
             net.inject(when, Fault::Drop);
             Injected::at(
-                format!("node 1 channel B sends no inverted frame from +{} µs", wait.as_micros()),
+                format!(
+                    "node 1 channel B sends no inverted frame from +{} µs",
+                    wait.as_micros()
+                ),
                 now + wait,
             )
         }
@@ -635,11 +676,18 @@ fn repetition(rng: &mut ChaCha8Rng, net: &mut DualNetwork) -> Injected {
         // The bus delivers the copy through the tap like any frame: the second identical
         // delivery in a row is the moment the fault took effect.
         let mut previous: Option<CanFrame> = None;
-        let effect = tap_srdo(net, move |_, delivery| {
-            let repeated = previous == Some(delivery.frame) && delivery.frame.id().raw() == id;
-            previous = Some(delivery.frame);
-            repeated.then(|| vec![delivery])
-        });
+        let effect = Rc::new(Cell::new(None));
+        let first = effect.clone();
+        net.tap = Some(Box::new(move |delivery: Delivery| {
+            if is_genuine_srdo(&delivery) {
+                let repeated = previous == Some(delivery.frame) && delivery.frame.id().raw() == id;
+                if repeated && first.get().is_none() {
+                    first.set(Some(delivery.at));
+                }
+                previous = Some(delivery.frame);
+            }
+            vec![delivery]
+        }));
         return Injected::tapped(
             format!("next frame {id:03X}h repeated back to back (CAN double reception)"),
             effect,
@@ -707,7 +755,10 @@ fn sequence(rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) -> Injected 
             Some(vec![early, delivery])
         });
         return Injected::tapped(
-            format!("inverted frame of pair #{} inserted before its plain frame", target / 2),
+            format!(
+                "inverted frame of pair #{} inserted before its plain frame",
+                target / 2
+            ),
             effect,
         );
     }
@@ -740,7 +791,9 @@ fn sequence(rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) -> Injected 
         }
         let replay = foreign_effect(net, String::new());
         return Injected::tapped(
-            format!("producer now sends {current:#04x}; the old pair ({input:#04x}) replayed between pairs"),
+            format!(
+                "producer now sends {current:#04x}; the old pair ({input:#04x}) replayed between pairs"
+            ),
             replay.effect,
         );
     }
@@ -768,7 +821,9 @@ fn sequence(rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) -> Injected 
         vec![delivery, interleaved]
     }));
     Injected::tapped(
-        format!("producer now sends {current:#04x}; the old pair ({input:#04x}) interleaved with the current one"),
+        format!(
+            "producer now sends {current:#04x}; the old pair ({input:#04x}) interleaved with the current one"
+        ),
         effect,
     )
 }
@@ -913,7 +968,10 @@ fn started(rng: &mut ChaCha8Rng, input: u8) -> Result<DualNetwork, String> {
     net.set_inputs(PRODUCER, input, input);
     net.run_for(add(Duration::from_millis(100), micros(0..25_000, rng)));
     let steady = net.output(CONSUMER) == u64::from(input)
-        && net.nodes.iter().all(|node| node.a.is_working() && node.b.is_working());
+        && net
+            .nodes
+            .iter()
+            .all(|node| node.a.is_working() && node.b.is_working());
     if !steady {
         return Err(format!(
             "not in the steady state: output {:#x}, expected {input:#04x}",

@@ -41,7 +41,12 @@ pub fn bounds(results: &[(Class, Summary)]) -> String {
     let mut text = String::new();
     for (class, _) in results {
         let (bound, why) = class.bound();
-        let _ = writeln!(text, "- **{}** ({} ms): {why}.", class.name(), ms(bound.as_micros()));
+        let _ = writeln!(
+            text,
+            "- **{}** ({} ms): {why}.",
+            class.name(),
+            ms(bound.as_micros())
+        );
     }
     let _ = writeln!(
         text,
@@ -88,9 +93,11 @@ pub fn plot(dir: &Path, class: Class, summary: &Summary) -> Result<(), String> {
         .map_err(draw)?;
     chart
         .draw_series(
-            Histogram::vertical(&chart)
-                .style(BLUE.filled())
-                .data(bins.iter().enumerate().map(|(bin, count)| (bin as u32, *count))),
+            Histogram::vertical(&chart).style(BLUE.filled()).data(
+                bins.iter()
+                    .enumerate()
+                    .map(|(bin, count)| (bin as u32, *count)),
+            ),
         )
         .map_err(draw)?;
     chart
