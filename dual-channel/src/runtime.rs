@@ -42,6 +42,9 @@
 //!   Operational period), and the NMT states may differ for at most two link periods. A
 //!   heartbeat goes out at once on every NMT state change, and carries the count of NMT
 //!   resets (the epoch): a message sent before a reset that arrives after it is ignored.
+//! - **Time base cross-check.** Each channel checks that the other's heartbeats do not come
+//!   faster than the link period allows (32 intervals shorter than 90 % of 32 periods)
+//!   ([`crate::clock`]); whichever clock drifts, one channel sees the other as fast.
 //! - **Input cross-check.** Each channel sends a digest of its input samples on every change
 //!   and with every heartbeat; samples that differ for longer than [`INPUT_DISCREPANCY`] are a
 //!   fault (a stuck or broken contact), even when no SRDO carries them.
@@ -63,6 +66,7 @@
 //!   found itself (an SRDO fault in this channel's receive path the other cannot see).
 //!   Cleared only by NMT reset node or communication, which both channels see on the bus.
 
+use crate::clock::PeerClock;
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
 use crate::link::{LinkFault, Message, Receiver, Sender};
 use shared::canopen::nmt::NmtState;
@@ -206,6 +210,9 @@ pub enum ChannelFault {
     /// The two channels' input samples differed for longer than [`INPUT_DISCREPANCY`] (a
     /// stuck or broken contact on one channel).
     InputDiscrepancy,
+    /// The other channel's heartbeats came faster than its period allows: one of the two
+    /// clocks runs too fast or too slow ([`crate::clock`]).
+    ClockDrift,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -231,6 +238,7 @@ impl ChannelFault {
             ChannelFault::InputDiscrepancy => 0x33,
             ChannelFault::ForeignFrame { .. } => 0x34,
             ChannelFault::InvertedMismatch { .. } => 0x35,
+            ChannelFault::ClockDrift => 0x36,
             ChannelFault::PeerSafeState { .. } => 0x40,
         }
     }
@@ -333,6 +341,8 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     /// This channel's inputs as last sampled, folded into [`Message::Inputs`] and written
     /// back to the core after an NMT reset.
     inputs: heapless::Vec<InputSample, 8>,
+    /// The other channel's heartbeat rate against this channel's clock.
+    peer_clock: PeerClock,
     /// The other channel's last input digest.
     peer_inputs: Option<u32>,
     /// Since when the two input digests differ.
@@ -382,6 +392,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             fault: None,
             link_up: false,
             inputs: heapless::Vec::new(),
+            peer_clock: PeerClock::new(link_period),
             peer_inputs: None,
             inputs_differ_since: None,
             configuration_confirmed: false,
@@ -865,6 +876,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             defmt::debug!("link: {}", message);
         }
         if let Message::Heartbeat { nmt, epoch, .. } = message {
+            if self.peer_clock.heartbeat(now, nmt, epoch).is_err() {
+                self.latch(ChannelFault::ClockDrift, io);
+            }
             self.peer_nmt = Some(nmt);
             self.peer_epoch = Some(epoch);
             self.check_nmt(now);

@@ -237,7 +237,7 @@ fn iec61784_3_corruption_a_data_bit_of_the_inverted_frame_is_safe_on_arrival() {
             }]
         })
     });
-    net.run_for(REFRESH);
+    net.run_for(ms(30));
     let latency = safe_within(&mut net, effect_of(&effect), REACTION, ms(50));
     assert_eq!(latency, Duration::ZERO);
 }
@@ -256,7 +256,7 @@ fn iec61784_3_corruption_an_identifier_changed_into_the_plain_one_is_safe_on_arr
             }]
         })
     });
-    net.run_for(REFRESH);
+    net.run_for(ms(30));
     safe_within(&mut net, effect_of(&effect), REACTION, ms(50));
 }
 
@@ -272,7 +272,7 @@ fn iec61784_3_corruption_a_shortened_frame_is_safe_on_arrival() {
             }]
         })
     });
-    net.run_for(REFRESH);
+    net.run_for(ms(30));
     safe_within(&mut net, effect_of(&effect), REACTION, ms(50));
 }
 
@@ -310,7 +310,7 @@ fn iec61784_3_repetition_a_late_copy_of_the_plain_frame_is_safe_by_srvt() {
             ]
         })
     });
-    net.run_for(REFRESH);
+    net.run_for(ms(30));
     safe_within(&mut net, effect_of(&effect), plus(SRVT, REACTION), ms(80));
 }
 
@@ -329,7 +329,7 @@ fn iec61784_3_sequence_an_inverted_frame_before_its_plain_frame_is_safe() {
             vec![early, d]
         })
     });
-    net.run_for(REFRESH);
+    net.run_for(ms(30));
     safe_within(&mut net, effect_of(&effect), plus(SRVT, REACTION), ms(80));
 }
 
@@ -605,6 +605,36 @@ fn en50325_5_7_1_2_a_consumer_channel_bus_off_is_safe_by_sct() {
     safe_within(&mut net, now, plus(SCT, REACTION), ms(120));
 }
 
+/// Node 33's channel B clock 15 % fast (its runtime driven with scaled time): channel A
+/// finds the other channel's heartbeats too frequent and both latch; 15 % slow: channel B
+/// finds channel A's too frequent. Within 34 link periods either way.
+#[test]
+fn cia304_9_5_a_channel_clock_beyond_tolerance_is_found_fast_or_slow() {
+    for ppm in [150_000i64, -150_000] {
+        let mut net = steady(INPUT);
+        let now = net.now;
+        net.node_mut(CONSUMER).clocks[Side::B as usize].set_rate(now, ppm);
+        let bound = plus(ms(340), REACTION);
+        safe_within(&mut net, now, bound, ms(400));
+        let faults = [net.node(CONSUMER).a.fault(), net.node(CONSUMER).b.fault()];
+        assert!(
+            faults.contains(&Some(dual_channel::runtime::ChannelFault::ClockDrift)),
+            "{ppm}: {faults:?}"
+        );
+    }
+}
+
+/// A clock 5 % off is within the tolerance: nothing happens.
+#[test]
+fn cia304_9_5_a_channel_clock_within_tolerance_changes_nothing() {
+    for ppm in [50_000i64, -50_000] {
+        let mut net = steady(INPUT);
+        let now = net.now;
+        net.node_mut(CONSUMER).clocks[Side::A as usize].set_rate(now, ppm);
+        harmless(&mut net, ms(1000), INPUT);
+    }
+}
+
 // --- Seeded campaigns, a few scenarios per class (`cargo xtask campaign` runs 10,000) ------
 
 fn seeded(class: Class) {
@@ -673,6 +703,10 @@ fn cia304_9_5_link_seeded_campaign() {
 #[test]
 fn cia304_9_5_no_inverted_seeded_campaign() {
     seeded(Class::NoInverted);
+}
+#[test]
+fn cia304_9_5_clock_drift_seeded_campaign() {
+    seeded(Class::ClockDrift);
 }
 #[test]
 fn en50325_5_7_1_2_controller_silent_seeded_campaign() {

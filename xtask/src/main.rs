@@ -116,7 +116,7 @@ enum Task {
         scenarios: u64,
         /// Only this class (repeatable): corruption, repetition, sequence, loss, delay,
         /// insertion, masquerade, addressing, stuck-input, bit-flip, link,
-        /// controller-silent, babbling, bus-off, no-inverted.
+        /// controller-silent, babbling, bus-off, no-inverted, clock-drift.
         #[arg(long = "class")]
         classes: Vec<String>,
         /// The first seed (scenario n has seed S + n).

@@ -399,6 +399,7 @@ pub fn cause(code: u8) -> &'static str {
         0x33 => "input discrepancy",
         0x34 => "frame on our identifier we did not send",
         0x35 => "inverted frame not the inverse of ours",
+        0x36 => "clock of one channel drifts",
         0x40 => "other channel safe",
         0x50 => "GFC",
         0xF2..=0xF5 => "configuration in use damaged",

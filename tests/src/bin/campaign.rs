@@ -17,7 +17,7 @@ struct Args {
     scenarios: u64,
     /// Only this class (`corruption`, `repetition`, `sequence`, `loss`, `delay`,
     /// `insertion`, `masquerade`, `addressing`, `stuck-input`, `bit-flip`, `link`,
-    /// `controller-silent`, `babbling`, `bus-off`, `no-inverted`); repeatable.
+    /// `controller-silent`, `babbling`, `bus-off`, `no-inverted`, `clock-drift`); repeatable.
     #[arg(long = "class")]
     classes: Vec<String>,
     /// The first seed; scenario n of a class has seed S + n.

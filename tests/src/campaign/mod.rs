@@ -99,11 +99,13 @@ pub enum Class {
     BusOff,
     /// Channel B of the producer never sends its inverted frame.
     NoInverted,
+    /// One channel's clock too fast or too slow.
+    ClockDrift,
 }
 
 impl Class {
     /// Every class, in report order.
-    pub const ALL: [Class; 15] = [
+    pub const ALL: [Class; 16] = [
         Class::Corruption,
         Class::Repetition,
         Class::Sequence,
@@ -119,6 +121,7 @@ impl Class {
         Class::Babbling,
         Class::BusOff,
         Class::NoInverted,
+        Class::ClockDrift,
     ];
 
     /// The name on the command line and in file names.
@@ -139,6 +142,7 @@ impl Class {
             Class::Babbling => "babbling",
             Class::BusOff => "bus-off",
             Class::NoInverted => "no-inverted",
+            Class::ClockDrift => "clock-drift",
         }
     }
 
@@ -158,7 +162,11 @@ impl Class {
             Class::Insertion => "IEC 61784-3 insertion",
             Class::Masquerade => "IEC 61784-3 masquerade",
             Class::Addressing => "IEC 61784-3 addressing",
-            Class::StuckInput | Class::BitFlip | Class::Link | Class::NoInverted => "CiA 304 9.5",
+            Class::StuckInput
+            | Class::BitFlip
+            | Class::Link
+            | Class::NoInverted
+            | Class::ClockDrift => "CiA 304 9.5",
             Class::ControllerSilent | Class::Babbling | Class::BusOff => "EN 50325-5 7.1.2",
         }
     }
@@ -196,6 +204,17 @@ impl Class {
                 sum(&[REFRESH, SCT, REACTION]),
                 "refresh time + SCT + reaction: the integrity check runs every shortest refresh time or SCT of the running SRDOs (in node 1: 25 ms, then node 33's SCT as node 1 stops sending; in node 33: within its SCT)",
             ),
+            Class::ClockDrift => (
+                sum(&[
+                    Duration::from_micros(
+                        crate::dual::LINK_PERIOD.as_micros()
+                            * (dual_channel::clock::SPAN as u64 + 2),
+                    ),
+                    SCT,
+                    REACTION,
+                ]),
+                "(32 + 2) link periods + SCT + reaction: a clock off by 12 % or more makes 32 of the other channel's heartbeat intervals shorter than 90 % of 32 periods within 34 periods (dual_channel::clock); in node 1 the producer then stops and node 33's SCT runs out",
+            ),
             Class::Link => (
                 sum(&[LINK_TIMEOUT, SCT, REACTION]),
                 "link time-out (2 heartbeat periods) + SCT + reaction: a link fault latches both channels of that node; in node 1 the producer stops and node 33's SCT runs out",
@@ -213,7 +232,8 @@ pub enum Outcome {
     Harmless,
     /// The oracle found an output not justified by a valid pair within SCT and SRVT.
     Unsafe,
-    /// The safe state came later than the class's bound.
+    /// The safe state came later than the class's bound, or never for a fault that must be
+    /// detected (a clock beyond its tolerance).
     Late,
     /// The network did not reach its steady state before the fault (a harness failure).
     SetupFailed,
@@ -257,6 +277,8 @@ struct Injected {
     effect: Rc<Cell<Option<Instant>>>,
     /// How long to run after the injection.
     horizon: Duration,
+    /// The fault must end in the safe state (a harmless end is a failure).
+    must_detect: bool,
 }
 
 impl Injected {
@@ -266,6 +288,7 @@ impl Injected {
             detail: None,
             effect: Rc::new(Cell::new(Some(at))),
             horizon: Duration::ZERO,
+            must_detect: false,
         }
     }
     fn tapped(fault: String, effect: Rc<Cell<Option<Instant>>>) -> Self {
@@ -274,6 +297,7 @@ impl Injected {
             detail: None,
             effect,
             horizon: Duration::ZERO,
+            must_detect: false,
         }
     }
     fn described_by(mut self, detail: Rc<RefCell<String>>) -> Self {
@@ -641,6 +665,33 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
                 format!("node {id} channel {side:?}: CAN controller bus-off"),
                 now,
             )
+        }
+        Class::ClockDrift => {
+            let id = random_node(rng);
+            let side = random_side(rng);
+            // Beyond the tolerance (12 % to 40 %, fast or slow: `dual_channel::clock` finds
+            // more than 11.1 % fast or 10 % slow) in three scenarios of four, within it (up
+            // to 5 %) in the fourth.
+            let magnitude = if rng.random_bool(0.75) {
+                rng.random_range(120_000..=400_000i64)
+            } else {
+                rng.random_range(0..=50_000i64)
+            };
+            let ppm = if rng.random_bool(0.5) {
+                magnitude
+            } else {
+                -magnitude
+            };
+            net.node_mut(id).clocks[side as usize].set_rate(now, ppm);
+            let mut injected = Injected::at(
+                format!(
+                    "node {id} channel {side:?}: clock {:+.1} %",
+                    ppm as f64 / 10_000.0
+                ),
+                now,
+            );
+            injected.must_detect = magnitude >= 120_000;
+            injected
         }
         Class::NoInverted => {
             let wait = micros(0..25_000, rng);
@@ -1035,6 +1086,8 @@ pub fn run(class: Class, seed: u64) -> ScenarioResult {
         } else {
             Outcome::Detected
         }
+    } else if injected.must_detect {
+        Outcome::Late // never detected, though it had to be
     } else {
         Outcome::Harmless
     };
