@@ -19,7 +19,7 @@
 //!    An exact copy of the pending plain frame is CAN double reception (ISO 11898-1) and
 //!    ignored; an inverted frame with no plain frame pending is ignored (it cannot form a
 //!    pair). A frame shorter than `len` bytes is an error; bytes beyond `len` are not
-//!    mapped and not judged (CiA 301: a PDO longer than its mapping uses the mapped bytes).
+//!    mapped and not judged (EN 50325-5 7.1.3: a longer frame is used up to the mapped length).
 //! 2. **Errors** the standard requires the safe state for: a second plain frame with other
 //!    data while one is pending (sequence, CiA 304 9.5), an inverted frame that is not the
 //!    inverse (EN 50325-5 7.1.1), a short frame, SRVT elapsed with a plain frame pending, SCT
