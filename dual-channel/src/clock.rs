@@ -96,7 +96,13 @@ impl PeerClock {
             return Ok(());
         }
         let span_us = now.saturating_since(oldest).as_micros();
-        if span_us < self.shortest_span() {
+        // `span < SPAN · period · (100 − tolerance) / 100`, multiplied out: no 64-bit
+        // division in the firmware.
+        let allowed = self
+            .period
+            .as_micros()
+            .saturating_mul(SPAN as u64 * (100 - TOLERANCE_PERCENT));
+        if span_us.saturating_mul(100) < allowed {
             return Err(ClockDrift { span_us });
         }
         Ok(())
