@@ -27,7 +27,7 @@ pub struct Options {
 pub fn task(root: &Path, options: &Options) -> Result<()> {
     let mut command = super::cargo();
     command.args(["run", "--quiet"]);
-    // The full size optimised (4.6 ms per scenario and thread measured in the full run,
+    // The full size optimised (2.1 to 4.6 ms per scenario and thread in two full runs,
     // against 42 ms unoptimised in a run of 200 per class, both on the loaded 2-core
     // development machine); a smaller run uses the unoptimised build `cargo xtask test` has just
     // made (nextest builds the package's binaries), so CI compiles nothing more for it.
