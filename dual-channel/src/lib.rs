@@ -1,6 +1,7 @@
 //! What both channels of one safety node share (EN 50325-5 Annex A.4, Model III; CiA 304 9.5):
 //!
 //! - [`link`]: the inter-MCU link, its message set, framing and checks;
+//! - [`clock`]: the check of the other channel's time base against this channel's own;
 //! - [`crosscheck`]: the comparison of the two channels' verdicts on received SRDOs;
 //! - [`can_loopback`]: the start-up test of the CAN controller's message buffers and filters;
 //! - [`supervision`]: the runtime's checks of the other channel (inputs, NMT state and epoch,
@@ -15,6 +16,7 @@
 #![forbid(unsafe_code)]
 
 pub mod can_loopback;
+pub mod clock;
 pub mod crosscheck;
 pub mod device;
 pub mod link;

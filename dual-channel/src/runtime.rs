@@ -42,6 +42,9 @@
 //!   Operational period), and the NMT states may differ for at most two link periods. A
 //!   heartbeat goes out at once on every NMT state change, and carries the count of NMT
 //!   resets (the epoch): a message sent before a reset that arrives after it is ignored.
+//! - **Time base cross-check.** Each channel checks that the other's heartbeats do not come
+//!   faster than the link period allows (32 intervals shorter than 90 % of 32 periods)
+//!   ([`crate::clock`]); whichever clock drifts, one channel sees the other as fast.
 //! - **Input cross-check.** Each channel sends a digest of its input samples on every change
 //!   and with every heartbeat; samples that differ for longer than [`INPUT_DISCREPANCY`] are a
 //!   fault (a stuck or broken contact), even when no SRDO carries them.
@@ -63,6 +66,7 @@
 //!   found itself (an SRDO fault in this channel's receive path the other cannot see).
 //!   Cleared only by NMT reset node or communication, which both channels see on the bus.
 
+use crate::clock::PeerClock;
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
 use crate::link::{LinkFault, Message, Receiver, Sender};
 use crate::supervision::{ConfigurationCheck, InputCheck, NmtCheck};
@@ -221,6 +225,9 @@ pub enum ChannelFault {
     /// After NMT reset node an input sample written before could not be written back into
     /// the core's objects: the core is not what it was.
     InputRestoreFailed,
+    /// The other channel's heartbeats came faster than its period allows: one of the two
+    /// clocks runs too fast or too slow ([`crate::clock`]).
+    ClockDrift,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -250,6 +257,7 @@ impl ChannelFault {
             ChannelFault::CoreOutputFull => Cause::CoreOutputFull,
             ChannelFault::InputTableFull => Cause::InputTableFull,
             ChannelFault::InputRestoreFailed => Cause::InputRestoreFailed,
+            ChannelFault::ClockDrift => Cause::ClockDrift,
             ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
         }
     }
@@ -359,6 +367,8 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     /// The configuration cross-check: only once the other channel's configuration digest
     /// matched ours in this Operational period may an output leave the safe state.
     configuration: ConfigurationCheck,
+    /// The other channel's heartbeat rate against this channel's clock.
+    peer_clock: PeerClock,
     outputs: [u64; N],
     /// Valid pairs per receive SRDO this channel's core accepted in this Operational period.
     pairs: [u32; N],
@@ -400,6 +410,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             inputs: heapless::Vec::new(),
             input_check: InputCheck::new(),
             configuration: ConfigurationCheck::new(),
+            peer_clock: PeerClock::new(link_period),
             outputs: [0; N],
             pairs: [0; N],
             peer_pairs: [0; N],
@@ -866,6 +877,9 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             defmt::debug!("link: {}", message);
         }
         if let Message::Heartbeat { nmt, epoch, .. } = message {
+            if self.peer_clock.heartbeat(now, nmt, epoch).is_err() {
+                self.latch(ChannelFault::ClockDrift, io);
+            }
             self.nmt.peer(now, nmt, epoch, self.node.nmt_state());
             return;
         }

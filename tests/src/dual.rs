@@ -72,6 +72,46 @@ pub struct LinkFaults {
     pub latency: Duration,
 }
 
+/// One channel's time base against simulated time: from the anchor on it runs `ppm` parts
+/// per million fast (negative: slow). The default is simulated time itself.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ChannelClock {
+    anchor_global: u64,
+    anchor_local: u64,
+    ppm: i64,
+}
+
+impl ChannelClock {
+    /// The channel's time at simulated time `global`.
+    pub fn local(&self, global: Instant) -> Instant {
+        if global == Instant::NEVER {
+            return global;
+        }
+        let elapsed = i128::from(global.as_micros().saturating_sub(self.anchor_global));
+        let scaled = elapsed * (1_000_000 + i128::from(self.ppm)) / 1_000_000;
+        Instant::from_micros(self.anchor_local + scaled.max(0) as u64)
+    }
+
+    /// The first simulated time at which the channel's time has reached `local` (rounded
+    /// up, so a deadline is never polled before it is due in the channel's time).
+    pub fn global(&self, local: Instant) -> Instant {
+        if local == Instant::NEVER || self.ppm == 0 && self.anchor_global == self.anchor_local {
+            return local;
+        }
+        let ahead = i128::from(local.as_micros().saturating_sub(self.anchor_local));
+        let rate = 1_000_000 + i128::from(self.ppm);
+        let elapsed = (ahead * 1_000_000 + rate - 1) / rate;
+        Instant::from_micros(self.anchor_global + elapsed as u64)
+    }
+
+    /// From simulated time `now` on, the channel's clock runs `ppm` parts per million fast.
+    pub fn set_rate(&mut self, now: Instant, ppm: i64) {
+        self.anchor_local = self.local(now).as_micros();
+        self.anchor_global = now.as_micros();
+        self.ppm = ppm.max(-999_999);
+    }
+}
+
 /// Which channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Side {
@@ -100,6 +140,8 @@ pub struct DualNode {
     pub receive_faults: Vec<(Side, Injection)>,
     /// Frames held back by a receive delay: (when the channel handles it, which channel, frame).
     held_back: Vec<(Instant, Side, CanFrame)>,
+    /// Each channel's time base (channel A, channel B): a clock too fast or too slow.
+    pub clocks: [ChannelClock; 2],
 }
 
 /// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
@@ -119,6 +161,10 @@ pub struct DualNetwork {
     pub trace: Vec<(Instant, CanFrame, usize)>,
     /// Every change of a channel's output: (time, node-ID, channel, receive SRDO, value).
     pub outputs: Vec<(Instant, u8, Side, u8, u64)>,
+    /// A wrapper around the bus (the campaigns' seeded faults, `crate::campaign`): every
+    /// delivery the bus makes goes through it, and what it returns is delivered instead
+    /// (altered, dropped, delayed, repeated, or with frames of its own added).
+    pub tap: Option<Box<dyn FnMut(Delivery) -> Vec<Delivery>>>,
 }
 
 /// Channel B of the demo device samples the same input object as channel A (its own contact).
@@ -153,6 +199,7 @@ impl DualNetwork {
                 link_faults: LinkFaults::default(),
                 receive_faults: Vec::new(),
                 held_back: Vec::new(),
+                clocks: [ChannelClock::default(); 2],
             })
             .collect();
         DualNetwork {
@@ -164,6 +211,7 @@ impl DualNetwork {
             log: Vec::new(),
             trace: Vec::new(),
             outputs: Vec::new(),
+            tap: None,
         }
     }
 
@@ -286,7 +334,10 @@ impl DualNetwork {
         }
         if self.bus.next_start(now) == Some(now) {
             let deliveries = self.bus.arbitrate(now);
-            self.in_flight.extend(deliveries);
+            match self.tap.as_mut() {
+                Some(tap) => self.in_flight.extend(deliveries.into_iter().flat_map(tap)),
+                None => self.in_flight.extend(deliveries),
+            }
         }
     }
 
@@ -345,6 +396,7 @@ impl DualNetwork {
                 return;
             }
             wire.bytes.pop_front();
+            let at = self.nodes[index].clocks[side as usize].local(at);
             self.with_channel(index, side, |_, a, b, out| match (a, b) {
                 (Some(a), _) => a.on_link_byte(at, byte, out),
                 (_, Some(b)) => b.on_link_byte(at, byte, out),
@@ -365,9 +417,11 @@ impl DualNetwork {
             &mut Out,
         ),
     ) {
-        let now = self.now;
         let mut out = Out::default();
         let node = &mut self.nodes[index];
+        let clock = node.clocks[side as usize];
+        // The channel runs on its own time base.
+        let now = clock.local(self.now);
         let deadline = match side {
             Side::A => {
                 action(now, Some(&mut node.a), None, &mut out);
@@ -378,7 +432,8 @@ impl DualNetwork {
                 node.b.poll(now, &mut out)
             }
         };
-        node.deadlines[side as usize] = deadline;
+        node.deadlines[side as usize] = clock.global(deadline);
+        let now = self.now;
         let id = node.id;
         if !out.link.is_empty() && !node.link_faults.cut {
             let corrupt = match side {

@@ -7,9 +7,12 @@
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
 //! - [`fullnet`]: the full network at scale (127 dual-channel nodes) and reaction times.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
+//! - [`campaign`]: seeded fault campaigns judged by an oracle that does not reuse the
+//!   implementation (`cargo xtask campaign`).
 //! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
 
 pub use can_hub::bus;
+pub mod campaign;
 pub mod dual;
 pub mod fullnet;
 pub mod network;

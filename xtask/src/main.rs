@@ -4,6 +4,7 @@
 //! a fresh clone needs nothing but a Rust toolchain.
 
 mod bench;
+mod campaign;
 mod e2e;
 mod footprint;
 mod fullnet;
@@ -138,6 +139,27 @@ enum Task {
         #[arg(long)]
         report_only: bool,
     },
+    /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
+    /// every single-channel fault), judged by an oracle that does not reuse the
+    /// implementation; 10,000 scenarios per class write docs/campaigns.md and
+    /// docs/campaigns/*.svg, a smaller run target/campaign/. Fails on any unsafe or late
+    /// scenario.
+    Campaign {
+        /// Scenarios per class.
+        #[arg(long, default_value_t = campaign::FULL)]
+        scenarios: u64,
+        /// Only this class (repeatable): corruption, repetition, sequence, loss, delay,
+        /// insertion, masquerade, addressing, stuck-input, bit-flip, link,
+        /// controller-silent, babbling, bus-off, no-inverted, clock-drift.
+        #[arg(long = "class")]
+        classes: Vec<String>,
+        /// The first seed (scenario n has seed S + n).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Run only the scenario with this seed (with `--class`) and print its timeline.
+        #[arg(long)]
+        replay: Option<u64>,
+    },
     /// Run every fuzz target of every fuzz crate (shared/fuzz, dual-channel/fuzz) for a while,
     /// optimised, then each again with debug assertions and overflow checks. Installs the
     /// nightly toolchain and cargo-fuzz when they are missing.
@@ -250,6 +272,20 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
+        Task::Campaign {
+            scenarios,
+            classes,
+            seed,
+            replay,
+        } => campaign::task(
+            &root,
+            &campaign::Options {
+                scenarios,
+                classes,
+                seed,
+                replay,
+            },
+        ),
     }
 }
 

@@ -67,6 +67,9 @@ pub enum Cause {
     InputTableFull = 0x37,
     /// An input sample written before could not be written back after an NMT reset.
     InputRestoreFailed = 0x38,
+    /// The other channel's heartbeats came faster than its period allows: one of the two
+    /// clocks runs too fast or too slow.
+    ClockDrift = 0x39,
     /// The other channel went to its safe state.
     PeerSafeState = 0x40,
     /// A GFC was received (EN 50325-5 7.2.1).
@@ -83,7 +86,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 31] = [
+    pub const ALL: [Cause; 32] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -109,6 +112,7 @@ impl Cause {
         Cause::CoreOutputFull,
         Cause::InputTableFull,
         Cause::InputRestoreFailed,
+        Cause::ClockDrift,
         Cause::PeerSafeState,
         Cause::Gfc,
         Cause::IntegrityRecords,
@@ -156,6 +160,7 @@ impl Cause {
             Cause::CoreOutputFull => "core output beyond the channel's buffer",
             Cause::InputTableFull => "input table full",
             Cause::InputRestoreFailed => "input not restored after reset",
+            Cause::ClockDrift => "clock of one channel drifts",
             Cause::PeerSafeState => "other channel safe",
             Cause::Gfc => "GFC",
             Cause::IntegrityRecords => "configuration in use damaged (records)",
@@ -200,7 +205,7 @@ mod tests {
 
     #[test]
     fn a_number_that_is_no_cause_code_is_none_and_reads_other() {
-        for code in [0x03, 0x08, 0x15, 0x24, 0x39, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
+        for code in [0x03, 0x08, 0x15, 0x24, 0x3A, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
             assert_eq!(Cause::from_code(code), None, "{code:#04x}");
             assert_eq!(Cause::describe_code(code), "other");
         }

@@ -1,0 +1,189 @@
+//! The fault campaigns (`cargo xtask campaign`): seeded scenarios per fault class on the host
+//! simulation, judged by the independent oracle; prints the table, writes the report and
+//! one plot per class, and exits with failure when any scenario was unsafe, late, or could
+//! not be run.
+
+use clap::Parser;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant as WallClock;
+use system_tests::campaign::{self, Class, Summary, report};
+
+#[derive(Parser)]
+#[command(about = "Seeded fault campaigns with an independent oracle")]
+struct Args {
+    /// Scenarios per class.
+    #[arg(long, default_value_t = 10_000)]
+    scenarios: u64,
+    /// Only this class (`corruption`, `repetition`, `sequence`, `loss`, `delay`,
+    /// `insertion`, `masquerade`, `addressing`, `stuck-input`, `bit-flip`, `link`,
+    /// `controller-silent`, `babbling`, `bus-off`, `no-inverted`, `clock-drift`); repeatable.
+    #[arg(long = "class")]
+    classes: Vec<String>,
+    /// The first seed; scenario n of a class has seed S + n.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: every core).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Run only the scenario with this seed (with `--class`) and print its timeline.
+    #[arg(long)]
+    replay: Option<u64>,
+    /// Write the report (`campaigns.md`) and the plots (`campaigns/<class>.svg`) here.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// The command line to name in the report.
+    #[arg(long, default_value = "cargo xtask campaign")]
+    command: String,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let mut classes = Vec::new();
+    for name in &args.classes {
+        match Class::from_name(name) {
+            Some(class) => classes.push(class),
+            None => {
+                eprintln!(
+                    "campaign: no class `{name}`; the classes are: {}",
+                    Class::ALL.map(Class::name).join(", ")
+                );
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    if classes.is_empty() {
+        classes = Class::ALL.to_vec();
+    }
+    if let Some(seed) = args.replay {
+        for class in &classes {
+            let result = campaign::run(*class, seed);
+            println!(
+                "{} seed {seed}: {:?}, {}; latency {:?} µs",
+                class.name(),
+                result.outcome,
+                result.fault,
+                result.latency.map(shared::Duration::as_micros)
+            );
+            if let Some(report) = result.report {
+                println!("{report}");
+            }
+        }
+        return ExitCode::SUCCESS;
+    }
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
+    let started = WallClock::now();
+    let mut results: Vec<(Class, Summary)> = Vec::new();
+    for class in &classes {
+        let began = WallClock::now();
+        let summary = campaign::campaign(*class, args.seed, args.scenarios, threads);
+        let (bound, _) = class.bound();
+        println!(
+            "campaign {:<18} injected {:>6}  detected {:>6}  harmless {:>6}  unsafe {}  late {}  harness {}  max latency {:>8} µs (bound {} µs)  {:.1} s",
+            class.name(),
+            summary.injected,
+            summary.detected,
+            summary.harmless,
+            summary.unsafe_,
+            summary.late,
+            summary.harness,
+            summary
+                .max_latency()
+                .map_or("–".to_string(), |latency| latency.to_string()),
+            bound.as_micros(),
+            began.elapsed().as_secs_f64()
+        );
+        for failure in summary.failures.iter().take(3) {
+            println!(
+                "\nFAILED {} seed {} ({:?}): {}\nreplay: cargo xtask campaign --class {} --replay {}\n{}",
+                class.name(),
+                failure.seed,
+                failure.outcome,
+                failure.fault,
+                class.name(),
+                failure.seed,
+                failure.report.as_deref().unwrap_or("")
+            );
+        }
+        results.push((*class, summary));
+    }
+    let elapsed = started.elapsed();
+    let total: u64 = results.iter().map(|(_, summary)| summary.injected).sum();
+    println!(
+        "campaign: {total} scenarios in {:.1} s on {threads} thread(s), {:.0} µs per scenario and thread",
+        elapsed.as_secs_f64(),
+        elapsed.as_secs_f64() * 1e6 * threads as f64 / total.max(1) as f64
+    );
+    if let Some(dir) = &args.report {
+        if let Err(error) = write_report(dir, &args, &results, elapsed, threads) {
+            eprintln!("campaign: could not write the report: {error}");
+            return ExitCode::FAILURE;
+        }
+        println!("campaign: report in {}", dir.join("campaigns.md").display());
+    }
+    if results.iter().all(|(_, summary)| summary.passed()) {
+        ExitCode::SUCCESS
+    } else {
+        eprintln!("campaign: FAILED: a scenario was unsafe, late, or could not be run (above)");
+        ExitCode::FAILURE
+    }
+}
+
+fn write_report(
+    dir: &std::path::Path,
+    args: &Args,
+    results: &[(Class, Summary)],
+    elapsed: std::time::Duration,
+    threads: usize,
+) -> Result<(), String> {
+    let plots = dir.join("campaigns");
+    std::fs::create_dir_all(&plots).map_err(|error| format!("{}: {error}", plots.display()))?;
+    for (class, summary) in results {
+        report::plot(&plots, *class, summary)?;
+    }
+    let total: u64 = results.iter().map(|(_, summary)| summary.injected).sum();
+    let mut text = String::new();
+    text.push_str(include_str!("../campaign/campaigns_head.md"));
+    text.push_str(&format!(
+        "\n## Result\n\n`{}` ({} scenarios per class, seeds {}..{}): {total} scenarios in {:.0} s on {threads} thread(s) of the shared 2-core development machine ({:.0} µs per scenario and thread).\n\n",
+        args.command,
+        args.scenarios,
+        args.seed,
+        args.seed + args.scenarios,
+        elapsed.as_secs_f64(),
+        elapsed.as_secs_f64() * 1e6 * threads as f64 / total.max(1) as f64
+    ));
+    text.push_str(&report::table(results));
+    text.push_str("\n## Bounds, and how they follow from the configuration\n\n");
+    text.push_str(&report::bounds(results));
+    text.push_str("\n## Plots\n\n");
+    for (class, _) in results {
+        text.push_str(&format!(
+            "- [{}](campaigns/{}.svg)\n",
+            class.name(),
+            class.name()
+        ));
+    }
+    let failures: Vec<_> = results
+        .iter()
+        .flat_map(|(_, summary)| summary.failures.iter())
+        .collect();
+    if !failures.is_empty() {
+        text.push_str("\n## Failed scenarios\n\n");
+        for failure in failures.iter().take(20) {
+            text.push_str(&format!(
+                "- {} seed {} ({:?}): {}; replay with `cargo xtask campaign --class {} --replay {}`\n",
+                failure.class.name(),
+                failure.seed,
+                failure.outcome,
+                failure.fault,
+                failure.class.name(),
+                failure.seed
+            ));
+        }
+    }
+    let path = dir.join("campaigns.md");
+    std::fs::write(&path, text).map_err(|error| format!("{}: {error}", path.display()))
+}
