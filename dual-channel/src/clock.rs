@@ -43,8 +43,12 @@ pub struct ClockDrift {
 #[derive(Clone, Copy, Debug)]
 pub struct PeerClock {
     period: Duration,
-    /// When the last `SPAN` heartbeats were handled, oldest first from `next` on (a ring).
-    times: [Instant; SPAN],
+    /// When the last `SPAN` heartbeats were handled, oldest first from `next` on (a ring):
+    /// the low 32 bits of the microseconds, which is half the RAM of full [`Instant`]s (the
+    /// images' RAM budget is tight). Only differences are taken, with wrapping arithmetic, and
+    /// they are exact while a span is shorter than 2^32 µs (71 minutes); 32 heartbeats that
+    /// far apart cannot arrive, the link time-out (a few link periods) ends the link first.
+    times: [u32; SPAN],
     /// Heartbeats recorded since the measurement (re)started, at most `SPAN`.
     recorded: usize,
     next: usize,
@@ -57,7 +61,7 @@ impl PeerClock {
     pub const fn new(period: Duration) -> Self {
         PeerClock {
             period,
-            times: [Instant::ZERO; SPAN],
+            times: [0; SPAN],
             recorded: 0,
             next: 0,
             previous: None,
@@ -88,14 +92,17 @@ impl PeerClock {
         self.previous = Some((nmt, epoch));
         // The entry this heartbeat overwrites is the one `SPAN` heartbeats back.
         let full = self.recorded >= SPAN;
+        // Truncation is intended: see `times`.
+        #[allow(clippy::cast_possible_truncation)]
+        let stamp = now.as_micros() as u32;
         let oldest = self.times[self.next];
-        self.times[self.next] = now;
+        self.times[self.next] = stamp;
         self.next = (self.next + 1) % SPAN;
         if !full {
             self.recorded += 1;
             return Ok(());
         }
-        let span_us = now.saturating_since(oldest).as_micros();
+        let span_us = u64::from(stamp.wrapping_sub(oldest));
         // `span < SPAN · period · (100 − tolerance) / 100`, multiplied out: no 64-bit
         // division in the firmware.
         let allowed = self
@@ -179,5 +186,14 @@ mod tests {
                 .unwrap();
         }
         assert!(feed(&mut stalled, 10_000, 100, t + 30_000).is_ok());
+    }
+
+    #[test]
+    fn cia304_9_5_the_check_holds_across_the_wrap_of_its_32_bit_stamps() {
+        let from = (1u64 << 32) - 100_000;
+        let mut steady = PeerClock::new(Duration::from_millis(10));
+        assert!(feed(&mut steady, 10_000, 200, from).is_ok());
+        let mut fast = PeerClock::new(Duration::from_millis(10));
+        assert!(feed(&mut fast, 8_900, 200, from).is_err());
     }
 }
