@@ -29,6 +29,7 @@ use embassy_stm32::{Config, bind_interrupts};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
+use embassy_sync::priority_channel::{Min, PriorityChannel};
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::StorageError;
@@ -38,6 +39,7 @@ use static_cell::StaticCell;
 
 use crate::Device;
 use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
+use crate::transmit_queue::{Queued, Sequencer};
 
 bind_interrupts!(struct Irqs {
     CAN1_RX0 => Rx0InterruptHandler<CAN1>;
@@ -60,8 +62,10 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
 /// Frames received, for the runtime task.
 static CAN_RX: Channel<CriticalSectionRawMutex, CanFrame, 32> = Channel::new();
-/// Frames to send, from the runtime task.
-static CAN_TX: Channel<CriticalSectionRawMutex, CanFrame, 16> = Channel::new();
+/// Frames to send, from the runtime task: by identifier, not first in first out
+/// ([`crate::transmit_queue`]), so the node's own heartbeat or EMCY never holds back its SRDO
+/// or GFC.
+static CAN_TX: PriorityChannel<CriticalSectionRawMutex, Queued, Min, 16> = PriorityChannel::new();
 /// Link bytes to send.
 static LINK_TX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
 
@@ -192,11 +196,13 @@ impl EraseWindow {
 /// What the runtime hands out, applied to the hardware.
 struct BoardIo<'a, 'd> {
     output: &'a mut Output<'d>,
+    /// Numbers the frames handed to [`CAN_TX`], for their order within one identifier.
+    sequencer: Sequencer,
 }
 
 impl Io for BoardIo<'_, '_> {
     fn transmit(&mut self, frame: CanFrame) {
-        if CAN_TX.try_send(frame).is_err() {
+        if CAN_TX.try_send(self.sequencer.queue(frame)).is_err() {
             // A full transmit queue loses the frame: the consumers' timers catch it.
             defmt::warn!(
                 "CAN transmit queue full, frame {=u16:X} dropped",
@@ -317,8 +323,8 @@ async fn can_task(mut can: Can<'static>) {
             embassy_futures::select::Either::First(Err(error)) => {
                 defmt::warn!("CAN bus error {}", error);
             }
-            embassy_futures::select::Either::Second(frame) => {
-                if let Some(frame) = to_bxcan(&frame) {
+            embassy_futures::select::Either::Second(queued) => {
+                if let Some(frame) = to_bxcan(&queued.frame) {
                     tx.write(&frame).await;
                 }
             }
@@ -454,6 +460,7 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     };
     let mut io = BoardIo {
         output: &mut output,
+        sequencer: Sequencer::new(),
     };
     let mut sampled: Option<bool> = None;
     let mut next_sample = now();

@@ -30,6 +30,7 @@ pub mod qemu;
 pub mod ram;
 #[cfg(target_os = "none")]
 pub mod stack;
+pub mod transmit_queue;
 
 /// What a board layer needs to know about the device it runs.
 #[derive(Clone, Copy)]

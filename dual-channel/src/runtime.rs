@@ -630,14 +630,22 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     /// this channel or the other: the safe state (EMCY naming `id`) and a GFC at once, each
     /// time one is seen (EN 50325-5 7.2.1). Only channel A's GFC reaches the bus; channel B's
     /// core records it (0x1300) like channel A's.
+    ///
+    /// The GFC is handed out before the latch's EMCY: the consumers must stop on it before
+    /// the intruder's next frame, and a frame handed out first starts first when the bus is
+    /// idle (the transmit queue orders by identifier, but cannot pull back a frame already
+    /// on the bus).
     fn foreign_frame(&mut self, now: Instant, id: u16, io: &mut impl Io) {
-        self.latch(ChannelFault::ForeignFrame { id }, io);
+        let held = self.latch_holding(ChannelFault::ForeignFrame { id }, io);
         // Foreign frames are watched in Operational only, where the core accepts the request;
         // outside Operational no GFC may go out (CiA 301 Table 2) and the latch is the reaction.
         let _ = self.node.request_gfc();
         let mut collect = Collect::new();
         self.node.poll(now, &mut collect);
         self.after_core(now, collect, io);
+        for frame in held {
+            io.transmit(frame);
+        }
     }
 
     /// Puts `frame` on the bus; a plain SRDO frame of channel A is first announced to channel
@@ -1077,8 +1085,18 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
 
     /// Latches the channel's safe state for `fault` (once).
     fn latch(&mut self, fault: ChannelFault, io: &mut impl Io) {
+        for frame in self.latch_holding(fault, io) {
+            io.transmit(frame);
+        }
+    }
+
+    /// [`Runtime::latch`], but the frames the core sends on entering the safe state (its
+    /// EMCY) are returned for the caller to hand out, after a frame that must go first.
+    /// Nothing when the channel was latched already.
+    fn latch_holding(&mut self, fault: ChannelFault, io: &mut impl Io) -> HeldFrames {
+        let mut held = HeldFrames::new();
         if self.fault.is_some() {
-            return;
+            return held;
         }
         self.fault = Some(fault);
         self.waiting.clear();
@@ -1105,15 +1123,24 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         for frame in collect.frames {
             if !is_srdo(&frame) {
                 if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
-                    io.transmit(frame);
+                    if let Err(frame) = held.push(frame) {
+                        // More than the core sends on entering the safe state (one EMCY):
+                        // out at once rather than lost, only its place in the order goes.
+                        io.transmit(frame);
+                    }
                 }
             }
         }
         for event in collect.events {
             io.event(ChannelEvent::Node(event));
         }
+        held
     }
 }
+
+/// The frames [`Runtime::latch_holding`] hands back: the core's EMCY on entering the safe
+/// state (one frame; room for a few).
+type HeldFrames = heapless::Vec<CanFrame, 4>;
 
 /// At most one frame per identifier, in `C` fixed slots. Entries are never shifted: shifting
 /// (`retain`, `swap_remove`) compiles to a `memmove` call here, which pulls 1.5 KiB into the

@@ -225,7 +225,8 @@ pub struct Bus {
     bit_rate: u32,
     queues: Vec<std::collections::VecDeque<CanFrame>>,
     /// How many frames at the front of each queue compete for the bus (transmit mailboxes):
-    /// 1 is a FIFO; see [`Bus::set_transmit_mailboxes`].
+    /// all by default (the queue is ordered by identifier), 1 is a FIFO; see
+    /// [`Bus::set_transmit_mailboxes`].
     mailboxes: usize,
     /// Each non-empty queue's candidate (its best frame among the mailboxes) by arbitration
     /// order (identifier, then a data frame before a remote frame, then the lower
@@ -250,7 +251,7 @@ impl Bus {
         Bus {
             bit_rate,
             queues: vec![Default::default(); participants],
-            mailboxes: 1,
+            mailboxes: usize::MAX,
             heads: std::collections::BTreeSet::new(),
             candidates: vec![None; participants],
             free_at: Instant::ZERO,
@@ -266,7 +267,8 @@ impl Bus {
         self.bit_rate
     }
 
-    /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO). A
+    /// Participant `from` wants to send `frame` (queued by identifier, frames of one
+    /// identifier in order, as `board::hw` queues them; see [`Bus::set_transmit_mailboxes`]). A
     /// participant not seen before joins the bus. For the host simulation, whose senders are
     /// the test's own code; input from outside goes through [`Bus::try_send`].
     pub fn send(&mut self, from: usize, frame: CanFrame) {
@@ -282,8 +284,10 @@ impl Bus {
     /// Lets the first `mailboxes` frames of each participant's queue compete for the bus by
     /// identifier, the rest waiting in order behind them: a bxCAN (three transmit mailboxes,
     /// TXFP = 0: the pending mailbox with the lowest identifier goes first) behind a software
-    /// FIFO, as `board::hw::can_task` drives it. The default, 1, is a plain FIFO. Set it before
-    /// anything is queued.
+    /// FIFO. 1 is a plain FIFO. The default, all, is the whole queue by identifier, frames of
+    /// one identifier in the order they were queued: `board::hw` keeps its frames to send in
+    /// such a priority queue in front of the mailboxes, so that a node's own heartbeat or EMCY
+    /// queued first never holds back its SRDO or its GFC. Set it before anything is queued.
     pub fn set_transmit_mailboxes(&mut self, mailboxes: usize) {
         self.mailboxes = mailboxes.max(1);
         for from in 0..self.queues.len() {
