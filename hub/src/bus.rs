@@ -219,13 +219,16 @@ pub struct Delivery {
     pub bits: u32,
 }
 
+/// [`Bus::set_transmit_mailboxes`] for a participant's whole queue ordered by identifier.
+pub const ORDERED_BY_IDENTIFIER: usize = usize::MAX;
+
 /// The bus: one transmit queue per participant, arbitration, timing and faults.
 #[derive(Debug)]
 pub struct Bus {
     bit_rate: u32,
     queues: Vec<std::collections::VecDeque<CanFrame>>,
     /// How many frames at the front of each queue compete for the bus (transmit mailboxes):
-    /// all by default (the queue is ordered by identifier), 1 is a FIFO; see
+    /// 1 (the default) is a FIFO, `usize::MAX` the whole queue by identifier; see
     /// [`Bus::set_transmit_mailboxes`].
     mailboxes: usize,
     /// Each non-empty queue's candidate (its best frame among the mailboxes) by arbitration
@@ -251,7 +254,7 @@ impl Bus {
         Bus {
             bit_rate,
             queues: vec![Default::default(); participants],
-            mailboxes: usize::MAX,
+            mailboxes: 1,
             heads: std::collections::BTreeSet::new(),
             candidates: vec![None; participants],
             free_at: Instant::ZERO,
@@ -267,8 +270,8 @@ impl Bus {
         self.bit_rate
     }
 
-    /// Participant `from` wants to send `frame` (queued by identifier, frames of one
-    /// identifier in order, as `board::hw` queues them; see [`Bus::set_transmit_mailboxes`]). A
+    /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO, or by
+    /// identifier: [`Bus::set_transmit_mailboxes`]). A
     /// participant not seen before joins the bus. For the host simulation, whose senders are
     /// the test's own code; input from outside goes through [`Bus::try_send`].
     pub fn send(&mut self, from: usize, frame: CanFrame) {
@@ -284,10 +287,14 @@ impl Bus {
     /// Lets the first `mailboxes` frames of each participant's queue compete for the bus by
     /// identifier, the rest waiting in order behind them: a bxCAN (three transmit mailboxes,
     /// TXFP = 0: the pending mailbox with the lowest identifier goes first) behind a software
-    /// FIFO. 1 is a plain FIFO. The default, all, is the whole queue by identifier, frames of
-    /// one identifier in the order they were queued: `board::hw` keeps its frames to send in
-    /// such a priority queue in front of the mailboxes, so that a node's own heartbeat or EMCY
-    /// queued first never holds back its SRDO or its GFC. Set it before anything is queued.
+    /// FIFO. The default, 1, is a plain FIFO. [`ORDERED_BY_IDENTIFIER`] is the whole queue by
+    /// identifier, frames of one identifier in the order they were queued: `board::hw` keeps
+    /// its frames to send in such a priority queue (`board::transmit_queue`), so that a node's
+    /// own heartbeat or EMCY queued first never holds back its SRDO or its GFC; the
+    /// dual-channel simulation and the hub model each channel's controller so. (Not for a
+    /// single controller that sends both halves of an SRDO, as the single-channel demo nodes
+    /// do: a new plain frame would overtake its own pending inverted one.) Set it before
+    /// anything is queued.
     pub fn set_transmit_mailboxes(&mut self, mailboxes: usize) {
         self.mailboxes = mailboxes.max(1);
         for from in 0..self.queues.len() {

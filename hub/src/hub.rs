@@ -38,8 +38,12 @@ pub struct Hub {
 impl Hub {
     /// A hub for a bus at `bit_rate`.
     pub fn new(bit_rate: u32) -> Self {
+        // Each participant's frames leave by identifier: an emulated channel's as `board::hw`
+        // queues them (`board::transmit_queue`); a tool's requests go one at a time.
+        let mut bus = Bus::new(bit_rate, 0);
+        bus.set_transmit_mailboxes(crate::bus::ORDERED_BY_IDENTIFIER);
         Hub {
-            bus: Bus::new(bit_rate, 0),
+            bus,
             decoders: Vec::new(),
             present: Vec::new(),
             in_flight: Vec::new(),

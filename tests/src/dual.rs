@@ -6,7 +6,7 @@
 //! This is the host twin of the emulated network: the same channel code as the firmware, under
 //! simulated time, deterministic.
 
-use crate::bus::{Bus, Delivery, Fault, Injection, Match};
+use crate::bus::{Bus, Delivery, Fault, Injection, Match, ORDERED_BY_IDENTIFIER};
 use crate::network::device_config;
 use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
@@ -202,9 +202,13 @@ impl DualNetwork {
                 clocks: [ChannelClock::default(); 2],
             })
             .collect();
+        // Each channel's controller sends by identifier, as `board::hw` queues its frames
+        // (`board::transmit_queue`); each sends one half of an SRDO, so a pair keeps its order.
+        let mut bus = Bus::new(bit_rate, 1 + 2 * nodes.len());
+        bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
         DualNetwork {
             now: Instant::ZERO,
-            bus: Bus::new(bit_rate, 1 + 2 * nodes.len()),
+            bus,
             nodes,
             in_flight: Vec::new(),
             tool_inbox: Vec::new(),
