@@ -4,10 +4,11 @@
 //!   by identifier, each frame on the bus for its bit time with stuff bits, every participant
 //!   but the sender receives it, and the fault vocabulary.
 //! - [`trace`]: candump log and pcap (SocketCAN link type) writers.
-//! - [`hub`]: participants that speak CAN-over-serial ([`dual_channel::can_serial`]) joined
-//!   to one [`bus::Bus`] in real time (the `can-hub` program).
+//! - [`hub`]: participants joined to one [`bus::Bus`] in real time (the `can-hub` program):
+//!   emulated MCUs speaking CAN-over-serial ([`dual_channel::can_serial`]) and tools speaking
+//!   socketcand (the tool library's server session, `safety_config::socketcand::server`).
 //! - [`control`]: the hub's control port (input pins, faults, link cuts, status reports).
-//! - [`tool`]: a configuration tool's and a test's connection to the hub.
+//! - [`tool`]: a client of the control port.
 
 pub mod bus;
 pub mod control;

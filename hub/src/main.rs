@@ -9,10 +9,12 @@
 //!         --candump bus.log --pcap bus.pcap --bit-rate 500000
 //! ```
 //!
-//! Every participant speaks CAN-over-serial (`dual_channel::can_serial`). The hub listens on
-//! each `--socket` path for one QEMU instance (start QEMU with `-chardev
-//! socket,id=can,path=PATH` and `-serial null -serial chardev:can`), and accepts any number of
-//! tool connections on `--tcp`. A `--link` relays the bytes between two QEMU instances' link
+//! The hub listens on each `--socket` path for one QEMU instance, which speaks CAN-over-serial
+//! (`dual_channel::can_serial`; start QEMU with `-chardev socket,id=can,path=PATH` and
+//! `-serial null -serial chardev:can`), and accepts any number of tool connections on `--tcp`,
+//! which speak socketcand (linux-can/socketcand `doc/protocol.md`, raw mode; the bus is named
+//! `can0`): the configuration tool (`--bus socketcand:127.0.0.1:29536/can0`), python-can
+//! (`interface="socketcand", host=..., port=..., channel="can0"`) and python-canopen through it. A `--link` relays the bytes between two QEMU instances' link
 //! USARTs until the control port cuts it. The control port's line protocol is in
 //! `can_hub::control`. The hub runs until killed.
 //!
@@ -32,7 +34,7 @@ use shared::Instant;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
-use std::net::TcpListener;
+use std::net::{Shutdown, TcpListener, TcpStream};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -77,6 +79,9 @@ struct Args {
 /// full); past this the hub stops reading its socket until the bus has taken frames.
 const BACKLOG: usize = 4096;
 
+/// The name of the bus a socketcand client opens (`< open can0 >`).
+const TOOL_BUS: &str = "can0";
+
 /// How long a write to a tool or control client may block before the client is disconnected.
 const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 
@@ -84,6 +89,9 @@ const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 enum Input {
     /// A participant joined: how to write to it, and its count of bytes not yet taken.
     Joined(usize, Box<dyn Write + Send>, Arc<AtomicUsize>),
+    /// A socketcand client joined on the TCP port: as [`Input::Joined`], and its connection
+    /// (to close it when the session ends).
+    ToolJoined(usize, TcpStream, Arc<AtomicUsize>),
     Bytes(usize, Vec<u8>),
     Left(usize),
     ControlJoined(usize, Box<dyn Write + Send>),
@@ -268,7 +276,7 @@ fn start(args: &Args) -> Result<(), String> {
                 let id = first + offset;
                 if let Ok(writer) = stream.try_clone() {
                     let pending = Arc::new(AtomicUsize::new(0));
-                    let _ = tx.send(Input::Joined(id, Box::new(writer), pending.clone()));
+                    let _ = tx.send(Input::ToolJoined(id, writer, pending.clone()));
                     let tx = tx.clone();
                     std::thread::spawn(move || reader(id, stream, tx, pending));
                 }
@@ -313,6 +321,8 @@ struct Hosts {
     backlogs: HashMap<usize, (Vec<u8>, Arc<AtomicUsize>)>,
     controls: HashMap<usize, Box<dyn Write + Send>>,
     cuts: HashMap<String, Arc<AtomicBool>>,
+    /// The socketcand clients' connections, to close when their session ends.
+    tools: HashMap<usize, TcpStream>,
 }
 
 impl Hosts {
@@ -441,6 +451,7 @@ fn run(
         backlogs: HashMap::new(),
         controls: HashMap::new(),
         cuts,
+        tools: HashMap::new(),
     };
     let mut wake: Option<Instant> = None;
     loop {
@@ -458,10 +469,19 @@ fn run(
                     backlog.extend_from_slice(&bytes);
                 }
             }
+            Ok(Input::ToolJoined(id, stream, pending)) => {
+                hub.join_socketcand(id, TOOL_BUS);
+                if let Ok(closer) = stream.try_clone() {
+                    hosts.tools.insert(id, closer);
+                }
+                hosts.writers.insert(id, Box::new(stream));
+                hosts.backlogs.insert(id, (Vec::new(), pending));
+            }
             Ok(Input::Left(id)) => {
                 hub.leave(id);
                 hosts.writers.remove(&id);
                 hosts.backlogs.remove(&id);
+                hosts.tools.remove(&id);
             }
             Ok(Input::ControlJoined(client, writer)) => {
                 hosts.controls.insert(client, writer);
@@ -496,6 +516,7 @@ fn run(
             next = later;
         }
         wake = next;
+        // Each one in a write of its own (see `Outgoing`).
         for outgoing in out {
             let failed = hosts
                 .writers
@@ -505,6 +526,16 @@ fn run(
                 hosts.writers.remove(&outgoing.to);
                 hub.leave(outgoing.to);
             }
+        }
+        let closing: Vec<usize> = hub.closing.drain(..).collect();
+        for id in closing {
+            // The reader thread then sees the end of the stream and reports the departure.
+            if let Some(stream) = hosts.tools.remove(&id) {
+                let _ = stream.shutdown(Shutdown::Both);
+            }
+            hosts.writers.remove(&id);
+            hosts.backlogs.remove(&id);
+            hub.leave(id);
         }
         for (at, frame, _) in hub.completed.drain(..) {
             let stamp = epoch + at.as_micros();

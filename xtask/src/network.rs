@@ -1,7 +1,10 @@
 //! The emulated safety network: the bus hub and four QEMU instances (node 1, the
 //! emergency-stop input device and SRDO producer; node 33, the safe output device and SRDO
 //! consumer; each as channel A and channel B with the link between them relayed by the hub),
-//! configured, signed, validated, stored and started by a tool on the hub's TCP port.
+//! configured, read back, signed, validated, stored and started by the configuration tool's
+//! library (`safety_config`, EN 50325-5 8.3.1) over the hub's socketcand port, from the network
+//! file [`network_file`] (written to `target/emulate/network.toml`, so that `safety-config
+//! verify target/emulate/network.toml` can check a running network).
 //!
 //! Every child process is killed when the [`Network`] is dropped, whichever way the task
 //! ends (error, panic, Ctrl-C: see [`crate::interrupt`]).
@@ -10,10 +13,14 @@ use crate::images::{self, Layer};
 use crate::qemu;
 use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, anyhow, bail};
-use can_hub::tool::{Control, Tool};
+use can_hub::tool::Control;
 use dual_channel::can_serial::Status;
+use safety_config::Transport;
+use safety_config::client::Client;
+use safety_config::network_file::NodeSpec;
+use safety_config::procedure::{self, NodeResult, Operator};
+use safety_config::socketcand::SocketcandClient;
 use shared::canopen::nmt::NmtCommand;
-use shared::canopen::od::Address;
 use std::collections::HashMap;
 use std::os::unix::process::CommandExt as _;
 use std::path::{Path, PathBuf};
@@ -44,14 +51,101 @@ pub const SRVT_MS: u64 = 100;
 /// The QEMU layer's link heartbeat period; a link is timed out after two.
 pub const LINK_PERIOD_MS: u64 = 100;
 
-const HUB_TCP: &str = "127.0.0.1:29536";
+/// The hub's socketcand port (bus `can0`).
+pub const HUB_TCP: &str = "127.0.0.1:29536";
 const HUB_CONTROL: &str = "127.0.0.1:29537";
+
+/// How long one SDO request of the tool waits over the emulated bus (four emulated MCUs on
+/// two shared cores answer in milliseconds; this leaves room for a loaded machine).
+const SDO_TIMEOUT: Duration = Duration::from_millis(1000);
+
+/// The network file of the emulated network: node 1's SRDO 1 transmits on 101h/102h every
+/// [`REFRESH_MS`]; node 33's SRDO 1 consumes it with [`SCT_MS`] and [`SRVT_MS`]. The
+/// identities are the device description's (`dual_channel::device::config`: vendor ABCh,
+/// product 304h, revision 1, serial number = node-ID).
+pub fn network_file() -> String {
+    format!(
+        r#"# The emulated network of `cargo xtask run` (written by xtask from its constants).
+[bus]
+sdo_timeout_ms = {sdo}
+
+[[node]]
+id = 1
+name = "emergency stop"
+identity = {{ vendor = 0xABC, product = 0x304, revision = 1, serial = 1 }}
+
+[[node.srdo]]
+number = 1
+direction = "transmit"
+refresh_time_ms = {REFRESH_MS}
+srvt_ms = 20
+cob_ids = [0x{PLAIN:X}, 0x{INVERTED:X}]
+mapping = ["input", "input_inverted"]
+
+[[node]]
+id = 33
+name = "safe output"
+identity = {{ vendor = 0xABC, product = 0x304, revision = 1, serial = 33 }}
+
+[[node.srdo]]
+number = 1
+direction = "receive"
+sct_ms = {SCT_MS}
+srvt_ms = {SRVT_MS}
+cob_ids = [0x{PLAIN:X}, 0x{INVERTED:X}]
+mapping = ["output", "output_inverted"]
+"#,
+        sdo = SDO_TIMEOUT.as_millis()
+    )
+}
+
+/// Connects the tool library's socketcand client to the hub, retrying for up to `patience`.
+pub fn connect_tool(patience: Duration) -> Result<Client<SocketcandClient>> {
+    let give_up = std::time::Instant::now() + patience;
+    loop {
+        match SocketcandClient::connect(HUB_TCP, "can0") {
+            Ok(transport) => return Ok(Client::new(transport, SDO_TIMEOUT)),
+            Err(error) if std::time::Instant::now() >= give_up => {
+                return Err(error).context(format!("the hub's socketcand port {HUB_TCP}"));
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
+        }
+    }
+}
+
+/// Receives frames for up to `patience` until `until` holds for one; whether it did.
+pub fn receive_until<T: Transport>(
+    tool: &mut Client<T>,
+    patience: Duration,
+    mut until: impl FnMut(&shared::CanFrame) -> bool,
+) -> Result<bool> {
+    let deadline = tool.transport.now() + patience;
+    while let Some(frame) = tool.transport.receive(deadline)? {
+        if until(&frame) {
+            return Ok(true);
+        }
+    }
+    Ok(false)
+}
+
+/// Tells the configuration steps on stderr, prefixed `xtask:`; never accepts a node whose
+/// identity differs from the file.
+struct Narrator;
+
+impl Operator for Narrator {
+    fn note(&mut self, line: &str) {
+        eprintln!("xtask: {line}");
+    }
+    fn confirm_identity(&mut self, _node: &NodeSpec, _differences: &str) -> bool {
+        false
+    }
+}
 
 /// The running network.
 pub struct Network {
     children: Vec<(String, Child)>,
-    /// The configuration tool's connection to the bus.
-    pub tool: Tool,
+    /// The configuration tool (the tool library over the hub's socketcand port).
+    pub tool: Client<SocketcandClient>,
     /// The hub's control port.
     pub control: Control,
     dir: PathBuf,
@@ -152,14 +246,19 @@ impl Network {
         let mut children = vec![("hub".to_string(), hub)];
         // The tool and the control port join first, so they see the boot-up messages.
         let (tool, control) = match (
-            Tool::connect(HUB_TCP, Duration::from_secs(5)),
+            connect_tool(Duration::from_secs(5)),
             Control::connect(HUB_CONTROL, Duration::from_secs(5)),
         ) {
             (Ok(tool), Ok(control)) => (tool, control),
-            (Err(error), _) | (_, Err(error)) => {
+            (tool, control) => {
                 for (_, child) in &mut children {
                     let _ = child.kill();
                 }
+                let error = match (tool, control) {
+                    (Err(error), _) => format!("{error:#}"),
+                    (_, Err(error)) => error.to_string(),
+                    _ => String::new(),
+                };
                 bail!("the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL}: {error}");
             }
         };
@@ -216,7 +315,7 @@ impl Network {
     fn configure(&mut self) -> Result<()> {
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
         let mut booted = [false; 2];
-        let _ = self.tool.receive_until(Duration::from_secs(20), |frame| {
+        receive_until(&mut self.tool, Duration::from_secs(20), |frame| {
             match frame.id().raw() {
                 0x701 => booted[0] = true,
                 0x721 => booted[1] = true,
@@ -228,31 +327,37 @@ impl Network {
         if booted != [true, true] {
             bail!("no boot-up from node 1 and node 33 within 20 s (booted: {booted:?})");
         }
-        eprintln!("xtask: configuring over SDO: node 33 consumes node 1's SRDO 1 (101h/102h)");
-        let tool = &mut self.tool;
-        let configure = |tool: &mut Tool| -> Result<(), shared::canopen::sdo_client::ClientError> {
-            tool.write(33, Address::new(0x1301, 1), &[0])?;
-            tool.write(33, Address::new(0x1301, 5), &u32::from(PLAIN).to_le_bytes())?;
-            tool.write(
-                33,
-                Address::new(0x1301, 6),
-                &u32::from(INVERTED).to_le_bytes(),
-            )?;
-            tool.write(33, Address::new(0x1301, 2), &(SCT_MS as u16).to_le_bytes())?;
-            tool.write(33, Address::new(0x1301, 3), &[SRVT_MS as u8])?;
-            tool.write(33, Address::new(0x1301, 1), &[2])?;
-            tool.write(
-                1,
-                Address::new(0x1301, 2),
-                &(REFRESH_MS as u16).to_le_bytes(),
-            )?;
-            for id in [1, 33] {
-                let signature = tool.sign_validate_store(id)?;
-                eprintln!("xtask: node {id}: SRDO 1 signature {signature:04X}h, validated, stored");
-            }
-            Ok(())
-        };
-        configure(tool).map_err(|error| anyhow!("configuration refused: {error:?}"))?;
+        eprintln!(
+            "xtask: configuring from {}: node 33 consumes node 1's SRDO 1 ({PLAIN:X}h/{INVERTED:X}h)",
+            self.dir.join("network.toml").display()
+        );
+        let text = network_file();
+        std::fs::write(self.dir.join("network.toml"), &text)?;
+        let file = safety_config::network_file::parse(&text, "network.toml")?;
+        let report = procedure::configure(&mut self.tool, &file, false, &mut Narrator)?;
+        let failures: Vec<String> = report
+            .nodes
+            .iter()
+            .filter_map(|result| match result {
+                NodeResult::Done(done) => {
+                    eprintln!(
+                        "xtask: node {}: {} SDO transfers, signatures {}",
+                        done.node,
+                        done.sdo_requests,
+                        done.signatures
+                            .iter()
+                            .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    );
+                    None
+                }
+                NodeResult::Failed { error, .. } => Some(error.clone()),
+            })
+            .collect();
+        if !failures.is_empty() {
+            bail!("configuration failed:\n{}", failures.join("\n"));
+        }
         // An NMT start right after the store reached the two channels of a node up to 177 ms
         // apart in some runs, which their NMT cross-check rightly calls a fault. The channels'
         // loops were not the cause (their longest wake-up is reported: up to 18 ms); the
@@ -311,7 +416,7 @@ impl Network {
         self.tool.nmt(NmtCommand::ResetNode, 0)?;
         // Both nodes announce themselves again once both their channels run.
         let mut booted = [false; 2];
-        let _ = self.tool.receive_until(Duration::from_secs(10), |frame| {
+        receive_until(&mut self.tool, Duration::from_secs(10), |frame| {
             match (frame.id().raw(), frame.data()) {
                 (0x701, [0]) => booted[0] = true,
                 (0x721, [0]) => booted[1] = true,

@@ -110,7 +110,9 @@ impl Session {
 
     /// The raw-mode message for a bus frame received at `at` (bus time), as the daemon writes
     /// it: identifier in three hexadecimal digits, time as seconds.microseconds, the data as
-    /// hexadecimal octets without spaces.
+    /// hexadecimal octets without spaces. A frame without data keeps the daemon's empty data
+    /// field (`< frame 001 1.000000  >`, two spaces): python-can splits the message at single
+    /// spaces and takes the third part as the data.
     pub fn frame_message(frame: &CanFrame, at: Duration) -> String {
         let id = frame.id().raw();
         let seconds = at.as_secs();
@@ -119,11 +121,7 @@ impl Session {
             return format!("< rtr {id:03X} {seconds}.{micros:06} {} >", frame.dlc());
         }
         let data: String = frame.data().iter().map(|b| format!("{b:02X}")).collect();
-        if data.is_empty() {
-            format!("< frame {id:03X} {seconds}.{micros:06} >")
-        } else {
-            format!("< frame {id:03X} {seconds}.{micros:06} {data} >")
-        }
+        format!("< frame {id:03X} {seconds}.{micros:06} {data} >")
     }
 }
 
