@@ -656,3 +656,25 @@ pub fn offline_signatures(network: &Network) -> Vec<(u8, u8, u16)> {
 pub fn describe(address: Address) -> String {
     Object(address).to_string()
 }
+
+/// Reads every entry of the device's object dictionary ([`crate::eds::objects`]) from `node`
+/// and returns its DCF (CiA 306): the EDS with `[DeviceComissioning]` and each value read as
+/// `ParameterValue`, signatures and 0x13FE included. `name` names the node in it.
+pub fn read_dcf<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    name: Option<&str>,
+) -> Result<String, ToolError> {
+    let mut values = std::collections::BTreeMap::new();
+    for object in crate::eds::objects() {
+        for entry in &object.entries {
+            let bytes = client.read(node, entry.address)?;
+            values.insert(entry.address, crate::eds::format_value(entry, &bytes));
+        }
+    }
+    Ok(crate::eds::render(Some(&crate::eds::Commissioning {
+        node,
+        name,
+        values: &values,
+    })))
+}
