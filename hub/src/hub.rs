@@ -216,6 +216,11 @@ impl Hub {
         taken
     }
 
+    /// How many frames participant `id` has waiting for the bus.
+    pub fn queued(&self, id: usize) -> usize {
+        self.bus.queued(id)
+    }
+
     /// `true` while participant `id` can queue another frame (its bytes are taken).
     pub fn has_room(&self, id: usize) -> bool {
         self.bus.has_room(id)

@@ -323,6 +323,8 @@ struct Hosts {
     cuts: HashMap<String, Arc<AtomicBool>>,
     /// The socketcand clients' connections, to close when their session ends.
     tools: HashMap<usize, TcpStream>,
+    /// socketcand clients that closed their connection, whose frames still go on the bus.
+    departing: Vec<usize>,
 }
 
 impl Hosts {
@@ -452,6 +454,7 @@ fn run(
         controls: HashMap::new(),
         cuts,
         tools: HashMap::new(),
+        departing: Vec::new(),
     };
     let mut wake: Option<Instant> = None;
     loop {
@@ -477,11 +480,18 @@ fn run(
                 hosts.writers.insert(id, Box::new(stream));
                 hosts.backlogs.insert(id, (Vec::new(), pending));
             }
+            // A socketcand client that closed its connection still has its frames sent: what
+            // it wrote before closing was handed to the bus, as a socketcand daemon writes
+            // it to its CAN socket (a script that sends and exits loses nothing). An emulated
+            // MCU that ends is a controller gone, its queue with it.
+            Ok(Input::Left(id)) if hosts.tools.remove(&id).is_some() => {
+                hosts.writers.remove(&id);
+                hosts.departing.push(id);
+            }
             Ok(Input::Left(id)) => {
                 hub.leave(id);
                 hosts.writers.remove(&id);
                 hosts.backlogs.remove(&id);
-                hosts.tools.remove(&id);
             }
             Ok(Input::ControlJoined(client, writer)) => {
                 hosts.controls.insert(client, writer);
@@ -526,6 +536,23 @@ fn run(
                 hosts.writers.remove(&outgoing.to);
                 hub.leave(outgoing.to);
             }
+        }
+        let gone: Vec<usize> = hosts
+            .departing
+            .iter()
+            .copied()
+            .filter(|id| {
+                hosts
+                    .backlogs
+                    .get(id)
+                    .is_none_or(|(bytes, _)| bytes.is_empty())
+                    && hub.queued(*id) == 0
+            })
+            .collect();
+        for id in gone {
+            hosts.departing.retain(|departing| *departing != id);
+            hosts.backlogs.remove(&id);
+            hub.leave(id);
         }
         let closing: Vec<usize> = hub.closing.drain(..).collect();
         for id in closing {

@@ -283,3 +283,30 @@ fn a_flooding_tool_waits_for_the_bus_and_every_frame_arrives_in_order() {
     let _sender = writer.join().unwrap();
     drop(hub);
 }
+
+/// A socketcand client that sends frames and closes its connection at once (a script that
+/// sends and exits) still has every frame put on the bus, in order.
+#[test]
+fn frames_of_a_client_that_closed_at_once_still_reach_the_bus() {
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 4;
+    let hub = start(port);
+    let mut receiver = tool(port);
+    std::thread::sleep(Duration::from_millis(100));
+    {
+        let mut sender = connect(port);
+        let mut greeting = [0u8; 6];
+        sender.read_exact(&mut greeting).unwrap();
+        assert_eq!(&greeting, b"< hi >");
+        sender.write_all(b"< open can0 >").unwrap();
+        let mut ok = [0u8; 6];
+        sender.read_exact(&mut ok).unwrap();
+        sender.write_all(b"< rawmode >").unwrap();
+        sender.read_exact(&mut ok).unwrap();
+        let burst: String = (0..20u8).map(|n| format!("< send 300 1 {n:X} >")).collect();
+        sender.write_all(burst.as_bytes()).unwrap();
+    }
+    for n in 0..20u8 {
+        assert_eq!(next_frame(&mut receiver).data(), [n], "frame {n}");
+    }
+    drop(hub);
+}
