@@ -24,24 +24,15 @@ pub struct Outgoing {
     pub bytes: Vec<u8>,
 }
 
-/// How long after its `rawmode` reply a socketcand client receives no bus frame; frames that
-/// complete meanwhile are held and handed out, in order, when it is over.
-///
-/// Why: python-can reads the `< ok >` of `rawmode` with one `recv` and compares it with
-/// exact equality, so a frame written right after the reply that reaches the client before
-/// that `recv` has run (a loaded machine) would fail its connection. The hub cannot see when
-/// the client has read the reply; 20 ms covers a client scheduled late, and is short beside
-/// any SDO timeout.
-pub const RAW_MODE_GRACE: shared::Duration = shared::Duration::from_millis(20);
+/// How long after its `rawmode` reply a socketcand client receives no bus frame (the tool
+/// crate's [`server::RAW_MODE_GRACE`], which says why); frames that complete meanwhile are
+/// held and handed out, in order, when it is over.
+pub const RAW_MODE_GRACE: shared::Duration =
+    shared::Duration::from_micros(server::RAW_MODE_GRACE.as_micros() as u64);
 
-/// A socketcand client's state in the hub.
-#[derive(Debug)]
-struct Client {
-    session: Session,
-    /// No bus frame before this time (see [`RAW_MODE_GRACE`]).
-    quiet_until: Instant,
-    /// Frames held back until `quiet_until`, as raw-mode messages.
-    held: Vec<Vec<u8>>,
+/// The hub's time as the session's clock.
+fn clock(at: Instant) -> std::time::Duration {
+    std::time::Duration::from_micros(at.as_micros())
 }
 
 /// How a participant frames CAN frames on its connection.
@@ -50,7 +41,7 @@ enum Framing {
     /// CAN-over-serial, as the emulated MCUs speak it.
     Serial(Decoder),
     /// socketcand (a tool on the TCP port).
-    Socketcand(Box<Client>),
+    Socketcand(Box<Session>),
 }
 
 /// The hub: each participant's framing, the bus, frames in flight.
@@ -108,11 +99,7 @@ impl Hub {
     /// once it has switched to raw mode.
     pub fn join_socketcand(&mut self, id: usize, bus: &str) {
         self.join(id);
-        self.framings[id] = Framing::Socketcand(Box::new(Client {
-            session: Session::new(bus),
-            quiet_until: Instant::ZERO,
-            held: Vec::new(),
-        }));
+        self.framings[id] = Framing::Socketcand(Box::new(Session::new(bus)));
         self.replies.retain(|reply| reply.to != id);
         self.replies.push(Outgoing {
             to: id,
@@ -190,15 +177,10 @@ impl Hub {
                 .iter()
                 .position(|&byte| byte == b'>')
                 .map_or(rest.len(), |at| at + 1);
-            let Framing::Socketcand(client) = &mut self.framings[id] else {
+            let Framing::Socketcand(session) = &mut self.framings[id] else {
                 return taken;
             };
-            let was_raw = client.session.is_raw();
-            let outputs = client.session.feed(&rest[..end]);
-            if !was_raw && client.session.is_raw() {
-                client.quiet_until = now + RAW_MODE_GRACE;
-            }
-            for output in outputs {
+            for output in session.feed(&rest[..end], clock(now)) {
                 match output {
                     Output::Reply(text) => self.replies.push(Outgoing {
                         to: id,
@@ -248,10 +230,16 @@ impl Hub {
     pub fn poll(&mut self, now: Instant) -> (Vec<Outgoing>, Option<Instant>) {
         let mut out = std::mem::take(&mut self.replies);
         for (to, framing) in self.framings.iter_mut().enumerate() {
-            if let Framing::Socketcand(client) = framing {
-                if now >= client.quiet_until {
-                    out.extend(client.held.drain(..).map(|bytes| Outgoing { to, bytes }));
-                }
+            if let Framing::Socketcand(session) = framing {
+                out.extend(
+                    session
+                        .release(clock(now))
+                        .into_iter()
+                        .map(|message| Outgoing {
+                            to,
+                            bytes: message.into_bytes(),
+                        }),
+                );
             }
         }
         loop {
@@ -262,7 +250,7 @@ impl Hub {
                 self.completed
                     .push((delivery.at, delivery.frame, delivery.from));
                 let serial = encode(&delivery.frame).to_vec();
-                let stamp = std::time::Duration::from_micros(delivery.at.as_micros());
+                let stamp = clock(delivery.at);
                 for (to, present) in self.present.iter().enumerate() {
                     if !*present || to == delivery.from {
                         continue;
@@ -272,15 +260,15 @@ impl Hub {
                             to,
                             bytes: serial.clone(),
                         }),
-                        Framing::Socketcand(client) if client.session.is_raw() => {
-                            let bytes = Session::frame_message(&delivery.frame, stamp).into_bytes();
-                            if now < client.quiet_until {
-                                client.held.push(bytes);
-                            } else {
-                                out.push(Outgoing { to, bytes });
+                        Framing::Socketcand(session) => {
+                            if let Some(message) = session.frame(&delivery.frame, stamp, clock(now))
+                            {
+                                out.push(Outgoing {
+                                    to,
+                                    bytes: message.into_bytes(),
+                                });
                             }
                         }
-                        Framing::Socketcand(_) => {}
                     }
                 }
             }
@@ -295,8 +283,10 @@ impl Hub {
             break;
         }
         let grace_ends = self.framings.iter().filter_map(|framing| match framing {
-            Framing::Socketcand(client) if !client.held.is_empty() => Some(client.quiet_until),
-            _ => None,
+            Framing::Socketcand(session) => session
+                .release_at()
+                .map(|at| Instant::from_micros(at.as_micros() as u64)),
+            Framing::Serial(_) => None,
         });
         let next = self
             .in_flight

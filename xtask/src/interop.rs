@@ -5,8 +5,11 @@
 //! 1. python-can's own `socketcand` bus against `can-hub` (no QEMU): frames sent by the tool
 //!    library's socketcand client reach python-can, and python-can's answers reach the tool,
 //!    identifier and data exact, a frame without data included.
-//! 2. python-canopen joins the emulated network (four QEMU instances, as `cargo xtask run`
-//!    starts and configures them), loads the node's EDS (`eds/safety-node.eds`) with
+//! 2. python-canopen against the host simulation's nodes 1 and 33 (the protocol core,
+//!    configured by the tool library, in real time behind a socketcand server built from the
+//!    tool's server session: `tests/src/bin/socketcand_sim.rs`), then
+//! 3. python-canopen on the emulated network (four QEMU instances, as `cargo xtask run`
+//!    starts and configures them); both times it loads the node's EDS (`eds/safety-node.eds`) with
 //!    `canopen.import_od`, reads node 33's identity and whole SRDO configuration and agrees
 //!    with the tool's reading; its write to a safety object in Operational is aborted with
 //!    0800 0022h (EN 50325-5 8.2.2); in Pre-operational an SCT of 0 is aborted with
@@ -34,6 +37,8 @@ const PACKAGES: [&str; 2] = ["python-can==4.6.1", "canopen==2.4.1"];
 pub enum Part {
     /// python-can's socketcand bus against the hub alone.
     Socketcand,
+    /// python-canopen on the host simulation's nodes behind a socketcand server (no QEMU).
+    Simulated,
     /// python-canopen on the emulated network (QEMU).
     Canopen,
 }
@@ -230,22 +235,67 @@ fn tool_reading<T: Transport>(tool: &mut Client<T>, node: u8) -> Result<serde_js
     }))
 }
 
-/// Part 2: python-canopen on the emulated network.
+/// Part 2: python-canopen on the host simulation behind a socketcand server.
+fn simulated(root: &Path, python: &Path) -> Result<()> {
+    crate::step("interop 2: python-canopen on the host simulation's nodes (socketcand, no QEMU)");
+    crate::run(crate::cargo().args([
+        "build",
+        "--quiet",
+        "-p",
+        "system-tests",
+        "--bin",
+        "socketcand_sim",
+    ]))?;
+    let port = free_port()?;
+    let address = format!("127.0.0.1:{port}");
+    let _server = Killed(
+        Command::new(root.join("target/debug/socketcand_sim"))
+            .arg(port.to_string())
+            .spawn()
+            .context("starting socketcand_sim")?,
+    );
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    let transport = loop {
+        match SocketcandClient::connect(&address, "can0") {
+            Ok(client) => break client,
+            Err(_) if std::time::Instant::now() < give_up => {
+                std::thread::sleep(Duration::from_millis(50))
+            }
+            Err(error) => return Err(error).context("the simulation's socketcand port"),
+        }
+    };
+    let mut tool = Client::new(transport, Duration::from_millis(1000));
+    canopen_checks(root, python, &address, &mut tool, "interop 2")
+}
+
+/// Part 3: python-canopen on the emulated network.
 fn canopen(root: &Path, python: &Path) -> Result<()> {
-    crate::step("interop 2: python-canopen on the emulated network (QEMU) through can-hub");
+    crate::step("interop 3: python-canopen on the emulated network (QEMU) through can-hub");
     let mut network = Network::start(root)?;
-    let result = canopen_checks(root, python, &mut network);
+    let result = canopen_checks(
+        root,
+        python,
+        network::HUB_TCP,
+        &mut network.tool,
+        "interop 3",
+    );
     let faults = network.stop();
     result?;
     faults?;
     Ok(())
 }
 
-fn canopen_checks(root: &Path, python: &Path, network: &mut Network) -> Result<()> {
+/// python-canopen against node 33 at the socketcand server `address`, with `tool` (the tool
+/// library's client on the same bus) as the reference reading.
+fn canopen_checks(
+    root: &Path,
+    python: &Path,
+    address: &str,
+    tool: &mut Client<SocketcandClient>,
+    part: &str,
+) -> Result<()> {
     const NODE: u8 = 33;
-    let (host, port) = network::HUB_TCP
-        .split_once(':')
-        .context("the hub's address")?;
+    let (host, port) = address.split_once(':').context("the server's address")?;
     let eds = root.join("eds/safety-node.eds");
     let script = |phase: &str| {
         let mut command = Command::new(python);
@@ -257,7 +307,7 @@ fn canopen_checks(root: &Path, python: &Path, network: &mut Network) -> Result<(
         command
     };
     let theirs = script_json(&mut script("operational"))?;
-    let ours = tool_reading(&mut network.tool, NODE)?;
+    let ours = tool_reading(tool, NODE)?;
     for key in ["identity", "srdos", "configuration_valid"] {
         if theirs[key] != ours[key] {
             bail!(
@@ -277,22 +327,17 @@ fn canopen_checks(root: &Path, python: &Path, network: &mut Network) -> Result<(
         );
     }
     println!(
-        "xtask: interop 2: python-canopen (EDS from eds/safety-node.eds) reads node {NODE}'s identity and {} SRDO records as the tool does; its write in Operational: abort 0800 0022h",
+        "xtask: {part}: python-canopen (EDS from eds/safety-node.eds) reads node {NODE}'s identity and {} SRDO records as the tool does; its write in Operational: abort 0800 0022h",
         ours["srdos"].as_array().map_or(0, Vec::len)
     );
 
-    network.tool.nmt(NmtCommand::EnterPreOperational, NODE)?;
-    let channels = ["node33a", "node33b"];
-    let pre_operational = network.wait_for(Duration::from_secs(5), |latest| {
-        channels
-            .iter()
-            .all(|name| latest.get(*name).is_some_and(|(_, s)| s.nmt == 127))
+    tool.nmt(NmtCommand::EnterPreOperational, NODE)?;
+    let heartbeat = 0x700 + u16::from(NODE);
+    let announced = network::receive_until(tool, Duration::from_secs(5), |frame| {
+        frame.id().raw() == heartbeat && frame.data() == [0x7F]
     })?;
-    if pre_operational.is_none() {
-        bail!(
-            "node {NODE} did not enter Pre-operational:\n{}",
-            network.table()
-        );
+    if !announced {
+        bail!("node {NODE} did not announce Pre-operational in its heartbeat within 5 s");
     }
     let theirs = script_json(&mut script("pre-operational"))?;
     let out_of_range = theirs["out_of_range_abort"].as_u64();
@@ -305,9 +350,7 @@ fn canopen_checks(root: &Path, python: &Path, network: &mut Network) -> Result<(
             theirs["valid_write_abort"]
         );
     }
-    let valid = network
-        .tool
-        .read_unsigned(NODE, Address::new(0x13FE, 0), 1)?;
+    let valid = tool.read_unsigned(NODE, Address::new(0x13FE, 0), 1)?;
     if theirs["configuration_valid"] != 0 || valid != 0 {
         bail!(
             "after python-canopen's valid write 0x13FE reads {} (python-canopen) and {valid:02X}h (tool), not 0",
@@ -315,7 +358,7 @@ fn canopen_checks(root: &Path, python: &Path, network: &mut Network) -> Result<(
         );
     }
     println!(
-        "xtask: interop 2: in Pre-operational an SCT of 0 is aborted with 0609 0032h; a valid write is accepted and 0x13FE reads 0 (python-canopen and the tool)"
+        "xtask: {part}: in Pre-operational an SCT of 0 is aborted with 0609 0032h; a valid write is accepted and 0x13FE reads 0 (python-canopen and the tool)"
     );
     Ok(())
 }
@@ -323,10 +366,14 @@ fn canopen_checks(root: &Path, python: &Path, network: &mut Network) -> Result<(
 /// `cargo xtask interop`.
 pub fn task(root: &Path, only: Option<Part>) -> Result<()> {
     let python = python(root)?;
-    if only != Some(Part::Canopen) {
+    let runs = |part| only.is_none_or(|only| only == part);
+    if runs(Part::Socketcand) {
         socketcand(root, &python)?;
     }
-    if only != Some(Part::Socketcand) {
+    if runs(Part::Simulated) {
+        simulated(root, &python)?;
+    }
+    if runs(Part::Canopen) {
         canopen(root, &python)?;
     }
     Ok(())
