@@ -94,3 +94,14 @@ fn cia306_the_gfc_parameter_entry_carries_this_devices_meaning() {
         "{comments:?}"
     );
 }
+
+/// `safety-config eds` prints the committed EDS (the command CI's check tells a person to run).
+#[test]
+fn cia306_the_eds_command_prints_the_committed_eds() {
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_safety-config"))
+        .arg("eds")
+        .output()
+        .expect("the program runs");
+    assert!(output.status.success());
+    assert!(String::from_utf8_lossy(&output.stdout) == committed());
+}
