@@ -1,6 +1,6 @@
 //! A CANopen Safety network under simulated time: devices running the real protocol core, a
-//! configuration tool (participant 0) that talks SDO and NMT over the same bus, and the
-//! [`Bus`] between them. Deterministic: the same scenario gives the same trace, to the
+//! configuration tool (participant 0) that talks SDO and NMT over the same bus (the tool
+//! library, `safety_config`, through [`crate::tool_bus`]), and the [`Bus`] between them. Deterministic: the same scenario gives the same trace, to the
 //! microsecond.
 
 use crate::bus::{Bus, Delivery, Fault, Injection, Match};
