@@ -195,4 +195,19 @@ fn en50325_5_8_3_1_a_dcf_of_a_configured_node_configures_and_verifies_it_again()
         error.line > signature_line && error.line < signature_line + 10,
         "{error} (SRVT at line {line})"
     );
+
+    // A value out of its type's range is refused at its own line, not truncated.
+    let section = dcf.find("[1382sub1]").unwrap();
+    let key = section + dcf[section..].find("ParameterValue=").unwrap();
+    let line = dcf[..key].matches('\n').count() + 1;
+    let end = key + dcf[key..].find('\n').unwrap();
+    let negative = format!("{}ParameterValue=-1{}", &dcf[..key], &dcf[end..]);
+    let error = network_file::parse_dcf(&negative, "node-33.dcf").unwrap_err();
+    assert_eq!(error.line, line, "{error}");
+    assert!(error.message.contains("mapping entry 1 is -1"), "{error}");
+
+    // A DCF without its node-ID is not a configured node's.
+    let anonymous = dcf.replace("NodeID=33", "");
+    let error = network_file::parse_dcf(&anonymous, "node-33.dcf").unwrap_err();
+    assert!(error.message.contains("NodeID"), "{error}");
 }

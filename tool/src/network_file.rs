@@ -611,7 +611,7 @@ pub fn parse_dcf(text: &str, origin: &str) -> Result<Network, FileError> {
         let mut mapping = Vec::new();
         for sub in 1..=count {
             let entry = value(format!("{map:04X}sub{sub:X}"))?;
-            let raw = *entry.get_ref() as u32;
+            let raw: u32 = parser.number(&entry, U32, &format!("SRDO {n} mapping entry {sub}"))?;
             mapping.push(Spanned::new(
                 entry.span(),
                 format!("0x{:04X}:{}:{}", raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF),
