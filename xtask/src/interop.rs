@@ -272,13 +272,9 @@ fn simulated(root: &Path, python: &Path) -> Result<()> {
 fn canopen(root: &Path, python: &Path) -> Result<()> {
     crate::step("interop 3: python-canopen on the emulated network (QEMU) through can-hub");
     let mut network = Network::start(root)?;
-    let result = canopen_checks(
-        root,
-        python,
-        network::HUB_TCP,
-        &mut network.tool,
-        "interop 3",
-    );
+    let result = network
+        .tool()
+        .and_then(|tool| canopen_checks(root, python, network::HUB_TCP, tool, "interop 3"));
     let faults = network.stop();
     result?;
     faults?;

@@ -144,8 +144,9 @@ impl Operator for Narrator {
 /// The running network.
 pub struct Network {
     children: Vec<(String, Child)>,
-    /// The configuration tool (the tool library over the hub's socketcand port).
-    pub tool: Client<SocketcandClient>,
+    /// The configuration tool (the tool library over the hub's socketcand port), while it is
+    /// needed: see [`Network::tool`].
+    tool: Option<Client<SocketcandClient>>,
     /// The hub's control port.
     pub control: Control,
     dir: PathBuf,
@@ -264,7 +265,7 @@ impl Network {
         };
         let mut network = Network {
             children,
-            tool,
+            tool: Some(tool),
             control,
             dir,
             cross,
@@ -282,6 +283,26 @@ impl Network {
             return Err(error.context(format!("logs and traces in {}", network.dir.display())));
         }
         Ok(network)
+    }
+
+    /// The configuration tool, connected to the hub's socketcand port (again) if it is not.
+    ///
+    /// Between uses it is disconnected ([`Network::release_tool`]): a socketcand client that
+    /// does not read lets the hub's writes to it pile up until they block the hub (for its
+    /// write time-out, then the hub drops it), and nothing reads the tool's frames while a
+    /// run or the end-to-end cases go on.
+    pub fn tool(&mut self) -> Result<&mut Client<SocketcandClient>> {
+        if self.tool.is_none() {
+            self.tool = Some(connect_tool(Duration::from_secs(5))?);
+        }
+        self.tool
+            .as_mut()
+            .ok_or_else(|| anyhow!("the tool is not connected"))
+    }
+
+    /// Disconnects the configuration tool until [`Network::tool`] is called again.
+    pub fn release_tool(&mut self) {
+        self.tool = None;
     }
 
     /// Fails when an emulated MCU has ended (a panic or HardFault exits QEMU).
@@ -315,7 +336,7 @@ impl Network {
     fn configure(&mut self) -> Result<()> {
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
         let mut booted = [false; 2];
-        receive_until(&mut self.tool, Duration::from_secs(20), |frame| {
+        receive_until(self.tool()?, Duration::from_secs(20), |frame| {
             match frame.id().raw() {
                 0x701 => booted[0] = true,
                 0x721 => booted[1] = true,
@@ -334,7 +355,7 @@ impl Network {
         let text = network_file();
         std::fs::write(self.dir.join("network.toml"), &text)?;
         let file = safety_config::network_file::parse(&text, "network.toml")?;
-        let report = procedure::configure(&mut self.tool, &file, false, &mut Narrator)?;
+        let report = procedure::configure(self.tool()?, &file, false, &mut Narrator)?;
         let failures: Vec<String> = report
             .nodes
             .iter()
@@ -396,7 +417,8 @@ impl Network {
     /// NMT start for every node, then waits until both are Operational and working and node
     /// 33's output is 1 (node 1's input released).
     pub fn start_nodes(&mut self) -> Result<()> {
-        self.tool.nmt(NmtCommand::Start, 0)?;
+        self.tool()?.nmt(NmtCommand::Start, 0)?;
+        self.release_tool();
         let up = self.wait_for(Duration::from_secs(10), |latest| {
             working(latest, 1) && working(latest, 33) && output_33(latest) == Some(1)
         })?;
@@ -427,10 +449,10 @@ impl Network {
                 self.table()
             );
         }
-        self.tool.nmt(NmtCommand::ResetNode, 0)?;
+        self.tool()?.nmt(NmtCommand::ResetNode, 0)?;
         // Both nodes announce themselves again once both their channels run.
         let mut booted = [false; 2];
-        receive_until(&mut self.tool, Duration::from_secs(10), |frame| {
+        receive_until(self.tool()?, Duration::from_secs(10), |frame| {
             match (frame.id().raw(), frame.data()) {
                 (0x701, [0]) => booted[0] = true,
                 (0x721, [0]) => booted[1] = true,
