@@ -49,8 +49,8 @@ bind_interrupts!(struct Irqs {
     USART3 => usart::BufferedInterruptHandler<USART3>;
 });
 
-/// CAN bit rate (CiA 301 Table 1).
-pub const BIT_RATE: u32 = 500_000;
+/// CAN bit rate (CiA 301 Table 1): the device description's.
+pub const BIT_RATE: u32 = dual_channel::device::BIT_RATE;
 /// Link heartbeat period: five per SCT of 50 ms.
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
 /// Link USART baud rate.

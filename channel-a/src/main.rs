@@ -30,11 +30,11 @@ mod firmware {
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
         defmt::info!("channel {=char}", channel_a::CHANNEL);
-        let Ok(device) = Device::built(|id| device::config(id, "safety node, channel A")) else {
+        let Ok(device) = Device::built(|id| device::config(id, device::CHANNEL_A_NAME)) else {
             panic!("SAFETY_NODE_ID must be 1..=127");
         };
         let role = ChannelA::default();
-        run::<_, 4>(spawner, device, role).await
+        run::<_, { device::SRDO_COUNT }>(spawner, device, role).await
     }
 }
 

@@ -30,7 +30,7 @@ mod firmware {
     #[embassy_executor::main]
     async fn main(spawner: Spawner) {
         defmt::info!("channel {=char}", channel_b::CHANNEL);
-        let Ok(device) = Device::built(|id| device::config(id, "safety node, channel B")) else {
+        let Ok(device) = Device::built(|id| device::config(id, device::CHANNEL_B_NAME)) else {
             panic!("SAFETY_NODE_ID must be 1..=127");
         };
         #[cfg_attr(
@@ -51,7 +51,7 @@ mod firmware {
         // no tolerance of the hardware image changes.
         #[cfg(all(feature = "qemu", not(feature = "hw")))]
         role.set_window(shared::Duration::from_millis(60));
-        run::<_, 4>(spawner, device, role).await
+        run::<_, { device::SRDO_COUNT }>(spawner, device, role).await
     }
 }
 

@@ -35,6 +35,24 @@ pub const OUTPUT: Address = Address::new(0x6200, 1);
 /// Safety output (inverted copy).
 pub const OUTPUT_INVERTED: Address = Address::new(0x6201, 1);
 
+/// Each plain safety object with its inverted copy (EN 50325-5 6.4.1.3: an SRDO maps a
+/// plain object on an odd sub-index and its inverted copy on the next; the EDS links them
+/// with `InvertedSRAD`, CiA 306 Annex A).
+pub static INVERTED_PAIRS: [(Address, Address); 2] =
+    [(INPUT, INPUT_INVERTED), (OUTPUT, OUTPUT_INVERTED)];
+
+/// How many SRDOs the node has (0x1301..=0x1304, 0x1381..=0x1384, 0x13FF sub-indices 1..=4);
+/// both firmware images are built with it.
+pub const SRDO_COUNT: usize = 4;
+
+/// The CAN bit rate of the hardware (CiA 301 Table 1; the EDS's `BaudRate_500`).
+pub const BIT_RATE: u32 = 500_000;
+
+/// The device name (0x1008) channel A's image reports; channel A answers SDO for the node.
+pub const CHANNEL_A_NAME: &str = "safety node, channel A";
+/// The device name (0x1008) channel B's image holds.
+pub const CHANNEL_B_NAME: &str = "safety node, channel B";
+
 /// The names a person uses for the application objects (in a network file, in a tool's
 /// output), one per entry of [`OBJECTS`].
 pub static OBJECT_NAMES: [(&str, Address); 4] = [
@@ -66,6 +84,18 @@ mod tests {
     use super::*;
 
     /// Every application object has exactly one name, and every name an object.
+    /// Every plain object of a pair is mappable in its copy's direction, with its length.
+    #[test]
+    fn inverted_pairs_name_objects_of_one_direction_and_length() {
+        let find = |address: Address| OBJECTS.iter().find(|o| o.address == address);
+        for (plain, inverted) in INVERTED_PAIRS {
+            let (plain, inverted) = (find(plain).unwrap(), find(inverted).unwrap());
+            assert_eq!(plain.mappable, inverted.mappable);
+            assert_eq!(plain.len, inverted.len);
+        }
+        assert_eq!(INVERTED_PAIRS.len() * 2, OBJECTS.len());
+    }
+
     #[test]
     fn every_object_has_one_name() {
         for object in &OBJECTS {

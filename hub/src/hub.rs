@@ -1,27 +1,60 @@
-//! The hub's core: participants that speak CAN-over-serial joined to one [`Bus`] in real time.
+//! The hub's core: participants joined to one [`Bus`] in real time. A participant speaks
+//! one of two framings: CAN-over-serial ([`emulation_wire`], the emulated MCUs'
+//! USART2) or socketcand (the tools on the TCP port: the configuration tool, python-can,
+//! anything that speaks the linux-can/socketcand text protocol), served by the tool crate's
+//! sans-I/O session ([`safety_config::socketcand::server`]), the same module the tool's own
+//! tests run in-process.
 //!
 //! Sans-I/O like the rest: the program feeds it the bytes each participant sent and the time,
 //! and asks it what to write to whom and when to wake next.
 
 use crate::bus::{Bus, Delivery, Injection, QueueFull};
 use emulation_wire::{Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire};
+use safety_config::socketcand::server::{self, Output, Session};
 use shared::{CanFrame, Instant};
 
-/// Bytes for one participant.
+/// Bytes for one participant, to be written in one write of their own: one CAN-over-serial
+/// frame, or one socketcand message (python-can compares each handshake reply it receives by
+/// one `recv` with exact equality, so replies are never joined).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Outgoing {
     /// The participant.
     pub to: usize,
-    /// CAN-over-serial bytes of one frame.
+    /// The bytes.
     pub bytes: Vec<u8>,
 }
 
-/// The hub: decoders per participant, the bus, frames in flight.
+/// How long after its `rawmode` reply a socketcand client receives no bus frame (the tool
+/// crate's [`server::RAW_MODE_GRACE`], which says why); frames that complete meanwhile are
+/// held and handed out, in order, when it is over.
+pub const RAW_MODE_GRACE: shared::Duration =
+    shared::Duration::from_micros(server::RAW_MODE_GRACE.as_micros() as u64);
+
+/// The hub's time as the session's clock.
+fn clock(at: Instant) -> std::time::Duration {
+    std::time::Duration::from_micros(at.as_micros())
+}
+
+/// How a participant frames CAN frames on its connection.
+#[derive(Debug)]
+enum Framing {
+    /// CAN-over-serial, as the emulated MCUs speak it.
+    Serial(Decoder),
+    /// socketcand (a tool on the TCP port).
+    Socketcand(Box<Session>),
+}
+
+/// The hub: each participant's framing, the bus, frames in flight.
 pub struct Hub {
     bus: Bus,
-    decoders: Vec<Decoder>,
+    framings: Vec<Framing>,
     present: Vec<bool>,
     in_flight: Vec<Delivery>,
+    /// Replies to socketcand clients not yet handed out by [`Hub::poll`].
+    replies: Vec<Outgoing>,
+    /// socketcand clients the hub is done with (an `open` of an unknown bus): the caller
+    /// closes their connections, after writing what [`Hub::poll`] handed out for them.
+    pub closing: Vec<usize>,
     /// Frames that completed on the bus: (end time, frame, sender), for traces.
     pub completed: Vec<(Instant, CanFrame, usize)>,
     /// Byte streams that did not decode, per participant (a participant's framing is broken).
@@ -44,9 +77,11 @@ impl Hub {
         bus.set_transmit_mailboxes(crate::bus::ORDERED_BY_IDENTIFIER);
         Hub {
             bus,
-            decoders: Vec::new(),
+            framings: Vec::new(),
             present: Vec::new(),
             in_flight: Vec::new(),
+            replies: Vec::new(),
+            closing: Vec::new(),
             completed: Vec::new(),
             malformed: Vec::new(),
             statuses: Vec::new(),
@@ -60,13 +95,27 @@ impl Hub {
         &self.bus
     }
 
-    /// Participant `id` joined.
+    /// Participant `id` joined, speaking CAN-over-serial (an emulated MCU).
     pub fn join(&mut self, id: usize) {
         if id >= self.present.len() {
             self.present.resize(id + 1, false);
-            self.decoders.resize_with(id + 1, Decoder::new);
+            self.framings
+                .resize_with(id + 1, || Framing::Serial(Decoder::new()));
         }
         self.present[id] = true;
+    }
+
+    /// Participant `id` joined as a socketcand client of the bus named `bus` (e.g. `can0`):
+    /// its greeting is handed out by the next [`Hub::poll`], and bus frames reach it only
+    /// once it has switched to raw mode.
+    pub fn join_socketcand(&mut self, id: usize, bus: &str) {
+        self.join(id);
+        self.framings[id] = Framing::Socketcand(Box::new(Session::new(bus)));
+        self.replies.retain(|reply| reply.to != id);
+        self.replies.push(Outgoing {
+            to: id,
+            bytes: server::GREETING.as_bytes().to_vec(),
+        });
     }
 
     /// Participant `id` left; what it still had queued is dropped.
@@ -74,6 +123,11 @@ impl Hub {
         if let Some(present) = self.present.get_mut(id) {
             *present = false;
         }
+        if let Some(framing) = self.framings.get_mut(id) {
+            *framing = Framing::Serial(Decoder::new());
+        }
+        self.replies.retain(|reply| reply.to != id);
+        self.closing.retain(|closing| *closing != id);
         self.bus.leave(id);
     }
 
@@ -87,20 +141,28 @@ impl Hub {
         self.bus.retain_faults(keep);
     }
 
-    /// Bytes participant `id` sent at `now`: CAN frames go on the bus, status reports to
-    /// [`Hub::statuses`], link bytes to [`Hub::links`], acknowledgements of grants to
-    /// [`Hub::acknowledgements`]. An input message is for boards, not from them: malformed.
+    /// Bytes participant `id` sent at `now`. From an emulated MCU: CAN frames go on the bus,
+    /// status reports to [`Hub::statuses`], link bytes to [`Hub::links`], acknowledgements of
+    /// grants to [`Hub::acknowledgements`]; an input message is for boards, not from them:
+    /// malformed. From a socketcand client: its commands are served (replies by the next
+    /// [`Hub::poll`]) and the frames it sends go on the bus.
     ///
     /// Returns how many bytes were taken: all of them unless the participant's transmit FIFO
     /// filled ([`crate::bus::TRANSMIT_QUEUE`]); then the sender waits, and the caller hands the
     /// rest again after [`Hub::poll`] has put frames on the bus.
     pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) -> usize {
         self.join(id);
+        if matches!(self.framings[id], Framing::Socketcand(_)) {
+            return self.receive_socketcand(now, id, bytes);
+        }
         for (taken, &byte) in bytes.iter().enumerate() {
             if !self.bus.has_room(id) {
                 return taken;
             }
-            match self.decoders[id].push(byte) {
+            let Framing::Serial(decoder) = &mut self.framings[id] else {
+                return taken;
+            };
+            match decoder.push(byte) {
                 // `has_room` was checked before this byte, so the frame is queued.
                 Some(Ok(Wire::Can(frame))) => {
                     let _ = self.bus.try_send(id, frame);
@@ -116,6 +178,45 @@ impl Hub {
             }
         }
         bytes.len()
+    }
+
+    /// A socketcand client's bytes, one message (up to and including its `>`) at a time, so
+    /// that a full transmit FIFO stops the intake before the message that would overflow it.
+    fn receive_socketcand(&mut self, now: Instant, id: usize, bytes: &[u8]) -> usize {
+        let mut taken = 0;
+        while taken < bytes.len() {
+            if !self.bus.has_room(id) || self.closing.contains(&id) {
+                return taken;
+            }
+            let rest = &bytes[taken..];
+            let end = rest
+                .iter()
+                .position(|&byte| byte == b'>')
+                .map_or(rest.len(), |at| at + 1);
+            let Framing::Socketcand(session) = &mut self.framings[id] else {
+                return taken;
+            };
+            for output in session.feed(&rest[..end], clock(now)) {
+                match output {
+                    Output::Reply(text) => self.replies.push(Outgoing {
+                        to: id,
+                        bytes: text.into_bytes(),
+                    }),
+                    // One message holds at most one frame, and the FIFO had room for it.
+                    Output::Send(frame) => {
+                        let _ = self.bus.try_send(id, frame);
+                    }
+                    Output::Close => self.closing.push(id),
+                }
+            }
+            taken += end;
+        }
+        taken
+    }
+
+    /// How many frames participant `id` has waiting for the bus.
+    pub fn queued(&self, id: usize) -> usize {
+        self.bus.queued(id)
     }
 
     /// `true` while participant `id` can queue another frame (its bytes are taken).
@@ -148,8 +249,25 @@ impl Hub {
     /// Everything due at `now`: frames that ended go to every present participant but their
     /// sender; the next arbitration starts when the bus is free. Returns what to write, and
     /// when to call again (`None`: when bytes arrive).
+    ///
+    /// Replies to socketcand clients come first; a socketcand client receives bus frames as
+    /// raw-mode `frame` messages stamped with the hub's time (the end of the frame on the
+    /// bus), and none before it has switched to raw mode.
     pub fn poll(&mut self, now: Instant) -> (Vec<Outgoing>, Option<Instant>) {
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.replies);
+        for (to, framing) in self.framings.iter_mut().enumerate() {
+            if let Framing::Socketcand(session) = framing {
+                out.extend(
+                    session
+                        .release(clock(now))
+                        .into_iter()
+                        .map(|message| Outgoing {
+                            to,
+                            bytes: message.into_bytes(),
+                        }),
+                );
+            }
+        }
         loop {
             let (due, later): (Vec<_>, Vec<_>) =
                 self.in_flight.drain(..).partition(|d| d.at <= now);
@@ -157,13 +275,26 @@ impl Hub {
             for delivery in &due {
                 self.completed
                     .push((delivery.at, delivery.frame, delivery.from));
-                let bytes = encode(&delivery.frame).to_vec();
+                let serial = encode(&delivery.frame).to_vec();
+                let stamp = clock(delivery.at);
                 for (to, present) in self.present.iter().enumerate() {
-                    if *present && to != delivery.from {
-                        out.push(Outgoing {
+                    if !*present || to == delivery.from {
+                        continue;
+                    }
+                    match &mut self.framings[to] {
+                        Framing::Serial(_) => out.push(Outgoing {
                             to,
-                            bytes: bytes.clone(),
-                        });
+                            bytes: serial.clone(),
+                        }),
+                        Framing::Socketcand(session) => {
+                            if let Some(message) = session.frame(&delivery.frame, stamp, clock(now))
+                            {
+                                out.push(Outgoing {
+                                    to,
+                                    bytes: message.into_bytes(),
+                                });
+                            }
+                        }
                     }
                 }
             }
@@ -177,11 +308,18 @@ impl Hub {
             }
             break;
         }
+        let grace_ends = self.framings.iter().filter_map(|framing| match framing {
+            Framing::Socketcand(session) => session
+                .release_at()
+                .map(|at| Instant::from_micros(at.as_micros() as u64)),
+            Framing::Serial(_) => None,
+        });
         let next = self
             .in_flight
             .iter()
             .map(|d| d.at)
             .chain(self.bus.next_start(now))
+            .chain(grace_ends)
             .min();
         (out, next)
     }
@@ -327,6 +465,110 @@ mod tests {
             .filter_map(|b| decoder.push(b))
             .collect();
         assert_eq!(relayed, [Ok(Wire::Link(hello)), Ok(Wire::Time(7))]);
+    }
+
+    /// Polls from `now` until nothing is due any more: what was handed out, and the time then.
+    fn run_idle(hub: &mut Hub, mut now: Instant) -> (Vec<Outgoing>, Instant) {
+        let mut all = Vec::new();
+        loop {
+            let (out, next) = hub.poll(now);
+            all.extend(out);
+            match next {
+                Some(next) => now = next,
+                None => return (all, now),
+            }
+        }
+    }
+
+    fn text(outgoing: &Outgoing) -> &str {
+        std::str::from_utf8(&outgoing.bytes).expect("socketcand speaks text")
+    }
+
+    /// A socketcand client on the hub: the greeting, one reply per command each in its own
+    /// write, no bus frame before it switched to raw mode nor within [`RAW_MODE_GRACE`] of
+    /// the reply, then every frame as a raw-mode message; the frames it sends reach the
+    /// emulated MCUs in their own framing.
+    #[test]
+    fn a_socketcand_client_joins_the_bus_in_raw_mode_only() {
+        let mut hub = Hub::new(500_000);
+        hub.join(0);
+        hub.join_socketcand(1, "can0");
+        let (out, _) = hub.poll(Instant::ZERO);
+        assert_eq!(out.len(), 1);
+        assert_eq!((out[0].to, text(&out[0])), (1, "< hi >"));
+
+        // A frame that completes before the client is in raw mode does not reach it.
+        hub.receive(Instant::ZERO, 0, &encode(&frame(0x701, &[0x7F])));
+        let (_, next) = hub.poll(Instant::ZERO);
+        let (out, _) = hub.poll(next.unwrap());
+        assert!(out.is_empty(), "{out:?}");
+
+        let at = next.unwrap();
+        assert_eq!(hub.receive(at, 1, b"< open can0 >< rawmode >"), 24);
+        let (out, _) = hub.poll(at);
+        let replies: Vec<&str> = out.iter().map(text).collect();
+        assert_eq!(replies, ["< ok >", "< ok >"], "each reply on its own");
+
+        // A frame that ends within the grace after the reply is held until the grace is over.
+        hub.receive(at, 0, &encode(&frame(0x181, &[1, 0xAB])));
+        let (_, next) = hub.poll(at);
+        let end = next.unwrap();
+        let (out, next) = hub.poll(end);
+        assert!(out.is_empty(), "{out:?}");
+        assert_eq!(next, Some(at + RAW_MODE_GRACE));
+        let (out, _) = hub.poll(at + RAW_MODE_GRACE);
+        assert_eq!(out.len(), 1);
+        let micros = end.as_micros();
+        assert_eq!(
+            text(&out[0]),
+            format!(
+                "< frame 181 {}.{:06} 01AB >",
+                micros / 1_000_000,
+                micros % 1_000_000
+            )
+        );
+
+        // After the grace, frames go out as they end; the client's own reach the MCU.
+        let later = at + RAW_MODE_GRACE;
+        hub.receive(later, 0, &encode(&frame(0x001, &[])));
+        let (out, later) = run_idle(&mut hub, later);
+        assert!(text(&out[0]).starts_with("< frame 001 "), "{out:?}");
+        hub.receive(later, 1, b"< send 601 8 40 18 10 01 00 00 00 00 >");
+        let (out, _) = run_idle(&mut hub, later);
+        let to_mcu: Vec<CanFrame> = out
+            .iter()
+            .filter(|o| o.to == 0)
+            .map(|o| decode(&o.bytes))
+            .collect();
+        assert_eq!(to_mcu, [frame(0x601, &[0x40, 0x18, 0x10, 1, 0, 0, 0, 0])]);
+        assert!(out.iter().all(|o| o.to != 1), "no echo to the sender");
+    }
+
+    /// A client that opens a bus the hub does not have is told so and closed; a flooding
+    /// socketcand sender waits for room in its transmit FIFO, one message at a time.
+    #[test]
+    fn a_socketcand_client_is_closed_on_an_unknown_bus_and_waits_when_flooding() {
+        let mut hub = Hub::new(1_000_000);
+        hub.join_socketcand(3, "can0");
+        let _ = hub.poll(Instant::ZERO);
+        hub.receive(Instant::ZERO, 3, b"< open vcan7 >");
+        assert_eq!(hub.closing, [3]);
+        let (out, _) = hub.poll(Instant::ZERO);
+        assert_eq!(text(&out[0]), "< error could not open bus >");
+
+        hub.join(0);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
+        let message = b"< send 300 1 55 >";
+        let flood: Vec<u8> = message
+            .iter()
+            .copied()
+            .cycle()
+            .take(message.len() * 3 * crate::bus::TRANSMIT_QUEUE)
+            .collect();
+        let taken = hub.receive(Instant::ZERO, 1, &flood);
+        assert_eq!(taken, message.len() * crate::bus::TRANSMIT_QUEUE);
+        assert!(!hub.has_room(1));
     }
 
     #[test]

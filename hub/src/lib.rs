@@ -4,12 +4,13 @@
 //!   by identifier, each frame on the bus for its bit time with stuff bits, every participant
 //!   but the sender receives it, and the fault vocabulary.
 //! - [`trace`]: candump log and pcap (SocketCAN link type) writers.
-//! - [`hub`]: participants that speak CAN-over-serial ([`emulation_wire`]) joined
-//!   to one [`bus::Bus`] in real time (the `can-hub` program).
+//! - [`hub`]: participants joined to one [`bus::Bus`] in real time (the `can-hub` program):
+//!   emulated MCUs speaking CAN-over-serial ([`emulation_wire`]) and tools speaking
+//!   socketcand (the tool library's server session, `safety_config::socketcand::server`).
 //! - [`pace`]: the shared virtual time of the emulated MCUs: the hub's clock waits for the
 //!   slowest of them, so host load slows the network down but does not change its verdicts.
 //! - [`control`]: the hub's control port (input pins, faults, link cuts, status reports).
-//! - [`tool`]: a configuration tool's and a test's connection to the hub.
+//! - [`tool`]: a client of the control port.
 
 pub mod bus;
 pub mod control;

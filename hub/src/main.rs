@@ -9,16 +9,18 @@
 //!         --candump bus.log --pcap bus.pcap --bit-rate 500000
 //! ```
 //!
-//! Every participant speaks CAN-over-serial (`emulation_wire`). The hub listens on
-//! each `--socket` path for one QEMU instance (start QEMU with `-chardev
-//! socket,id=can,path=PATH` and `-serial null -serial chardev:can`), and accepts any number of
-//! tool connections on `--tcp`. A `--link` relays the link messages (`Wire::Link`) between
-//! two of the `--socket` participants (the two channels of a node) until the control port
-//! cuts it: on the same serial line as their frames, so that each channel receives
-//! everything in the order the hub sent it. With `--paced` the `--socket` participants share
-//! the hub's virtual time (`can_hub::pace`): the hub grants it to them and waits for the
-//! slowest. The control port's line protocol is in `can_hub::control`. The hub runs until
-//! killed.
+//! The hub listens on each `--socket` path for one QEMU instance, which speaks CAN-over-serial
+//! (`emulation_wire`; start QEMU with `-chardev socket,id=can,path=PATH` and
+//! `-serial null -serial chardev:can`), and accepts any number of tool connections on `--tcp`,
+//! which speak socketcand (linux-can/socketcand `doc/protocol.md`, raw mode; the bus is named
+//! `can0`): the configuration tool (`--bus socketcand:127.0.0.1:29536/can0`), python-can
+//! (`interface="socketcand", host=..., port=..., channel="can0"`) and python-canopen through
+//! it. A `--link` relays the link messages (`Wire::Link`) between two of the `--socket`
+//! participants (the two channels of a node) until the control port cuts it: on the same
+//! serial line as their frames, so that each channel receives everything in the order the hub
+//! sent it. With `--paced` the `--socket` participants share the hub's virtual time
+//! (`can_hub::pace`): the hub grants it to them and waits for the slowest. The control port's
+//! line protocol is in `can_hub::control`. The hub runs until killed.
 //!
 //! Nothing a participant sends makes the hub hold more and more: a participant whose transmit
 //! FIFO is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus. Its bytes stay with
@@ -37,7 +39,7 @@ use shared::Instant;
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
-use std::net::TcpListener;
+use std::net::{Shutdown, TcpListener, TcpStream};
 use std::os::unix::net::UnixListener;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -86,6 +88,9 @@ struct Args {
 /// full); past this the hub stops reading its socket until the bus has taken frames.
 const BACKLOG: usize = 4096;
 
+/// The name of the bus a socketcand client opens (`< open can0 >`).
+const TOOL_BUS: &str = "can0";
+
 /// How long a write to a tool or control client may block before the client is disconnected.
 const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 
@@ -93,6 +98,9 @@ const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 enum Input {
     /// A participant joined: how to write to it, and its count of bytes not yet taken.
     Joined(usize, Box<dyn Write + Send>, Arc<AtomicUsize>),
+    /// A socketcand client joined on the TCP port: as [`Input::Joined`], and its connection
+    /// (to close it when the session ends).
+    ToolJoined(usize, TcpStream, Arc<AtomicUsize>),
     Bytes(usize, Vec<u8>),
     Left(usize),
     ControlJoined(usize, Box<dyn Write + Send>),
@@ -280,7 +288,7 @@ fn start(args: &Args) -> Result<(), String> {
                 let id = first + offset;
                 if let Ok(writer) = stream.try_clone() {
                     let pending = Arc::new(AtomicUsize::new(0));
-                    let _ = tx.send(Input::Joined(id, Box::new(writer), pending.clone()));
+                    let _ = tx.send(Input::ToolJoined(id, writer, pending.clone()));
                     let tx = tx.clone();
                     std::thread::spawn(move || reader(id, stream, tx, pending));
                 }
@@ -339,6 +347,10 @@ struct Hosts {
     backlogs: HashMap<usize, (Vec<u8>, Arc<AtomicUsize>)>,
     controls: HashMap<usize, Box<dyn Write + Send>>,
     links: Links,
+    /// The socketcand clients' connections, to close when their session ends.
+    tools: HashMap<usize, TcpStream>,
+    /// socketcand clients that closed their connection, whose frames still go on the bus.
+    departing: Vec<usize>,
 }
 
 impl Hosts {
@@ -492,6 +504,8 @@ fn run(
         backlogs: HashMap::new(),
         controls: HashMap::new(),
         links,
+        tools: HashMap::new(),
+        departing: Vec::new(),
     };
     let mut wake: Option<Instant> = None;
     let mut next_report = Instant::ZERO;
@@ -520,6 +534,22 @@ fn run(
                 if let Some((backlog, _)) = hosts.backlogs.get_mut(&id) {
                     backlog.extend_from_slice(&bytes);
                 }
+            }
+            Ok(Input::ToolJoined(id, stream, pending)) => {
+                hub.join_socketcand(id, TOOL_BUS);
+                if let Ok(closer) = stream.try_clone() {
+                    hosts.tools.insert(id, closer);
+                }
+                hosts.writers.insert(id, Box::new(stream));
+                hosts.backlogs.insert(id, (Vec::new(), pending));
+            }
+            // A socketcand client that closed its connection still has its frames sent: what
+            // it wrote before closing was handed to the bus, as a socketcand daemon writes
+            // it to its CAN socket (a script that sends and exits loses nothing). An emulated
+            // MCU that ends is a controller gone, its queue with it.
+            Ok(Input::Left(id)) if hosts.tools.remove(&id).is_some() => {
+                hosts.writers.remove(&id);
+                hosts.departing.push(id);
             }
             Ok(Input::Left(id)) => {
                 hub.leave(id);
@@ -591,6 +621,33 @@ fn run(
         if args.paced && host() >= next_report {
             next_report = host() + shared::Duration::from_millis(1000);
             hosts.tell_controls(&control::pace_line(&pacer.report(host())));
+        }
+        let gone: Vec<usize> = hosts
+            .departing
+            .iter()
+            .copied()
+            .filter(|id| {
+                hosts
+                    .backlogs
+                    .get(id)
+                    .is_none_or(|(bytes, _)| bytes.is_empty())
+                    && hub.queued(*id) == 0
+            })
+            .collect();
+        for id in gone {
+            hosts.departing.retain(|departing| *departing != id);
+            hosts.backlogs.remove(&id);
+            hub.leave(id);
+        }
+        let closing: Vec<usize> = hub.closing.drain(..).collect();
+        for id in closing {
+            // The reader thread then sees the end of the stream and reports the departure.
+            if let Some(stream) = hosts.tools.remove(&id) {
+                let _ = stream.shutdown(Shutdown::Both);
+            }
+            hosts.writers.remove(&id);
+            hosts.backlogs.remove(&id);
+            hub.leave(id);
         }
         for (at, frame, _) in hub.completed.drain(..) {
             let stamp = epoch + at.as_micros();

@@ -1,8 +1,11 @@
-//! The `can-hub` program end to end: tools join over TCP, a frame one sends reaches the
-//! others (not itself), and the traces it writes are read by other tools: the candump log, and
-//! the pcap as tshark decodes it (CANopen over SocketCAN).
+//! The `can-hub` program end to end: tools join over TCP speaking socketcand (the tool
+//! library's client), an emulated MCU on a Unix socket speaking CAN-over-serial, a frame one
+//! sends reaches the others (not itself), and the traces it writes are read by other tools:
+//! the candump log, and the pcap as tshark decodes it (CANopen over SocketCAN).
 
 use emulation_wire::{Decoder, LinkBytes, Wire, encode, encode_wire};
+use safety_config::Transport;
+use safety_config::socketcand::SocketcandClient;
 use shared::{CanFrame, CanId};
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -27,6 +30,8 @@ fn start(port: u16) -> Hub {
     std::fs::create_dir_all(&dir).unwrap();
     let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
         .args(["--tcp", &format!("127.0.0.1:{port}")])
+        .arg("--socket")
+        .arg(format!("mcu={}", dir.join("mcu.sock").display()))
         .arg("--candump")
         .arg(dir.join("bus.log"))
         .arg("--pcap")
@@ -52,7 +57,29 @@ fn connect(port: u16) -> TcpStream {
     }
 }
 
-fn receive(stream: &mut TcpStream) -> CanFrame {
+/// A socketcand client of the hub on `port` (waiting for the hub to listen).
+fn tool(port: u16) -> SocketcandClient {
+    let address = format!("127.0.0.1:{port}");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        match SocketcandClient::connect(&address, "can0") {
+            Ok(client) => return client,
+            Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+            Err(error) => panic!("hub not reachable: {error}"),
+        }
+    }
+}
+
+/// The next frame a socketcand client receives, within 5 s.
+fn next_frame(tool: &mut SocketcandClient) -> CanFrame {
+    let deadline = tool.now() + Duration::from_secs(5);
+    tool.receive(deadline)
+        .expect("the connection holds")
+        .expect("a frame within 5 s")
+}
+
+/// The next frame an emulated MCU receives (CAN-over-serial), within 5 s.
+fn receive(stream: &mut impl Read) -> CanFrame {
     let mut decoder = Decoder::new();
     let mut byte = [0u8; 1];
     loop {
@@ -70,9 +97,23 @@ fn receive(stream: &mut TcpStream) -> CanFrame {
 fn frames_reach_the_other_participants_and_the_traces() {
     let port = 20_000 + (std::process::id() % 20_000) as u16;
     let hub = start(port);
-    let mut tool = connect(port);
-    let mut node = connect(port);
-    // Both joined before anything is sent.
+    let mut tool = tool(port);
+    let mut other = self::tool(port);
+    let mut node = {
+        let path = hub.dir.join("mcu.sock");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            match std::os::unix::net::UnixStream::connect(&path) {
+                Ok(stream) => break stream,
+                Err(_) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(20))
+                }
+                Err(error) => panic!("hub's MCU socket not reachable: {error}"),
+            }
+        }
+    };
+    node.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    // All joined (and out of the raw-mode grace) before anything is sent.
     std::thread::sleep(Duration::from_millis(200));
     let boot_up = CanFrame::new(CanId::new(0x701).unwrap(), &[0x00]).unwrap();
     let sdo = CanFrame::new(
@@ -80,17 +121,26 @@ fn frames_reach_the_other_participants_and_the_traces() {
         &[0x40, 0x00, 0x10, 0, 0, 0, 0, 0],
     )
     .unwrap();
+    let gfc = CanFrame::new(CanId::new(0x001).unwrap(), &[]).unwrap();
     node.write_all(&encode(&boot_up)).unwrap();
-    assert_eq!(receive(&mut tool), boot_up);
-    tool.write_all(&encode(&sdo)).unwrap();
+    assert_eq!(next_frame(&mut tool), boot_up);
+    assert_eq!(next_frame(&mut other), boot_up);
+    tool.send(&sdo).unwrap();
     assert_eq!(receive(&mut node), sdo);
-    std::thread::sleep(Duration::from_millis(200));
+    assert_eq!(next_frame(&mut other), sdo);
+    other.send(&gfc).unwrap();
+    assert_eq!(receive(&mut node), gfc);
+    assert_eq!(next_frame(&mut tool), gfc, "a frame without data");
+    // The sender does not receive its own frame back.
+    let soon = tool.now() + Duration::from_millis(200);
+    assert_eq!(tool.receive(soon).unwrap(), None);
 
     let log = std::fs::read_to_string(hub.dir.join("bus.log")).unwrap();
     let lines: Vec<&str> = log.lines().collect();
-    assert_eq!(lines.len(), 2, "{log}");
+    assert_eq!(lines.len(), 3, "{log}");
     assert!(lines[0].ends_with(" can0 701#00"), "{log}");
     assert!(lines[1].ends_with(" can0 601#4000100000000000"), "{log}");
+    assert!(lines[2].ends_with(" can0 001#"), "{log}");
 
     // tshark (Debian's package; `cargo xtask setup` installs it) decodes CANopen from the pcap.
     let tshark = Command::new("tshark")
@@ -102,7 +152,7 @@ fn frames_reach_the_other_participants_and_the_traces() {
         Ok(output) if output.status.success() => {
             let text = String::from_utf8_lossy(&output.stdout);
             let lines: Vec<&str> = text.lines().collect();
-            assert_eq!(lines.len(), 2, "{text}");
+            assert_eq!(lines.len(), 3, "{text}");
             assert!(
                 lines[0].contains("CANopen") && lines[0].contains("Boot-up"),
                 "{text}"
@@ -140,7 +190,7 @@ fn the_control_port_inserts_injects_and_cuts() {
         .spawn()
         .unwrap();
     let _hub = Hub { child, dir };
-    let mut tool = connect(port);
+    let mut tool = tool(port);
     let mut control = Control::connect(
         &format!("127.0.0.1:{control_port}"),
         Duration::from_secs(10),
@@ -150,12 +200,12 @@ fn the_control_port_inserts_injects_and_cuts() {
 
     assert!(control.command("insert 0x123 01 02").unwrap().is_ok());
     let inserted = CanFrame::new(CanId::new(0x123).unwrap(), &[1, 2]).unwrap();
-    assert_eq!(receive(&mut tool), inserted);
+    assert_eq!(next_frame(&mut tool), inserted);
 
     assert!(control.command("drop 0x124").unwrap().is_ok());
     assert!(control.command("insert 0x124 01").unwrap().is_ok());
     assert!(control.command("insert 0x125 02").unwrap().is_ok());
-    let next = receive(&mut tool);
+    let next = next_frame(&mut tool);
     assert_eq!(next.id().raw(), 0x125, "the 124h frame was dropped");
 
     let error = control.command("input nobody 1").unwrap().unwrap_err();
@@ -231,22 +281,50 @@ fn an_over_long_control_line_is_refused_and_the_port_keeps_working() {
 fn a_flooding_tool_waits_for_the_bus_and_every_frame_arrives_in_order() {
     let port = 20_000 + (std::process::id() % 20_000) as u16 + 3;
     let hub = start(port);
-    let mut sender = connect(port);
-    let mut receiver = connect(port);
+    let mut sender = tool(port);
+    let mut receiver = tool(port);
     std::thread::sleep(Duration::from_millis(200));
     const FRAMES: u16 = 2000;
     let frames: Vec<CanFrame> = (0..FRAMES)
         .map(|n| CanFrame::new(CanId::new(0x300).unwrap(), &n.to_le_bytes()).unwrap())
         .collect();
     let writer = std::thread::spawn(move || {
-        let bytes: Vec<u8> = frames.iter().flat_map(|f| encode(f).to_vec()).collect();
-        sender.write_all(&bytes).unwrap();
+        for frame in &frames {
+            sender.send(frame).unwrap();
+        }
         sender
     });
     for n in 0..FRAMES {
-        let frame = receive(&mut receiver);
+        let frame = next_frame(&mut receiver);
         assert_eq!(frame.data(), n.to_le_bytes(), "frame {n}");
     }
     let _sender = writer.join().unwrap();
+    drop(hub);
+}
+
+/// A socketcand client that sends frames and closes its connection at once (a script that
+/// sends and exits) still has every frame put on the bus, in order.
+#[test]
+fn frames_of_a_client_that_closed_at_once_still_reach_the_bus() {
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 4;
+    let hub = start(port);
+    let mut receiver = tool(port);
+    std::thread::sleep(Duration::from_millis(100));
+    {
+        let mut sender = connect(port);
+        let mut greeting = [0u8; 6];
+        sender.read_exact(&mut greeting).unwrap();
+        assert_eq!(&greeting, b"< hi >");
+        sender.write_all(b"< open can0 >").unwrap();
+        let mut ok = [0u8; 6];
+        sender.read_exact(&mut ok).unwrap();
+        sender.write_all(b"< rawmode >").unwrap();
+        sender.read_exact(&mut ok).unwrap();
+        let burst: String = (0..20u8).map(|n| format!("< send 300 1 {n:X} >")).collect();
+        sender.write_all(burst.as_bytes()).unwrap();
+    }
+    for n in 0..20u8 {
+        assert_eq!(next_frame(&mut receiver).data(), [n], "frame {n}");
+    }
     drop(hub);
 }

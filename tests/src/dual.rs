@@ -8,16 +8,19 @@
 
 use crate::bus::{Bus, Delivery, Fault, Injection, Match, ORDERED_BY_IDENTIFIER};
 use crate::network::device_config;
+use crate::tool_bus::{client, sdo_error};
 use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
 use dual_channel::runtime::{ChannelEvent, Io, Runtime};
+use safety_config::ToolError;
+use safety_config::network_file;
+use safety_config::procedure::{self, Quiet};
 use shared::canopen::nmt::{self, NmtCommand};
 use shared::canopen::od::Address;
-use shared::canopen::sdo_client::{self, ClientError};
+use shared::canopen::sdo_client::ClientError;
 use shared::canopen::storage::RamFlash;
-use shared::safety::config::SrdoRecord;
 use shared::safety::types::SrdoNumber;
-use shared::{CanFrame, CanId, Duration, Instant};
+use shared::{CanFrame, Duration, Instant};
 use std::collections::VecDeque;
 
 /// A link heartbeat every 10 ms: five per SCT of 50 ms (the link supervision asks for at least four).
@@ -154,7 +157,6 @@ pub struct DualNetwork {
     /// The nodes.
     pub nodes: Vec<DualNode>,
     in_flight: Vec<Delivery>,
-    tool_inbox: Vec<CanFrame>,
     /// Everything the channels reported: (time, node-ID, channel, event).
     pub log: Vec<(Instant, u8, Side, ChannelEvent)>,
     /// Every frame on the bus, as delivered.
@@ -166,6 +168,40 @@ pub struct DualNetwork {
     /// (altered, dropped, delayed, repeated, or with frames of its own added).
     pub tap: Option<Box<dyn FnMut(Delivery) -> Vec<Delivery>>>,
 }
+
+/// The network [`DualNetwork::configure_and_start`] configures: node 1's pre-defined SRDO 1
+/// (EN 50325-5 Table 5: transmit on 101h/102h, refresh time 25 ms) and node 33 consuming it
+/// (SCT 50 ms, its pre-defined value; SRVT 20 ms).
+pub const NETWORK_FILE: &str = r#"
+[bus]
+sdo_timeout_ms = 1000
+
+[[node]]
+id = 1
+name = "emergency stop"
+identity = { vendor = 0xABC, product = 0x304, revision = 1, serial = 1 }
+
+[[node.srdo]]
+number = 1
+direction = "transmit"
+refresh_time_ms = 25
+srvt_ms = 20
+cob_ids = [0x101, 0x102]
+mapping = ["input", "input_inverted"]
+
+[[node]]
+id = 33
+name = "safe output"
+identity = { vendor = 0xABC, product = 0x304, revision = 1, serial = 33 }
+
+[[node.srdo]]
+number = 1
+direction = "receive"
+sct_ms = 50
+srvt_ms = 20
+cob_ids = [0x101, 0x102]
+mapping = ["output", "output_inverted"]
+"#;
 
 /// Channel B of the demo device samples the same input object as channel A (its own contact).
 pub const B_INPUTS: [(u16, u8, u8); 1] = [(0x6000, 1, 1)];
@@ -211,7 +247,6 @@ impl DualNetwork {
             bus,
             nodes,
             in_flight: Vec::new(),
-            tool_inbox: Vec::new(),
             log: Vec::new(),
             trace: Vec::new(),
             outputs: Vec::new(),
@@ -291,9 +326,6 @@ impl DualNetwork {
         for delivery in due {
             self.trace
                 .push((delivery.at, delivery.frame, delivery.from));
-            if delivery.from != 0 {
-                self.tool_inbox.push(delivery.frame);
-            }
             for index in 0..self.nodes.len() {
                 for side in [Side::A, Side::B] {
                     if participant(index, side) == delivery.from {
@@ -530,62 +562,27 @@ impl DualNetwork {
         self.bus.inject(Injection::new(when, fault));
     }
 
-    fn sdo_exchange(&mut self, id: u8, request: [u8; 8]) -> Option<[u8; 8]> {
-        let from = 0x580 + u16::from(id);
-        self.tool_inbox.clear();
-        let to = CanId::new(0x600 + u16::from(id)).expect("SDO identifier");
-        self.bus
-            .send(0, CanFrame::new(to, &request).expect("8 bytes"));
-        let give_up = self.now + Duration::from_millis(1000);
-        while self.now < give_up {
-            self.run_for(Duration::from_micros(100));
-            if let Some(frame) = self.tool_inbox.iter().find(|f| f.id().raw() == from) {
-                return frame.data().try_into().ok();
-            }
-        }
-        None
-    }
-
-    /// SDO download from the tool.
+    /// SDO download from the tool (the tool library's client, `safety_config::client`).
     pub fn write(&mut self, id: u8, address: Address, data: &[u8]) -> Result<(), ClientError> {
-        sdo_client::download(|r| self.sdo_exchange(id, r), address, data)
+        client(self).write(id, address, data).map_err(sdo_error)
     }
 
-    /// SDO upload from the tool.
+    /// SDO upload from the tool (the tool library's client).
     pub fn read(&mut self, id: u8, address: Address) -> Result<Vec<u8>, ClientError> {
-        sdo_client::upload(|r| self.sdo_exchange(id, r), address).map(|v| v.to_vec())
+        client(self).read(id, address).map_err(sdo_error)
     }
 
-    /// The tool reads SRDO 1 back, signs it and declares the configuration valid.
-    pub fn sign_and_validate(&mut self, id: u8) -> Result<(), ClientError> {
-        let mut record = SrdoRecord::DELETED;
-        let value = |net: &mut Self, sub| -> Result<u32, ClientError> {
-            let bytes = net.read(id, Address::new(0x1301, sub))?;
-            let mut raw = [0u8; 4];
-            raw[..bytes.len().min(4)].copy_from_slice(&bytes[..bytes.len().min(4)]);
-            Ok(u32::from_le_bytes(raw))
-        };
-        record.direction = value(self, 1)? as u8;
-        record.cycle_time = value(self, 2)? as u16;
-        record.srvt = value(self, 3)? as u8;
-        record.cob_id_1 = value(self, 5)?;
-        record.cob_id_2 = value(self, 6)?;
-        let count = self.read(id, Address::new(0x1381, 0))?;
-        record.mapping_count = count.first().copied().unwrap_or(0);
-        for sub in 1..=record.mapping_count.min(16) {
-            let bytes = self.read(id, Address::new(0x1381, sub))?;
-            let mut raw = [0u8; 4];
-            raw[..bytes.len().min(4)].copy_from_slice(&bytes[..bytes.len().min(4)]);
-            record.mapping[usize::from(sub) - 1] = u32::from_le_bytes(raw);
-        }
-        let signature = shared::safety::signature::compute(&record);
-        self.write(id, Address::new(0x13FF, 1), &signature.to_le_bytes())?;
-        self.write(id, Address::new(0x13FE, 0), &[0xA5])
+    /// The tool reads SRDO 1 back, signs it with its own CRC, writes and reads back 0x13FF,
+    /// and declares the configuration valid: `safety_config::procedure::sign_and_validate`.
+    pub fn sign_and_validate(&mut self, id: u8) -> Result<(), ToolError> {
+        procedure::sign_and_validate(&mut client(self), id, &[1]).map(|_| ())
     }
 
-    /// Configures node 33 to consume node 1's SRDO, validates both, and starts the network
-    /// with both channels of node 1 reading input 1.
-    pub fn configure_and_start(&mut self) -> Result<(), ClientError> {
+    /// Configures node 1 to produce and node 33 to consume SRDO 1 on 101h/102h
+    /// ([`NETWORK_FILE`]) by the tool's whole procedure (EN 50325-5 8.3.1: identity, writes,
+    /// read-back against the file, signatures, 0x13FE, store; `safety_config::procedure::
+    /// configure_node`), and starts the network with both channels of node 1 reading input 1.
+    pub fn configure_and_start(&mut self) -> Result<(), ToolError> {
         // Both channels of every node come up together (the link first): wait for boot-up.
         for _ in 0..100 {
             if self.nodes.iter().all(|node| {
@@ -595,13 +592,13 @@ impl DualNetwork {
             }
             self.run_for(Duration::from_millis(1));
         }
-        self.write(33, Address::new(0x1301, 1), &[0])?;
-        self.write(33, Address::new(0x1301, 5), &0x101u32.to_le_bytes())?;
-        self.write(33, Address::new(0x1301, 6), &0x102u32.to_le_bytes())?;
-        self.write(33, Address::new(0x1301, 1), &[2])?;
-        for id in [1, 33] {
-            self.sign_and_validate(id)?;
-            self.write(id, Address::new(0x1010, 1), b"save")?;
+        let file = network_file::parse(NETWORK_FILE, "dual::NETWORK_FILE")?;
+        let mut quiet = Quiet {
+            accept_identity: false,
+        };
+        let ids: Vec<u8> = self.nodes.iter().map(|node| node.id).collect();
+        for spec in file.nodes.iter().filter(|spec| ids.contains(&spec.id)) {
+            procedure::configure_node(&mut client(self), spec, &mut quiet)?;
         }
         self.set_inputs(1, 1, 1);
         self.nmt(NmtCommand::Start, 0);

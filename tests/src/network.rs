@@ -1,18 +1,21 @@
 //! A CANopen Safety network under simulated time: devices running the real protocol core, a
-//! configuration tool (participant 0) that talks SDO and NMT over the same bus, and the
-//! [`Bus`] between them. Deterministic: the same scenario gives the same trace, to the
+//! configuration tool (participant 0) that talks SDO and NMT over the same bus (the tool
+//! library, `safety_config`, through [`crate::tool_bus`]), and the [`Bus`] between them. Deterministic: the same scenario gives the same trace, to the
 //! microsecond.
 
 use crate::bus::{Bus, Delivery, Fault, Injection, Match};
+use crate::tool_bus::{client, sdo_error};
+use safety_config::ToolError;
+use safety_config::procedure;
 use shared::canopen::NodeId;
 use shared::canopen::emcy::Emergency;
 use shared::canopen::nmt::{self, NmtCommand, NmtState};
 use shared::canopen::od::Address;
-use shared::canopen::sdo_client::{self, ClientError};
+use shared::canopen::sdo_client::ClientError;
 use shared::canopen::storage::RamFlash;
 use shared::node::{Event, Node, NodeConfig, Sink};
 use shared::safety::config::SrdoRecord;
-use shared::{CanFrame, CanId, Duration, Instant};
+use shared::{CanFrame, Duration, Instant};
 use std::fmt::Write as _;
 
 /// The node type of the simulated devices: up to 4 SRDOs, 8 KiB per storage slot.
@@ -73,7 +76,6 @@ pub struct Network {
     /// The devices.
     pub devices: Vec<Device>,
     in_flight: Vec<Delivery>,
-    tool_inbox: Vec<(Instant, CanFrame)>,
     /// Everything that happened, in order: (time, device index or `None` for the tool, what).
     pub log: Vec<(Instant, Option<usize>, Happening)>,
     /// Every frame as received, in candump order.
@@ -99,7 +101,6 @@ impl Network {
             bus: Bus::new(bit_rate, devices.len() + 1),
             devices,
             in_flight: Vec::new(),
-            tool_inbox: Vec::new(),
             log: Vec::new(),
             trace: Vec::new(),
         }
@@ -217,11 +218,6 @@ impl Network {
                     .push((at, Some(device), Happening::Emergency(node, emergency)));
             }
         }
-        self.tool_inbox.push((at, frame));
-        // The tool only keeps what it may still be waiting for.
-        if self.tool_inbox.len() > 64 {
-            self.tool_inbox.remove(0);
-        }
     }
 
     /// The application of device `index` sets its safety input: the plain value and its
@@ -250,71 +246,50 @@ impl Network {
         self.bus.inject(Injection::new(when, fault));
     }
 
-    /// One SDO request from the tool to node `id`; the answer, or `None` after 1 s.
-    pub fn sdo_exchange(&mut self, id: u8, request: [u8; 8]) -> Option<[u8; 8]> {
-        let to = CanId::new(0x600 + u16::from(id)).expect("SDO identifier");
-        let from = 0x580 + u16::from(id);
-        self.tool_inbox.clear();
-        self.bus
-            .send(0, CanFrame::new(to, &request).expect("8 bytes"));
-        let give_up = self.now + Duration::from_millis(1000);
-        while self.now < give_up {
-            let step = self.now + Duration::from_micros(100);
-            self.run_until(step);
-            if let Some(position) = self
-                .tool_inbox
-                .iter()
-                .position(|(_, frame)| frame.id().raw() == from)
-            {
-                let (_, frame) = self.tool_inbox.remove(position);
-                return frame.data().try_into().ok();
-            }
-        }
-        None
-    }
-
-    /// SDO download from the tool.
+    /// SDO download from the tool (the tool library's client, `safety_config::client`).
     pub fn write(&mut self, id: u8, address: Address, data: &[u8]) -> Result<(), ClientError> {
-        sdo_client::download(|request| self.sdo_exchange(id, request), address, data)
+        client(self).write(id, address, data).map_err(sdo_error)
     }
 
-    /// SDO upload from the tool.
+    /// SDO upload from the tool (the tool library's client).
     pub fn read(&mut self, id: u8, address: Address) -> Result<Vec<u8>, ClientError> {
-        sdo_client::upload(|request| self.sdo_exchange(id, request), address)
-            .map(|value| value.to_vec())
+        client(self).read(id, address).map_err(sdo_error)
     }
 
-    /// The tool reads SRDO `n`'s parameters back from node `id`, as it will sign them.
+    /// The tool reads SRDO `n`'s whole record back from node `id`
+    /// (`safety_config::procedure::read_record`), as shared's record type.
     pub fn read_srdo(&mut self, id: u8, n: u16) -> Result<SrdoRecord, ClientError> {
-        let comm = 0x1300 + n;
-        let map = 0x1380 + n;
-        let mut record = SrdoRecord::DELETED;
-        let value = |bytes: Vec<u8>| {
-            let mut raw = [0u8; 4];
-            raw[..bytes.len().min(4)].copy_from_slice(&bytes[..bytes.len().min(4)]);
-            u32::from_le_bytes(raw)
+        let n = u8::try_from(n).map_err(|_| ClientError::Protocol)?;
+        let held = procedure::read_record(&mut client(self), id, n).map_err(sdo_error)?;
+        let settings = held.settings;
+        let mut record = SrdoRecord {
+            direction: settings.direction,
+            cycle_time: settings.cycle_time,
+            srvt: settings.srvt,
+            cob_id_1: settings.cob_id_1,
+            cob_id_2: settings.cob_id_2,
+            mapping_count: settings.mapping.len() as u8,
+            ..SrdoRecord::DELETED
         };
-        record.direction = value(self.read(id, Address::new(comm, 1))?) as u8;
-        record.cycle_time = value(self.read(id, Address::new(comm, 2))?) as u16;
-        record.srvt = value(self.read(id, Address::new(comm, 3))?) as u8;
-        record.cob_id_1 = value(self.read(id, Address::new(comm, 5))?);
-        record.cob_id_2 = value(self.read(id, Address::new(comm, 6))?);
-        record.mapping_count = value(self.read(id, Address::new(map, 0))?) as u8;
-        for sub in 0..record.mapping_count.min(16) {
-            record.mapping[usize::from(sub)] = value(self.read(id, Address::new(map, sub + 1))?);
+        for (slot, entry) in record.mapping.iter_mut().zip(&settings.mapping) {
+            *slot = *entry;
         }
         Ok(record)
     }
 
-    /// The tool signs SRDO `n` of node `id` from its read-back parameters (EN 50325-5
-    /// 6.4.1.5) and declares the configuration valid (0x13FE = A5h).
-    pub fn sign_and_validate(&mut self, id: u8, srdos: &[u16]) -> Result<(), ClientError> {
-        for &n in srdos {
-            let record = self.read_srdo(id, n)?;
-            let signature = shared::safety::signature::compute(&record);
-            self.write(id, Address::new(0x13FF, n as u8), &signature.to_le_bytes())?;
-        }
-        self.write(id, Address::new(0x13FE, 0), &[0xA5])
+    /// The tool signs SRDOs `srdos` of node `id` over their read-back values with its own
+    /// CRC (EN 50325-5 6.4.1.5), writes and reads back 0x13FF, and declares the
+    /// configuration valid (0x13FE = A5h, read back): `safety_config::procedure::
+    /// sign_and_validate`.
+    pub fn sign_and_validate(&mut self, id: u8, srdos: &[u16]) -> Result<(), ToolError> {
+        let srdos: Vec<u8> = srdos
+            .iter()
+            .map(|&n| {
+                u8::try_from(n)
+                    .map_err(|_| ToolError::Usage(format!("there is no SRDO {n} (1..=64)")))
+            })
+            .collect::<Result<_, _>>()?;
+        procedure::sign_and_validate(&mut client(self), id, &srdos).map(|_| ())
     }
 
     /// The NMT state of device `index`.

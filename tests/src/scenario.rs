@@ -155,17 +155,22 @@ pub fn run(bit_rate: u32, narrator: &mut dyn Narrator) -> Run {
          tool reads the parameters back, signs them (EN 50325-5 6.4.1.5), sets 0x13FE = A5h and \
          stores them (0x1010)",
     );
-    let configured = (|| {
+    let configured = (|| -> Result<(), String> {
         let net = &mut s.net;
-        net.write(33, Address::new(0x1301, 1), &[0])?;
-        net.write(33, Address::new(0x1301, 5), &0x101u32.to_le_bytes())?;
-        net.write(33, Address::new(0x1301, 6), &0x102u32.to_le_bytes())?;
-        net.write(33, Address::new(0x1301, 1), &[2])?;
+        let sdo = |error: shared::canopen::sdo_client::ClientError| format!("{error:?}");
+        net.write(33, Address::new(0x1301, 1), &[0]).map_err(sdo)?;
+        net.write(33, Address::new(0x1301, 5), &0x101u32.to_le_bytes())
+            .map_err(sdo)?;
+        net.write(33, Address::new(0x1301, 6), &0x102u32.to_le_bytes())
+            .map_err(sdo)?;
+        net.write(33, Address::new(0x1301, 1), &[2]).map_err(sdo)?;
         for id in [1u8, 33] {
-            net.sign_and_validate(id, &[1])?;
-            net.write(id, Address::new(0x1010, 1), b"save")?;
+            net.sign_and_validate(id, &[1])
+                .map_err(|error| error.to_string())?;
+            net.write(id, Address::new(0x1010, 1), b"save")
+                .map_err(sdo)?;
         }
-        Ok::<_, shared::canopen::sdo_client::ClientError>(())
+        Ok(())
     })();
     s.check(
         "configuration accepted, signed, validated and stored on both nodes",

@@ -45,6 +45,11 @@ impl<T: Transport> Client<T> {
             let from = 0x580 + u16::from(node);
             let frame = CanFrame::new(to, &request)
                 .map_err(|_| TransportError::Protocol("SDO request longer than 8".into()))?;
+            // Frames that arrived before this request cannot answer it (another SDO client's
+            // transfer with the same node, say, while this one was idle): they are dropped,
+            // not taken for the answer.
+            let now = self.transport.now();
+            while self.transport.receive(now)?.is_some() {}
             self.requests += 1;
             self.transport.send(&frame)?;
             let deadline = self.transport.now() + self.sdo_timeout;

@@ -65,6 +65,25 @@ pub fn abort_meaning(code: u32) -> &'static str {
     AbortCode::from_code(code).map_or("an abort code this tool does not know", AbortCode::meaning)
 }
 
+impl ToolError {
+    /// The error of shared's SDO client (`shared::canopen::sdo_client`) this one reports, for
+    /// an error of one SDO transfer ([`crate::client::Client::read`] or `write`); `None` for
+    /// every other error.
+    pub fn sdo_client_error(&self) -> Option<shared::canopen::sdo_client::ClientError> {
+        use shared::canopen::sdo_client::ClientError;
+        match *self {
+            ToolError::Aborted { code, .. } => Some(
+                AbortCode::from_code(code)
+                    .map_or(ClientError::UnknownAbort(code), ClientError::Aborted),
+            ),
+            ToolError::Timeout { .. } => Some(ClientError::NoResponse),
+            ToolError::Protocol { .. } => Some(ClientError::Protocol),
+            ToolError::TooLong { .. } => Some(ClientError::TooLong),
+            _ => None,
+        }
+    }
+}
+
 /// What went wrong.
 #[derive(Debug, thiserror::Error)]
 pub enum ToolError {

@@ -9,9 +9,11 @@
 //! - [`network_file`]: the network file (TOML) and its errors with line and column.
 //! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
 //! - [`procedure`]: `configure` and `verify` (EN 50325-5 8.3.1), `scan`.
+//! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
 //! - [`error`]: every error as a sentence.
 
 pub mod client;
+pub mod eds;
 pub mod error;
 pub mod network_file;
 pub mod procedure;

@@ -75,13 +75,13 @@ enum Command {
     },
     /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9).
     Sign {
-        /// The network file.
+        /// The network file (TOML), or a node's DCF (`.dcf`).
         file: String,
     },
     /// Configure, read back, sign, validate and store every node of a network file
     /// (EN 50325-5 8.3.1).
     Configure {
-        /// The network file.
+        /// The network file (TOML), or a node's DCF (`.dcf`, as `dcf` writes it).
         file: String,
         /// Start the nodes (NMT start) when every node was configured.
         #[arg(long)]
@@ -92,12 +92,24 @@ enum Command {
     },
     /// Read every node's safety configuration and compare it with a network file.
     Verify {
-        /// The network file.
+        /// The network file (TOML), or a node's DCF (`.dcf`).
         file: String,
     },
     /// Send the global fail-safe command (GFC, CAN-ID 001h): every safety node in
     /// Operational goes to its safe state.
     Gfc,
+    /// Print the node's EDS (CiA 306, with the CANopen Safety keys of its Annex A), generated
+    /// from the device description the firmware is built from.
+    Eds,
+    /// Read a node's whole object dictionary and print its DCF (CiA 306): the values it holds,
+    /// signatures and 0x13FE included. `configure` and `verify` take a DCF as the file.
+    Dcf {
+        /// The node-ID.
+        node: u8,
+        /// A name for the node in the DCF.
+        #[arg(long)]
+        name: Option<String>,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -198,7 +210,14 @@ fn load(file: &str) -> Result<network_file::Network, ToolError> {
         path: file.to_owned(),
         source,
     })?;
-    Ok(network_file::parse(&text, file)?)
+    let is_dcf = std::path::Path::new(file)
+        .extension()
+        .is_some_and(|extension| extension.eq_ignore_ascii_case("dcf"));
+    if is_dcf {
+        Ok(network_file::parse_dcf(&text, file)?)
+    } else {
+        Ok(network_file::parse(&text, file)?)
+    }
 }
 
 fn json(value: &impl serde::Serialize) -> String {
@@ -224,9 +243,20 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         return Ok(true);
     }
+    if let Command::Eds = &cli.command {
+        print!("{}", safety_config::eds::eds());
+        return Ok(true);
+    }
     let mut client = Client::new(open_bus(&cli.bus)?, timeout);
     match cli.command {
-        Command::Sign { .. } => Ok(true),
+        Command::Sign { .. } | Command::Eds => Ok(true),
+        Command::Dcf { node, name } => {
+            print!(
+                "{}",
+                procedure::read_dcf(&mut client, node, name.as_deref())?
+            );
+            Ok(true)
+        }
         Command::Scan { listen_ms } => {
             let found = procedure::scan(&mut client, Duration::from_millis(listen_ms))?;
             if cli.json {

@@ -486,3 +486,169 @@ fn mapping_entry(
     }
     Ok(u32::from(address.index) << 16 | u32::from(address.sub) << 8 | bits)
 }
+
+/// The byte range of the value of `key` in section `[section]` of an INI text (for error
+/// positions), or of the section header when the key is missing, or `0..0`.
+fn ini_span(text: &str, section: &str, key: &str) -> std::ops::Range<usize> {
+    let mut offset = 0;
+    let mut inside = false;
+    let mut header = None;
+    for line in text.split_inclusive('\n') {
+        let trimmed = line.trim();
+        if trimmed.starts_with('[') {
+            inside = trimmed
+                .trim_start_matches('[')
+                .trim_end_matches(']')
+                .eq_ignore_ascii_case(section);
+            if inside {
+                header = Some(offset..offset + trimmed.len());
+            }
+        } else if inside {
+            if let Some((name, value)) = line.split_once('=') {
+                if name.trim().eq_ignore_ascii_case(key) {
+                    let start = offset + name.len() + 1;
+                    return start..start + value.trim_end().len();
+                }
+            }
+        }
+        offset += line.len();
+    }
+    header.unwrap_or(0..0)
+}
+
+/// Parses a device configuration file (DCF, CiA 306) of one node, as the tool exports it
+/// (`safety-config dcf`), into a network of that node: its node-ID (`[DeviceComissioning]
+/// NodeID`), its identity (1018h, serial number included) and every SRDO whose direction is
+/// not 0, from the `ParameterValue`s. The SRDOs pass the checks of a network file (with
+/// positions in the DCF), and each one's signature in 13FFh must be the one its values give
+/// (the tool's own CRC): a DCF whose values and signatures disagree is not the record of
+/// one configuration, and is refused.
+pub fn parse_dcf(text: &str, origin: &str) -> Result<Network, FileError> {
+    let parser = Parser { text, origin };
+    let ini = ini::Ini::load_from_str(text).map_err(|error| FileError {
+        origin: origin.to_owned(),
+        line: error.line.max(1),
+        column: error.col.max(1),
+        message: format!("this is not an INI (CiA 306) file: {}", error.msg),
+    })?;
+    let find = |section: &str, key: &str| {
+        ini.iter()
+            .find(|(name, _)| name.is_some_and(|name| name.eq_ignore_ascii_case(section)))
+            .and_then(|(_, properties)| {
+                properties
+                    .iter()
+                    .find(|(name, _)| name.eq_ignore_ascii_case(key))
+                    .map(|(_, value)| value.trim().to_owned())
+            })
+    };
+    let number = |section: &str, key: &str| -> Result<Spanned<i64>, FileError> {
+        let span = ini_span(text, section, key);
+        let value = find(section, key).ok_or_else(|| {
+            parser.error(
+                span.clone(),
+                format!("[{section}] has no {key}: a DCF of a configured node has one"),
+            )
+        })?;
+        let parsed = match value
+            .strip_prefix("0x")
+            .or_else(|| value.strip_prefix("0X"))
+        {
+            Some(hex) => i64::from_str_radix(hex, 16),
+            None => value.parse(),
+        };
+        parsed
+            .map(|raw| Spanned::new(span.clone(), raw))
+            .map_err(|_| {
+                parser.error(
+                    span,
+                    format!("[{section}] {key} is {value:?}, not a number"),
+                )
+            })
+    };
+    let value = |section: String| number(&section, "ParameterValue");
+    let id: u8 = parser.number(
+        &number("DeviceComissioning", "NodeID")?,
+        1..=127,
+        "the node-ID",
+    )?;
+    let identity = Identity {
+        vendor: parser.number(&value("1018sub1".into())?, U32, "the vendor-ID")?,
+        product: parser.number(&value("1018sub2".into())?, U32, "the product code")?,
+        revision: Some(parser.number(&value("1018sub3".into())?, U32, "the revision number")?),
+        serial: parser.number(&value("1018sub4".into())?, U32, "the serial number")?,
+    };
+    let name = find("DeviceComissioning", "NodeName").filter(|name| !name.is_empty());
+    let mut srdos = Vec::new();
+    for n in 1..=64u16 {
+        let comm = 0x1300 + n;
+        if find(&format!("{comm:04X}sub1"), "ParameterValue").is_none() {
+            break;
+        }
+        let direction = value(format!("{comm:04X}sub1"))?;
+        let label = match *direction.get_ref() {
+            0 => continue,
+            1 => "transmit",
+            2 => "receive",
+            other => {
+                return Err(parser.error(
+                    direction.span(),
+                    format!("SRDO {n}: the information direction is {other}, not 0, 1 or 2"),
+                ));
+            }
+        };
+        let cycle = value(format!("{comm:04X}sub2"))?;
+        let (refresh_time_ms, sct_ms) = if label == "transmit" {
+            (Some(cycle), None)
+        } else {
+            (None, Some(cycle))
+        };
+        let cob_1 = value(format!("{comm:04X}sub5"))?;
+        let cob_2 = value(format!("{comm:04X}sub6"))?;
+        let cob_span = cob_1.span().start..cob_2.span().end.max(cob_1.span().end);
+        let map = 0x1380 + n;
+        let count = value(format!("{map:04X}sub0"))?;
+        let count: u8 = parser.number(&count, 0..=16, "the number of mapped objects")?;
+        let mut mapping = Vec::new();
+        for sub in 1..=count {
+            let entry = value(format!("{map:04X}sub{sub:X}"))?;
+            let raw: u32 = parser.number(&entry, U32, &format!("SRDO {n} mapping entry {sub}"))?;
+            mapping.push(Spanned::new(
+                entry.span(),
+                format!("0x{:04X}:{}:{}", raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF),
+            ));
+        }
+        let map_span = ini_span(text, &format!("{map:04X}sub0"), "ParameterValue");
+        let raw = RawSrdo {
+            number: Spanned::new(direction.span(), i64::from(n)),
+            direction: Spanned::new(direction.span(), label.to_owned()),
+            refresh_time_ms,
+            sct_ms,
+            srvt_ms: Some(value(format!("{comm:04X}sub3"))?),
+            cob_ids: Spanned::new(cob_span, vec![cob_1, cob_2]),
+            mapping: Spanned::new(map_span, mapping),
+        };
+        let spec = srdo_spec(&parser, &raw)?;
+        let stored = value(format!("13FFsub{n:X}"))?;
+        let computed = crate::signature::signature(&spec.settings);
+        if *stored.get_ref() != i64::from(computed) {
+            return Err(parser.error(
+                stored.span(),
+                format!(
+                    "SRDO {n}: the signature is {:04X}h, but these values give {computed:04X}h (EN 50325-5 6.4.1.5): the DCF is not the record of one validated configuration",
+                    stored.get_ref()
+                ),
+            ));
+        }
+        srdos.push(spec);
+    }
+    Ok(Network {
+        sdo_timeout: Duration::from_millis(500),
+        nodes: vec![NodeSpec {
+            id,
+            name,
+            identity,
+            srdos,
+            clear_gfc_indication: false,
+        }],
+    })
+}

@@ -338,9 +338,26 @@ fn write_and_check<T: Transport>(
         });
     }
     signed.reverse();
-    for &(n, value) in &signed {
+    write_signatures(client, node, &signed)?;
+    validate(client, node)?;
+    store(client, node)?;
+    operator.note(&format!(
+        "node {node}: configured, signed, valid and stored"
+    ));
+    Ok(signed)
+}
+
+/// Writes each SRDO's signature to 0x13FF (in SRDO order), then reads them all back (in the
+/// reverse order) and compares; a difference is a [`ToolError::ReadBackMismatch`].
+pub fn write_signatures<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    signed: &[(u8, u16)],
+) -> Result<(), ToolError> {
+    for &(n, value) in signed {
         client.write(node, Address::new(0x13FF, n), &value.to_le_bytes())?;
     }
+    let mut diff = Vec::new();
     for &(n, value) in signed.iter().rev() {
         let held = client.read_unsigned(node, Address::new(0x13FF, n), 2)? as u16;
         if held != value {
@@ -349,19 +366,49 @@ fn write_and_check<T: Transport>(
             ));
         }
     }
-    if !diff.is_empty() {
-        return Err(ToolError::ReadBackMismatch {
+    if diff.is_empty() {
+        Ok(())
+    } else {
+        Err(ToolError::ReadBackMismatch {
             node,
             diff: diff.join("\n"),
-        });
+        })
     }
+}
+
+/// Declares the configuration valid (0x13FE = A5h, EN 50325-5 6.4.1.6) and reads 0x13FE
+/// back: a node whose Operational-entry check refuses the configuration aborts the write
+/// (0604 0043h) or does not keep A5h.
+pub fn validate<T: Transport>(client: &mut Client<T>, node: u8) -> Result<(), ToolError> {
     client.write(node, Address::new(0x13FE, 0), &[CONFIGURATION_VALID])?;
-    check_valid(client, node, "writing it")?;
+    check_valid(client, node, "writing it")
+}
+
+/// Stores the parameters (0x1010:01 = "save", CiA 301 7.5.2.13) and reads 0x13FE again.
+pub fn store<T: Transport>(client: &mut Client<T>, node: u8) -> Result<(), ToolError> {
     client.write(node, Address::new(0x1010, 1), b"save")?;
-    check_valid(client, node, "storing (0x1010)")?;
-    operator.note(&format!(
-        "node {node}: configured, signed, valid and stored"
-    ));
+    check_valid(client, node, "storing (0x1010)")
+}
+
+/// Signs SRDOs `srdos` of `node` over the values they hold: reads each record back whole,
+/// computes its signature with the tool's own CRC ([`crate::signature`]), writes and reads
+/// back 0x13FF, and declares the configuration valid ([`validate`]). Returns the signatures.
+///
+/// This signs whatever the node holds, so it is for callers that wrote the parameters
+/// themselves and checked them; [`configure_node`] signs the file's values after comparing
+/// every record with them.
+pub fn sign_and_validate<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    srdos: &[u8],
+) -> Result<Vec<(u8, u16)>, ToolError> {
+    let mut signed = Vec::with_capacity(srdos.len());
+    for &n in srdos {
+        let held = read_record(client, node, n)?;
+        signed.push((n, signature(&held.settings)));
+    }
+    write_signatures(client, node, &signed)?;
+    validate(client, node)?;
     Ok(signed)
 }
 
@@ -608,4 +655,26 @@ pub fn offline_signatures(network: &Network) -> Vec<(u8, u8, u16)> {
 /// `object`, for messages outside this module.
 pub fn describe(address: Address) -> String {
     Object(address).to_string()
+}
+
+/// Reads every entry of the device's object dictionary ([`crate::eds::objects`]) from `node`
+/// and returns its DCF (CiA 306): the EDS with `[DeviceComissioning]` and each value read as
+/// `ParameterValue`, signatures and 0x13FE included. `name` names the node in it.
+pub fn read_dcf<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    name: Option<&str>,
+) -> Result<String, ToolError> {
+    let mut values = std::collections::BTreeMap::new();
+    for object in crate::eds::objects() {
+        for entry in &object.entries {
+            let bytes = client.read(node, entry.address)?;
+            values.insert(entry.address, crate::eds::format_value(entry, &bytes));
+        }
+    }
+    Ok(crate::eds::render(Some(&crate::eds::Commissioning {
+        node,
+        name,
+        values: &values,
+    })))
 }

@@ -31,7 +31,7 @@ fn serve_one() -> (String, std::thread::JoinHandle<Vec<String>>) {
                 Ok(count) => count,
             };
             seen.push(String::from_utf8_lossy(&buffer[..count]).into_owned());
-            for output in session.feed(&buffer[..count]) {
+            for output in session.feed(&buffer[..count], Duration::ZERO) {
                 match output {
                     Output::Reply(text) => stream.write_all(text.as_bytes()).unwrap(),
                     Output::Send(frame) => {
@@ -81,11 +81,11 @@ fn socketcand_raw_mode_round_trip() {
 fn socketcand_session_refuses_frames_before_raw_mode_and_unknown_buses() {
     let mut session = Session::new("can0");
     assert_eq!(
-        session.feed(b"< send 123 1 01 >"),
+        session.feed(b"< send 123 1 01 >", Duration::ZERO),
         vec![Output::Reply("< error unknown command >".into())]
     );
     assert_eq!(
-        session.feed(b"< open can1 >"),
+        session.feed(b"< open can1 >", Duration::ZERO),
         vec![
             Output::Reply("< error could not open bus >".into()),
             Output::Close
@@ -93,9 +93,9 @@ fn socketcand_session_refuses_frames_before_raw_mode_and_unknown_buses() {
     );
     let mut session = Session::new("can0");
     // Split across reads, two messages in one.
-    assert_eq!(session.feed(b"< open ca"), vec![]);
+    assert_eq!(session.feed(b"< open ca", Duration::ZERO), vec![]);
     assert_eq!(
-        session.feed(b"n0 >< rawmode >"),
+        session.feed(b"n0 >< rawmode >", Duration::ZERO),
         vec![
             Output::Reply("< ok >".into()),
             Output::Reply("< ok >".into())
@@ -104,11 +104,11 @@ fn socketcand_session_refuses_frames_before_raw_mode_and_unknown_buses() {
     assert!(session.is_raw());
     let frame = CanFrame::new(CanId::new(0x1AA).unwrap(), &[0x01, 0xF1]).unwrap();
     assert_eq!(
-        session.feed(b"< send 1AA 2 1 F1 >"),
+        session.feed(b"< send 1AA 2 1 F1 >", Duration::ZERO),
         vec![Output::Send(frame)]
     );
     assert_eq!(
-        session.feed(b"< send 1AA 2 01F1 >"),
+        session.feed(b"< send 1AA 2 01F1 >", Duration::ZERO),
         vec![Output::Send(frame)]
     );
     assert_eq!(
@@ -130,5 +130,50 @@ fn no_server_is_reported_with_its_address() {
     assert!(
         error.starts_with(&format!("no socketcand server at {address}: ")),
         "{error}"
+    );
+}
+
+/// No frame reaches a client before raw mode, nor within `RAW_MODE_GRACE` of the `rawmode`
+/// reply (python-can reads that reply with one `recv`): such frames are held and released
+/// in order once the grace is over.
+#[test]
+fn socketcand_session_holds_frames_within_the_raw_mode_grace() {
+    use safety_config::socketcand::server::RAW_MODE_GRACE;
+    let frame = |id: u16| CanFrame::new(CanId::new(id).unwrap(), &[id as u8]).unwrap();
+    let at = Duration::from_millis(3);
+    let mut session = Session::new("can0");
+    assert_eq!(
+        session.frame(&frame(0x101), at, at),
+        None,
+        "no bus open yet"
+    );
+    session.feed(b"< open can0 >", at);
+    assert_eq!(
+        session.frame(&frame(0x101), at, at),
+        None,
+        "not in raw mode"
+    );
+    let raw = Duration::from_millis(10);
+    session.feed(b"< rawmode >", raw);
+    assert_eq!(session.frame(&frame(0x102), raw, raw), None);
+    assert_eq!(
+        session.frame(&frame(0x103), raw, raw + RAW_MODE_GRACE / 2),
+        None
+    );
+    assert_eq!(session.release_at(), Some(raw + RAW_MODE_GRACE));
+    assert!(session.release(raw + RAW_MODE_GRACE / 2).is_empty());
+    let released = session.release(raw + RAW_MODE_GRACE);
+    assert_eq!(
+        released,
+        [
+            Session::frame_message(&frame(0x102), raw),
+            Session::frame_message(&frame(0x103), raw)
+        ]
+    );
+    assert_eq!(session.release_at(), None);
+    let later = raw + RAW_MODE_GRACE;
+    assert_eq!(
+        session.frame(&frame(0x104), later, later),
+        Some(Session::frame_message(&frame(0x104), later))
     );
 }

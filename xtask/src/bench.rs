@@ -1,5 +1,6 @@
 //! `cargo xtask bench`: instruction counts of the hot paths (callgrind) and RAM per SRDO on
-//! the target, written to `docs/performance.md`.
+//! the target, and the configuration tool's speed on the host simulation
+//! (`tests/src/bin/tool_bench.rs`), written to `docs/performance.md`.
 //!
 //! Instruction counts, unlike times, repeat exactly for the same binary and input whatever
 //! else the machine does, so they can be compared with the reference figures and across
@@ -91,7 +92,26 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
     let image = images::image(&cross, root, Layer::Hw, "a");
     let ram = symbol_u32(&image, "SHARED_RAM_PER_SRDO")?;
 
-    let report = render(&rows, ram, &rustc_version());
+    let mut report = render(&rows, ram, &rustc_version());
+    crate::step("configuration tool: one node with 16 SRDOs on the host simulation");
+    let tool = crate::cargo()
+        .args([
+            "run",
+            "--quiet",
+            "--release",
+            "-p",
+            "system-tests",
+            "--bin",
+            "tool_bench",
+        ])
+        .output()?;
+    if !tool.status.success() {
+        bail!(
+            "the configuration tool's benchmark failed: {}",
+            String::from_utf8_lossy(&tool.stderr)
+        );
+    }
+    report.push_str(&String::from_utf8_lossy(&tool.stdout));
     let docs = root.join("docs");
     std::fs::create_dir_all(&docs)?;
     std::fs::write(docs.join("performance.md"), &report)?;

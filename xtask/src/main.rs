@@ -9,6 +9,7 @@ mod e2e;
 mod footprint;
 mod fullnet;
 mod images;
+mod interop;
 mod network;
 mod qemu;
 mod run;
@@ -92,6 +93,15 @@ enum Task {
         /// Arguments for the demo (`cargo xtask demo -- --help`).
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
+    },
+    /// Third-party CANopen software on the emulated bus through the hub's socketcand port, in a
+    /// virtual environment under target/interop (python-can, python-canopen): python-can's
+    /// socketcand bus against the hub and the tool; python-canopen on the emulated network
+    /// (QEMU) with the node's EDS, agreeing with the tool and getting the specific aborts.
+    Interop {
+        /// Run one part only.
+        #[arg(long, value_enum)]
+        only: Option<interop::Part>,
     },
     /// Instruction counts (callgrind) for the hot paths, and the RAM per SRDO; writes
     /// docs/performance.md.
@@ -267,6 +277,7 @@ fn task() -> Result<()> {
             ],
             print_only,
         ),
+        Task::Interop { only } => interop::task(&root, only),
         Task::Fuzz {
             seconds,
             checked_seconds,

@@ -1,7 +1,10 @@
 //! The emulated safety network: the bus hub and four QEMU instances (node 1, the
 //! emergency-stop input device and SRDO producer; node 33, the safe output device and SRDO
 //! consumer; each as channel A and channel B with the link between them relayed by the hub),
-//! configured, signed, validated, stored and started by a tool on the hub's TCP port.
+//! configured, read back, signed, validated, stored and started by the configuration tool's
+//! library (`safety_config`, EN 50325-5 8.3.1) over the hub's socketcand port, from the network
+//! file [`network_file`] (written to `target/emulate/network.toml`, so that `safety-config
+//! verify target/emulate/network.toml` can check a running network).
 //!
 //! Every child process is killed when the [`Network`] is dropped, whichever way the task
 //! ends (error, panic, Ctrl-C: see [`crate::interrupt`]).
@@ -10,10 +13,14 @@ use crate::images::{self, Layer};
 use crate::qemu;
 use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, anyhow, bail};
-use can_hub::tool::{Control, Tool};
+use can_hub::tool::Control;
 use emulation_wire::Status;
+use safety_config::Transport;
+use safety_config::client::Client;
+use safety_config::network_file::NodeSpec;
+use safety_config::procedure::{self, NodeResult, Operator};
+use safety_config::socketcand::SocketcandClient;
 use shared::canopen::nmt::{NmtCommand, NmtState};
-use shared::canopen::od::Address;
 use shared::safety::cause::Cause;
 use std::collections::HashMap;
 use std::os::unix::process::CommandExt as _;
@@ -45,14 +52,102 @@ pub const SRVT_MS: u64 = 100;
 /// The QEMU layer's link heartbeat period; a link is timed out after two.
 pub const LINK_PERIOD_MS: u64 = 100;
 
-const HUB_TCP: &str = "127.0.0.1:29536";
+/// The hub's socketcand port (bus `can0`).
+pub const HUB_TCP: &str = "127.0.0.1:29536";
 const HUB_CONTROL: &str = "127.0.0.1:29537";
+
+/// How long one SDO request of the tool waits over the emulated bus (four emulated MCUs on
+/// two shared cores answer in milliseconds; this leaves room for a loaded machine).
+const SDO_TIMEOUT: Duration = Duration::from_millis(1000);
+
+/// The network file of the emulated network: node 1's SRDO 1 transmits on 101h/102h every
+/// [`REFRESH_MS`]; node 33's SRDO 1 consumes it with [`SCT_MS`] and [`SRVT_MS`]. The
+/// identities are the device description's (`dual_channel::device::config`: vendor ABCh,
+/// product 304h, revision 1, serial number = node-ID).
+pub fn network_file() -> String {
+    format!(
+        r#"# The emulated network of `cargo xtask run` (written by xtask from its constants).
+[bus]
+sdo_timeout_ms = {sdo}
+
+[[node]]
+id = 1
+name = "emergency stop"
+identity = {{ vendor = 0xABC, product = 0x304, revision = 1, serial = 1 }}
+
+[[node.srdo]]
+number = 1
+direction = "transmit"
+refresh_time_ms = {REFRESH_MS}
+srvt_ms = 20
+cob_ids = [0x{PLAIN:X}, 0x{INVERTED:X}]
+mapping = ["input", "input_inverted"]
+
+[[node]]
+id = 33
+name = "safe output"
+identity = {{ vendor = 0xABC, product = 0x304, revision = 1, serial = 33 }}
+
+[[node.srdo]]
+number = 1
+direction = "receive"
+sct_ms = {SCT_MS}
+srvt_ms = {SRVT_MS}
+cob_ids = [0x{PLAIN:X}, 0x{INVERTED:X}]
+mapping = ["output", "output_inverted"]
+"#,
+        sdo = SDO_TIMEOUT.as_millis()
+    )
+}
+
+/// Connects the tool library's socketcand client to the hub, retrying for up to `patience`.
+pub fn connect_tool(patience: Duration) -> Result<Client<SocketcandClient>> {
+    let give_up = std::time::Instant::now() + patience;
+    loop {
+        match SocketcandClient::connect(HUB_TCP, "can0") {
+            Ok(transport) => return Ok(Client::new(transport, SDO_TIMEOUT)),
+            Err(error) if std::time::Instant::now() >= give_up => {
+                return Err(error).context(format!("the hub's socketcand port {HUB_TCP}"));
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
+        }
+    }
+}
+
+/// Receives frames for up to `patience` until `until` holds for one; whether it did.
+pub fn receive_until<T: Transport>(
+    tool: &mut Client<T>,
+    patience: Duration,
+    mut until: impl FnMut(&shared::CanFrame) -> bool,
+) -> Result<bool> {
+    let deadline = tool.transport.now() + patience;
+    while let Some(frame) = tool.transport.receive(deadline)? {
+        if until(&frame) {
+            return Ok(true);
+        }
+    }
+    Ok(false)
+}
+
+/// Tells the configuration steps on stderr, prefixed `xtask:`; never accepts a node whose
+/// identity differs from the file.
+struct Narrator;
+
+impl Operator for Narrator {
+    fn note(&mut self, line: &str) {
+        eprintln!("xtask: {line}");
+    }
+    fn confirm_identity(&mut self, _node: &NodeSpec, _differences: &str) -> bool {
+        false
+    }
+}
 
 /// The running network.
 pub struct Network {
     children: Vec<(String, Child)>,
-    /// The configuration tool's connection to the bus.
-    pub tool: Tool,
+    /// The configuration tool (the tool library over the hub's socketcand port), while it is
+    /// needed: see [`Network::tool`].
+    tool: Option<Client<SocketcandClient>>,
     /// The hub's control port.
     pub control: Control,
     dir: PathBuf,
@@ -177,19 +272,20 @@ impl Network {
         let mut children = vec![("hub".to_string(), hub)];
         // The tool and the control port join first, so they see the boot-up messages.
         let (tool, control) = match (
-            Tool::connect(HUB_TCP, Duration::from_secs(5)),
+            connect_tool(Duration::from_secs(5)),
             Control::connect(HUB_CONTROL, Duration::from_secs(5)),
         ) {
             (Ok(tool), Ok(control)) => (tool, control),
-            (Err(error), _) | (_, Err(error)) => {
+            (tool, control) => {
                 for (_, child) in &mut children {
                     let _ = child.kill();
                 }
-                bail!(
-                    "the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL} ({error}); \
-                     its log: {}",
-                    dir.join("hub.err").display()
-                );
+                let error = match (tool, control) {
+                    (Err(error), _) => format!("{error:#}"),
+                    (_, Err(error)) => error.to_string(),
+                    _ => String::new(),
+                };
+                bail!("the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL}: {error}");
             }
         };
         // Connected to our hub, not to one that was there before it (it would have exited).
@@ -202,7 +298,7 @@ impl Network {
         }
         let mut network = Network {
             children,
-            tool,
+            tool: Some(tool),
             control,
             dir,
             cross,
@@ -222,6 +318,26 @@ impl Network {
             )));
         }
         Ok(network)
+    }
+
+    /// The configuration tool, connected to the hub's socketcand port (again) if it is not.
+    ///
+    /// Between uses it is disconnected ([`Network::release_tool`]): a socketcand client that
+    /// does not read lets the hub's writes to it pile up until they block the hub (for its
+    /// write time-out, then the hub drops it), and nothing reads the tool's frames while a
+    /// run or the end-to-end cases go on.
+    pub fn tool(&mut self) -> Result<&mut Client<SocketcandClient>> {
+        if self.tool.is_none() {
+            self.tool = Some(connect_tool(Duration::from_secs(5))?);
+        }
+        self.tool
+            .as_mut()
+            .ok_or_else(|| anyhow!("the tool is not connected"))
+    }
+
+    /// Disconnects the configuration tool until [`Network::tool`] is called again.
+    pub fn release_tool(&mut self) {
+        self.tool = None;
     }
 
     /// Fails when an emulated MCU has ended (a panic or HardFault exits QEMU).
@@ -288,7 +404,7 @@ impl Network {
     fn configure(&mut self) -> Result<()> {
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
         let mut booted = [false; 2];
-        let _ = self.tool.receive_until(Duration::from_secs(20), |frame| {
+        receive_until(self.tool()?, Duration::from_secs(20), |frame| {
             match frame.id().raw() {
                 0x701 => booted[0] = true,
                 0x721 => booted[1] = true,
@@ -309,45 +425,61 @@ impl Network {
                 silent.join(" and ")
             );
         }
-        eprintln!("xtask: configuring over SDO: node 33 consumes node 1's SRDO 1 (101h/102h)");
-        let tool = &mut self.tool;
-        let configure = |tool: &mut Tool| -> Result<(), shared::canopen::sdo_client::ClientError> {
-            tool.write(33, Address::new(0x1301, 1), &[0])?;
-            tool.write(33, Address::new(0x1301, 5), &u32::from(PLAIN).to_le_bytes())?;
-            tool.write(
-                33,
-                Address::new(0x1301, 6),
-                &u32::from(INVERTED).to_le_bytes(),
-            )?;
-            tool.write(33, Address::new(0x1301, 2), &(SCT_MS as u16).to_le_bytes())?;
-            tool.write(33, Address::new(0x1301, 3), &[SRVT_MS as u8])?;
-            tool.write(33, Address::new(0x1301, 1), &[2])?;
-            tool.write(
-                1,
-                Address::new(0x1301, 2),
-                &(REFRESH_MS as u16).to_le_bytes(),
-            )?;
-            for id in [1, 33] {
-                let signature = tool.sign_validate_store(id)?;
-                eprintln!("xtask: node {id}: SRDO 1 signature {signature:04X}h, validated, stored");
-            }
-            Ok(())
-        };
-        configure(tool).map_err(|error| anyhow!("configuration refused: {error}"))?;
+        eprintln!(
+            "xtask: configuring from {}: node 33 consumes node 1's SRDO 1 ({PLAIN:X}h/{INVERTED:X}h)",
+            self.dir.join("network.toml").display()
+        );
+        let text = network_file();
+        std::fs::write(self.dir.join("network.toml"), &text)?;
+        let file = safety_config::network_file::parse(&text, "network.toml")?;
+        let report = procedure::configure(self.tool()?, &file, false, &mut Narrator)?;
+        let failures: Vec<String> = report
+            .nodes
+            .iter()
+            .filter_map(|result| match result {
+                NodeResult::Done(done) => {
+                    eprintln!(
+                        "xtask: node {}: {} SDO transfers, signatures {}",
+                        done.node,
+                        done.sdo_requests,
+                        done.signatures
+                            .iter()
+                            .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    );
+                    None
+                }
+                NodeResult::Failed { error, .. } => Some(error.clone()),
+            })
+            .collect();
+        if !failures.is_empty() {
+            bail!("configuration failed:\n{}", failures.join("\n"));
+        }
         // An NMT start right after the store used to reach the two channels of a node up to
         // 177 ms apart: each channel worked through the frames queued for it on QEMU's USART
         // at its own pace (docs/emulation.md). On the paced virtual time that cannot happen
-        // any more; the start still waits for a status report from every channel after the
-        // store (a report comes only from a channel whose loop runs).
+        // any more; the start still waits for three status reports from every channel after
+        // the store (a report comes only from a channel whose loop runs).
         let stored = self.command("clear")?;
-        let free = self.wait_for(Duration::from_secs(5), |latest| {
+        let mut reports: HashMap<String, usize> = HashMap::new();
+        let mut seen: HashMap<String, f64> = HashMap::new();
+        let free = self.wait_for(Duration::from_secs(10), |latest| {
+            for (name, _, _) in CHANNELS {
+                if let Some((t, _)) = latest.get(name) {
+                    if *t > stored && seen.get(name) != Some(t) {
+                        seen.insert(name.to_string(), *t);
+                        *reports.entry(name.to_string()).or_default() += 1;
+                    }
+                }
+            }
             CHANNELS
                 .iter()
-                .all(|(name, _, _)| latest.get(*name).is_some_and(|(t, _)| *t > stored))
+                .all(|(name, _, _)| reports.get(*name).is_some_and(|count| *count >= 3))
         })?;
         if free.is_none() {
             bail!(
-                "not every channel reported after storing:\n{}",
+                "not every channel reported three times after storing:\n{}",
                 self.table()
             );
         }
@@ -357,7 +489,8 @@ impl Network {
     /// NMT start for every node, then waits until both are Operational and working and node
     /// 33's output is 1 (node 1's input released).
     pub fn start_nodes(&mut self) -> Result<()> {
-        self.tool.nmt(NmtCommand::Start, 0)?;
+        self.tool()?.nmt(NmtCommand::Start, 0)?;
+        self.release_tool();
         let up = self.wait_for(Duration::from_secs(10), |latest| {
             working(latest, 1) && working(latest, 33) && output_33(latest) == Some(1)
         })?;
@@ -388,10 +521,10 @@ impl Network {
                 self.table()
             );
         }
-        self.tool.nmt(NmtCommand::ResetNode, 0)?;
+        self.tool()?.nmt(NmtCommand::ResetNode, 0)?;
         // Both nodes announce themselves again once both their channels run.
         let mut booted = [false; 2];
-        let _ = self.tool.receive_until(Duration::from_secs(10), |frame| {
+        receive_until(self.tool()?, Duration::from_secs(10), |frame| {
             match (frame.id().raw(), frame.data()) {
                 (0x701, [0]) => booted[0] = true,
                 (0x721, [0]) => booted[1] = true,

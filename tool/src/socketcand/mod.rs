@@ -114,16 +114,26 @@ impl SocketcandClient {
         }
     }
 
-    /// The next message, or `None` at `deadline`.
+    /// The next message, or `None` at `deadline`. With a deadline that has passed, what the
+    /// connection already holds is still read (without waiting).
     fn next_message(&mut self, deadline: Duration) -> Result<Option<Vec<String>>, TransportError> {
+        let mut waited = false;
         loop {
             if let Some(message) = self.pending.pop_front() {
                 return Ok(Some(message));
             }
-            let Some(left) = self.clock.until(deadline) else {
+            let left = self.clock.until(deadline);
+            if left.is_none() && waited {
                 return Ok(None);
-            };
-            self.stream.set_read_timeout(Some(left))?;
+            }
+            waited = true;
+            match left {
+                Some(left) => {
+                    self.stream.set_nonblocking(false)?;
+                    self.stream.set_read_timeout(Some(left))?;
+                }
+                None => self.stream.set_nonblocking(true)?,
+            }
             let mut chunk = [0u8; 4096];
             match self.stream.read(&mut chunk) {
                 Ok(0) => return Err(TransportError::Closed),

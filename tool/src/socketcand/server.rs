@@ -5,7 +5,9 @@
 //!
 //! What clients rely on (python-can's `socketcand` interface compares each handshake reply
 //! from one `recv` by exact equality): each [`Output::Reply`] is to be written on its own, and
-//! no frame is pushed before the client has switched to raw mode.
+//! no frame is pushed before the client has switched to raw mode, nor within
+//! [`RAW_MODE_GRACE`] of the reply: [`Session::frame`] holds such frames and
+//! [`Session::release`] hands them out when the grace is over.
 
 use super::{parse_hex_data, take_messages};
 use crate::transport::frame_from_parts;
@@ -14,6 +16,16 @@ use std::time::Duration;
 
 /// The greeting a server sends when a client connects.
 pub const GREETING: &str = "< hi >";
+
+/// How long after its `rawmode` reply a client receives no bus frame; frames that come
+/// meanwhile are held and handed out, in order, when it is over.
+///
+/// Why: python-can reads the `< ok >` of `rawmode` with one `recv` and compares it with
+/// exact equality, so a frame written right after the reply that reaches the client before
+/// that `recv` has run (a loaded machine) fails its connection. The server cannot see when
+/// the client has read the reply; 20 ms covers a client scheduled late, and is short beside
+/// any SDO timeout.
+pub const RAW_MODE_GRACE: Duration = Duration::from_millis(20);
 
 /// Where a session is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,6 +55,10 @@ pub struct Session {
     bus: String,
     mode: Mode,
     buffer: String,
+    /// No frame before this time (the server's clock; see [`RAW_MODE_GRACE`]).
+    quiet_until: Duration,
+    /// Frame messages held until `quiet_until`.
+    held: Vec<String>,
 }
 
 impl Session {
@@ -52,6 +68,8 @@ impl Session {
             bus: bus.to_owned(),
             mode: Mode::NoBus,
             buffer: String::new(),
+            quiet_until: Duration::ZERO,
+            held: Vec::new(),
         }
     }
 
@@ -65,12 +83,16 @@ impl Session {
         self.mode == Mode::Raw
     }
 
-    /// Handles bytes from the client.
-    pub fn feed(&mut self, bytes: &[u8]) -> Vec<Output> {
+    /// Handles bytes from the client, received at `now` on the server's clock.
+    pub fn feed(&mut self, bytes: &[u8], now: Duration) -> Vec<Output> {
         self.buffer.push_str(&String::from_utf8_lossy(bytes));
         let mut outputs = Vec::new();
         for words in take_messages(&mut self.buffer) {
+            let was_raw = self.is_raw();
             self.handle(&words, &mut outputs);
+            if !was_raw && self.is_raw() {
+                self.quiet_until = now + RAW_MODE_GRACE;
+            }
             if outputs.last() == Some(&Output::Close) {
                 break;
             }
@@ -108,9 +130,40 @@ impl Session {
         }
     }
 
+    /// A bus frame that ended at `at` (bus time), offered at `now` (the server's clock): its
+    /// message to write now, or `None` when the client is not in raw mode (dropped) or within
+    /// the grace after its `rawmode` reply (held for [`Session::release`]).
+    pub fn frame(&mut self, frame: &CanFrame, at: Duration, now: Duration) -> Option<String> {
+        if !self.is_raw() {
+            return None;
+        }
+        let message = Self::frame_message(frame, at);
+        if now < self.quiet_until {
+            self.held.push(message);
+            None
+        } else {
+            Some(message)
+        }
+    }
+
+    /// The held frame messages, once the grace is over at `now` (in order; empty before).
+    pub fn release(&mut self, now: Duration) -> Vec<String> {
+        if now < self.quiet_until {
+            return Vec::new();
+        }
+        std::mem::take(&mut self.held)
+    }
+
+    /// When held frames are due ([`Session::release`]), if any are held.
+    pub fn release_at(&self) -> Option<Duration> {
+        (!self.held.is_empty()).then_some(self.quiet_until)
+    }
+
     /// The raw-mode message for a bus frame received at `at` (bus time), as the daemon writes
     /// it: identifier in three hexadecimal digits, time as seconds.microseconds, the data as
-    /// hexadecimal octets without spaces.
+    /// hexadecimal octets without spaces. A frame without data keeps the daemon's empty data
+    /// field (`< frame 001 1.000000  >`, two spaces): python-can splits the message at single
+    /// spaces and takes the third part as the data.
     pub fn frame_message(frame: &CanFrame, at: Duration) -> String {
         let id = frame.id().raw();
         let seconds = at.as_secs();
@@ -119,11 +172,7 @@ impl Session {
             return format!("< rtr {id:03X} {seconds}.{micros:06} {} >", frame.dlc());
         }
         let data: String = frame.data().iter().map(|b| format!("{b:02X}")).collect();
-        if data.is_empty() {
-            format!("< frame {id:03X} {seconds}.{micros:06} >")
-        } else {
-            format!("< frame {id:03X} {seconds}.{micros:06} {data} >")
-        }
+        format!("< frame {id:03X} {seconds}.{micros:06} {data} >")
     }
 }
 

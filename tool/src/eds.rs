@@ -1,0 +1,505 @@
+//! The node's electronic data sheet (EDS, CiA 306) and device configuration files (DCF),
+//! generated from the device description the firmware is built from
+//! (`dual_channel::device`: application objects, identity, heartbeat, SRDO count, bit rate)
+//! and the object dictionary the protocol core serves (`shared::node`: communication objects,
+//! 0x1300..0x13FF, the double-reception counters 5C00h).
+//!
+//! The safety keys of CiA 306 Annex A: `[DeviceInfo] CANopenSafetySupported=1`,
+//! `SRDOMapping=1` on every object an SRDO may map, and `InvertedSRAD` on each plain object,
+//! naming its inverted copy (`0xIIIISS`: index and sub-index in hexadecimal).
+//!
+//! The committed `eds/safety-node.eds` is [`eds`]'s output; a test fails when they differ.
+
+use shared::canopen::od::Address;
+use shared::node::DOUBLE_RECEPTION_INDEX;
+use shared::process_image::{Access, Mappable};
+use shared::safety::config::{MAX_MAPPING_ENTRIES, TRANSMISSION_TYPE};
+use shared::safety::gfc::GFC_PARAMETER;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+/// CiA 301 data types used here.
+const UNSIGNED8: u16 = 0x0005;
+const UNSIGNED16: u16 = 0x0006;
+const UNSIGNED32: u16 = 0x0007;
+const VISIBLE_STRING: u16 = 0x0009;
+
+/// One value of the dictionary (a VAR, or one sub-index of an ARRAY or RECORD).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Entry {
+    /// Where it is.
+    pub address: Address,
+    /// `ParameterName`.
+    pub name: String,
+    /// `DataType` (CiA 301 7.4.7.1).
+    pub data_type: u16,
+    /// `AccessType`: `ro`, `rw` or `const`.
+    pub access: &'static str,
+    /// `DefaultValue`, where the device's default does not depend on the node-ID.
+    pub default: Option<String>,
+    /// `LowLimit` and `HighLimit`, where the node refuses values outside them.
+    pub limits: Option<(u32, u32)>,
+    /// `SRDOMapping=1` (CiA 306 Annex A): an SRDO may map it.
+    pub srdo_mapping: bool,
+    /// `InvertedSRAD` (CiA 306 Annex A): its inverted copy.
+    pub inverted: Option<Address>,
+}
+
+impl Entry {
+    fn new(address: Address, name: &str, data_type: u16, access: &'static str) -> Self {
+        Entry {
+            address,
+            name: name.to_owned(),
+            data_type,
+            access,
+            default: None,
+            limits: None,
+            srdo_mapping: false,
+            inverted: None,
+        }
+    }
+
+    fn default(mut self, value: impl std::fmt::Display) -> Self {
+        self.default = Some(value.to_string());
+        self
+    }
+
+    fn limits(mut self, low: u32, high: u32) -> Self {
+        self.limits = Some((low, high));
+        self
+    }
+}
+
+/// One object of the dictionary.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Object {
+    /// Its index.
+    pub index: u16,
+    /// `ParameterName`.
+    pub name: String,
+    /// `0x7` VAR, `0x8` ARRAY, `0x9` RECORD (CiA 301 7.4.3).
+    pub object_type: u8,
+    /// Its values: one for a VAR (sub-index 0), sub-index 0 first otherwise.
+    pub entries: Vec<Entry>,
+}
+
+fn var(index: u16, name: &str, data_type: u16, access: &'static str) -> (Object, Entry) {
+    (
+        Object {
+            index,
+            name: name.to_owned(),
+            object_type: 0x7,
+            entries: Vec::new(),
+        },
+        Entry::new(Address::new(index, 0), name, data_type, access),
+    )
+}
+
+fn single(index: u16, name: &str, data_type: u16, access: &'static str) -> Object {
+    let (mut object, entry) = var(index, name, data_type, access);
+    object.entries.push(entry);
+    object
+}
+
+fn compound(index: u16, name: &str, object_type: u8, highest: u8, access: &'static str) -> Object {
+    Object {
+        index,
+        name: name.to_owned(),
+        object_type,
+        entries: vec![
+            Entry::new(
+                Address::new(index, 0),
+                "Highest sub-index supported",
+                UNSIGNED8,
+                access,
+            )
+            .default(highest),
+        ],
+    }
+}
+
+/// The note on 0x1300 (`shared::safety::gfc::GFC_PARAMETER`): what it means on this device.
+pub const GFC_NOTE: [&str; 4] = [
+    "1300h (GFC parameter) indicates, as EN 50325-5 6.4.2.1 is written: the device sets it to 1 when it sent or received a GFC in Operational. Writing 0 clears the indication; writing 1 is accepted and does nothing (no GFC is sent); above 1 is refused (0609 0031h).",
+    "Stacks that read 1300h as 'GFC enabled' and send a GFC when 1 is written get no GFC from this device: configuring it never trips the bus. The device always obeys a received GFC in Operational.",
+    "SRDO 1 follows the pre-defined connection set when nothing is stored (EN 50325-5 Table 5): transmit for node-IDs 1..32 (refresh time 25 ms), receive for 33..64 (SCT 50 ms), deleted for 65..127; COB-IDs FFh + 2 x node-ID and 100h + 2 x node-ID; its default values therefore depend on the node-ID and are not given here.",
+    "Safety objects are read-only in Operational (0800 0022h); any accepted write to one sets 13FEh to 0. 1301h..1304h sub-index 04h is fixed at FEh.",
+];
+
+/// Node-ID 1, checked when the crate is compiled (a `panic!` in a constant is a compile error).
+const NODE_1: shared::canopen::NodeId = match shared::canopen::NodeId::new(1) {
+    Ok(id) => id,
+    Err(_) => panic!("1 is a node-ID"),
+};
+
+/// The device description of node 1 (its node-independent parts are the EDS's).
+fn description() -> shared::node::NodeConfig {
+    dual_channel::device::config(NODE_1, dual_channel::device::CHANNEL_A_NAME)
+}
+
+/// The device's object dictionary, in index order.
+pub fn objects() -> Vec<Object> {
+    use dual_channel::device;
+    let description = description();
+    let hex32 = |value: u32| format!("0x{value:08X}");
+    let mut objects = Vec::new();
+    let mut device_type = single(0x1000, "Device type", UNSIGNED32, "ro");
+    device_type.entries[0].default = Some(hex32(description.device_type));
+    objects.push(device_type);
+    let mut error_register = single(0x1001, "Error register", UNSIGNED8, "ro");
+    error_register.entries[0].default = Some("0".into());
+    objects.push(error_register);
+    let mut name = single(0x1008, "Manufacturer device name", VISIBLE_STRING, "ro");
+    name.entries[0].default = Some(description.device_name.to_owned());
+    objects.push(name);
+    for (index, what) in [
+        (0x1010, ("Store parameters", "Save all parameters")),
+        (
+            0x1011,
+            (
+                "Restore default parameters",
+                "Restore all default parameters",
+            ),
+        ),
+    ] {
+        let mut object = compound(index, what.0, 0x8, 1, "ro");
+        object
+            .entries
+            .push(Entry::new(Address::new(index, 1), what.1, UNSIGNED32, "rw").default(hex32(1)));
+        objects.push(object);
+    }
+    let mut heartbeat = single(0x1017, "Producer heartbeat time", UNSIGNED16, "rw");
+    heartbeat.entries[0].default = Some(description.heartbeat_ms.to_string());
+    objects.push(heartbeat);
+    let mut identity = compound(0x1018, "Identity object", 0x9, 4, "ro");
+    for (sub, field) in (1u8..).zip(["Vendor-ID", "Product code", "Revision number"]) {
+        identity.entries.push(
+            Entry::new(Address::new(0x1018, sub), field, UNSIGNED32, "ro")
+                .default(hex32(description.identity[usize::from(sub) - 1])),
+        );
+    }
+    // The serial number is the node-ID on this device (`dual_channel::device::config`).
+    identity.entries.push(
+        Entry::new(Address::new(0x1018, 4), "Serial number", UNSIGNED32, "ro").default("$NODEID+0"),
+    );
+    objects.push(identity);
+    let mut gfc = single(GFC_PARAMETER, "GFC parameter", UNSIGNED8, "rw");
+    gfc.entries[0].default = Some("0".into());
+    gfc.entries[0].limits = Some((0, 1));
+    objects.push(gfc);
+    let count = device::SRDO_COUNT as u8;
+    for n in 1..=count {
+        let index = 0x1300 + u16::from(n);
+        let first = n == 1;
+        let mut object = compound(
+            index,
+            &format!("SRDO {n} communication parameter"),
+            0x9,
+            6,
+            "ro",
+        );
+        let address = |sub| Address::new(index, sub);
+        let mut direction =
+            Entry::new(address(1), "Information direction", UNSIGNED8, "rw").limits(0, 2);
+        let mut cycle = Entry::new(address(2), "Refresh time / SCT", UNSIGNED16, "rw");
+        let srvt = Entry::new(address(3), "SRVT", UNSIGNED8, "rw").default(20);
+        let transmission =
+            Entry::new(address(4), "Transmission type", UNSIGNED8, "ro").default(TRANSMISSION_TYPE);
+        let mut cob_id_1 = Entry::new(address(5), "COB-ID 1", UNSIGNED32, "rw");
+        let mut cob_id_2 = Entry::new(address(6), "COB-ID 2", UNSIGNED32, "rw");
+        if !first {
+            direction = direction.default(0);
+            cycle = cycle.default(25);
+            cob_id_1 = cob_id_1.default(hex32(0));
+            cob_id_2 = cob_id_2.default(hex32(0));
+        }
+        object
+            .entries
+            .extend([direction, cycle, srvt, transmission, cob_id_1, cob_id_2]);
+        objects.push(object);
+    }
+    for n in 1..=count {
+        let index = 0x1380 + u16::from(n);
+        let mut object = compound(
+            index,
+            &format!("SRDO {n} mapping parameter"),
+            0x9,
+            MAX_MAPPING_ENTRIES as u8,
+            "rw",
+        );
+        object.entries[0].name = "Number of mapped objects".into();
+        object.entries[0].limits = Some((0, MAX_MAPPING_ENTRIES as u32));
+        if n == 1 {
+            object.entries[0].default = None;
+        } else {
+            object.entries[0].default = Some("0".into());
+        }
+        for sub in 1..=MAX_MAPPING_ENTRIES as u8 {
+            let what = if sub % 2 == 1 { "plain" } else { "inverted" };
+            let mut entry = Entry::new(
+                Address::new(index, sub),
+                &format!("Mapping entry {sub} ({what})"),
+                UNSIGNED32,
+                "rw",
+            );
+            let predefined = description
+                .default_transmit_mapping
+                .len()
+                .max(description.default_receive_mapping.len());
+            if n != 1 || usize::from(sub) > predefined {
+                entry = entry.default(hex32(0));
+            }
+            object.entries.push(entry);
+        }
+        objects.push(object);
+    }
+    let mut valid = single(0x13FE, "Configuration valid", UNSIGNED8, "rw");
+    valid.entries[0].default = Some("0".into());
+    objects.push(valid);
+    let mut signatures = compound(0x13FF, "Safety configuration signature", 0x8, count, "ro");
+    for n in 1..=count {
+        signatures.entries.push(
+            Entry::new(
+                Address::new(0x13FF, n),
+                &format!("Signature of SRDO {n}"),
+                UNSIGNED16,
+                "rw",
+            )
+            .default(0),
+        );
+    }
+    objects.push(signatures);
+    let mut double = compound(DOUBLE_RECEPTION_INDEX, "CAN double reception", 0x9, 2, "ro");
+    for (sub, what) in (1u8..).zip([
+        "Repeated plain frames discarded",
+        "Inverted frames without plain frame discarded",
+    ]) {
+        double.entries.push(
+            Entry::new(
+                Address::new(DOUBLE_RECEPTION_INDEX, sub),
+                what,
+                UNSIGNED32,
+                "ro",
+            )
+            .default(0),
+        );
+    }
+    objects.push(double);
+    let mut by_index: BTreeMap<u16, Vec<&shared::process_image::AppObject>> = BTreeMap::new();
+    for object in device::OBJECTS.iter() {
+        by_index
+            .entry(object.address.index)
+            .or_default()
+            .push(object);
+    }
+    for (index, subs) in by_index {
+        let name = |address: Address| {
+            device::OBJECT_NAMES
+                .iter()
+                .find(|(_, named)| *named == address)
+                .map_or_else(|| format!("{index:04X}h"), |(name, _)| (*name).to_owned())
+        };
+        let highest = subs.iter().map(|o| o.address.sub).max().unwrap_or(0);
+        let mut object = compound(index, &name(Address::new(index, 1)), 0x8, highest, "ro");
+        for app in subs {
+            let data_type = match app.len {
+                1 => UNSIGNED8,
+                2 => UNSIGNED16,
+                _ => UNSIGNED32,
+            };
+            let access = match app.access {
+                Access::ReadOnly => "ro",
+                Access::ReadWrite => "rw",
+            };
+            let mut entry = Entry::new(app.address, &name(app.address), data_type, access);
+            entry.srdo_mapping = matches!(app.mappable, Mappable::Transmit | Mappable::Receive);
+            entry.inverted = device::INVERTED_PAIRS
+                .iter()
+                .find(|(plain, _)| *plain == app.address)
+                .map(|(_, inverted)| *inverted);
+            object.entries.push(entry);
+        }
+        objects.push(object);
+    }
+    objects
+}
+
+/// The `[index]`/`[indexsubN]` section name of `entry` in `object`.
+fn section(object: &Object, entry: &Entry) -> String {
+    if object.object_type == 0x7 {
+        format!("{:04X}", object.index)
+    } else {
+        format!("{:04X}sub{:X}", object.index, entry.address.sub)
+    }
+}
+
+fn write_entry(text: &mut String, object: &Object, entry: &Entry, value: Option<&str>) {
+    let _ = writeln!(text, "[{}]", section(object, entry));
+    let _ = writeln!(text, "ParameterName={}", entry.name);
+    let _ = writeln!(text, "ObjectType=0x7");
+    let _ = writeln!(text, "DataType=0x{:04X}", entry.data_type);
+    let _ = writeln!(text, "AccessType={}", entry.access);
+    if let Some((low, high)) = entry.limits {
+        let _ = writeln!(text, "LowLimit={low}");
+        let _ = writeln!(text, "HighLimit={high}");
+    }
+    if let Some(default) = &entry.default {
+        let _ = writeln!(text, "DefaultValue={default}");
+    }
+    if let Some(value) = value {
+        let _ = writeln!(text, "ParameterValue={value}");
+    }
+    let _ = writeln!(text, "PDOMapping=0");
+    if entry.srdo_mapping {
+        let _ = writeln!(text, "SRDOMapping=1");
+    }
+    if let Some(inverted) = entry.inverted {
+        let _ = writeln!(
+            text,
+            "InvertedSRAD=0x{:04X}{:02X}",
+            inverted.index, inverted.sub
+        );
+    }
+    text.push('\n');
+}
+
+/// What a DCF adds to the EDS: the node it is for, and the values read from it.
+pub struct Commissioning<'a> {
+    /// The node-ID.
+    pub node: u8,
+    /// A name for the node (the network file's), if any.
+    pub name: Option<&'a str>,
+    /// The value of every entry read from the node, as the DCF writes it.
+    pub values: &'a BTreeMap<Address, String>,
+}
+
+/// The EDS text (CiA 306 4.0 syntax), or with `commissioning` a DCF.
+pub fn render(commissioning: Option<&Commissioning<'_>>) -> String {
+    use dual_channel::device;
+    let objects = objects();
+    let description = description();
+    let mut text = String::new();
+    let file_name = match commissioning {
+        Some(commissioning) => format!("node-{}.dcf", commissioning.node),
+        None => "safety-node.eds".to_owned(),
+    };
+    let _ = write!(
+        text,
+        "; Generated by safety-config from the device description (dual_channel::device) and\n\
+         ; the protocol core's object dictionary (shared::node). Do not edit: regenerate with\n\
+         ; `cargo run -p safety-config -- eds > eds/safety-node.eds`.\n\n\
+         [FileInfo]\nFileName={file_name}\nFileVersion=1\nFileRevision=0\nEDSVersion=4.0\n\
+         Description=Dual-channel CANopen Safety node (EN 50325-5, CiA 304 Model III)\n\
+         CreatedBy=safety-config {}\n\n",
+        env!("CARGO_PKG_VERSION")
+    );
+    let bit_rates = [10, 20, 50, 125, 250, 500, 800, 1000];
+    let _ = writeln!(
+        text,
+        "[DeviceInfo]\nVendorName=Dual-channel safety node project\nVendorNumber=0x{:08X}\n\
+         ProductName=Dual-channel CANopen Safety node\nProductNumber=0x{:08X}\n\
+         RevisionNumber=0x{:08X}\nOrderCode=safety-node",
+        description.identity[0], description.identity[1], description.identity[2]
+    );
+    for rate in bit_rates {
+        let supported = u32::from(rate * 1000 == device::BIT_RATE);
+        let _ = writeln!(text, "BaudRate_{rate}={supported}");
+    }
+    let _ = write!(
+        text,
+        "SimpleBootUpMaster=0\nSimpleBootUpSlave=1\nGranularity=0\nDynamicChannelsSupported=0\n\
+         GroupMessaging=0\nNrOfRXPDO=0\nNrOfTXPDO=0\nLSS_Supported=0\nCANopenSafetySupported=1\n\n"
+    );
+    if let Some(commissioning) = commissioning {
+        let _ = write!(
+            text,
+            "[DeviceComissioning]\nNodeID={}\nNodeName={}\nBaudrate={}\nNetNumber=0\nCANopenManager=0\n\n",
+            commissioning.node,
+            commissioning.name.unwrap_or(""),
+            device::BIT_RATE / 1000
+        );
+    }
+    let _ = writeln!(text, "[DummyUsage]");
+    for dummy in 1..=7 {
+        let _ = writeln!(text, "Dummy{dummy:04}=0");
+    }
+    let _ = writeln!(text, "\n[Comments]\nLines={}", GFC_NOTE.len());
+    for (line, note) in (1..).zip(GFC_NOTE) {
+        let _ = writeln!(text, "Line{line}={note}");
+    }
+    text.push('\n');
+    /// An object list of CiA 306 4.5.2 and which indices belong in it.
+    type List = (&'static str, fn(u16) -> bool);
+    let lists: [List; 3] = [
+        ("MandatoryObjects", |index| {
+            matches!(index, 0x1000 | 0x1001 | 0x1018)
+        }),
+        ("OptionalObjects", |index| {
+            !matches!(index, 0x1000 | 0x1001 | 0x1018 | 0x2000..=0x5FFF)
+        }),
+        ("ManufacturerObjects", |index| {
+            matches!(index, 0x2000..=0x5FFF)
+        }),
+    ];
+    for (list, member) in lists {
+        let indices: Vec<u16> = objects
+            .iter()
+            .map(|o| o.index)
+            .filter(|i| member(*i))
+            .collect();
+        let _ = writeln!(text, "[{list}]\nSupportedObjects={}", indices.len());
+        for (n, index) in (1..).zip(&indices) {
+            let _ = writeln!(text, "{n}=0x{index:04X}");
+        }
+        text.push('\n');
+    }
+    let value = |address: Address| {
+        commissioning
+            .and_then(|commissioning| commissioning.values.get(&address).map(String::as_str))
+    };
+    for object in &objects {
+        if object.object_type == 0x7 {
+            write_entry(
+                &mut text,
+                object,
+                &object.entries[0],
+                value(object.entries[0].address),
+            );
+            continue;
+        }
+        let _ = write!(
+            text,
+            "[{:04X}]\nParameterName={}\nObjectType=0x{:X}\nSubNumber=0x{:X}\n\n",
+            object.index,
+            object.name,
+            object.object_type,
+            object.entries.len()
+        );
+        for entry in &object.entries {
+            write_entry(&mut text, object, entry, value(entry.address));
+        }
+    }
+    text
+}
+
+/// The node's EDS.
+pub fn eds() -> String {
+    render(None)
+}
+
+/// The text a DCF gives a value of `entry` read as `bytes` (little-endian integers as
+/// hexadecimal, strings as they are).
+pub fn format_value(entry: &Entry, bytes: &[u8]) -> String {
+    if entry.data_type == VISIBLE_STRING {
+        return String::from_utf8_lossy(bytes).into_owned();
+    }
+    let mut raw = [0u8; 4];
+    let len = bytes.len().min(4);
+    raw[..len].copy_from_slice(&bytes[..len]);
+    let value = u32::from_le_bytes(raw);
+    match entry.data_type {
+        UNSIGNED8 => format!("0x{value:02X}"),
+        UNSIGNED16 => format!("0x{value:04X}"),
+        _ => format!("0x{value:08X}"),
+    }
+}
