@@ -36,10 +36,12 @@ use shared::{CanFrame, Duration, Instant};
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
 
-/// Transmit mailboxes per channel: the bxCAN's three, sent by identifier (TXFP = 0), behind
-/// the board layer's FIFO ([`Bus::set_transmit_mailboxes`]). With a FIFO alone, a channel's
-/// SRDO frame waits behind its own heartbeat, which at high bus load waits for every
-/// higher-priority frame.
+/// Transmit mailboxes per channel: the bxCAN's three, sent by identifier (TXFP = 0), behind a
+/// software FIFO ([`Bus::set_transmit_mailboxes`]), as the board layer was when the committed
+/// full-network hour was measured (it now keeps its whole queue in identifier order,
+/// `board::transmit_queue`; this model is the more pessimistic for a node's own frames, and
+/// kept so the committed figures reproduce). With a FIFO alone, a channel's SRDO frame waits
+/// behind its own heartbeat, which at high bus load waits for every higher-priority frame.
 pub const TRANSMIT_MAILBOXES: usize = 3;
 
 /// The number of CAN identifiers (11 bits).
