@@ -397,10 +397,20 @@ fn cargo_fuzz(dir: &Path, args: &[&str]) -> Command {
 }
 
 /// [`cargo_fuzz`] for `build` and `run`, building into one target directory for both crates
-/// (their common dependencies, libFuzzer among them, are built once).
+/// (their common dependencies, libFuzzer among them, are built once). The option goes before
+/// a `--` in `args`: what follows it is libFuzzer's, which would take the directory for a
+/// corpus and leave `cargo fuzz run` to build again into the crate's own target directory.
 fn cargo_fuzz_into(root: &Path, dir: &Path, args: &[&str]) -> Command {
-    let mut command = cargo_fuzz(dir, args);
-    command.arg("--target-dir").arg(root.join("target/fuzz"));
+    let split = args
+        .iter()
+        .position(|arg| *arg == "--")
+        .unwrap_or(args.len());
+    let (cargo_args, fuzzer_args) = args.split_at(split);
+    let mut command = cargo_fuzz(dir, cargo_args);
+    command
+        .arg("--target-dir")
+        .arg(root.join("target/fuzz"))
+        .args(fuzzer_args);
     command
 }
 
