@@ -26,7 +26,7 @@ use crate::dual::{B_INPUTS, ChannelARuntime, ChannelBRuntime, LINK_BYTE_TIME, Si
 use crate::network::device_config;
 use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
-use dual_channel::runtime::{ChannelEvent, Io, Runtime};
+use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
 use safety_config::transport::{Transport, TransportError};
 use shared::canopen::nmt::{self, NmtCommand, NmtState};
 use shared::canopen::od::Address;
@@ -532,58 +532,8 @@ impl<O: Observer> Engine<O> {
         let node = &mut self.nodes[index];
         let incoming = &mut node.wires[side as usize];
         let deadline = match side {
-            Side::A => {
-                let runtime = &mut node.a;
-                match action {
-                    Action::Poll => {}
-                    Action::Frame(frame) => runtime.on_frame(now, &frame, &mut out),
-                    Action::Link(until) => {
-                        while let Some(&(at, byte)) = incoming.bytes.front() {
-                            if at > until {
-                                break;
-                            }
-                            incoming.bytes.pop_front();
-                            runtime.on_link_byte(at, byte, &mut out);
-                        }
-                    }
-                    Action::Input(value) => runtime
-                        .set_input(
-                            now,
-                            Address::new(0x6000, 1),
-                            Address::new(0x6001, 1),
-                            &[value],
-                            &mut out,
-                        )
-                        .expect("input object"),
-                }
-                runtime.poll(now, &mut out)
-            }
-            Side::B => {
-                let runtime = &mut node.b;
-                match action {
-                    Action::Poll => {}
-                    Action::Frame(frame) => runtime.on_frame(now, &frame, &mut out),
-                    Action::Link(until) => {
-                        while let Some(&(at, byte)) = incoming.bytes.front() {
-                            if at > until {
-                                break;
-                            }
-                            incoming.bytes.pop_front();
-                            runtime.on_link_byte(at, byte, &mut out);
-                        }
-                    }
-                    Action::Input(value) => runtime
-                        .set_input(
-                            now,
-                            Address::new(0x6000, 1),
-                            Address::new(0x6001, 1),
-                            &[value],
-                            &mut out,
-                        )
-                        .expect("input object"),
-                }
-                runtime.poll(now, &mut out)
-            }
+            Side::A => act(&mut node.a, incoming, now, action, &mut out),
+            Side::B => act(&mut node.b, incoming, now, action, &mut out),
         };
         let c = channel(index, side);
         if node.deadlines[side as usize] != deadline {
@@ -730,4 +680,38 @@ impl<O: Observer> Transport for Engine<O> {
             self.run_until(step);
         }
     }
+}
+
+/// One call on a channel (either role: their runtimes differ in type only), then its poll;
+/// returns the channel's next deadline.
+fn act<R: Role<4>>(
+    runtime: &mut Runtime<RamFlash<8192>, R, 4>,
+    incoming: &mut Wire,
+    now: Instant,
+    action: Action,
+    out: &mut Scratch,
+) -> Instant {
+    match action {
+        Action::Poll => {}
+        Action::Frame(frame) => runtime.on_frame(now, &frame, out),
+        Action::Link(until) => {
+            while let Some(&(at, byte)) = incoming.bytes.front() {
+                if at > until {
+                    break;
+                }
+                incoming.bytes.pop_front();
+                runtime.on_link_byte(at, byte, out);
+            }
+        }
+        Action::Input(value) => runtime
+            .set_input(
+                now,
+                Address::new(0x6000, 1),
+                Address::new(0x6001, 1),
+                &[value],
+                out,
+            )
+            .expect("input object"),
+    }
+    runtime.poll(now, out)
 }
