@@ -198,4 +198,7 @@ pub enum ToolError {
     /// The interface specification on the command line is not one this tool knows.
     #[error("{0}")]
     Usage(String),
+    /// The monitor stopped: its log, recording, terminal or bus failed.
+    #[error(transparent)]
+    Monitor(#[from] crate::monitor::MonitorError),
 }

@@ -10,11 +10,14 @@
 //! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
 //! - [`procedure`]: `configure` and `verify` (EN 50325-5 8.3.1), `scan`.
 //! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
+//! - [`monitor`]: the live bus monitor: SRDO pairs and their verdicts, NMT, EMCY, SDO; candump
+//!   logs recorded and replayed.
 //! - [`error`]: every error as a sentence.
 
 pub mod client;
 pub mod eds;
 pub mod error;
+pub mod monitor;
 pub mod network_file;
 pub mod procedure;
 pub mod signature;

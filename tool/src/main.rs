@@ -95,6 +95,30 @@ enum Command {
         /// The network file (TOML), or a node's DCF (`.dcf`).
         file: String,
     },
+    /// Watch the bus live: every node's NMT state and heartbeat, every SRDO as pairs (the
+    /// inversion, the plain → inverted gap against SRVT, the period against SCT), GFC, EMCY
+    /// in words and SDO traffic. Keys: q quit, g send GFC, p pause, ? help. Not on a
+    /// terminal (or with --plain) it prints a line per happening and a summary at the end.
+    Monitor {
+        /// A network file (TOML) or DCF: the SRDOs to judge against their SCT and SRVT and
+        /// the nodes' names. Without one, SRDOs are learned from the bus (no limits known).
+        file: Option<String>,
+        /// Record every frame into this candump log (`candump -l` format).
+        #[arg(long, value_name = "LOG")]
+        record: Option<String>,
+        /// Replay a candump log instead of listening to the bus, at the recorded pace.
+        #[arg(long, value_name = "LOG")]
+        replay: Option<String>,
+        /// With --replay: as fast as the log can be read.
+        #[arg(long, requires = "replay")]
+        fast: bool,
+        /// End after this many seconds.
+        #[arg(long, value_name = "SECONDS")]
+        stop_after: Option<f64>,
+        /// Print a line per happening instead of the live view.
+        #[arg(long)]
+        plain: bool,
+    },
     /// Send the global fail-safe command (GFC, CAN-ID 001h): every safety node in
     /// Operational goes to its safe state.
     Gfc,
@@ -247,9 +271,28 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         print!("{}", safety_config::eds::eds());
         return Ok(true);
     }
+    if let Command::Monitor {
+        file,
+        record,
+        replay,
+        fast,
+        stop_after,
+        plain,
+    } = &cli.command
+    {
+        return monitor(
+            &cli.bus,
+            file.as_deref(),
+            record.as_deref(),
+            replay.as_deref(),
+            *fast,
+            *stop_after,
+            *plain,
+        );
+    }
     let mut client = Client::new(open_bus(&cli.bus)?, timeout);
     match cli.command {
-        Command::Sign { .. } | Command::Eds => Ok(true),
+        Command::Sign { .. } | Command::Eds | Command::Monitor { .. } => Ok(true),
         Command::Dcf { node, name } => {
             print!(
                 "{}",
@@ -443,6 +486,55 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             Ok(true)
         }
     }
+}
+
+/// `safety-config monitor`: the live view, or plain lines and a summary.
+fn monitor(
+    bus: &str,
+    file: Option<&str>,
+    record: Option<&str>,
+    replay: Option<&str>,
+    fast: bool,
+    stop_after: Option<f64>,
+    plain: bool,
+) -> Result<bool, ToolError> {
+    use safety_config::monitor::{self, Options, Source, model::Monitor};
+    let model = match file {
+        Some(file) => Monitor::for_network(&load(file)?),
+        None => Monitor::default(),
+    };
+    let stop_after = stop_after
+        .map(|seconds| {
+            Duration::try_from_secs_f64(seconds).map_err(|_| {
+                ToolError::Usage(format!("--stop-after {seconds} is not a number of seconds"))
+            })
+        })
+        .transpose()?;
+    let (source, title) = match replay {
+        Some(log) => (
+            Source::replay(std::path::Path::new(log), fast)?,
+            format!("safety-config monitor: replay of {log}"),
+        ),
+        None => (
+            Source::Bus(open_bus(bus)?),
+            format!("safety-config monitor: {bus}"),
+        ),
+    };
+    let live = !plain && std::io::stdout().is_terminal();
+    let options = Options {
+        title,
+        record: record.map(Into::into),
+        stop_after,
+        live,
+    };
+    let model = monitor::run(source, model, options)?;
+    if !live {
+        println!("## Summary");
+        for line in monitor::view::summary(&model) {
+            println!("{line}");
+        }
+    }
+    Ok(true)
 }
 
 fn main() -> ExitCode {

@@ -1,0 +1,324 @@
+//! `safety-config monitor`: a live view of a CANopen Safety bus, from the bus or from a
+//! candump log.
+//!
+//! - [`model`]: frames → what the bus shows (nodes, SRDO pairs and their verdicts, GFC,
+//!   EMCY in words, SDO traffic), sans-I/O: fed `(now, frame)`, polled with `now`.
+//! - [`view`]: the terminal drawing of the model (ratatui), and the same as plain lines.
+//! - [`candump`]: the candump log format the monitor records and replays.
+//!
+//! This module is the I/O around them: the bus or the log, the keyboard, the terminal, the
+//! recording.
+
+pub mod candump;
+pub mod model;
+pub mod view;
+
+use crate::transport::{Transport, TransportError};
+use candump::LoggedFrame;
+use model::Monitor;
+use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::{Duration, Instant, SystemTime};
+use view::Screen;
+
+/// Why the monitor stopped before it was asked to.
+#[derive(Debug, thiserror::Error)]
+pub enum MonitorError {
+    /// The CAN interface failed.
+    #[error(transparent)]
+    Bus(#[from] TransportError),
+    /// A line of the log to replay is not a candump line.
+    #[error("the log to replay has a line the monitor cannot read: {0}")]
+    Log(#[from] candump::LogError),
+    /// The log to replay could not be read.
+    #[error("cannot read the log {path}: {source}")]
+    ReadLog {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// The recording could not be written.
+    #[error("cannot write the recording {path}: {source}")]
+    WriteLog {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// The terminal could not be drawn on or read from.
+    #[error("the terminal failed: {0}")]
+    Terminal(std::io::Error),
+}
+
+/// Where the frames come from.
+pub enum Source {
+    /// A live bus.
+    Bus(Box<dyn Transport>),
+    /// A recorded log, at the recorded pace or as fast as it can be read.
+    Replay {
+        /// The log's frames.
+        frames: Vec<LoggedFrame>,
+        /// `true`: no waiting between frames.
+        fast: bool,
+    },
+}
+
+impl Source {
+    /// The frames of the candump log at `path`, to replay.
+    pub fn replay(path: &std::path::Path, fast: bool) -> Result<Source, MonitorError> {
+        let text = std::fs::read_to_string(path).map_err(|source| MonitorError::ReadLog {
+            path: path.to_owned(),
+            source,
+        })?;
+        let frames = candump::parse(&text, &path.display().to_string())?;
+        Ok(Source::Replay { frames, fast })
+    }
+}
+
+/// How the monitor runs.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// The title line (what is monitored).
+    pub title: String,
+    /// Record every frame into this candump log.
+    pub record: Option<PathBuf>,
+    /// End after this long (wall-clock time); `None`: until `q`, or the end of a replay.
+    pub stop_after: Option<Duration>,
+    /// Draw the live view (a terminal); `false` prints a line per happening instead.
+    pub live: bool,
+}
+
+/// The keys the monitor takes, for the bottom line and the help.
+const KEYS: &str = "q quit   g send GFC   p pause   ? help";
+
+fn help() -> Vec<String> {
+    [
+        "q        quit (also Esc, Ctrl-C)",
+        "g        send a GFC (global fail-safe command, CAN-ID 001h): every safety node in",
+        "         Operational goes to its safe state (EN 50325-5 7.2.1); live bus only",
+        "p        pause or resume the drawing (the model keeps taking frames)",
+        "?        this help",
+        "",
+        "gap      plain → inverted frame of one pair, against SRVT",
+        "period   between the plain frames of consecutive pairs, against SCT",
+        "!        a gap or period at or over its limit (EN 50325-5 7.1.2)",
+        "?        a limit the network file does not give (SRDO learned from the bus)",
+    ]
+    .map(str::to_owned)
+    .to_vec()
+}
+
+/// A key the monitor acts on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Key {
+    /// End.
+    Quit,
+    /// Send a GFC.
+    Gfc,
+    /// Pause or resume drawing.
+    Pause,
+    /// Show or hide the help.
+    Help,
+    /// Any other key.
+    Other,
+}
+
+/// The key an event is, if it is a key press.
+pub fn key(event: &Event) -> Option<Key> {
+    let Event::Key(key) = event else {
+        return None;
+    };
+    if key.kind != KeyEventKind::Press {
+        return None;
+    }
+    Some(match key.code {
+        KeyCode::Char('c') if key.modifiers.contains(KeyModifiers::CONTROL) => Key::Quit,
+        KeyCode::Char('q') | KeyCode::Esc => Key::Quit,
+        KeyCode::Char('g') => Key::Gfc,
+        KeyCode::Char('p') => Key::Pause,
+        KeyCode::Char('?') => Key::Help,
+        _ => Key::Other,
+    })
+}
+
+/// How often the view is redrawn.
+const FRAME_PERIOD: Duration = Duration::from_millis(100);
+
+/// Runs the monitor until `q`, the end of `options.stop_after` or (not on a terminal) the
+/// end of a replayed log; returns the model as it ended.
+pub fn run(
+    mut source: Source,
+    mut monitor: Monitor,
+    options: Options,
+) -> Result<Monitor, MonitorError> {
+    let mut recording = match &options.record {
+        Some(path) => Some((
+            std::io::BufWriter::new(std::fs::File::create(path).map_err(|source| {
+                MonitorError::WriteLog {
+                    path: path.clone(),
+                    source,
+                }
+            })?),
+            path.clone(),
+        )),
+        None => None,
+    };
+    let mut terminal = if options.live {
+        Some(Live(ratatui::try_init().map_err(MonitorError::Terminal)?))
+    } else {
+        None
+    };
+    let started = Instant::now();
+    let epoch = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap_or_default()
+        .saturating_sub(match &mut source {
+            Source::Bus(bus) => bus.now(),
+            Source::Replay { .. } => Duration::ZERO,
+        });
+    let mut screen = Screen {
+        title: options.title.clone(),
+        keys: KEYS.to_owned(),
+        ..Screen::default()
+    };
+    let mut printed = 0;
+    let mut next_frame = 0;
+    let mut last_draw: Option<Instant> = None;
+    loop {
+        // Frames: from the bus until the next drawing is due; from a log those due by now.
+        let mut received = Vec::new();
+        // The bus's time after the last frame received, and whether it closed.
+        let mut bus_end = None;
+        let mut origin = Duration::ZERO;
+        let done = match &mut source {
+            Source::Bus(bus) => {
+                let until = bus.now() + FRAME_PERIOD / 2;
+                let closed = loop {
+                    match bus.receive(until) {
+                        Ok(Some(frame)) => {
+                            let now = bus.now();
+                            received.push((now, frame));
+                            if received.len() >= 256 {
+                                break false;
+                            }
+                        }
+                        Ok(None) => break false,
+                        // The server ended the session: the end of what there is to see.
+                        Err(TransportError::Closed) => break true,
+                        Err(error) => return Err(error.into()),
+                    }
+                };
+                bus_end = Some((bus.now(), closed));
+                closed
+            }
+            Source::Replay { frames, fast } => {
+                origin = frames.first().map_or(Duration::ZERO, |f| f.at);
+                let elapsed = started.elapsed();
+                while let Some(logged) = frames.get(next_frame) {
+                    let at = logged.at.saturating_sub(origin);
+                    if !*fast && at > elapsed {
+                        break;
+                    }
+                    received.push((at, logged.frame));
+                    next_frame += 1;
+                }
+                if !*fast {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                next_frame == frames.len()
+            }
+        };
+        for (now, frame) in &received {
+            monitor.feed(*now, frame);
+            if let Some((file, path)) = &mut recording {
+                // Unix time as `candump -l` writes it, on the bus's own clock so that the
+                // replay sees the gaps and periods the live view saw.
+                let at = match &source {
+                    Source::Replay { .. } => origin + *now,
+                    Source::Bus(_) => epoch + *now,
+                };
+                writeln!(file, "{}", candump::line(at, "can0", frame)).map_err(|source| {
+                    MonitorError::WriteLog {
+                        path: path.clone(),
+                        source,
+                    }
+                })?;
+            }
+        }
+        if let Some((now, closed)) = bus_end {
+            monitor.poll(now);
+            if closed {
+                let line = "the CAN interface closed the connection".to_owned();
+                monitor.note(now, line);
+            }
+        }
+        if terminal.is_none() {
+            for (at, line) in monitor.happenings_since(printed) {
+                println!("{:>9.3} s  {line}", at.as_secs_f64());
+            }
+            printed = monitor.happened;
+        }
+        if options
+            .stop_after
+            .is_some_and(|limit| started.elapsed() >= limit)
+        {
+            break;
+        }
+        let Some(Live(terminal)) = &mut terminal else {
+            if done {
+                break;
+            }
+            continue;
+        };
+        let mut quit = false;
+        while event::poll(Duration::ZERO).map_err(MonitorError::Terminal)? {
+            let event = event::read().map_err(MonitorError::Terminal)?;
+            match key(&event) {
+                Some(_) if screen.help.is_some() => screen.help = None,
+                Some(Key::Quit) => quit = true,
+                Some(Key::Help) => screen.help = Some(help()),
+                Some(Key::Pause) => screen.paused = !screen.paused,
+                Some(Key::Gfc) => {
+                    if let Source::Bus(bus) = &mut source {
+                        let gfc = shared::safety::gfc::frame();
+                        bus.send(&gfc)?;
+                        // The transport does not hand back what this tool sent.
+                        let now = bus.now();
+                        monitor.feed(now, &gfc);
+                    }
+                }
+                Some(Key::Other) | None => {}
+            }
+        }
+        if quit {
+            break;
+        }
+        let due = last_draw.is_none_or(|at| at.elapsed() >= FRAME_PERIOD);
+        if due && (!screen.paused || last_draw.is_none()) {
+            terminal
+                .draw(|frame| view::draw(frame, &monitor, &screen))
+                .map_err(MonitorError::Terminal)?;
+            last_draw = Some(Instant::now());
+        } else if done {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    drop(terminal);
+    if let Some((mut file, path)) = recording {
+        file.flush()
+            .map_err(|source| MonitorError::WriteLog { path, source })?;
+    }
+    Ok(monitor)
+}
+
+/// The terminal in raw mode on the alternate screen, given back as it was when dropped (on
+/// an error or a panic too).
+struct Live(ratatui::DefaultTerminal);
+
+impl Drop for Live {
+    fn drop(&mut self) {
+        ratatui::restore();
+    }
+}
