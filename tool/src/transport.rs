@@ -46,6 +46,18 @@ pub trait Transport {
     /// (a time on [`Transport::now`]'s clock). Frames this tool sent itself are not
     /// received back.
     fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError>;
+
+    /// [`Transport::receive`] with the time the frame was on the bus: the interface's own
+    /// timestamp where it gives one (socketcand's `frame` message carries it; on the
+    /// emulated bus it is the hub's virtual time), else the time it was received on
+    /// [`Transport::now`]'s clock. Timestamps of one transport are on one clock, which need
+    /// not be `now`'s.
+    fn receive_stamped(
+        &mut self,
+        deadline: Duration,
+    ) -> Result<Option<(Duration, CanFrame)>, TransportError> {
+        Ok(self.receive(deadline)?.map(|frame| (self.now(), frame)))
+    }
 }
 
 impl<T: Transport + ?Sized> Transport for Box<T> {
@@ -57,6 +69,12 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError> {
         (**self).receive(deadline)
+    }
+    fn receive_stamped(
+        &mut self,
+        deadline: Duration,
+    ) -> Result<Option<(Duration, CanFrame)>, TransportError> {
+        (**self).receive_stamped(deadline)
     }
 }
 

@@ -171,13 +171,9 @@ pub fn run(
         None
     };
     let started = Instant::now();
-    let epoch = SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .unwrap_or_default()
-        .saturating_sub(match &mut source {
-            Source::Bus(bus) => bus.now(),
-            Source::Replay { .. } => Duration::ZERO,
-        });
+    // Unix time minus the bus's timestamp of the first frame: a recording's lines carry
+    // Unix time, as `candump -l` writes it, with the bus's own gaps between them.
+    let mut epoch: Option<Duration> = None;
     let mut screen = Screen {
         title: options.title.clone(),
         keys: KEYS.to_owned(),
@@ -189,17 +185,16 @@ pub fn run(
     loop {
         // Frames: from the bus until the next drawing is due; from a log those due by now.
         let mut received = Vec::new();
-        // The bus's time after the last frame received, and whether it closed.
+        // Whether the bus closed (`Some` for a bus source).
         let mut bus_end = None;
         let mut origin = Duration::ZERO;
         let done = match &mut source {
             Source::Bus(bus) => {
                 let until = bus.now() + FRAME_PERIOD / 2;
                 let closed = loop {
-                    match bus.receive(until) {
-                        Ok(Some(frame)) => {
-                            let now = bus.now();
-                            received.push((now, frame));
+                    match bus.receive_stamped(until) {
+                        Ok(Some((at, frame))) => {
+                            received.push((at, frame));
                             if received.len() >= 256 {
                                 break false;
                             }
@@ -210,7 +205,7 @@ pub fn run(
                         Err(error) => return Err(error.into()),
                     }
                 };
-                bus_end = Some((bus.now(), closed));
+                bus_end = Some(closed);
                 closed
             }
             Source::Replay { frames, fast } => {
@@ -233,11 +228,16 @@ pub fn run(
         for (now, frame) in &received {
             monitor.feed(*now, frame);
             if let Some((file, path)) = &mut recording {
-                // Unix time as `candump -l` writes it, on the bus's own clock so that the
-                // replay sees the gaps and periods the live view saw.
                 let at = match &source {
                     Source::Replay { .. } => origin + *now,
-                    Source::Bus(_) => epoch + *now,
+                    Source::Bus(_) => {
+                        *epoch.get_or_insert_with(|| {
+                            SystemTime::now()
+                                .duration_since(SystemTime::UNIX_EPOCH)
+                                .unwrap_or_default()
+                                .saturating_sub(*now)
+                        }) + *now
+                    }
                 };
                 writeln!(file, "{}", candump::line(at, "can0", frame)).map_err(|source| {
                     MonitorError::WriteLog {
@@ -247,12 +247,9 @@ pub fn run(
                 })?;
             }
         }
-        if let Some((now, closed)) = bus_end {
-            monitor.poll(now);
-            if closed {
-                let line = "the CAN interface closed the connection".to_owned();
-                monitor.note(now, line);
-            }
+        if bus_end == Some(true) {
+            let line = "the CAN interface closed the connection".to_owned();
+            monitor.note(monitor.now, line);
         }
         if terminal.is_none() {
             for (at, line) in monitor.happenings_since(printed) {

@@ -4,6 +4,10 @@
 //! traffic. The terminal view ([`super::view`]) only draws this model; the model never reads
 //! a clock and does no I/O, so a replayed log gives the same model as the live bus did.
 //!
+//! The model's time is the bus's: each frame's timestamp (the interface's own where it
+//! gives one, [`crate::Transport::receive_stamped`]). A bystander learns that time has passed
+//! from the frames that come by; on a bus without any frame the model stays at the last one.
+//!
 //! The monitor is a bystander: its verdicts are what a consumer with the configured SCT and
 //! SRVT would conclude from the frames on the bus, not the consumer's own state (which the
 //! node reports in its EMCY). A gap or period *at* its limit counts as exceeded, as the

@@ -211,15 +211,34 @@ impl Transport for SocketcandClient {
     }
 
     fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError> {
+        Ok(self.receive_stamped(deadline)?.map(|(_, frame)| frame))
+    }
+
+    /// The frame with the server's timestamp (`< frame ID SECONDS.MICROSECONDS DATA >`); a
+    /// timestamp that is not one reads as the time of reception.
+    fn receive_stamped(
+        &mut self,
+        deadline: Duration,
+    ) -> Result<Option<(Duration, CanFrame)>, TransportError> {
         while let Some(message) = self.next_message(deadline)? {
             if message.first().map(String::as_str) == Some("error") {
                 // A bus error report (`< error data >`): not a frame; SDO timeouts say the rest.
                 continue;
             }
             if let Some(frame) = parse_frame_message(&message)? {
-                return Ok(Some(frame));
+                let stamp = message.get(2).and_then(|word| parse_stamp(word));
+                return Ok(Some((stamp.unwrap_or_else(|| self.clock.now()), frame)));
             }
         }
         Ok(None)
     }
+}
+
+/// A socketcand timestamp, `SECONDS.MICROSECONDS`.
+fn parse_stamp(word: &str) -> Option<Duration> {
+    let (seconds, micros) = word.split_once('.')?;
+    if micros.len() != 6 {
+        return None;
+    }
+    Some(Duration::from_secs(seconds.parse().ok()?) + Duration::from_micros(micros.parse().ok()?))
 }
