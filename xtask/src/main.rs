@@ -76,14 +76,16 @@ enum Task {
     /// QEMU self-tests and the end-to-end tests on the emulated network.
     Test,
     /// The main job: the emulated safety network (two nodes, four QEMU instances, the bus
-    /// hub), configured and started, shown live; keys press the emergency stop and inject
-    /// faults. Ends with a summary; fails unless both nodes exchanged valid SRDOs.
+    /// hub), configured and started, shown live through the tool's monitor; single keys
+    /// press the emergency stop and inject faults. Ends with a summary that says how the run
+    /// ended; fails when a channel ended in the safe state with no fault injected since the
+    /// last reset, or no valid SRDO pair was exchanged.
     Run {
         /// Run unattended for this long (e.g. `30s`, at most 24 h), then print the summary.
         #[arg(long = "for", value_parser = run::parse_duration)]
         duration: Option<std::time::Duration>,
         /// Schedule an action: `5s:press` (press, release, drop, corrupt, stop, b-differs,
-        /// cut-link, reset; repeatable; before the end of a `--for` run).
+        /// cut-link, gfc, reset; repeatable; before the end of a `--for` run).
         #[arg(long, value_parser = run::parse_at)]
         at: Vec<(std::time::Duration, run::Action)>,
     },

@@ -1,16 +1,31 @@
-//! `cargo xtask run`: the main job. The emulated safety network ([`Network`]) with a live
-//! view of every channel, an emergency stop and faults at the keyboard, and a summary.
+//! `cargo xtask run`: the main job. The emulated safety network ([`Network`]) shown through
+//! the configuration tool's live monitor (`safety_config::monitor`): every channel's status
+//! from the hub, and the bus as the monitor decodes it (NMT states, SRDO pairs with their
+//! gaps and periods, EMCYs in words, SDO traffic), redrawn in place; single keys press the
+//! emergency stop and inject faults; a summary says how the run ended.
 //!
-//! Keys (type the letter and press Enter): `e` press or release the emergency stop on node
-//! 1, `d` drop node 1's next inverted frame, `c` corrupt its next plain frame, `s` stop node
-//! 1 (both channels muted), `b` channel B of node 1 reads the input otherwise, `l` cut the
-//! link between node 33's channels, `r` reset both nodes (NMT reset node, then start), `q`
-//! quit. Unattended: `--for 30s` ends the run and `--at 5s:press` (and `release`, `drop`,
-//! `corrupt`, `stop`, `b-differs`, `cut-link`, `reset`) schedules the same actions.
+//! Keys (no Enter): `e` press or release the emergency stop on node 1, `d` drop node 1's
+//! next inverted frame, `c` corrupt its next plain frame, `s` stop node 1 (both channels
+//! muted), `b` channel B of node 1 reads the input otherwise, `l` cut the link between node
+//! 33's channels, `g` send a GFC, `r` reset both nodes (NMT reset node, then start), `p`
+//! pause the drawing, `?` help, `q` quit. When stdout is not a terminal (CI) the run prints
+//! plain lines instead: the channel table when it changes and a line per happening on the
+//! bus; on a terminal stdin without a terminal stdout, the keys are typed with Enter.
+//! Unattended: `--for 30s` ends the run and `--at 5s:press` (and `release`, `drop`,
+//! `corrupt`, `stop`, `b-differs`, `cut-link`, `gfc`, `reset`) schedules the same actions.
 
 use crate::e2e;
 use crate::network::{self, Network};
 use anyhow::{Result, bail};
+use emulation_wire::Status;
+use safety_config::Transport;
+use safety_config::monitor::model::Monitor;
+use safety_config::monitor::view::{self, Screen};
+use safety_config::monitor::{self, Pressed};
+use safety_config::socketcand::SocketcandClient;
+use shared::canopen::nmt::NmtState;
+use shared::safety::cause::Cause;
+use std::collections::HashMap;
 use std::io::{BufRead, IsTerminal, Write};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -36,6 +51,8 @@ pub enum Action {
     BDiffers,
     /// Cut node 33's link.
     CutLink,
+    /// Send a GFC (EN 50325-5 7.2.1): every node in Operational goes to its safe state.
+    Gfc,
     /// Reset both nodes and start them.
     Reset,
     /// End the run.
@@ -53,29 +70,85 @@ impl Action {
             "stop" => Action::Stop,
             "b-differs" => Action::BDiffers,
             "cut-link" => Action::CutLink,
+            "gfc" => Action::Gfc,
             "reset" => Action::Reset,
             _ => {
                 return Err(format!(
                     "`{name}` is not an action (press, release, drop, corrupt, stop, b-differs, \
-                     cut-link, reset)"
+                     cut-link, gfc, reset)"
                 ));
             }
         })
     }
 
-    fn key(line: &str) -> Option<Action> {
-        Some(match line.trim() {
-            "e" => Action::Toggle,
-            "d" => Action::Drop,
-            "c" => Action::Corrupt,
-            "s" => Action::Stop,
-            "b" => Action::BDiffers,
-            "l" => Action::CutLink,
-            "r" => Action::Reset,
-            "q" => Action::Quit,
+    /// The action of a key (a single key on the live view, a line of one letter otherwise).
+    fn key(key: char) -> Option<Action> {
+        Some(match key {
+            'e' => Action::Toggle,
+            'd' => Action::Drop,
+            'c' => Action::Corrupt,
+            's' => Action::Stop,
+            'b' => Action::BDiffers,
+            'l' => Action::CutLink,
+            'g' => Action::Gfc,
+            'r' => Action::Reset,
+            'q' => Action::Quit,
             _ => return None,
         })
     }
+
+    /// The action's name, as `--at` takes it.
+    fn name(self) -> &'static str {
+        match self {
+            Action::Toggle => "toggle",
+            Action::Press => "press",
+            Action::Release => "release",
+            Action::Drop => "drop",
+            Action::Corrupt => "corrupt",
+            Action::Stop => "stop",
+            Action::BDiffers => "b-differs",
+            Action::CutLink => "cut-link",
+            Action::Gfc => "gfc",
+            Action::Reset => "reset",
+            Action::Quit => "quit",
+        }
+    }
+
+    /// Whether the action is a fault that should put a node in its safe state.
+    fn is_fault(self) -> bool {
+        matches!(
+            self,
+            Action::Drop
+                | Action::Corrupt
+                | Action::Stop
+                | Action::BDiffers
+                | Action::CutLink
+                | Action::Gfc
+        )
+    }
+}
+
+/// The keys of the live view, for its bottom line.
+const KEYS: &str = "e e-stop  d drop  c corrupt  s stop node 1  b B differs  l cut link  g GFC  r reset  p pause  ? help  q quit";
+
+fn help() -> Vec<String> {
+    [
+        "e   press or release the emergency stop (both contacts of node 1)",
+        "d   the hub drops node 1's next inverted frame (node 33: SRVT elapsed)",
+        "c   the hub corrupts byte 0 of node 1's next plain frame",
+        "s   stop node 1 (both channels muted; node 33: SCT elapsed)",
+        "b   channel B of node 1 reads its input as 0, channel A as 1",
+        "l   cut the link between node 33's channels",
+        "g   send a GFC: every node in Operational goes to its safe state",
+        "r   reset both nodes (NMT reset node), then start them",
+        "p   pause or resume the drawing",
+        "q   quit (also Esc, Ctrl-C) and print the summary",
+        "",
+        "Channels: each MCU's own status report from the hub.",
+        "Nodes, SRDOs, Events: the bus as the monitor decodes it.",
+    ]
+    .map(str::to_owned)
+    .to_vec()
 }
 
 /// The longest unattended run, and the latest time an action can be scheduled at: one day.
@@ -116,8 +189,9 @@ pub fn check_schedule(
     };
     match schedule.iter().find(|(at, _)| *at >= duration) {
         Some((at, action)) => Err(format!(
-            "--at {:.3}s ({action:?}) is at or after the run ends (--for {:.3}s): it would never happen",
+            "--at {:.3}s:{} is at or after the run ends (--for {:.3}s): it would never happen",
             at.as_secs_f64(),
+            action.name(),
             duration.as_secs_f64()
         )),
         None => Ok(()),
@@ -132,64 +206,206 @@ pub fn parse_at(text: &str) -> Result<(Duration, Action), String> {
     Ok((parse_duration(at)?, Action::named(name)?))
 }
 
-/// What the run observed, for the summary.
+/// What the run did and observed, for the summary.
 #[derive(Default)]
 struct Observed {
     latencies_ms: Vec<f64>,
     pressed: bool,
+    /// Faults injected since the start or the latest reset: when (run time) and what.
+    faults: Vec<(Duration, Action)>,
+    /// Resets done.
+    resets: usize,
 }
 
-fn apply(network: &mut Network, action: Action, seen: &mut Observed) -> Result<()> {
+/// Does `action`; returns what was done, in words.
+fn apply(
+    network: &mut Network,
+    bus: &mut SocketcandClient,
+    model: &mut Monitor,
+    action: Action,
+    at: Duration,
+    seen: &mut Observed,
+) -> Result<String> {
     let action = match action {
         Action::Toggle if seen.pressed => Action::Release,
         Action::Toggle => Action::Press,
         other => other,
     };
-    match action {
+    if action.is_fault() {
+        seen.faults.push((at, action));
+    }
+    Ok(match action {
         Action::Press => {
             let ms = e2e::press(network)?;
-            println!("** emergency stop pressed: node 33's output 0 after {ms:.1} ms");
             seen.latencies_ms.push(ms);
             seen.pressed = true;
+            format!("emergency stop pressed: node 33's output 0 after {ms:.1} ms")
         }
         Action::Release => {
             network.command("input node1a 1")?;
             network.command("input node1b 1")?;
-            println!("** emergency stop released");
             seen.pressed = false;
+            "emergency stop released".to_owned()
         }
         Action::Drop => {
             network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
-            println!("** the hub drops node 1's next inverted frame");
+            "the hub drops node 1's next inverted frame".to_owned()
         }
         Action::Corrupt => {
             network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
-            println!(
-                "** the hub corrupts byte 0 of node 1's next plain frame (node 1's channel B \
-                 sees it too and withholds the inverted frame)"
-            );
+            "the hub corrupts byte 0 of node 1's next plain frame (node 1's channel B sees it \
+             too and withholds the inverted frame)"
+                .to_owned()
         }
         Action::Stop => {
             network.command("mute node1a")?;
             network.command("mute node1b")?;
-            println!("** node 1 stopped (both channels muted)");
+            "node 1 stopped (both channels muted)".to_owned()
         }
         Action::BDiffers => {
             network.command("input node1b 0")?;
-            println!("** channel B of node 1 now reads its input as 0, channel A as 1");
+            "channel B of node 1 now reads its input as 0, channel A as 1".to_owned()
         }
         Action::CutLink => {
             network.command("cut node33-link")?;
-            println!("** the link between node 33's channels is cut");
+            "the link between node 33's channels is cut".to_owned()
+        }
+        Action::Gfc => {
+            let gfc = shared::safety::gfc::frame();
+            bus.send(&gfc)?;
+            // The hub does not hand a client's own frame back to it.
+            model.feed(model.now, &gfc);
+            "GFC sent (CAN-ID 001h)".to_owned()
         }
         Action::Reset => {
-            println!("** NMT reset node for both nodes, then start");
             network.reset()?;
             seen.pressed = false;
+            seen.faults.clear();
+            seen.resets += 1;
+            "NMT reset node for both nodes, then start".to_owned()
         }
-        Action::Toggle | Action::Quit => {}
+        Action::Toggle | Action::Quit => String::new(),
+    })
+}
+
+/// The cause of a channel's last safe state in words (`shared::safety::cause::Cause`, the
+/// one table), or what the number is when it is no cause of this device.
+fn cause_words(code: u8) -> String {
+    match Cause::from_code(code) {
+        Some(Cause::None) => "none".to_owned(),
+        Some(cause) => cause.describe().to_owned(),
+        None => format!("code {code:02X}h, no cause this device knows"),
     }
-    Ok(())
+}
+
+/// The channels' latest status reports as lines (the live view's panel, the plain lines and
+/// the summary): NMT state, working or safe, link, pins, SRDO counts, the cause in words.
+fn channel_lines(latest: &HashMap<String, (f64, Status)>) -> Vec<String> {
+    let mut lines = vec![format!(
+        "{:<8} {:<15} {:<8} {:<5} {:>5} {:>6} {:>10} {:>10}  last safe-state cause",
+        "channel", "NMT", "state", "link", "input", "output", "SRDOs sent", "validated"
+    )];
+    for (name, _, _) in network::CHANNELS {
+        let Some((_, s)) = latest.get(name) else {
+            lines.push(format!("{name:<8} (no report yet)"));
+            continue;
+        };
+        lines.push(format!(
+            "{name:<8} {:<15} {:<8} {:<5} {:>5} {:>6} {:>10} {:>10}  {}",
+            s.nmt_state().map_or("unknown", NmtState::describe),
+            if s.working { "working" } else { "SAFE" },
+            match (s.cause, s.link_up) {
+                (0x10..=0x14, _) => "FAULT",
+                (_, true) => "up",
+                (_, false) => "-",
+            },
+            s.input,
+            s.output,
+            s.sent,
+            s.validated,
+            cause_words(s.cause),
+        ));
+    }
+    lines
+}
+
+/// How a run ended, from what was observed: whether every channel ended Operational and
+/// working, which did not and why, and whether a fault injected since the last reset
+/// explains it.
+#[derive(Debug, PartialEq, Eq)]
+pub struct Ending {
+    /// The sentence for the summary.
+    pub sentence: String,
+    /// Whether the run counts as passed.
+    pub passed: bool,
+}
+
+/// The ending of a run whose channels last reported `latest`, with the monitor's count of
+/// valid pairs on the bus and the faults injected since the last reset.
+fn ending(
+    latest: &HashMap<String, (f64, Status)>,
+    valid_pairs: u64,
+    faults: &[(Duration, Action)],
+) -> Ending {
+    let mut unwell = Vec::new();
+    for (name, _, _) in network::CHANNELS {
+        match latest.get(name) {
+            None => unwell.push(format!("{name} never reported")),
+            Some((_, s)) if s.nmt_state() != Some(NmtState::Operational) => unwell.push(format!(
+                "{name} ended {}",
+                s.nmt_state()
+                    .map_or("in an unknown NMT state", NmtState::describe)
+            )),
+            Some((_, s)) if !s.working => unwell.push(format!(
+                "{name} ended in the safe state ({})",
+                cause_words(s.cause)
+            )),
+            Some(_) => {}
+        }
+    }
+    let validated = ["node33a", "node33b"]
+        .iter()
+        .map(|name| latest.get(*name).map_or(0, |(_, s)| s.validated))
+        .min()
+        .unwrap_or(0);
+    let injected: Vec<String> = faults
+        .iter()
+        .map(|(at, action)| format!("{} at {:.1} s", action.name(), at.as_secs_f64()))
+        .collect();
+    if unwell.is_empty() && validated > 0 {
+        return Ending {
+            sentence: format!(
+                "every channel ended Operational and working; node 33's channels validated {validated} \
+                 SRDO pairs or more each, and the monitor saw {valid_pairs} valid pairs on the bus"
+            ),
+            passed: true,
+        };
+    }
+    if unwell.is_empty() {
+        return Ending {
+            sentence: "every channel ended Operational and working, but node 33 validated no SRDO"
+                .to_owned(),
+            passed: false,
+        };
+    }
+    let what = unwell.join("; ");
+    if injected.is_empty() {
+        Ending {
+            sentence: format!(
+                "FAILED: {what}, with no fault injected since the start or the last reset"
+            ),
+            passed: false,
+        }
+    } else {
+        Ending {
+            sentence: format!(
+                "{what}: the safe state after the injected fault(s) ({}), as it should; the \
+                 monitor saw {valid_pairs} valid pairs on the bus",
+                injected.join(", ")
+            ),
+            passed: valid_pairs > 0,
+        }
+    }
 }
 
 /// `cargo xtask run`.
@@ -202,98 +418,193 @@ pub fn task(
     let interrupted = Arc::new(AtomicBool::new(false));
     {
         let interrupted = interrupted.clone();
-        // Ctrl-C or SIGTERM: end the run; the network's drop kills every child process.
+        // Ctrl-C or SIGTERM: end the run; the network's drop kills every child process. (On
+        // the live view Ctrl-C is a key, the terminal being in raw mode.)
         ctrlc::set_handler(move || interrupted.store(true, Ordering::SeqCst))?;
     }
-    let interactive = duration.is_none() && std::io::stdin().is_terminal();
-    let live = std::io::stdout().is_terminal();
+    let live = std::io::stdout().is_terminal() && std::io::stdin().is_terminal();
+    let typed = !live && duration.is_none() && std::io::stdin().is_terminal();
+    if !live && !typed && duration.is_none() {
+        bail!("not on a terminal: give `--for <duration>` to run unattended");
+    }
     let mut network = Network::start(root)?;
+    // The monitor's own socketcand connection to the hub, beside the configuration tool's.
+    let mut bus = SocketcandClient::connect(network::HUB_TCP, "can0")?;
+    let file = network::network_file();
+    let mut model = Monitor::for_network(&safety_config::network_file::parse(
+        &file,
+        "target/emulate/network.toml",
+    )?);
     let started = Instant::now();
     schedule.sort_by_key(|(at, _)| *at);
     let mut schedule = schedule.into_iter().peekable();
-    let keys = mpsc::channel();
-    if interactive {
+    let keys = mpsc::channel::<char>();
+    if typed {
         let tx = keys.0.clone();
         std::thread::spawn(move || {
             for line in std::io::stdin().lock().lines() {
                 let Ok(line) = line else { return };
-                if tx.send(line).is_err() {
+                let key = line.trim().chars().next().unwrap_or(' ');
+                if tx.send(key).is_err() {
                     return;
                 }
             }
         });
         println!(
             "Keys (then Enter): e emergency stop, d drop, c corrupt, s stop node 1, \
-             b channel B differs, l cut node 33's link, r reset, q quit"
+             b channel B differs, l cut node 33's link, g GFC, r reset, q quit"
         );
-    } else if duration.is_none() {
-        bail!("not on a terminal: give `--for <duration>` to run unattended");
     }
+    let mut terminal = if live {
+        Some(monitor::Terminal::open()?)
+    } else {
+        None
+    };
+    let mut screen = Screen {
+        title: "cargo xtask run: the emulated safety network (nodes 1 and 33, four QEMU MCUs)"
+            .to_owned(),
+        keys: KEYS.to_owned(),
+        ..Screen::default()
+    };
     let mut seen = Observed::default();
+    let mut printed = 0;
     let mut last_print = Instant::now() - Duration::from_secs(1);
-    let mut last_table = String::new();
-    let outcome = loop {
+    let mut last_table = Vec::new();
+    let mut last_draw: Option<Instant> = None;
+    let outcome: Result<()> = 'run: loop {
         if interrupted.load(Ordering::SeqCst) {
-            println!("** interrupted");
+            model.note(model.now, "interrupted".to_owned());
             break Ok(());
         }
         if duration.is_some_and(|d| started.elapsed() >= d) {
             break Ok(());
         }
-        if let Err(error) = network.control.watch(Duration::from_millis(100)) {
+        if let Err(error) = network.control.watch(Duration::from_millis(50)) {
             break Err(error.into());
         }
         if let Err(error) = network.check_alive() {
             break Err(error);
         }
+        // What the bus holds now, without waiting (a deadline passed reads what has come).
+        loop {
+            match bus.receive_stamped(Duration::ZERO) {
+                Ok(Some((at, frame))) => model.feed(at, &frame),
+                Ok(None) => break,
+                Err(error) => break 'run Err(error.into()),
+            }
+        }
         let mut actions = Vec::new();
         while let Some((_, action)) = schedule.next_if(|(at, _)| started.elapsed() >= *at) {
             actions.push(action);
         }
-        while let Ok(line) = keys.1.try_recv() {
-            match Action::key(&line) {
-                Some(action) => actions.push(action),
-                None => println!("?? `{}` is not a key (e d c s b l r q)", line.trim()),
+        let mut pressed = Vec::new();
+        if let Some(terminal) = &mut terminal {
+            match terminal.keys() {
+                Ok(keys) => pressed = keys,
+                Err(error) => break Err(error.into()),
+            }
+        }
+        pressed.extend(keys.1.try_iter().map(Pressed::Char));
+        for key in pressed {
+            if screen.help.take().is_some() {
+                continue;
+            }
+            match key {
+                Pressed::Interrupt | Pressed::Escape => actions.push(Action::Quit),
+                Pressed::Char('?') => screen.help = Some(help()),
+                Pressed::Char('p') => screen.paused = !screen.paused,
+                Pressed::Char(c) => match Action::key(c) {
+                    Some(action) => actions.push(action),
+                    None => model.note(
+                        model.now,
+                        format!("`{c}` is not a key (e d c s b l g r p ? q)"),
+                    ),
+                },
             }
         }
         if actions.contains(&Action::Quit) {
             break Ok(());
         }
-        if let Some(error) = actions
-            .into_iter()
-            .find_map(|action| apply(&mut network, action, &mut seen).err())
-        {
-            break Err(error);
-        }
-        let table = network.table();
-        if last_print.elapsed() >= Duration::from_millis(500) && table != last_table {
-            if live {
-                print!("\x1b[2J\x1b[H");
+        for action in actions {
+            match apply(
+                &mut network,
+                &mut bus,
+                &mut model,
+                action,
+                started.elapsed(),
+                &mut seen,
+            ) {
+                Ok(words) => model.note(model.now, format!("** {words}")),
+                Err(error) => break 'run Err(error),
             }
-            println!("t = {:.1} s\n{table}", started.elapsed().as_secs_f64());
-            let _ = std::io::stdout().flush();
-            last_print = Instant::now();
-            last_table = table;
+        }
+        let channels = channel_lines(&network.control.latest);
+        match &mut terminal {
+            Some(terminal) => {
+                if last_draw.is_none_or(|at| at.elapsed() >= Duration::from_millis(200))
+                    && (!screen.paused || last_draw.is_none())
+                {
+                    screen.panels = vec![(
+                        format!(
+                            "Channels (the hub's status reports; run time {:.1} s)",
+                            started.elapsed().as_secs_f64()
+                        ),
+                        channels,
+                    )];
+                    if let Err(error) = terminal.draw(&model, &screen) {
+                        break Err(error.into());
+                    }
+                    last_draw = Some(Instant::now());
+                }
+            }
+            None => {
+                for (at, line) in model.happenings_since(printed) {
+                    println!("bus {:>9.3} s  {line}", at.as_secs_f64());
+                }
+                printed = model.happened;
+                if last_print.elapsed() >= Duration::from_millis(500) && channels != last_table {
+                    println!(
+                        "t = {:.1} s\n{}",
+                        started.elapsed().as_secs_f64(),
+                        channels.join("\n")
+                    );
+                    let _ = std::io::stdout().flush();
+                    last_print = Instant::now();
+                    last_table = channels;
+                }
+            }
         }
     };
-    summary(network, &seen, outcome)
+    drop(terminal);
+    summary(network, &model, &seen, outcome)
 }
 
-fn summary(network: Network, seen: &Observed, outcome: Result<()>) -> Result<()> {
+fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<()>) -> Result<()> {
     let latest = network.control.latest.clone();
     let stall = network.worst(|s| s.longest_stall_ms);
     let pace = network.pace_summary();
     let dir = network.dir().to_path_buf();
     let faults = network.stop()?;
-    println!("\n## Summary\n{}", network::table(&latest));
+    println!("\n## Summary\n{}", channel_lines(&latest).join("\n"));
+    println!("\nOn the bus (the monitor):");
+    for line in view::summary(model) {
+        println!("  {line}");
+    }
+    println!();
     for ms in &seen.latencies_ms {
         println!("emergency stop → node 33's output 0: {ms:.1} ms");
+    }
+    if seen.resets > 0 {
+        println!("resets: {}", seen.resets);
     }
     println!("longest stall of an emulated MCU (host time it did not run): {stall} ms");
     println!("{pace}");
     for (name, lines) in &faults {
         if let Some(last) = lines.last() {
-            println!("{name}: {} safe-state report(s), last: {last}", lines.len());
+            println!(
+                "{name}: {} safe-state report(s) in its log, last: {last}",
+                lines.len()
+            );
         }
     }
     println!(
@@ -302,13 +613,15 @@ fn summary(network: Network, seen: &Observed, outcome: Result<()>) -> Result<()>
         dir.display()
     );
     outcome?;
-    let sent = |name: &str| latest.get(name).is_some_and(|(_, s)| s.sent > 0);
-    let validated = |name: &str| latest.get(name).is_some_and(|(_, s)| s.validated > 0);
-    if sent("node1a") && sent("node1b") && validated("node33a") && validated("node33b") {
-        println!("every node reached Operational and exchanged valid SRDOs");
+    let valid = model.srdos.get(&network::PLAIN).map_or(0, |srdo| {
+        srdo.count(safety_config::monitor::model::PairVerdict::Valid)
+    });
+    let ending = ending(&latest, valid, &seen.faults);
+    println!("\nHow the run ended: {}", ending.sentence);
+    if ending.passed {
         Ok(())
     } else {
-        bail!("the nodes did not exchange valid SRDOs")
+        bail!("the run did not end as it should: {}", ending.sentence)
     }
 }
 
@@ -356,6 +669,84 @@ mod tests {
         for text in ["", "s", ".", "-5s", "NaNs", "infs", "1.2.3s", "1e400"] {
             assert!(parse_duration(text).is_err(), "{text:?}");
         }
+    }
+
+    fn statuses(safe: &[(&str, Cause)]) -> HashMap<String, (f64, Status)> {
+        network::CHANNELS
+            .iter()
+            .map(|(name, _, _)| {
+                let cause = safe.iter().find(|(n, _)| n == name).map(|(_, c)| *c);
+                let status = Status {
+                    nmt: NmtState::Operational.heartbeat_code(),
+                    working: cause.is_none(),
+                    link_up: true,
+                    cause: cause.map_or(0, Cause::code),
+                    sent: 40,
+                    validated: 20,
+                    ..Status::default()
+                };
+                ((*name).to_owned(), (10.0, status))
+            })
+            .collect()
+    }
+
+    /// The summary says how the run ended from what was observed: all working passes; a
+    /// safe state with no fault injected fails and names the channel and the cause in words;
+    /// after an injected fault it is the expected reaction.
+    #[test]
+    fn the_run_ends_with_what_was_observed_not_with_what_was_hoped() {
+        let all_well = ending(&statuses(&[]), 90, &[]);
+        assert!(all_well.passed, "{all_well:?}");
+        assert!(
+            all_well
+                .sentence
+                .starts_with("every channel ended Operational and working")
+        );
+
+        let safe = statuses(&[
+            ("node1a", Cause::TransmitMismatch),
+            ("node33b", Cause::SrvtElapsed),
+        ]);
+        let unexplained = ending(&safe, 90, &[]);
+        assert!(!unexplained.passed);
+        assert_eq!(
+            unexplained.sentence,
+            "FAILED: node1a ended in the safe state (transmit mismatch A/B); node33b ended in \
+             the safe state (SRVT elapsed), with no fault injected since the start or the last \
+             reset"
+        );
+        let explained = ending(&safe, 90, &[(Duration::from_secs(5), Action::Drop)]);
+        assert!(explained.passed, "{explained:?}");
+        assert!(
+            explained
+                .sentence
+                .contains("the safe state after the injected fault(s) (drop at 5.0 s)"),
+            "{explained:?}"
+        );
+
+        let mut silent = statuses(&[]);
+        silent.remove("node33a");
+        let never = ending(&silent, 0, &[]);
+        assert!(!never.passed);
+        assert!(
+            never.sentence.contains("node33a never reported"),
+            "{never:?}"
+        );
+    }
+
+    /// Every cause on the channel table is in words (Cause::describe), never a bare code.
+    #[test]
+    fn the_channel_table_names_every_cause_in_words() {
+        for cause in Cause::ALL.into_iter().skip(1) {
+            let lines = channel_lines(&statuses(&[("node1b", cause)]));
+            let row = lines.iter().find(|l| l.starts_with("node1b")).unwrap();
+            assert!(row.ends_with(cause.describe()), "{row}");
+            assert!(!row.contains(&format!("{:02X}h", cause.code())), "{row}");
+            assert!(row.contains("SAFE"), "{row}");
+        }
+        let lines = channel_lines(&statuses(&[]));
+        assert!(lines[1].ends_with("none"), "{}", lines[1]);
+        assert_eq!(cause_words(0x77), "code 77h, no cause this device knows");
     }
 
     /// An action scheduled at or after the end of an unattended run would never happen: refused.

@@ -125,22 +125,15 @@ pub enum Key {
     Other,
 }
 
-/// The key an event is, if it is a key press.
-pub fn key(event: &Event) -> Option<Key> {
-    let Event::Key(key) = event else {
-        return None;
-    };
-    if key.kind != KeyEventKind::Press {
-        return None;
+/// What a pressed key asks of the monitor.
+pub fn key(pressed: Pressed) -> Key {
+    match pressed {
+        Pressed::Interrupt | Pressed::Escape | Pressed::Char('q') => Key::Quit,
+        Pressed::Char('g') => Key::Gfc,
+        Pressed::Char('p') => Key::Pause,
+        Pressed::Char('?') => Key::Help,
+        Pressed::Char(_) => Key::Other,
     }
-    Some(match key.code {
-        KeyCode::Char('c') if key.modifiers.contains(KeyModifiers::CONTROL) => Key::Quit,
-        KeyCode::Char('q') | KeyCode::Esc => Key::Quit,
-        KeyCode::Char('g') => Key::Gfc,
-        KeyCode::Char('p') => Key::Pause,
-        KeyCode::Char('?') => Key::Help,
-        _ => Key::Other,
-    })
 }
 
 /// How often the view is redrawn.
@@ -166,7 +159,7 @@ pub fn run(
         None => None,
     };
     let mut terminal = if options.live {
-        Some(Live(ratatui::try_init().map_err(MonitorError::Terminal)?))
+        Some(Terminal::open()?)
     } else {
         None
     };
@@ -263,30 +256,31 @@ pub fn run(
         {
             break;
         }
-        let Some(Live(terminal)) = &mut terminal else {
+        let Some(terminal) = &mut terminal else {
             if done {
                 break;
             }
             continue;
         };
         let mut quit = false;
-        while event::poll(Duration::ZERO).map_err(MonitorError::Terminal)? {
-            let event = event::read().map_err(MonitorError::Terminal)?;
-            match key(&event) {
-                Some(_) if screen.help.is_some() => screen.help = None,
-                Some(Key::Quit) => quit = true,
-                Some(Key::Help) => screen.help = Some(help()),
-                Some(Key::Pause) => screen.paused = !screen.paused,
-                Some(Key::Gfc) => {
+        for pressed in terminal.keys()? {
+            match key(pressed) {
+                _ if screen.help.is_some() => screen.help = None,
+                Key::Quit => quit = true,
+                Key::Help => screen.help = Some(help()),
+                Key::Pause => screen.paused = !screen.paused,
+                Key::Gfc => {
                     if let Source::Bus(bus) = &mut source {
                         let gfc = shared::safety::gfc::frame();
                         bus.send(&gfc)?;
-                        // The transport does not hand back what this tool sent.
-                        let now = bus.now();
+                        // The transport does not hand back what this tool sent; it went on
+                        // the bus after the latest frame seen.
+                        let now = monitor.now;
                         monitor.feed(now, &gfc);
+                        monitor.note(now, "GFC sent by this monitor (key g)".to_owned());
                     }
                 }
-                Some(Key::Other) | None => {}
+                Key::Other => {}
             }
         }
         if quit {
@@ -294,9 +288,7 @@ pub fn run(
         }
         let due = last_draw.is_none_or(|at| at.elapsed() >= FRAME_PERIOD);
         if due && (!screen.paused || last_draw.is_none()) {
-            terminal
-                .draw(|frame| view::draw(frame, &monitor, &screen))
-                .map_err(MonitorError::Terminal)?;
+            terminal.draw(&monitor, &screen)?;
             last_draw = Some(Instant::now());
         } else if done {
             std::thread::sleep(Duration::from_millis(20));
@@ -317,5 +309,61 @@ struct Live(ratatui::DefaultTerminal);
 impl Drop for Live {
     fn drop(&mut self) {
         ratatui::restore();
+    }
+}
+
+/// A key pressed on the [`Terminal`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pressed {
+    /// A character key.
+    Char(char),
+    /// Esc.
+    Escape,
+    /// Ctrl-C (in raw mode it is a key, not a signal).
+    Interrupt,
+}
+
+/// The live view for a caller with a loop of its own (`cargo xtask run`): the terminal in
+/// raw mode on the alternate screen, drawn in place, single keys without Enter. Dropping it
+/// gives the terminal back as it was.
+pub struct Terminal(Live);
+
+impl Terminal {
+    /// Takes over the terminal.
+    pub fn open() -> Result<Terminal, MonitorError> {
+        Ok(Terminal(Live(
+            ratatui::try_init().map_err(MonitorError::Terminal)?,
+        )))
+    }
+
+    /// Draws `monitor` with `screen` around it.
+    pub fn draw(&mut self, monitor: &Monitor, screen: &Screen) -> Result<(), MonitorError> {
+        self.0
+            .0
+            .draw(|frame| view::draw(frame, monitor, screen))
+            .map(|_| ())
+            .map_err(MonitorError::Terminal)
+    }
+
+    /// The keys pressed since the last call, without waiting.
+    pub fn keys(&mut self) -> Result<Vec<Pressed>, MonitorError> {
+        let mut keys = Vec::new();
+        while event::poll(Duration::ZERO).map_err(MonitorError::Terminal)? {
+            let Event::Key(key) = event::read().map_err(MonitorError::Terminal)? else {
+                continue;
+            };
+            if key.kind != KeyEventKind::Press {
+                continue;
+            }
+            keys.push(match key.code {
+                KeyCode::Char('c') if key.modifiers.contains(KeyModifiers::CONTROL) => {
+                    Pressed::Interrupt
+                }
+                KeyCode::Char(c) => Pressed::Char(c),
+                KeyCode::Esc => Pressed::Escape,
+                _ => continue,
+            });
+        }
+        Ok(keys)
     }
 }
