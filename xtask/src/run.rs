@@ -749,6 +749,137 @@ mod tests {
         assert_eq!(cause_words(0x77), "code 77h, no cause this device knows");
     }
 
+    /// A terminal a person looks at: `tmux` at 120 × 40, the screen read with `capture-pane`.
+    struct Tmux {
+        session: String,
+    }
+
+    impl Tmux {
+        fn start(command: &str) -> Tmux {
+            let session = format!("xtask-run-view-{}", std::process::id());
+            let status = std::process::Command::new("tmux")
+                .args([
+                    "new-session",
+                    "-d",
+                    "-s",
+                    &session,
+                    "-x",
+                    "120",
+                    "-y",
+                    "40",
+                    command,
+                ])
+                .status()
+                .expect("tmux is installed");
+            assert!(status.success(), "tmux new-session failed");
+            Tmux { session }
+        }
+
+        fn screen(&self) -> String {
+            let output = std::process::Command::new("tmux")
+                .args(["capture-pane", "-p", "-t", &self.session])
+                .output()
+                .expect("tmux capture-pane");
+            String::from_utf8_lossy(&output.stdout).into_owned()
+        }
+
+        /// The screen once `seen` holds for it, or the last screen after `patience`.
+        fn wait_for(&self, patience: Duration, seen: impl Fn(&str) -> bool) -> String {
+            let until = Instant::now() + patience;
+            loop {
+                let screen = self.screen();
+                if seen(&screen) || Instant::now() >= until {
+                    return screen;
+                }
+                std::thread::sleep(Duration::from_millis(500));
+            }
+        }
+
+        fn key(&self, key: &str) {
+            let status = std::process::Command::new("tmux")
+                .args(["send-keys", "-t", &self.session, key])
+                .status()
+                .expect("tmux send-keys");
+            assert!(status.success());
+        }
+    }
+
+    impl Drop for Tmux {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("tmux")
+                .args(["kill-session", "-t", &self.session])
+                .status();
+        }
+    }
+
+    /// The live view as a person sees it (QEMU: `cargo test -p xtask -- --ignored`): the
+    /// channels and nodes Operational, the SRDO pair 101h/102h with its numbers; a dropped
+    /// inverted frame (key `d`) puts node 33 in its safe state, named in words; `q` ends the
+    /// run, whose summary says the safe state followed the injected fault, and exits 0.
+    #[test]
+    #[ignore = "starts the emulated network (QEMU); run with --ignored"]
+    fn the_run_view_shows_channels_srdo_pairs_and_a_cause_in_words_and_quits_on_q() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let exit = std::env::temp_dir().join(format!("xtask-run-view-{}.exit", std::process::id()));
+        let _ = std::fs::remove_file(&exit);
+        let tmux = Tmux::start(&format!(
+            "cd {} && cargo xtask run; echo EXIT=$? > {}; sleep 600",
+            root.display(),
+            exit.display()
+        ));
+        let up = |screen: &str| {
+            screen.contains("Channels (the hub's status reports")
+                && screen.matches("Operational     working").count() == 4
+                && screen.contains("101h/102h 1 → 33")
+        };
+        let screen = tmux.wait_for(Duration::from_secs(900), up);
+        assert!(
+            up(&screen),
+            "the network did not come up on the screen:\n{screen}"
+        );
+        for channel in ["node1a", "node1b", "node33a", "node33b"] {
+            assert!(
+                screen
+                    .lines()
+                    .any(|line| line.starts_with(channel) && line.contains("working")),
+                "{channel}:\n{screen}"
+            );
+        }
+        for name in ["emergency stop", "safe output"] {
+            assert!(
+                screen
+                    .lines()
+                    .any(|line| line.contains(name) && line.contains("Operational")),
+                "node {name:?} Operational:\n{screen}"
+            );
+        }
+        tmux.key("d");
+        let tripped =
+            |screen: &str| screen.matches("SAFE").count() >= 2 && screen.contains("SRVT elapsed");
+        let screen = tmux.wait_for(Duration::from_secs(60), tripped);
+        assert!(
+            tripped(&screen),
+            "no safe state in words after the drop:\n{screen}"
+        );
+        assert!(
+            screen.contains("** the hub drops node 1's next inverted frame"),
+            "{screen}"
+        );
+        assert!(
+            !screen.contains("02h SRVT"),
+            "a bare cause code on the screen:\n{screen}"
+        );
+        tmux.key("q");
+        let ended = tmux.wait_for(Duration::from_secs(120), |_| exit.exists());
+        let code = std::fs::read_to_string(&exit).unwrap_or_default();
+        assert_eq!(code.trim(), "EXIT=0", "{ended}");
+        assert!(
+            ended.contains("How the run ended:") && ended.contains("injected fault(s) (drop at"),
+            "{ended}"
+        );
+        let _ = std::fs::remove_file(&exit);
+    }
+
     /// An action scheduled at or after the end of an unattended run would never happen: refused.
     #[test]
     fn a_scheduled_action_after_the_end_of_the_run_is_refused() {
