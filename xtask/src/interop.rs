@@ -374,3 +374,355 @@ pub fn task(root: &Path, only: Option<Part>) -> Result<()> {
     }
     Ok(())
 }
+
+/// The heading of the section `cargo xtask interop --bench` writes into docs/performance.md.
+pub const BENCH_HEADING: &str = "## Configuration tool beside python-canopen";
+
+/// How many times each side configures and verifies the node (the table gives the median
+/// and the range).
+const BENCH_ROUNDS: usize = 3;
+
+/// Node 1 of the bench, with every SRDO the firmware holds (`dual_channel::device::SRDO_COUNT`)
+/// transmitting the input and its inverted copy, as `tool_bench`'s 16 do on the host
+/// simulation.
+fn bench_file() -> String {
+    let mut file = String::from(
+        "[[node]]\nid = 1\nidentity = { vendor = 0xABC, product = 0x304, revision = 1, serial = 1 }\n",
+    );
+    for n in 1..=dual_channel::device::SRDO_COUNT {
+        let plain = 0x0FF + 2 * n;
+        file.push_str(&format!(
+            "\n[[node.srdo]]\nnumber = {n}\ndirection = \"transmit\"\nrefresh_time_ms = 100\n\
+             srvt_ms = 20\ncob_ids = [0x{plain:X}, 0x{:X}]\nmapping = [\"input\", \"input_inverted\"]\n",
+            plain + 1
+        ));
+    }
+    file
+}
+
+/// One side's round: wall time of configure and of verify, SDO transactions of each.
+#[derive(Clone, Copy, Debug)]
+struct Round {
+    configure: Duration,
+    verify: Duration,
+    configure_transactions: u64,
+    verify_transactions: u64,
+}
+
+/// The tool library configures and verifies the bench node; fails unless the node is
+/// configured, valid and matches the file.
+fn tool_round(
+    tool: &mut Client<SocketcandClient>,
+    spec: &safety_config::network_file::Network,
+) -> Result<Round> {
+    let before = tool.requests;
+    let started = std::time::Instant::now();
+    let report = procedure::configure(
+        tool,
+        spec,
+        false,
+        &mut procedure::Quiet {
+            accept_identity: false,
+        },
+    )?;
+    let configured = std::time::Instant::now();
+    let configure_transactions = tool.requests - before;
+    if !report.success() {
+        bail!(
+            "the tool did not configure the bench node: {:?}",
+            report.nodes
+        );
+    }
+    let verdicts = procedure::verify(tool, spec)?;
+    let verified = std::time::Instant::now();
+    if !verdicts
+        .iter()
+        .all(|verdict| matches!(verdict, procedure::Verdict::Matches { .. }))
+    {
+        bail!("the tool's verify after its configure: {verdicts:?}");
+    }
+    Ok(Round {
+        configure: configured - started,
+        verify: verified - configured,
+        configure_transactions,
+        verify_transactions: tool.requests - before - configure_transactions,
+    })
+}
+
+/// python-canopen does the same writes and read-backs; then the tool verifies what it left
+/// (the same verified result: matches the file, signatures valid, 0x13FE = A5h).
+fn python_round(
+    root: &Path,
+    python: &Path,
+    address: &str,
+    tool: &mut Client<SocketcandClient>,
+    spec: &safety_config::network_file::Network,
+) -> Result<Round> {
+    let (host, port) = address.split_once(':').context("the server's address")?;
+    let srdos: Vec<serde_json::Value> = spec.nodes[0]
+        .srdos
+        .iter()
+        .map(|srdo| {
+            let s = &srdo.settings;
+            serde_json::json!({
+                "number": srdo.number, "direction": s.direction, "cycle_time": s.cycle_time,
+                "srvt": s.srvt, "cob_id_1": s.cob_id_1, "cob_id_2": s.cob_id_2,
+                "mapping": s.mapping,
+            })
+        })
+        .collect();
+    let result = script_json(
+        Command::new(python)
+            .arg(root.join("xtask/interop/python_canopen_configure.py"))
+            .args([host, port])
+            .arg(root.join("eds/safety-node.eds"))
+            .arg(spec.nodes[0].id.to_string())
+            .arg(serde_json::json!({ "srdos": srdos }).to_string()),
+    )?;
+    let verdicts = procedure::verify(tool, spec)?;
+    if !verdicts
+        .iter()
+        .all(|verdict| matches!(verdict, procedure::Verdict::Matches { .. }))
+    {
+        bail!("the tool's verify after python-canopen's configure: {verdicts:?}");
+    }
+    let seconds = |key: &str| {
+        result[key]
+            .as_f64()
+            .and_then(|s| Duration::try_from_secs_f64(s).ok())
+            .with_context(|| format!("python-canopen's {key} in {result}"))
+    };
+    let count = |key: &str| {
+        result[key]
+            .as_u64()
+            .with_context(|| format!("python-canopen's {key} in {result}"))
+    };
+    Ok(Round {
+        configure: seconds("configure_s")?,
+        verify: seconds("verify_s")?,
+        configure_transactions: count("configure_transactions")?,
+        verify_transactions: count("verify_transactions")?,
+    })
+}
+
+/// Median and range of `values` in milliseconds, `median (min–max)`.
+fn spread(mut values: Vec<Duration>) -> (Duration, String) {
+    values.sort();
+    let ms = |d: &Duration| d.as_secs_f64() * 1000.0;
+    let median = values[values.len() / 2];
+    let text = format!(
+        "{:.0} ms ({:.0}–{:.0})",
+        ms(&median),
+        ms(&values[0]),
+        ms(&values[values.len() - 1])
+    );
+    (median, text)
+}
+
+/// The rounds of both sides on one bus, as table rows; and whether the tool was faster
+/// (median of configure + verify).
+fn bench_rows(bus: &str, tool: &[Round], python: &[Round]) -> (String, bool) {
+    let mut rows = String::new();
+    let mut totals = Vec::new();
+    for (who, rounds) in [("safety-config", tool), ("python-canopen 2.4.1", python)] {
+        let (_, configure) = spread(rounds.iter().map(|r| r.configure).collect());
+        let (_, verify) = spread(rounds.iter().map(|r| r.verify).collect());
+        let (total, both) = spread(rounds.iter().map(|r| r.configure + r.verify).collect());
+        totals.push(total);
+        let first = rounds[0];
+        rows.push_str(&format!(
+            "| {bus} | {who} | {} + {} | {configure} | {verify} | {both} |\n",
+            first.configure_transactions, first.verify_transactions
+        ));
+    }
+    (rows, totals[0] < totals[1])
+}
+
+/// Both sides, [`BENCH_ROUNDS`] times each, alternating, on the socketcand server at
+/// `address`.
+fn bench_on(
+    root: &Path,
+    python: &Path,
+    address: &str,
+    tool: &mut Client<SocketcandClient>,
+    spec: &safety_config::network_file::Network,
+) -> Result<(Vec<Round>, Vec<Round>)> {
+    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    for round in 1..=BENCH_ROUNDS {
+        ours.push(tool_round(tool, spec)?);
+        theirs.push(python_round(root, python, address, tool, spec)?);
+        println!(
+            "xtask: bench round {round}: tool {:?} + {:?}, python-canopen {:?} + {:?}",
+            ours[round - 1].configure,
+            ours[round - 1].verify,
+            theirs[round - 1].configure,
+            theirs[round - 1].verify
+        );
+    }
+    Ok((ours, theirs))
+}
+
+/// `cargo xtask interop --bench`: the tool and python-canopen configure and verify the same
+/// node on the emulated bus (and on the host simulation behind `socketcand_sim`), wall
+/// times side by side, written into docs/performance.md.
+pub fn bench(root: &Path) -> Result<()> {
+    let python = python(root)?;
+    let spec = safety_config::network_file::parse(&bench_file(), "bench network file")?;
+    let count = dual_channel::device::SRDO_COUNT;
+
+    crate::step("interop bench 1: the host simulation behind socketcand_sim (no QEMU)");
+    crate::run(crate::cargo().args([
+        "build",
+        "--quiet",
+        "-p",
+        "system-tests",
+        "--bin",
+        "socketcand_sim",
+    ]))?;
+    let port = free_port()?;
+    let address = format!("127.0.0.1:{port}");
+    let simulated = {
+        let _server = Killed(
+            Command::new(root.join("target/debug/socketcand_sim"))
+                .arg(port.to_string())
+                .spawn()
+                .context("starting socketcand_sim")?,
+        );
+        let give_up = std::time::Instant::now() + Duration::from_secs(20);
+        let transport = loop {
+            match SocketcandClient::connect(&address, "can0") {
+                Ok(client) => break client,
+                Err(_) if std::time::Instant::now() < give_up => {
+                    std::thread::sleep(Duration::from_millis(50))
+                }
+                Err(error) => return Err(error).context("the simulation's socketcand port"),
+            }
+        };
+        let mut tool = Client::new(transport, Duration::from_millis(1000));
+        bench_on(root, &python, &address, &mut tool, &spec)?
+    };
+
+    crate::step("interop bench 2: the emulated network (QEMU) through can-hub");
+    let mut network = Network::start(root)?;
+    let emulated = network
+        .tool()
+        .and_then(|tool| bench_on(root, &python, network::HUB_TCP, tool, &spec));
+    let faults = network.stop();
+    let emulated = emulated?;
+    faults?;
+
+    let (simulated_rows, simulated_faster) = bench_rows(
+        "host simulation (socketcand_sim)",
+        &simulated.0,
+        &simulated.1,
+    );
+    let (emulated_rows, emulated_faster) =
+        bench_rows("emulated network (QEMU, can-hub)", &emulated.0, &emulated.1);
+    let met = |faster: bool| if faster { "met" } else { "NOT met" };
+    let section = format!(
+        "{BENCH_HEADING}\n\n\
+         Generated by `cargo xtask interop --bench` ({}): node 1 with its {count} SRDOs \
+         (`dual_channel::device::SRDO_COUNT`, all the firmware holds; each transmits the input \
+         and its inverted copy) configured and verified {BENCH_ROUNDS} times by each side, \
+         alternating, through a socketcand server: `safety-config`'s `configure` and `verify` \
+         (the library, as the program runs them), and python-canopen 2.4.1 doing the same SDO \
+         writes and read-backs in the same order (`xtask/interop/python_canopen_configure.py`: \
+         identity, NMT pre-operational, every SRDO deleted, mappings, communication parameters, \
+         every record read back and compared, signatures by `binascii.crc_hqx` written and \
+         read back, 0x13FE, store, 0x13FE again; then identity, 0x13FE, every record and \
+         signature). After every python-canopen round the tool's `verify` confirms the same \
+         result: the node matches the file, signed and valid. Wall time, host load included, \
+         median (min–max) of the rounds; on the emulated network the bus runs on the hub's \
+         virtual time, so host load slows both sides alike.\n\n\
+         | bus | who | SDO transactions (configure + verify) | configure | verify | both |\n\
+         |-----|-----|--------------------------------------:|----------:|-------:|-----:|\n\
+         {simulated_rows}{emulated_rows}\n\
+         Target: faster than python-canopen for the same verified result. Host simulation: \
+         {}; emulated network: {}.\n",
+        load_average(),
+        met(simulated_faster),
+        met(emulated_faster),
+    );
+    let docs = root.join("docs/performance.md");
+    let old = std::fs::read_to_string(&docs).unwrap_or_default();
+    std::fs::write(&docs, with_section(&old, &section))?;
+    println!("{section}");
+    Ok(())
+}
+
+/// The machine's load average as the bench saw it (`/proc/loadavg`), for the report.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|text| text.split_whitespace().next().map(str::to_owned))
+        .map_or_else(
+            || "load average unknown".to_owned(),
+            |load| format!("load average {load} at the end"),
+        )
+}
+
+/// `document` with its [`BENCH_HEADING`] section (up to the next `## ` heading) replaced by
+/// `section`, or `section` appended when it has none.
+pub fn with_section(document: &str, section: &str) -> String {
+    let Some(start) = document.find(BENCH_HEADING) else {
+        let mut out = document.trim_end().to_owned();
+        out.push_str("\n\n");
+        out.push_str(section);
+        return out;
+    };
+    let rest = &document[start + BENCH_HEADING.len()..];
+    let end = rest
+        .find("\n## ")
+        .map_or(document.len(), |at| start + BENCH_HEADING.len() + at + 1);
+    format!("{}{section}{}", &document[..start], &document[end..])
+}
+
+/// The [`BENCH_HEADING`] section of `document`, for a writer of the rest of the file to
+/// keep (`cargo xtask bench`).
+pub fn kept_section(document: &str) -> Option<&str> {
+    let start = document.find(BENCH_HEADING)?;
+    let rest = &document[start + BENCH_HEADING.len()..];
+    let end = rest
+        .find("\n## ")
+        .map_or(document.len(), |at| start + BENCH_HEADING.len() + at + 1);
+    Some(&document[start..end])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bench's section replaces its old self and nothing else; a writer of the rest of
+    /// the file (`cargo xtask bench`) can take it over.
+    #[test]
+    fn the_bench_section_is_replaced_in_place_and_kept_by_other_writers() {
+        let old = format!("# P\n\n## A\na\n{BENCH_HEADING}\nold\n## B\nb\n");
+        let new = with_section(&old, &format!("{BENCH_HEADING}\nnew\n"));
+        assert_eq!(
+            new,
+            format!("# P\n\n## A\na\n{BENCH_HEADING}\nnew\n## B\nb\n")
+        );
+        assert_eq!(
+            kept_section(&new),
+            Some(format!("{BENCH_HEADING}\nnew\n").as_str())
+        );
+        let last = with_section("# P\n", &format!("{BENCH_HEADING}\nx\n"));
+        assert_eq!(last, format!("# P\n\n{BENCH_HEADING}\nx\n"));
+        assert_eq!(
+            with_section(&last, &format!("{BENCH_HEADING}\ny\n")),
+            format!("# P\n\n{BENCH_HEADING}\ny\n")
+        );
+        assert_eq!(kept_section("# P\n"), None);
+    }
+
+    /// The bench's network file is valid and gives node 1 every SRDO the firmware holds.
+    #[test]
+    fn the_bench_network_file_configures_every_srdo_of_the_device() {
+        let network = safety_config::network_file::parse(&bench_file(), "bench").unwrap();
+        assert_eq!(network.nodes.len(), 1);
+        assert_eq!(
+            network.nodes[0].srdos.len(),
+            dual_channel::device::SRDO_COUNT
+        );
+    }
+}

@@ -104,6 +104,11 @@ enum Task {
         /// Run one part only.
         #[arg(long, value_enum)]
         only: Option<interop::Part>,
+        /// Instead of the parts: the tool and python-canopen configure and verify the same
+        /// node (host simulation, then the emulated network), wall times side by side in
+        /// docs/performance.md.
+        #[arg(long, conflicts_with = "only")]
+        bench: bool,
     },
     /// Instruction counts (callgrind) for the hot paths, and the RAM per SRDO; writes
     /// docs/performance.md.
@@ -279,7 +284,8 @@ fn task() -> Result<()> {
             ],
             print_only,
         ),
-        Task::Interop { only } => interop::task(&root, only),
+        Task::Interop { bench: true, .. } => interop::bench(&root),
+        Task::Interop { only, .. } => interop::task(&root, only),
         Task::Fuzz {
             seconds,
             checked_seconds,
