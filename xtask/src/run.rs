@@ -298,6 +298,46 @@ fn cause_words(code: u8) -> String {
     }
 }
 
+/// A safe-state line of a channel's decoded log in words: defmt renders
+/// `shared::node::SafeStateCause` with the variants' names (`Srdo(SrdoFault { srdo:
+/// SrdoNumber(1), cause: SrvtElapsed })`, `Application { detail: 48 }`, `Gfc`,
+/// `Integrity(Runtime(..))`), which are [`Cause`]'s own names; the words are `Cause`'s.
+/// `None` for a line that names none of them.
+fn logged_cause_words(line: &str) -> Option<String> {
+    let number_after = |marker: &str| -> Option<u8> {
+        let rest = line.split(marker).nth(1)?;
+        rest.split(|c: char| !c.is_ascii_digit())
+            .next()?
+            .parse()
+            .ok()
+    };
+    if let Some(code) = number_after("Application { detail: ") {
+        return Some(cause_words(code));
+    }
+    let named = |name: &str| {
+        Cause::ALL
+            .into_iter()
+            .find(|cause| format!("{cause:?}") == name)
+    };
+    let word_after = |marker: &str| -> Option<&str> {
+        let rest = line.split(marker).nth(1)?;
+        rest.split(|c: char| !c.is_ascii_alphanumeric()).next()
+    };
+    if let Some(cause) = word_after("cause: ").and_then(named) {
+        return Some(match number_after("SrdoNumber(") {
+            Some(srdo) => format!("SRDO {srdo}: {}", cause.describe()),
+            None => cause.describe().to_owned(),
+        });
+    }
+    if let Some(cause) =
+        word_after("Integrity(").and_then(|name| named(&format!("Integrity{name}")))
+    {
+        return Some(cause.describe().to_owned());
+    }
+    line.contains("SafeState(Gfc)")
+        .then(|| Cause::Gfc.describe().to_owned())
+}
+
 /// The channels' latest status reports as lines (the live view's panel, the plain lines and
 /// the summary): NMT state, working or safe, link, pins, SRDO counts, the cause in words.
 fn channel_lines(latest: &HashMap<String, (f64, Status)>) -> Vec<String> {
@@ -601,8 +641,9 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     println!("{pace}");
     for (name, lines) in &faults {
         if let Some(last) = lines.last() {
+            let words = logged_cause_words(last).unwrap_or_else(|| format!("as logged: {last}"));
             println!(
-                "{name}: {} safe-state report(s) in its log, last: {last}",
+                "{name}: {} safe-state report(s) in its log, the last: {words}",
                 lines.len()
             );
         }
@@ -878,6 +919,48 @@ mod tests {
             "{ended}"
         );
         let _ = std::fs::remove_file(&exit);
+    }
+
+    /// The safe-state lines of the channels' logs read in words, from Cause's one table.
+    #[test]
+    fn a_logged_safe_state_reads_in_words() {
+        use shared::safety::srdo::SrdoFaultCause;
+        let cases = [
+            (
+                "INFO  Node(SafeState(Application { detail: 48 }))",
+                "transmit mismatch A/B",
+            ),
+            (
+                "INFO  Node(SafeState(Srdo(SrdoFault { srdo: SrdoNumber(1), cause: SrvtElapsed })))",
+                "SRDO 1: SRVT elapsed",
+            ),
+            ("INFO  Node(SafeState(Gfc))", "GFC"),
+            (
+                "INFO  Node(SafeState(Integrity(Runtime(SrdoNumber(2)))))",
+                "configuration in use damaged (SRDO runtime)",
+            ),
+        ];
+        for (line, words) in cases {
+            assert_eq!(logged_cause_words(line).as_deref(), Some(words), "{line}");
+        }
+        assert_eq!(logged_cause_words("INFO  something else"), None);
+        // Every SRDO fault's name is its Cause's name, so the log reads in Cause's words.
+        for fault in [
+            SrdoFaultCause::SctElapsed,
+            SrdoFaultCause::SrvtElapsed,
+            SrdoFaultCause::PlainRepeated,
+            SrdoFaultCause::NotInverted,
+            SrdoFaultCause::TooShort,
+            SrdoFaultCause::TransmitHalvesNotInverted,
+        ] {
+            let line =
+                format!("SafeState(Srdo(SrdoFault {{ srdo: SrdoNumber(3), cause: {fault:?} }}))");
+            assert_eq!(
+                logged_cause_words(&line),
+                Some(format!("SRDO 3: {}", fault.cause().describe())),
+                "{fault:?}"
+            );
+        }
     }
 
     /// An action scheduled at or after the end of an unattended run would never happen: refused.
