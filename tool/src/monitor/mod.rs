@@ -175,13 +175,14 @@ pub fn run(
     let mut printed = 0;
     let mut next_frame = 0;
     let mut last_draw: Option<Instant> = None;
+    // The bus closed (read no more), and that was noted.
+    let (mut bus_closed, mut noted_close) = (false, false);
     loop {
         // Frames: from the bus until the next drawing is due; from a log those due by now.
         let mut received = Vec::new();
-        // Whether the bus closed (`Some` for a bus source).
-        let mut bus_end = None;
         let mut origin = Duration::ZERO;
         let done = match &mut source {
+            Source::Bus(_) if bus_closed => true,
             Source::Bus(bus) => {
                 let until = bus.now() + FRAME_PERIOD / 2;
                 let closed = loop {
@@ -198,7 +199,10 @@ pub fn run(
                         Err(error) => return Err(error.into()),
                     }
                 };
-                bus_end = Some(closed);
+                if closed {
+                    bus_closed = true;
+                    // Noted after this batch's frames, below.
+                }
                 closed
             }
             Source::Replay { frames, fast } => {
@@ -240,7 +244,8 @@ pub fn run(
                 })?;
             }
         }
-        if bus_end == Some(true) {
+        if bus_closed && !noted_close {
+            noted_close = true;
             let line = "the CAN interface closed the connection".to_owned();
             monitor.note(monitor.now, line);
         }
@@ -269,7 +274,13 @@ pub fn run(
                 Key::Quit => quit = true,
                 Key::Help => screen.help = Some(help()),
                 Key::Pause => screen.paused = !screen.paused,
+                Key::Gfc if bus_closed => {
+                    monitor.note(monitor.now, "no GFC sent: the bus has closed".to_owned());
+                }
                 Key::Gfc => {
+                    if let Source::Replay { .. } = source {
+                        monitor.note(monitor.now, "no GFC sent: this is a replay".to_owned());
+                    }
                     if let Source::Bus(bus) = &mut source {
                         let gfc = shared::safety::gfc::frame();
                         bus.send(&gfc)?;
