@@ -221,7 +221,7 @@ pub fn draw(frame: &mut Frame<'_>, monitor: &Monitor, screen: &Screen) {
     let mut area = areas.iter().copied();
     let mut next = || area.next().unwrap_or_default();
 
-    let mut title = format!("{}   t = {:.1} s", screen.title, now.as_secs_f64());
+    let mut title = format!("{}   bus time {:.1} s", screen.title, now.as_secs_f64());
     if screen.paused {
         title.push_str("   PAUSED");
     }

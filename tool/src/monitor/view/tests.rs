@@ -84,7 +84,8 @@ fn the_view_shows_nodes_srdo_pairs_with_their_numbers_emcy_in_words_and_sdo_abor
     );
     let text = screen.join("\n");
     assert!(
-        screen[0].starts_with("safety-config monitor: socketcand:127.0.0.1:29536/can0   t = 1.1 s"),
+        screen[0]
+            .starts_with("safety-config monitor: socketcand:127.0.0.1:29536/can0   bus time 1.1 s"),
         "{text}"
     );
     let node_1 = row(&screen, "1 ");
