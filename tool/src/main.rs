@@ -280,6 +280,13 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         plain,
     } = &cli.command
     {
+        if cli.json {
+            return Err(ToolError::Usage(
+                "monitor prints no JSON: record the bus with --record LOG (candump format) \
+                 for scripts"
+                    .into(),
+            ));
+        }
         return monitor(
             &cli.bus,
             file.as_deref(),

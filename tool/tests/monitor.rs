@@ -221,3 +221,36 @@ mapping = ["output", "output_inverted"]
         "{stderr}"
     );
 }
+
+/// The socketcand client hands the monitor the server's timestamp of each frame (on the
+/// emulated bus, the hub's virtual time), not the time it read the frame from TCP; a
+/// timestamp that is not `SECONDS.MICROSECONDS` reads as the time of reception.
+#[test]
+fn socketcand_frames_carry_the_servers_timestamp() {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap().to_string();
+    let server = std::thread::spawn(move || {
+        let (mut stream, _) = listener.accept().unwrap();
+        let mut buffer = [0u8; 256];
+        stream.write_all(b"< hi >").unwrap();
+        let _ = stream.read(&mut buffer).unwrap();
+        stream.write_all(b"< ok >").unwrap();
+        let _ = stream.read(&mut buffer).unwrap();
+        stream.write_all(b"< ok >").unwrap();
+        stream
+            .write_all(b"< frame 101 12.345678 01A5 >< frame 102 soon FE5A >")
+            .unwrap();
+    });
+    let mut client =
+        safety_config::socketcand::SocketcandClient::connect(&address, "can0").unwrap();
+    let deadline = client.now() + Duration::from_secs(5);
+    let (at, first) = client.receive_stamped(deadline).unwrap().unwrap();
+    assert_eq!(at, Duration::from_micros(12_345_678));
+    assert_eq!(first, frame(0x101, &[0x01, 0xA5]));
+    let before = client.now();
+    let (at, second) = client.receive_stamped(deadline).unwrap().unwrap();
+    assert_eq!(second, frame(0x102, &[0xFE, 0x5A]));
+    assert!(at >= before && at <= client.now(), "{at:?}");
+    server.join().unwrap();
+}

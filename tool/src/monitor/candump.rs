@@ -173,3 +173,30 @@ mod tests {
         }
     }
 }
+
+#[cfg(test)]
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Any text: a clear error or frames, never a panic.
+        #[test]
+        fn any_text_parses_or_is_refused_without_panic(text in "\\PC{0,200}") {
+            let _ = parse(&text, "any.log");
+        }
+
+        /// Every data frame's line reads back as the same frame at the same microsecond.
+        #[test]
+        fn every_line_reads_back_as_its_frame(
+            id in 0u16..0x800,
+            data in proptest::collection::vec(any::<u8>(), 0..=8),
+            micros in 0u64..4_000_000_000_000_000,
+        ) {
+            let frame = CanFrame::new(CanId::new(id).unwrap(), &data).unwrap();
+            let at = Duration::from_micros(micros);
+            let text = line(at, "can0", &frame);
+            prop_assert_eq!(parse(&text, "x").unwrap(), vec![LoggedFrame { at, frame }]);
+        }
+    }
+}

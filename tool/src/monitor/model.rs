@@ -357,7 +357,7 @@ pub struct Monitor {
     pub nodes: BTreeMap<u8, NodeView>,
     /// Every SRDO configured or seen, by plain COB-ID.
     pub srdos: BTreeMap<u16, SrdoView>,
-    /// GFCs seen (CAN-ID 001h), and when the latest came.
+    /// GFCs seen (CAN-ID 001h).
     pub gfcs: u64,
     /// When the latest GFC came.
     pub last_gfc: Option<Duration>,

@@ -367,3 +367,45 @@ fn monitor_notes_gfc_and_hands_a_printer_only_new_happenings() {
     assert_eq!(monitor.happenings_since(99).count(), 2);
     assert_eq!(monitor.happenings_since(0).count(), HAPPENINGS);
 }
+
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn any_frame() -> impl Strategy<Value = CanFrame> {
+        (0u16..0x800, proptest::collection::vec(any::<u8>(), 0..=8))
+            .prop_map(|(id, data)| frame(id, &data))
+    }
+
+    proptest! {
+        /// Any frames at any non-decreasing times: the model never panics, every judged
+        /// pair is counted once, and histories and lists stay within their bounds.
+        #[test]
+        fn monitor_takes_any_bus_without_panic_and_within_its_bounds(
+            frames in proptest::collection::vec((0u64..200_000, any_frame()), 0..400)
+        ) {
+            let mut monitor = watched();
+            let mut now = Duration::ZERO;
+            for (step, frame) in &frames {
+                now += Duration::from_micros(*step);
+                monitor.feed(now, frame);
+            }
+            monitor.poll(now + Duration::from_secs(1));
+            prop_assert_eq!(monitor.frames, frames.len() as u64);
+            for view in monitor.srdos.values() {
+                prop_assert!(view.gaps.len() <= HISTORY && view.periods.len() <= HISTORY);
+                prop_assert!(view.periods.len() <= view.gaps.len());
+                // Every pair taken in gives one gap and one verdict besides those reached
+                // without a pair (a missing inverted frame, a plain frame repeated).
+                let without_pair =
+                    view.count(PairVerdict::InvertedMissing) + view.count(PairVerdict::PlainRepeated);
+                let pairs: u64 = view.verdicts.values().sum::<u64>() - without_pair;
+                prop_assert!(pairs >= view.gaps.len() as u64);
+                prop_assert!(view.watch.inverted == view.watch.plain + 1);
+            }
+            prop_assert!(monitor.emergencies.len() <= RECENT && monitor.aborts.len() <= RECENT);
+            prop_assert!(monitor.happenings.len() <= HAPPENINGS);
+            prop_assert_eq!(monitor.deadline(), None);
+        }
+    }
+}
