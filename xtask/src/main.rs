@@ -163,6 +163,10 @@ enum Task {
         /// controller-silent, babbling, bus-off, no-inverted, clock-drift.
         #[arg(long = "class")]
         classes: Vec<String>,
+        /// Only this bit rate in kbit/s (repeatable): 125, 250, 500, 1000 (all when not
+        /// given).
+        #[arg(long = "bit-rate")]
+        bit_rates: Vec<u32>,
         /// The first seed (scenario n has seed S + n).
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -286,6 +290,7 @@ fn task() -> Result<()> {
         Task::Campaign {
             scenarios,
             classes,
+            bit_rates,
             seed,
             replay,
         } => campaign::task(
@@ -293,6 +298,7 @@ fn task() -> Result<()> {
             &campaign::Options {
                 scenarios,
                 classes,
+                bit_rates,
                 seed,
                 replay,
             },
