@@ -610,6 +610,17 @@ impl DualNetwork {
     /// read-back against the file, signatures, 0x13FE, store; `safety_config::procedure::
     /// configure_node`), and starts the network with both channels of node 1 reading input 1.
     pub fn configure_and_start(&mut self) -> Result<(), ToolError> {
+        let file = network_file::parse(NETWORK_FILE, "dual::NETWORK_FILE")?;
+        self.configure_and_start_with(&file)
+    }
+
+    /// Configures every node of this network that `file` lists by the tool's whole procedure
+    /// (as [`DualNetwork::configure_and_start`] does with [`NETWORK_FILE`]), lets both
+    /// channels of every node with a transmit SRDO read input 1, and starts the network.
+    pub fn configure_and_start_with(
+        &mut self,
+        file: &network_file::Network,
+    ) -> Result<(), ToolError> {
         // Both channels of every node come up together (the link first): wait for boot-up.
         for _ in 0..100 {
             if self.nodes.iter().all(|node| {
@@ -619,7 +630,6 @@ impl DualNetwork {
             }
             self.run_for(Duration::from_millis(1));
         }
-        let file = network_file::parse(NETWORK_FILE, "dual::NETWORK_FILE")?;
         let mut quiet = Quiet {
             accept_identity: false,
         };
@@ -627,7 +637,11 @@ impl DualNetwork {
         for spec in file.nodes.iter().filter(|spec| ids.contains(&spec.id)) {
             procedure::configure_node(&mut client(self), spec, &mut quiet)?;
         }
-        self.set_inputs(1, 1, 1);
+        for spec in file.nodes.iter().filter(|spec| ids.contains(&spec.id)) {
+            if spec.srdos.iter().any(|srdo| srdo.settings.direction == 1) {
+                self.set_inputs(spec.id, 1, 1);
+            }
+        }
         self.nmt(NmtCommand::Start, 0);
         Ok(())
     }

@@ -13,6 +13,7 @@ mod interop;
 mod network;
 mod qemu;
 mod run;
+mod scenario;
 mod toolchain;
 mod trace;
 
@@ -148,6 +149,13 @@ enum Task {
         /// the tests.
         #[arg(long)]
         report_only: bool,
+    },
+    /// Scenario files (scenarios/*.toml unless FILES are given: a network, a timeline of
+    /// stimuli and faults, expected outcomes with bounds) on the dual-channel host
+    /// simulation; PASS/FAIL per expectation with the value measured and its bound.
+    Scenario {
+        /// Scenario files.
+        files: Vec<std::path::PathBuf>,
     },
     /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
     /// every single-channel fault), judged by an oracle that does not reuse the
@@ -287,6 +295,7 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
+        Task::Scenario { files } => scenario::task(&root, &files),
         Task::Campaign {
             scenarios,
             classes,
