@@ -184,13 +184,20 @@ pub enum FaultSpec {
 }
 
 impl FaultSpec {
-    /// `true` when the hub can inject this fault too (its control port's vocabulary).
+    /// `true` when the hub can inject this fault too (its control port's vocabulary: `drop`
+    /// loses one frame, `delay` takes whole milliseconds).
     pub fn hub_can(&self) -> bool {
+        match self {
+            FaultSpec::Drop { count, all, .. } => !all && count.is_none_or(|count| count == 1),
+            FaultSpec::Delay { by_us, .. } => by_us % 1000 == 0,
+            _ => self.in_hub_vocabulary(),
+        }
+    }
+
+    fn in_hub_vocabulary(&self) -> bool {
         matches!(
             self,
-            FaultSpec::Drop { .. }
-                | FaultSpec::Corrupt { .. }
-                | FaultSpec::Delay { .. }
+            FaultSpec::Corrupt { .. }
                 | FaultSpec::Repeat { .. }
                 | FaultSpec::Reorder { .. }
                 | FaultSpec::Insert { .. }
