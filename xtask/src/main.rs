@@ -159,15 +159,15 @@ enum Task {
     },
     /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
     /// every single-channel fault), judged by an oracle that does not reuse the
-    /// implementation; 10,000 scenarios per class write docs/campaigns.md and
-    /// docs/campaigns/*.svg, a smaller run target/campaign/. Fails on any unsafe or late
-    /// scenario.
+    /// implementation, at 125, 250, 500 and 1000 kbit/s; 10,000 scenarios per class and
+    /// rate write docs/campaigns.md and docs/campaigns/*.svg, a smaller run
+    /// target/campaign/. Fails on any unsafe or late scenario.
     Campaign {
         /// Scenarios per class.
         #[arg(long, default_value_t = campaign::FULL)]
         scenarios: u64,
         /// Only this class (repeatable): corruption, repetition, sequence, loss, delay,
-        /// insertion, masquerade, addressing, stuck-input, bit-flip, link,
+        /// insertion, masquerade, addressing, node-id, stuck-input, bit-flip, link,
         /// controller-silent, babbling, bus-off, no-inverted, clock-drift.
         #[arg(long = "class")]
         classes: Vec<String>,

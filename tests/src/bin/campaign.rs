@@ -18,7 +18,7 @@ struct Args {
     #[arg(long, default_value_t = 10_000)]
     scenarios: u64,
     /// Only this class (`corruption`, `repetition`, `sequence`, `loss`, `delay`,
-    /// `insertion`, `masquerade`, `addressing`, `stuck-input`, `bit-flip`, `link`,
+    /// `insertion`, `masquerade`, `addressing`, `node-id`, `stuck-input`, `bit-flip`, `link`,
     /// `controller-silent`, `babbling`, `bus-off`, `no-inverted`, `clock-drift`); repeatable.
     #[arg(long = "class")]
     classes: Vec<String>,

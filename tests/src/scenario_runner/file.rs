@@ -3,7 +3,7 @@
 //! column in a sentence (the `toml` crate's spans), as the tool's network file does.
 //!
 //! ```toml
-//! name = "inverted frame lost"
+//! name = "an inverted frame lost"
 //! covers = "IEC 61784-3 loss"        # the requirement or fault class it shows
 //! network = "networks/estop-output.toml"   # a network file (tool/src/network_file.rs),
 //!                                          # relative to this file
@@ -17,7 +17,7 @@
 //! [[expect]]
 //! safe = 33                          # node 33's outputs (both channels in series) at 0
 //! after_ms = 100
-//! within_ms = 25
+//! within_us = 46540                  # refresh time + frame allowance + SRVT + reaction
 //! cause = "SRVT elapsed"             # a name of shared::safety::cause::Cause
 //! ```
 

@@ -113,7 +113,8 @@ fn at(start: Instant, us: u64) -> Instant {
     start + Duration::from_micros(us)
 }
 
-/// The bus participant of node `id`'s channel `side` (see [`DualNetwork`]).
+/// The bus participant of node `id`'s channel `side` (see [`DualNetwork`]); the file was
+/// checked to name only nodes of its network.
 fn participant(net: &DualNetwork, id: u8, side: Side) -> usize {
     let index = net
         .nodes
