@@ -167,3 +167,20 @@ fn scenario_errors_name_the_file_line_and_column() {
     assert_eq!((missing.line, missing.column), (3, 11), "{missing}");
     assert!(missing.to_string().contains("cannot be read"), "{missing}");
 }
+
+/// A scenario counts as one the emulated network could play only when the hub's control
+/// port can inject every fault it names: the hub's `drop` loses one frame, its `delay` takes
+/// whole milliseconds, and the host-only faults are not the hub's.
+#[test]
+fn only_faults_the_hub_can_inject_make_a_scenario_the_hubs() {
+    let hub_only = |name: &str| file::load(&dir().join(name)).expect("parses").hub_only();
+    assert!(hub_only("loss-inverted-frame.toml"));
+    assert!(hub_only("insertion-foreign-plain-frame.toml"));
+    assert!(hub_only("controller-silent-producer-a.toml"));
+    assert!(!hub_only("loss-every-pair.toml"), "drop with all = true");
+    assert!(!hub_only("no-inverted-frame.toml"));
+    assert!(!hub_only("clock-drift-consumer.toml"));
+    let delay = |by_us: u64| file::FaultSpec::Delay { id: 0x102, by_us }.hub_can();
+    assert!(delay(15_000));
+    assert!(!delay(15_500), "the hub delays by whole milliseconds");
+}
