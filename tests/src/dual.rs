@@ -147,6 +147,39 @@ pub struct DualNode {
     pub clocks: [ChannelClock; 2],
 }
 
+impl DualNode {
+    /// Both channels of node `id` powered on at `now` with these storage media (channel A's,
+    /// channel B's).
+    fn powered_on(id: u8, [flash_a, flash_b]: [RamFlash<8192>; 2], now: Instant) -> Self {
+        DualNode {
+            id,
+            a: Runtime::new(
+                device_config(id, "dual node, channel A"),
+                flash_a,
+                ChannelA::default(),
+                now,
+                LINK_PERIOD,
+            )
+            .expect("valid device"),
+            b: Runtime::new(
+                device_config(id, "dual node, channel B"),
+                flash_b,
+                ChannelB::new(&B_INPUTS).expect("valid inputs"),
+                now,
+                LINK_PERIOD,
+            )
+            .expect("valid device"),
+            a_to_b: Wire::default(),
+            b_to_a: Wire::default(),
+            deadlines: [now; 2],
+            link_faults: LinkFaults::default(),
+            receive_faults: Vec::new(),
+            held_back: Vec::new(),
+            clocks: [ChannelClock::default(); 2],
+        }
+    }
+}
+
 /// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
 /// channel B `2i + 2`.
 pub struct DualNetwork {
@@ -211,32 +244,7 @@ impl DualNetwork {
     pub fn new(bit_rate: u32, ids: &[u8]) -> Self {
         let nodes: Vec<DualNode> = ids
             .iter()
-            .map(|&id| DualNode {
-                id,
-                a: Runtime::new(
-                    device_config(id, "dual node, channel A"),
-                    RamFlash::new(),
-                    ChannelA::default(),
-                    Instant::ZERO,
-                    LINK_PERIOD,
-                )
-                .expect("valid device"),
-                b: Runtime::new(
-                    device_config(id, "dual node, channel B"),
-                    RamFlash::new(),
-                    ChannelB::new(&B_INPUTS).expect("valid inputs"),
-                    Instant::ZERO,
-                    LINK_PERIOD,
-                )
-                .expect("valid device"),
-                a_to_b: Wire::default(),
-                b_to_a: Wire::default(),
-                deadlines: [Instant::ZERO; 2],
-                link_faults: LinkFaults::default(),
-                receive_faults: Vec::new(),
-                held_back: Vec::new(),
-                clocks: [ChannelClock::default(); 2],
-            })
+            .map(|&id| DualNode::powered_on(id, [RamFlash::new(), RamFlash::new()], Instant::ZERO))
             .collect();
         // Each channel's controller sends by identifier, as `board::hw` queues its frames
         // (`board::transmit_queue`); each sends one half of an SRDO, so a pair keeps its order.
@@ -275,6 +283,25 @@ impl DualNetwork {
             .iter()
             .position(|node| node.id == id)
             .expect("a node with this ID")
+    }
+
+    /// Node `id` is switched off and on again now with node-ID `new_id` (its node-ID
+    /// switches were changed): both channels restart on the same bus participants, with the
+    /// parameters each had stored (`keep_storage`) or with erased storage (the defaults).
+    /// What its controllers still had queued and its link carried is lost; its receive
+    /// faults and clocks start afresh.
+    pub fn repower(&mut self, id: u8, new_id: u8, keep_storage: bool) {
+        let index = self.index(id);
+        let old = &self.nodes[index];
+        let flash = if keep_storage {
+            [old.a.node().flash().clone(), old.b.node().flash().clone()]
+        } else {
+            [RamFlash::new(), RamFlash::new()]
+        };
+        for side in [Side::A, Side::B] {
+            self.bus.leave(participant(index, side));
+        }
+        self.nodes[index] = DualNode::powered_on(new_id, flash, self.now);
     }
 
     /// Runs until `end`.
@@ -583,6 +610,17 @@ impl DualNetwork {
     /// read-back against the file, signatures, 0x13FE, store; `safety_config::procedure::
     /// configure_node`), and starts the network with both channels of node 1 reading input 1.
     pub fn configure_and_start(&mut self) -> Result<(), ToolError> {
+        let file = network_file::parse(NETWORK_FILE, "dual::NETWORK_FILE")?;
+        self.configure_and_start_with(&file)
+    }
+
+    /// Configures every node of this network that `file` lists by the tool's whole procedure
+    /// (as [`DualNetwork::configure_and_start`] does with [`NETWORK_FILE`]), lets both
+    /// channels of every node with a transmit SRDO read input 1, and starts the network.
+    pub fn configure_and_start_with(
+        &mut self,
+        file: &network_file::Network,
+    ) -> Result<(), ToolError> {
         // Both channels of every node come up together (the link first): wait for boot-up.
         for _ in 0..100 {
             if self.nodes.iter().all(|node| {
@@ -592,7 +630,6 @@ impl DualNetwork {
             }
             self.run_for(Duration::from_millis(1));
         }
-        let file = network_file::parse(NETWORK_FILE, "dual::NETWORK_FILE")?;
         let mut quiet = Quiet {
             accept_identity: false,
         };
@@ -600,7 +637,11 @@ impl DualNetwork {
         for spec in file.nodes.iter().filter(|spec| ids.contains(&spec.id)) {
             procedure::configure_node(&mut client(self), spec, &mut quiet)?;
         }
-        self.set_inputs(1, 1, 1);
+        for spec in file.nodes.iter().filter(|spec| ids.contains(&spec.id)) {
+            if spec.srdos.iter().any(|srdo| srdo.settings.direction == 1) {
+                self.set_inputs(spec.id, 1, 1);
+            }
+        }
         self.nmt(NmtCommand::Start, 0);
         Ok(())
     }

@@ -7,6 +7,9 @@
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
 //! - [`fullnet`]: the full network at scale (127 dual-channel nodes) and reaction times.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
+//! - [`scenario_runner`]: scenario files (`scenarios/`: a network, a timeline of stimuli and
+//!   faults, expected outcomes with bounds) played on the dual-channel simulation
+//!   (`cargo xtask scenario`).
 //! - [`campaign`]: seeded fault campaigns judged by an oracle that does not reuse the
 //!   implementation (`cargo xtask campaign`).
 //! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
@@ -17,4 +20,5 @@ pub mod dual;
 pub mod fullnet;
 pub mod network;
 pub mod scenario;
+pub mod scenario_runner;
 pub mod tool_bus;

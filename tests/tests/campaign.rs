@@ -3,7 +3,10 @@
 //! seeded campaign per class, and the oracle's own tests: it must flag what is unsafe, or
 //! its silence proves nothing.
 
+use dual_channel::runtime::ChannelEvent;
+use shared::canopen::nmt::NmtCommand;
 use shared::canopen::od::Address;
+use shared::node::Event;
 use shared::{CanFrame, CanId, Duration, Instant};
 use system_tests::bus::{Delivery, Fault, Match};
 use system_tests::campaign::oracle::{self, MonitoredSrdo, REACTION};
@@ -517,6 +520,102 @@ fn iec61784_3_addressing_pairs_on_another_identifier_pair_are_safe_by_sct() {
     assert!(effect.get().is_some());
 }
 
+/// Node 1 switched off and on again as node `new_id`, started by NMT; then node 33's
+/// communication reset and node 33 started again. Returns when node 1 went off.
+fn renumber_producer(net: &mut DualNetwork, new_id: u8, keep_storage: bool) -> Instant {
+    let off = net.now;
+    net.repower(PRODUCER, new_id, keep_storage);
+    net.run_for(ms(100));
+    net.nmt(NmtCommand::Start, 0);
+    net.run_for(ms(60));
+    net.nmt(NmtCommand::ResetCommunication, CONSUMER);
+    net.run_for(ms(20));
+    net.nmt(NmtCommand::Start, CONSUMER);
+    off
+}
+
+/// After node 1 came back as node 9: the oracle finds nothing, node 33 was safe within SCT
+/// of node 1 going off, node 9 put no SRDO frame on 101h/102h after its boot-up, and node
+/// 33's output never rose again after its own restart. Returns when node 9 booted.
+fn never_accepted(net: &mut DualNetwork, off: Instant, restarted: Instant) -> Instant {
+    net.run_for(ms(200));
+    let verdict = verdict(net, off);
+    assert!(
+        verdict.judgement.violations.is_empty(),
+        "{:?}",
+        verdict.judgement.violations
+    );
+    let safe = verdict.safe_at.expect("safe while node 1 was away");
+    assert!(safe.saturating_since(off) <= plus(SCT, REACTION));
+    let booted = net
+        .trace
+        .iter()
+        .find(|(at, frame, _)| *at >= off && frame.id().raw() == 0x709 && frame.data() == [0])
+        .map(|(at, ..)| *at)
+        .expect("node 9's boot-up");
+    assert!(
+        !net.trace
+            .iter()
+            .any(|(at, frame, _)| *at >= booted && matches!(frame.id().raw(), 0x101 | 0x102)),
+        "an SRDO frame on 101h/102h from the renumbered node"
+    );
+    assert!(
+        !net.outputs
+            .iter()
+            .any(|(at, id, _, _, value)| *at >= restarted && *id == CONSUMER && *value != 0),
+        "node 33's output rose after its restart"
+    );
+    assert_eq!(net.output(CONSUMER), 0);
+    booted
+}
+
+/// A producer whose node-ID changed keeps its stored configuration, but that was validated
+/// for node-ID 1: NMT start refuses it (0x13FE reads 0) with EMCY 6300h from its new
+/// node-ID, so node 33 never accepts its data as node 1's, and its SDO server moved (node 1
+/// no longer answers, node 9 does).
+#[test]
+fn iec61784_3_addressing_a_renumbered_producer_refuses_the_configuration_of_its_old_node_id() {
+    let mut net = steady(INPUT);
+    let off = renumber_producer(&mut net, 9, true);
+    let restarted = net.now;
+    never_accepted(&mut net, off, restarted);
+    let refused = net.first_event(0, 9, |_, event| {
+        matches!(
+            event,
+            ChannelEvent::Node(Event::ValidatedForAnotherNodeId { .. })
+        )
+    });
+    assert!(refused.is_some(), "the stored configuration names node 1");
+    assert!(
+        net.trace.iter().any(|(at, frame, _)| *at >= off
+            && frame.id().raw() == 0x089
+            && frame.data()[..3] == [0x00, 0x63, 0x21]),
+        "EMCY 6300h from node 9"
+    );
+    let identity = Address::new(0x1018, 1);
+    assert!(
+        net.read(PRODUCER, identity).is_err(),
+        "node 1's SDO server moved"
+    );
+    assert!(net.read(9, identity).is_ok(), "node 9 answers");
+    assert_eq!(
+        net.read(9, Address::new(0x13FE, 0)).expect("0x13FE"),
+        [0],
+        "0x13FE reads 0 after the refusal"
+    );
+}
+
+/// A producer whose node-ID changed with its storage erased has no valid configuration
+/// (and its pre-defined SRDO would be on other identifiers): node 33 accepts nothing from
+/// it, and after its own restart is safe again by SCT.
+#[test]
+fn iec61784_3_addressing_a_renumbered_producer_with_defaults_is_never_accepted() {
+    let mut net = steady(INPUT);
+    let off = renumber_producer(&mut net, 9, false);
+    let restarted = net.now;
+    never_accepted(&mut net, off, restarted);
+}
+
 // --- Single-channel faults, deterministic -------------------------------------------------
 
 /// Channel B's input stuck closed while channel A reads the emergency stop pressed: no
@@ -638,7 +737,11 @@ fn cia304_9_5_a_channel_clock_within_tolerance_changes_nothing() {
 // --- Seeded campaigns, a few scenarios per class (`cargo xtask campaign` runs 10,000) ------
 
 fn seeded(class: Class) {
-    let summary = campaign::campaign(class, 1_000, 40, 1);
+    seeded_at(class, campaign::BIT_RATE, 40);
+}
+
+fn seeded_at(class: Class, bit_rate: u32, count: u64) {
+    let summary = campaign::campaign(class, 1_000, count, bit_rate, 1);
     for failure in &summary.failures {
         eprintln!(
             "{} seed {}: {:?} {}\n{}",
@@ -650,9 +753,9 @@ fn seeded(class: Class) {
         );
     }
     assert!(summary.passed(), "{class:?}: {summary:?}");
-    assert_eq!(summary.injected, 40);
+    assert_eq!(summary.injected, count);
     assert!(summary.detected > 0, "{class:?}: no fault was detected");
-    let (bound, _) = class.bound();
+    let (bound, _) = class.bound(bit_rate);
     assert!(summary.max_latency().unwrap() <= bound.as_micros());
 }
 
@@ -689,6 +792,10 @@ fn iec61784_3_addressing_seeded_campaign() {
     seeded(Class::Addressing);
 }
 #[test]
+fn iec61784_3_addressing_changed_node_id_seeded_campaign() {
+    seeded(Class::NodeId);
+}
+#[test]
 fn cia304_9_5_stuck_input_seeded_campaign() {
     seeded(Class::StuckInput);
 }
@@ -719,4 +826,22 @@ fn en50325_5_7_1_2_babbling_seeded_campaign() {
 #[test]
 fn en50325_5_7_1_2_bus_off_seeded_campaign() {
     seeded(Class::BusOff);
+}
+
+/// The classes whose bound includes a frame's time on the bus, and the delay class (which
+/// times its faults by frame time), at the slowest and the fastest rate.
+#[test]
+fn campaign_at_125_and_1000_kbit_s_stays_within_the_bounds_of_that_rate() {
+    for bit_rate in [125_000, 1_000_000] {
+        for class in [Class::Delay, Class::StuckInput, Class::NoInverted] {
+            seeded_at(class, bit_rate, 12);
+        }
+    }
+    let slow = Class::NoInverted.bound(125_000).0;
+    let fast = Class::NoInverted.bound(1_000_000).0;
+    assert_eq!(
+        slow.as_micros() - fast.as_micros(),
+        campaign::frame_allowance(125_000).as_micros()
+            - campaign::frame_allowance(1_000_000).as_micros()
+    );
 }

@@ -1,6 +1,7 @@
 //! `cargo xtask campaign`: the seeded fault campaigns of `tests/src/campaign` (host
 //! simulation, judged by the independent oracle), run on every core.
-//! The full size (10,000 scenarios per class, the default) writes `docs/campaigns.md` and
+//! Every class runs at 125, 250, 500 and 1000 kbit/s unless `--bit-rate` picks some.
+//! The full size (10,000 scenarios per class and rate, the default) writes `docs/campaigns.md` and
 //! the plots in `docs/campaigns/`; a smaller run writes its report to `target/campaign/`,
 //! so that CI's short run never replaces the measured full run. Fails when any scenario
 //! was unsafe, late, or could not be run.
@@ -17,6 +18,8 @@ pub struct Options {
     pub scenarios: u64,
     /// Only these classes (all when empty).
     pub classes: Vec<String>,
+    /// Only these bit rates in kbit/s (125, 250, 500 and 1000 when empty).
+    pub bit_rates: Vec<u32>,
     /// The first seed.
     pub seed: u64,
     /// Replay one seed and print its timeline.
@@ -40,11 +43,17 @@ pub fn task(root: &Path, options: &Options) -> Result<()> {
     for class in &options.classes {
         command.args(["--class", class]);
     }
+    for kbit in &options.bit_rates {
+        command.args(["--bit-rate", &kbit.to_string()]);
+    }
     if let Some(seed) = options.replay {
         command.args(["--replay", &seed.to_string()]);
         return super::run(&mut command);
     }
-    let full = options.scenarios >= FULL && options.classes.is_empty() && options.seed == 0;
+    let full = options.scenarios >= FULL
+        && options.classes.is_empty()
+        && options.bit_rates.is_empty()
+        && options.seed == 0;
     let report = if full {
         root.join("docs")
     } else {
@@ -53,6 +62,9 @@ pub fn task(root: &Path, options: &Options) -> Result<()> {
     let mut line = format!("cargo xtask campaign --scenarios {}", options.scenarios);
     for class in &options.classes {
         line.push_str(&format!(" --class {class}"));
+    }
+    for kbit in &options.bit_rates {
+        line.push_str(&format!(" --bit-rate {kbit}"));
     }
     if options.seed != 0 {
         line.push_str(&format!(" --seed {}", options.seed));

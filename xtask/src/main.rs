@@ -13,6 +13,7 @@ mod interop;
 mod network;
 mod qemu;
 mod run;
+mod scenario;
 mod toolchain;
 mod trace;
 
@@ -156,20 +157,31 @@ enum Task {
         #[arg(long)]
         report_only: bool,
     },
+    /// Scenario files (scenarios/*.toml unless FILES are given: a network, a timeline of
+    /// stimuli and faults, expected outcomes with bounds) on the dual-channel host
+    /// simulation; PASS/FAIL per expectation with the value measured and its bound.
+    Scenario {
+        /// Scenario files.
+        files: Vec<std::path::PathBuf>,
+    },
     /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
     /// every single-channel fault), judged by an oracle that does not reuse the
-    /// implementation; 10,000 scenarios per class write docs/campaigns.md and
-    /// docs/campaigns/*.svg, a smaller run target/campaign/. Fails on any unsafe or late
-    /// scenario.
+    /// implementation, at 125, 250, 500 and 1000 kbit/s; 10,000 scenarios per class and
+    /// rate write docs/campaigns.md and docs/campaigns/*.svg, a smaller run
+    /// target/campaign/. Fails on any unsafe or late scenario.
     Campaign {
         /// Scenarios per class.
         #[arg(long, default_value_t = campaign::FULL)]
         scenarios: u64,
         /// Only this class (repeatable): corruption, repetition, sequence, loss, delay,
-        /// insertion, masquerade, addressing, stuck-input, bit-flip, link,
+        /// insertion, masquerade, addressing, node-id, stuck-input, bit-flip, link,
         /// controller-silent, babbling, bus-off, no-inverted, clock-drift.
         #[arg(long = "class")]
         classes: Vec<String>,
+        /// Only this bit rate in kbit/s (repeatable): 125, 250, 500, 1000 (all when not
+        /// given).
+        #[arg(long = "bit-rate")]
+        bit_rates: Vec<u32>,
         /// The first seed (scenario n has seed S + n).
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -291,9 +303,11 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
+        Task::Scenario { files } => scenario::task(&root, &files),
         Task::Campaign {
             scenarios,
             classes,
+            bit_rates,
             seed,
             replay,
         } => campaign::task(
@@ -301,6 +315,7 @@ fn task() -> Result<()> {
             &campaign::Options {
                 scenarios,
                 classes,
+                bit_rates,
                 seed,
                 replay,
             },

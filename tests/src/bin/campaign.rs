@@ -7,7 +7,9 @@ use clap::Parser;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant as WallClock;
-use system_tests::campaign::{self, Class, Summary, report};
+use system_tests::campaign::{self, Class, report};
+
+use report::Row;
 
 #[derive(Parser)]
 #[command(about = "Seeded fault campaigns with an independent oracle")]
@@ -16,10 +18,14 @@ struct Args {
     #[arg(long, default_value_t = 10_000)]
     scenarios: u64,
     /// Only this class (`corruption`, `repetition`, `sequence`, `loss`, `delay`,
-    /// `insertion`, `masquerade`, `addressing`, `stuck-input`, `bit-flip`, `link`,
+    /// `insertion`, `masquerade`, `addressing`, `node-id`, `stuck-input`, `bit-flip`, `link`,
     /// `controller-silent`, `babbling`, `bus-off`, `no-inverted`, `clock-drift`); repeatable.
     #[arg(long = "class")]
     classes: Vec<String>,
+    /// The bus's bit rate in kbit/s (125, 250, 500, 1000); repeatable, every one of them
+    /// when not given. Each class runs its scenarios at each rate.
+    #[arg(long = "bit-rate")]
+    bit_rates: Vec<u32>,
     /// The first seed; scenario n of a class has seed S + n.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -55,12 +61,37 @@ fn main() -> ExitCode {
     if classes.is_empty() {
         classes = Class::ALL.to_vec();
     }
+    let mut bit_rates = Vec::new();
+    for kbit in &args.bit_rates {
+        match campaign::BIT_RATES
+            .into_iter()
+            .find(|rate| *rate == kbit * 1000)
+        {
+            Some(rate) => bit_rates.push(rate),
+            None => {
+                eprintln!(
+                    "campaign: no campaign at {kbit} kbit/s; the bit rates are: {}",
+                    campaign::BIT_RATES
+                        .map(|rate| (rate / 1000).to_string())
+                        .join(", ")
+                );
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    if bit_rates.is_empty() {
+        bit_rates = campaign::BIT_RATES.to_vec();
+    }
     if let Some(seed) = args.replay {
-        for class in &classes {
-            let result = campaign::run(*class, seed);
+        for (&class, &bit_rate) in classes
+            .iter()
+            .flat_map(|class| bit_rates.iter().map(move |rate| (class, rate)))
+        {
+            let result = campaign::run(class, seed, bit_rate);
             println!(
-                "{} seed {seed}: {:?}, {}; latency {:?} µs",
+                "{} at {} kbit/s seed {seed}: {:?}, {}; latency {:?} µs",
                 class.name(),
+                bit_rate / 1000,
                 result.outcome,
                 result.fault,
                 result.latency.map(shared::Duration::as_micros)
@@ -75,14 +106,18 @@ fn main() -> ExitCode {
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
     let started = WallClock::now();
-    let mut results: Vec<(Class, Summary)> = Vec::new();
-    for class in &classes {
+    let mut results: Vec<Row> = Vec::new();
+    for (&class, &bit_rate) in classes
+        .iter()
+        .flat_map(|class| bit_rates.iter().map(move |rate| (class, rate)))
+    {
         let began = WallClock::now();
-        let summary = campaign::campaign(*class, args.seed, args.scenarios, threads);
-        let (bound, _) = class.bound();
+        let summary = campaign::campaign(class, args.seed, args.scenarios, bit_rate, threads);
+        let (bound, _) = class.bound(bit_rate);
         println!(
-            "campaign {:<18} injected {:>6}  detected {:>6}  harmless {:>6}  unsafe {}  late {}  harness {}  max latency {:>8} µs (bound {} µs)  {:.1} s",
+            "campaign {:<18} {:>4} kbit/s  injected {:>6}  detected {:>6}  harmless {:>6}  unsafe {}  late {}  harness {}  max latency {:>8} µs (bound {} µs)  {:.1} s",
             class.name(),
+            bit_rate / 1000,
             summary.injected,
             summary.detected,
             summary.harmless,
@@ -97,20 +132,22 @@ fn main() -> ExitCode {
         );
         for failure in summary.failures.iter().take(3) {
             println!(
-                "\nFAILED {} seed {} ({:?}): {}\nreplay: cargo xtask campaign --class {} --replay {}\n{}",
+                "\nFAILED {} at {} kbit/s seed {} ({:?}): {}\nreplay: cargo xtask campaign --class {} --bit-rate {} --replay {}\n{}",
                 class.name(),
+                bit_rate / 1000,
                 failure.seed,
                 failure.outcome,
                 failure.fault,
                 class.name(),
+                bit_rate / 1000,
                 failure.seed,
                 failure.report.as_deref().unwrap_or("")
             );
         }
-        results.push((*class, summary));
+        results.push((class, bit_rate, summary));
     }
     let elapsed = started.elapsed();
-    let total: u64 = results.iter().map(|(_, summary)| summary.injected).sum();
+    let total: u64 = results.iter().map(|(_, _, summary)| summary.injected).sum();
     println!(
         "campaign: {total} scenarios in {:.1} s on {threads} thread(s), {:.0} µs per scenario and thread",
         elapsed.as_secs_f64(),
@@ -123,7 +160,7 @@ fn main() -> ExitCode {
         }
         println!("campaign: report in {}", dir.join("campaigns.md").display());
     }
-    if results.iter().all(|(_, summary)| summary.passed()) {
+    if results.iter().all(|(_, _, summary)| summary.passed()) {
         ExitCode::SUCCESS
     } else {
         eprintln!("campaign: FAILED: a scenario was unsafe, late, or could not be run (above)");
@@ -134,20 +171,20 @@ fn main() -> ExitCode {
 fn write_report(
     dir: &std::path::Path,
     args: &Args,
-    results: &[(Class, Summary)],
+    results: &[Row],
     elapsed: std::time::Duration,
     threads: usize,
 ) -> Result<(), String> {
     let plots = dir.join("campaigns");
     std::fs::create_dir_all(&plots).map_err(|error| format!("{}: {error}", plots.display()))?;
-    for (class, summary) in results {
-        report::plot(&plots, *class, summary)?;
+    for (class, bit_rate, summary) in results {
+        report::plot(&plots, *class, *bit_rate, summary)?;
     }
-    let total: u64 = results.iter().map(|(_, summary)| summary.injected).sum();
+    let total: u64 = results.iter().map(|(_, _, summary)| summary.injected).sum();
     let mut text = String::new();
     text.push_str(include_str!("../campaign/campaigns_head.md"));
     text.push_str(&format!(
-        "\n## Result\n\n`{}` ({} scenarios per class, seeds {}..{}): {total} scenarios in {:.0} s on {threads} thread(s) of the shared 2-core development machine ({:.0} µs per scenario and thread).\n\n",
+        "\n## Result\n\n`{}` ({} scenarios per class and bit rate, seeds {}..{}): {total} scenarios in {:.0} s on {threads} thread(s) of the shared 2-core development machine ({:.0} µs per scenario and thread).\n\n",
         args.command,
         args.scenarios,
         args.seed,
@@ -159,27 +196,30 @@ fn write_report(
     text.push_str("\n## Bounds, and how they follow from the configuration\n\n");
     text.push_str(&report::bounds(results));
     text.push_str("\n## Plots\n\n");
-    for (class, _) in results {
+    for (class, bit_rate, _) in results {
+        let name = report::plot_name(*class, *bit_rate);
         text.push_str(&format!(
-            "- [{}](campaigns/{}.svg)\n",
+            "- [{} at {} kbit/s](campaigns/{name})\n",
             class.name(),
-            class.name()
+            bit_rate / 1000,
         ));
     }
     let failures: Vec<_> = results
         .iter()
-        .flat_map(|(_, summary)| summary.failures.iter())
+        .flat_map(|(_, _, summary)| summary.failures.iter())
         .collect();
     if !failures.is_empty() {
         text.push_str("\n## Failed scenarios\n\n");
         for failure in failures.iter().take(20) {
             text.push_str(&format!(
-                "- {} seed {} ({:?}): {}; replay with `cargo xtask campaign --class {} --replay {}`\n",
+                "- {} at {} kbit/s seed {} ({:?}): {}; replay with `cargo xtask campaign --class {} --bit-rate {} --replay {}`\n",
                 failure.class.name(),
+                failure.bit_rate / 1000,
                 failure.seed,
                 failure.outcome,
                 failure.fault,
                 failure.class.name(),
+                failure.bit_rate / 1000,
                 failure.seed
             ));
         }

@@ -1,6 +1,7 @@
 //! Seeded fault campaigns on the host simulation (EN 50325-5 5.3 Table 1, IEC 61784-3; CiA
 //! 304 9.5): node 1 (SRDO producer) and node 33 (SRDO consumer), each channel A and channel B
-//! with their link ([`crate::dual`]), on the simulated bus at 500 kbit/s.
+//! with their link ([`crate::dual`]), on the simulated bus at a bit rate the campaign is given
+//! ([`BIT_RATES`]; 500 kbit/s, [`BIT_RATE`], for the deterministic tests).
 //!
 //! A scenario starts the network, lets node 1 send a random non-zero input value until node
 //! 33's output carries it, injects one fault whose parameters and timing come from the seed,
@@ -27,6 +28,7 @@ use dual_channel::runtime::{ChannelEvent, SAMPLE_WINDOW};
 use oracle::{MonitoredSrdo, REACTION};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use shared::canopen::nmt::NmtCommand;
 use shared::node::Event;
 use shared::{CanFrame, CanId, Duration, Instant};
 use std::cell::{Cell, RefCell};
@@ -37,8 +39,12 @@ use std::rc::Rc;
 pub const PRODUCER: u8 = 1;
 /// The consumer's node-ID (configured to receive node 1's SRDO 1).
 pub const CONSUMER: u8 = 33;
-/// The bus's bit rate.
+/// The bus's bit rate in the deterministic tests and the default campaign.
 pub const BIT_RATE: u32 = 500_000;
+/// The bit rates a campaign can run at: those of CiA 301 Table 2 the reaction-time
+/// measurement covers too (EN 50325-5 Table 1 is independent of the rate, the frame times
+/// are not).
+pub const BIT_RATES: [u32; 4] = [125_000, 250_000, 500_000, 1_000_000];
 /// The producer's refresh time: EN 50325-5 Table 5's pre-defined 25 ms for node-IDs 1..=32.
 pub const REFRESH: Duration = Duration::from_millis(25);
 /// The consumer's SCT: the pre-defined 50 ms for node-IDs 33..=64, not rewritten by the tool.
@@ -85,6 +91,10 @@ pub enum Class {
     Masquerade,
     /// Addressing: wrong identifier pairs.
     Addressing,
+    /// Addressing: the producer switched off and on again with another node-ID (its SDO
+    /// server, heartbeat and EMCY move with it, and so would its pre-defined COB-IDs), with
+    /// its stored configuration or with the defaults.
+    NodeId,
     /// One channel's safety input stuck while the emergency stop is pressed.
     StuckInput,
     /// A bit flip in one channel's configuration or identifier table in Operational.
@@ -105,7 +115,7 @@ pub enum Class {
 
 impl Class {
     /// Every class, in report order.
-    pub const ALL: [Class; 16] = [
+    pub const ALL: [Class; 17] = [
         Class::Corruption,
         Class::Repetition,
         Class::Sequence,
@@ -114,6 +124,7 @@ impl Class {
         Class::Insertion,
         Class::Masquerade,
         Class::Addressing,
+        Class::NodeId,
         Class::StuckInput,
         Class::BitFlip,
         Class::Link,
@@ -135,6 +146,7 @@ impl Class {
             Class::Insertion => "insertion",
             Class::Masquerade => "masquerade",
             Class::Addressing => "addressing",
+            Class::NodeId => "node-id",
             Class::StuckInput => "stuck-input",
             Class::BitFlip => "bit-flip",
             Class::Link => "link",
@@ -161,7 +173,7 @@ impl Class {
             Class::Delay => "IEC 61784-3 delay",
             Class::Insertion => "IEC 61784-3 insertion",
             Class::Masquerade => "IEC 61784-3 masquerade",
-            Class::Addressing => "IEC 61784-3 addressing",
+            Class::Addressing | Class::NodeId => "IEC 61784-3 addressing",
             Class::StuckInput
             | Class::BitFlip
             | Class::Link
@@ -172,11 +184,14 @@ impl Class {
     }
 
     /// The bound on the latency from the fault taking effect to node 33's safe state that
-    /// the configuration implies, and how it follows.
-    pub fn bound(self) -> (Duration, &'static str) {
+    /// the configuration implies on a bus at `bit_rate`, and how it follows. The timing
+    /// parameters are the same at every rate; what the rate adds is the time a frame the
+    /// detection waits for spends getting onto the bus ([`frame_allowance`]).
+    pub fn bound(self, bit_rate: u32) -> (Duration, &'static str) {
         let sum = |parts: &[Duration]| {
             Duration::from_micros(parts.iter().map(|part| part.as_micros()).sum())
         };
+        let frame = frame_allowance(bit_rate);
         match self {
             Class::Corruption
             | Class::Repetition
@@ -186,6 +201,7 @@ impl Class {
             | Class::Insertion
             | Class::Masquerade
             | Class::Addressing
+            | Class::NodeId
             | Class::ControllerSilent
             | Class::Babbling
             | Class::BusOff => (
@@ -193,12 +209,12 @@ impl Class {
                 "SCT + reaction: the consumer's SCT runs from the last valid pair before the fault, so any fault that stops valid pairs is caught by SCT at the latest; earlier mechanisms (inversion, sequence, SRVT, the producer's foreign-frame GFC) only shorten it",
             ),
             Class::NoInverted => (
-                sum(&[REFRESH, SRVT, REACTION]),
-                "refresh time + SRVT + reaction: the next plain frame comes within one refresh time and its inverted frame is missing after SRVT",
+                sum(&[REFRESH, frame, SRVT, REACTION]),
+                "refresh time + frame allowance + SRVT + reaction: the next plain frame is queued within one refresh time, is on the bus a frame allowance later, and its inverted frame is missing after SRVT",
             ),
             Class::StuckInput => (
-                sum(&[REFRESH, SAMPLE_WINDOW, SRVT, REACTION]),
-                "from pressing the emergency stop: refresh time (the stuck channel's next cyclic frame) + sample window (the other channel's previous sample is accepted that long) + SRVT (the missing inverted frame) + reaction",
+                sum(&[REFRESH, SAMPLE_WINDOW, frame, SRVT, REACTION]),
+                "from pressing the emergency stop: refresh time (the stuck channel's next cyclic frame) + sample window (the other channel's previous sample is accepted that long) + frame allowance (that plain frame onto the bus) + SRVT (the missing inverted frame) + reaction",
             ),
             Class::BitFlip => (
                 sum(&[REFRESH, SCT, REACTION]),
@@ -221,6 +237,18 @@ impl Class {
             ),
         }
     }
+}
+
+/// Bits of the longest standard frame (8 data bytes) with the most stuff bits, intermission
+/// included: 44 + 64 + 24 stuff bits + 3 (ISO 11898-1 10.4, 10.5).
+pub const LONGEST_FRAME_BITS: u64 = 135;
+
+/// How long a frame queued now may take to be complete on a bus at `bit_rate`: the frame
+/// in progress ends, then its own transmission; each at most [`LONGEST_FRAME_BITS`] (the
+/// producer's SRDO identifiers win arbitration against everything but NMT, GFC and the
+/// babbling controller's, whose class does not wait for a frame).
+pub fn frame_allowance(bit_rate: u32) -> Duration {
+    Duration::from_micros((2 * LONGEST_FRAME_BITS * 1_000_000).div_ceil(u64::from(bit_rate)))
 }
 
 /// How one scenario ended.
@@ -255,6 +283,8 @@ pub struct ScenarioResult {
     pub class: Class,
     /// The seed.
     pub seed: u64,
+    /// The bus's bit rate.
+    pub bit_rate: u32,
     /// The randomised fault, in words.
     pub fault: String,
     /// How it ended.
@@ -563,6 +593,7 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             });
             Injected::tapped(what, effect)
         }
+        Class::NodeId => node_id(rng, net),
         Class::StuckInput => {
             let stuck = random_side(rng);
             let moving = if stuck == Side::A { Side::B } else { Side::A };
@@ -711,6 +742,78 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
             )
         }
     }
+}
+
+/// Addressing, a changed node-ID: node 1 is switched off and on again with node-ID `n`
+/// (2..=127, not node 33's), keeping its stored configuration (SRDO 1 on 101h/102h, signed,
+/// but validated for node-ID 1, so NMT start refuses it under node-ID `n`) or with erased
+/// storage (the defaults: no valid configuration, so it cannot enter Operational, and its
+/// pre-defined SRDO would be on 101h + 2(n - 1)). An NMT master starts
+/// all nodes when it sees the boot-up; once node 33 is safe it resets node 33's
+/// communication and starts it again, so node 33 runs a second time on whatever node `n`
+/// sends. The oracle judges both runs: node 33 may carry data only from valid pairs on its
+/// configured identifiers from the producing device; anything else must end in its safe
+/// state within SCT.
+fn node_id(rng: &mut ChaCha8Rng, net: &mut DualNetwork) -> Injected {
+    let new_id = loop {
+        let id = rng.random_range(2..=127u8);
+        if id != CONSUMER {
+            break id;
+        }
+    };
+    let keep = rng.random_bool(0.5);
+    let off = micros(0..30_000, rng);
+    let at = net.now;
+    // Switched off: nothing from its controllers from now on until it boots again.
+    let silent = Match {
+        id: None,
+        from: None,
+        after: at,
+        count: None,
+    };
+    for side in [Side::A, Side::B] {
+        net.inject(
+            Match {
+                from: Some(participant(PRODUCER, side)),
+                ..silent
+            },
+            Fault::Mute,
+        );
+    }
+    net.run_for(off);
+    net.bus
+        .retain_faults(|injection| !(injection.fault == Fault::Mute && injection.when.after == at));
+    net.repower(PRODUCER, new_id, keep);
+    let boot_up = 0x700 + u16::from(new_id);
+    let since = net.trace.len();
+    for _ in 0..500 {
+        net.run_for(Duration::from_millis(1));
+        if net.trace[since..]
+            .iter()
+            .any(|(_, frame, _)| frame.id().raw() == boot_up)
+        {
+            break;
+        }
+    }
+    net.nmt(NmtCommand::Start, 0);
+    net.run_for(add(SCT, Duration::from_millis(5)));
+    net.nmt(NmtCommand::ResetCommunication, CONSUMER);
+    net.run_for(Duration::from_millis(20));
+    net.nmt(NmtCommand::Start, CONSUMER);
+    let mut injected = Injected::at(
+        format!(
+            "node 1 off for {} µs, then on as node {new_id} {}",
+            off.as_micros(),
+            if keep {
+                "with its stored configuration"
+            } else {
+                "with the defaults (storage erased)"
+            }
+        ),
+        at,
+    );
+    injected.must_detect = true;
+    injected
 }
 
 /// Unintended repetition: CAN double reception (the bus's own [`Fault::Repeat`]: the
@@ -883,6 +986,7 @@ fn sequence(rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) -> Injected 
 /// Unacceptable delay: an inverted frame just inside or just beyond SRVT after its plain
 /// frame, or a pair just inside or just beyond SCT after the previous one.
 fn delay(rng: &mut ChaCha8Rng, net: &mut DualNetwork) -> Injected {
+    let bit_rate = net.bus.bit_rate();
     let beyond = rng.random_bool(0.5);
     let margin = micros(50..2_000, rng);
     let inverted = rng.random_bool(0.5);
@@ -898,7 +1002,7 @@ fn delay(rng: &mut ChaCha8Rng, net: &mut DualNetwork) -> Injected {
             let (reference, limit, follow) = if inverted {
                 (plain_at.get(), SRVT, Duration::ZERO)
             } else {
-                let inverted_time = frame_time(&delivery.frame, BIT_RATE);
+                let inverted_time = frame_time(&delivery.frame, bit_rate);
                 (pair_at.get(), SCT, inverted_time)
             };
             let target_at = if beyond {
@@ -1013,8 +1117,8 @@ pub fn verdict(net: &DualNetwork, from: Instant) -> Verdict {
 }
 
 /// The network after start, carrying `input`, or why it did not get there.
-fn started(rng: &mut ChaCha8Rng, input: u8) -> Result<DualNetwork, String> {
-    let mut net = DualNetwork::new(BIT_RATE, &[PRODUCER, CONSUMER]);
+fn started(rng: &mut ChaCha8Rng, input: u8, bit_rate: u32) -> Result<DualNetwork, String> {
+    let mut net = DualNetwork::new(bit_rate, &[PRODUCER, CONSUMER]);
     net.configure_and_start()
         .map_err(|error| format!("configuration failed: {error:?}"))?;
     net.set_inputs(PRODUCER, input, input);
@@ -1033,21 +1137,23 @@ fn started(rng: &mut ChaCha8Rng, input: u8) -> Result<DualNetwork, String> {
     Ok(net)
 }
 
-/// Runs scenario `seed` of `class`.
-pub fn run(class: Class, seed: u64) -> ScenarioResult {
+/// Runs scenario `seed` of `class` on a bus at `bit_rate` (the same seed draws the same
+/// fault at every rate).
+pub fn run(class: Class, seed: u64, bit_rate: u32) -> ScenarioResult {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(class as u64);
     let input = rng.random_range(1..=255u8);
     let mut result = ScenarioResult {
         class,
         seed,
+        bit_rate,
         fault: String::new(),
         outcome: Outcome::SetupFailed,
         latency: None,
         reaction: None,
         report: None,
     };
-    let mut net = match started(&mut rng, input) {
+    let mut net = match started(&mut rng, input, bit_rate) {
         Ok(net) => net,
         Err(why) => {
             result.report = Some(why);
@@ -1056,7 +1162,7 @@ pub fn run(class: Class, seed: u64) -> ScenarioResult {
     };
     let start = net.now;
     let mut injected = inject(class, &mut rng, &mut net, input);
-    let (bound, _) = class.bound();
+    let (bound, _) = class.bound(bit_rate);
     if injected.horizon == Duration::ZERO {
         injected.horizon = add(bound, Duration::from_millis(100));
     }
@@ -1214,8 +1320,15 @@ impl Summary {
     }
 }
 
-/// Runs `count` scenarios of `class` with seeds `first_seed..`, on `threads` threads.
-pub fn campaign(class: Class, first_seed: u64, count: u64, threads: usize) -> Summary {
+/// Runs `count` scenarios of `class` with seeds `first_seed..` at `bit_rate`, on `threads`
+/// threads.
+pub fn campaign(
+    class: Class,
+    first_seed: u64,
+    count: u64,
+    bit_rate: u32,
+    threads: usize,
+) -> Summary {
     let threads = threads.max(1) as u64;
     let results: Vec<ScenarioResult> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads)
@@ -1223,7 +1336,7 @@ pub fn campaign(class: Class, first_seed: u64, count: u64, threads: usize) -> Su
                 scope.spawn(move || {
                     (0..count)
                         .filter(|n| n % threads == worker)
-                        .map(|n| run(class, first_seed.wrapping_add(n)))
+                        .map(|n| run(class, first_seed.wrapping_add(n), bit_rate))
                         .collect::<Vec<_>>()
                 })
             })

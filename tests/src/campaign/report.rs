@@ -10,17 +10,26 @@ fn ms(micros: u64) -> String {
     format!("{:.3}", micros as f64 / 1000.0)
 }
 
-/// The Markdown table, one row per class.
-pub fn table(results: &[(Class, Summary)]) -> String {
+/// One row of the report: a class at a bit rate, and what its campaign found.
+pub type Row = (Class, u32, Summary);
+
+/// The plot's file name for `class` at `bit_rate`.
+pub fn plot_name(class: Class, bit_rate: u32) -> String {
+    format!("{}-{}k.svg", class.name(), bit_rate / 1000)
+}
+
+/// The Markdown table, one row per class and bit rate.
+pub fn table(results: &[Row]) -> String {
     let mut text = String::from(
-        "| class | requirement | injected | detected | harmless | unsafe | late | harness | max latency (ms) | bound (ms) | max reaction after the oracle's deadline (µs) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| class | kbit/s | requirement | injected | detected | harmless | unsafe | late | harness | max latency (ms) | bound (ms) | max reaction after the oracle's deadline (µs) |\n|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
-    for (class, summary) in results {
-        let (bound, _) = class.bound();
+    for (class, bit_rate, summary) in results {
+        let (bound, _) = class.bound(*bit_rate);
         let _ = writeln!(
             text,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             class.name(),
+            bit_rate / 1000,
             class.requirement(),
             summary.injected,
             summary.detected,
@@ -36,18 +45,43 @@ pub fn table(results: &[(Class, Summary)]) -> String {
     text
 }
 
-/// How each class's bound follows from the configuration.
-pub fn bounds(results: &[(Class, Summary)]) -> String {
+/// How each class's bound follows from the configuration, with its value at each bit rate.
+pub fn bounds(results: &[Row]) -> String {
     let mut text = String::new();
-    for (class, _) in results {
-        let (bound, why) = class.bound();
+    let mut classes: Vec<Class> = results.iter().map(|(class, ..)| *class).collect();
+    classes.dedup();
+    for class in classes {
+        let (_, why) = class.bound(super::BIT_RATE);
+        let values: Vec<String> = results
+            .iter()
+            .filter(|(row, ..)| *row == class)
+            .map(|(_, bit_rate, _)| {
+                format!(
+                    "{} ms at {} kbit/s",
+                    ms(class.bound(*bit_rate).0.as_micros()),
+                    bit_rate / 1000
+                )
+            })
+            .collect();
         let _ = writeln!(
             text,
-            "- **{}** ({} ms): {why}.",
+            "- **{}** ({}): {why}.",
             class.name(),
-            ms(bound.as_micros())
+            values.join(", ")
         );
     }
+    let _ = writeln!(
+        text,
+        "\nThe frame allowance is two frames of {} bits (`LONGEST_FRAME_BITS`): {}.",
+        super::LONGEST_FRAME_BITS,
+        super::BIT_RATES
+            .map(|rate| format!(
+                "{} µs at {} kbit/s",
+                super::frame_allowance(rate).as_micros(),
+                rate / 1000
+            ))
+            .join(", ")
+    );
     let _ = writeln!(
         text,
         "\nThe reaction allowance is the oracle's `REACTION` ({} ms).",
@@ -56,10 +90,11 @@ pub fn bounds(results: &[(Class, Summary)]) -> String {
     text
 }
 
-/// Writes `dir/<class>.svg`: the latency histogram (1 ms bins) with the bound marked.
-pub fn plot(dir: &Path, class: Class, summary: &Summary) -> Result<(), String> {
-    let path = dir.join(format!("{}.svg", class.name()));
-    let (bound, _) = class.bound();
+/// Writes `dir/<class>-<kbit/s>k.svg`: the latency histogram (1 ms bins) with the bound
+/// marked.
+pub fn plot(dir: &Path, class: Class, bit_rate: u32, summary: &Summary) -> Result<(), String> {
+    let path = dir.join(plot_name(class, bit_rate));
+    let (bound, _) = class.bound(bit_rate);
     let bound_ms = bound.as_micros().div_ceil(1000) as u32;
     let top = bound_ms + 5;
     let mut bins = vec![0u32; top as usize + 1];
@@ -72,8 +107,9 @@ pub fn plot(dir: &Path, class: Class, summary: &Summary) -> Result<(), String> {
     let draw = |error: DrawingAreaErrorKind<_>| format!("{}: {error}", path.display());
     root.fill(&WHITE).map_err(draw)?;
     let caption = format!(
-        "{}: {} detected of {} injected, latency (ms) against the bound {} ms",
+        "{} at {} kbit/s: {} detected of {} injected, latency (ms) against the bound {} ms",
         class.name(),
+        bit_rate / 1000,
         summary.detected,
         summary.injected,
         ms(bound.as_micros())
