@@ -51,6 +51,56 @@ impl Stream {
     }
 }
 
+/// A traffic stream as a person writes it, `ID:LEN:PERIOD_MS` (e.g. `0x181:8:10`), that
+/// does not read as one.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "{text:?} is not a stream ID:LEN:PERIOD_MS (identifier 0..=7FFh, 0 to 8 data bytes, a period above 0 ms, e.g. 0x181:8:10): {why}"
+)]
+pub struct StreamError {
+    /// What was given.
+    pub text: String,
+    /// Which part is wrong.
+    pub why: &'static str,
+}
+
+impl core::str::FromStr for Stream {
+    type Err = StreamError;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let error = |why| StreamError {
+            text: text.to_owned(),
+            why,
+        };
+        let mut parts = text.split(':');
+        let (Some(id), Some(len), Some(period), None) =
+            (parts.next(), parts.next(), parts.next(), parts.next())
+        else {
+            return Err(error("it needs three parts"));
+        };
+        let id = match id.strip_prefix("0x").or_else(|| id.strip_prefix("0X")) {
+            Some(hex) => u16::from_str_radix(hex, 16),
+            None => id.parse(),
+        }
+        .ok()
+        .filter(|id| *id <= 0x7FF)
+        .ok_or_else(|| error("the identifier"))?;
+        let len = len
+            .parse()
+            .ok()
+            .filter(|len| *len <= 8)
+            .ok_or_else(|| error("the length"))?;
+        let period_ms: f64 = period
+            .parse()
+            .ok()
+            .filter(|ms: &f64| ms.is_finite() && *ms > 0.0 && *ms <= 3.6e6)
+            .ok_or_else(|| error("the period"))?;
+        // Rounded down: a shorter period is the conservative reading.
+        let period_us = ((period_ms * 1000.0) as u64).max(1);
+        Ok(Stream { id, len, period_us })
+    }
+}
+
 /// The worst-case share of the bus all `streams` take together at `bit_rate`.
 #[must_use]
 pub fn utilisation(streams: &[Stream], bit_rate: u32) -> f64 {
@@ -177,6 +227,45 @@ mod tests {
         };
         assert_eq!(queuing_delay(0x101, &[half], 8, 1_000_000, 404), None);
         assert_eq!(queuing_delay(0x101, &[half], 8, 1_000_000, 405), Some(405));
+    }
+
+    /// A stream reads from `ID:LEN:PERIOD_MS`; every wrong part is named.
+    #[test]
+    fn a_stream_reads_from_id_length_and_period() {
+        let stream: Stream = "0x181:8:10".parse().unwrap();
+        assert_eq!(
+            stream,
+            Stream {
+                id: 0x181,
+                len: 8,
+                period_us: 10_000
+            }
+        );
+        let stream: Stream = "144:0:0.27".parse().unwrap();
+        assert_eq!(
+            stream,
+            Stream {
+                id: 144,
+                len: 0,
+                period_us: 270
+            }
+        );
+        for (text, why) in [
+            ("0x800:8:10", "the identifier"),
+            ("0x181:9:10", "the length"),
+            ("0x181:8:0", "the period"),
+            ("0x181:8", "it needs three parts"),
+            ("0x181:8:10:1", "it needs three parts"),
+        ] {
+            assert_eq!(text.parse::<Stream>().unwrap_err().why, why, "{text}");
+        }
+        assert!(
+            "1:2"
+                .parse::<Stream>()
+                .unwrap_err()
+                .to_string()
+                .starts_with("\"1:2\" is not a stream")
+        );
     }
 
     #[test]

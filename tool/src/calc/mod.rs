@@ -6,5 +6,6 @@
 
 pub mod budget;
 pub mod bus;
+pub mod report;
 pub mod residual;
 pub mod sfrt;
