@@ -162,7 +162,7 @@ struct PlanArgs {
     #[arg(long = "traffic")]
     traffic: Vec<Stream>,
     /// The shortest interval between two input changes of one producer (ms); without it one
-    /// event-driven pair per refresh time is counted on the bus.
+    /// event-driven pair per refresh time is counted besides the cyclic one.
     #[arg(long)]
     event_interval_ms: Option<u64>,
 }

@@ -21,8 +21,8 @@ pub struct Plan {
     pub sil: Sil,
     /// Safety devices on the network, when more than the file lists (other safety nodes).
     pub devices: Option<u32>,
-    /// The shortest interval between two input changes of one producer (µs); none: no
-    /// event-driven SRDOs counted beyond the cyclic ones.
+    /// The shortest interval between two input changes of one producer (µs); none: one
+    /// event-driven pair per refresh time besides the cyclic one.
     pub event_interval_us: Option<u64>,
     /// Other traffic on the bus (PDOs, SYNC, other nodes' frames).
     pub traffic: Vec<Stream>,
@@ -107,14 +107,14 @@ pub fn budget(network: &Network, plan: &Plan, bit_rate: u32) -> Budget {
         .count() as u32;
     let devices = plan.devices.unwrap_or(0).max(network.nodes.len() as u32);
     let per_second = |us: u64| 1e6 / us.max(1) as f64;
+    // Without a stated interval, one event-driven pair per refresh time besides the cyclic
+    // one, in the rate as on the bus (`planned_streams`): the worst the plan can assume.
     let srdos_per_second: f64 = transmits()
         .map(|srdo| {
-            per_second(u64::from(srdo.settings.cycle_time) * 1000)
-                + plan.event_interval_us.map_or(0.0, per_second)
+            let refresh = u64::from(srdo.settings.cycle_time) * 1000;
+            per_second(refresh) + per_second(plan.event_interval_us.unwrap_or(refresh))
         })
         .sum();
-    // Without a stated interval the streams count the events at the refresh time; the
-    // budget's load then counts one event-driven pair per refresh time too: the worst case.
     let streams = planned_streams(network, plan.event_interval_us, &plan.traffic);
     let mut bit_rates: Vec<u32> = BIT_RATES.to_vec();
     if !bit_rates.contains(&bit_rate) {
@@ -210,7 +210,8 @@ mod tests {
         }
     }
 
-    /// The demo's network (two devices, one SRDO every 25 ms) is far inside SIL 3, and its
+    /// The demo's network (two devices, one SRDO every 25 ms and at most one event-driven one
+    /// in between: 80 per second) is far inside SIL 3, and its
     /// load at 125 kbit/s is what the frames add up to: two 520 µs frames twice per 25 ms
     /// (cyclic and at most one event each refresh) and two heartbeats every 100 ms.
     #[test]
@@ -218,14 +219,15 @@ mod tests {
         let network = parse(&example_network(25, 50, 20), "example").unwrap();
         let budget = budget(&network, &plan(Sil::Sil3), 500_000);
         assert_eq!((budget.producers, budget.devices), (1, 2));
-        assert!((budget.srdos_per_second - 40.0).abs() < 1e-9);
+        assert!((budget.srdos_per_second - 80.0).abs() < 1e-9);
         assert_eq!(budget.highest_sil, Some(Sil::Sil3));
         assert!(budget.warnings.is_empty(), "{:?}", budget.warnings);
         let (_, load) = budget.loads[0];
         assert!((load - (4.0 * 520.0 / 25_000.0 + 2.0 * 520.0 / 100_000.0)).abs() < 1e-12);
     }
 
-    /// 64 producers at 10 ms are 6400 SRDOs per second: SIL 3 allows 44, SIL 1 4409; the
+    /// 64 producers at 10 ms, with an event-driven pair each refresh, are 12800 SRDOs per
+    /// second: SIL 3 allows 44, SIL 1 4409; the
     /// budget warns with the figures, and the bus at 125 kbit/s is overloaded.
     #[test]
     fn en50325_5_9_4_2_a_busy_network_is_warned_for_sil3() {
@@ -238,7 +240,7 @@ mod tests {
             "{warning}"
         );
         assert!(
-            warning.contains("at most 44.1 SRDOs per second with 64 safety devices (now 6400.0)"),
+            warning.contains("at most 44.1 SRDOs per second with 64 safety devices (now 12800.0)"),
             "{warning}"
         );
         assert!(matches!(
