@@ -76,7 +76,7 @@ pub fn budget(budget: &Budget, sil: Sil) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{} SRDO producers, {} safety devices, {:.1} SRDOs per second.\n",
+        "SRDO producers: {}; safety devices: {}; SRDOs per second: {:.1}.\n",
         budget.producers, budget.devices, budget.srdos_per_second
     );
     out.push_str("| kbit/s | worst-case bus load |\n|---:|---:|\n");
