@@ -135,9 +135,10 @@ pub enum SfrtError {
         /// COB-ID of the inverted frame.
         inverted: u32,
     },
-    /// The frames of a safety function have no bounded wait for the bus.
+    /// A frame of a safety function may wait for the bus as long as the consumer's SCT, or
+    /// without bound.
     #[error(
-        "the frame on {id:03X}h (node {node} SRDO {srdo}) has no bounded wait for the bus at {bit_rate} bit/s: the higher-priority traffic takes it (reduce the load or raise the bit rate)"
+        "the frame on {id:03X}h (node {node} SRDO {srdo}) may wait for the bus longer than the consumer's SCT of {sct_ms} ms at {bit_rate} bit/s: the higher-priority traffic takes too much of it (reduce the load or raise the bit rate)"
     )]
     Unbounded {
         /// The identifier.
@@ -148,6 +149,8 @@ pub enum SfrtError {
         srdo: u8,
         /// The bit rate.
         bit_rate: u32,
+        /// The consumer's SCT (ms), the longest wait that still has a meaning.
+        sct_ms: u16,
     },
     /// A contact skew longer than the sample window is a fault, not a reaction.
     #[error(
@@ -256,6 +259,7 @@ pub fn reactions(
                     node: producer_id,
                     srdo: transmit.number,
                     bit_rate,
+                    sct_ms: receive.settings.cycle_time,
                 })
             };
             let plain_wait = wait(plain_id)?;
@@ -276,7 +280,9 @@ pub fn reactions(
                 },
                 Part {
                     what: "sample window (contact skew, channel B's input digest over the link)",
-                    micros: timing.contact_skew_us + link_latency,
+                    // The frame goes when B's digest agrees, at the latest when the
+                    // window ends.
+                    micros: (timing.contact_skew_us + link_latency).min(window_us),
                 },
                 Part {
                     what: "producer (event-driven, one step)",
@@ -317,8 +323,7 @@ pub fn reactions(
             ];
             let fault_free_us = parts.iter().map(|p| p.micros).sum();
             let one_fault_us = sct_us + frame + timing.processing_us + timing.output_us;
-            let gfc_wait =
-                queuing_delay(GFC_ID.raw(), streams, 8, bit_rate, sct_us).unwrap_or(sct_us);
+            let gfc_wait = wait(u32::from(GFC_ID.raw()))?;
             let gfc_us =
                 gfc_wait + frame_micros(0, bit_rate) + timing.processing_us + timing.output_us;
             out.push(Reaction {
@@ -412,8 +417,9 @@ mod tests {
         assert_eq!(reaction.gfc_us, 135 + 55);
     }
 
-    /// The hardware's assumptions add the input sample, the whole sample window and three
-    /// steps of processing to the same path.
+    /// The hardware's assumptions add the input sample, the whole sample window (in place of
+    /// B's digest over the link, which it bounds) and three steps of processing to the same
+    /// path.
     #[test]
     fn en50325_5_9_3_1_hardware_timing_adds_sampling_window_and_processing() {
         let network = network();
@@ -421,10 +427,12 @@ mod tests {
         let simulated = &reactions(&network, &streams, 1_000_000, &SIMULATED).unwrap()[0];
         let hardware =
             &reactions(&network, &streams, 1_000_000, &DeviceTiming::HARDWARE).unwrap()[0];
+        // The window replaces B's digest over the link (1360 µs): the frame waits 5 ms at most.
         assert_eq!(
             hardware.fault_free_us - simulated.fault_free_us,
-            1000 + SAMPLE_WINDOW.as_micros() + 3 * 1000
+            1000 + (SAMPLE_WINDOW.as_micros() - 1360) + 3 * 1000
         );
+        assert_eq!(hardware.parts[1].micros, SAMPLE_WINDOW.as_micros());
         assert_eq!(hardware.one_fault_us - simulated.one_fault_us, 1000);
     }
 
