@@ -394,6 +394,9 @@ fn cause_docs(source: &str) -> Result<BTreeMap<u8, String>> {
 fn advice(code: u8) -> Option<&'static str> {
     match code {
         0x00 => Some("Nothing: no safe state since power-on or the last NMT reset."),
+        0x07 => Some(
+            "The node's own plain and inverted halves of a transmit SRDO were not exact inverses, and nothing was sent: a fault inside the device. If it recurs after a reset, replace the device.",
+        ),
         0x01..=0x0F => Some(
             "The SRDO did not arrive valid and in time. Check the producer (NMT state, its own cause), the bus (wiring, termination, error counters), the bus load against the refresh time, SCT and SRVT (`safety-config budget`, `safety-config sfrt`); a frame shortened or not inverted is a foreign or faulty sender.",
         ),
@@ -403,7 +406,7 @@ fn advice(code: u8) -> Option<&'static str> {
         0x20..=0x2F => Some(
             "The two channels judged a received SRDO differently or not in time. Recurring: a fault inside the device (replace it) or a bus so loaded that the channels receive frames far apart (check the load).",
         ),
-        0x30 | 0x31 | 0x32 | 0x35 | 0x36 | 0x38 | 0x39 => Some(
+        0x30 | 0x31 | 0x32 | 0x35 | 0x39 => Some(
             "The two channels disagree about what the node sends, holds or does. After a reconfiguration: configure and store again with the tool (both channels must hold the same). Otherwise a fault inside the device: replace it.",
         ),
         0x33 => Some(
@@ -412,8 +415,8 @@ fn advice(code: u8) -> Option<&'static str> {
         0x34 => Some(
             "Another device sent on this node's SRDO identifiers: two nodes configured with the same COB-IDs, or a non-safety device on the safety identifiers (DSP 304 9.4 forbids it). Find it before resetting: this node sends a GFC every time.",
         ),
-        0x37 => Some(
-            "More safety inputs than the channel holds: a build of the firmware for another device. Replace the image.",
+        0x36..=0x38 => Some(
+            "A limit of the channel's own design was reached (frames or events in one step, safety inputs, restoring an input after a reset), not a fault of the other channel. Keep the EMCY and the channels' logs for the manufacturer; if it recurs, the device is not fit for this configuration.",
         ),
         0x40 => Some(
             "The other channel entered its safe state first: read its own cause (the channel's status or log).",
