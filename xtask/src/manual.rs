@@ -724,22 +724,50 @@ fn access_protection(root: &Path) -> Result<String> {
     let path = root.join("docs/access-protection.md");
     if path.exists() {
         let text = std::fs::read_to_string(&path).context("reading docs/access-protection.md")?;
-        // Its headings one level down, under the chapter's own; links into docs/ do not
-        // resolve inside the book and are shown as paths.
+        // Its headings one level down, under the chapter's own; its links into the
+        // repository do not resolve inside the book and are shown as paths.
         Ok(text
             .lines()
             .map(|line| {
+                let line = unlink(line);
                 if line.starts_with('#') {
                     format!("#{line}")
                 } else {
-                    line.to_owned()
+                    line
                 }
             })
             .collect::<Vec<_>>()
-            .join("\n"))
+            .join("\n")
+            + "\n")
     } else {
         Ok("*`docs/access-protection.md` is not in this revision of the repository: the protection against unauthorised configuration is not described yet, and until it is, the measures below are all there is.*\n".into())
     }
+}
+
+/// `line` with every Markdown link to a relative target, `[text](target)`, written as
+/// `text (target)`: the target is a path in the repository, not a page of the book.
+/// Links to other sites and anchors stay.
+fn unlink(line: &str) -> String {
+    let mut out = String::new();
+    let mut rest = line;
+    while let Some(open) = rest.find('[') {
+        let Some(close) = rest[open..].find("](").map(|at| open + at) else {
+            break;
+        };
+        let Some(end) = rest[close..].find(')').map(|at| close + at) else {
+            break;
+        };
+        let (text, target) = (&rest[open + 1..close], &rest[close + 2..end]);
+        out.push_str(&rest[..open]);
+        if target.contains("://") || target.starts_with('#') || target.starts_with("mailto:") {
+            out.push_str(&rest[open..=end]);
+        } else {
+            let _ = write!(out, "{text} (`{target}`)");
+        }
+        rest = &rest[end + 1..];
+    }
+    out.push_str(rest);
+    out
 }
 
 fn copy_tree(from: &Path, to: &Path) -> Result<()> {
@@ -908,6 +936,33 @@ mod tests {
         assert!(table.contains(
             "| 01h | SCT elapsed | SCT elapsed without a complete pair (EN 50325-5 7.1.2). |"
         ));
+    }
+
+    /// Links into the repository become paths; links to other sites and anchors stay.
+    #[test]
+    fn repository_links_of_an_included_document_become_paths() {
+        assert_eq!(
+            unlink("see [the README](../README.md) and [CiA](https://can-cia.org) or [below](#x)."),
+            "see the README (`../README.md`) and [CiA](https://can-cia.org) or [below](#x)."
+        );
+        assert_eq!(unlink("a [bracket] alone"), "a [bracket] alone");
+    }
+
+    /// The committed generated parts are what the sources and the committed measurements
+    /// give now (what `cargo xtask manual --check` checks, here without mdBook): a change of
+    /// the EDS, the cause table, the calculators or a measurement report fails until
+    /// `cargo xtask manual` is run and its output committed.
+    #[test]
+    fn en50325_5_9_6_the_committed_generated_parts_of_the_manual_are_current() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+        for (name, text) in committed_parts(root).unwrap() {
+            let committed =
+                std::fs::read_to_string(root.join("manual/src/generated").join(name)).unwrap();
+            assert!(
+                committed == text,
+                "manual/src/generated/{name} is stale: run `cargo xtask manual` and commit it"
+            );
+        }
     }
 
     /// The link checker finds a missing file and a missing anchor, and passes good links.
