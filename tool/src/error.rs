@@ -195,6 +195,9 @@ pub enum ToolError {
     /// The network file is not right.
     #[error(transparent)]
     NetworkFile(#[from] crate::network_file::FileError),
+    /// A safety function of the network file has no reaction-time bound.
+    #[error(transparent)]
+    Sfrt(#[from] crate::calc::sfrt::SfrtError),
     /// The interface specification on the command line is not one this tool knows.
     #[error("{0}")]
     Usage(String),

@@ -5,6 +5,8 @@
 //!   adapters: [`socketcand`] (TCP), [`slcan`] (serial adapters), `socketcan` (Linux, behind
 //!   the `socketcan` feature). The host simulation's adapter lives in the `system-tests`
 //!   crate, which depends on this one.
+//! - [`calc`]: the calculators: reaction times (EN 50325-5 9.3), bus load and residual error
+//!   rate (9.4).
 //! - [`client`]: SDO and NMT over a transport, with errors that name the node and the object.
 //! - [`network_file`]: the network file (TOML) and its errors with line and column.
 //! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
@@ -14,6 +16,7 @@
 //!   logs recorded and replayed.
 //! - [`error`]: every error as a sentence.
 
+pub mod calc;
 pub mod client;
 pub mod eds;
 pub mod error;

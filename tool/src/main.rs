@@ -2,6 +2,11 @@
 //! network file, over socketcand, an SLCAN adapter or SocketCAN.
 
 use clap::{Parser, Subcommand, ValueEnum};
+use safety_config::calc::budget::{self, Plan};
+use safety_config::calc::bus::Stream;
+use safety_config::calc::report;
+use safety_config::calc::residual::Sil;
+use safety_config::calc::sfrt::{self, DeviceTiming};
 use safety_config::client::Client;
 use safety_config::network_file::{self, NodeSpec};
 use safety_config::procedure::{self, NodeResult, Operator, Verdict};
@@ -134,6 +139,56 @@ enum Command {
         #[arg(long)]
         name: Option<String>,
     },
+    /// The worst-case reaction time of each safety function of a network file, from the
+    /// producer's input to the consumer's output, part by part (EN 50325-5 9.3.1). Offline.
+    Sfrt {
+        /// The network file (TOML).
+        file: String,
+        #[command(flatten)]
+        plan: PlanArgs,
+        /// Each channel's input sample period (µs).
+        #[arg(long, default_value_t = DeviceTiming::HARDWARE.input_sample_us)]
+        input_sample_us: u64,
+        /// The largest skew between the two contacts of one input (µs), at most the sample
+        /// window (5000).
+        #[arg(long, default_value_t = DeviceTiming::HARDWARE.contact_skew_us)]
+        contact_skew_us: u64,
+        /// One step of a channel (µs); the default is an assumption until measured on a board.
+        #[arg(long, default_value_t = DeviceTiming::HARDWARE.processing_us)]
+        processing_us: u64,
+        /// The output stage after the pin (µs).
+        #[arg(long, default_value_t = DeviceTiming::HARDWARE.output_us)]
+        output_us: u64,
+    },
+    /// Bus load per bit rate and the residual error rate against a SIL for a network file
+    /// (EN 50325-5 9.4); exits with failure when a limit is exceeded. Offline.
+    Budget {
+        /// The network file (TOML).
+        file: String,
+        #[command(flatten)]
+        plan: PlanArgs,
+        /// The SIL the safety functions must meet (1, 2 or 3).
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u8).range(1..=3))]
+        sil: u8,
+        /// Safety devices on the network, when there are more than the file lists.
+        #[arg(long)]
+        devices: Option<u32>,
+    },
+}
+
+/// What a plan states beside the network file.
+#[derive(clap::Args)]
+struct PlanArgs {
+    /// The bit rate the network runs at (bit/s).
+    #[arg(long, default_value_t = dual_channel::device::BIT_RATE)]
+    bit_rate: u32,
+    /// Other traffic on the bus, as ID:LEN:PERIOD_MS (e.g. 0x181:8:10; repeat for more).
+    #[arg(long = "traffic")]
+    traffic: Vec<Stream>,
+    /// The shortest interval between two input changes of one producer (ms); without it one
+    /// event-driven pair per refresh time is counted besides the cyclic one.
+    #[arg(long)]
+    event_interval_ms: Option<u64>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -297,9 +352,70 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             *plain,
         );
     }
+    if let Command::Sfrt {
+        file,
+        plan,
+        input_sample_us,
+        contact_skew_us,
+        processing_us,
+        output_us,
+    } = &cli.command
+    {
+        let network = load(file)?;
+        let timing = DeviceTiming {
+            input_sample_us: *input_sample_us,
+            contact_skew_us: *contact_skew_us,
+            processing_us: *processing_us,
+            output_us: *output_us,
+            ..DeviceTiming::HARDWARE
+        };
+        let streams = sfrt::planned_streams(
+            &network,
+            plan.event_interval_ms.map(|ms| ms * 1000),
+            &plan.traffic,
+        );
+        let reactions = sfrt::reactions(&network, &streams, plan.bit_rate, &timing)?;
+        if cli.json {
+            println!(
+                "{}",
+                json(&serde_json::json!({"timing": timing, "reactions": reactions}))
+            );
+        } else {
+            print!("{}", report::reactions(&reactions, plan.bit_rate, &timing));
+        }
+        return Ok(true);
+    }
+    if let Command::Budget {
+        file,
+        plan,
+        sil,
+        devices,
+    } = &cli.command
+    {
+        let network = load(file)?;
+        let sil = Sil::from_level(*sil)
+            .ok_or_else(|| ToolError::Usage(format!("SIL {sil} is not 1, 2 or 3")))?;
+        let plan_of = Plan {
+            sil,
+            devices: *devices,
+            event_interval_us: plan.event_interval_ms.map(|ms| ms * 1000),
+            traffic: plan.traffic.clone(),
+        };
+        let budget = budget::budget(&network, &plan_of, plan.bit_rate);
+        if cli.json {
+            println!("{}", json(&budget));
+        } else {
+            print!("{}", report::budget(&budget, sil));
+        }
+        return Ok(budget.warnings.is_empty());
+    }
     let mut client = Client::new(open_bus(&cli.bus)?, timeout);
     match cli.command {
-        Command::Sign { .. } | Command::Eds | Command::Monitor { .. } => Ok(true),
+        Command::Sign { .. }
+        | Command::Eds
+        | Command::Monitor { .. }
+        | Command::Sfrt { .. }
+        | Command::Budget { .. } => Ok(true),
         Command::Dcf { node, name } => {
             print!(
                 "{}",

@@ -10,6 +10,7 @@ mod footprint;
 mod fullnet;
 mod images;
 mod interop;
+mod manual;
 mod network;
 mod qemu;
 mod run;
@@ -146,6 +147,15 @@ enum Task {
         /// Print the results only; leave docs/network-performance.md as it is (CI).
         #[arg(long)]
         print_only: bool,
+    },
+    /// The safety manual (manual/, an mdBook): writes its generated parts (safety objects,
+    /// causes, reaction times, residual error rate, campaign results) from the repository's
+    /// sources and committed measurements, builds it with the hardware images' CRCs to
+    /// target/manual/html and checks every link and anchor. Needs mdbook.
+    Manual {
+        /// Fail when a committed generated part differs from a fresh one instead of writing it.
+        #[arg(long)]
+        check: bool,
     },
     /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
     /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
@@ -304,6 +314,7 @@ fn task() -> Result<()> {
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
         Task::Scenario { files } => scenario::task(&root, &files),
+        Task::Manual { check } => manual::run(&root, check),
         Task::Campaign {
             scenarios,
             classes,

@@ -55,13 +55,13 @@ pub const BIT_RATE: u32 = 1_000_000;
 /// the first five equal bits and one after every four after that, (34 + 8·len − 1) / 4; then
 /// the 13 fixed-form bits (CRC delimiter, ACK slot and delimiter, EOF, intermission).
 pub fn worst_case_bits(len: u8) -> u32 {
-    let stuffable = 34 + 8 * u32::from(len);
-    47 + 8 * u32::from(len) + (stuffable - 1) / 4
+    // One formula for the plan, the tool's calculators and the safety manual.
+    safety_config::calc::bus::worst_case_bits(len)
 }
 
 /// [`worst_case_bits`] in microseconds at `bit_rate`, rounded up.
 pub fn worst_case_micros(len: u8, bit_rate: u32) -> u64 {
-    (u64::from(worst_case_bits(len)) * 1_000_000).div_ceil(u64::from(bit_rate))
+    safety_config::calc::bus::frame_micros(len, bit_rate)
 }
 
 /// One periodic stream for the budget: `count` frames of `len` bytes every `period_us`.

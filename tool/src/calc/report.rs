@@ -1,0 +1,102 @@
+//! The calculators' results as text, the same for `safety-config` and the safety manual.
+
+use super::budget::Budget;
+use super::residual::Sil;
+use super::sfrt::{DeviceTiming, Reaction};
+use std::fmt::Write;
+
+/// Microseconds as milliseconds with three decimals.
+#[must_use]
+pub fn ms(micros: u64) -> String {
+    format!("{}.{:03}", micros / 1000, micros % 1000)
+}
+
+/// One safety function's breakdown as a Markdown table.
+#[must_use]
+pub fn reaction_table(reaction: &Reaction) -> String {
+    let mut out = String::from("| part | worst case (ms) |\n|---|---:|\n");
+    for part in &reaction.parts {
+        let _ = writeln!(out, "| {} | {} |", part.what, ms(part.micros));
+    }
+    let _ = writeln!(
+        out,
+        "| **fault-free** | **{}** |",
+        ms(reaction.fault_free_us)
+    );
+    let _ = writeln!(
+        out,
+        "| with one communication fault (SCT, one frame, one step, output) | {} |",
+        ms(reaction.one_fault_us)
+    );
+    let _ = writeln!(
+        out,
+        "| **worst case: the network's part of the SFRT** | **{}** |",
+        ms(reaction.worst_us)
+    );
+    let _ = writeln!(
+        out,
+        "| GFC, from its transmit queue | {} |",
+        ms(reaction.gfc_us)
+    );
+    out
+}
+
+/// Every safety function of a network, for `safety-config sfrt`.
+#[must_use]
+pub fn reactions(reactions: &[Reaction], bit_rate: u32, timing: &DeviceTiming) -> String {
+    let mut out = String::new();
+    for reaction in reactions {
+        let _ = writeln!(
+            out,
+            "node {} SRDO {} -> node {} SRDO {} at {} kbit/s:\n",
+            reaction.producer.0,
+            reaction.producer.1,
+            reaction.consumer.0,
+            reaction.consumer.1,
+            bit_rate / 1000
+        );
+        out.push_str(&reaction_table(reaction));
+        out.push('\n');
+    }
+    let _ = writeln!(
+        out,
+        "Assumed: input sample {} ms, contact skew up to {} ms, link {} µs per byte, {} ms per channel step, output stage {} ms. Not included: the sensor, the actuator, and the controller if there is one (EN 50325-5 9.3.1 formula (3) adds them).",
+        ms(timing.input_sample_us),
+        ms(timing.contact_skew_us),
+        timing.link_byte_us,
+        ms(timing.processing_us),
+        ms(timing.output_us)
+    );
+    out
+}
+
+/// A plan's budget, for `safety-config budget`.
+#[must_use]
+pub fn budget(budget: &Budget, sil: Sil) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "SRDO producers: {}; safety devices: {}; SRDOs per second: {:.1}.\n",
+        budget.producers, budget.devices, budget.srdos_per_second
+    );
+    out.push_str("| kbit/s | worst-case bus load |\n|---:|---:|\n");
+    for (rate, load) in &budget.loads {
+        let _ = writeln!(out, "| {} | {:.1} % |", rate / 1000, load * 100.0);
+    }
+    let _ = writeln!(
+        out,
+        "\nResidual error rate (EN 50325-5 9.4.2, DSP 304 9.3): {:.2e} per hour; SIL {} allows below {:.0e} per hour, at most {:.1} SRDOs per second with {} devices. Highest SIL met: {}.",
+        budget.rate_per_hour,
+        sil.level(),
+        sil.limit_per_hour(),
+        budget.max_srdos_per_second,
+        budget.devices,
+        budget
+            .highest_sil
+            .map_or("none".to_owned(), |sil| format!("SIL {}", sil.level()))
+    );
+    for warning in &budget.warnings {
+        let _ = writeln!(out, "warning: {warning}");
+    }
+    out
+}
