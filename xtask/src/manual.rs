@@ -611,40 +611,59 @@ fn evidence_part(campaigns: &str, performance: &str) -> Result<String> {
         .find(|line| line.starts_with('`'))
         .context("docs/campaigns.md: no command line under `## Result`")?;
     let _ = writeln!(out, "Fault campaigns: {command}\n");
-    out.push_str("| class | requirement | injected | detected | harmless | unsafe | late | max latency (ms) | bound (ms) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    out.push_str("| class | kbit/s | requirement | injected | detected | harmless | unsafe | late | max latency (ms) | bound (ms) |\n|---|---:|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    let cells = |line: &str| -> Vec<String> {
+        line.trim_matches('|')
+            .split('|')
+            .map(|cell| cell.trim().to_owned())
+            .collect()
+    };
+    let mut rows = result.lines().skip_while(|l| !l.starts_with("| class"));
+    let header = cells(rows.next().context("docs/campaigns.md: no result table")?);
+    // The columns by their names, so that a column added to the campaign's table does not
+    // shift what the manual reports.
+    let column = |name: &str| -> Result<usize> {
+        header
+            .iter()
+            .position(|cell| cell == name)
+            .with_context(|| format!("docs/campaigns.md: the result table has no column {name:?}"))
+    };
+    let wanted = [
+        "class",
+        "kbit/s",
+        "requirement",
+        "injected",
+        "detected",
+        "harmless",
+        "unsafe",
+        "late",
+        "max latency (ms)",
+        "bound (ms)",
+    ]
+    .map(column);
+    let mut columns = [0usize; 10];
+    for (slot, found) in columns.iter_mut().zip(wanted) {
+        *slot = found?;
+    }
     let mut unsafe_or_late = 0u64;
     let mut injected = 0u64;
-    for line in result
-        .lines()
-        .skip_while(|l| !l.starts_with("| class"))
-        .skip(2)
-    {
+    for line in rows.skip(1) {
         if !line.starts_with('|') {
             break;
         }
-        let cells: Vec<&str> = line.trim_matches('|').split('|').map(str::trim).collect();
-        let [
-            class,
-            requirement,
-            n,
-            detected,
-            harmless,
-            unsafe_,
-            late,
-            _,
-            max,
-            bound,
-            _,
-        ] = cells[..]
-        else {
-            bail!("docs/campaigns.md: row {line:?} has not 11 cells");
+        let row = cells(line);
+        let cell = |i: usize| -> Result<&str> {
+            row.get(columns[i]).map(String::as_str).with_context(|| {
+                format!("docs/campaigns.md: row {line:?} is shorter than its header")
+            })
         };
-        injected += n.parse::<u64>()?;
-        unsafe_or_late += unsafe_.parse::<u64>()? + late.parse::<u64>()?;
-        let _ = writeln!(
-            out,
-            "| {class} | {requirement} | {n} | {detected} | {harmless} | {unsafe_} | {late} | {max} | {bound} |"
-        );
+        injected += cell(3)?.parse::<u64>()?;
+        unsafe_or_late += cell(6)?.parse::<u64>()? + cell(7)?.parse::<u64>()?;
+        let shown = (0..columns.len())
+            .map(cell)
+            .collect::<Result<Vec<_>>>()?
+            .join(" | ");
+        let _ = writeln!(out, "| {shown} |");
     }
     let _ = writeln!(
         out,
