@@ -20,9 +20,12 @@
 //! Each state machine is a small value fed `now` and what it needs, answering with what to
 //! do and its next deadline, so an executor sleeps exactly until then.
 
+pub mod consumer;
+pub mod crc_monitor;
 pub mod frame;
 pub mod residual;
 pub mod schedule;
+pub mod sdd;
 
 use crate::time::Duration;
 
