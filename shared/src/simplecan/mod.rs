@@ -26,6 +26,7 @@ pub mod frame;
 pub mod residual;
 pub mod schedule;
 pub mod sdd;
+pub mod sync;
 
 use crate::time::Duration;
 
