@@ -23,6 +23,7 @@
 pub mod consumer;
 pub mod crc_monitor;
 pub mod frame;
+pub mod master;
 pub mod residual;
 pub mod schedule;
 pub mod sdd;

@@ -57,6 +57,58 @@ pub enum ScheduleError {
     },
 }
 
+/// The length of a cycle, and the arithmetic of slots and global time on it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Cycle {
+    slots: u16,
+}
+
+impl Cycle {
+    /// N, the slots per cycle.
+    pub const fn slots(&self) -> u16 {
+        self.slots
+    }
+
+    /// The length of a cycle in microseconds.
+    pub const fn micros(&self) -> u64 {
+        self.slots as u64 * SLOT.as_micros()
+    }
+
+    /// The slot a sync goes in: the last (SC_REQ_21).
+    pub const fn sync_slot(&self) -> u16 {
+        self.slots - 1
+    }
+
+    /// The global time at which slot `slot` of cycle `cycle` starts (saturating).
+    pub const fn slot_start(&self, cycle: u64, slot: u16) -> u64 {
+        cycle
+            .saturating_mul(self.slots as u64)
+            .saturating_add(slot as u64)
+            .saturating_mul(SLOT.as_micros())
+    }
+
+    /// The cycle and slot that global time `global` falls in.
+    pub const fn position(&self, global: u64) -> (u64, u16) {
+        let slot_number = global / SLOT.as_micros();
+        let n = self.slots as u64;
+        // The remainder is below N ≤ 1000, so it fits in a u16.
+        (slot_number / n, (slot_number % n) as u16)
+    }
+
+    /// The start of the first slot `slot` at or after global time `global`, and its cycle:
+    /// when a producer owning `slot` sends next (SC_REQ_18).
+    pub const fn next_slot(&self, global: u64, slot: u16) -> (u64, u64) {
+        let (cycle, _) = self.position(global);
+        let this_cycle = self.slot_start(cycle, slot);
+        if this_cycle >= global {
+            (cycle, this_cycle)
+        } else {
+            (cycle + 1, self.slot_start(cycle + 1, slot))
+        }
+    }
+}
+
 /// A network's cycle: its length, how often the master sends a sync, and every producer's
 /// slot. Built only by [`Schedule::new`], so every value of it meets section 5 and SC_REQ_04.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -139,19 +191,14 @@ impl Schedule {
         })
     }
 
-    /// N, the slots per cycle.
-    pub const fn slots(&self) -> u16 {
-        self.slots
+    /// The cycle: N slots of 1 ms.
+    pub const fn cycle(&self) -> Cycle {
+        Cycle { slots: self.slots }
     }
 
     /// k: the active master sends a sync every k cycles.
     pub const fn sync_every_cycles(&self) -> u16 {
         self.sync_every_cycles
-    }
-
-    /// The length of a cycle in microseconds.
-    pub const fn cycle_micros(&self) -> u64 {
-        self.slots as u64 * SLOT.as_micros()
     }
 
     /// The slot of `sc_id`, if it has one.
@@ -162,39 +209,6 @@ impl Schedule {
             .map(|&(_, slot)| slot)
     }
 
-    /// The slot a sync goes in: the last (SC_REQ_21).
-    pub const fn sync_slot(&self) -> u16 {
-        self.slots - 1
-    }
-
-    /// The global time at which slot `slot` of cycle `cycle` starts (saturating).
-    pub const fn slot_start(&self, cycle: u64, slot: u16) -> u64 {
-        cycle
-            .saturating_mul(self.slots as u64)
-            .saturating_add(slot as u64)
-            .saturating_mul(SLOT.as_micros())
-    }
-
-    /// The cycle and slot that global time `global` falls in.
-    pub const fn position(&self, global: u64) -> (u64, u16) {
-        let slot_number = global / SLOT.as_micros();
-        let n = self.slots as u64;
-        // The remainder is below N ≤ 1000, so it fits in a u16.
-        (slot_number / n, (slot_number % n) as u16)
-    }
-
-    /// The start of the first slot `slot` at or after global time `global`, and its cycle:
-    /// when a producer owning `slot` sends next (SC_REQ_18).
-    pub const fn next_slot(&self, global: u64, slot: u16) -> (u64, u64) {
-        let (cycle, _) = self.position(global);
-        let this_cycle = self.slot_start(cycle, slot);
-        if this_cycle >= global {
-            (cycle, this_cycle)
-        } else {
-            (cycle + 1, self.slot_start(cycle + 1, slot))
-        }
-    }
-
     /// Whether a data packet of `sc_id` stamped `stamp`, received at global time `global`,
     /// is timely (section 5): the stamp names the cycle nearest `global`'s whose low 8 bits
     /// it is, and `global` must lie in `sc_id`'s slot of that cycle, widened by
@@ -202,11 +216,12 @@ impl Schedule {
     /// from which the value's age counts (SC_REQ_20).
     pub fn timely(&self, sc_id: ScId, stamp: u8, global: u64) -> Result<u64, Untimely> {
         let slot = self.slot_of(sc_id).ok_or(Untimely::NoSlot)?;
-        let (cycle, _) = self.position(global);
+        let cycle_of = self.cycle();
+        let (cycle, _) = cycle_of.position(global);
         // Serial-number arithmetic (RFC 1982 style): the stamp is at most 128 cycles away.
         let distance = i64::from(stamp.wrapping_sub(cycle as u8) as i8);
         let stamped = cycle.saturating_add_signed(distance);
-        let start = self.slot_start(stamped, slot);
+        let start = cycle_of.slot_start(stamped, slot);
         let earliest = start.saturating_sub(SYNC_TOLERANCE.as_micros());
         let latest = start + SLOT.as_micros() + SYNC_TOLERANCE.as_micros();
         if global < earliest {
@@ -239,11 +254,11 @@ mod tests {
     #[test]
     fn sc_req_18_a_producer_sends_at_the_start_of_its_slot_every_cycle() {
         let schedule = schedule();
-        assert_eq!(schedule.next_slot(0, 7), (0, 7_000));
-        assert_eq!(schedule.next_slot(7_000, 7), (0, 7_000));
-        assert_eq!(schedule.next_slot(7_001, 7), (1, 17_000));
-        assert_eq!(schedule.position(17_999), (1, 7));
-        assert_eq!(schedule.position(18_000), (1, 8));
+        assert_eq!(schedule.cycle().next_slot(0, 7), (0, 7_000));
+        assert_eq!(schedule.cycle().next_slot(7_000, 7), (0, 7_000));
+        assert_eq!(schedule.cycle().next_slot(7_001, 7), (1, 17_000));
+        assert_eq!(schedule.cycle().position(17_999), (1, 7));
+        assert_eq!(schedule.cycle().position(18_000), (1, 8));
     }
 
     #[test]
@@ -266,8 +281,11 @@ mod tests {
     #[test]
     fn sc_req_21_a_sync_goes_in_the_last_slot() {
         let schedule = schedule();
-        assert_eq!(schedule.sync_slot(), 9);
-        assert_eq!(schedule.next_slot(0, schedule.sync_slot()), (0, 9_000));
+        assert_eq!(schedule.cycle().sync_slot(), 9);
+        assert_eq!(
+            schedule.cycle().next_slot(0, schedule.cycle().sync_slot()),
+            (0, 9_000)
+        );
     }
 
     #[test]
@@ -319,7 +337,7 @@ mod tests {
     #[test]
     fn sc_req_18_a_packet_outside_its_slot_is_not_timely() {
         let schedule = schedule();
-        let slot_7_of_cycle_3 = schedule.slot_start(3, 7);
+        let slot_7_of_cycle_3 = schedule.cycle().slot_start(3, 7);
         let stamp = 3;
         // In the slot, and up to 2 ms either side of it.
         for global in [
@@ -348,16 +366,16 @@ mod tests {
     #[test]
     fn sc_req_18_a_packet_repeated_a_cycle_later_is_not_timely() {
         let schedule = schedule();
-        let sent = schedule.slot_start(300, 0);
+        let sent = schedule.cycle().slot_start(300, 0);
         assert_eq!(schedule.timely(sc(0x30), 300u64 as u8, sent), Ok(sent));
-        let next_cycle = schedule.slot_start(301, 0);
+        let next_cycle = schedule.cycle().slot_start(301, 0);
         assert!(schedule.timely(sc(0x30), 300u64 as u8, next_cycle).is_err());
         // The stamp's wrap: cycle 255 stamped 255, received early in cycle 256's time.
-        let wrap = schedule.slot_start(255, 0);
+        let wrap = schedule.cycle().slot_start(255, 0);
         assert_eq!(schedule.timely(sc(0x30), 255, wrap), Ok(wrap));
         assert_eq!(
-            schedule.timely(sc(0x30), 0, schedule.slot_start(256, 0)),
-            Ok(schedule.slot_start(256, 0))
+            schedule.timely(sc(0x30), 0, schedule.cycle().slot_start(256, 0)),
+            Ok(schedule.cycle().slot_start(256, 0))
         );
     }
 }
