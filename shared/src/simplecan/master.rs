@@ -6,9 +6,10 @@
 //! and then `t_wait` (SC_REQ_27); hearing a lower SC-ID it follows, hearing a higher one it
 //! synchronises and takes over; active, it sends a sync in the last slot every k cycles
 //! (SC_REQ_22), each confirmed by the controller within 2 ms or aborted (SC_REQ_23), and after
-//! an abort or a transmit error it backs off `t_wait` (SC_REQ_28). Its synchronisation to
-//! another master is [`super::sync::SyncTracker`]'s; the SCL hands the tracker's changes in
-//! ([`Master::on_synced`], [`Master::on_unsynced`]).
+//! an abort or a transmit error it backs off `t_wait` (SC_REQ_28); 2000 ms without the sync
+//! of the master it follows (SC_REQ_32) and it listens `t_wait` and starts on its own. Its
+//! synchronisation to another master is [`super::sync::SyncTracker`]'s; the SCL hands the
+//! tracker's change to synced in ([`Master::on_synced`]).
 //!
 //! [`MasterMonitor`] is every SCL's check of SC_REQ_26.
 
@@ -50,19 +51,29 @@ impl Anchor {
     }
 }
 
+/// The role's state; the time base lives in the states that have one, so an active master
+/// without one cannot be written down.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 enum State {
-    /// Listening until `until`; then active.
-    Listening { until: Instant },
-    /// A master with a lower SC-ID is active.
-    Following { master: ScId },
-    /// A master with a higher SC-ID is active: synchronise to it, then take over.
-    TakingOver,
+    /// Listening until `until`; then active, on `anchor` after a back-off, else on a new time.
+    Listening {
+        until: Instant,
+        anchor: Option<Anchor>,
+    },
+    /// A master with a lower SC-ID is active; its last sync was heard at `heard`.
+    Following { master: ScId, heard: Instant },
+    /// A master with a higher SC-ID is active (last heard at `heard`): synchronise to it,
+    /// then take over.
+    TakingOver { heard: Instant },
     /// Active: the next sync is due at `next_sync`.
-    Active { next_sync: Instant },
+    Active { anchor: Anchor, next_sync: Instant },
     /// A sync of cycle `cycle` was handed out; its confirmation is due by `deadline`.
-    Confirming { deadline: Instant, cycle: u64 },
+    Confirming {
+        anchor: Anchor,
+        deadline: Instant,
+        cycle: u64,
+    },
 }
 
 /// The master role of one SCL.
@@ -73,7 +84,6 @@ pub struct Master {
     cycle: Cycle,
     sync_every_cycles: u16,
     state: State,
-    anchor: Option<Anchor>,
 }
 
 impl Master {
@@ -86,8 +96,8 @@ impl Master {
             sync_every_cycles: schedule.sync_every_cycles(),
             state: State::Listening {
                 until: now + MAX_SYNC_INTERVAL + id.t_wait(),
+                anchor: None,
             },
-            anchor: None,
         }
     }
 
@@ -98,28 +108,34 @@ impl Master {
 
     /// The global time at `now` while active: the time this master gives the network.
     pub fn global_time(&self, now: Instant) -> Option<u64> {
-        match (self.is_active(), self.anchor) {
-            (true, Some(anchor)) => Some(anchor.global_at(now)),
+        match self.state {
+            State::Active { anchor, .. } | State::Confirming { anchor, .. } => {
+                Some(anchor.global_at(now))
+            }
             _ => None,
         }
     }
 
-    /// A checked sync from `from` arrived.
-    pub fn on_sync(&mut self, from: ScId) -> Option<Action> {
+    /// A checked sync from `from` arrived at `now`.
+    pub fn on_sync(&mut self, now: Instant, from: ScId) -> Option<Action> {
         if from < self.id {
             let pending = matches!(self.state, State::Confirming { .. });
             let master = match self.state {
-                State::Following { master } => master.min(from),
+                State::Following { master, .. } => master.min(from),
                 _ => from,
             };
             // A lower SC-ID wins (SC_REQ_25): follow it, and withdraw a sync not yet out.
-            self.state = State::Following { master };
-            self.anchor = None;
+            self.state = State::Following { master, heard: now };
             return pending.then_some(Action::Abort);
         }
-        if from > self.id && matches!(self.state, State::Listening { .. }) {
+        if from > self.id
+            && matches!(
+                self.state,
+                State::Listening { .. } | State::TakingOver { .. }
+            )
+        {
             // A late joiner synchronises to the network's master first (SC_REQ_25).
-            self.state = State::TakingOver;
+            self.state = State::TakingOver { heard: now };
         }
         None
     }
@@ -129,25 +145,13 @@ impl Master {
     /// sync in the last slot of the next cycle (the master it replaces sends at most every
     /// 100 ms, so not then).
     pub fn on_synced(&mut self, now: Instant, global: u64) {
-        if self.state == State::TakingOver {
+        if let State::TakingOver { .. } = self.state {
             let anchor = Anchor { local: now, global };
             let (cycle, _) = self.cycle.position(global);
             let first = self.cycle.slot_start(cycle + 1, self.cycle.sync_slot());
-            self.anchor = Some(anchor);
             self.state = State::Active {
+                anchor,
                 next_sync: anchor.local_at(first),
-            };
-        }
-    }
-
-    /// The SCL's tracker went unsynced at `now` (2000 ms without its master's sync, SC_REQ_32):
-    /// no master is active; listen `t_wait` more, then start afresh (the 2000 ms were the
-    /// listening a late joiner does).
-    pub fn on_unsynced(&mut self, now: Instant) {
-        if matches!(self.state, State::Following { .. } | State::TakingOver) {
-            self.anchor = None;
-            self.state = State::Listening {
-                until: now + self.id.t_wait(),
             };
         }
     }
@@ -155,10 +159,11 @@ impl Master {
     /// The controller confirmed the sync on the bus (SC_REQ_23). The next one is due k
     /// cycles after this one's slot, whenever the confirmation came.
     pub fn on_transmitted(&mut self) {
-        if let (State::Confirming { cycle, .. }, Some(anchor)) = (self.state, self.anchor) {
+        if let State::Confirming { anchor, cycle, .. } = self.state {
             let next = cycle + u64::from(self.sync_every_cycles);
             let global = self.cycle.slot_start(next, self.cycle.sync_slot());
             self.state = State::Active {
+                anchor,
                 next_sync: anchor.local_at(global),
             };
         }
@@ -167,27 +172,41 @@ impl Master {
     /// The controller reported an error while sending the sync (a collision, say) at `now`:
     /// abort it and back off `t_wait` (SC_REQ_28).
     pub fn on_transmit_error(&mut self, now: Instant) -> Option<Action> {
-        if matches!(self.state, State::Confirming { .. }) {
-            self.back_off(now);
+        if let State::Confirming { anchor, .. } = self.state {
+            self.back_off(now, anchor);
             Some(Action::Abort)
         } else {
             None
         }
     }
 
-    fn back_off(&mut self, now: Instant) {
+    /// Listen `t_wait` (SC_REQ_28), keeping the time base for the retry.
+    fn back_off(&mut self, now: Instant, anchor: Anchor) {
         self.state = State::Listening {
             until: now + self.id.t_wait(),
+            anchor: Some(anchor),
         };
     }
 
     /// What is due at `now`.
     pub fn poll(&mut self, now: Instant) -> Option<Action> {
         match self.state {
-            State::Listening { until } if expired(until, now) => {
+            State::Following { heard, .. } | State::TakingOver { heard }
+                if expired(heard + SYNC_LOSS_TIMEOUT, now) =>
+            {
+                // 2000 ms without the master's sync (SC_REQ_32): no master is active. Those
+                // 2000 ms were the listening a late joiner does; `t_wait` more orders the
+                // potential masters (SC_REQ_27), then this one starts on a time of its own.
+                self.state = State::Listening {
+                    until: now + self.id.t_wait(),
+                    anchor: None,
+                };
+                self.poll(now)
+            }
+            State::Listening { until, anchor } if expired(until, now) => {
                 // Alone (first start, or after losing the network): now is the start of the
                 // last slot of cycle 0. After a back-off: the time base it had.
-                let anchor = *self.anchor.get_or_insert(Anchor {
+                let anchor = anchor.unwrap_or(Anchor {
                     local: now,
                     global: self.cycle.slot_start(0, self.cycle.sync_slot()),
                 });
@@ -195,12 +214,13 @@ impl Master {
                     .cycle
                     .next_slot(anchor.global_at(now), self.cycle.sync_slot());
                 self.state = State::Active {
+                    anchor,
                     next_sync: anchor.local_at(global),
                 };
+                // Once more: the sync is due now or later, and is sent or scheduled.
                 self.poll(now)
             }
-            State::Active { next_sync } if expired(next_sync, now) => {
-                let anchor = self.anchor?;
+            State::Active { anchor, next_sync } if expired(next_sync, now) => {
                 let global = anchor.global_at(now);
                 let (cycle, slot) = self.cycle.position(global);
                 let slot_start = self.cycle.slot_start(cycle, slot);
@@ -208,6 +228,7 @@ impl Master {
                     // Polled after the last slot ended: the next cycle's last slot.
                     let (_, next) = self.cycle.next_slot(global, self.cycle.sync_slot());
                     self.state = State::Active {
+                        anchor,
                         next_sync: anchor.local_at(next),
                     };
                     return None;
@@ -217,14 +238,17 @@ impl Master {
                 let offset = u16::try_from(global - slot_start).unwrap_or(u16::MAX);
                 let sync = SyncPacket::new(self.id, cycle as u16, offset)?;
                 self.state = State::Confirming {
+                    anchor,
                     deadline: now + SYNC_CONFIRMATION_TIMEOUT,
                     cycle,
                 };
                 Some(Action::Send(sync))
             }
-            State::Confirming { deadline, .. } if expired(deadline, now) => {
+            State::Confirming {
+                anchor, deadline, ..
+            } if expired(deadline, now) => {
                 // Not confirmed within 2 ms (SC_REQ_23): abort, then back off (SC_REQ_28).
-                self.back_off(now);
+                self.back_off(now, anchor);
                 Some(Action::Abort)
             }
             _ => None,
@@ -235,10 +259,12 @@ impl Master {
     #[must_use]
     pub const fn deadline(&self) -> Instant {
         match self.state {
-            State::Listening { until } => until,
-            State::Active { next_sync } => next_sync,
+            State::Listening { until, .. } => until,
+            State::Active { next_sync, .. } => next_sync,
             State::Confirming { deadline, .. } => deadline,
-            State::Following { .. } | State::TakingOver => Instant::NEVER,
+            State::Following { heard, .. } | State::TakingOver { heard } => {
+                heard.saturating_add(SYNC_LOSS_TIMEOUT)
+            }
         }
     }
 }
@@ -365,8 +391,8 @@ mod tests {
         let mut high = Master::new(sc(0x31), &schedule(), at(0));
         assert!(matches!(low.poll(at(500)), Some(Action::Send(_))));
         low.on_transmitted();
-        assert_eq!(high.on_sync(sc(0x30)), None);
-        assert_eq!(high.deadline(), Instant::NEVER);
+        assert_eq!(high.on_sync(at_us(500_300), sc(0x30)), None);
+        assert_eq!(high.deadline(), at_us(2_500_300));
         assert_eq!(high.poll(at(505)), None);
         assert!(low.is_active() && !high.is_active());
     }
@@ -430,7 +456,7 @@ mod tests {
         assert_eq!(master.deadline(), at_us(540_100));
         assert_eq!(master.poll(at_us(540_099)), None);
         // A lower master heard during the back-off wins.
-        assert_eq!(master.on_sync(sc(0x30)), None);
+        assert_eq!(master.on_sync(at(530), sc(0x30)), None);
         assert_eq!(master.poll(at(600)), None);
         assert!(!master.is_active());
     }
@@ -441,13 +467,16 @@ mod tests {
     fn sc_req_25_the_lowest_sc_id_wins() {
         let mut master = Master::new(sc(0x40), &schedule(), at(0));
         assert!(matches!(master.poll(at(580)), Some(Action::Send(_))));
-        assert_eq!(master.on_sync(sc(0x35)), Some(Action::Abort));
+        assert_eq!(
+            master.on_sync(at_us(580_100), sc(0x35)),
+            Some(Action::Abort)
+        );
         assert!(!master.is_active());
-        assert_eq!(master.deadline(), Instant::NEVER);
+        assert_eq!(master.deadline(), at_us(2_580_100));
         // A higher master's sync does not make an active master yield.
         let mut master = Master::new(sc(0x30), &schedule(), at(0));
         let _ = run(&mut master, at(600));
-        assert_eq!(master.on_sync(sc(0x31)), None);
+        assert_eq!(master.on_sync(at(650), sc(0x31)), None);
         assert!(master.is_active());
     }
 
@@ -456,13 +485,9 @@ mod tests {
     #[test]
     fn sc_req_25_a_late_joiner_synchronises_before_it_takes_over() {
         let mut joiner = Master::new(sc(0x30), &schedule(), at(10_000));
-        assert_eq!(joiner.on_sync(sc(0x45)), None);
-        assert_eq!(
-            joiner.deadline(),
-            Instant::NEVER,
-            "no sync before synchronised"
-        );
-        assert_eq!(joiner.poll(at(10_600)), None);
+        assert_eq!(joiner.on_sync(at(10_040), sc(0x45)), None);
+        assert_eq!(joiner.deadline(), at(12_040));
+        assert_eq!(joiner.poll(at(10_600)), None, "no sync before synchronised");
         // The tracker synced on the second sync: global time 5_009_000 µs (cycle 500's last
         // slot) at 10_140 ms.
         joiner.on_synced(at(10_140), 5_009_000);
@@ -474,15 +499,30 @@ mod tests {
         assert_eq!((sync.master(), sync.cycle()), (sc(0x30), 501));
     }
 
-    /// The lost master: followers go unsynced after 2000 ms (SC_REQ_32), listen t_wait and
-    /// the lowest remaining SC-ID starts afresh.
+    /// The lost master: 2000 ms after its last sync (SC_REQ_32) a follower listens t_wait
+    /// and starts on its own time, the lowest remaining SC-ID first.
     #[test]
     fn sc_req_25_a_lost_master_is_replaced_after_the_sync_loss_timeout() {
         let mut follower = Master::new(sc(0x31), &schedule(), at(0));
-        let _ = follower.on_sync(sc(0x30));
-        follower.on_unsynced(at(2_100));
+        let _ = follower.on_sync(at(100), sc(0x30));
+        assert_eq!(follower.deadline(), at(2_100));
+        assert_eq!(follower.poll(at_us(2_099_999)), None);
+        assert_eq!(follower.poll(at(2_100)), None);
         assert_eq!(follower.deadline(), at(2_105));
-        assert!(matches!(follower.poll(at(2_105)), Some(Action::Send(_))));
+        let Some(Action::Send(sync)) = follower.poll(at(2_105)) else {
+            panic!("no sync from the follower");
+        };
+        assert_eq!((sync.master(), sync.cycle()), (sc(0x31), 0));
+    }
+
+    /// A higher master that vanishes before this one synchronised to it: 2000 ms after its
+    /// last sync this one starts on its own (t_wait of 30h is 0, so at once).
+    #[test]
+    fn sc_req_25_a_master_waiting_to_take_over_does_not_wait_for_ever() {
+        let mut joiner = Master::new(sc(0x30), &schedule(), at(0));
+        let _ = joiner.on_sync(at(40), sc(0x45));
+        assert_eq!(joiner.deadline(), at(2_040));
+        assert!(matches!(joiner.poll(at(2_040)), Some(Action::Send(_))));
     }
 
     #[test]

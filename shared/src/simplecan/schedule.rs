@@ -223,7 +223,9 @@ impl Schedule {
         let stamped = cycle.saturating_add_signed(distance);
         let start = cycle_of.slot_start(stamped, slot);
         let earliest = start.saturating_sub(SYNC_TOLERANCE.as_micros());
-        let latest = start + SLOT.as_micros() + SYNC_TOLERANCE.as_micros();
+        let latest = start
+            .saturating_add(SLOT.as_micros())
+            .saturating_add(SYNC_TOLERANCE.as_micros());
         if global < earliest {
             Err(Untimely::OutsideItsSlot {
                 by_micros: earliest - global,
