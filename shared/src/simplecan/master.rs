@@ -224,7 +224,12 @@ impl Master {
                 let global = anchor.global_at(now);
                 let (cycle, slot) = self.cycle.position(global);
                 let slot_start = self.cycle.slot_start(cycle, slot);
-                if slot != self.cycle.sync_slot() {
+                // Within the 1 ms slot the offset is below 1000; the cycle number is sent
+                // modulo 65536.
+                let offset = u16::try_from(global - slot_start).unwrap_or(u16::MAX);
+                let sync = SyncPacket::new(self.id, cycle as u16, offset)
+                    .filter(|_| slot == self.cycle.sync_slot());
+                let Some(sync) = sync else {
                     // Polled after the last slot ended: the next cycle's last slot.
                     let (_, next) = self.cycle.next_slot(global, self.cycle.sync_slot());
                     self.state = State::Active {
@@ -232,11 +237,7 @@ impl Master {
                         next_sync: anchor.local_at(next),
                     };
                     return None;
-                }
-                // Within the 1 ms slot, so the offset is below 1000 and the cycle number is
-                // sent modulo 65536.
-                let offset = u16::try_from(global - slot_start).unwrap_or(u16::MAX);
-                let sync = SyncPacket::new(self.id, cycle as u16, offset)?;
+                };
                 self.state = State::Confirming {
                     anchor,
                     deadline: now + SYNC_CONFIRMATION_TIMEOUT,
@@ -421,6 +422,22 @@ mod tests {
                 Duration::from_millis(500)
             );
         }
+    }
+
+    /// Polled after the last slot ended (a late executor): no sync outside the last slot
+    /// (SC_REQ_21); the next cycle's last slot instead.
+    #[test]
+    fn sc_req_21_a_late_poll_sends_in_the_next_last_slot_not_outside_it() {
+        let mut master = Master::new(sc(0x30), &schedule(), at(0));
+        assert!(matches!(master.poll(at(500)), Some(Action::Send(_))));
+        master.on_transmitted();
+        assert_eq!(master.deadline(), at(600));
+        assert_eq!(master.poll(at(601)), None);
+        assert_eq!(master.deadline(), at(610));
+        let Some(Action::Send(sync)) = master.poll(at_us(610_400)) else {
+            panic!("no sync in the next last slot");
+        };
+        assert_eq!((sync.cycle(), sync.offset_micros()), (11, 400));
     }
 
     /// SC_REQ_23: not confirmed within 2 ms, the sync is aborted at exactly 2 ms; the master
