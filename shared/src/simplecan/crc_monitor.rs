@@ -209,6 +209,38 @@ mod tests {
         assert_eq!(counter.count(), THRESHOLD);
     }
 
+    proptest::proptest! {
+        /// Against the note read literally, one leak tick at a time: after any sequence of
+        /// gaps and bursts the counts agree, and the deadline is the next tick that matters.
+        #[test]
+        fn sc_req_42_the_counter_matches_the_note_tick_by_tick(
+            steps in proptest::collection::vec((0u64..20_000, 0u16..400), 1..60)
+        ) {
+            let mut counter = BadCrcCounter::new(at(0));
+            let (mut model, mut next_tick, mut now) = (0u16, 3600u64, 0u64);
+            for (gap_ms, bad) in steps {
+                now += gap_ms;
+                while next_tick <= now {
+                    if model != 0 && model < THRESHOLD {
+                        model -= 1;
+                    }
+                    next_tick += 3600;
+                }
+                for _ in 0..bad {
+                    if model < THRESHOLD {
+                        model += 1;
+                    }
+                    let verdict = counter.bad_packet(at(now));
+                    proptest::prop_assert_eq!(verdict == Verdict::Tripped, model >= THRESHOLD);
+                }
+                counter.poll(at(now));
+                proptest::prop_assert_eq!(counter.count(), model);
+                let expected = if model == 0 || model >= THRESHOLD { Instant::NEVER } else { at(next_tick) };
+                proptest::prop_assert_eq!(counter.deadline(), expected);
+            }
+        }
+    }
+
     /// The longest gaps there are: no overflow, no panic, the counter simply empties.
     #[test]
     fn sc_req_42_no_overflow_at_the_end_of_time() {
