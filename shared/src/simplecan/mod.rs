@@ -118,6 +118,64 @@ mod tests {
         assert_eq!(ScId::new(0x80), None);
     }
 
+    /// The building blocks together: a master's syncs, encoded, decoded with the node hash
+    /// from a receiver's SDD, into the receiver's tracker and master check. A receiver that
+    /// starts just after a sync is synced at the second sync it hears: 2 sync intervals
+    /// (here 2 × 100 ms) at worst, and then agrees with the master's time to the microsecond.
+    #[test]
+    fn sc_req_30_a_receiver_synchronises_within_two_sync_intervals() {
+        use crate::time::Instant;
+        use frame::{Packet, decode};
+        use master::{Action, Master, MasterMonitor};
+        use schedule::Schedule;
+        use sdd::{Entry, Role, Sdd};
+        use sync::{Change, SyncTracker};
+
+        let id = ScId::new(0x30).unwrap();
+        let hash = NodeHash(0x5EED_0030);
+        let schedule = Schedule::new(10, 10, &[]).unwrap();
+        let receiver_sdd = Sdd::new(&[Entry {
+            sc_id: id,
+            hash,
+            role: Role::Master,
+        }])
+        .unwrap();
+        let mut master = Master::new(id, &schedule, Instant::ZERO);
+        let mut tracker = SyncTracker::new(10, Duration::ZERO);
+        let mut monitor = MasterMonitor::new();
+        let receiver_start = Instant::from_micros(500_001);
+        let mut synced_at = None;
+        while synced_at.is_none() {
+            let now = master.deadline();
+            assert!(now < Instant::from_millis(1_000), "never synchronised");
+            let Some(Action::Send(sync)) = master.poll(now) else {
+                continue;
+            };
+            master.on_transmitted();
+            if now < receiver_start {
+                continue;
+            }
+            let Ok(Packet::Sync(received)) = decode(&sync.encode(hash), &receiver_sdd) else {
+                panic!("the receiver rejected a sync");
+            };
+            assert_eq!(monitor.on_sync(now, received.master()), Ok(()));
+            if let Some(Change::Synced { master: from }) = tracker.on_sync(now, &received) {
+                assert_eq!(from, id);
+                synced_at = Some(now);
+            }
+        }
+        let synced_at = synced_at.unwrap();
+        assert_eq!(synced_at, Instant::from_millis(700));
+        assert_eq!(
+            synced_at.saturating_since(receiver_start),
+            Duration::from_micros(199_999)
+        );
+        assert_eq!(
+            tracker.global_time(synced_at),
+            master.global_time(synced_at)
+        );
+    }
+
     #[test]
     fn sc_req_27_t_wait_is_five_ms_per_sc_id_above_30h() {
         assert_eq!(ScId::LOWEST.t_wait(), Duration::ZERO);
