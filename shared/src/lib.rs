@@ -27,6 +27,7 @@ pub mod frame;
 pub mod node;
 pub mod process_image;
 pub mod safety;
+pub mod simplecan;
 pub mod time;
 
 pub use frame::{CanFrame, CanId};

@@ -49,8 +49,10 @@ fn validate(node: &mut Node<RamFlash<8192>, 2>, node_id: u8, sink: &mut common::
 
 fuzz_target!(|input: Input| {
     let node_id = input.node_id.clamp(1, 127);
-    let Ok(mut node) = Node::<RamFlash<8192>, 2>::new(common::config(node_id, input.event_driven), RamFlash::new())
-    else {
+    let Ok(mut node) = Node::<RamFlash<8192>, 2>::new(
+        common::config(node_id, input.event_driven),
+        RamFlash::new(),
+    ) else {
         return;
     };
     let mut sink = common::Checker::default();
@@ -59,7 +61,9 @@ fuzz_target!(|input: Input| {
     validate(&mut node, node_id, &mut sink);
     for step in input.steps {
         now = now + Duration::from_micros(u64::from(step.advance_us));
-        let Ok(id) = CanId::new(step.id & 0x7FF) else { continue };
+        let Ok(id) = CanId::new(step.id & 0x7FF) else {
+            continue;
+        };
         let frame = if step.remote {
             CanFrame::remote(id, step.dlc % 9)
         } else {
@@ -74,7 +78,10 @@ fuzz_target!(|input: Input| {
             let mut buf = [0u8; 8];
             for sub in [Address::new(0x6200, 1), Address::new(0x6201, 1)] {
                 let _ = node.read_object(sub, &mut buf);
-                assert_eq!(buf[0], 0, "SC_REQ_05: outputs are 0 outside the working state");
+                assert_eq!(
+                    buf[0], 0,
+                    "SC_REQ_05: outputs are 0 outside the working state"
+                );
             }
         }
     }

@@ -11,7 +11,8 @@ use shared::node::Node;
 use shared::{CanFrame, CanId, Duration, Instant};
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(mut node) = Node::<RamFlash<8192>, 2>::new(common::config(5, false), RamFlash::new()) else {
+    let Ok(mut node) = Node::<RamFlash<8192>, 2>::new(common::config(5, false), RamFlash::new())
+    else {
         return;
     };
     let mut sink = common::Checker::default();
