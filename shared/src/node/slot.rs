@@ -61,8 +61,12 @@ use crate::time::Instant;
 /// - Persist everything a tool configures, all or nothing on restore, within
 ///   [`SafetyProtocol::MAX_PERSISTED`] bytes.
 ///
+/// A protocol whose fault the shell's causes do not name latches with
+/// [`SafeStateCause::Protocol`], giving the EMCY itself.
+///
 /// No `dyn`, no heap: the device is generic over its protocol, so each call is static and the
-/// firmware image carries only the protocol it runs.
+/// firmware image carries only the protocol it runs. One protocol per device: two at once
+/// (CANopen Safety beside SimpleCAN) would be one implementation of this trait holding both.
 pub trait SafetyProtocol {
     /// The largest section [`SafetyProtocol::persist`] writes, in bytes. At most the section
     /// of the largest SRDO table (64 SRDOs, 16 mapping entries each: 5,058 bytes), checked
