@@ -115,12 +115,14 @@ pub enum SafeStateCause {
     /// detail byte 1 F2h..F5h names what differed). Producers stop too.
     Integrity(IntegrityFault),
     /// A fault the safety protocol in the slot found that the causes above do not name,
-    /// reported in the EMCY it gives.
+    /// reported in the EMCY it gives: error code `code` with `cause` in byte 1 of the
+    /// manufacturer-specific field. Small on purpose: the cause travels by value through
+    /// every event and latch.
     Protocol {
         /// The EMCY error code (CiA 301 Table 21, or the protocol's profile).
         code: u16,
-        /// The EMCY's five manufacturer-specific bytes; byte 1 is the protocol's cause code.
-        detail: [u8; 5],
+        /// The protocol's cause code (EMCY manufacturer-specific byte 1).
+        cause: u8,
     },
 }
 
@@ -794,7 +796,7 @@ impl Shell {
                 )
             }
             SafeStateCause::Integrity(fault) => (emcy::code::DATA_SET, fault.emergency_detail()),
-            SafeStateCause::Protocol { code, detail } => (code, detail),
+            SafeStateCause::Protocol { code, cause } => (code, [0, cause, 0, 0, 0]),
         };
         self.error_register |= emcy::register::GENERIC | emcy::register::COMMUNICATION;
         self.send_emergency(code, detail, sink);

@@ -160,7 +160,7 @@ impl SafetyProtocol for Beacon {
             Some(0xFF) => {
                 let cause = SafeStateCause::Protocol {
                     code: code::APPLICATION_FAULT,
-                    detail: [0, STOP_CAUSE, 0, 0, 0],
+                    cause: STOP_CAUSE,
                 };
                 let latched = slot.latched();
                 self.enter_safe_state(slot.image_mut(), cause, latched);
@@ -353,7 +353,7 @@ fn en50325_5_8_2_2_a_second_protocol_latches_the_safe_state_through_the_slot() {
     node.handle_frame(Instant::ZERO, &frame(RECEIVE_ID, &[0xFF]), &mut sink);
     let cause = SafeStateCause::Protocol {
         code: code::APPLICATION_FAULT,
-        detail: [0, STOP_CAUSE, 0, 0, 0],
+        cause: STOP_CAUSE,
     };
     assert_eq!(node.fault(), Some(cause));
     assert!(!node.is_working());
@@ -362,7 +362,7 @@ fn en50325_5_8_2_2_a_second_protocol_latches_the_safe_state_through_the_slot() {
     let emergencies = sink.emergencies();
     assert_eq!(emergencies.len(), 1);
     assert_eq!(emergencies[0].code, code::APPLICATION_FAULT);
-    assert_eq!(emergencies[0].detail[1], STOP_CAUSE);
+    assert_eq!(emergencies[0].detail, [0, STOP_CAUSE, 0, 0, 0]);
 
     // Latched: nothing is delivered any more, and a second fault sends no second EMCY.
     node.handle_frame(Instant::ZERO, &frame(RECEIVE_ID, &[6]), &mut sink);

@@ -213,7 +213,9 @@ impl<const N: usize> SrdoTable<N> {
         }
     }
 
-    /// Puts every received value in the safe state (0, SC_REQ_05).
+    /// Puts every received value in the safe state (0, SC_REQ_05). One copy for the safe
+    /// state and for stopping.
+    #[inline(never)]
     fn clear_received(&self, image: &mut ProcessImage) {
         for runtime in &self.runtime {
             if matches!(runtime.role, Role::Consumer(_)) {
@@ -288,11 +290,11 @@ impl<const N: usize> SrdoTable<N> {
         match result {
             Ok(None) => {}
             Ok(Some(discarded)) => self.discarded(number, discarded, slot),
-            Err(cause) => self.fail(
-                SrdoFault {
+            Err(cause) => self.latch(
+                SafeStateCause::Srdo(SrdoFault {
                     srdo: number,
                     cause,
-                },
+                }),
                 slot,
             ),
         }
@@ -316,17 +318,15 @@ impl<const N: usize> SrdoTable<N> {
         slot.event(Event::FrameDiscarded { srdo, discarded });
     }
 
-    /// An SRDO failed: reported, and the device's safe state latched. Cold: kept out of the
-    /// receive hot path.
+    /// An SRDO failed (reported as [`Event::SrdoFault`]) or the integrity check found damage:
+    /// this table in the safe state for `cause`, then the device's latched. Cold: kept out
+    /// of the receive hot path.
     #[cold]
     #[inline(never)]
-    fn fail<S: Sink>(&mut self, fault: SrdoFault, slot: &mut Slot<'_, S>) {
-        slot.event(Event::SrdoFault(fault));
-        self.latch(SafeStateCause::Srdo(fault), slot);
-    }
-
-    /// Puts this table in the safe state for `cause`, then latches the device's.
     fn latch<S: Sink>(&mut self, cause: SafeStateCause, slot: &mut Slot<'_, S>) {
+        if let SafeStateCause::Srdo(fault) = cause {
+            slot.event(Event::SrdoFault(fault));
+        }
         let already_latched = slot.latched();
         self.enter_safe_state(slot.image_mut(), cause, already_latched);
         slot.latch(cause);
@@ -372,11 +372,11 @@ impl<const N: usize> SrdoTable<N> {
                 _ => Ok(()),
             };
             if let Err(cause) = result {
-                self.fail(
-                    SrdoFault {
+                self.latch(
+                    SafeStateCause::Srdo(SrdoFault {
                         srdo: number,
                         cause,
-                    },
+                    }),
                     slot,
                 );
             }
@@ -463,15 +463,13 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         if address.index != DOUBLE_RECEPTION_INDEX {
             return self.safety.read(address, buf);
         }
-        match address.sub {
-            0 => put(buf, &[2]),
-            1 => put(buf, &self.double_reception.plain_repeated.to_le_bytes()),
-            2 => put(
-                buf,
-                &self.double_reception.inverted_without_plain.to_le_bytes(),
-            ),
-            _ => Err(AbortCode::NoSubIndex),
-        }
+        let count = match address.sub {
+            0 => return put(buf, &[2]),
+            1 => self.double_reception.plain_repeated,
+            2 => self.double_reception.inverted_without_plain,
+            _ => return Err(AbortCode::NoSubIndex),
+        };
+        put(buf, &count.to_le_bytes())
     }
 
     fn write(
@@ -551,7 +549,9 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
 
     fn stop(&mut self, image: &mut ProcessImage) {
         self.clear_received(image);
-        self.runtime = [SrdoRuntime::IDLE; N];
+        for runtime in self.runtime.iter_mut() {
+            *runtime = SrdoRuntime::IDLE;
+        }
         self.active.clear();
         self.lookup = [0; SRDO_IDS];
         self.integrity = integrity::Integrity::IDLE;
