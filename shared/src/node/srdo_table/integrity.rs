@@ -37,7 +37,7 @@
 //! resolution per existing SRDO, and the COB-ID comparison with every other record) and
 //! compares 128 table bytes, the active list and every slot's mapping. Counted with callgrind
 //! as `cargo xtask bench` counts (`shared/examples/hot_paths.rs`, mode `integrity-check`,
-//! `--toggle-collect=hot_paths::check`; x86-64, release, rustc 1.95): 1,131 instructions for
+//! `--toggle-collect=hot_paths::check`; x86-64, release, rustc 1.95): 1,164 instructions for
 //! the poll that runs it, one 8-byte producer with a 25 ms refresh time. At that period it is
 //! 0.05 % of a 168 MHz Cortex-M4 even at two cycles an instruction; it grows about linearly
 //! with the SRDOs (quadratically only in the COB-ID comparison, 64 × 63 for the largest
