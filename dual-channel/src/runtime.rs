@@ -111,6 +111,8 @@ pub fn safe_state_code(cause: &SafeStateCause) -> u8 {
         SafeStateCause::Application { detail } => *detail,
         // F2h..F5h, as in EMCY 6300h byte 1.
         SafeStateCause::Integrity(fault) => fault.emergency_detail()[1],
+        // The protocol's cause code, as in its EMCY byte 1.
+        SafeStateCause::Protocol { cause, .. } => *cause,
     }
 }
 

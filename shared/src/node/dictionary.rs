@@ -1,13 +1,14 @@
 //! The device's object dictionary as the SDO server sees it: communication objects
-//! (0x1000..0x1018), the safety objects (0x1300..0x13FF), the double-reception counters
-//! ([`DOUBLE_RECEPTION_INDEX`], manufacturer area) and the application objects.
+//! (0x1000..0x1018), the GFC parameter (0x1300), the objects of the safety protocol in the
+//! slot ([`SafetyProtocol::owns`]: for the SRDO table 0x1301..0x13FF and the double-reception
+//! counters, [`super::DOUBLE_RECEPTION_INDEX`]) and the application objects.
 
-use super::{Core, DOUBLE_RECEPTION_INDEX, Event, persist};
+use super::{Core, Event, persist};
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{AbortCode, Address, ObjectDictionary};
 use crate::canopen::storage::Flash;
+use crate::node::slot::SafetyProtocol;
 use crate::process_image::Access;
-use crate::safety::config::SafetyConfig;
 use crate::safety::gfc;
 
 /// The signature "save" that 0x1010 expects (CiA 301 7.5.2.13).
@@ -16,7 +17,7 @@ const SAVE: u32 = u32::from_le_bytes(*b"save");
 const LOAD: u32 = u32::from_le_bytes(*b"load");
 
 /// Copies `bytes` into `buf`, or answers that `buf` is too small.
-fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, AbortCode> {
+pub(super) fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, AbortCode> {
     let target = buf.get_mut(..bytes.len()).ok_or(AbortCode::OutOfMemory)?;
     target.copy_from_slice(bytes);
     Ok(bytes.len())
@@ -30,13 +31,13 @@ fn exact<const L: usize>(data: &[u8]) -> Result<[u8; L], AbortCode> {
     <[u8; L]>::try_from(data).map_err(|_| AbortCode::LengthTooLow)
 }
 
-impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
+impl<F: Flash, P: SafetyProtocol> ObjectDictionary for Core<F, P> {
     fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {
         let Address { index, sub } = address;
         match index {
-            0x1000 if sub == 0 => put(buf, &self.config.device_type.to_le_bytes()),
-            0x1001 if sub == 0 => put(buf, &[self.error_register]),
-            0x1008 if sub == 0 => put(buf, self.config.device_name.as_bytes()),
+            0x1000 if sub == 0 => put(buf, &self.shell.config.device_type.to_le_bytes()),
+            0x1001 if sub == 0 => put(buf, &[self.shell.error_register]),
+            0x1008 if sub == 0 => put(buf, self.shell.config.device_name.as_bytes()),
             0x1010 | 0x1011 => match sub {
                 0 => put(buf, &[1]),
                 // Bit 0: the device saves (restores) parameters on command.
@@ -48,22 +49,13 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
                 0 => put(buf, &[4]),
                 1..=4 => put(
                     buf,
-                    &self.config.identity[usize::from(sub) - 1].to_le_bytes(),
+                    &self.shell.config.identity[usize::from(sub) - 1].to_le_bytes(),
                 ),
                 _ => Err(AbortCode::NoSubIndex),
             },
             gfc::GFC_PARAMETER if sub == 0 => put(buf, &[self.gfc_parameter]),
             0x1000 | 0x1001 | 0x1008 | 0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
-            index if SafetyConfig::<N>::owns(index) => self.safety.read(address, buf),
-            DOUBLE_RECEPTION_INDEX => match sub {
-                0 => put(buf, &[2]),
-                1 => put(buf, &self.double_reception.plain_repeated.to_le_bytes()),
-                2 => put(
-                    buf,
-                    &self.double_reception.inverted_without_plain.to_le_bytes(),
-                ),
-                _ => Err(AbortCode::NoSubIndex),
-            },
+            index if self.protocol.owns(index) => self.protocol.read(address, buf),
             0x2000..=0x9FFF => self.image.read(address, buf),
             _ => Err(AbortCode::NoObject),
         }
@@ -71,9 +63,9 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
 
     fn write(&mut self, address: Address, data: &[u8]) -> Result<(), AbortCode> {
         let Address { index, sub } = address;
-        let operational = self.state == NmtState::Operational;
+        let operational = self.shell.state == NmtState::Operational;
         match index {
-            0x1000 | 0x1001 | 0x1008 | 0x1018 | DOUBLE_RECEPTION_INDEX => {
+            0x1000 | 0x1001 | 0x1008 | 0x1018 => {
                 let mut scratch = [0u8; 64];
                 self.read(address, &mut scratch)?;
                 Err(AbortCode::ReadOnly)
@@ -112,8 +104,8 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
                 Ok(())
             }
             0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
-            index if SafetyConfig::<N>::owns(index) => {
-                self.safety.write(address, data, &self.image, operational)
+            index if self.protocol.owns(index) => {
+                self.protocol.write(address, data, &self.image, operational)
             }
             0x2000..=0x9FFF => {
                 let (object, span) =
@@ -151,7 +143,7 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
     }
 }
 
-impl<F: Flash, const N: usize> Core<F, N> {
+impl<F: Flash, P: SafetyProtocol> Core<F, P> {
     /// 0x1010 sub-index 1: store all parameters (CiA 301 7.5.2.13).
     fn store(&mut self, signature: u32) -> Result<(), AbortCode> {
         if signature != SAVE {
@@ -159,9 +151,9 @@ impl<F: Flash, const N: usize> Core<F, N> {
         }
         persist::store(
             &mut self.flash,
-            &self.safety,
+            &self.protocol,
             self.heartbeat.period_ms(),
-            self.config.node_id,
+            self.shell.config.node_id,
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));

@@ -1,10 +1,13 @@
 //! The stored parameter image: what 0x1010 saves and a reset restores.
 //!
 //! The image is serialised here into a small, versioned byte layout and handed to
-//! [`crate::canopen::storage`], which makes storing it atomic. Parsing is strict: a wrong
-//! version, a wrong SRDO count, a length that does not add up, an out-of-range count or
-//! node-ID is refused as a whole, and the node then runs on its defaults (which are not
-//! validated, so it stays in the safe state until a tool configures it).
+//! [`crate::canopen::storage`], which makes storing it atomic. It is the shell's header
+//! followed by the section of the safety protocol in the node's slot
+//! ([`SafetyProtocol::persist`]; the SRDO table's layout is on [`super::SrdoTable`]). Parsing
+//! is strict: a wrong version, a length that does not add up, an out-of-range node-ID (or
+//! whatever the protocol refuses in its section: a wrong SRDO count, an out-of-range count) is
+//! refused as a whole, and the node then runs on its defaults (which are not validated, so it
+//! stays in the safe state until a tool configures it).
 //!
 //! The image carries the node-ID of the device that stored it. 0x13FE can only hold A5h on a
 //! device whose configuration was validated there (by the tool, or restored from an image
@@ -20,23 +23,24 @@
 //! | 1 | format version (2) |
 //! | 1 | node-ID of the device that stored the image, `1..=127` |
 //! | 2 | 0x1017 producer heartbeat time |
-//! | 1 | 0x13FE configuration valid |
-//! | 1 | number of SRDO records `N` |
-//! | per SRDO | direction (1), refresh time / SCT (2), SRVT (1), COB-ID 1 (4), COB-ID 2 (4), mapping count (1), that many entries (4 each), signature (2) |
+//! | the rest | the protocol's section |
 
+use super::SrdoTable;
+use super::slot::SafetyProtocol;
 use crate::canopen::node_id::NodeId;
 use crate::canopen::storage::{self, Flash, StorageError};
 use crate::safety::MAX_SRDOS;
-use crate::safety::config::{MAX_MAPPING_ENTRIES, SafetyConfig, SrdoRecord};
 
 /// Format version of the layout above.
 const VERSION: u8 = 2;
-/// Bytes of the header.
-const HEADER: usize = 6;
-/// Bytes of one SRDO record without its mapping entries.
-const RECORD_FIXED: usize = 1 + 2 + 1 + 4 + 4 + 1 + 2;
-/// The largest image: 64 SRDOs with 16 mapping entries each.
-pub const MAX_IMAGE: usize = HEADER + MAX_SRDOS * (RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES);
+/// Bytes of the shell's header.
+const HEADER: usize = 4;
+/// The largest protocol section an image holds: the SRDO table's of the largest device (64
+/// SRDOs with 16 mapping entries each). A protocol whose
+/// [`MAX_PERSISTED`](SafetyProtocol::MAX_PERSISTED) is larger does not build.
+pub const MAX_SECTION: usize = SrdoTable::<MAX_SRDOS>::MAX_PERSISTED;
+/// The largest image.
+pub const MAX_IMAGE: usize = HEADER + MAX_SECTION;
 
 /// Why stored parameters were not used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -58,12 +62,16 @@ pub enum PersistError {
     BadNodeId(u8),
 }
 
-/// A cursor over the stored bytes that never reads past the end.
-struct Reader<'a> {
+/// A cursor over stored bytes that never reads past the end.
+pub(super) struct Reader<'a> {
     bytes: &'a [u8],
 }
 
-impl Reader<'_> {
+impl<'a> Reader<'a> {
+    /// A cursor at the start of `bytes`.
+    pub(super) fn new(bytes: &'a [u8]) -> Self {
+        Reader { bytes }
+    }
     fn take<const L: usize>(&mut self) -> Result<[u8; L], PersistError> {
         let (head, rest) = self
             .bytes
@@ -72,65 +80,59 @@ impl Reader<'_> {
         self.bytes = rest;
         <[u8; L]>::try_from(head).map_err(|_| PersistError::Malformed)
     }
-    fn u8(&mut self) -> Result<u8, PersistError> {
+    pub(super) fn u8(&mut self) -> Result<u8, PersistError> {
         Ok(self.take::<1>()?[0])
     }
-    fn u16(&mut self) -> Result<u16, PersistError> {
+    pub(super) fn u16(&mut self) -> Result<u16, PersistError> {
         Ok(u16::from_le_bytes(self.take()?))
     }
-    fn u32(&mut self) -> Result<u32, PersistError> {
+    pub(super) fn u32(&mut self) -> Result<u32, PersistError> {
         Ok(u32::from_le_bytes(self.take()?))
+    }
+    /// `true` when every byte was read.
+    pub(super) fn is_empty(&self) -> bool {
+        self.bytes.is_empty()
+    }
+    /// The bytes not yet read.
+    fn rest(&self) -> &'a [u8] {
+        self.bytes
     }
 }
 
-/// Serialises `safety`, the heartbeat time and the storing device's node-ID into `out`;
-/// returns the length used.
-fn encode<const N: usize>(
-    safety: &SafetyConfig<N>,
+/// Serialises the heartbeat time, the storing device's node-ID and `protocol`'s section into
+/// `out`; returns the length used.
+fn encode<P: SafetyProtocol>(
+    protocol: &P,
     heartbeat_ms: u16,
     node_id: NodeId,
     out: &mut [u8; MAX_IMAGE],
 ) -> usize {
-    let mut at = 0usize;
-    let mut push = |bytes: &[u8]| {
-        if let Some(target) = out.get_mut(at..at + bytes.len()) {
-            target.copy_from_slice(bytes);
-        }
-        at += bytes.len();
+    const {
+        assert!(
+            P::MAX_PERSISTED <= MAX_SECTION,
+            "the protocol's section does not fit"
+        )
     };
-    push(&[VERSION]);
-    push(&[node_id.raw()]);
-    push(&heartbeat_ms.to_le_bytes());
-    push(&[safety.configuration_valid]);
-    // N <= 64 is checked when the node is built.
-    push(&[N as u8]);
-    for record in &safety.srdos {
-        push(&[record.direction]);
-        push(&record.cycle_time.to_le_bytes());
-        push(&[record.srvt]);
-        push(&record.cob_id_1.to_le_bytes());
-        push(&record.cob_id_2.to_le_bytes());
-        push(&[record.mapping_count]);
-        for entry in record.entries() {
-            push(&entry.to_le_bytes());
-        }
-        push(&record.signature.to_le_bytes());
-    }
-    at.min(MAX_IMAGE)
+    let Some((header, section)) = out.split_first_chunk_mut::<HEADER>() else {
+        return 0; // `HEADER < MAX_IMAGE`: not reached.
+    };
+    let [heartbeat_low, heartbeat_high] = heartbeat_ms.to_le_bytes();
+    *header = [VERSION, node_id.raw(), heartbeat_low, heartbeat_high];
+    HEADER + protocol.persist(section).min(MAX_SECTION)
 }
 
-/// What a stored image holds.
-#[derive(Clone, Debug, PartialEq, Eq)]
-struct Image<const N: usize> {
-    safety: SafetyConfig<N>,
+/// What the shell's header holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Header {
     heartbeat_ms: u16,
     /// The node-ID of the device that stored it.
     node_id: NodeId,
 }
 
-/// Parses a stored image; all or nothing.
-fn decode<const N: usize>(bytes: &[u8]) -> Result<Image<N>, PersistError> {
-    let mut reader = Reader { bytes };
+/// Parses a stored image, the protocol's section into `protocol`; all or nothing (`protocol`
+/// is unchanged on an error).
+fn decode<P: SafetyProtocol>(bytes: &[u8], protocol: &mut P) -> Result<Header, PersistError> {
+    let mut reader = Reader::new(bytes);
     let version = reader.u8()?;
     match version {
         VERSION => {}
@@ -140,74 +142,47 @@ fn decode<const N: usize>(bytes: &[u8]) -> Result<Image<N>, PersistError> {
     let raw_node_id = reader.u8()?;
     let node_id = NodeId::new(raw_node_id).map_err(|_| PersistError::BadNodeId(raw_node_id))?;
     let heartbeat_ms = reader.u16()?;
-    let configuration_valid = reader.u8()?;
-    if usize::from(reader.u8()?) != N {
-        return Err(PersistError::SrdoCountMismatch);
-    }
-    let mut srdos = [SrdoRecord::DELETED; N];
-    for record in srdos.iter_mut() {
-        record.direction = reader.u8()?;
-        record.cycle_time = reader.u16()?;
-        record.srvt = reader.u8()?;
-        record.cob_id_1 = reader.u32()?;
-        record.cob_id_2 = reader.u32()?;
-        record.mapping_count = reader.u8()?;
-        let count = usize::from(record.mapping_count);
-        if count > MAX_MAPPING_ENTRIES {
-            return Err(PersistError::Malformed);
-        }
-        for entry in record.mapping.iter_mut().take(count) {
-            *entry = reader.u32()?;
-        }
-        record.signature = reader.u16()?;
-    }
-    if !reader.bytes.is_empty() {
-        return Err(PersistError::Malformed);
-    }
-    Ok(Image {
-        safety: SafetyConfig {
-            srdos,
-            configuration_valid,
-        },
+    protocol.restore(reader.rest())?;
+    Ok(Header {
         heartbeat_ms,
         node_id,
     })
 }
 
 /// Stores the parameters (0x1010) of the device with `node_id`.
-pub(super) fn store<F: Flash, const N: usize>(
+pub(super) fn store<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
-    safety: &SafetyConfig<N>,
+    protocol: &P,
     heartbeat_ms: u16,
     node_id: NodeId,
 ) -> Result<(), StorageError> {
     let mut image = [0u8; MAX_IMAGE];
-    let len = encode(safety, heartbeat_ms, node_id, &mut image);
-    storage::store(flash, &image[..len])
+    let len = encode(protocol, heartbeat_ms, node_id, &mut image);
+    storage::store(flash, image.get(..len).unwrap_or(&image))
 }
 
-/// Loads stored parameters into `safety` and `heartbeat_ms`: `Ok(Some(node-ID))` when they
+/// Loads stored parameters into `protocol` and `heartbeat_ms`: `Ok(Some(node-ID))` when they
 /// were restored, with the node-ID of the device that stored them; `Ok(None)` when nothing is
-/// stored (defaults stay); `Err` when the stored image is unusable (the caller keeps the
-/// defaults).
-pub(super) fn load<F: Flash, const N: usize>(
+/// stored (defaults stay); `Err` when the stored image is unusable (nothing changed, the
+/// caller keeps the defaults).
+pub(super) fn load<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
-    safety: &mut SafetyConfig<N>,
+    protocol: &mut P,
     heartbeat_ms: &mut u16,
 ) -> Result<Option<NodeId>, PersistError> {
     let mut image = [0u8; MAX_IMAGE];
     let Some(len) = storage::load(flash, &mut image).map_err(PersistError::Storage)? else {
         return Ok(None);
     };
-    let restored = decode::<N>(image.get(..len).ok_or(PersistError::Malformed)?)?;
-    *safety = restored.safety;
-    *heartbeat_ms = restored.heartbeat_ms;
-    Ok(Some(restored.node_id))
+    let header = decode(image.get(..len).ok_or(PersistError::Malformed)?, protocol)?;
+    *heartbeat_ms = header.heartbeat_ms;
+    Ok(Some(header.node_id))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::safety::config::SafetyConfig;
 
     fn sample() -> SafetyConfig<2> {
         let mut config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
@@ -217,13 +192,27 @@ mod tests {
         config
     }
 
+    /// A stopped SRDO table of `N` SRDOs, on the pre-defined set of node 1.
+    fn table<const N: usize>() -> SrdoTable<N> {
+        SrdoTable::new(&crate::node::tests::config(1)).unwrap()
+    }
+
+    /// [`decode`] into a fresh table of `N` SRDOs: the header and the table's records.
+    fn decode<const N: usize>(bytes: &[u8]) -> Result<(Header, SafetyConfig<N>), PersistError> {
+        let mut table = table::<N>();
+        let header = super::decode(bytes, &mut table)?;
+        Ok((header, table.config().clone()))
+    }
+
     fn node(id: u8) -> NodeId {
         NodeId::new(id).unwrap()
     }
 
     fn encoded() -> ([u8; MAX_IMAGE], usize) {
         let mut out = [0u8; MAX_IMAGE];
-        let len = encode(&sample(), 250, node(7), &mut out);
+        let mut table = table::<2>();
+        table.safety = sample();
+        let len = encode(&table, 250, node(7), &mut out);
         (out, len)
     }
 
@@ -232,11 +221,13 @@ mod tests {
         let (out, len) = encoded();
         assert_eq!(
             decode::<2>(&out[..len]),
-            Ok(Image {
-                safety: sample(),
-                heartbeat_ms: 250,
-                node_id: node(7),
-            })
+            Ok((
+                Header {
+                    heartbeat_ms: 250,
+                    node_id: node(7),
+                },
+                sample()
+            ))
         );
     }
 
@@ -282,8 +273,16 @@ mod tests {
     #[test]
     fn an_out_of_range_mapping_count_is_refused_not_panicking() {
         let (mut out, len) = encoded();
-        // First record's mapping count sits after the header and 12 bytes of the record.
-        out[HEADER + 12] = 200;
+        // First record's mapping count sits after the header, 0x13FE, N and 12 bytes of the
+        // record.
+        out[HEADER + 2 + 12] = 200;
         assert_eq!(decode::<2>(&out[..len]), Err(PersistError::Malformed));
+    }
+
+    /// The figure the protocol slot's documentation gives for the largest section.
+    #[test]
+    fn the_largest_section_is_the_64_srdo_table_s() {
+        assert_eq!(MAX_SECTION, 5_058);
+        assert_eq!(MAX_IMAGE, 5_062);
     }
 }

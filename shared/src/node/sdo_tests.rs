@@ -32,7 +32,7 @@ fn exchange(
     now: Instant,
     request: [u8; 8],
 ) -> Option<[u8; 8]> {
-    let id = u16::from(node.core.config.node_id.raw());
+    let id = u16::from(node.core.shell.config.node_id.raw());
     let frame = CanFrame::new(CanId::new(0x600 + id).unwrap(), &request).unwrap();
     sink.frames.clear();
     node.handle_frame(now, &frame, sink);
@@ -356,7 +356,7 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
     let mut bad = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
     bad.srdos[0].signature = signature::compute(&bad.srdos[0]) ^ 1;
     bad.configuration_valid = 0xA5;
-    persist::store(&mut medium, &bad, 0, node_id(33)).unwrap();
+    persist::store(&mut medium, &table_with(bad), 0, node_id(33)).unwrap();
     let (mut node, mut sink) = node_on(33, medium);
     nmt(&mut node, &mut sink, NmtCommand::Start);
     assert_eq!(node.nmt_state(), NmtState::PreOperational);
@@ -429,7 +429,7 @@ fn en50325_5_6_4_1_6_configuration_valid_reads_0_after_a_refused_start() {
     let mut bad = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
     bad.srdos[0].signature = signature::compute(&bad.srdos[0]) ^ 1;
     bad.configuration_valid = 0xA5;
-    persist::store(&mut medium, &bad, 0, node_id(33)).unwrap();
+    persist::store(&mut medium, &table_with(bad), 0, node_id(33)).unwrap();
     let (mut node, mut sink) = node_on(33, medium);
     assert_eq!(read(&mut node, &mut sink, 0x13FE, 0), Ok(vec![0xA5]));
     sink_clear(&mut sink);
@@ -632,4 +632,11 @@ fn en50325_5_8_3_1_every_bit_flip_of_the_stored_record_is_reported_with_emcy_630
     // Only the commit word's 32 bits restore; everything else is damage.
     assert_eq!(restored, 32);
     assert_eq!(rejected, used * 8 - 32);
+}
+
+/// A stopped SRDO table of node 33 holding `safety`, to store as a tool would have left it.
+fn table_with(safety: SafetyConfig<4>) -> SrdoTable<4> {
+    let mut table = SrdoTable::new(&super::tests::config(33)).unwrap();
+    table.safety = safety;
+    table
 }

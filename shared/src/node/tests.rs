@@ -4,9 +4,11 @@ use super::*;
 use crate::canopen::emcy::code;
 use crate::canopen::od::ObjectDictionary;
 use crate::canopen::storage::RamFlash;
+use crate::node::srdo_table::SrdoRuntime;
 use crate::process_image::{Access, Mappable};
 use crate::safety::config::{ConfigError, SrdoRecord};
 use crate::safety::signature;
+use crate::safety::srdo::{self, SrdoFaultCause};
 use std::vec::Vec as StdVec;
 
 /// A sink that records everything.
@@ -105,10 +107,10 @@ fn booted(node_id: u8, configure: impl FnOnce(&mut NodeConfig)) -> (TestNode, Re
 
 /// Declares the current configuration valid the way a tool does: signatures, then A5h.
 fn validate(node: &mut TestNode) {
-    for record in node.core.safety.srdos.iter_mut() {
+    for record in node.core.protocol.safety.srdos.iter_mut() {
         record.signature = signature::compute(record);
     }
-    node.core.safety.configuration_valid = 0xA5;
+    node.core.protocol.safety.configuration_valid = 0xA5;
 }
 
 fn start(node: &mut TestNode, now: Instant, sink: &mut Recorder) {
@@ -208,7 +210,7 @@ fn en50325_5_6_4_1_6_not_validated_configuration_keeps_the_node_out_of_operation
 fn en50325_5_8_3_1_signature_mismatch_names_the_srdo_and_the_cause() {
     let (mut node, mut sink) = booted(1, |_| {});
     validate(&mut node);
-    node.core.safety.srdos[0].signature ^= 1;
+    node.core.protocol.safety.srdos[0].signature ^= 1;
     start(&mut node, ms(1), &mut sink);
     assert_eq!(node.nmt_state(), NmtState::PreOperational);
     let srdo_1 = SrdoNumber::new(1).unwrap();
@@ -228,8 +230,9 @@ fn cia304_9_5_configuration_damaged_after_validation_is_caught_on_the_way_into_o
     let (mut node, mut sink) = booted(1, |_| {});
     validate(&mut node);
     // A bit flip in RAM that keeps the signature consistent but breaks a rule (refresh 0).
-    node.core.safety.srdos[0].cycle_time = 0;
-    node.core.safety.srdos[0].signature = signature::compute(&node.core.safety.srdos[0]);
+    node.core.protocol.safety.srdos[0].cycle_time = 0;
+    node.core.protocol.safety.srdos[0].signature =
+        signature::compute(&node.core.protocol.safety.srdos[0]);
     start(&mut node, ms(1), &mut sink);
     assert_eq!(node.nmt_state(), NmtState::PreOperational);
     let fault = ConfigFault {

@@ -3,12 +3,12 @@
 //! flips are made directly in the node's memory from this test module (no hook exists in a
 //! production build).
 
-use super::super::tests::{Recorder, config};
 use super::*;
 use crate::canopen::emcy::{self, Emergency};
 use crate::canopen::nmt::{self, NmtCommand, NmtState};
 use crate::canopen::storage::RamFlash;
 use crate::frame::{CanFrame, CanId};
+use crate::node::tests::{Recorder, config};
 use crate::node::{Event, Node};
 use crate::safety::config::{ConfigError, SafetyConfig};
 use crate::safety::{signature, srdo};
@@ -29,7 +29,7 @@ fn operational() -> (TestNode, Recorder) {
     // The producer's halves: 0x6000.1 plain, 0x6001.1 its inverse.
     node.write_object(crate::canopen::od::Address::new(0x6001, 1), &[0xFF])
         .unwrap();
-    let safety = &mut node.core.safety;
+    let safety = &mut node.core.protocol.safety;
     let producer = &mut safety.srdos[1];
     producer.direction = 1;
     producer.cycle_time = REFRESH_MS;
@@ -111,7 +111,7 @@ fn safe_within_one_period(node: &mut TestNode, sink: &mut Recorder, what: &str) 
 }
 
 /// Runs `flip` on a fresh Operational node at [`FLIP_AT`] and returns what the check found.
-fn flipped(what: &str, flip: impl FnOnce(&mut Core<RamFlash<8192>, 4>)) -> IntegrityFault {
+fn flipped(what: &str, flip: impl FnOnce(&mut SrdoTable<4>)) -> IntegrityFault {
     let (mut node, mut sink) = operational();
     // Up to the flip, everything is in order.
     let mut now = Instant::ZERO;
@@ -121,7 +121,7 @@ fn flipped(what: &str, flip: impl FnOnce(&mut Core<RamFlash<8192>, 4>)) -> Integ
     assert!(node.is_working(), "{what}: not working before the flip");
     sink.frames.clear();
     sink.events.clear();
-    flip(&mut node.core);
+    flip(&mut node.core.protocol);
     safe_within_one_period(&mut node, &mut sink, what)
 }
 
@@ -129,7 +129,7 @@ fn flipped(what: &str, flip: impl FnOnce(&mut Core<RamFlash<8192>, 4>)) -> Integ
 fn en50325_5_7_1_2_the_check_runs_at_the_shortest_cycle_time_and_never_fires_on_a_sound_node() {
     let (mut node, mut sink) = operational();
     assert_eq!(
-        node.core.integrity.period(),
+        node.core.protocol.integrity.period(),
         Duration::from_millis(u64::from(REFRESH_MS))
     );
     // Ten seconds of valid pairs every 10 ms: the check runs 500 times and finds nothing.
@@ -153,7 +153,7 @@ fn en50325_5_7_1_2_the_check_runs_at_the_shortest_cycle_time_and_never_fires_on_
         &mut sink,
     );
     assert_eq!(node.nmt_state(), NmtState::PreOperational);
-    assert_eq!(node.core.integrity.deadline(), Instant::NEVER);
+    assert_eq!(node.core.protocol.integrity.deadline(), Instant::NEVER);
 }
 
 #[test]
@@ -161,7 +161,7 @@ fn en50325_5_8_3_1_every_bit_flip_of_the_identifier_table_in_operational_gives_t
     for byte in 0..SRDO_IDS {
         for bit in 0..8 {
             let what = std::format!("identifier table byte {byte} bit {bit}");
-            let fault = flipped(&what, |core| core.lookup[byte] ^= 1 << bit);
+            let fault = flipped(&what, |table| table.lookup[byte] ^= 1 << bit);
             assert_eq!(fault, IntegrityFault::IdentifierTable, "{what}");
         }
     }
@@ -175,8 +175,8 @@ fn en50325_5_8_3_1_every_bit_flip_of_a_resolved_mapping_in_operational_gives_the
         for field in 0..34usize {
             for bit in 0..8 {
                 let what = std::format!("mapping of slot {slot}, field {field}, bit {bit}");
-                let fault = flipped(&what, |core| {
-                    let mapping = &mut core.runtime[slot].mapping;
+                let fault = flipped(&what, |table| {
+                    let mapping = &mut table.runtime[slot].mapping;
                     let mask = 1u8 << bit;
                     match field {
                         0..8 => mapping.plain[field].offset ^= mask,
@@ -214,7 +214,7 @@ fn en50325_5_8_3_1_a_changed_role_in_operational_gives_the_safe_state() {
         (3, producer),
     ] {
         let what = std::format!("slot {slot} as {role:?}");
-        let fault = flipped(&what, |core| core.runtime[slot].role = role);
+        let fault = flipped(&what, |table| table.runtime[slot].role = role);
         assert_eq!(
             fault,
             IntegrityFault::Runtime(SrdoNumber::from_index(slot)),
@@ -222,8 +222,8 @@ fn en50325_5_8_3_1_a_changed_role_in_operational_gives_the_safe_state() {
         );
     }
     // An idle slot with a mapping resolved into it.
-    let fault = flipped("idle slot with a mapping", |core| {
-        core.runtime[3].mapping.len = 1;
+    let fault = flipped("idle slot with a mapping", |table| {
+        table.runtime[3].mapping.len = 1;
     });
     assert_eq!(fault, IntegrityFault::Runtime(SrdoNumber::from_index(3)));
 }
@@ -233,16 +233,16 @@ fn en50325_5_8_3_1_every_bit_flip_of_the_active_list_in_operational_gives_the_sa
     for position in 0..2 {
         for bit in 0..8 {
             let what = std::format!("active list entry {position} bit {bit}");
-            let fault = flipped(&what, |core| core.active[position] ^= 1 << bit);
+            let fault = flipped(&what, |table| table.active[position] ^= 1 << bit);
             assert_eq!(fault, IntegrityFault::ActiveList, "{what}");
         }
     }
-    let fault = flipped("an entry lost", |core| {
-        core.active.pop();
+    let fault = flipped("an entry lost", |table| {
+        table.active.pop();
     });
     assert_eq!(fault, IntegrityFault::ActiveList);
-    let fault = flipped("an entry added", |core| {
-        core.active.push(2).unwrap();
+    let fault = flipped("an entry added", |table| {
+        table.active.push(2).unwrap();
     });
     assert_eq!(fault, IntegrityFault::ActiveList);
 }
@@ -318,7 +318,7 @@ fn en50325_5_8_3_1_every_bit_flip_of_a_record_in_operational_gives_the_safe_stat
     for (what, flip) in &flips {
         // Mostly the records' own check; a flip that deletes an SRDO (direction 0) leaves
         // records that pass, and is found as a running SRDO the records no longer have.
-        let fault = flipped(what, |core| flip(&mut core.safety));
+        let fault = flipped(what, |table| flip(&mut table.safety));
         match fault {
             IntegrityFault::Records(config_fault) if what.starts_with("0x13FE") => {
                 assert_eq!(config_fault.error, ConfigError::NotDeclaredValid, "{what}");

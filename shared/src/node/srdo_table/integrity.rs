@@ -15,7 +15,7 @@
 //! with the ones in use entry by entry. The derivation goes through the same validation
 //! functions as at Operational entry: this finds damage in memory, not a fault in that code
 //! (which the configuration tests cover). Any difference latches the safe state
-//! ([`super::SafeStateCause::Integrity`]) with EMCY 6300h (data set) and an event naming
+//! ([`crate::node::SafeStateCause::Integrity`]) with EMCY 6300h (data set) and an event naming
 //! what differed. Not covered: the SRDO state machines' own timers and counters (they are
 //! state, not configuration; a damaged timer shows as an SCT or SRVT fault), and mapping
 //! entries beyond a record's count (nothing reads or stores them).
@@ -37,7 +37,7 @@
 //! resolution per existing SRDO, and the COB-ID comparison with every other record) and
 //! compares 128 table bytes, the active list and every slot's mapping. Counted with callgrind
 //! as `cargo xtask bench` counts (`shared/examples/hot_paths.rs`, mode `integrity-check`,
-//! `--toggle-collect=hot_paths::check`; x86-64, release, rustc 1.95): 1,131 instructions for
+//! `--toggle-collect=hot_paths::check`; x86-64, release, rustc 1.95): 1,164 instructions for
 //! the poll that runs it, one 8-byte producer with a 25 ms refresh time. At that period it is
 //! 0.05 % of a 168 MHz Cortex-M4 even at two cycles an instruction; it grows about linearly
 //! with the SRDOs (quadratically only in the COB-ID comparison, 64 × 63 for the largest
@@ -48,10 +48,11 @@
 use heapless::Vec;
 
 use super::{
-    Core, LOOKUP_INVERTED, LOOKUP_TRANSMIT, Role, SRDO_ID_BASE, SRDO_IDS, SafeStateCause, Sink,
-    SrdoRuntime,
+    LOOKUP_INVERTED, LOOKUP_TRANSMIT, Role, SRDO_ID_BASE, SRDO_IDS, SafeStateCause, Sink,
+    SrdoRuntime, SrdoTable,
 };
-use crate::canopen::storage::Flash;
+use crate::node::slot::Slot;
+use crate::process_image::ProcessImage;
 use crate::safety::config::ConfigFault;
 use crate::safety::types::{Direction, SrdoNumber};
 use crate::time::{Duration, Instant};
@@ -61,7 +62,8 @@ pub const IDLE_PERIOD: Duration = Duration::from_millis(100);
 
 /// EMCY 6300h detail byte 1 for each [`IntegrityFault`] (byte 0 names the SRDO, or 0).
 /// Distinct from every [`ConfigError`](crate::safety::config::ConfigError) cause code and
-/// from [`super::STORED_PARAMETERS_REJECTED`] and [`super::VALIDATED_FOR_ANOTHER_NODE_ID`].
+/// from [`crate::node::STORED_PARAMETERS_REJECTED`] and
+/// [`crate::node::VALIDATED_FOR_ANOTHER_NODE_ID`].
 pub mod cause {
     use crate::safety::cause::Cause;
     /// The records no longer pass the Operational-entry check (byte 2: the check's cause code).
@@ -110,7 +112,7 @@ impl IntegrityFault {
 
 /// The check's schedule: when it is next due, and its period.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct Integrity {
+pub(in crate::node) struct Integrity {
     next: Instant,
     period: Duration,
 }
@@ -157,7 +159,7 @@ pub(super) fn period(cycle_times: impl Iterator<Item = Duration>) -> Duration {
     cycle_times.min().unwrap_or(IDLE_PERIOD)
 }
 
-impl<F: Flash, const N: usize> Core<F, N> {
+impl<const N: usize> SrdoTable<N> {
     /// Schedules the check on entering Operational (the tables were just derived).
     pub(super) fn start_integrity(&mut self, now: Instant) {
         let cycle_times = self.active.iter().filter_map(|&slot| {
@@ -169,23 +171,23 @@ impl<F: Flash, const N: usize> Core<F, N> {
 
     /// Runs the check when it is due at `now` (Operational only), and latches the safe state
     /// when it fails.
-    pub(super) fn poll_integrity(&mut self, now: Instant, sink: &mut impl Sink) {
-        if !self.integrity.due(now) || self.fault.is_some() {
+    pub(super) fn poll_integrity<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
+        if !self.integrity.due(now) || slot.latched() {
             return;
         }
-        if let Err(fault) = self.check_integrity() {
-            self.latch(SafeStateCause::Integrity(fault), sink);
+        if let Err(fault) = self.check_integrity(slot.image()) {
+            self.latch(SafeStateCause::Integrity(fault), slot);
         }
     }
 
     /// Runs the Operational-entry check on the records again and compares the tables derived
     /// from them with the ones in use.
-    pub(super) fn check_integrity(&self) -> Result<(), IntegrityFault> {
+    pub(super) fn check_integrity(&self, image: &ProcessImage) -> Result<(), IntegrityFault> {
         let mut lookup = [0u8; SRDO_IDS];
         let mut active: Vec<u8, N> = Vec::new();
         let mut runtime_fault = None;
         self.safety
-            .check_for_operational(&self.image, |number, valid| {
+            .check_for_operational(image, |number, valid| {
                 let slot = number.index();
                 let transmit = valid.direction == Direction::Transmit;
                 let matches = self.runtime.get(slot).is_some_and(|runtime| {
