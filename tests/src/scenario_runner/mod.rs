@@ -134,6 +134,7 @@ pub fn cause_of(event: &ChannelEvent) -> Option<Cause> {
             SafeStateCause::Gfc => Some(Cause::Gfc),
             SafeStateCause::Application { detail } => Cause::from_code(*detail),
             SafeStateCause::Integrity(fault) => Cause::from_code(fault.emergency_detail()[1]),
+            SafeStateCause::Protocol { cause, .. } => Cause::from_code(*cause),
         },
         ChannelEvent::Node(Event::GfcReceived) => Some(Cause::Gfc),
         _ => None,
