@@ -114,7 +114,17 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
     report.push_str(&String::from_utf8_lossy(&tool.stdout));
     let docs = root.join("docs");
     std::fs::create_dir_all(&docs)?;
-    std::fs::write(docs.join("performance.md"), &report)?;
+    let path = docs.join("performance.md");
+    // The blocks other commands write here (the full network's speed, `cargo xtask
+    // fullnet`; the target's figures, `cargo xtask bench --target-cost`) are kept as they are.
+    let previous = std::fs::read_to_string(&path).unwrap_or_default();
+    for name in [crate::fullnet::TIMING_MARKER, crate::target_cost::MARKER] {
+        if let Some(kept) = generated_block(&previous, name) {
+            report.push('\n');
+            report.push_str(&kept);
+        }
+    }
+    std::fs::write(&path, &report)?;
     println!("{report}");
 
     let mut over = Vec::new();
@@ -134,6 +144,14 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
         eprintln!("xtask: {message}");
     }
     Ok(())
+}
+
+/// The generated block `name` of `text`, its markers included.
+fn generated_block(text: &str, name: &str) -> Option<String> {
+    let start = text.find(&format!("<!-- {name}:begin"))?;
+    let end_marker = format!("<!-- {name}:end -->");
+    let end = start + text[start..].find(&end_marker)? + end_marker.len();
+    Some(format!("{}\n", &text[start..end]))
 }
 
 /// The `totals:` (or `summary:`) line of a callgrind output file.
@@ -219,4 +237,26 @@ fn render(rows: &[(&HotPath, f64)], ram: u32, rustc: &str) -> String {
          fullnet`, `cargo xtask reaction`)."
     );
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The page is rewritten whole; another command's block is found with its markers, so
+    /// that it can be kept.
+    #[test]
+    fn another_commands_block_is_found_with_its_markers() {
+        let page = "# Performance\n\nold table\n\n\
+                    <!-- target-cost:begin (generated, do not edit) -->\nfigures\n\
+                    <!-- target-cost:end -->\ntrailing\n";
+        assert_eq!(
+            generated_block(page, "target-cost").as_deref(),
+            Some(
+                "<!-- target-cost:begin (generated, do not edit) -->\nfigures\n\
+                 <!-- target-cost:end -->\n"
+            )
+        );
+        assert_eq!(generated_block(page, "fullnet-timing"), None);
+    }
 }
