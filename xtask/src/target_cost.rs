@@ -10,10 +10,10 @@
 //! per executed instruction with its address. A call of a measured function starts at a line
 //! at the function's symbol address reached from a `bl` (4 bytes) and ends at the first line
 //! at the address after that `bl`; the lines in between are the instructions executed in the
-//! function and everything it called. An interrupt taken during a call adds its handler's
-//! instructions, so the figure is the smallest over the calls seen: the measured functions
-//! compute the same thing at every heartbeat, and a call without an interrupt is the
-//! function's own cost.
+//! function and everything it called, counted in thread mode only: an interrupt handler that
+//! runs during the call (QEMU flags its blocks as handler mode) is not the function's cost.
+//! The measured functions compute the same thing at every heartbeat, so every call gives the
+//! same count; the table gives the fewest, and a difference is reported.
 
 use crate::images::{self, Layer};
 use crate::toolchain;
@@ -29,11 +29,10 @@ use std::time::{Duration, Instant};
 const DOCUMENT: &str = "docs/performance.md";
 /// The block's marker name.
 pub(crate) const MARKER: &str = "target-cost";
-/// How long the trace runs: long enough for several link heartbeats of the QEMU layer
-/// (every 100 ms of host time) at the speed of a traced emulator on a loaded machine.
-const TRACE_FOR: Duration = Duration::from_secs(20);
-/// The fewest calls of each function the trace must hold.
-const MIN_CALLS: usize = 3;
+/// How long the trace runs. Traced, the image alone spends nearly all its instructions in
+/// its SysTick handler reading the host clock by semihosting, and a link heartbeat of the
+/// QEMU layer (every 100 ms of host time) comes about every 20 s on a loaded machine.
+const TRACE_FOR: Duration = Duration::from_secs(45);
 /// A call longer than this is taken for one whose return was not recognised, and dropped.
 const ABANDON_AFTER: u64 = 1_000_000;
 /// The clock of the STM32F405 in the product.
@@ -100,19 +99,22 @@ pub fn run(root: &Path) -> Result<()> {
         let trace = trace(&image, &dir.join(channel))?;
         let entries: Vec<u32> = functions.iter().map(|(_, at)| *at).collect();
         let counts = count_calls(&trace, &entries)?;
+        // Hundreds of megabytes; the counts are what was wanted.
+        let _ = std::fs::remove_file(&trace);
         for ((measured, _), calls) in functions.into_iter().zip(counts) {
-            let Some(&fewest) = calls.iter().min() else {
+            let (Some(&fewest), Some(&most)) = (calls.iter().min(), calls.iter().max()) else {
                 bail!(
                     "channel {channel}: the trace holds no call of {} (the image ran too slowly, \
                      or the function is no longer called by `bl`)",
                     measured.name
                 );
             };
-            if calls.len() < MIN_CALLS {
-                bail!(
-                    "channel {channel}: the trace holds only {} calls of {}, fewer than {MIN_CALLS}",
-                    calls.len(),
-                    measured.name
+            if fewest != most {
+                eprintln!(
+                    "xtask: channel {channel}: {} took {fewest} to {most} instructions over {} \
+                     calls; the table gives the fewest",
+                    measured.name,
+                    calls.len()
                 );
             }
             rows.push((measured, fewest, calls.len()));
@@ -127,7 +129,7 @@ pub fn run(root: &Path) -> Result<()> {
         Ok(updated) => updated,
         // No block yet: it goes at the end, with its markers.
         Err(_) => format!(
-            "{}\n<!-- {MARKER}:begin (generated, do not edit) -->\n{}\n<!-- {MARKER}:end -->\n",
+            "{}\n\n<!-- {MARKER}:begin (generated, do not edit) -->\n{}\n<!-- {MARKER}:end -->\n",
             text.trim_end(),
             block.trim_end()
         ),
@@ -277,15 +279,19 @@ impl Monitor {
     }
 }
 
-/// The program counter of one `-d exec` line with one instruction per translation block:
-/// `Trace 0: 0x… [flags/pc/…] symbol`.
-fn pc(line: &str) -> Option<u32> {
+/// The program counter of one `-d exec` line with one instruction per translation block,
+/// `Trace 0: 0x… [flags/pc/…] symbol`, when the instruction ran in thread mode (bit 0 of the
+/// block's flags is QEMU's handler-mode flag for M-profile cores).
+fn thread_pc(line: &str) -> Option<u32> {
     let fields = line.strip_prefix("Trace ")?.split_once('[')?.1;
-    let pc = fields.split('/').nth(1)?;
-    u32::from_str_radix(pc, 16).ok()
+    let mut fields = fields.split('/');
+    let flags = u32::from_str_radix(fields.next()?, 16).ok()?;
+    let pc = u64::from_str_radix(fields.next()?, 16).ok()?;
+    (flags & 1 == 0).then_some(pc as u32)
 }
 
-/// For each entry address, the instructions of every complete call in the trace.
+/// For each entry address, the thread-mode instructions of every complete call in the trace
+/// (an interrupt handler's instructions are not the call's).
 fn count_calls(trace: &Path, entries: &[u32]) -> Result<Vec<Vec<u64>>> {
     let file = std::fs::File::open(trace)
         .with_context(|| format!("reading the trace {}", trace.display()))?;
@@ -294,7 +300,9 @@ fn count_calls(trace: &Path, entries: &[u32]) -> Result<Vec<Vec<u64>>> {
     let mut open: Vec<(usize, u32, u64)> = Vec::new();
     let mut previous: Option<u32> = None;
     for line in std::io::BufReader::new(file).lines() {
-        let Some(pc) = pc(&line?) else { continue };
+        let Some(pc) = thread_pc(&line?) else {
+            continue;
+        };
         // A return first: the instruction after the call is not part of it.
         open.retain(|&(function, back, count)| {
             if pc == back {
@@ -326,8 +334,8 @@ fn render(rows: &[(&Measured, u64, usize)]) -> String {
          the hardware images are compiled) run alone on QEMU's netduinoplus2, traced one \
          instruction per translation block after their start-up self-tests; a call counts every \
          instruction from the function's entry to the return to its caller, callees included, \
-         and the figure is the fewest over the calls seen (an interrupt during a call adds its \
-         handler). The images hold {IMAGE_SRDOS} SRDOs; the load column scales the digest to \
+         in thread mode (an interrupt handler running meanwhile is not counted); every call \
+         computes the same, and the figure is the fewest over the calls seen. The images hold {IMAGE_SRDOS} SRDOs; the load column scales the digest to \
          {LOAD_SRDOS} SRDOs ({}×, the digest is one signature per record) and counts it twice per \
          {LINK_PERIOD_MS} ms link period (each channel computes it for its own heartbeat and \
          again for the other channel's digest it receives), at one instruction per cycle of \
@@ -353,6 +361,16 @@ fn render(rows: &[(&Measured, u64, usize)]) -> String {
             measured.what
         );
     }
+    let _ = writeln!(
+        md,
+        "\nNot counted on the target yet: the validated pair, the produced pair and the idle \
+         poll beside the x86 figures above. An image alone never hears the other channel, so \
+         its core never boots, let alone reaches Operational; and `Runtime::on_frame`, \
+         `Node::handle_frame` and `Runtime::poll` are inlined into the main task under fat \
+         LTO, so they have no symbol of their own to count between. Counting them needs \
+         the emulated network (hub and four images) with one image traced, or markers in the \
+         board layer."
+    );
     md
 }
 
@@ -361,13 +379,22 @@ mod tests {
     use super::*;
 
     /// A call is counted from its entry to the return to the instruction after its `bl`,
-    /// nested calls included; a call still open at the end of the trace is not counted.
+    /// nested calls included, interrupt handlers not; a call still open at the end of the
+    /// trace is not counted.
     #[test]
     fn calls_are_counted_from_entry_to_return() {
         let line = |pc: u32| format!("Trace 0: 0x7f00 [00800408/{pc:016x}/00000110/ff020201] f\n");
+        let handler =
+            |pc: u32| format!("Trace 0: 0x7f00 [00800409/{pc:016x}/00000110/ff020201] h\n");
         let mut text = String::from("IN: noise\n");
-        // bl at 0x100 → 0x200 (3 instructions, one of them a nested call) → back at 0x104.
-        for pc in [0x100, 0x200, 0x202, 0x300, 0x104, 0x106] {
+        // bl at 0x100 → 0x200 (3 instructions, one of them a nested call, and an interrupt
+        // handler of two that is not counted) → back at 0x104.
+        for pc in [0x100, 0x200, 0x202] {
+            text.push_str(&line(pc));
+        }
+        text.push_str(&handler(0x500));
+        text.push_str(&handler(0x502));
+        for pc in [0x300, 0x104, 0x106] {
             text.push_str(&line(pc));
         }
         // A second call, cut off by the end of the trace.
