@@ -72,6 +72,21 @@ struct Slot {
     remote: Pending,
 }
 
+impl Slot {
+    /// When the oldest verdict still waiting in this slot arrived. Each queue is in order of
+    /// arrival (verdicts are appended with the `now` of their arrival, and the runtime's
+    /// clock never goes backwards), so its front is its oldest: the timeout is checked on
+    /// the two fronts, not on every waiting verdict.
+    fn oldest(&self) -> Option<Instant> {
+        let local = self.local.front().map(|(_, since)| *since);
+        let remote = self.remote.front().map(|(_, since)| *since);
+        match (local, remote) {
+            (Some(local), Some(remote)) => Some(local.min(remote)),
+            (since, None) | (None, since) => since,
+        }
+    }
+}
+
 /// Whose verdict arrived.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Side {
@@ -152,12 +167,13 @@ impl<const N: usize> VerdictCheck<N> {
     /// [`CrossFault::Unconfirmed`] for a verdict older than the timeout (at the deadline itself).
     pub fn poll(&self, now: Instant) -> Result<(), CrossFault> {
         for (index, slot) in self.slots.iter().enumerate() {
-            for (_, since) in slot.local.iter().chain(slot.remote.iter()) {
-                if shared::time::expired(*since + self.timeout, now) {
-                    // `slots` holds at most 64 SRDOs (`N`), so every slot has a number.
-                    if let Some(srdo) = SrdoNumber::of_slot(index) {
-                        return Err(CrossFault::Unconfirmed { srdo });
-                    }
+            if slot
+                .oldest()
+                .is_some_and(|since| shared::time::expired(since + self.timeout, now))
+            {
+                // `slots` holds at most 64 SRDOs (`N`), so every slot has a number.
+                if let Some(srdo) = SrdoNumber::of_slot(index) {
+                    return Err(CrossFault::Unconfirmed { srdo });
                 }
             }
         }
@@ -168,8 +184,8 @@ impl<const N: usize> VerdictCheck<N> {
     pub fn deadline(&self) -> Instant {
         self.slots
             .iter()
-            .flat_map(|slot| slot.local.iter().chain(slot.remote.iter()))
-            .map(|(_, since)| *since + self.timeout)
+            .filter_map(Slot::oldest)
+            .map(|since| since + self.timeout)
             .min()
             .unwrap_or(Instant::NEVER)
     }
@@ -296,6 +312,32 @@ mod tests {
         assert_eq!(
             check.remote(t, 1, valid(11, 1)),
             Err(CrossFault::Disagreement { srdo: number(1) })
+        );
+    }
+
+    /// With several verdicts waiting, the oldest sets the deadline and times out first; once
+    /// it is matched, the next oldest takes over.
+    #[test]
+    fn the_oldest_waiting_verdict_sets_the_deadline() {
+        let mut check = VerdictCheck::<2>::new(TIMEOUT);
+        let ms = Instant::from_millis;
+        check.local(ms(1), number(1), valid(1, 1)).unwrap();
+        check.local(ms(2), number(1), valid(2, 0)).unwrap();
+        check.remote(ms(3), 2, valid(1, 1)).unwrap();
+        check.local(ms(4), number(1), valid(3, 1)).unwrap();
+        assert_eq!(check.deadline(), ms(1) + TIMEOUT);
+        assert_eq!(check.poll(Instant::from_micros(5_999)), Ok(()));
+        assert_eq!(
+            check.poll(ms(6)),
+            Err(CrossFault::Unconfirmed { srdo: number(1) })
+        );
+        assert_eq!(check.remote(ms(5), 1, valid(1, 1)), Ok(Some(valid(1, 1))));
+        assert_eq!(check.deadline(), ms(2) + TIMEOUT);
+        assert_eq!(check.remote(ms(5), 1, valid(2, 0)), Ok(Some(valid(2, 0))));
+        assert_eq!(check.deadline(), ms(3) + TIMEOUT, "SRDO 2's remote verdict");
+        assert_eq!(
+            check.poll(ms(8)),
+            Err(CrossFault::Unconfirmed { srdo: number(2) })
         );
     }
 

@@ -114,13 +114,21 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
     report.push_str(&String::from_utf8_lossy(&tool.stdout));
     let docs = root.join("docs");
     std::fs::create_dir_all(&docs)?;
-    // `cargo xtask interop --bench` writes its section (python-canopen beside the tool); it
-    // needs the emulated network, so this run keeps the last one it wrote.
-    let old = std::fs::read_to_string(docs.join("performance.md")).unwrap_or_default();
-    if let Some(section) = crate::interop::kept_section(&old) {
+    let path = docs.join("performance.md");
+    // What other commands write here is kept as they wrote it: python-canopen beside the tool
+    // (`cargo xtask interop --bench`, which needs the emulated network), the full network's
+    // speed (`cargo xtask fullnet`) and the target's figures (`cargo xtask bench --target-cost`).
+    let previous = std::fs::read_to_string(&path).unwrap_or_default();
+    if let Some(section) = crate::interop::kept_section(&previous) {
         report = crate::interop::with_section(&report, section);
     }
-    std::fs::write(docs.join("performance.md"), &report)?;
+    for name in [crate::fullnet::TIMING_MARKER, crate::target_cost::MARKER] {
+        if let Some(kept) = generated_block(&previous, name) {
+            report.push('\n');
+            report.push_str(&kept);
+        }
+    }
+    std::fs::write(&path, &report)?;
     println!("{report}");
 
     let mut over = Vec::new();
@@ -140,6 +148,14 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
         eprintln!("xtask: {message}");
     }
     Ok(())
+}
+
+/// The generated block `name` of `text`, its markers included.
+fn generated_block(text: &str, name: &str) -> Option<String> {
+    let start = text.find(&format!("<!-- {name}:begin"))?;
+    let end_marker = format!("<!-- {name}:end -->");
+    let end = start + text[start..].find(&end_marker)? + end_marker.len();
+    Some(format!("{}\n", &text[start..end]))
 }
 
 /// The `totals:` (or `summary:`) line of a callgrind output file.
@@ -225,4 +241,26 @@ fn render(rows: &[(&HotPath, f64)], ram: u32, rustc: &str) -> String {
          fullnet`, `cargo xtask reaction`)."
     );
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The page is rewritten whole; another command's block is found with its markers, so
+    /// that it can be kept.
+    #[test]
+    fn another_commands_block_is_found_with_its_markers() {
+        let page = "# Performance\n\nold table\n\n\
+                    <!-- target-cost:begin (generated, do not edit) -->\nfigures\n\
+                    <!-- target-cost:end -->\ntrailing\n";
+        assert_eq!(
+            generated_block(page, "target-cost").as_deref(),
+            Some(
+                "<!-- target-cost:begin (generated, do not edit) -->\nfigures\n\
+                 <!-- target-cost:end -->\n"
+            )
+        );
+        assert_eq!(generated_block(page, "fullnet-timing"), None);
+    }
 }

@@ -72,12 +72,49 @@ pub fn task(root: &Path, part: Part, args: &[String], print_only: bool) -> Resul
         .with_context(|| format!("updating {DOCUMENT}"))?;
     std::fs::write(&path, updated).with_context(|| format!("writing {DOCUMENT}"))?;
     eprintln!("xtask: wrote the {} block of {DOCUMENT}", part.marker());
+    if let Part::Network = part {
+        write_timing(root, &section)?;
+    }
+    Ok(())
+}
+
+/// The page of benchmarks, where the full network's simulation speed is quoted too.
+const PERFORMANCE: &str = "docs/performance.md";
+/// Its block for the full network's speed (`cargo xtask bench` keeps it).
+pub(crate) const TIMING_MARKER: &str = "fullnet-timing";
+
+/// Quotes the run's command and wall-time lines from `section` in [`PERFORMANCE`]'s
+/// [`TIMING_MARKER`] block (added at the end of the page when it has none).
+fn write_timing(root: &Path, section: &str) -> Result<()> {
+    let quoted: Vec<&str> = section
+        .lines()
+        .filter(|line| line.starts_with("Command:") || line.starts_with("**Wall time**"))
+        .collect();
+    if quoted.len() != 2 {
+        bail!("the simulation's report has no command or no wall-time line to quote");
+    }
+    let block = format!(
+        "## The full network: simulation speed\n\nFrom [network-performance.md]\
+         (network-performance.md), written by `cargo xtask fullnet`.\n\n{}\n\n{}\n",
+        quoted[0], quoted[1]
+    );
+    let path = root.join(PERFORMANCE);
+    let text = std::fs::read_to_string(&path).unwrap_or_default();
+    let updated = replace_block(&text, TIMING_MARKER, &block).unwrap_or_else(|_| {
+        format!(
+            "{}\n\n<!-- {TIMING_MARKER}:begin (generated, do not edit) -->\n{}\n<!-- {TIMING_MARKER}:end -->\n",
+            text.trim_end(),
+            block.trim_end()
+        )
+    });
+    std::fs::write(&path, updated).with_context(|| format!("writing {PERFORMANCE}"))?;
+    eprintln!("xtask: wrote the {TIMING_MARKER} block of {PERFORMANCE}");
     Ok(())
 }
 
 /// `text` with the lines between `<!-- NAME:begin -->` and `<!-- NAME:end -->` replaced by
 /// `section`.
-fn replace_block(text: &str, name: &str, section: &str) -> Result<String> {
+pub(crate) fn replace_block(text: &str, name: &str, section: &str) -> Result<String> {
     let begin = format!("<!-- {name}:begin (generated, do not edit) -->");
     let end = format!("<!-- {name}:end -->");
     let Some(start) = text.find(&begin) else {

@@ -15,6 +15,7 @@ mod network;
 mod qemu;
 mod run;
 mod scenario;
+mod target_cost;
 mod toolchain;
 mod trace;
 
@@ -118,6 +119,11 @@ enum Task {
         /// Check the counts against the targets and fail when one is exceeded.
         #[arg(long)]
         check: bool,
+        /// Instead: count the Thumb instructions of the real QEMU images' digest and link
+        /// heartbeat under QEMU, and the CPU load they imply at 168 MHz; writes its block of
+        /// docs/performance.md.
+        #[arg(long)]
+        target_cost: bool,
     },
     /// The full network by simulation: 64 producers and 64 consumers (127 dual-channel nodes)
     /// at 1 Mbit/s with background traffic; bus load, SCT and SRVT margins per SRDO, reaction
@@ -275,7 +281,13 @@ fn task() -> Result<()> {
             command.args(args);
             run(&mut command)
         }
-        Task::Bench { check } => bench::run(&root, check),
+        Task::Bench { check, target_cost } => {
+            if target_cost {
+                target_cost::run(&root)
+            } else {
+                bench::run(&root, check)
+            }
+        }
         Task::Fullnet {
             minutes,
             seed,

@@ -21,7 +21,7 @@
 //!   delimiter arrives, so a link message costs one step instead of one per byte.
 //! - **No allocation per frame.** Scratch buffers are reused; nothing is logged unless asked.
 
-use crate::bus::{Bus, Delivery};
+use crate::bus::{Bus, Delivery, ORDERED_BY_IDENTIFIER};
 use crate::dual::{B_INPUTS, ChannelARuntime, ChannelBRuntime, LINK_BYTE_TIME, Side};
 use crate::network::device_config;
 use channel_a::role::ChannelA;
@@ -35,14 +35,6 @@ use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
-
-/// Transmit mailboxes per channel: the bxCAN's three, sent by identifier (TXFP = 0), behind a
-/// software FIFO ([`Bus::set_transmit_mailboxes`]), as the board layer was when the committed
-/// full-network hour was measured (it now keeps its whole queue in identifier order,
-/// `board::transmit_queue`; this model is the more pessimistic for a node's own frames, and
-/// kept so the committed figures reproduce). With a FIFO alone, a channel's SRDO frame waits
-/// behind its own heartbeat, which at high bus load waits for every higher-priority frame.
-pub const TRANSMIT_MAILBOXES: usize = 3;
 
 /// The number of CAN identifiers (11 bits).
 const IDENTIFIERS: usize = 2048;
@@ -273,7 +265,10 @@ impl<O: Observer> Engine<O> {
             now: Instant::ZERO,
             bus: {
                 let mut bus = Bus::new(bit_rate, 1 + channels as usize);
-                bus.set_transmit_mailboxes(TRANSMIT_MAILBOXES);
+                // Each channel's whole transmit queue by identifier, as the board layer keeps
+                // it (`board::transmit_queue`) and `DualNetwork` and the hub model it: a
+                // node's own heartbeat or EMCY never holds back its SRDO or its GFC.
+                bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
                 bus
             },
             nodes,
