@@ -10,22 +10,14 @@ pub const LINKTYPE_CAN_SOCKETCAN: u32 = 227;
 /// SocketCAN's flag for a remote frame in the identifier word.
 const CAN_RTR_FLAG: u32 = 0x4000_0000;
 
-/// One line of a candump log: `(seconds.micros) interface ID#DATA` (`ID#R` for a remote frame).
+/// One line of a candump log: `(seconds.micros) interface ID#DATA` (`ID#R` for a remote frame),
+/// as the tool's monitor writes and replays it (one format, one writer).
 pub fn candump_line(at_unix_micros: u64, interface: &str, frame: &CanFrame) -> String {
-    let mut line = format!(
-        "({}.{:06}) {interface} {:03X}#",
-        at_unix_micros / 1_000_000,
-        at_unix_micros % 1_000_000,
-        frame.id().raw()
-    );
-    if frame.is_remote() {
-        line.push('R');
-    } else {
-        for byte in frame.data() {
-            line.push_str(&format!("{byte:02X}"));
-        }
-    }
-    line
+    safety_config::monitor::candump::line(
+        std::time::Duration::from_micros(at_unix_micros),
+        interface,
+        frame,
+    )
 }
 
 /// Writes a pcap file of SocketCAN frames.

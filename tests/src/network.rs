@@ -316,25 +316,17 @@ impl Network {
         text
     }
 
-    /// The trace in candump log format (`(seconds) can0 ID#DATA`).
+    /// The trace in candump log format (`(seconds) can0 ID#DATA`), written by the tool's
+    /// monitor's writer, which also replays it.
     pub fn candump(&self) -> String {
         let mut text = String::new();
         for (at, frame) in &self.trace {
-            let micros = at.as_micros();
-            let _ = write!(
-                text,
-                "({}.{:06}) can0 {:03X}#",
-                micros / 1_000_000,
-                micros % 1_000_000,
-                frame.id().raw()
-            );
-            if frame.is_remote() {
-                let _ = write!(text, "R");
-            } else {
-                for byte in frame.data() {
-                    let _ = write!(text, "{byte:02X}");
-                }
-            }
+            let since_start = std::time::Duration::from_micros(at.as_micros());
+            text.push_str(&safety_config::monitor::candump::line(
+                since_start,
+                "can0",
+                frame,
+            ));
             text.push('\n');
         }
         text
