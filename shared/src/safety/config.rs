@@ -206,6 +206,85 @@ impl ConfigError {
             SignatureMismatch => 24,
         }
     }
+
+    /// Every reason, in the order of their cause codes.
+    pub const ALL: [ConfigError; 23] = {
+        use ConfigError::*;
+        [
+            DirectionReserved,
+            CycleTimeZero,
+            SrvtZero,
+            SrvtNotBelowSct,
+            CobIdTooLow,
+            CobIdTooHigh,
+            CobIdParity,
+            CobIdsNotConsecutive,
+            CobIdInUse,
+            CobIdChangedWhileExists,
+            MappingWhileExists,
+            MappingNotDisabled,
+            MappingCountOdd,
+            MappingTooLong,
+            MappingEmpty,
+            MappedObjectMissing,
+            MappedSubIndexMissing,
+            NotMappable,
+            MappedLengthMismatch,
+            PairLengthMismatch,
+            PairSameObject,
+            NotDeclaredValid,
+            SignatureMismatch,
+        ]
+    };
+
+    /// The reason an EMCY names by [`ConfigError::cause_code`], if it names one.
+    pub fn from_cause_code(code: u8) -> Option<ConfigError> {
+        Self::ALL
+            .into_iter()
+            .find(|error| error.cause_code() == code)
+    }
+
+    /// The reason in words, for a person reading a tool's output (the variant's doc comment).
+    pub const fn describe(self) -> &'static str {
+        use ConfigError::*;
+        match self {
+            DirectionReserved => "the information direction is a reserved value (03h..FFh)",
+            CycleTimeZero => "the refresh time or SCT is 0 ms; it shall be more than 0",
+            SrvtZero => "the SRVT is 0 ms; it shall be more than 0",
+            SrvtNotBelowSct => "the SRVT is not shorter than the SCT",
+            CobIdTooLow => "a COB-ID is below the SRDO range (0x101/0x102)",
+            CobIdTooHigh => "a COB-ID is above the SRDO range (0x17F/0x180)",
+            CobIdParity => "COB-ID 1 must be odd and COB-ID 2 even",
+            CobIdsNotConsecutive => "COB-ID 2 is not COB-ID 1 + 1",
+            CobIdInUse => "the COB-IDs are already used by another SRDO of this device",
+            CobIdChangedWhileExists => "a COB-ID cannot be changed while the SRDO exists",
+            MappingWhileExists => "the mapping cannot be changed while the SRDO exists",
+            MappingNotDisabled => "a mapping entry cannot be changed while sub-index 00h is not 0",
+            MappingCountOdd => {
+                "the number of mapping entries is odd (plain and inverted come in pairs)"
+            }
+            MappingTooLong => "the mapped data would not fit in one CAN frame of 8 bytes",
+            MappingEmpty => "an existing SRDO has no mapping",
+            MappedObjectMissing => "a mapping entry names an object that does not exist",
+            MappedSubIndexMissing => "a mapping entry names a sub-index that does not exist",
+            NotMappable => {
+                "a mapping entry names an object that cannot be mapped in this direction"
+            }
+            MappedLengthMismatch => "a mapping entry's length is not its object's length",
+            PairLengthMismatch => "a plain entry and its inverted entry have different lengths",
+            PairSameObject => "a plain entry and its inverted entry map the same object",
+            NotDeclaredValid => {
+                "0x13FE does not hold A5h: the configuration was not declared valid"
+            }
+            SignatureMismatch => "the signature in 0x13FF does not match the configuration",
+        }
+    }
+}
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.describe())
+    }
 }
 
 /// A refused configuration: which SRDO (none for device-wide reasons) and why.

@@ -667,3 +667,23 @@ proptest! {
         }
     }
 }
+
+/// A tool names a refused configuration from the cause byte of its EMCY: every reason comes
+/// back from its code, no two share a code or a sentence, and code 11 (retired) names none.
+#[test]
+fn every_refusal_reason_is_found_by_its_emcy_cause_code_and_has_its_own_words() {
+    let mut codes = std::collections::BTreeSet::new();
+    let mut words = std::collections::BTreeSet::new();
+    for error in ConfigError::ALL {
+        assert_eq!(
+            ConfigError::from_cause_code(error.cause_code()),
+            Some(error)
+        );
+        assert!(codes.insert(error.cause_code()), "{error:?}: code shared");
+        assert!(words.insert(error.describe()), "{error:?}: words shared");
+        assert_eq!(std::format!("{error}"), error.describe());
+    }
+    assert_eq!(ConfigError::from_cause_code(11), None);
+    assert_eq!(ConfigError::from_cause_code(0), None);
+    assert_eq!(ConfigError::from_cause_code(25), None);
+}

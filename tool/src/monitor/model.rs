@@ -19,6 +19,7 @@ use shared::CanFrame;
 use shared::canopen::emcy::{Emergency, code, register};
 use shared::canopen::nmt::NmtState;
 use shared::safety::cause::Cause;
+use shared::safety::config::ConfigError;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 
@@ -649,9 +650,10 @@ pub fn describe_emergency(emergency: &Emergency) -> String {
                 Some(found) if cause >= Cause::IntegrityRecords.code() => {
                     srdo_words(found.describe().to_owned())
                 }
-                _ => srdo_words(format!(
-                    "configuration refused at NMT start (reason {cause})"
-                )),
+                _ => srdo_words(match ConfigError::from_cause_code(cause) {
+                    Some(reason) => format!("configuration refused at NMT start: {reason}"),
+                    None => format!("configuration refused at NMT start (reason {cause})"),
+                }),
             },
         },
         other => format!("error code {other:04X}h"),

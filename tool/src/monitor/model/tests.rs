@@ -295,7 +295,17 @@ fn monitor_decodes_this_devices_emcy_into_words() {
         (
             code::DATA_SET,
             [1, 24, 0, 0, 0],
-            "SRDO 1: configuration refused at NMT start (reason 24)",
+            "SRDO 1: configuration refused at NMT start: the signature in 0x13FF does not match the configuration",
+        ),
+        (
+            code::DATA_SET,
+            [0, 23, 0, 0, 0],
+            "configuration refused at NMT start: 0x13FE does not hold A5h: the configuration was not declared valid",
+        ),
+        (
+            code::DATA_SET,
+            [2, 11, 0, 0, 0],
+            "SRDO 2: configuration refused at NMT start (reason 11)",
         ),
         (code::NO_ERROR, [0; 5], "error reset: no error"),
         (0x1234, [0; 5], "error code 1234h"),
