@@ -661,6 +661,9 @@ fn monitor(
 }
 
 fn main() -> ExitCode {
+    // Output piped into a program that stops reading (`safety-config eds | head`) ends this
+    // one quietly, as it ends any Unix tool, instead of panicking in `println!`.
+    sigpipe::reset();
     let cli = Cli::parse();
     let as_json = cli.json;
     match run(cli) {

@@ -105,3 +105,21 @@ fn cia306_the_eds_command_prints_the_committed_eds() {
     assert!(output.status.success());
     assert!(String::from_utf8_lossy(&output.stdout) == committed());
 }
+
+/// Output piped into a program that stops reading ends the program quietly, the way it ends
+/// any Unix tool (SIGPIPE), never with a panic's message on the terminal.
+#[test]
+fn output_into_a_closed_pipe_ends_without_a_panic() {
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_safety-config"))
+        .arg("eds")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the program runs");
+    // The reading end closed before the program writes its first line.
+    drop(child.stdout.take());
+    let output = child.wait_with_output().expect("the program ends");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
