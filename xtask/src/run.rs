@@ -298,6 +298,22 @@ fn cause_words(code: u8) -> String {
     }
 }
 
+/// The lines of a channel's log that report one safe state each: a fault the channel found
+/// logs its `Fault(..)` and then the core's `SafeState(..)` it caused, one event in two lines,
+/// so the `SafeState` lines count the events; a log with only `Fault` lines keeps those.
+fn safe_state_reports(lines: &[String]) -> Vec<&str> {
+    let latched: Vec<&str> = lines
+        .iter()
+        .map(String::as_str)
+        .filter(|line| line.contains("SafeState("))
+        .collect();
+    if latched.is_empty() {
+        lines.iter().map(String::as_str).collect()
+    } else {
+        latched
+    }
+}
+
 /// A safe-state line of a channel's decoded log in words: defmt renders
 /// `shared::node::SafeStateCause` with the variants' names (`Srdo(SrdoFault { srdo:
 /// SrdoNumber(1), cause: SrvtElapsed })`, `Application { detail: 48 }`, `Gfc`,
@@ -640,11 +656,12 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     println!("longest stall of an emulated MCU (host time it did not run): {stall} ms");
     println!("{pace}");
     for (name, lines) in &faults {
-        if let Some(last) = lines.last() {
+        let reports = safe_state_reports(lines);
+        if let Some(last) = reports.last() {
             let words = logged_cause_words(last).unwrap_or_else(|| format!("as logged: {last}"));
             println!(
                 "{name}: {} safe-state report(s) in its log, the last: {words}",
-                lines.len()
+                reports.len()
             );
         }
     }
@@ -919,6 +936,23 @@ mod tests {
             "{ended}"
         );
         let _ = std::fs::remove_file(&exit);
+    }
+
+    /// One safe state logged as the channel's fault and the core's latch counts once.
+    #[test]
+    fn a_fault_and_the_safe_state_it_caused_are_one_report() {
+        let lines: Vec<String> = [
+            "INFO  Fault(ChannelFault { cause: LinkLost })",
+            "INFO  Node(SafeState(Application { detail: 48 }))",
+        ]
+        .map(str::to_owned)
+        .into();
+        assert_eq!(
+            safe_state_reports(&lines),
+            ["INFO  Node(SafeState(Application { detail: 48 }))"]
+        );
+        let only_fault = vec!["INFO  Fault(ChannelFault { cause: LinkLost })".to_owned()];
+        assert_eq!(safe_state_reports(&only_fault).len(), 1);
     }
 
     /// The safe-state lines of the channels' logs read in words, from Cause's one table.
