@@ -27,7 +27,9 @@
 //! the hub only up to `BACKLOG` bytes; past that the hub stops reading its socket, so the
 //! sender's writes block. A control line is at most `can_hub::control::MAX_LINE` bytes, and a
 //! tool or control client that does not read what the hub writes for `WRITE_TIMEOUT` is
-//! disconnected instead of stalling the bus.
+//! disconnected instead of stalling the bus. At most `MAX_CLIENTS` tools and `MAX_CLIENTS`
+//! control clients are connected at once; one more is told so in a sentence and closed, so
+//! no number of connections makes the hub hold more and more threads either.
 
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
 use can_hub::control::{self, Command, status_line};
@@ -93,6 +95,40 @@ const TOOL_BUS: &str = "can0";
 
 /// How long a write to a tool or control client may block before the client is disconnected.
 const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Tool connections, and separately control connections, the hub serves at once.
+const MAX_CLIENTS: usize = 16;
+
+/// Connections of one kind in use, counted up to [`MAX_CLIENTS`].
+#[derive(Clone, Default)]
+struct Connections(Arc<AtomicUsize>);
+
+/// One connection counted in [`Connections`] until dropped (its reader thread ends).
+struct Counted(Arc<AtomicUsize>);
+
+impl Connections {
+    /// A place for one more connection, or `None` when all [`MAX_CLIENTS`] are in use.
+    fn take(&self) -> Option<Counted> {
+        self.0
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < MAX_CLIENTS).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Counted(self.0.clone()))
+    }
+}
+
+impl Drop for Counted {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+/// Tells a connection past [`MAX_CLIENTS`] why it is closed, in the protocol it speaks.
+fn refuse(mut stream: TcpStream, line: &str) {
+    let _ = stream.write_all(line.as_bytes());
+    let _ = stream.shutdown(Shutdown::Both);
+}
 
 /// What the connection threads tell the hub.
 enum Input {
@@ -280,17 +316,30 @@ fn start(args: &Args) -> Result<(), String> {
         let tx = tx.clone();
         // After the sockets: the hub's own sender (`insert` on the control port).
         let first = sockets.len() + 1;
+        let tools = Connections::default();
         std::thread::spawn(move || {
             for (offset, stream) in listener.incoming().enumerate() {
                 let Ok(stream) = stream else { continue };
                 let _ = stream.set_nodelay(true);
                 let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
+                let Some(counted) = tools.take() else {
+                    refuse(
+                        stream,
+                        &format!(
+                            "< error the hub serves {MAX_CLIENTS} tools at once; close one and connect again >"
+                        ),
+                    );
+                    continue;
+                };
                 let id = first + offset;
                 if let Ok(writer) = stream.try_clone() {
                     let pending = Arc::new(AtomicUsize::new(0));
                     let _ = tx.send(Input::ToolJoined(id, writer, pending.clone()));
                     let tx = tx.clone();
-                    std::thread::spawn(move || reader(id, stream, tx, pending));
+                    std::thread::spawn(move || {
+                        let _counted = counted;
+                        reader(id, stream, tx, pending);
+                    });
                 }
             }
         });
@@ -298,15 +347,26 @@ fn start(args: &Args) -> Result<(), String> {
     if let Some(address) = &args.control {
         let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
+        let controls = Connections::default();
         std::thread::spawn(move || {
             for (client, stream) in listener.incoming().enumerate() {
                 let Ok(stream) = stream else { continue };
                 let _ = stream.set_nodelay(true);
                 let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
+                let Some(counted) = controls.take() else {
+                    refuse(
+                        stream,
+                        &format!(
+                            "error the hub serves {MAX_CLIENTS} control clients at once; close one and connect again\n"
+                        ),
+                    );
+                    continue;
+                };
                 if let Ok(writer) = stream.try_clone() {
                     let _ = tx.send(Input::ControlJoined(client, Box::new(writer)));
                     let tx = tx.clone();
                     std::thread::spawn(move || {
+                        let _counted = counted;
                         let mut reader = BufReader::new(stream);
                         while let Ok(Some(line)) = control::read_line(&mut reader) {
                             if tx.send(Input::Control(client, line)).is_err() {

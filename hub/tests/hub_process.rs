@@ -328,3 +328,51 @@ fn frames_of_a_client_that_closed_at_once_still_reach_the_bus() {
     }
     drop(hub);
 }
+
+/// The greeting or refusal a fresh connection reads first (up to its closing `>`).
+fn first_reply(stream: &mut TcpStream) -> String {
+    let mut reply = Vec::new();
+    let mut byte = [0u8; 1];
+    while stream.read(&mut byte).unwrap_or(0) == 1 {
+        reply.push(byte[0]);
+        if byte[0] == b'>' {
+            break;
+        }
+    }
+    String::from_utf8_lossy(&reply).into_owned()
+}
+
+/// Connections are bounded: the seventeenth tool is told in a sentence that the hub serves 16
+/// at once and is closed; when one of the 16 leaves, a new tool is greeted again.
+#[test]
+fn a_tool_past_the_limit_is_refused_in_words_and_a_freed_place_is_served() {
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 5;
+    let _hub = start(port);
+    let mut held: Vec<TcpStream> = (0..16).map(|_| connect(port)).collect();
+    for stream in &mut held {
+        assert_eq!(first_reply(stream), "< hi >");
+    }
+    let mut refused = connect(port);
+    let reply = first_reply(&mut refused);
+    assert!(
+        reply.starts_with("< error the hub serves 16 tools at once"),
+        "{reply}"
+    );
+    assert_eq!(
+        refused.read(&mut [0u8; 1]).unwrap_or(0),
+        0,
+        "closed after it"
+    );
+    drop(held.pop());
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let mut again = connect(port);
+        let reply = first_reply(&mut again);
+        if reply == "< hi >" {
+            break;
+        }
+        // The hub may not have seen the freed connection end yet.
+        assert!(Instant::now() < deadline, "never served again: {reply}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
