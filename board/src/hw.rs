@@ -18,7 +18,7 @@
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList, Bank};
-use dual_channel::runtime::{ChannelEvent, Role, Runtime};
+use dual_channel::runtime::{ChannelEvent, Role};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
 use embassy_stm32::can::enums::TryReadError;
@@ -562,13 +562,11 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         STM32F405_SLOTS,
     );
     let config = (device.describe)(node_id);
-    let mut channel = ChannelLoop::new(
-        match Runtime::new(config, parameters, role, now(), LINK_PERIOD) {
-            Ok(runtime) => runtime,
+    let mut channel =
+        match ChannelLoop::new(config, parameters, role, now(), LINK_PERIOD, device.pins) {
+            Ok(channel) => channel,
             Err(_) => halt_safe("device description refused"),
-        },
-        device.pins,
-    );
+        };
     let mut driver = HwDriver {
         can: can_rx,
         link: link_rx,

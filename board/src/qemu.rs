@@ -43,7 +43,7 @@ use cortex_m_rt::exception;
 use critical_section::Mutex;
 use dual_channel::channel_loop::{ChannelLoop, Driver, QueueFull, Received};
 use dual_channel::filters::AcceptanceList;
-use dual_channel::runtime::{ChannelEvent, Role, Runtime};
+use dual_channel::runtime::{ChannelEvent, Role};
 use embassy_executor::Spawner;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
@@ -518,12 +518,17 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         driver.first_grant();
     }
     driver.diagnostics.input(driver.input);
-    let Ok(runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
-    else {
+    let Ok(mut channel) = ChannelLoop::new(
+        (device.describe)(id),
+        parameters,
+        role,
+        now(),
+        LINK_PERIOD,
+        device.pins,
+    ) else {
         defmt::error!("device description refused");
         exit(false);
     };
-    let mut channel = ChannelLoop::new(runtime, device.pins);
     let mut woke = now();
     loop {
         let deadline = channel.service(&mut driver);

@@ -28,6 +28,7 @@ use crate::filters::AcceptanceList;
 use crate::runtime::{ChannelEvent, Io, Role, Runtime};
 use shared::canopen::od::Address;
 use shared::canopen::storage::Flash;
+use shared::node::{NodeConfig, NodeError};
 use shared::safety::config::SrdoRecord;
 use shared::safety::types::{Direction, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
@@ -148,12 +149,21 @@ pub struct ChannelLoop<F: Flash, R: Role<N>, const N: usize> {
 }
 
 impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
-    /// The loop around `runtime` with the device's `pins` (at most [`MAX_PINS`] of each; more
-    /// are never read or driven, a device description error the tests of
-    /// [`crate::device`] exclude).
-    pub fn new(runtime: Runtime<F, R, N>, pins: Pins) -> Self {
-        ChannelLoop {
-            runtime,
+    /// The loop around a new channel runtime ([`Runtime::new`]: `config`, `flash`, `role`,
+    /// powered on at `now`, a link heartbeat every `link_period`) with the device's `pins` (at
+    /// most [`MAX_PINS`] of each; more are never read or driven). The runtime is built in
+    /// place: moved into the loop by value, it went through the stack twice (measured under
+    /// QEMU: 21,960 bytes deepest, over the 18 KiB reserve).
+    pub fn new(
+        config: NodeConfig,
+        flash: F,
+        role: R,
+        now: Instant,
+        link_period: Duration,
+        pins: Pins,
+    ) -> Result<Self, NodeError> {
+        Ok(ChannelLoop {
+            runtime: Runtime::new(config, flash, role, now, link_period)?,
             pins,
             filters: None,
             sampled: [None; MAX_PINS],
@@ -162,7 +172,7 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
             driven: false,
             runtime_deadline: Instant::ZERO,
             dropped: Dropped::default(),
-        }
+        })
     }
 
     /// The channel's runtime.

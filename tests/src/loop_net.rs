@@ -16,7 +16,7 @@ use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
 use dual_channel::channel_loop::{ChannelLoop, Driver, Pins, QueueFull, Received};
 use dual_channel::filters::{AcceptanceList, BankLayout, CAN1_BANKS, Fifo, bank_layout};
-use dual_channel::runtime::{ChannelEvent, Runtime};
+use dual_channel::runtime::ChannelEvent;
 use safety_config::ToolError;
 use safety_config::network_file;
 use safety_config::procedure::{self, Quiet};
@@ -209,27 +209,23 @@ impl LoopNetwork {
             .map(|&id| LoopNode {
                 id,
                 a: ChannelLoop::new(
-                    Runtime::new(
-                        device_config(id, "loop node, channel A"),
-                        RamFlash::new(),
-                        ChannelA::default(),
-                        Instant::ZERO,
-                        LINK_PERIOD,
-                    )
-                    .expect("valid device"),
+                    device_config(id, "loop node, channel A"),
+                    RamFlash::new(),
+                    ChannelA::default(),
+                    Instant::ZERO,
+                    LINK_PERIOD,
                     PINS,
-                ),
+                )
+                .expect("valid device"),
                 b: ChannelLoop::new(
-                    Runtime::new(
-                        device_config(id, "loop node, channel B"),
-                        RamFlash::new(),
-                        ChannelB::new(&B_INPUTS).expect("valid inputs"),
-                        Instant::ZERO,
-                        LINK_PERIOD,
-                    )
-                    .expect("valid device"),
+                    device_config(id, "loop node, channel B"),
+                    RamFlash::new(),
+                    ChannelB::new(&B_INPUTS).expect("valid inputs"),
+                    Instant::ZERO,
+                    LINK_PERIOD,
                     PINS,
-                ),
+                )
+                .expect("valid device"),
                 drivers: [SimDriver::new(filtering), SimDriver::new(filtering)],
                 deadlines: [Instant::ZERO; 2],
                 last_service: [Instant::ZERO; 2],

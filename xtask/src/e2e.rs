@@ -17,7 +17,7 @@
 //! | channel B of node 1 reads otherwise | no inverted frame (CiA 304 9.5): SRVT | refresh + SRVT + margin |
 //! | link of node 33 cut | two link periods | 2 × link period + margin |
 //!
-//! Then the bus under load ([`bus_load`]): SDO requests to node 33 (and its answers) and
+//! Before the last case, the bus under load ([`bus_load`]): SDO requests to node 33 (and its answers) and
 //! non-safety frames on 30 % of the bus beside the SRDOs for 60 s of the network's time; no
 //! channel may leave the working state, and the SRDO plain-to-inverted gaps are reported
 //! ([`gaps`], from the hub's candump trace).
@@ -252,6 +252,9 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
     node_1_reports(network, &[Cause::TransmitMismatch, Cause::InputDiscrepancy])?;
     reset(network)?;
 
+    // Before the link cut, which the hub cannot undo.
+    bus_load(network)?;
+
     let at = network.command("cut node33-link")?;
     let bound = 2 * LINK_PERIOD_MS + MARGIN_MS;
     let ms = node_33_safe(
@@ -261,8 +264,6 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
         bound,
     )?;
     check("link of node 33 cut → node 33 safe", ms, bound)?;
-    reset(network)?;
-    bus_load(network)?;
     Ok(results)
 }
 
