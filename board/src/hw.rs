@@ -18,7 +18,7 @@
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList, Bank};
-use dual_channel::runtime::{ChannelEvent, Role};
+use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
 use embassy_stm32::can::enums::TryReadError;
@@ -562,11 +562,11 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         STM32F405_SLOTS,
     );
     let config = (device.describe)(node_id);
-    let mut channel =
-        match ChannelLoop::new(config, parameters, role, now(), LINK_PERIOD, device.pins) {
-            Ok(channel) => channel,
-            Err(_) => halt_safe("device description refused"),
-        };
+    let mut runtime = match Runtime::new(config, parameters, role, now(), LINK_PERIOD) {
+        Ok(runtime) => runtime,
+        Err(_) => halt_safe("device description refused"),
+    };
+    let mut channel = ChannelLoop::new(device.pins);
     let mut driver = HwDriver {
         can: can_rx,
         link: link_rx,
@@ -579,7 +579,7 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     };
     let mut stack_reported = 0;
     loop {
-        let wake = channel.service(&mut driver);
+        let wake = channel.service(&mut runtime, &mut driver);
         watchdog.pet();
         let stack = crate::stack::used();
         if stack > stack_reported {

@@ -43,7 +43,7 @@ use cortex_m_rt::exception;
 use critical_section::Mutex;
 use dual_channel::channel_loop::{ChannelLoop, Driver, QueueFull, Received};
 use dual_channel::filters::AcceptanceList;
-use dual_channel::runtime::{ChannelEvent, Role};
+use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
@@ -518,27 +518,22 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         driver.first_grant();
     }
     driver.diagnostics.input(driver.input);
-    let Ok(mut channel) = ChannelLoop::new(
-        (device.describe)(id),
-        parameters,
-        role,
-        now(),
-        LINK_PERIOD,
-        device.pins,
-    ) else {
+    let Ok(mut runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
+    else {
         defmt::error!("device description refused");
         exit(false);
     };
+    let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
     loop {
-        let deadline = channel.service(&mut driver);
+        let deadline = channel.service(&mut runtime, &mut driver);
         let at = now();
         let stall = LONGEST_STALL_MS.load(Ordering::Relaxed);
         driver
             .diagnostics
             .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
         driver.diagnostics.stack(crate::stack::used());
-        if let Some(status) = driver.diagnostics.report(at, channel.runtime()) {
+        if let Some(status) = driver.diagnostics.report(at, &runtime) {
             send(&Wire::Status(status));
         }
         let deadline = deadline.min(driver.diagnostics.deadline());

@@ -28,7 +28,6 @@ use crate::filters::AcceptanceList;
 use crate::runtime::{ChannelEvent, Io, Role, Runtime};
 use shared::canopen::od::Address;
 use shared::canopen::storage::Flash;
-use shared::node::{NodeConfig, NodeError};
 use shared::safety::config::SrdoRecord;
 use shared::safety::types::{Direction, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
@@ -130,9 +129,11 @@ pub struct Pins {
     pub outputs: &'static [Address],
 }
 
-/// One channel's loop: its runtime, the filters it applied, its pins' last values.
-pub struct ChannelLoop<F: Flash, R: Role<N>, const N: usize> {
-    runtime: Runtime<F, R, N>,
+/// One channel's loop around its runtime: the filters it applied, its pins' last values. The
+/// runtime stays the board's ([`ChannelLoop::service`] borrows it): built where the board
+/// keeps it, it is not moved again (moved into the loop, it went through the stack once more:
+/// 22,280 bytes deepest under QEMU, over the 18 KiB reserve).
+pub struct ChannelLoop {
     pins: Pins,
     /// The acceptance list last handed to the driver (`None`: none yet).
     filters: Option<AcceptanceList>,
@@ -148,22 +149,11 @@ pub struct ChannelLoop<F: Flash, R: Role<N>, const N: usize> {
     dropped: Dropped,
 }
 
-impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
-    /// The loop around a new channel runtime ([`Runtime::new`]: `config`, `flash`, `role`,
-    /// powered on at `now`, a link heartbeat every `link_period`) with the device's `pins` (at
-    /// most [`MAX_PINS`] of each; more are never read or driven). The runtime is built in
-    /// place: moved into the loop by value, it went through the stack twice (measured under
-    /// QEMU: 21,960 bytes deepest, over the 18 KiB reserve).
-    pub fn new(
-        config: NodeConfig,
-        flash: F,
-        role: R,
-        now: Instant,
-        link_period: Duration,
-        pins: Pins,
-    ) -> Result<Self, NodeError> {
-        Ok(ChannelLoop {
-            runtime: Runtime::new(config, flash, role, now, link_period)?,
+impl ChannelLoop {
+    /// The loop for a device with these `pins` (at most [`MAX_PINS`] of each; more are never
+    /// read or driven).
+    pub fn new(pins: Pins) -> Self {
+        ChannelLoop {
             pins,
             filters: None,
             sampled: [None; MAX_PINS],
@@ -172,19 +162,7 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
             driven: false,
             runtime_deadline: Instant::ZERO,
             dropped: Dropped::default(),
-        })
-    }
-
-    /// The channel's runtime.
-    pub fn runtime(&self) -> &Runtime<F, R, N> {
-        &self.runtime
-    }
-
-    /// The channel's runtime, for a system test's fault injection (feature
-    /// `fault-injection`, which no firmware image enables).
-    #[cfg(feature = "fault-injection")]
-    pub fn runtime_mut(&mut self) -> &mut Runtime<F, R, N> {
-        &mut self.runtime
+        }
     }
 
     /// What the driver's transmit queues refused so far.
@@ -202,7 +180,11 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
     /// latest (`now` itself when frames were left in the queue).
     #[must_use = "the loop must be called again at the returned instant"]
     #[inline(never)]
-    pub fn service(&mut self, driver: &mut impl Driver) -> Instant {
+    pub fn service<F: Flash, R: Role<N>, const N: usize>(
+        &mut self,
+        runtime: &mut Runtime<F, R, N>,
+        driver: &mut impl Driver,
+    ) -> Instant {
         let mut io = DriverIo {
             driver,
             outputs_changed: false,
@@ -215,7 +197,7 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
                 break;
             };
             taken += 1;
-            handed |= Self::hand(&mut self.runtime, received, &self.filters, &mut io);
+            handed |= hand(runtime, received, &self.filters, &mut io);
         }
         // The budget used up: the queue may hold more; the board calls again at once.
         let mut more = taken == RECEIVE_BUDGET;
@@ -224,7 +206,7 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
         if count > 0 {
             let at = io.driver.now();
             for &byte in &link[..count] {
-                self.runtime.on_link_byte(at, byte, &mut io);
+                runtime.on_link_byte(at, byte, &mut io);
             }
             handed = true;
             // The link may have more than one buffer's worth: come back at once.
@@ -238,19 +220,14 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
                 self.sampled[pin] = Some(level);
                 // The objects are the device description's own: a refusal is a description
                 // error, which the runtime reports as an input table fault where it can.
-                let _ = self
-                    .runtime
-                    .set_input(now, plain, inverted, &[u8::from(level)], &mut io);
+                let _ = runtime.set_input(now, plain, inverted, &[u8::from(level)], &mut io);
                 handed = true;
             }
         }
         self.next_sample = now + SAMPLE_PERIOD;
         if handed || shared::time::expired(self.runtime_deadline, now) {
-            self.runtime_deadline = self.runtime.poll(now, &mut io);
-            let list = AcceptanceList::of(
-                self.runtime.node().node_id(),
-                self.runtime.node().safety_config(),
-            );
+            self.runtime_deadline = runtime.poll(now, &mut io);
+            let list = AcceptanceList::of(runtime.node().node_id(), runtime.node().safety_config());
             if self.filters.as_ref() != Some(&list) {
                 io.driver.apply_filters(&list);
                 self.filters = Some(list);
@@ -259,7 +236,7 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
         if io.outputs_changed || !self.driven {
             self.driven = true;
             for (pin, &object) in self.pins.outputs.iter().enumerate().take(MAX_PINS) {
-                let level = Self::output_level(&self.runtime, object);
+                let level = output_level(runtime, object);
                 if self.levels[pin] != Some(level) {
                     self.levels[pin] = Some(level);
                     io.driver.set_output(pin, level);
@@ -272,51 +249,54 @@ impl<F: Flash, R: Role<N>, const N: usize> ChannelLoop<F, R, N> {
             self.runtime_deadline.min(self.next_sample)
         }
     }
+}
 
-    /// Hands one received item to the runtime; `true` when the runtime saw it.
-    #[inline(never)]
-    fn hand<D: Driver>(
-        runtime: &mut Runtime<F, R, N>,
-        received: Received,
-        filters: &Option<AcceptanceList>,
-        io: &mut DriverIo<'_, D>,
-    ) -> bool {
-        match received {
-            Received::Frame(frame) => {
-                // Before the first filters are applied the runtime has not booted (it has not
-                // been polled), and it ignores every frame; after, only what the list passes.
-                if filters.as_ref().is_some_and(|list| list.accepts(&frame)) {
-                    let at = io.driver.now();
-                    runtime.on_frame(at, &frame, io);
-                    true
-                } else {
-                    false
-                }
-            }
-            Received::Overrun => {
-                runtime.on_receive_overrun(io);
+/// Hands one received item to the runtime; `true` when the runtime saw it.
+#[inline(never)]
+fn hand<F: Flash, R: Role<N>, const N: usize, D: Driver>(
+    runtime: &mut Runtime<F, R, N>,
+    received: Received,
+    filters: &Option<AcceptanceList>,
+    io: &mut DriverIo<'_, D>,
+) -> bool {
+    match received {
+        Received::Frame(frame) => {
+            // Before the first filters are applied the runtime has not booted (it has not
+            // been polled), and it ignores every frame; after, only what the list passes.
+            if filters.as_ref().is_some_and(|list| list.accepts(&frame)) {
+                let at = io.driver.now();
+                runtime.on_frame(at, &frame, io);
                 true
+            } else {
+                false
             }
         }
+        Received::Overrun => {
+            runtime.on_receive_overrun(io);
+            true
+        }
     }
+}
 
-    /// The level of the output pin driven by `object`: the object's value in the confirmed
-    /// data of a receive SRDO that maps it is not 0.
-    #[inline(never)]
-    fn output_level(runtime: &Runtime<F, R, N>, object: Address) -> bool {
-        runtime
-            .node()
-            .safety_config()
-            .srdos
-            .iter()
-            .enumerate()
-            .filter(|(_, record)| record.parsed_direction() == Ok(Direction::Receive))
-            .filter_map(|(index, record)| {
-                let srdo = SrdoNumber::of_slot(index)?;
-                mapped_value(record, object, runtime.output(srdo))
-            })
-            .any(|value| value != 0)
-    }
+/// The level of the output pin driven by `object`: the object's value in the confirmed
+/// data of a receive SRDO that maps it is not 0.
+#[inline(never)]
+fn output_level<F: Flash, R: Role<N>, const N: usize>(
+    runtime: &Runtime<F, R, N>,
+    object: Address,
+) -> bool {
+    runtime
+        .node()
+        .safety_config()
+        .srdos
+        .iter()
+        .enumerate()
+        .filter(|(_, record)| record.parsed_direction() == Ok(Direction::Receive))
+        .filter_map(|(index, record)| {
+            let srdo = SrdoNumber::of_slot(index)?;
+            mapped_value(record, object, runtime.output(srdo))
+        })
+        .any(|value| value != 0)
 }
 
 /// The value of `object` in an SRDO's plain data `data` (little-endian, as the frame carries

@@ -16,7 +16,7 @@ use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
 use dual_channel::channel_loop::{ChannelLoop, Driver, Pins, QueueFull, Received};
 use dual_channel::filters::{AcceptanceList, BankLayout, CAN1_BANKS, Fifo, bank_layout};
-use dual_channel::runtime::ChannelEvent;
+use dual_channel::runtime::{ChannelEvent, Runtime};
 use safety_config::ToolError;
 use safety_config::network_file;
 use safety_config::procedure::{self, Quiet};
@@ -162,19 +162,21 @@ impl Driver for SimDriver {
     }
 }
 
-/// Channel A's loop.
-pub type LoopA = ChannelLoop<RamFlash<8192>, ChannelA, 4>;
-/// Channel B's loop.
-pub type LoopB = ChannelLoop<RamFlash<8192>, ChannelB, 4>;
+/// Channel A's runtime.
+pub type RuntimeA = Runtime<RamFlash<8192>, ChannelA, 4>;
+/// Channel B's runtime.
+pub type RuntimeB = Runtime<RamFlash<8192>, ChannelB, 4>;
 
-/// One node: both channels' loops and their boards.
+/// One node: both channels' runtimes, their loops and their boards.
 pub struct LoopNode {
     /// Node-ID.
     pub id: u8,
     /// Channel A.
-    pub a: LoopA,
+    pub a: RuntimeA,
     /// Channel B.
-    pub b: LoopB,
+    pub b: RuntimeB,
+    /// Channel A's loop, channel B's loop.
+    pub loops: [ChannelLoop; 2],
     /// Channel A's board, channel B's board.
     pub drivers: [SimDriver; 2],
     deadlines: [Instant; 2],
@@ -208,24 +210,23 @@ impl LoopNetwork {
             .iter()
             .map(|&id| LoopNode {
                 id,
-                a: ChannelLoop::new(
+                a: Runtime::new(
                     device_config(id, "loop node, channel A"),
                     RamFlash::new(),
                     ChannelA::default(),
                     Instant::ZERO,
                     LINK_PERIOD,
-                    PINS,
                 )
                 .expect("valid device"),
-                b: ChannelLoop::new(
+                b: Runtime::new(
                     device_config(id, "loop node, channel B"),
                     RamFlash::new(),
                     ChannelB::new(&B_INPUTS).expect("valid inputs"),
                     Instant::ZERO,
                     LINK_PERIOD,
-                    PINS,
                 )
                 .expect("valid device"),
+                loops: [ChannelLoop::new(PINS), ChannelLoop::new(PINS)],
                 drivers: [SimDriver::new(filtering), SimDriver::new(filtering)],
                 deadlines: [Instant::ZERO; 2],
                 last_service: [Instant::ZERO; 2],
@@ -355,8 +356,8 @@ impl LoopNetwork {
         let driver = &mut node.drivers[side];
         driver.now = now;
         let deadline = match side {
-            0 => node.a.service(driver),
-            _ => node.b.service(driver),
+            0 => node.loops[0].service(&mut node.a, driver),
+            _ => node.loops[1].service(&mut node.b, driver),
         };
         // `now` itself: frames were left in the queue; the loop comes back a moment later.
         node.deadlines[side] = deadline.max(now + Duration::from_micros(1));
@@ -389,7 +390,7 @@ impl LoopNetwork {
             if self
                 .nodes
                 .iter()
-                .all(|node| node.a.runtime().node().nmt_state() == NmtState::PreOperational)
+                .all(|node| node.a.node().nmt_state() == NmtState::PreOperational)
             {
                 break;
             }

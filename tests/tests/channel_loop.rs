@@ -12,8 +12,8 @@ fn started(filtering: Filtering) -> LoopNetwork {
     net.configure_and_start().expect("configured");
     net.run_for(Duration::from_millis(200));
     for node in &net.nodes {
-        assert_eq!(node.a.runtime().node().nmt_state(), NmtState::Operational);
-        assert!(node.a.runtime().is_working() && node.b.runtime().is_working());
+        assert_eq!(node.a.node().nmt_state(), NmtState::Operational);
+        assert!(node.a.is_working() && node.b.is_working());
     }
     net
 }
@@ -64,7 +64,7 @@ fn sc_req_05_the_output_pins_follow_the_producers_input_pins_through_the_loop() 
 fn en50325_5_7_1_1_the_controller_rejects_every_frame_the_node_does_not_follow() {
     let net = started(Filtering::Banks);
     for node in &net.nodes {
-        let list = node.a.filters().expect("filters applied");
+        let list = node.loops[0].filters().expect("filters applied");
         let ids: Vec<u16> = list.ids().iter().map(|id| id.raw()).collect();
         assert_eq!(
             ids,

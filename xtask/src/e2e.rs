@@ -306,7 +306,13 @@ fn bus_load(network: &mut Network) -> Result<()> {
             break;
         }
         let due = LOAD * bit_rate * (now - start);
-        while queued_bits < due {
+        // At most two transmit queues' worth per step: the hub stops reading a client whose
+        // queue is full, and a client blocked in a write reads neither the bus nor the
+        // control port (which the hub then waits for). Behind, the load is what the trace
+        // shows, reported.
+        let mut burst = 0;
+        while queued_bits < due && burst < 2 * can_hub::bus::TRANSMIT_QUEUE {
+            burst += 1;
             // One SDO request in five: it and its answer, the rest other frames.
             let next = if sent % 5 == 0 { request } else { other };
             traffic.transport.send(&next)?;
