@@ -7,7 +7,7 @@
 //! cause), and otherwise every [`PERIOD`], so counters stay fresh and a silent channel is
 //! noticed.
 
-use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime, is_srdo, safe_state_code};
+use dual_channel::runtime::{ChannelEvent, Role, Runtime, is_srdo, safe_state_code};
 use emulation_wire::Status;
 use shared::canopen::storage::Flash;
 use shared::node::Event;
@@ -160,30 +160,5 @@ impl Diagnostics {
     /// When the next periodic report is due.
     pub fn deadline(&self) -> Instant {
         self.next_report
-    }
-}
-
-/// An [`Io`] that keeps [`Diagnostics`] up to date on the way through to the board's own.
-pub struct Observed<'a, I: Io> {
-    /// The board's I/O.
-    pub io: &'a mut I,
-    /// The diagnostics to update.
-    pub diagnostics: &'a mut Diagnostics,
-}
-
-impl<I: Io> Io for Observed<'_, I> {
-    fn transmit(&mut self, frame: CanFrame) {
-        self.diagnostics.transmitted(&frame);
-        self.io.transmit(frame);
-    }
-    fn link(&mut self, bytes: &[u8]) {
-        self.io.link(bytes);
-    }
-    fn output(&mut self, srdo: SrdoNumber, data: u64) {
-        self.io.output(srdo, data);
-    }
-    fn event(&mut self, event: ChannelEvent) {
-        self.diagnostics.event(&event);
-        self.io.event(event);
     }
 }

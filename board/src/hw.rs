@@ -6,19 +6,26 @@
 //! the node-ID switches on PC2 (bit 0) to PC8 (bit 6), closed = 1, read at start-up,
 //! 8 MHz HSE crystal.
 //!
-//! One task owns the channel runtime and wakes for whatever comes first: a CAN frame, link
-//! bytes, the runtime's next deadline or the 1 ms input sample. Two small tasks move frames
-//! between the bxCAN and static channels, and drain the link transmit pipe into the USART. The
-//! independent watchdog is fed by the runtime loop only.
+//! One task runs the channel loop ([`dual_channel::channel_loop`]) over [`HwDriver`] and wakes
+//! for whatever comes first: a CAN frame, link bytes, or the instant the loop asked for (the
+//! runtime's next deadline, the 1 ms input sample). The loop reads the bxCAN's receive FIFOs
+//! itself, behind the acceptance filters it derives from the configuration (SRDO identifiers
+//! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun is the safe state
+//! ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`]). Two small tasks move frames from
+//! a priority queue into the transmit mailboxes and drain the link transmit pipe into the
+//! USART. The independent watchdog is fed by the channel loop only.
 
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
-use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
+use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
+use dual_channel::filters::{self, AcceptanceList, Bank};
+use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_executor::Spawner;
-use embassy_futures::select::{Either4, select4};
-use embassy_stm32::can::filter::{ListEntry32, Mask32};
+use embassy_futures::select::{Either3, select3};
+use embassy_stm32::can::enums::TryReadError;
+use embassy_stm32::can::filter::{ListEntry16, ListEntry32, Mask16};
 use embassy_stm32::can::{
-    Can, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler, StandardId,
-    TxInterruptHandler,
+    Can, CanRx, CanTx, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler,
+    StandardId, TxInterruptHandler,
 };
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::{CAN1, IWDG, USART3};
@@ -27,13 +34,11 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::priority_channel::{Min, PriorityChannel};
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::StorageError;
-use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::StaticCell;
 
@@ -55,13 +60,9 @@ pub const BIT_RATE: u32 = dual_channel::device::BIT_RATE;
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
 /// Link USART baud rate.
 pub const LINK_BAUD: u32 = 1_000_000;
-/// Inputs are sampled this often.
-pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 /// The watchdog bites when the runtime loop has not run for this long.
 pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
-/// Frames received, for the runtime task.
-static CAN_RX: Channel<CriticalSectionRawMutex, CanFrame, 32> = Channel::new();
 /// Frames to send, from the runtime task: by identifier, not first in first out
 /// ([`crate::transmit_queue`]), so the node's own heartbeat or EMCY never holds back its SRDO
 /// or GFC.
@@ -193,41 +194,156 @@ impl EraseWindow {
     }
 }
 
-/// What the runtime hands out, applied to the hardware.
-struct BoardIo<'a, 'd> {
-    output: &'a mut Output<'d>,
+/// The board as the channel loop sees it: the bxCAN's receive FIFOs and filters, the transmit
+/// queue, the link USART, the input and output pins, embassy's clock.
+struct HwDriver<'d> {
+    can: CanRx<'static>,
+    link: BufferedUartRx<'static>,
+    input: Input<'d>,
+    output: Output<'d>,
     /// Numbers the frames handed to [`CAN_TX`], for their order within one identifier.
     sequencer: Sequencer,
+    /// A frame the wait took from a FIFO, for the loop's next [`Driver::receive`].
+    frame: Option<CanFrame>,
+    /// Link bytes the wait read, for the loop's next [`Driver::link_read`] (which takes them
+    /// whole: its buffer is as long).
+    link_bytes: [u8; 64],
+    link_count: usize,
 }
 
-impl Io for BoardIo<'_, '_> {
-    fn transmit(&mut self, frame: CanFrame) {
-        if CAN_TX.try_send(self.sequencer.queue(frame)).is_err() {
-            // A full transmit queue loses the frame: the consumers' timers catch it.
-            defmt::warn!(
-                "CAN transmit queue full, frame {=u16:X} dropped",
-                frame.id().raw()
-            );
+impl HwDriver<'_> {
+    /// `true` (and the flags cleared) when a receive FIFO overflowed since the last call:
+    /// bxCAN keeps three frames per FIFO and, with RFLM = 0 (the reset value, kept), the
+    /// newest overwrites the third, so a frame the filters passed was lost (RM0090 32.7.5).
+    fn overrun() -> bool {
+        let can = embassy_stm32::pac::CAN1;
+        let mut lost = false;
+        for fifo in 0..2 {
+            if can.rfr(fifo).read().fovr() {
+                // FOVR is cleared by writing 1; FULL likewise, RFOM = 0 releases nothing.
+                can.rfr(fifo).write(|w| w.set_fovr(true));
+                lost = true;
+            }
+        }
+        lost
+    }
+}
+
+impl Driver for HwDriver<'_> {
+    fn now(&mut self) -> Instant {
+        now()
+    }
+
+    fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
+        CAN_TX
+            .try_send(self.sequencer.queue(*frame))
+            .map_err(|_| QueueFull)
+    }
+
+    fn receive(&mut self) -> Option<channel_loop::Received> {
+        if Self::overrun() {
+            return Some(channel_loop::Received::Overrun);
+        }
+        if let Some(frame) = self.frame.take() {
+            return Some(channel_loop::Received::Frame(frame));
+        }
+        loop {
+            match self.can.try_read() {
+                Ok(envelope) => {
+                    // Not CANopen's (extended, length over 8): as if filtered out.
+                    if let Some(frame) = from_bxcan(&envelope.frame) {
+                        return Some(channel_loop::Received::Frame(frame));
+                    }
+                }
+                Err(TryReadError::Empty) => return None,
+                Err(TryReadError::BusError(error)) => {
+                    defmt::warn!("CAN bus error {}", error);
+                    return None;
+                }
+            }
         }
     }
 
-    fn link(&mut self, bytes: &[u8]) {
-        if LINK_TX
-            .try_write(bytes)
-            .map_or(true, |written| written < bytes.len())
-        {
-            // The other channel sees a sequence gap or a corrupt frame: a fault, safe state.
+    fn apply_filters(&mut self, list: &AcceptanceList) {
+        let Ok(layout) = filters::bank_layout(list, filters::CAN1_BANKS) else {
+            // Any list fits CAN1's 14 banks (the fallback takes two; host-tested).
+            halt_safe("no acceptance filter layout");
+        };
+        if !layout.exact {
+            defmt::warn!("CAN filters: SRDO range masked, the loop filters the rest");
+        }
+        let id = |raw: u16| StandardId::new(raw).unwrap_or(StandardId::ZERO);
+        let mut banks = self.can.modify_filters();
+        banks.clear();
+        for (index, &(bank, fifo)) in layout.banks.iter().enumerate() {
+            let fifo = match fifo {
+                filters::Fifo::Srdo => Fifo::Fifo0,
+                filters::Fifo::Services => Fifo::Fifo1,
+            };
+            // At most 14 banks: the index fits.
+            let index = index as u8;
+            match bank {
+                Bank::List16(ids) => {
+                    banks.enable_bank(
+                        index,
+                        fifo,
+                        ids.map(|raw| ListEntry16::data_frames_with_id(id(raw))),
+                    );
+                }
+                Bank::Mask16(pairs) => {
+                    banks.enable_bank(
+                        index,
+                        fifo,
+                        pairs.map(|(raw, mask)| {
+                            *Mask16::frames_with_std_id(id(raw), id(mask)).data_frames_only()
+                        }),
+                    );
+                }
+            }
+        }
+        // Dropping the proxy leaves filter initialisation mode.
+        drop(banks);
+        defmt::info!("CAN filters: {=usize} identifiers", list.ids().len());
+    }
+
+    fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {
+        // All or nothing: a message cut short would reach the other channel corrupt.
+        if LINK_TX.free_capacity() < bytes.len() {
             defmt::warn!("link transmit pipe full");
+            return Err(QueueFull);
+        }
+        LINK_TX.try_write(bytes).map(|_| ()).map_err(|_| QueueFull)
+    }
+
+    fn link_read(&mut self, buf: &mut [u8]) -> usize {
+        let stashed = core::mem::take(&mut self.link_count);
+        if let (Some(to), Some(from)) = (buf.get_mut(..stashed), self.link_bytes.get(..stashed)) {
+            if stashed > 0 {
+                to.copy_from_slice(from);
+                return stashed;
+            }
+        }
+        match embassy_futures::poll_once(self.link.read(buf)) {
+            core::task::Poll::Ready(Ok(count)) => count,
+            core::task::Poll::Ready(Err(_)) => {
+                defmt::warn!("link read error");
+                0
+            }
+            core::task::Poll::Pending => 0,
         }
     }
 
-    fn output(&mut self, _srdo: SrdoNumber, data: u64) {
-        // One relay per channel: energised only for a non-zero confirmed value.
-        self.output
-            .set_level(if data != 0 { Level::High } else { Level::Low });
+    fn input(&mut self, _pin: usize) -> bool {
+        self.input.is_high()
     }
 
-    fn event(&mut self, event: ChannelEvent) {
+    fn set_output(&mut self, _pin: usize, level: bool) {
+        // One relay per channel (the device description's one output pin).
+        self.output
+            .set_level(if level { Level::High } else { Level::Low });
+    }
+
+    fn event(&mut self, event: &ChannelEvent) {
         defmt::info!("{}", event);
     }
 }
@@ -304,30 +420,13 @@ fn raw_id(frame: &Frame) -> u16 {
     }
 }
 
+/// Moves frames from [`CAN_TX`], lowest identifier first, into the transmit mailboxes.
 #[embassy_executor::task]
-async fn can_task(mut can: Can<'static>) {
-    can.modify_filters()
-        .clear()
-        .enable_bank(0, Fifo::Fifo0, Mask32::accept_all());
-    can.enable().await;
-    let (mut tx, mut rx) = can.split();
+async fn can_tx_task(mut tx: CanTx<'static>) {
     loop {
-        match embassy_futures::select::select(rx.read(), CAN_TX.receive()).await {
-            embassy_futures::select::Either::First(Ok(envelope)) => {
-                if let Some(frame) = from_bxcan(&envelope.frame) {
-                    if CAN_RX.try_send(frame).is_err() {
-                        defmt::warn!("CAN receive queue full");
-                    }
-                }
-            }
-            embassy_futures::select::Either::First(Err(error)) => {
-                defmt::warn!("CAN bus error {}", error);
-            }
-            embassy_futures::select::Either::Second(queued) => {
-                if let Some(frame) = to_bxcan(&queued.frame) {
-                    tx.write(&frame).await;
-                }
-            }
+        let queued = CAN_TX.receive().await;
+        if let Some(frame) = to_bxcan(&queued.frame) {
+            tx.write(&frame).await;
         }
     }
 }
@@ -371,12 +470,11 @@ fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
 
 /// Initialises the board, spawns the peripheral tasks and runs the channel until reset.
 pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, role: R) -> ! {
-    let input_objects = device.inputs;
     let p = embassy_stm32::init(clocks());
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
 
-    let mut output = Output::new(p.PC1, Level::Low, Speed::Low);
+    let output = Output::new(p.PC1, Level::Low, Speed::Low);
     let input = Input::new(p.PC0, Pull::Down);
 
     let switches = [
@@ -428,7 +526,7 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     static LINK_RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     let mut link_config = usart::Config::default();
     link_config.baudrate = LINK_BAUD;
-    let link = match BufferedUart::new(
+    let uart = match BufferedUart::new(
         p.USART3,
         p.PB11,
         p.PB10,
@@ -440,8 +538,18 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         Ok(link) => link,
         Err(_) => halt_safe("link USART configuration refused"),
     };
-    let (link_tx, mut link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) = link.split();
-    spawner.spawn(can_task(can).unwrap_or_else(|_| halt_safe("CAN task")));
+    // In a static, split by reference: splitting by value moved the halves through the
+    // task's state with a `memmove` (1,574 bytes of compiler-builtins, `docs/footprint.md`).
+    static LINK: StaticCell<BufferedUart<'static>> = StaticCell::new();
+    let (link_tx, link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) =
+        LINK.init(uart).split_ref();
+    // No filter bank enabled: the controller takes no frame until the channel loop has
+    // programmed the node's filters (its first service, before the core boots).
+    can.modify_filters().clear();
+    can.enable().await;
+    // `can` stays alive (its drop would reset the controller); its halves go to the tasks.
+    let (can_tx, can_rx) = can.split();
+    spawner.spawn(can_tx_task(can_tx).unwrap_or_else(|_| halt_safe("CAN task")));
     spawner.spawn(link_tx_task(link_tx).unwrap_or_else(|_| halt_safe("link task")));
 
     if !crate::self_tests() {
@@ -458,61 +566,39 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };
-    let mut io = BoardIo {
-        output: &mut output,
+    let mut channel = ChannelLoop::new(device.pins);
+    let mut driver = HwDriver {
+        can: can_rx,
+        link: link_rx,
+        input,
+        output,
         sequencer: Sequencer::new(),
+        frame: None,
+        link_bytes: [0; 64],
+        link_count: 0,
     };
-    let mut sampled: Option<bool> = None;
-    let mut next_sample = now();
-    let mut link_buf = [0u8; 64];
     let mut stack_reported = 0;
     loop {
-        let deadline = runtime.poll(now(), &mut io);
+        let wake = channel.service(&mut runtime, &mut driver);
         watchdog.pet();
         let stack = crate::stack::used();
         if stack > stack_reported {
             stack_reported = stack;
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
-        let wake = deadline.min(next_sample);
-        match select4(
-            CAN_RX.receive(),
-            link_rx.read(&mut link_buf),
+        // What the wait takes (one frame, some link bytes) is kept for the next service.
+        match select3(
+            driver.can.read(),
+            driver.link.read(&mut driver.link_bytes),
             Timer::at(embassy_instant(wake)),
-            core::future::pending::<()>(),
         )
         .await
         {
-            Either4::First(frame) => runtime.on_frame(now(), &frame, &mut io),
-            Either4::Second(Ok(n)) => {
-                let at = now();
-                for &byte in &link_buf[..n] {
-                    runtime.on_link_byte(at, byte, &mut io);
-                }
-            }
-            Either4::Second(Err(_)) => defmt::warn!("link read error"),
-            Either4::Third(()) | Either4::Fourth(()) => {}
-        }
-        let at = now();
-        if at >= next_sample {
-            next_sample = at + SAMPLE_PERIOD;
-            let level = input.is_high();
-            if sampled != Some(level) {
-                sampled = Some(level);
-                let value = [u8::from(level)];
-                if runtime
-                    .set_input(
-                        at,
-                        input_objects.plain,
-                        input_objects.inverted,
-                        &value,
-                        &mut io,
-                    )
-                    .is_err()
-                {
-                    defmt::error!("input object refused");
-                }
-            }
+            Either3::First(Ok(envelope)) => driver.frame = from_bxcan(&envelope.frame),
+            Either3::First(Err(error)) => defmt::warn!("CAN bus error {}", error),
+            Either3::Second(Ok(count)) => driver.link_count = count,
+            Either3::Second(Err(_)) => defmt::warn!("link read error"),
+            Either3::Third(()) => {}
         }
     }
 }

@@ -5,16 +5,19 @@
 //! - [`qemu`] (feature `qemu`): QEMU's `netduinoplus2`: a SysTick time driver, register-level
 //!   USARTs (CAN frames over serial, and the link), semihosting.
 //!
-//! Both run a channel [`Runtime`](dual_channel::runtime::Runtime); the logic it drives is
-//! host-tested in `dual-channel`, `channel-a` and `channel-b`. On the host this crate holds
+//! Both are adapters of the one channel loop
+//! ([`ChannelLoop`](dual_channel::channel_loop::ChannelLoop)) around a channel
+//! [`Runtime`](dual_channel::runtime::Runtime): each implements its
+//! [`Driver`](dual_channel::channel_loop::Driver) and waits in its own way; the loop and the
+//! logic it drives are host-tested in `dual-channel`, `channel-a`, `channel-b` and `tests`. On the host this crate holds
 //! the types both layers share and what the hardware layer needs that is not hardware:
 //! [`parameter_flash`] (the parameter slots on word-programmed flash), [`diagnostics`] (the
 //! status a channel reports on the emulated board's line), the node-ID switches' decoding and
 //! the emulated run's arguments, all host-tested.
 #![no_std]
 
+use dual_channel::channel_loop::Pins;
 use shared::canopen::NodeId;
-use shared::canopen::od::Address;
 use shared::node::NodeConfig;
 use shared::{CanFrame, CanId};
 
@@ -40,8 +43,10 @@ pub struct Device {
     /// The node-ID when the emulated run is given none (`SAFETY_NODE_ID` at build time, default
     /// 1); the hardware layer reads its switches instead ([`node_id_from_switches`]).
     pub default_id: NodeId,
-    /// The channel's safety input objects.
-    pub inputs: InputObjects,
+    /// The channel's pins and the objects they are sampled into or driven by (the device
+    /// description's [`INPUT_PINS`](dual_channel::device::INPUT_PINS) and
+    /// [`OUTPUT_PINS`](dual_channel::device::OUTPUT_PINS)).
+    pub pins: Pins,
 }
 
 /// The RAM per SRDO of the image's protocol core, kept in the image so that `cargo xtask
@@ -61,9 +66,9 @@ impl Device {
         Ok(Device {
             describe,
             default_id: NodeId::new(raw).map_err(|_| raw)?,
-            inputs: InputObjects {
-                plain: dual_channel::device::INPUT,
-                inverted: dual_channel::device::INPUT_INVERTED,
+            pins: Pins {
+                inputs: &dual_channel::device::INPUT_PINS,
+                outputs: &dual_channel::device::OUTPUT_PINS,
             },
         })
     }
@@ -274,15 +279,6 @@ mod tests {
     }
 }
 
-/// The channel's safety input and its inverted copy in the object dictionary.
-#[derive(Clone, Copy, Debug)]
-pub struct InputObjects {
-    /// The plain object (e.g. 0x6000:1).
-    pub plain: Address,
-    /// Its inverted copy (e.g. 0x6001:1).
-    pub inverted: Address,
-}
-
 /// The image's seal: [`dual_channel::selftest::SEALED`] and the CRC-32 of the flash contents,
 /// written into the linked image by `cargo xtask build` (zeros until then). Read only through
 /// the image's bytes in flash ([`image`]), which the compiler cannot assume.
@@ -325,6 +321,7 @@ fn image() -> (&'static [u8], &'static [u8]) {
 /// [`ram`]) and the link CRC's known answer. `false` when one fails; the caller stays in the
 /// safe state.
 #[cfg(target_os = "none")]
+#[inline(never)]
 pub fn self_tests() -> bool {
     use dual_channel::selftest;
     let seal = core::ptr::addr_of!(IMAGE_SEAL) as usize - FLASH_ORIGIN;

@@ -33,7 +33,7 @@
 //! QEMU models no GPIO: the input pin's value comes from the hub ([`Wire::Input`]; released,
 //! 1, until the hub says otherwise) and the output pin's value goes to it in the status.
 
-use crate::diagnostics::{Diagnostics, Observed};
+use crate::diagnostics::Diagnostics;
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
@@ -41,14 +41,15 @@ use cortex_m::peripheral::NVIC;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use critical_section::Mutex;
-use dual_channel::runtime::{ChannelEvent, Io, Role, Runtime};
+use dual_channel::channel_loop::{ChannelLoop, Driver, QueueFull, Received};
+use dual_channel::filters::AcceptanceList;
+use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
 use emulation_wire::{self as can_serial, LinkBytes, Wire};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
-use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::ConstStaticCell;
 use stm32_metapac::{Interrupt, RCC, USART2, interrupt};
@@ -246,13 +247,130 @@ fn send(message: &Wire) {
     usart_write(USART2, &can_serial::encode_wire(message));
 }
 
-struct QemuIo;
+/// What the serial line handed over that the loop has not taken yet: the line carries frames,
+/// link bytes and the input pin in one order, and the driver hands them on in that order
+/// (a link message or an input change stops [`Driver::receive`] until the loop has taken
+/// it).
+#[derive(Clone, Copy)]
+enum Pending {
+    /// Link bytes, for [`Driver::link_read`].
+    Link(LinkBytes),
+    /// The input pin changed: for [`Driver::input`].
+    Input,
+}
 
-impl Io for QemuIo {
-    fn transmit(&mut self, frame: CanFrame) {
-        usart_write(USART2, &can_serial::encode(&frame));
+/// The emulated board as the channel loop sees it: CAN frames, link bytes, the input pin and
+/// the hub's time grants over USART2 ([`emulation_wire`]).
+struct QemuDriver {
+    decoder: can_serial::Decoder,
+    /// Bytes read from the receive pipe, `bytes[at..len]` not decoded yet.
+    bytes: [u8; 64],
+    at: usize,
+    len: usize,
+    pending: Option<Pending>,
+    /// The input pin as the hub last set it (released, 1, until it says otherwise).
+    input: u8,
+    diagnostics: Diagnostics,
+}
+
+impl QemuDriver {
+    /// `true` while bytes wait in the driver or in the receive pipe.
+    fn has_bytes(&self) -> bool {
+        self.at < self.len || !CAN_RX.is_empty()
     }
-    fn link(&mut self, bytes: &[u8]) {
+
+    /// The next byte from the line, if one is there.
+    fn next_byte(&mut self) -> Option<u8> {
+        if self.at >= self.len {
+            self.len = CAN_RX.try_read(&mut self.bytes).unwrap_or(0);
+            self.at = 0;
+        }
+        let byte = *self.bytes[..self.len].get(self.at)?;
+        self.at += 1;
+        Some(byte)
+    }
+
+    /// The next message from the line, if a whole one is there.
+    fn next_message(&mut self) -> Option<Wire> {
+        while let Some(byte) = self.next_byte() {
+            match self.decoder.push(byte) {
+                Some(Ok(message)) => return Some(message),
+                Some(Err(error)) => defmt::warn!("CAN bridge: {}", error),
+                None => {}
+            }
+        }
+        None
+    }
+
+    /// The hub granted the virtual time `granted`: everything it sent before has been handed
+    /// to the loop (the driver hands the line on in order), so the clock may run to it (plus
+    /// the lookahead) and the hub may move the network's time on.
+    fn grant(granted: u64) {
+        DRIVER.granted(granted);
+        send(&Wire::Time(granted));
+    }
+
+    /// Waits for the hub's first grant of the virtual time and acknowledges it; keeps the
+    /// last input pin value the hub set meanwhile. Frames and link bytes before it are not
+    /// for this channel yet: it has not powered on (on hardware, a controller that is not
+    /// on the bus yet does not receive them either).
+    fn first_grant(&mut self) {
+        loop {
+            match self.next_message() {
+                Some(Wire::Time(granted)) => return Self::grant(granted),
+                Some(Wire::Input(value)) => self.input = value,
+                Some(_) => {}
+                None => wait(Instant::NEVER),
+            }
+        }
+    }
+}
+
+impl Driver for QemuDriver {
+    fn now(&mut self) -> Instant {
+        now()
+    }
+
+    fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
+        self.diagnostics.transmitted(frame);
+        usart_write(USART2, &can_serial::encode(frame));
+        Ok(())
+    }
+
+    fn receive(&mut self) -> Option<Received> {
+        if CAN_RX_LOST.swap(false, Ordering::Relaxed) {
+            // Bytes lost on the line may have been a frame: as a FIFO overrun on hardware.
+            defmt::warn!("CAN receive pipe overflowed: bytes lost");
+            return Some(Received::Overrun);
+        }
+        while self.pending.is_none() {
+            match self.next_message()? {
+                Wire::Can(frame) => {
+                    defmt::debug!("CAN rx {=u16:X} {=[u8]:X}", frame.id().raw(), frame.data());
+                    return Some(Received::Frame(frame));
+                }
+                Wire::Link(bytes) => self.pending = Some(Pending::Link(bytes)),
+                Wire::Input(value) => {
+                    if value != self.input {
+                        defmt::info!("input pin {=u8}", value);
+                    }
+                    self.input = value;
+                    self.diagnostics.input(value);
+                    self.pending = Some(Pending::Input);
+                }
+                Wire::Time(granted) => Self::grant(granted),
+                Wire::Status(_) => defmt::warn!("CAN bridge: status from the hub"),
+            }
+        }
+        None
+    }
+
+    fn apply_filters(&mut self, list: &AcceptanceList) {
+        // The hub sends every frame: the loop's software filter, the same list, is the one.
+        defmt::info!("CAN filters: {=usize} identifiers", list.ids().len());
+    }
+
+    fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {
         // On the CAN bridge's line, relayed by the hub to the other channel (see the module
         // documentation); a link message is at most a few dozen bytes.
         for chunk in bytes.chunks(can_serial::LINK_CHUNK) {
@@ -260,11 +378,34 @@ impl Io for QemuIo {
                 send(&Wire::Link(chunk));
             }
         }
+        Ok(())
     }
-    fn output(&mut self, srdo: SrdoNumber, data: u64) {
-        defmt::info!("output of SRDO {=u8} = {=u64}", srdo.get(), data);
+
+    fn link_read(&mut self, buf: &mut [u8]) -> usize {
+        let Some(Pending::Link(bytes)) = self.pending else {
+            return 0;
+        };
+        self.pending = None;
+        let bytes = bytes.as_slice();
+        let count = bytes.len().min(buf.len());
+        buf[..count].copy_from_slice(&bytes[..count]);
+        self.diagnostics.link_received(now());
+        count
     }
-    fn event(&mut self, event: ChannelEvent) {
+
+    fn input(&mut self, _pin: usize) -> bool {
+        if matches!(self.pending, Some(Pending::Input)) {
+            self.pending = None;
+        }
+        self.input != 0
+    }
+
+    fn set_output(&mut self, pin: usize, level: bool) {
+        defmt::info!("output pin {=usize} = {=bool}", pin, level);
+    }
+
+    fn event(&mut self, event: &ChannelEvent) {
+        self.diagnostics.event(event);
         defmt::info!("{}", event);
     }
 }
@@ -345,7 +486,6 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     }
     let id = arguments.node.unwrap_or(device.default_id);
     defmt::info!("node-ID {=u8}", id.raw());
-    let input_objects = device.inputs;
 
     // The parameter store lives in a zero-initialised static, erased here: 8 KiB that the
     // runtime's construction would otherwise move through the stack (measured: the main
@@ -361,147 +501,56 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
             exit(false);
         }
     }
-    let mut can = can_serial::Decoder::new();
-    // QEMU models no GPIO: the input reads as released until the hub sets it.
-    let mut input = 1u8;
+    let mut driver = QemuDriver {
+        decoder: can_serial::Decoder::new(),
+        bytes: [0; 64],
+        at: 0,
+        len: 0,
+        pending: None,
+        // QEMU models no GPIO: the input reads as released until the hub sets it.
+        input: 1,
+        diagnostics: Diagnostics::new(),
+    };
     if arguments.paced {
         // The channel powers on at the network's virtual time, not at zero: the hub may have
         // run for a while before this MCU joined, and a clock that jumped from zero to the
         // first grant once the runtime ran would look like a link time-out.
-        input = first_grant(&mut can).unwrap_or(input);
+        driver.first_grant();
     }
+    driver.diagnostics.input(driver.input);
     let Ok(mut runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
     else {
         defmt::error!("device description refused");
         exit(false);
     };
-    let mut board = QemuIo;
-    let mut diagnostics = Diagnostics::new();
-    let mut io = Observed {
-        io: &mut board,
-        diagnostics: &mut diagnostics,
-    };
-    if runtime
-        .set_input(
-            now(),
-            input_objects.plain,
-            input_objects.inverted,
-            &[input],
-            &mut io,
-        )
-        .is_err()
-    {
-        exit(false);
-    }
-    io.diagnostics.input(input);
-    let mut can_buf = [0u8; 64];
+    let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
     loop {
+        let deadline = channel.service(&mut runtime, &mut driver);
         let at = now();
-        let deadline = runtime.poll(at, &mut io);
         let stall = LONGEST_STALL_MS.load(Ordering::Relaxed);
-        io.diagnostics
+        driver
+            .diagnostics
             .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
-        io.diagnostics.stack(crate::stack::used());
-        if let Some(status) = io.diagnostics.report(at, &runtime) {
+        driver.diagnostics.stack(crate::stack::used());
+        if let Some(status) = driver.diagnostics.report(at, &runtime) {
             send(&Wire::Status(status));
         }
-        let deadline = deadline.min(io.diagnostics.deadline());
-        io.diagnostics.busy(woke, now());
-        let received = wait(deadline, &mut can_buf);
-        // An await in the loop keeps the runtime and the loop's state in the task's static
-        // storage, as before: without one, they lived on the stack (measured: 17,412 bytes
-        // deepest, over the 16 KiB reserve). The task is ready again at once: no idle here.
+        let deadline = deadline.min(driver.diagnostics.deadline());
+        driver.diagnostics.busy(woke, now());
+        if !driver.has_bytes() {
+            wait(deadline);
+        }
+        // An await in the loop keeps the loop's state in the task's static storage: without
+        // one, it lived on the stack (measured: 17,412 bytes deepest, over the 16 KiB
+        // reserve). The task is ready again at once: no idle here.
         embassy_futures::yield_now().await;
         woke = now();
-        if received > 0 {
-            {
-                if CAN_RX_LOST.swap(false, core::sync::atomic::Ordering::Relaxed) {
-                    defmt::warn!("CAN receive pipe overflowed: bytes lost");
-                }
-                for &byte in &can_buf[..received] {
-                    match can.push(byte) {
-                        Some(Ok(Wire::Can(frame))) => {
-                            defmt::debug!(
-                                "CAN rx {=u16:X} {=[u8]:X}",
-                                frame.id().raw(),
-                                frame.data()
-                            );
-                            runtime.on_frame(now(), &frame, &mut io);
-                        }
-                        Some(Ok(Wire::Input(value))) => {
-                            if value != input {
-                                defmt::info!("input pin {=u8}", value);
-                                input = value;
-                            }
-                            io.diagnostics.input(value);
-                            if runtime
-                                .set_input(
-                                    now(),
-                                    input_objects.plain,
-                                    input_objects.inverted,
-                                    &[value],
-                                    &mut io,
-                                )
-                                .is_err()
-                            {
-                                // The device description has no such input object: a build
-                                // error, not a run-time condition.
-                                exit(false);
-                            }
-                        }
-                        Some(Ok(Wire::Link(bytes))) => {
-                            let at = now();
-                            io.diagnostics.link_received(at);
-                            for &byte in bytes.as_slice() {
-                                runtime.on_link_byte(at, byte, &mut io);
-                            }
-                        }
-                        Some(Ok(Wire::Time(granted))) => {
-                            // Everything the hub sent before this grant has been handed to
-                            // the runtime: the clock may run to it (plus the lookahead), and
-                            // the hub may move the network's time on.
-                            DRIVER.granted(granted);
-                            send(&Wire::Time(granted));
-                        }
-                        Some(Ok(Wire::Status(_))) => {
-                            defmt::warn!("CAN bridge: status from the hub")
-                        }
-                        Some(Err(error)) => defmt::warn!("CAN bridge: {}", error),
-                        None => {}
-                    }
-                }
-            }
-        }
     }
 }
 
-/// Waits for the hub's first grant of the virtual time and acknowledges it; returns the last
-/// input pin value the hub set meanwhile, if any. Frames and link bytes before it are not
-/// for this channel yet: it has not powered on (on hardware, a controller that is not on the
-/// bus yet does not receive them either).
-fn first_grant(can: &mut can_serial::Decoder) -> Option<u8> {
-    // One byte at a time: what follows the grant stays in the pipe for the channel loop.
-    let mut buf = [0u8; 1];
-    let mut input = None;
-    loop {
-        let received = wait(Instant::NEVER, &mut buf);
-        for &byte in &buf[..received] {
-            match can.push(byte) {
-                Some(Ok(Wire::Time(granted))) => {
-                    DRIVER.granted(granted);
-                    send(&Wire::Time(granted));
-                    return input;
-                }
-                Some(Ok(Wire::Input(value))) => input = Some(value),
-                _ => {}
-            }
-        }
-    }
-}
-
-/// Waits with the core halted (WFI) until bytes arrived on USART2 (returns how many, read
-/// into `buf`) or the clock reached `deadline` (returns 0).
+/// Waits with the core halted (WFI) until bytes arrived on USART2 or the clock reached
+/// `deadline`.
 ///
 /// Not embassy's executor idle: it waits with WFE, which QEMU 10.0 implements as a yield,
 /// not a halt, so an idle emulated MCU kept a host core busy (measured: 6.4 s of CPU in 12 s
@@ -511,11 +560,10 @@ fn first_grant(can: &mut can_serial::Decoder) -> Option<u8> {
 /// still ends the WFI (a pending interrupt wakes the core whatever PRIMASK says) and runs
 /// once they are unmasked, so no wake-up is lost; SysTick (1 kHz) ends every WFI within a
 /// millisecond, the layer's timing resolution.
-fn wait(deadline: Instant, buf: &mut [u8]) -> usize {
+fn wait(deadline: Instant) {
     loop {
         cortex_m::interrupt::disable();
-        let received = CAN_RX.try_read(buf).unwrap_or(0);
-        let due = received > 0 || now() >= deadline;
+        let due = !CAN_RX.is_empty() || now() >= deadline;
         if !due {
             cortex_m::asm::wfi();
         }
@@ -523,7 +571,7 @@ fn wait(deadline: Instant, buf: &mut [u8]) -> usize {
         // enabled when it masked them above), so unmasking breaks none.
         unsafe { cortex_m::interrupt::enable() };
         if due {
-            return received;
+            return;
         }
     }
 }

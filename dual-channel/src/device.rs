@@ -35,6 +35,18 @@ pub const OUTPUT: Address = Address::new(0x6200, 1);
 /// Safety output (inverted copy).
 pub const OUTPUT_INVERTED: Address = Address::new(0x6201, 1);
 
+/// The channel's input pins, in pin order: each sample is written to a plain safety object
+/// and its inverted copy (pin 0: the channel's contact of the emergency stop, hardware PC0,
+/// closed = 1).
+pub static INPUT_PINS: [(Address, Address); 1] = [(INPUT, INPUT_INVERTED)];
+
+/// The channel's output pins, in pin order, each with the received safety object that drives
+/// it (pin 0: the channel's relay, hardware PC1, energised while 0x6200:1 is not 0). A pin
+/// follows its object as both channels confirmed it (the cross-checked data of the receive
+/// SRDO that maps it), and is low whenever no SRDO maps it, in the safe state
+/// (SC_REQ_05) and before the first confirmed pair.
+pub static OUTPUT_PINS: [Address; 1] = [OUTPUT];
+
 /// Each plain safety object with its inverted copy (EN 50325-5 6.4.1.3: an SRDO maps a
 /// plain object on an odd sub-index and its inverted copy on the next; the EDS links them
 /// with `InvertedSRAD`, CiA 306 Annex A).

@@ -6,6 +6,10 @@
 //! - [`can_loopback`]: the start-up test of the CAN controller's message buffers and filters;
 //! - [`supervision`]: the runtime's checks of the other channel (inputs, NMT state and epoch,
 //!   configuration), each a small value with `poll` and `deadline`;
+//! - [`filters`]: the CAN acceptance filters a channel needs, from its configuration, and
+//!   their bxCAN bank layout;
+//! - [`channel_loop`]: the loop every board runs around the runtime, over a small driver
+//!   interface (CAN, link, pins, time);
 //! - [`runtime`]: one channel around its copy of the protocol core: bus, link, cross-checks
 //!   and output, with the channel-specific parts ([`runtime::Role`]) supplied by channel A and
 //!   channel B.
@@ -16,9 +20,11 @@
 #![forbid(unsafe_code)]
 
 pub mod can_loopback;
+pub mod channel_loop;
 pub mod clock;
 pub mod crosscheck;
 pub mod device;
+pub mod filters;
 pub mod link;
 pub mod runtime;
 pub mod selftest;

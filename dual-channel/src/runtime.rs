@@ -230,6 +230,10 @@ pub enum ChannelFault {
     /// The other channel's heartbeats came faster than its period allows: one of the two
     /// clocks runs too fast or too slow ([`crate::clock`]).
     ClockDrift,
+    /// A frame the channel follows (its acceptance filters passed it) found the receive queue
+    /// full, so the channel cannot know that it saw every safety frame
+    /// ([`crate::channel_loop::Received::Overrun`]).
+    ReceiveOverrun,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -260,6 +264,7 @@ impl ChannelFault {
             ChannelFault::InputTableFull => Cause::InputTableFull,
             ChannelFault::InputRestoreFailed => Cause::InputRestoreFailed,
             ChannelFault::ClockDrift => Cause::ClockDrift,
+            ChannelFault::ReceiveOverrun => Cause::ReceiveOverrun,
             ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
         }
     }
@@ -481,6 +486,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
         self.after_core(now, collect, io);
+    }
+
+    /// The board's receive queue overflowed with frames the channel follows: the safe state
+    /// ([`ChannelFault::ReceiveOverrun`]), never a silent loss.
+    pub fn on_receive_overrun(&mut self, io: &mut impl Io) {
+        self.latch(ChannelFault::ReceiveOverrun, io);
     }
 
     /// A byte from the link.

@@ -5,6 +5,8 @@
 //! - [`network`]: devices, a configuration tool speaking SDO and NMT over the bus, the log and
 //!   a candump trace.
 //! - [`dual`]: dual-channel nodes (channel A and B runtimes, their link) on the same bus.
+//! - [`loop_net`]: dual-channel nodes running the boards' channel loop over a simulated
+//!   bxCAN (filters, receive FIFOs), link and pins.
 //! - [`fullnet`]: the full network at scale (127 dual-channel nodes) and reaction times.
 //! - [`scenario`]: the demo scenario with its checked expectations (`cargo xtask run`).
 //! - [`scenario_runner`]: scenario files (`scenarios/`: a network, a timeline of stimuli and
@@ -18,6 +20,7 @@ pub use can_hub::bus;
 pub mod campaign;
 pub mod dual;
 pub mod fullnet;
+pub mod loop_net;
 pub mod network;
 pub mod scenario;
 pub mod scenario_runner;

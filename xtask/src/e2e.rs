@@ -17,10 +17,16 @@
 //! | channel B of node 1 reads otherwise | no inverted frame (CiA 304 9.5): SRVT | refresh + SRVT + margin |
 //! | link of node 33 cut | two link periods | 2 × link period + margin |
 //!
+//! Before the last case, the bus under load ([`bus_load`]): SDO requests to node 33 (and its answers) and
+//! non-safety frames on 30 % of the bus beside the SRDOs for 60 s of the network's time; no
+//! channel may leave the working state, and the SRDO plain-to-inverted gaps are reported
+//! ([`gaps`], from the hub's candump trace).
+//!
 //! "refresh +" because a fault injected on the next frame waits for that frame.
 
 use crate::network::{self, Network, output_33, working};
 use anyhow::{Result, bail};
+use safety_config::Transport;
 use shared::safety::cause::Cause;
 use std::time::Duration;
 
@@ -246,6 +252,9 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
     node_1_reports(network, &[Cause::TransmitMismatch, Cause::InputDiscrepancy])?;
     reset(network)?;
 
+    // Before the link cut, which the hub cannot undo.
+    bus_load(network)?;
+
     let at = network.command("cut node33-link")?;
     let bound = 2 * LINK_PERIOD_MS + MARGIN_MS;
     let ms = node_33_safe(
@@ -256,6 +265,124 @@ pub fn run_all(network: &mut Network) -> Result<Vec<Measured>> {
     )?;
     check("link of node 33 cut → node 33 safe", ms, bound)?;
     Ok(results)
+}
+
+/// The share of the bus [`bus_load`] fills beside the SRDOs.
+pub const LOAD: f64 = 0.30;
+/// How long [`bus_load`] keeps it up (the network's time).
+pub const LOAD_SECONDS: f64 = 60.0;
+/// The identifier of the non-safety frames [`bus_load`] sends (a PDO of node 1's range that
+/// no node here uses).
+pub const LOAD_ID: u16 = 0x281;
+
+/// SDO upload requests to node 33 (1018h:01h, as python-canopen reads an identity) and
+/// non-safety frames on [`LOAD`] of the bus, counted in the network's time, for
+/// [`LOAD_SECONDS`], through a socketcand client of its own; both nodes must keep working.
+fn bus_load(network: &mut Network) -> Result<()> {
+    use shared::{CanFrame, CanId};
+    let mut traffic = network::connect_tool(Duration::from_secs(5))?;
+    let frame = |id: u16, data: &[u8]| {
+        CanId::new(id)
+            .ok()
+            .and_then(|id| CanFrame::new(id, data).ok())
+            .ok_or_else(|| anyhow::anyhow!("no frame on {id:03X}h"))
+    };
+    let request = frame(0x621, &[0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0])?;
+    let other = frame(LOAD_ID, &[0x55; 8])?;
+    let bits = |frame: &CanFrame| f64::from(can_hub::bus::frame_bits(frame));
+    let bit_rate = f64::from(dual_channel::device::BIT_RATE);
+    let start = network.hub_time();
+    let mut queued_bits = 0.0;
+    let mut sent = 0u64;
+    println!(
+        "   bus load: SDO and non-safety frames on {:.0} % of the bus for {LOAD_SECONDS} s",
+        LOAD * 100.0
+    );
+    loop {
+        // Time runs on while the network reports; nothing is waited for.
+        network.wait_for(Duration::from_millis(20), |_| false)?;
+        let now = network.hub_time();
+        if now - start >= LOAD_SECONDS {
+            break;
+        }
+        let due = LOAD * bit_rate * (now - start);
+        // At most two transmit queues' worth per step: the hub stops reading a client whose
+        // queue is full, and a client blocked in a write reads neither the bus nor the
+        // control port (which the hub then waits for). Behind, the load is what the trace
+        // shows, reported.
+        let mut burst = 0;
+        while queued_bits < due && burst < 2 * can_hub::bus::TRANSMIT_QUEUE {
+            burst += 1;
+            // One SDO request in five: it and its answer, the rest other frames.
+            let next = if sent % 5 == 0 { request } else { other };
+            traffic.transport.send(&next)?;
+            queued_bits += bits(&next) * if sent % 5 == 0 { 2.0 } else { 1.0 };
+            sent += 1;
+        }
+        // Read what the hub sends this client, so that its writes never pile up.
+        let until = traffic.transport.now();
+        while traffic.transport.receive(until)?.is_some() {}
+        if !(working(&network.control.latest, 1) && working(&network.control.latest, 33)) {
+            bail!(
+                "under bus load ({sent} frames sent in {:.1} s) a node left the working \
+                 state:\n{}",
+                now - start,
+                network.table()
+            );
+        }
+    }
+    drop(traffic);
+    nominal(network, "after the bus load")?;
+    println!("   bus load: {sent} frames sent, both nodes working throughout");
+    Ok(())
+}
+
+/// The SRDO plain-to-inverted gaps while [`bus_load`] ran (from its first to its last
+/// [`LOAD_ID`] frame in the candump trace `log`), in milliseconds, sorted, and the bus load
+/// the trace shows over that window.
+pub fn gaps(log: &str) -> (Vec<f64>, f64) {
+    use shared::{CanFrame, CanId};
+    let frames: Vec<(f64, CanFrame)> = log
+        .lines()
+        .filter_map(|line| {
+            let (time, rest) = line.strip_prefix('(')?.split_once(") ")?;
+            let (id, data) = rest.split_whitespace().nth(1)?.split_once('#')?;
+            let id = CanId::new(u16::from_str_radix(id, 16).ok()?).ok()?;
+            let bytes: Vec<u8> = (0..data.len() / 2)
+                .map(|i| u8::from_str_radix(data.get(2 * i..2 * i + 2)?, 16).ok())
+                .collect::<Option<_>>()?;
+            Some((time.parse().ok()?, CanFrame::new(id, &bytes).ok()?))
+        })
+        .collect();
+    let loaded = |(_, frame): &&(f64, CanFrame)| frame.id().raw() == LOAD_ID;
+    let (Some(first), Some(last)) = (
+        frames.iter().position(|f| loaded(&f)),
+        frames.iter().rposition(|f| loaded(&f)),
+    ) else {
+        return (Vec::new(), 0.0);
+    };
+    let window = &frames[first..=last];
+    let mut gaps = Vec::new();
+    let mut plain = None;
+    for (time, frame) in window {
+        match frame.id().raw() {
+            network::PLAIN => plain = Some(*time),
+            network::INVERTED => {
+                if let Some(at) = plain.take() {
+                    gaps.push((time - at) * 1000.0);
+                }
+            }
+            _ => {}
+        }
+    }
+    gaps.sort_by(f64::total_cmp);
+    let bits: f64 = window
+        .iter()
+        .map(|(_, frame)| f64::from(can_hub::bus::frame_bits(frame)))
+        .sum();
+    let seconds = window.last().map_or(0.0, |l| l.0) - window[0].0;
+    let load = bits / f64::from(dual_channel::device::BIT_RATE) / seconds.max(1e-9);
+    (gaps, load)
 }
 
 /// `cargo xtask e2e`.
@@ -288,6 +415,27 @@ pub fn task(root: &std::path::Path) -> Result<()> {
     );
     println!("   {pace}");
     println!("   traces and logs: {}", dir.display());
+    if outcome.is_ok() {
+        let log = std::fs::read_to_string(dir.join("bus.log"))?;
+        let (gaps, load) = gaps(&log);
+        let at = |share: f64| {
+            gaps.get(((gaps.len() as f64 * share) as usize).min(gaps.len().saturating_sub(1)))
+                .copied()
+                .unwrap_or(f64::NAN)
+        };
+        println!(
+            "   bus load in the trace: {:.1} % of the bus (SRDOs included); {} SRDO pairs, \
+             plain-to-inverted gap median {:.2} ms, 99 % within {:.2} ms, longest {:.2} ms",
+            load * 100.0,
+            gaps.len(),
+            at(0.5),
+            at(0.99),
+            gaps.last().copied().unwrap_or(f64::NAN)
+        );
+        if gaps.is_empty() {
+            bail!("the trace shows no SRDO pair while the bus was loaded");
+        }
+    }
     outcome?;
     if u64::from(stack) > crate::images::STACK_RESERVE {
         bail!(

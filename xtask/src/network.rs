@@ -381,7 +381,7 @@ impl Network {
 
     /// The latest hub time known from the control port (seconds): of the newest status or
     /// pace report.
-    fn hub_time(&self) -> f64 {
+    pub fn hub_time(&self) -> f64 {
         let pace = self
             .control
             .pace

@@ -70,6 +70,9 @@ pub enum Cause {
     /// The other channel's heartbeats came faster than its period allows: one of the two
     /// clocks runs too fast or too slow.
     ClockDrift = 0x39,
+    /// A received frame the channel follows found its receive queue full: the channel cannot
+    /// know that it saw every safety frame.
+    ReceiveOverrun = 0x3A,
     /// The other channel went to its safe state.
     PeerSafeState = 0x40,
     /// A GFC was received (EN 50325-5 7.2.1).
@@ -86,7 +89,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 32] = [
+    pub const ALL: [Cause; 33] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -113,6 +116,7 @@ impl Cause {
         Cause::InputTableFull,
         Cause::InputRestoreFailed,
         Cause::ClockDrift,
+        Cause::ReceiveOverrun,
         Cause::PeerSafeState,
         Cause::Gfc,
         Cause::IntegrityRecords,
@@ -161,6 +165,7 @@ impl Cause {
             Cause::InputTableFull => "input table full",
             Cause::InputRestoreFailed => "input not restored after reset",
             Cause::ClockDrift => "clock of one channel drifts",
+            Cause::ReceiveOverrun => "CAN receive queue overrun",
             Cause::PeerSafeState => "other channel safe",
             Cause::Gfc => "GFC",
             Cause::IntegrityRecords => "configuration in use damaged (records)",
@@ -205,7 +210,7 @@ mod tests {
 
     #[test]
     fn a_number_that_is_no_cause_code_is_none_and_reads_other() {
-        for code in [0x03, 0x08, 0x15, 0x24, 0x3A, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
+        for code in [0x03, 0x08, 0x15, 0x24, 0x3B, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
             assert_eq!(Cause::from_code(code), None, "{code:#04x}");
             assert_eq!(Cause::describe_code(code), "other");
         }

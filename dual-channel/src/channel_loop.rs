@@ -1,0 +1,362 @@
+//! The channel loop, written once for every board: what a channel does each time it wakes,
+//! over a small driver interface ([`Driver`], in the style of canadensis' CAN driver traits).
+//!
+//! A board layer implements [`Driver`] (the CAN controller's transmit and receive queues and
+//! acceptance filters, the link to the other channel, the input and output pins, the clock)
+//! and calls [`ChannelLoop::service`] whenever something arrived or the returned instant has
+//! come; waiting is the board's business (an async select on hardware, WFI under QEMU), the
+//! rest is here, sans-I/O and host-tested:
+//!
+//! - **Acceptance filters**: derived from the configuration ([`crate::filters`]) and handed to
+//!   the driver whenever they change; every received frame is also judged by the same list in
+//!   software, so a board whose controller passes more (QEMU's hub sends everything, the
+//!   bank fallback passes the SRDO range) sees exactly the same frames.
+//! - **Receive**: the driver's queue, frame by frame; a queue overrun of frames the filters
+//!   passed is the safe state with its own cause ([`Received::Overrun`]), never a silent loss.
+//! - **Inputs, one policy for every board**: each input pin is read on every wake-up and at
+//!   least every [`SAMPLE_PERIOD`]; the first sample and every change go to the runtime, a
+//!   sample equal to the last does not. Sampling on a period bounds the input latency on a
+//!   board whose pins raise no event (GPIO without EXTI, as here); handing on changes only
+//!   keeps the link from carrying a digest per millisecond (each sample the runtime takes is
+//!   one `Inputs` message to the other channel). The emulated board's pin changes only when
+//!   the hub says so: the same rule gives it the same behaviour.
+//! - **Outputs**: each output pin follows the received object the device description names
+//!   for it ([`crate::device::OUTPUT_PINS`]), read from the confirmed data of the receive
+//!   SRDO that maps it; low when none does and in the safe state.
+
+use crate::filters::AcceptanceList;
+use crate::runtime::{ChannelEvent, Io, Role, Runtime};
+use shared::canopen::od::Address;
+use shared::canopen::storage::Flash;
+use shared::safety::config::SrdoRecord;
+use shared::safety::types::{Direction, SrdoNumber};
+use shared::{CanFrame, Duration, Instant};
+
+/// Input pins are read at least this often.
+pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+
+/// Frames taken from the receive queue in one [`ChannelLoop::service`], so that a queue kept
+/// full cannot hold the loop (and the watchdog it feeds) for ever: the loop asks to be called
+/// again at once instead.
+pub const RECEIVE_BUDGET: usize = 32;
+
+/// The most input pins or output pins a channel drives.
+pub const MAX_PINS: usize = 8;
+
+/// A transmit queue (CAN or link) had no room: the frame or bytes were not taken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct QueueFull;
+
+/// What the receive queue hands out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Received {
+    /// A frame, oldest first.
+    Frame(CanFrame),
+    /// Frames were lost since the last call because the queue was full.
+    Overrun,
+}
+
+/// A board as the channel loop sees it.
+pub trait Driver {
+    /// The time now (microseconds since power-on; never goes backwards).
+    fn now(&mut self) -> Instant;
+    /// Queues `frame` for the bus. Frames leave by identifier, lowest first (as bxCAN's
+    /// mailboxes and CAN arbitration have it), in queue order within one identifier.
+    fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull>;
+    /// The oldest received frame, `None` when the queue is empty.
+    fn receive(&mut self) -> Option<Received>;
+    /// Programs the controller's acceptance filters to pass (at least) `list`, and from now
+    /// on nothing outside the SRDO range that is not in it.
+    fn apply_filters(&mut self, list: &AcceptanceList);
+    /// Queues `bytes` for the link to the other channel, all or nothing.
+    fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull>;
+    /// Link bytes received, into `buf`; how many (0: none).
+    fn link_read(&mut self, buf: &mut [u8]) -> usize;
+    /// The level of input pin `pin` (`true`: closed).
+    fn input(&mut self, pin: usize) -> bool;
+    /// Drives output pin `pin` (`true`: energised).
+    fn set_output(&mut self, pin: usize, level: bool);
+    /// Reports `event` (log, diagnostics).
+    fn event(&mut self, event: &ChannelEvent);
+}
+
+/// Frames and bytes the driver's queues had no room for, since power-on (saturating).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Dropped {
+    /// CAN frames the transmit queue refused: the consumers' SRVT and channel A's transmit
+    /// check catch a lost SRDO frame.
+    pub frames: u32,
+    /// Link messages the link queue refused: the other channel sees the sequence gap (the
+    /// safe state in both channels).
+    pub link_messages: u32,
+}
+
+/// The runtime's I/O, on the driver.
+struct DriverIo<'a, D: Driver> {
+    driver: &'a mut D,
+    outputs_changed: bool,
+    dropped: &'a mut Dropped,
+}
+
+impl<D: Driver> Io for DriverIo<'_, D> {
+    fn transmit(&mut self, frame: CanFrame) {
+        if self.driver.transmit(&frame).is_err() {
+            self.dropped.frames = self.dropped.frames.saturating_add(1);
+        }
+    }
+    fn link(&mut self, bytes: &[u8]) {
+        if self.driver.link_write(bytes).is_err() {
+            self.dropped.link_messages = self.dropped.link_messages.saturating_add(1);
+        }
+    }
+    fn output(&mut self, _: SrdoNumber, _: u64) {
+        self.outputs_changed = true;
+    }
+    fn event(&mut self, event: ChannelEvent) {
+        self.driver.event(&event);
+    }
+}
+
+/// The pins of a device: which objects each input pin is sampled into, which object drives
+/// each output pin ([`crate::device::INPUT_PINS`], [`crate::device::OUTPUT_PINS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Pins {
+    /// Per input pin, its plain object and the inverted copy.
+    pub inputs: &'static [(Address, Address)],
+    /// Per output pin, the received object that drives it.
+    pub outputs: &'static [Address],
+}
+
+/// One channel's loop around its runtime: the filters it applied, its pins' last values. The
+/// runtime stays the board's ([`ChannelLoop::service`] borrows it): built where the board
+/// keeps it, it is not moved again (moved into the loop, it went through the stack once more:
+/// 22,280 bytes deepest under QEMU, over the 18 KiB reserve).
+pub struct ChannelLoop {
+    pins: Pins,
+    /// The acceptance list last handed to the driver (`None`: none yet).
+    filters: Option<AcceptanceList>,
+    /// The last sample handed to the runtime per input pin.
+    sampled: [Option<bool>; MAX_PINS],
+    next_sample: Instant,
+    /// The level last driven per output pin (`None`: not driven yet).
+    levels: [Option<bool>; MAX_PINS],
+    /// The output pins were driven once (all low before the first confirmed pair).
+    driven: bool,
+    /// When the runtime wants to be polled.
+    runtime_deadline: Instant,
+    dropped: Dropped,
+}
+
+impl ChannelLoop {
+    /// The loop for a device with these `pins` (at most [`MAX_PINS`] of each; more are never
+    /// read or driven).
+    pub fn new(pins: Pins) -> Self {
+        ChannelLoop {
+            pins,
+            filters: None,
+            sampled: [None; MAX_PINS],
+            next_sample: Instant::ZERO,
+            levels: [None; MAX_PINS],
+            driven: false,
+            runtime_deadline: Instant::ZERO,
+            dropped: Dropped::default(),
+        }
+    }
+
+    /// What the driver's transmit queues refused so far.
+    pub fn dropped(&self) -> Dropped {
+        self.dropped
+    }
+
+    /// The acceptance list the driver was last given.
+    pub fn filters(&self) -> Option<&AcceptanceList> {
+        self.filters.as_ref()
+    }
+
+    /// Handles what arrived (at most [`RECEIVE_BUDGET`] frames, the link bytes, the input
+    /// pins), runs what is due and drives the outputs; returns when to call again at the
+    /// latest (`now` itself when frames were left in the queue).
+    #[must_use = "the loop must be called again at the returned instant"]
+    #[inline(never)]
+    pub fn service<F: Flash, R: Role<N>, const N: usize>(
+        &mut self,
+        runtime: &mut Runtime<F, R, N>,
+        driver: &mut impl Driver,
+    ) -> Instant {
+        let mut io = DriverIo {
+            driver,
+            outputs_changed: false,
+            dropped: &mut self.dropped,
+        };
+        let mut handed = false;
+        let mut taken = 0;
+        while taken < RECEIVE_BUDGET {
+            let Some(received) = io.driver.receive() else {
+                break;
+            };
+            taken += 1;
+            handed |= hand(runtime, received, &self.filters, &mut io);
+        }
+        // The budget used up: the queue may hold more; the board calls again at once.
+        let mut more = taken == RECEIVE_BUDGET;
+        let mut link = [0u8; 64];
+        let count = io.driver.link_read(&mut link);
+        if count > 0 {
+            let at = io.driver.now();
+            for &byte in &link[..count] {
+                runtime.on_link_byte(at, byte, &mut io);
+            }
+            handed = true;
+            // The link may have more than one buffer's worth: come back at once.
+            more |= count == link.len();
+        }
+        // The pins are read on every wake-up; the period only bounds the gap between two.
+        let now = io.driver.now();
+        for (pin, &(plain, inverted)) in self.pins.inputs.iter().enumerate().take(MAX_PINS) {
+            let level = io.driver.input(pin);
+            if self.sampled[pin] != Some(level) {
+                self.sampled[pin] = Some(level);
+                // The objects are the device description's own: a refusal is a description
+                // error, which the runtime reports as an input table fault where it can.
+                let _ = runtime.set_input(now, plain, inverted, &[u8::from(level)], &mut io);
+                handed = true;
+            }
+        }
+        self.next_sample = now + SAMPLE_PERIOD;
+        if handed || shared::time::expired(self.runtime_deadline, now) {
+            self.runtime_deadline = runtime.poll(now, &mut io);
+            let list = AcceptanceList::of(runtime.node().node_id(), runtime.node().safety_config());
+            if self.filters.as_ref() != Some(&list) {
+                io.driver.apply_filters(&list);
+                self.filters = Some(list);
+            }
+        }
+        if io.outputs_changed || !self.driven {
+            self.driven = true;
+            for (pin, &object) in self.pins.outputs.iter().enumerate().take(MAX_PINS) {
+                let level = output_level(runtime, object);
+                if self.levels[pin] != Some(level) {
+                    self.levels[pin] = Some(level);
+                    io.driver.set_output(pin, level);
+                }
+            }
+        }
+        if more {
+            now
+        } else {
+            self.runtime_deadline.min(self.next_sample)
+        }
+    }
+}
+
+/// Hands one received item to the runtime; `true` when the runtime saw it.
+#[inline(never)]
+fn hand<F: Flash, R: Role<N>, const N: usize, D: Driver>(
+    runtime: &mut Runtime<F, R, N>,
+    received: Received,
+    filters: &Option<AcceptanceList>,
+    io: &mut DriverIo<'_, D>,
+) -> bool {
+    match received {
+        Received::Frame(frame) => {
+            // Before the first filters are applied the runtime has not booted (it has not
+            // been polled), and it ignores every frame; after, only what the list passes.
+            if filters.as_ref().is_some_and(|list| list.accepts(&frame)) {
+                let at = io.driver.now();
+                runtime.on_frame(at, &frame, io);
+                true
+            } else {
+                false
+            }
+        }
+        Received::Overrun => {
+            runtime.on_receive_overrun(io);
+            true
+        }
+    }
+}
+
+/// The level of the output pin driven by `object`: the object's value in the confirmed
+/// data of a receive SRDO that maps it is not 0.
+#[inline(never)]
+fn output_level<F: Flash, R: Role<N>, const N: usize>(
+    runtime: &Runtime<F, R, N>,
+    object: Address,
+) -> bool {
+    runtime
+        .node()
+        .safety_config()
+        .srdos
+        .iter()
+        .enumerate()
+        .filter(|(_, record)| record.parsed_direction() == Ok(Direction::Receive))
+        .filter_map(|(index, record)| {
+            let srdo = SrdoNumber::of_slot(index)?;
+            mapped_value(record, object, runtime.output(srdo))
+        })
+        .any(|value| value != 0)
+}
+
+/// The value of `object` in an SRDO's plain data `data` (little-endian, as the frame carries
+/// it), when the record maps it as plain data: the plain entries are the odd sub-indices
+/// (entries 0, 2, 4, ...), each in the frame right after the one before (EN 50325-5
+/// 6.4.1.3). `None` when the record does not map it.
+pub fn mapped_value(record: &SrdoRecord, object: Address, data: u64) -> Option<u64> {
+    let mut offset = 0u32;
+    // The plain entries: 0, 2, 4, ...; each is followed by its inverted copy.
+    for pair in record.entries().chunks(2) {
+        let entry = pair[0];
+        let bits = entry & 0xFF;
+        if bits == 0 || bits % 8 != 0 || offset + bits > 64 {
+            return None; // Not a mapping the validation accepts: drives nothing.
+        }
+        if Address::new((entry >> 16) as u16, (entry >> 8) as u8) == object {
+            let value = data >> offset;
+            return Some(if bits == 64 {
+                value
+            } else {
+                value & ((1 << bits) - 1)
+            });
+        }
+        offset += bits;
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(entries: &[u32]) -> SrdoRecord {
+        let mut record = SrdoRecord::DELETED;
+        record.direction = 2;
+        record.mapping_count = entries.len() as u8;
+        record.mapping[..entries.len()].copy_from_slice(entries);
+        record
+    }
+
+    /// EN 50325-5 6.4.1.3, 6.4.1.4: the plain objects follow each other in the plain frame; an output
+    /// pin reads its object at its place, whatever else the SRDO maps, and nothing from an
+    /// SRDO that does not map it or maps it only as an inverted copy.
+    #[test]
+    fn en50325_5_6_4_1_4_an_output_pin_reads_its_object_at_its_place_in_the_frame() {
+        let output = Address::new(0x6200, 1);
+        let alone = record(&[0x6200_0108, 0x6201_0108]);
+        assert_eq!(mapped_value(&alone, output, 0x01), Some(1));
+        assert_eq!(mapped_value(&alone, output, 0xFF00), Some(0));
+        // Behind a 16-bit object: byte 2.
+        let behind = record(&[0x6210_0110, 0x6211_0110, 0x6200_0108, 0x6201_0108]);
+        assert_eq!(mapped_value(&behind, output, 0x00_FFFF), Some(0));
+        assert_eq!(mapped_value(&behind, output, 0x01_0000), Some(1));
+        // Mapped only as the inverted copy, or not at all: drives nothing.
+        let inverted_only = record(&[0x6210_0108, 0x6200_0108]);
+        assert_eq!(mapped_value(&inverted_only, output, u64::MAX), None);
+        assert_eq!(mapped_value(&record(&[]), output, u64::MAX), None);
+        // A mapping no validation accepts (no length, beyond 8 bytes) drives nothing.
+        assert_eq!(mapped_value(&record(&[0x6200_0100, 0]), output, 1), None);
+        let long = record(&[0x6300_0140, 0x6301_0140, 0x6200_0108, 0x6201_0108]);
+        assert_eq!(mapped_value(&long, output, u64::MAX), None);
+    }
+}
