@@ -2,12 +2,13 @@
 //! (0x1000..0x1018), the safety objects (0x1300..0x13FF), the double-reception counters
 //! ([`DOUBLE_RECEPTION_INDEX`], manufacturer area) and the application objects.
 
+use super::access::AccessControl;
 use super::{Core, DOUBLE_RECEPTION_INDEX, Event, persist};
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{AbortCode, Address, ObjectDictionary};
 use crate::canopen::storage::Flash;
 use crate::process_image::Access;
-use crate::safety::config::SafetyConfig;
+use crate::safety::config::{CONFIGURATION_VALID, SafetyConfig};
 use crate::safety::gfc;
 
 /// The signature "save" that 0x1010 expects (CiA 301 7.5.2.13).
@@ -64,6 +65,7 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
                 ),
                 _ => Err(AbortCode::NoSubIndex),
             },
+            index if AccessControl::<N>::owns(index) => self.access.read(address, self.now, buf),
             0x2000..=0x9FFF => self.image.read(address, buf),
             _ => Err(AbortCode::NoObject),
         }
@@ -72,6 +74,10 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
     fn write(&mut self, address: Address, data: &[u8]) -> Result<(), AbortCode> {
         let Address { index, sub } = address;
         let operational = self.state == NmtState::Operational;
+        if !operational {
+            // SC_REQ_43; in Operational the rules below refuse with 0800 0022h regardless.
+            self.access.check_write(index, self.now)?;
+        }
         match index {
             0x1000 | 0x1001 | 0x1008 | 0x1018 | DOUBLE_RECEPTION_INDEX => {
                 let mut scratch = [0u8; 64];
@@ -113,8 +119,14 @@ impl<F: Flash, const N: usize> ObjectDictionary for Core<F, N> {
             }
             0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
             index if SafetyConfig::<N>::owns(index) => {
-                self.safety.write(address, data, &self.image, operational)
+                self.safety.write(address, data, &self.image, operational)?;
+                if index == 0x13FE && self.safety.configuration_valid == CONFIGURATION_VALID {
+                    let signatures = self.safety.srdos.map(|record| record.signature);
+                    self.access.record_validation(signatures);
+                }
+                Ok(())
             }
+            index if AccessControl::<N>::owns(index) => self.access.write(address, data, self.now),
             0x2000..=0x9FFF => {
                 let (object, span) =
                     self.image
@@ -162,6 +174,7 @@ impl<F: Flash, const N: usize> Core<F, N> {
             &self.safety,
             self.heartbeat.period_ms(),
             self.config.node_id,
+            self.access.persisted(),
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
@@ -174,7 +187,12 @@ impl<F: Flash, const N: usize> Core<F, N> {
         if signature != LOAD {
             return Err(AbortCode::CannotStore);
         }
-        crate::canopen::storage::restore_defaults(&mut self.flash).map_err(|error| {
+        persist::restore_defaults(
+            &mut self.flash,
+            self.config.node_id,
+            self.access.persisted(),
+        )
+        .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
             AbortCode::HardwareError
         })

@@ -24,6 +24,7 @@
 //! own inputs through a communication fault (they are another device's safety function),
 //! but stop for good when their own two halves disagree.
 
+pub mod access;
 mod dictionary;
 mod integrity;
 mod persist;
@@ -294,6 +295,7 @@ struct Core<F: Flash, const N: usize> {
     double_reception: DoubleReception,
     deferred_event: Option<Event>,
     integrity: integrity::Integrity,
+    access: access::AccessControl<N>,
     /// Bytes 2..=4 of the EMCY's manufacturer-specific field for the next application cause
     /// ([`Node::enter_safe_state_with`]).
     application_data: [u8; 3],
@@ -311,8 +313,9 @@ impl<F: Flash, const N: usize> Node<F, N> {
             return Err(NodeError::SrdoCount);
         }
         let image = ProcessImage::new(config.app_objects).map_err(NodeError::Table)?;
-        if image.has_index(DOUBLE_RECEPTION_INDEX) {
-            return Err(NodeError::ReservedIndex(DOUBLE_RECEPTION_INDEX));
+        let mut reserved = [DOUBLE_RECEPTION_INDEX].into_iter().chain(access::INDICES);
+        if let Some(index) = reserved.find(|&index| image.has_index(index)) {
+            return Err(NodeError::ReservedIndex(index));
         }
         let mut core = Core {
             config,
@@ -333,6 +336,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
             double_reception: DoubleReception::default(),
             deferred_event: None,
             integrity: integrity::Integrity::IDLE,
+            access: access::AccessControl::new(),
             application_data: [0; 3],
             now: Instant::ZERO,
             flash,
@@ -393,6 +397,9 @@ impl<F: Flash, const N: usize> Node<F, N> {
 
     fn on_nmt(&mut self, now: Instant, command: NmtCommand, sink: &mut impl Sink) {
         let core = &mut self.core;
+        if command != NmtCommand::EnterPreOperational {
+            core.access.lock(); // SC_REQ_43: the unlock ends here.
+        }
         match command {
             NmtCommand::Start => {
                 if core.state != NmtState::Operational {
@@ -585,6 +592,11 @@ impl<F: Flash, const N: usize> Node<F, N> {
         Ok(())
     }
 
+    /// The protection of the safety configuration (SC_REQ_43).
+    pub fn access(&self) -> &access::AccessControl<N> {
+        &self.core.access
+    }
+
     /// Frames the consumers discarded as double receptions, since power-on or reset.
     pub fn double_reception(&self) -> DoubleReception {
         self.core.double_reception
@@ -672,25 +684,29 @@ impl<F: Flash, const N: usize> Core<F, N> {
     fn restore_parameters(&mut self, now: Instant) {
         let mut heartbeat_ms = self.config.heartbeat_ms;
         self.safety = Self::defaults(&self.config);
-        self.deferred_event =
-            match persist::load(&mut self.flash, &mut self.safety, &mut heartbeat_ms) {
-                Ok(Some(stored_by)) if stored_by == self.config.node_id => {
-                    Some(Event::ParametersRestored)
-                }
-                Ok(Some(validated_for)) => {
-                    // Validated (if at all) on another node-ID: its identifiers may belong
-                    // to another node here (IEC 61784-3 addressing). Kept for the tool, not
-                    // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
-                    self.safety.configuration_valid = 0;
-                    Some(Event::ValidatedForAnotherNodeId { validated_for })
-                }
-                Ok(None) => None,
-                Err(error) => {
-                    self.safety = Self::defaults(&self.config);
-                    heartbeat_ms = self.config.heartbeat_ms;
-                    Some(Event::StoredParametersRejected(error))
-                }
-            };
+        self.deferred_event = match persist::load(
+            &mut self.flash,
+            &mut self.safety,
+            &mut heartbeat_ms,
+            &mut self.access,
+        ) {
+            Ok(Some(stored_by)) if stored_by == self.config.node_id => {
+                Some(Event::ParametersRestored)
+            }
+            Ok(Some(validated_for)) => {
+                // Validated (if at all) on another node-ID: its identifiers may belong
+                // to another node here (IEC 61784-3 addressing). Kept for the tool, not
+                // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
+                self.safety.configuration_valid = 0;
+                Some(Event::ValidatedForAnotherNodeId { validated_for })
+            }
+            Ok(None) => None,
+            Err(error) => {
+                self.safety = Self::defaults(&self.config);
+                heartbeat_ms = self.config.heartbeat_ms;
+                Some(Event::StoredParametersRejected(error))
+            }
+        };
         self.heartbeat = Heartbeat::new(heartbeat_ms, now);
     }
 
@@ -1110,6 +1126,8 @@ impl<F: Flash, const N: usize> Core<F, N> {
     }
 }
 
+#[cfg(test)]
+mod access_tests;
 #[cfg(test)]
 mod sdo_tests;
 #[cfg(test)]

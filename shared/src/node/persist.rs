@@ -13,30 +13,55 @@
 //! addressing: the stored COB-IDs are absolute and may belong to another node there).
 //! Version 1 images, which do not carry it, are refused ([`PersistError::PreviousFormat`]).
 //!
-//! Layout, all integers little-endian:
+//! The image also carries the access control's stored part ([`super::access`]): the salted
+//! hash of the device secret and the audit record. 0x1011 (restore defaults) keeps them: it
+//! stores an image without parameters instead of erasing, unless there is nothing to keep, so
+//! no SDO write removes the secret or the audit record (SC_REQ_43).
+//!
+//! Layout (version 3), all integers little-endian:
 //!
 //! | bytes | field |
 //! |-------|-------|
-//! | 1 | format version (2) |
+//! | 1 | format version (3) |
 //! | 1 | node-ID of the device that stored the image, `1..=127` |
-//! | 2 | 0x1017 producer heartbeat time |
-//! | 1 | 0x13FE configuration valid |
-//! | 1 | number of SRDO records `N` |
-//! | per SRDO | direction (1), refresh time / SCT (2), SRVT (1), COB-ID 1 (4), COB-ID 2 (4), mapping count (1), that many entries (4 each), signature (2) |
+//! | 1 | flags: bit 0 the parameters follow, bit 1 a secret follows; other bits 0 |
+//! | 1 | number of SRDOs `N` |
+//! | 16 + 32 | if bit 1: the secret's salt, `SHA-256(salt ‖ secret)` |
+//! | 4 | audit: validated changes |
+//! | 2 N + 2 N | audit: the signatures before, then after, the last validated change |
+//! | 2 | if bit 0: 0x1017 producer heartbeat time |
+//! | 1 | if bit 0: 0x13FE configuration valid |
+//! | per SRDO | if bit 0: direction (1), refresh time / SCT (2), SRVT (1), COB-ID 1 (4), COB-ID 2 (4), mapping count (1), that many entries (4 each), signature (2) |
+//!
+//! Version 2 images (written before the access control) are the version 3 layout's parameters
+//! after a header of version, node-ID, heartbeat time, 0x13FE and `N`; they load with no
+//! secret and an empty audit record, as the device that wrote them had.
 
+use super::access::{AccessControl, Audit, Persisted, SALT_LEN, Secret};
 use crate::canopen::node_id::NodeId;
 use crate::canopen::storage::{self, Flash, StorageError};
 use crate::safety::MAX_SRDOS;
 use crate::safety::config::{MAX_MAPPING_ENTRIES, SafetyConfig, SrdoRecord};
 
 /// Format version of the layout above.
-const VERSION: u8 = 2;
-/// Bytes of the header.
-const HEADER: usize = 6;
+const VERSION: u8 = 3;
+/// The version before the access control.
+const VERSION_2: u8 = 2;
+/// Flag: the parameters follow.
+const HAS_PARAMETERS: u8 = 0x01;
+/// Flag: a secret follows.
+const HAS_SECRET: u8 = 0x02;
+/// Bytes of the header: version, node-ID, flags, `N`.
+const HEADER: usize = 4;
+/// Bytes of the access part at most: salt, hash, change counter, two signatures per SRDO.
+const ACCESS_MAX: usize = SALT_LEN + 32 + 4 + 4 * MAX_SRDOS;
+/// Bytes of the parameters' own header: heartbeat time, 0x13FE.
+const PARAMETERS_HEADER: usize = 3;
 /// Bytes of one SRDO record without its mapping entries.
 const RECORD_FIXED: usize = 1 + 2 + 1 + 4 + 4 + 1 + 2;
-/// The largest image: 64 SRDOs with 16 mapping entries each.
-pub const MAX_IMAGE: usize = HEADER + MAX_SRDOS * (RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES);
+/// The largest image: the access part and 64 SRDOs with 16 mapping entries each.
+pub const MAX_IMAGE: usize =
+    HEADER + ACCESS_MAX + PARAMETERS_HEADER + MAX_SRDOS * (RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES);
 
 /// Why stored parameters were not used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,7 +73,8 @@ pub enum PersistError {
     UnknownVersion(u8),
     /// The stored image is for a device with another number of SRDOs.
     SrdoCountMismatch,
-    /// The stored image is truncated or has bytes left over.
+    /// The stored image is truncated, has bytes left over, or flags this firmware does not
+    /// know.
     Malformed,
     /// The stored image was written by an earlier firmware in a format that does not say
     /// which node-ID its configuration was validated for, so it is not used (configure and
@@ -83,11 +109,18 @@ impl Reader<'_> {
     }
 }
 
-/// Serialises `safety`, the heartbeat time and the storing device's node-ID into `out`;
-/// returns the length used.
-fn encode<const N: usize>(
-    safety: &SafetyConfig<N>,
+/// The stored parameters proper.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct Parameters<const N: usize> {
+    safety: SafetyConfig<N>,
     heartbeat_ms: u16,
+}
+
+/// Serialises the access part, and the parameters when given, of the device with `node_id`
+/// into `out`; returns the length used.
+fn encode<const N: usize>(
+    parameters: Option<(&SafetyConfig<N>, u16)>,
+    access: &Persisted<N>,
     node_id: NodeId,
     out: &mut [u8; MAX_IMAGE],
 ) -> usize {
@@ -98,23 +131,41 @@ fn encode<const N: usize>(
         }
         at += bytes.len();
     };
+    let mut flags = 0;
+    if parameters.is_some() {
+        flags |= HAS_PARAMETERS;
+    }
+    if access.secret.is_some() {
+        flags |= HAS_SECRET;
+    }
     push(&[VERSION]);
     push(&[node_id.raw()]);
-    push(&heartbeat_ms.to_le_bytes());
-    push(&[safety.configuration_valid]);
+    push(&[flags]);
     // N <= 64 is checked when the node is built.
     push(&[N as u8]);
-    for record in &safety.srdos {
-        push(&[record.direction]);
-        push(&record.cycle_time.to_le_bytes());
-        push(&[record.srvt]);
-        push(&record.cob_id_1.to_le_bytes());
-        push(&record.cob_id_2.to_le_bytes());
-        push(&[record.mapping_count]);
-        for entry in record.entries() {
-            push(&entry.to_le_bytes());
+    if let Some(secret) = &access.secret {
+        push(&secret.salt);
+        push(&secret.hash);
+    }
+    push(&access.audit.changes.to_le_bytes());
+    for signature in access.audit.before.iter().chain(&access.audit.after) {
+        push(&signature.to_le_bytes());
+    }
+    if let Some((safety, heartbeat_ms)) = parameters {
+        push(&heartbeat_ms.to_le_bytes());
+        push(&[safety.configuration_valid]);
+        for record in &safety.srdos {
+            push(&[record.direction]);
+            push(&record.cycle_time.to_le_bytes());
+            push(&[record.srvt]);
+            push(&record.cob_id_1.to_le_bytes());
+            push(&record.cob_id_2.to_le_bytes());
+            push(&[record.mapping_count]);
+            for entry in record.entries() {
+                push(&entry.to_le_bytes());
+            }
+            push(&record.signature.to_le_bytes());
         }
-        push(&record.signature.to_le_bytes());
     }
     at.min(MAX_IMAGE)
 }
@@ -122,28 +173,20 @@ fn encode<const N: usize>(
 /// What a stored image holds.
 #[derive(Clone, Debug, PartialEq, Eq)]
 struct Image<const N: usize> {
-    safety: SafetyConfig<N>,
-    heartbeat_ms: u16,
+    /// The parameters, unless the image was stored by 0x1011 (restore defaults).
+    parameters: Option<Parameters<N>>,
+    /// The access control's stored part.
+    access: Persisted<N>,
     /// The node-ID of the device that stored it.
     node_id: NodeId,
 }
 
-/// Parses a stored image; all or nothing.
-fn decode<const N: usize>(bytes: &[u8]) -> Result<Image<N>, PersistError> {
-    let mut reader = Reader { bytes };
-    let version = reader.u8()?;
-    match version {
-        VERSION => {}
-        1 => return Err(PersistError::PreviousFormat(version)),
-        _ => return Err(PersistError::UnknownVersion(version)),
-    }
-    let raw_node_id = reader.u8()?;
-    let node_id = NodeId::new(raw_node_id).map_err(|_| PersistError::BadNodeId(raw_node_id))?;
-    let heartbeat_ms = reader.u16()?;
-    let configuration_valid = reader.u8()?;
-    if usize::from(reader.u8()?) != N {
-        return Err(PersistError::SrdoCountMismatch);
-    }
+/// Reads the SRDO records after the parameters' header.
+fn decode_records<const N: usize>(
+    reader: &mut Reader<'_>,
+    heartbeat_ms: u16,
+    configuration_valid: u8,
+) -> Result<Parameters<N>, PersistError> {
     let mut srdos = [SrdoRecord::DELETED; N];
     for record in srdos.iter_mut() {
         record.direction = reader.u8()?;
@@ -161,47 +204,148 @@ fn decode<const N: usize>(bytes: &[u8]) -> Result<Image<N>, PersistError> {
         }
         record.signature = reader.u16()?;
     }
-    if !reader.bytes.is_empty() {
-        return Err(PersistError::Malformed);
-    }
-    Ok(Image {
+    Ok(Parameters {
         safety: SafetyConfig {
             srdos,
             configuration_valid,
         },
         heartbeat_ms,
-        node_id,
     })
 }
 
-/// Stores the parameters (0x1010) of the device with `node_id`.
+/// Reads the node-ID byte.
+fn decode_node_id(reader: &mut Reader<'_>) -> Result<NodeId, PersistError> {
+    let raw = reader.u8()?;
+    NodeId::new(raw).map_err(|_| PersistError::BadNodeId(raw))
+}
+
+/// Reads the SRDO count byte, which must be `N`.
+fn check_count<const N: usize>(reader: &mut Reader<'_>) -> Result<(), PersistError> {
+    if usize::from(reader.u8()?) == N {
+        Ok(())
+    } else {
+        Err(PersistError::SrdoCountMismatch)
+    }
+}
+
+/// Parses a stored image; all or nothing.
+fn decode<const N: usize>(bytes: &[u8]) -> Result<Image<N>, PersistError> {
+    let mut reader = Reader { bytes };
+    let image = match reader.u8()? {
+        VERSION => {
+            let node_id = decode_node_id(&mut reader)?;
+            let flags = reader.u8()?;
+            if flags & !(HAS_PARAMETERS | HAS_SECRET) != 0 {
+                return Err(PersistError::Malformed);
+            }
+            check_count::<N>(&mut reader)?;
+            let secret = if flags & HAS_SECRET != 0 {
+                Some(Secret {
+                    salt: reader.take()?,
+                    hash: reader.take()?,
+                })
+            } else {
+                None
+            };
+            let mut audit = Audit::NONE;
+            audit.changes = reader.u32()?;
+            for signature in audit.before.iter_mut().chain(audit.after.iter_mut()) {
+                *signature = reader.u16()?;
+            }
+            let parameters = if flags & HAS_PARAMETERS != 0 {
+                let heartbeat_ms = reader.u16()?;
+                let configuration_valid = reader.u8()?;
+                Some(decode_records(
+                    &mut reader,
+                    heartbeat_ms,
+                    configuration_valid,
+                )?)
+            } else {
+                None
+            };
+            Image {
+                parameters,
+                access: Persisted { secret, audit },
+                node_id,
+            }
+        }
+        VERSION_2 => {
+            let node_id = decode_node_id(&mut reader)?;
+            let heartbeat_ms = reader.u16()?;
+            let configuration_valid = reader.u8()?;
+            check_count::<N>(&mut reader)?;
+            Image {
+                parameters: Some(decode_records(
+                    &mut reader,
+                    heartbeat_ms,
+                    configuration_valid,
+                )?),
+                access: Persisted::NEW,
+                node_id,
+            }
+        }
+        version @ 1 => return Err(PersistError::PreviousFormat(version)),
+        version => return Err(PersistError::UnknownVersion(version)),
+    };
+    if !reader.bytes.is_empty() {
+        return Err(PersistError::Malformed);
+    }
+    Ok(image)
+}
+
+/// Stores the parameters (0x1010) of the device with `node_id`, with the access control's
+/// stored part.
 pub(super) fn store<F: Flash, const N: usize>(
     flash: &mut F,
     safety: &SafetyConfig<N>,
     heartbeat_ms: u16,
     node_id: NodeId,
+    access: &Persisted<N>,
 ) -> Result<(), StorageError> {
     let mut image = [0u8; MAX_IMAGE];
-    let len = encode(safety, heartbeat_ms, node_id, &mut image);
+    let len = encode(Some((safety, heartbeat_ms)), access, node_id, &mut image);
     storage::store(flash, &image[..len])
 }
 
-/// Loads stored parameters into `safety` and `heartbeat_ms`: `Ok(Some(node-ID))` when they
-/// were restored, with the node-ID of the device that stored them; `Ok(None)` when nothing is
-/// stored (defaults stay); `Err` when the stored image is unusable (the caller keeps the
-/// defaults).
+/// 0x1011: the defaults at the next reset. Erases the stored parameters when there is
+/// nothing of the access control to keep; otherwise stores an image with the access part
+/// alone, so the secret and the audit record stay.
+pub(super) fn restore_defaults<F: Flash, const N: usize>(
+    flash: &mut F,
+    node_id: NodeId,
+    access: &Persisted<N>,
+) -> Result<(), StorageError> {
+    if *access == Persisted::NEW {
+        return storage::restore_defaults(flash);
+    }
+    let mut image = [0u8; MAX_IMAGE];
+    let len = encode(None, access, node_id, &mut image);
+    storage::store(flash, &image[..len])
+}
+
+/// Loads stored parameters into `safety` and `heartbeat_ms`, and the access control's stored
+/// part into `access`: `Ok(Some(node-ID))` when parameters were restored, with the node-ID of
+/// the device that stored them; `Ok(None)` when none are stored (defaults stay); `Err` when
+/// the stored image is unusable (the caller keeps the defaults, and `access` holds no secret
+/// and no audit record: a damaged image is a new device, see docs/access-protection.md).
 pub(super) fn load<F: Flash, const N: usize>(
     flash: &mut F,
     safety: &mut SafetyConfig<N>,
     heartbeat_ms: &mut u16,
+    access: &mut AccessControl<N>,
 ) -> Result<Option<NodeId>, PersistError> {
+    access.restore(Persisted::NEW);
     let mut image = [0u8; MAX_IMAGE];
     let Some(len) = storage::load(flash, &mut image).map_err(PersistError::Storage)? else {
         return Ok(None);
     };
     let restored = decode::<N>(image.get(..len).ok_or(PersistError::Malformed)?)?;
-    *safety = restored.safety;
-    *heartbeat_ms = restored.heartbeat_ms;
+    access.restore(restored.access);
+    let Some(parameters) = restored.parameters else {
+        return Ok(None);
+    };
+    *safety = parameters.safety;
+    *heartbeat_ms = parameters.heartbeat_ms;
     Ok(Some(restored.node_id))
 }
 
@@ -217,15 +361,32 @@ mod tests {
         config
     }
 
+    fn access() -> Persisted<2> {
+        Persisted {
+            secret: Some(Secret {
+                salt: [0x5A; SALT_LEN],
+                hash: [0xC3; 32],
+            }),
+            audit: Audit {
+                changes: 3,
+                before: [0x1234, 0],
+                after: [0x1234, 0xBEEF],
+            },
+        }
+    }
+
     fn node(id: u8) -> NodeId {
         NodeId::new(id).unwrap()
     }
 
     fn encoded() -> ([u8; MAX_IMAGE], usize) {
         let mut out = [0u8; MAX_IMAGE];
-        let len = encode(&sample(), 250, node(7), &mut out);
+        let len = encode(Some((&sample(), 250)), &access(), node(7), &mut out);
         (out, len)
     }
+
+    /// Where the parameters start in [`encoded`]: header, salt and hash, counter, signatures.
+    const PARAMETERS_AT: usize = HEADER + SALT_LEN + 32 + 4 + 4 * 2;
 
     #[test]
     fn image_round_trips_with_the_node_id() {
@@ -233,11 +394,35 @@ mod tests {
         assert_eq!(
             decode::<2>(&out[..len]),
             Ok(Image {
-                safety: sample(),
-                heartbeat_ms: 250,
+                parameters: Some(Parameters {
+                    safety: sample(),
+                    heartbeat_ms: 250,
+                }),
+                access: access(),
                 node_id: node(7),
             })
         );
+    }
+
+    #[test]
+    fn sc_req_43_an_image_without_parameters_keeps_secret_and_audit() {
+        let mut out = [0u8; MAX_IMAGE];
+        let len = encode::<2>(None, &access(), node(7), &mut out);
+        assert_eq!(len, PARAMETERS_AT);
+        assert_eq!(
+            decode::<2>(&out[..len]),
+            Ok(Image {
+                parameters: None,
+                access: access(),
+                node_id: node(7),
+            })
+        );
+        let without_secret = Persisted {
+            secret: None,
+            ..access()
+        };
+        let len = encode::<2>(None, &without_secret, node(7), &mut out);
+        assert_eq!(decode::<2>(&out[..len]).unwrap().access, without_secret);
     }
 
     #[test]
@@ -261,6 +446,11 @@ mod tests {
             copy[1] = raw;
             assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::BadNodeId(raw)));
         }
+        for flags in [0x04, 0x80, 0xFF] {
+            let mut copy = out;
+            copy[2] = flags;
+            assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::Malformed));
+        }
         out[0] = 9;
         assert_eq!(
             decode::<2>(&out[..len]),
@@ -268,7 +458,7 @@ mod tests {
         );
     }
 
-    /// A version 1 image (no node-ID) is never misread as version 2, whatever it holds.
+    /// A version 1 image (no node-ID) is never misread as a later version, whatever it holds.
     #[test]
     fn a_version_1_image_is_refused_as_the_previous_format() {
         let (mut out, len) = encoded();
@@ -279,11 +469,38 @@ mod tests {
         );
     }
 
+    /// An image of the firmware before the access control loads, with no secret and an
+    /// empty audit record (that device had neither).
+    #[test]
+    fn a_version_2_image_loads_without_secret_or_audit() {
+        let (out, len) = encoded();
+        let mut old = [0u8; MAX_IMAGE];
+        old[0] = VERSION_2;
+        old[1] = 7;
+        // heartbeat time and 0x13FE, then the count, then the records as version 3 has them.
+        old[2..5].copy_from_slice(&out[PARAMETERS_AT..PARAMETERS_AT + 3]);
+        old[5] = 2;
+        let records = len - PARAMETERS_AT - 3;
+        old[6..6 + records].copy_from_slice(&out[PARAMETERS_AT + 3..len]);
+        assert_eq!(
+            decode::<2>(&old[..6 + records]),
+            Ok(Image {
+                parameters: Some(Parameters {
+                    safety: sample(),
+                    heartbeat_ms: 250,
+                }),
+                access: Persisted::NEW,
+                node_id: node(7),
+            })
+        );
+    }
+
     #[test]
     fn an_out_of_range_mapping_count_is_refused_not_panicking() {
         let (mut out, len) = encoded();
-        // First record's mapping count sits after the header and 12 bytes of the record.
-        out[HEADER + 12] = 200;
+        // First record's mapping count sits after the parameters' header and 12 bytes of
+        // the record.
+        out[PARAMETERS_AT + PARAMETERS_HEADER + 12] = 200;
         assert_eq!(decode::<2>(&out[..len]), Err(PersistError::Malformed));
     }
 }
