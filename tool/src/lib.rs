@@ -5,6 +5,8 @@
 //!   adapters: [`socketcand`] (TCP), [`slcan`] (serial adapters), `socketcan` (Linux, behind
 //!   the `socketcan` feature). The host simulation's adapter lives in the `system-tests`
 //!   crate, which depends on this one.
+//! - [`access`]: the node's protection against unauthorised configuration (SC_REQ_43):
+//!   the secret (never on the command line), unlock, set-secret, the audit record.
 //! - [`client`]: SDO and NMT over a transport, with errors that name the node and the object.
 //! - [`network_file`]: the network file (TOML) and its errors with line and column.
 //! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
@@ -12,6 +14,7 @@
 //! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
 //! - [`error`]: every error as a sentence.
 
+pub mod access;
 pub mod client;
 pub mod eds;
 pub mod error;
