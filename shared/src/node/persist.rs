@@ -11,7 +11,6 @@
 //! stored under the same node-ID), so that node-ID is the one the configuration was validated
 //! for; the node withdraws the validity when it starts under another node-ID (IEC 61784-3
 //! addressing: the stored COB-IDs are absolute and may belong to another node there).
-//! Version 1 images, which do not carry it, are refused ([`PersistError::PreviousFormat`]).
 //!
 //! The image also carries the access control's stored part ([`super::access`]): the salted
 //! hash of the device secret and the audit record. 0x1011 (restore defaults) keeps them: it
@@ -33,9 +32,9 @@
 //! | 1 | if bit 0: 0x13FE configuration valid |
 //! | per SRDO | if bit 0: direction (1), refresh time / SCT (2), SRVT (1), COB-ID 1 (4), COB-ID 2 (4), mapping count (1), that many entries (4 each), signature (2) |
 //!
-//! Version 2 images (written before the access control) are the version 3 layout's parameters
-//! after a header of version, node-ID, heartbeat time, 0x13FE and `N`; they load with no
-//! secret and an empty audit record, as the device that wrote them had.
+//! Images of versions 1 (no node-ID) and 2 (no access control) are refused
+//! ([`PersistError::PreviousFormat`]): no hardware ever ran a firmware that wrote them, and a
+//! second parser for them would be flash spent on nothing.
 
 use super::access::{AccessControl, Audit, Persisted, SALT_LEN, Secret};
 use crate::canopen::node_id::NodeId;
@@ -45,8 +44,6 @@ use crate::safety::config::{MAX_MAPPING_ENTRIES, SafetyConfig, SrdoRecord};
 
 /// Format version of the layout above.
 const VERSION: u8 = 3;
-/// The version before the access control.
-const VERSION_2: u8 = 2;
 /// Flag: the parameters follow.
 const HAS_PARAMETERS: u8 = 0x01;
 /// Flag: a secret follows.
@@ -76,9 +73,9 @@ pub enum PersistError {
     /// The stored image is truncated, has bytes left over, or flags this firmware does not
     /// know.
     Malformed,
-    /// The stored image was written by an earlier firmware in a format that does not say
-    /// which node-ID its configuration was validated for, so it is not used (configure and
-    /// store again).
+    /// The stored image was written by an earlier firmware in a format this one does not
+    /// read (version 1 does not say which node-ID its configuration was validated for,
+    /// version 2 has no access control), so it is not used (configure and store again).
     PreviousFormat(u8),
     /// The stored node-ID is not in `1..=127`.
     BadNodeId(u8),
@@ -269,22 +266,7 @@ fn decode<const N: usize>(bytes: &[u8]) -> Result<Image<N>, PersistError> {
                 node_id,
             }
         }
-        VERSION_2 => {
-            let node_id = decode_node_id(&mut reader)?;
-            let heartbeat_ms = reader.u16()?;
-            let configuration_valid = reader.u8()?;
-            check_count::<N>(&mut reader)?;
-            Image {
-                parameters: Some(decode_records(
-                    &mut reader,
-                    heartbeat_ms,
-                    configuration_valid,
-                )?),
-                access: Persisted::NEW,
-                node_id,
-            }
-        }
-        version @ 1 => return Err(PersistError::PreviousFormat(version)),
+        version @ (1 | 2) => return Err(PersistError::PreviousFormat(version)),
         version => return Err(PersistError::UnknownVersion(version)),
     };
     if !reader.bytes.is_empty() {
@@ -458,7 +440,7 @@ mod tests {
         );
     }
 
-    /// A version 1 image (no node-ID) is never misread as a later version, whatever it holds.
+    /// A version 1 image (no node-ID) is never misread as version 3, whatever it holds.
     #[test]
     fn a_version_1_image_is_refused_as_the_previous_format() {
         let (mut out, len) = encoded();
@@ -469,29 +451,15 @@ mod tests {
         );
     }
 
-    /// An image of the firmware before the access control loads, with no secret and an
-    /// empty audit record (that device had neither).
+    /// A version 2 image (no access control) is not misread as version 3: refused, so the
+    /// device starts on its defaults, not validated.
     #[test]
-    fn a_version_2_image_loads_without_secret_or_audit() {
-        let (out, len) = encoded();
-        let mut old = [0u8; MAX_IMAGE];
-        old[0] = VERSION_2;
-        old[1] = 7;
-        // heartbeat time and 0x13FE, then the count, then the records as version 3 has them.
-        old[2..5].copy_from_slice(&out[PARAMETERS_AT..PARAMETERS_AT + 3]);
-        old[5] = 2;
-        let records = len - PARAMETERS_AT - 3;
-        old[6..6 + records].copy_from_slice(&out[PARAMETERS_AT + 3..len]);
+    fn a_version_2_image_is_refused_as_the_previous_format() {
+        let (mut out, len) = encoded();
+        out[0] = 2;
         assert_eq!(
-            decode::<2>(&old[..6 + records]),
-            Ok(Image {
-                parameters: Some(Parameters {
-                    safety: sample(),
-                    heartbeat_ms: 250,
-                }),
-                access: Persisted::NEW,
-                node_id: node(7),
-            })
+            decode::<2>(&out[..len]),
+            Err(PersistError::PreviousFormat(2))
         );
     }
 
