@@ -658,7 +658,7 @@ mod tests {
     }
 
     #[test]
-    fn secret_lengths_out_of_range_are_refused_by_length() {
+    fn sc_req_43_secret_lengths_out_of_range_are_refused_by_length() {
         let mut access = AccessControl::<2>::new();
         let address = Address::new(ACCESS_INDEX, sub::SET_SECRET);
         let data = [1u8; SALT_LEN + MAX_SECRET + 1];
