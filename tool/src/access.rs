@@ -243,3 +243,35 @@ pub fn read_audit<T: Transport>(client: &mut Client<T>, node: u8) -> Result<Audi
         after: signatures(SIGNATURES_AFTER_INDEX)?,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sc_req_43_a_secret_file_gives_its_first_line_and_wins_over_the_rest() {
+        let path =
+            std::env::temp_dir().join(format!("safety-config-secret-{}", std::process::id()));
+        std::fs::write(&path, "line one secret\nsecond line\n").unwrap();
+        let source = SecretSource::choose(Some(&path), SECRET_VARIABLE);
+        assert_eq!(source, SecretSource::File(path.clone()));
+        let secret = source.read("secret").unwrap();
+        assert_eq!(secret.bytes(), b"line one secret");
+        std::fs::remove_file(&path).unwrap();
+        let error = source.read("secret").unwrap_err().to_string();
+        assert!(error.starts_with("cannot read the secret file"), "{error}");
+    }
+
+    #[test]
+    fn sc_req_43_a_secret_never_shows_in_debug_output() {
+        let secret = Secret::new(b"do not print me".to_vec()).unwrap();
+        assert_eq!(format!("{secret:?}"), "Secret(15 bytes)");
+    }
+
+    #[test]
+    fn secret_lengths_the_node_refuses_are_refused_by_the_tool() {
+        assert!(Secret::new(Vec::new()).is_err());
+        assert!(Secret::new(vec![b'x'; MAX_SECRET + 1]).is_err());
+        assert!(Secret::new(vec![b'x'; MAX_SECRET]).is_ok());
+    }
+}

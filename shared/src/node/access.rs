@@ -250,10 +250,15 @@ impl<const N: usize> AccessControl<N> {
         }
     }
 
-    /// `true` for the objects whose writes change the safety configuration.
+    /// `true` for the objects whose writes change the safety configuration: 0x1010, 0x1011
+    /// and every object of the safety configuration (those `SafetyConfig::owns`; an index in
+    /// 0x1301..0x13FF that is none of them answers 0602 0000h, locked or not).
     #[must_use]
     pub const fn guards(index: u16) -> bool {
-        matches!(index, 0x1010 | 0x1011 | 0x1301..=0x13FF)
+        matches!(
+            index,
+            0x1010 | 0x1011 | 0x1301..=0x1340 | 0x1381..=0x13C0 | 0x13FE | 0x13FF
+        )
     }
 
     /// `true` for the objects this module answers.
@@ -527,6 +532,18 @@ mod tests {
         }
         for index in [0x1017, 0x1300, 0x2000, 0x6000] {
             assert_eq!(access.check_write(index, at(1)), Ok(()), "{index:04X}");
+        }
+    }
+
+    #[test]
+    fn sc_req_43_the_guarded_objects_are_exactly_the_safety_configuration_store_and_restore() {
+        use crate::safety::config::SafetyConfig;
+        for index in 0..=u16::MAX {
+            assert_eq!(
+                AccessControl::<2>::guards(index),
+                SafetyConfig::<2>::owns(index) || index == 0x1010 || index == 0x1011,
+                "{index:04X}"
+            );
         }
     }
 
