@@ -16,8 +16,8 @@ use shared::canopen::nmt::{self, NmtCommand};
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::sdo_client::{self, ClientError};
 use shared::canopen::storage::RamFlash;
-use shared::node::{Event, Node, Sink};
 use shared::node::access::{ACCESS_INDEX, AccessState, sub};
+use shared::node::{Event, Node, Sink};
 use shared::{CanFrame, CanId, Duration, Instant};
 
 #[derive(Arbitrary, Debug)]
@@ -102,8 +102,11 @@ struct Bench {
 
 impl Bench {
     fn exchange(&mut self, request: [u8; 8]) -> Option<[u8; 8]> {
-        let frame = CanFrame::new(CanId::new(0x605).unwrap_or_else(|_| unreachable!()), &request)
-            .unwrap_or_else(|_| unreachable!());
+        let frame = CanFrame::new(
+            CanId::new(0x605).unwrap_or_else(|_| unreachable!()),
+            &request,
+        )
+        .unwrap_or_else(|_| unreachable!());
         let before = self.sink.sdo.len();
         self.node.handle_frame(self.now, &frame, &mut self.sink);
         self.sink.sdo.get(before).copied()
@@ -118,8 +121,7 @@ impl Bench {
 }
 
 fuzz_target!(|steps: Vec<Step>| {
-    let Ok(node) = Node::<RamFlash<8192>, 2>::new(common::config(5, false), RamFlash::new())
-    else {
+    let Ok(node) = Node::<RamFlash<8192>, 2>::new(common::config(5, false), RamFlash::new()) else {
         return;
     };
     let mut bench = Bench {
@@ -160,11 +162,7 @@ fuzz_target!(|steps: Vec<Step>| {
                 data.extend_from_slice(&secret);
                 let result = bench.write(ACCESS_INDEX, sub::SET_SECRET, &data);
                 let fits = (8..=32).contains(&secret.len());
-                assert_eq!(
-                    result.is_ok(),
-                    model.may_change(now) && fits,
-                    "{result:?}"
-                );
+                assert_eq!(result.is_ok(), model.may_change(now) && fits, "{result:?}");
                 if result.is_ok() {
                     model.secret = Some(secret);
                     model.unlocked_until = Some(now + UNLOCK_MS);
@@ -201,9 +199,11 @@ fuzz_target!(|steps: Vec<Step>| {
                     3 => NmtCommand::ResetNode,
                     _ => NmtCommand::ResetCommunication,
                 };
-                bench
-                    .node
-                    .handle_frame(bench.now, &nmt::command_frame(command, 0), &mut bench.sink);
+                bench.node.handle_frame(
+                    bench.now,
+                    &nmt::command_frame(command, 0),
+                    &mut bench.sink,
+                );
                 if command != NmtCommand::EnterPreOperational {
                     model.unlocked_until = None;
                 }
