@@ -684,29 +684,26 @@ impl<F: Flash, const N: usize> Core<F, N> {
     fn restore_parameters(&mut self, now: Instant) {
         let mut heartbeat_ms = self.config.heartbeat_ms;
         self.safety = Self::defaults(&self.config);
-        self.deferred_event = match persist::load(
-            &mut self.flash,
-            &mut self.safety,
-            &mut heartbeat_ms,
-            &mut self.access,
-        ) {
-            Ok(Some(stored_by)) if stored_by == self.config.node_id => {
-                Some(Event::ParametersRestored)
-            }
-            Ok(Some(validated_for)) => {
-                // Validated (if at all) on another node-ID: its identifiers may belong
-                // to another node here (IEC 61784-3 addressing). Kept for the tool, not
-                // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
-                self.safety.configuration_valid = 0;
-                Some(Event::ValidatedForAnotherNodeId { validated_for })
-            }
-            Ok(None) => None,
-            Err(error) => {
-                self.safety = Self::defaults(&self.config);
-                heartbeat_ms = self.config.heartbeat_ms;
-                Some(Event::StoredParametersRejected(error))
-            }
-        };
+        let access = &mut self.access; // SC_REQ_43: the secret and the audit record.
+        self.deferred_event =
+            match persist::load(&mut self.flash, &mut self.safety, &mut heartbeat_ms, access) {
+                Ok(Some(stored_by)) if stored_by == self.config.node_id => {
+                    Some(Event::ParametersRestored)
+                }
+                Ok(Some(validated_for)) => {
+                    // Validated (if at all) on another node-ID: its identifiers may belong
+                    // to another node here (IEC 61784-3 addressing). Kept for the tool, not
+                    // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
+                    self.safety.configuration_valid = 0;
+                    Some(Event::ValidatedForAnotherNodeId { validated_for })
+                }
+                Ok(None) => None,
+                Err(error) => {
+                    self.safety = Self::defaults(&self.config);
+                    heartbeat_ms = self.config.heartbeat_ms;
+                    Some(Event::StoredParametersRejected(error))
+                }
+            };
         self.heartbeat = Heartbeat::new(heartbeat_ms, now);
     }
 
