@@ -150,6 +150,11 @@ fn sc_req_43_a_locked_node_refuses_the_configuration_and_nothing_is_written() {
             error.to_string().contains("06010000h"),
             "{address:?}: {error}"
         );
+        // The tool's `write` says what to do instead of quoting the code.
+        assert!(matches!(
+            access::explain_refusal(error),
+            ToolError::Locked { node: 33 }
+        ));
     }
     // So is a new secret.
     assert!(matches!(

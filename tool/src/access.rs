@@ -14,8 +14,8 @@ use crate::error::ToolError;
 use crate::transport::Transport;
 use shared::canopen::od::{AbortCode, Address};
 use shared::node::access::{
-    ACCESS_INDEX, AccessState, CHANGE_COUNTER_INDEX, MAX_SECRET, MIN_SECRET, SALT_LEN,
-    SIGNATURES_AFTER_INDEX, SIGNATURES_BEFORE_INDEX, sub,
+    ACCESS_INDEX, AccessControl, AccessState, CHANGE_COUNTER_INDEX, MAX_SECRET, MIN_SECRET,
+    SALT_LEN, SIGNATURES_AFTER_INDEX, SIGNATURES_BEFORE_INDEX, sub,
 };
 use zeroize::Zeroizing;
 
@@ -167,6 +167,22 @@ pub fn unlock<T: Transport>(
     }
 }
 
+/// `error`, or [`ToolError::Locked`] when it is the node's refusal of a guarded write
+/// (0601 0000h on 0x1010, 0x1011 or the safety configuration): the sentence then says what to
+/// do instead of quoting the abort code.
+pub fn explain_refusal(error: ToolError) -> ToolError {
+    match error {
+        ToolError::Aborted {
+            node, object, code, ..
+        } if code == AbortCode::UnsupportedAccess as u32
+            && AccessControl::<1>::guards(object.0.index) =>
+        {
+            ToolError::Locked { node }
+        }
+        other => other,
+    }
+}
+
 /// Ends the unlock of `node` at once (5C10h:03h = 1).
 pub fn lock<T: Transport>(client: &mut Client<T>, node: u8) -> Result<(), ToolError> {
     client.write(node, Address::new(ACCESS_INDEX, sub::STATE), &[1])
@@ -211,7 +227,9 @@ pub fn set_secret_with_salt<T: Transport>(
         }
         result => result?,
     }
-    client.write(node, Address::new(0x1010, 1), b"save")
+    client
+        .write(node, Address::new(0x1010, 1), b"save")
+        .map_err(explain_refusal)
 }
 
 /// The node's audit record: validated changes and the signatures before and after the last.

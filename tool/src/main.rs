@@ -415,7 +415,9 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                 secret: unlock.source(),
             };
             procedure::unlock_for_configuration(&mut client, node, &mut person)?;
-            client.write(node, address, &data)?;
+            client
+                .write(node, address, &data)
+                .map_err(access::explain_refusal)?;
             if cli.json {
                 println!(
                     "{}",

@@ -29,8 +29,8 @@ use crate::network_file::{Identity, Network, NodeSpec};
 use crate::signature::{SrdoSettings, signature};
 use crate::transport::Transport;
 use shared::canopen::nmt::NmtCommand;
-use shared::canopen::od::{AbortCode, Address};
-use shared::node::access::{AccessControl, AccessState};
+use shared::canopen::od::Address;
+use shared::node::access::AccessState;
 use shared::safety::config::{CONFIGURATION_VALID, TRANSMISSION_TYPE};
 use std::time::Duration;
 
@@ -257,24 +257,21 @@ pub fn configure_node<T: Transport>(
             signatures,
             sdo_requests: client.requests - before,
         }),
-        Err(ToolError::Aborted { object, code, .. })
-            if code == AbortCode::UnsupportedAccess as u32
-                && AccessControl::<1>::guards(object.0.index) =>
-        {
+        Err(error) => match access::explain_refusal(error) {
             // Locked, or the unlock ended: the node took no write since (and 0x13FE is 0
             // after any write it took before).
-            Err(ToolError::Locked { node })
-        }
-        Err(error) => {
-            // Best effort: a node that stopped answering cannot be told; every write it
-            // accepted has already set 0x13FE to 0.
-            if client.write(node, Address::new(0x13FE, 0), &[0]).is_ok() {
-                operator.note(&format!(
-                    "node {node}: 0x13FE set to 0 (configuration not valid)"
-                ));
+            locked @ ToolError::Locked { .. } => Err(locked),
+            error => {
+                // Best effort: a node that stopped answering cannot be told; every write it
+                // accepted has already set 0x13FE to 0.
+                if client.write(node, Address::new(0x13FE, 0), &[0]).is_ok() {
+                    operator.note(&format!(
+                        "node {node}: 0x13FE set to 0 (configuration not valid)"
+                    ));
+                }
+                Err(error)
             }
-            Err(error)
-        }
+        },
     }
 }
 
