@@ -142,7 +142,9 @@ enum Command {
 /// variable SAFETY_CONFIG_SECRET, or a prompt without echo.
 #[derive(clap::Args)]
 struct Unlock {
-    /// Unlock the node with its secret before writing.
+    /// Unlock the node with its secret before writing (SC_REQ_43). The secret comes from
+    /// --secret-file, else the environment variable SAFETY_CONFIG_SECRET, else a prompt
+    /// without echo; never from the command line, where `ps` would show it.
     #[arg(long)]
     unlock: bool,
     /// Take the secret from the first line of this file (implies --unlock).
