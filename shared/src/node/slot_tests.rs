@@ -82,6 +82,19 @@ impl SafetyProtocol for Beacon {
         index == BEACON_INDEX
     }
 
+    fn needs_unlock(index: u16) -> bool {
+        index == BEACON_INDEX
+    }
+
+    /// Its period stands for a signature.
+    type Signatures = [u16; 1];
+
+    const NO_SIGNATURES: [u16; 1] = [0];
+
+    fn validated_signatures(&self) -> Option<[u16; 1]> {
+        (self.valid == CONFIGURATION_VALID).then_some([self.period_ms])
+    }
+
     fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {
         let bytes: &[u8] = match address.sub {
             0 => &[2],
