@@ -644,12 +644,12 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
     fn restore_parameters(&mut self, now: Instant) {
         let mut heartbeat_ms = self.shell.config.heartbeat_ms;
         self.protocol.load_defaults(&self.shell.config);
-        let access = &mut self.access; // SC_REQ_43: the secret and the audit record.
+        // With the access control's stored part (SC_REQ_43: the secret, the audit record).
         self.deferred_event = match persist::load(
             &mut self.flash,
             &mut self.protocol,
             &mut heartbeat_ms,
-            access,
+            &mut self.access,
         ) {
             Ok(Some(stored_by)) if stored_by == self.shell.config.node_id => {
                 Some(Event::ParametersRestored)

@@ -41,6 +41,11 @@ use crate::time::Instant;
 ///   ([`SafetyProtocol::restore`]). Stored under another node-ID, the section is restored but
 ///   its validation withdrawn ([`SafetyProtocol::withdraw_validation`]; IEC 61784-3
 ///   addressing).
+/// - **Access.** The shell's access control (SC_REQ_43, [`super::access`]) refuses, while
+///   the device is locked, every write to an object [`SafetyProtocol::needs_unlock`] names,
+///   before the protocol sees it; after an accepted one it records a validated change with
+///   the protocol's [`SafetyProtocol::validated_signatures`] in the audit record, which is
+///   stored with the shell's parameters, not in the protocol's section.
 /// - **Safe state.** The shell owns the latch: one cause, EMCY, the
 ///   [`SafeState`](super::Event::SafeState) event, the GFC when configured. When it latches
 ///   for a cause of its own (a GFC, the application, ...), it first tells the protocol
