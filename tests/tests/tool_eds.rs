@@ -74,6 +74,21 @@ fn cia306_the_eds_lists_exactly_what_the_node_serves() {
     for node in [1u8, 33] {
         for object in &objects {
             for entry in &object.entries {
+                if entry.access == "wo" {
+                    let error = client
+                        .read(node, entry.address)
+                        .expect_err("a write-only entry refuses reads");
+                    assert_eq!(
+                        error.sdo_client_error(),
+                        Some(shared::canopen::sdo_client::ClientError::Aborted(
+                            AbortCode::WriteOnly
+                        )),
+                        "{:04X}h:{:02X}h: {error}",
+                        entry.address.index,
+                        entry.address.sub
+                    );
+                    continue;
+                }
                 let bytes = client
                     .read(node, entry.address)
                     .unwrap_or_else(|error| panic!("node {node}: {error}"));
@@ -125,7 +140,7 @@ fn cia306_the_eds_lists_exactly_what_the_node_serves() {
     }
     let listed: Vec<u16> = objects.iter().map(|object| object.index).collect();
     for index in (0x1000..=0x1FFF)
-        .chain(0x5C00..=0x5C0F)
+        .chain(0x5C00..=0x5C1F)
         .chain(0x6000..=0x62FF)
     {
         if listed.contains(&index) {

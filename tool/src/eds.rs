@@ -12,6 +12,9 @@
 
 use shared::canopen::od::Address;
 use shared::node::DOUBLE_RECEPTION_INDEX;
+use shared::node::access::{
+    ACCESS_INDEX, CHANGE_COUNTER_INDEX, SIGNATURES_AFTER_INDEX, SIGNATURES_BEFORE_INDEX,
+};
 use shared::process_image::{Access, Mappable};
 use shared::safety::config::{MAX_MAPPING_ENTRIES, TRANSMISSION_TYPE};
 use shared::safety::gfc::GFC_PARAMETER;
@@ -23,6 +26,7 @@ const UNSIGNED8: u16 = 0x0005;
 const UNSIGNED16: u16 = 0x0006;
 const UNSIGNED32: u16 = 0x0007;
 const VISIBLE_STRING: u16 = 0x0009;
+const OCTET_STRING: u16 = 0x000A;
 
 /// One value of the dictionary (a VAR, or one sub-index of an ARRAY or RECORD).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -119,11 +123,12 @@ fn compound(index: u16, name: &str, object_type: u8, highest: u8, access: &'stat
 }
 
 /// The note on 0x1300 (`shared::safety::gfc::GFC_PARAMETER`): what it means on this device.
-pub const GFC_NOTE: [&str; 4] = [
+pub const GFC_NOTE: [&str; 5] = [
     "1300h (GFC parameter) indicates, as EN 50325-5 6.4.2.1 is written: the device sets it to 1 when it sent or received a GFC in Operational. Writing 0 clears the indication; writing 1 is accepted and does nothing (no GFC is sent); above 1 is refused (0609 0031h).",
     "Stacks that read 1300h as 'GFC enabled' and send a GFC when 1 is written get no GFC from this device: configuring it never trips the bus. The device always obeys a received GFC in Operational.",
     "SRDO 1 follows the pre-defined connection set when nothing is stored (EN 50325-5 Table 5): transmit for node-IDs 1..32 (refresh time 25 ms), receive for 33..64 (SCT 50 ms), deleted for 65..127; COB-IDs FFh + 2 x node-ID and 100h + 2 x node-ID; its default values therefore depend on the node-ID and are not given here.",
     "Safety objects are read-only in Operational (0800 0022h); any accepted write to one sets 13FEh to 0. 1301h..1304h sub-index 04h is fixed at FEh.",
+    "Once a secret is set (5C10h:02h), writes to 1010h, 1011h and 1301h..13FFh need an unlock with it (5C10h:01h), refused with 0601 0000h otherwise; 5C11h..5C13h are the audit record of validated changes (docs/access-protection.md).",
 ];
 
 /// Node-ID 1, checked when the crate is compiled (a `panic!` in a constant is a compile error).
@@ -285,6 +290,69 @@ pub fn objects() -> Vec<Object> {
         );
     }
     objects.push(double);
+    let mut access = compound(ACCESS_INDEX, "Configuration access", 0x9, 5, "ro");
+    access.entries.extend([
+        Entry::new(Address::new(ACCESS_INDEX, 1), "Unlock", OCTET_STRING, "wo"),
+        Entry::new(
+            Address::new(ACCESS_INDEX, 2),
+            "Set secret",
+            OCTET_STRING,
+            "wo",
+        ),
+        Entry::new(
+            Address::new(ACCESS_INDEX, 3),
+            "Access state",
+            UNSIGNED8,
+            "rw",
+        ),
+        Entry::new(
+            Address::new(ACCESS_INDEX, 4),
+            "Failed unlock attempts",
+            UNSIGNED16,
+            "ro",
+        )
+        .default(0),
+        Entry::new(
+            Address::new(ACCESS_INDEX, 5),
+            "Remaining unlock or lockout time (ms)",
+            UNSIGNED32,
+            "ro",
+        )
+        .default(0),
+    ]);
+    objects.push(access);
+    let mut changes = single(
+        CHANGE_COUNTER_INDEX,
+        "Validated configuration changes",
+        UNSIGNED32,
+        "ro",
+    );
+    changes.entries[0].default = Some("0".into());
+    objects.push(changes);
+    for (index, when) in [
+        (SIGNATURES_BEFORE_INDEX, "before"),
+        (SIGNATURES_AFTER_INDEX, "after"),
+    ] {
+        let mut signatures = compound(
+            index,
+            &format!("Signatures {when} the last validated change"),
+            0x8,
+            count,
+            "ro",
+        );
+        for n in 1..=count {
+            signatures.entries.push(
+                Entry::new(
+                    Address::new(index, n),
+                    &format!("Signature of SRDO {n} {when} the last validated change"),
+                    UNSIGNED16,
+                    "ro",
+                )
+                .default(0),
+            );
+        }
+        objects.push(signatures);
+    }
     let mut by_index: BTreeMap<u16, Vec<&shared::process_image::AppObject>> = BTreeMap::new();
     for object in device::OBJECTS.iter() {
         by_index

@@ -53,6 +53,24 @@ pub fn object_name(address: Address) -> Option<String> {
         0x1381..=0x13C0 => Some(format!("SRDO {} mapping entry {sub}", index - 0x1380)),
         0x13FE => Some("configuration valid".into()),
         0x13FF => Some(format!("signature of SRDO {sub}")),
+        0x5C10 => Some(
+            match sub {
+                1 => "unlock",
+                2 => "set secret",
+                3 => "access state",
+                4 => "failed unlock attempts",
+                5 => "remaining unlock or lockout time",
+                _ => "configuration access",
+            }
+            .into(),
+        ),
+        0x5C11 => Some("validated configuration changes".into()),
+        0x5C12 => Some(format!(
+            "signature of SRDO {sub} before the last validated change"
+        )),
+        0x5C13 => Some(format!(
+            "signature of SRDO {sub} after the last validated change"
+        )),
         _ => dual_channel::device::OBJECT_NAMES
             .iter()
             .find(|(_, object)| *object == address)
@@ -183,6 +201,35 @@ pub enum ToolError {
         value: u8,
         /// After which step.
         when: &'static str,
+    },
+    /// The node refuses changes of its safety configuration until it is unlocked (SC_REQ_43).
+    #[error(
+        "node {node} is locked against changes of its safety configuration (SC_REQ_43); nothing was written (pass --unlock and give the node's secret)"
+    )]
+    Locked {
+        /// The node-ID.
+        node: u8,
+    },
+    /// The node refused the secret (0800 0020h) and counted a failed attempt.
+    #[error(
+        "node {node} refused the secret: a failed attempt, counted; the next attempt is possible in {lockout_ms} ms"
+    )]
+    WrongSecret {
+        /// The node-ID.
+        node: u8,
+        /// The lockout that the failure started, ms.
+        lockout_ms: u32,
+    },
+    /// The node refused an unlock attempt without looking at it (0800 0022h): too many
+    /// failed attempts.
+    #[error(
+        "node {node} is locked out after too many failed attempts; it takes the next attempt in {remaining_ms} ms"
+    )]
+    LockedOut {
+        /// The node-ID.
+        node: u8,
+        /// What is left of the lockout, ms.
+        remaining_ms: u32,
     },
     /// The network file could not be read.
     #[error("cannot read the network file {path}: {source}")]

@@ -7,6 +7,8 @@
 //!   crate, which depends on this one.
 //! - [`calc`]: the calculators: reaction times (EN 50325-5 9.3), bus load and residual error
 //!   rate (9.4).
+//! - [`access`]: the node's protection against unauthorised configuration (SC_REQ_43):
+//!   the secret (never on the command line), unlock, set-secret, the audit record.
 //! - [`client`]: SDO and NMT over a transport, with errors that name the node and the object.
 //! - [`network_file`]: the network file (TOML) and its errors with line and column.
 //! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
@@ -16,6 +18,7 @@
 //!   logs recorded and replayed.
 //! - [`error`]: every error as a sentence.
 
+pub mod access;
 pub mod calc;
 pub mod client;
 pub mod eds;

@@ -2,6 +2,7 @@
 //! network file, over socketcand, an SLCAN adapter or SocketCAN.
 
 use clap::{Parser, Subcommand, ValueEnum};
+use safety_config::access::{self, NEW_SECRET_VARIABLE, SECRET_VARIABLE, Secret, SecretSource};
 use safety_config::calc::budget::{self, Plan};
 use safety_config::calc::bus::Stream;
 use safety_config::calc::report;
@@ -77,6 +78,8 @@ enum Command {
         /// Take the value as hexadecimal octets.
         #[arg(long)]
         bytes: bool,
+        #[command(flatten)]
+        unlock: Unlock,
     },
     /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9).
     Sign {
@@ -94,6 +97,28 @@ enum Command {
         /// Configure a node although its identity (0x1018) differs from the file.
         #[arg(long)]
         accept_identity: bool,
+        #[command(flatten)]
+        unlock: Unlock,
+    },
+    /// Set the node's secret against unauthorised configuration (SC_REQ_43, object 5C10h)
+    /// and store it (0x1010). A new device takes it without --unlock; a node with a secret
+    /// needs --unlock with the current one. The new secret (8 to 32 bytes) comes from
+    /// --new-secret-file, SAFETY_CONFIG_NEW_SECRET or a prompt asked twice, never from the
+    /// command line. Only erasing the parameter flash with the flashing tool removes it.
+    SetSecret {
+        /// The node-ID.
+        node: u8,
+        #[command(flatten)]
+        unlock: Unlock,
+        /// Take the new secret from the first line of this file.
+        #[arg(long)]
+        new_secret_file: Option<std::path::PathBuf>,
+    },
+    /// Read the node's access state and audit record (SC_REQ_43): validated changes, and the
+    /// signatures of every SRDO before and after the last one.
+    Audit {
+        /// The node-ID.
+        node: u8,
     },
     /// Read every node's safety configuration and compare it with a network file.
     Verify {
@@ -191,6 +216,29 @@ struct PlanArgs {
     event_interval_ms: Option<u64>,
 }
 
+/// Unlocking a node against unauthorised configuration (SC_REQ_43). The secret is never a
+/// command-line argument (`ps` would show it): it comes from --secret-file, the environment
+/// variable SAFETY_CONFIG_SECRET, or a prompt without echo.
+#[derive(clap::Args)]
+struct Unlock {
+    /// Unlock the node with its secret before writing (SC_REQ_43). The secret comes from
+    /// --secret-file, else the environment variable SAFETY_CONFIG_SECRET, else a prompt
+    /// without echo; never from the command line, where `ps` would show it.
+    #[arg(long)]
+    unlock: bool,
+    /// Take the secret from the first line of this file (implies --unlock).
+    #[arg(long)]
+    secret_file: Option<std::path::PathBuf>,
+}
+
+impl Unlock {
+    /// Where the secret comes from, when unlocking was asked for.
+    fn source(&self) -> Option<SecretSource> {
+        (self.unlock || self.secret_file.is_some())
+            .then(|| SecretSource::choose(self.secret_file.as_deref(), SECRET_VARIABLE))
+    }
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Nmt {
     Start,
@@ -204,6 +252,8 @@ enum Nmt {
 struct Person {
     accept_identity: bool,
     quiet: bool,
+    /// Where the secret to unlock with comes from (`--unlock`).
+    secret: Option<SecretSource>,
 }
 
 impl Operator for Person {
@@ -231,6 +281,13 @@ impl Operator for Person {
         let _ = std::io::stderr().flush();
         let mut answer = String::new();
         std::io::stdin().read_line(&mut answer).is_ok() && answer.trim() == "yes"
+    }
+
+    fn secret(&mut self, node: u8) -> Result<Option<Secret>, ToolError> {
+        self.secret
+            .as_ref()
+            .map(|source| source.read(&format!("secret of node {node}")))
+            .transpose()
     }
 }
 
@@ -501,6 +558,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             value,
             len,
             bytes,
+            unlock,
         } => {
             let address = parse_object(&object)?;
             let data = if bytes {
@@ -519,7 +577,15 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                 }
                 number.to_le_bytes()[..len].to_vec()
             };
-            client.write(node, address, &data)?;
+            let mut person = Person {
+                accept_identity: false,
+                quiet: cli.json,
+                secret: unlock.source(),
+            };
+            procedure::unlock_for_configuration(&mut client, node, &mut person)?;
+            client
+                .write(node, address, &data)
+                .map_err(access::explain_refusal)?;
             if cli.json {
                 println!(
                     "{}",
@@ -532,12 +598,14 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             file,
             start,
             accept_identity,
+            unlock,
         } => {
             let network = load(&file)?;
             client.sdo_timeout = network.sdo_timeout;
             let mut person = Person {
                 accept_identity,
                 quiet: cli.json,
+                secret: unlock.source(),
             };
             let report = procedure::configure(&mut client, &network, start, &mut person)?;
             if cli.json {
@@ -600,6 +668,56 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             Ok(verdicts
                 .iter()
                 .all(|verdict| matches!(verdict, Verdict::Matches { .. })))
+        }
+        Command::SetSecret {
+            node,
+            unlock,
+            new_secret_file,
+        } => {
+            let mut person = Person {
+                accept_identity: false,
+                quiet: cli.json,
+                secret: unlock.source(),
+            };
+            procedure::unlock_for_configuration(&mut client, node, &mut person)?;
+            let new = SecretSource::choose(new_secret_file.as_deref(), NEW_SECRET_VARIABLE)
+                .read_new(&format!("new secret of node {node}"))?;
+            access::set_secret(&mut client, node, &new)?;
+            if cli.json {
+                println!(
+                    "{}",
+                    json(&serde_json::json!({"node": node, "secret_set": true}))
+                );
+            } else {
+                println!("node {node}: secret set and stored");
+            }
+            Ok(true)
+        }
+        Command::Audit { node } => {
+            let state = access::state(&mut client, node)?;
+            let audit = access::read_audit(&mut client, node)?;
+            if cli.json {
+                println!(
+                    "{}",
+                    json(&serde_json::json!({"state": format!("{state:?}"), "audit": audit}))
+                );
+            } else {
+                let list = |signatures: &[u16]| {
+                    signatures
+                        .iter()
+                        .zip(1..)
+                        .map(|(s, n)| format!("SRDO {n} {s:04X}h"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                };
+                println!(
+                    "node {node}: access {state:?}; {} validated change(s)",
+                    audit.changes
+                );
+                println!("  before the last: {}", list(&audit.before));
+                println!("  after the last:  {}", list(&audit.after));
+            }
+            Ok(true)
         }
         Command::Gfc => {
             client.transport.send(&shared::safety::gfc::frame())?;

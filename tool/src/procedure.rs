@@ -5,6 +5,9 @@
 //! every value it holds was read back, by another path than the write, and equals the file:
 //!
 //! 1. read the identity (0x1018) and refuse a node that is not the file's (SC_REQ_37/38);
+//!    unlock the node with the operator's secret when the operator has one (SC_REQ_43,
+//!    [`crate::access`]); a locked node refuses the first write (0601 0000h), and nothing is
+//!    written ([`ToolError::Locked`]);
 //! 2. NMT enter pre-operational;
 //! 3. every SRDO's direction to 0 (deleted, so its parameters may change);
 //! 4. the mapping of each SRDO of the file (count 0, entries, count);
@@ -19,6 +22,7 @@
 //! 0 (best effort; every accepted write to a safety object already sets it to 0, EN 50325-5
 //! 6.4.1.6, and A5h is only written after every check passed).
 
+use crate::access::{self, Secret};
 use crate::client::Client;
 use crate::error::{Object, ToolError, object_name};
 use crate::network_file::{Identity, Network, NodeSpec};
@@ -26,6 +30,7 @@ use crate::signature::{SrdoSettings, signature};
 use crate::transport::Transport;
 use shared::canopen::nmt::NmtCommand;
 use shared::canopen::od::Address;
+use shared::node::access::AccessState;
 use shared::safety::config::{CONFIGURATION_VALID, TRANSMISSION_TYPE};
 use std::time::Duration;
 
@@ -35,6 +40,11 @@ pub trait Operator {
     fn note(&mut self, line: &str);
     /// Whether to configure `node` although its identity differs (`differences`).
     fn confirm_identity(&mut self, node: &NodeSpec, differences: &str) -> bool;
+    /// The secret to unlock `node` with before it is configured (SC_REQ_43), or `None` to
+    /// configure without unlocking (a new device; a locked one then refuses).
+    fn secret(&mut self, _node: u8) -> Result<Option<Secret>, ToolError> {
+        Ok(None)
+    }
 }
 
 /// An operator that prints nothing and accepts a differing identity only when told to.
@@ -238,6 +248,7 @@ pub fn configure_node<T: Transport>(
     if !differences.is_empty() && !operator.confirm_identity(spec, &differences) {
         return Err(ToolError::IdentityMismatch { node, differences });
     }
+    unlock_for_configuration(client, node, operator)?;
     client.nmt(NmtCommand::EnterPreOperational, node)?;
     match write_and_check(client, spec, operator) {
         Ok(signatures) => Ok(Configured {
@@ -246,17 +257,44 @@ pub fn configure_node<T: Transport>(
             signatures,
             sdo_requests: client.requests - before,
         }),
-        Err(error) => {
-            // Best effort: a node that stopped answering cannot be told; every write it
-            // accepted has already set 0x13FE to 0.
-            if client.write(node, Address::new(0x13FE, 0), &[0]).is_ok() {
-                operator.note(&format!(
-                    "node {node}: 0x13FE set to 0 (configuration not valid)"
-                ));
+        Err(error) => match access::explain_refusal(error) {
+            // Locked, or the unlock ended: the node took no write since (and 0x13FE is 0
+            // after any write it took before).
+            locked @ ToolError::Locked { .. } => Err(locked),
+            error => {
+                // Best effort: a node that stopped answering cannot be told; every write it
+                // accepted has already set 0x13FE to 0.
+                if client.write(node, Address::new(0x13FE, 0), &[0]).is_ok() {
+                    operator.note(&format!(
+                        "node {node}: 0x13FE set to 0 (configuration not valid)"
+                    ));
+                }
+                Err(error)
             }
-            Err(error)
+        },
+    }
+}
+
+/// Unlocks `node` with the operator's secret, if the operator has one (SC_REQ_43); says so
+/// when the node has no secret to unlock with.
+pub fn unlock_for_configuration<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+    operator: &mut dyn Operator,
+) -> Result<(), ToolError> {
+    let Some(secret) = operator.secret(node)? else {
+        return Ok(());
+    };
+    match access::state(client, node)? {
+        AccessState::Open => operator.note(&format!(
+            "node {node}: has no secret (open for configuration); set one with `set-secret`"
+        )),
+        AccessState::Unlocked | AccessState::Locked | AccessState::LockedOut => {
+            access::unlock(client, node, &secret)?;
+            operator.note(&format!("node {node}: unlocked for configuration"));
         }
     }
+    Ok(())
 }
 
 fn write_and_check<T: Transport>(
@@ -667,7 +705,8 @@ pub fn read_dcf<T: Transport>(
 ) -> Result<String, ToolError> {
     let mut values = std::collections::BTreeMap::new();
     for object in crate::eds::objects() {
-        for entry in &object.entries {
+        // Write-only entries (the secret's, SC_REQ_43) have no value to read.
+        for entry in object.entries.iter().filter(|entry| entry.access != "wo") {
             let bytes = client.read(node, entry.address)?;
             values.insert(entry.address, crate::eds::format_value(entry, &bytes));
         }

@@ -1,8 +1,11 @@
 //! The device's object dictionary as the SDO server sees it: communication objects
 //! (0x1000..0x1018), the GFC parameter (0x1300), the objects of the safety protocol in the
 //! slot ([`SafetyProtocol::owns`]: for the SRDO table 0x1301..0x13FF and the double-reception
-//! counters, [`super::DOUBLE_RECEPTION_INDEX`]) and the application objects.
+//! counters, [`super::DOUBLE_RECEPTION_INDEX`]), the access control's objects (0x5C10..0x5C13,
+//! [`super::access`]) and the application objects. Writes that change the safety configuration
+//! pass the access control first (SC_REQ_43).
 
+use super::access::AccessControl;
 use super::{Core, Event, persist};
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{AbortCode, Address, ObjectDictionary};
@@ -56,6 +59,9 @@ impl<F: Flash, P: SafetyProtocol> ObjectDictionary for Core<F, P> {
             gfc::GFC_PARAMETER if sub == 0 => put(buf, &[self.gfc_parameter]),
             0x1000 | 0x1001 | 0x1008 | 0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
             index if self.protocol.owns(index) => self.protocol.read(address, buf),
+            index if AccessControl::<P::Signatures>::owns(index) => {
+                self.access.read(address, self.now, buf)
+            }
             0x2000..=0x9FFF => self.image.read(address, buf),
             _ => Err(AbortCode::NoObject),
         }
@@ -64,6 +70,10 @@ impl<F: Flash, P: SafetyProtocol> ObjectDictionary for Core<F, P> {
     fn write(&mut self, address: Address, data: &[u8]) -> Result<(), AbortCode> {
         let Address { index, sub } = address;
         let operational = self.shell.state == NmtState::Operational;
+        if !operational {
+            // SC_REQ_43; in Operational the rules below refuse with 0800 0022h regardless.
+            self.access.check_write::<P>(index, self.now)?;
+        }
         match index {
             0x1000 | 0x1001 | 0x1008 | 0x1018 => {
                 let mut scratch = [0u8; 64];
@@ -105,7 +115,19 @@ impl<F: Flash, P: SafetyProtocol> ObjectDictionary for Core<F, P> {
             }
             0x1017 | 0x1300 => Err(AbortCode::NoSubIndex),
             index if self.protocol.owns(index) => {
-                self.protocol.write(address, data, &self.image, operational)
+                self.protocol
+                    .write(address, data, &self.image, operational)?;
+                if P::needs_unlock(index) {
+                    // SC_REQ_43: a write that leaves the configuration validated validates it
+                    // (every other accepted write withdraws the validation).
+                    if let Some(signatures) = self.protocol.validated_signatures() {
+                        self.access.record_validation(signatures);
+                    }
+                }
+                Ok(())
+            }
+            index if AccessControl::<P::Signatures>::owns(index) => {
+                self.access.write(address, data, self.now)
             }
             0x2000..=0x9FFF => {
                 let (object, span) =
@@ -154,6 +176,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             &self.protocol,
             self.heartbeat.period_ms(),
             self.shell.config.node_id,
+            self.access.persisted(),
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
@@ -166,7 +189,12 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         if signature != LOAD {
             return Err(AbortCode::CannotStore);
         }
-        crate::canopen::storage::restore_defaults(&mut self.flash).map_err(|error| {
+        persist::restore_defaults::<_, P>(
+            &mut self.flash,
+            self.shell.config.node_id,
+            self.access.persisted(),
+        )
+        .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
             AbortCode::HardwareError
         })

@@ -28,6 +28,7 @@
 //! own inputs through a communication fault (they are another device's safety function),
 //! but stop for good when their own two halves disagree.
 
+pub mod access;
 mod dictionary;
 mod persist;
 mod slot;
@@ -235,6 +236,7 @@ struct Core<F: Flash, P: SafetyProtocol> {
     heartbeat: Heartbeat,
     gfc_parameter: u8,
     deferred_event: Option<Event>,
+    access: access::AccessControl<P::Signatures>,
     /// The time of the SDO request being served (the object dictionary has no `now`).
     now: Instant,
     flash: F,
@@ -358,12 +360,13 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     /// enters Pre-operational.
     pub fn with_protocol(config: NodeConfig, flash: F, protocol: P) -> Result<Self, NodeError> {
         let image = ProcessImage::new(config.app_objects).map_err(NodeError::Table)?;
-        if let Some(object) = config
+        if let Some(index) = config
             .app_objects
             .iter()
-            .find(|object| protocol.owns(object.address.index))
+            .map(|object| object.address.index)
+            .find(|&index| protocol.owns(index) || access::INDICES.contains(&index))
         {
-            return Err(NodeError::ReservedIndex(object.address.index));
+            return Err(NodeError::ReservedIndex(index));
         }
         let mut core = Core {
             shell: Shell {
@@ -380,6 +383,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             heartbeat: Heartbeat::new(0, Instant::ZERO),
             gfc_parameter: gfc::GFC_NOT_VALID,
             deferred_event: None,
+            access: access::AccessControl::new(P::NO_SIGNATURES),
             now: Instant::ZERO,
             flash,
         };
@@ -446,6 +450,9 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
 
     fn on_nmt(&mut self, now: Instant, command: NmtCommand, sink: &mut impl Sink) {
         let core = &mut self.core;
+        if command != NmtCommand::EnterPreOperational {
+            core.access.lock(); // SC_REQ_43: the unlock ends here.
+        }
         match command {
             NmtCommand::Start => {
                 if core.shell.state != NmtState::Operational {
@@ -579,6 +586,11 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         self.core.shell.next_deadline = Instant::ZERO;
         Ok(())
     }
+
+    /// The protection of the safety configuration (SC_REQ_43).
+    pub fn access(&self) -> &access::AccessControl<P::Signatures> {
+        &self.core.access
+    }
 }
 
 impl<F: Flash, P: SafetyProtocol> Core<F, P> {
@@ -632,25 +644,30 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
     fn restore_parameters(&mut self, now: Instant) {
         let mut heartbeat_ms = self.shell.config.heartbeat_ms;
         self.protocol.load_defaults(&self.shell.config);
-        self.deferred_event =
-            match persist::load(&mut self.flash, &mut self.protocol, &mut heartbeat_ms) {
-                Ok(Some(stored_by)) if stored_by == self.shell.config.node_id => {
-                    Some(Event::ParametersRestored)
-                }
-                Ok(Some(validated_for)) => {
-                    // Validated (if at all) on another node-ID: its identifiers may belong
-                    // to another node here (IEC 61784-3 addressing). Kept for the tool, not
-                    // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
-                    self.protocol.withdraw_validation();
-                    Some(Event::ValidatedForAnotherNodeId { validated_for })
-                }
-                Ok(None) => None,
-                Err(error) => {
-                    self.protocol.load_defaults(&self.shell.config);
-                    heartbeat_ms = self.shell.config.heartbeat_ms;
-                    Some(Event::StoredParametersRejected(error))
-                }
-            };
+        // With the access control's stored part (SC_REQ_43: the secret, the audit record).
+        self.deferred_event = match persist::load(
+            &mut self.flash,
+            &mut self.protocol,
+            &mut heartbeat_ms,
+            &mut self.access,
+        ) {
+            Ok(Some(stored_by)) if stored_by == self.shell.config.node_id => {
+                Some(Event::ParametersRestored)
+            }
+            Ok(Some(validated_for)) => {
+                // Validated (if at all) on another node-ID: its identifiers may belong
+                // to another node here (IEC 61784-3 addressing). Kept for the tool, not
+                // valid until validated again for this node-ID (EN 50325-5 6.4.1.6).
+                self.protocol.withdraw_validation();
+                Some(Event::ValidatedForAnotherNodeId { validated_for })
+            }
+            Ok(None) => None,
+            Err(error) => {
+                self.protocol.load_defaults(&self.shell.config);
+                heartbeat_ms = self.shell.config.heartbeat_ms;
+                Some(Event::StoredParametersRejected(error))
+            }
+        };
         self.heartbeat = Heartbeat::new(heartbeat_ms, now);
     }
 
@@ -833,6 +850,8 @@ impl Shell {
     }
 }
 
+#[cfg(test)]
+mod access_tests;
 #[cfg(test)]
 mod sdo_tests;
 #[cfg(test)]

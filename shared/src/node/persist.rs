@@ -1,46 +1,71 @@
 //! The stored parameter image: what 0x1010 saves and a reset restores.
 //!
 //! The image is serialised here into a small, versioned byte layout and handed to
-//! [`crate::canopen::storage`], which makes storing it atomic. It is the shell's header
-//! followed by the section of the safety protocol in the node's slot
+//! [`crate::canopen::storage`], which makes storing it atomic. It is the shell's header, the
+//! access control's stored part ([`super::access`]: the salted hash of the device secret and
+//! the audit record), then the section of the safety protocol in the node's slot
 //! ([`SafetyProtocol::persist`]; the SRDO table's layout is on [`super::SrdoTable`]). Parsing
-//! is strict: a wrong version, a length that does not add up, an out-of-range node-ID (or
-//! whatever the protocol refuses in its section: a wrong SRDO count, an out-of-range count) is
-//! refused as a whole, and the node then runs on its defaults (which are not validated, so it
-//! stays in the safe state until a tool configures it).
+//! is strict: a wrong version, unknown flags, a length that does not add up, an out-of-range
+//! node-ID, another number of signatures than the protocol's (or whatever the protocol refuses
+//! in its section: a wrong SRDO count, an out-of-range count) is refused as a whole, and the
+//! node then runs on its defaults (which are not validated, so it stays in the safe state
+//! until a tool configures it).
+//!
+//! 0x1011 (restore defaults) keeps the access part: it stores an image without parameters
+//! instead of erasing, unless there is nothing to keep, so no SDO write removes the secret or
+//! the audit record (SC_REQ_43).
 //!
 //! The image carries the node-ID of the device that stored it. 0x13FE can only hold A5h on a
 //! device whose configuration was validated there (by the tool, or restored from an image
 //! stored under the same node-ID), so that node-ID is the one the configuration was validated
 //! for; the node withdraws the validity when it starts under another node-ID (IEC 61784-3
 //! addressing: the stored COB-IDs are absolute and may belong to another node there).
-//! Version 1 images, which do not carry it, are refused ([`PersistError::PreviousFormat`]).
 //!
-//! Layout, all integers little-endian:
+//! Layout (version 3), all integers little-endian:
 //!
 //! | bytes | field |
 //! |-------|-------|
-//! | 1 | format version (2) |
+//! | 1 | format version (3) |
 //! | 1 | node-ID of the device that stored the image, `1..=127` |
-//! | 2 | 0x1017 producer heartbeat time |
-//! | the rest | the protocol's section |
+//! | 1 | flags: bit 0 the parameters follow, bit 1 a secret follows; other bits 0 |
+//! | 1 | number of the protocol's signatures `M` (the SRDO table: one per SRDO) |
+//! | 16 + 32 | if bit 1: the secret's salt, `SHA-256(salt ‖ secret)` |
+//! | 4 | audit: validated changes |
+//! | 2 M + 2 M | audit: the signatures before, then after, the last validated change |
+//! | 2 | if bit 0: 0x1017 producer heartbeat time |
+//! | the rest | if bit 0: the protocol's section |
+//!
+//! Images of versions 1 (no node-ID) and 2 (no access control) are refused
+//! ([`PersistError::PreviousFormat`]): no hardware ever ran a firmware that wrote them, and a
+//! second parser for them would be flash spent on nothing.
 
 use super::SrdoTable;
+use super::access::{AccessControl, Audit, Persisted, SALT_LEN, Secret};
 use super::slot::SafetyProtocol;
 use crate::canopen::node_id::NodeId;
 use crate::canopen::storage::{self, Flash, StorageError};
 use crate::safety::MAX_SRDOS;
 
 /// Format version of the layout above.
-const VERSION: u8 = 2;
-/// Bytes of the shell's header.
+const VERSION: u8 = 3;
+/// Flag: the parameters follow.
+const HAS_PARAMETERS: u8 = 0x01;
+/// Flag: a secret follows.
+const HAS_SECRET: u8 = 0x02;
+/// Bytes of the shell's header: version, node-ID, flags, `M`.
 const HEADER: usize = 4;
+/// The most signatures a protocol has: one per SRDO of the largest SRDO table.
+const MAX_SIGNATURES: usize = MAX_SRDOS;
+/// Bytes of the access part at most: salt, hash, change counter, two signatures each.
+const ACCESS_MAX: usize = SALT_LEN + 32 + 4 + 4 * MAX_SIGNATURES;
+/// Bytes of the parameters' own header: the heartbeat time.
+const PARAMETERS_HEADER: usize = 2;
 /// The largest protocol section an image holds: the SRDO table's of the largest device (64
 /// SRDOs with 16 mapping entries each). A protocol whose
 /// [`MAX_PERSISTED`](SafetyProtocol::MAX_PERSISTED) is larger does not build.
 pub const MAX_SECTION: usize = SrdoTable::<MAX_SRDOS>::MAX_PERSISTED;
 /// The largest image.
-pub const MAX_IMAGE: usize = HEADER + MAX_SECTION;
+pub const MAX_IMAGE: usize = HEADER + ACCESS_MAX + PARAMETERS_HEADER + MAX_SECTION;
 
 /// Why stored parameters were not used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -50,13 +75,15 @@ pub enum PersistError {
     Storage(StorageError),
     /// The stored image has a format version this firmware does not know.
     UnknownVersion(u8),
-    /// The stored image is for a device with another number of SRDOs.
+    /// The stored image is for a device with another number of SRDOs (or of signatures in
+    /// its audit record).
     SrdoCountMismatch,
-    /// The stored image is truncated or has bytes left over.
+    /// The stored image is truncated, has bytes left over, or flags this firmware does not
+    /// know.
     Malformed,
-    /// The stored image was written by an earlier firmware in a format that does not say
-    /// which node-ID its configuration was validated for, so it is not used (configure and
-    /// store again).
+    /// The stored image was written by an earlier firmware in a format this one does not
+    /// read (version 1 does not say which node-ID its configuration was validated for,
+    /// version 2 has no access control), so it is not used (configure and store again).
     PreviousFormat(u8),
     /// The stored node-ID is not in `1..=127`.
     BadNodeId(u8),
@@ -99,11 +126,11 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// Serialises the heartbeat time, the storing device's node-ID and `protocol`'s section into
-/// `out`; returns the length used.
+/// Serialises the access part, and the parameters when given (`protocol`'s section and the
+/// heartbeat time), of the device with `node_id` into `out`; returns the length used.
 fn encode<P: SafetyProtocol>(
-    protocol: &P,
-    heartbeat_ms: u16,
+    parameters: Option<(&P, u16)>,
+    access: &Persisted<P::Signatures>,
     node_id: NodeId,
     out: &mut [u8; MAX_IMAGE],
 ) -> usize {
@@ -111,71 +138,165 @@ fn encode<P: SafetyProtocol>(
         assert!(
             P::MAX_PERSISTED <= MAX_SECTION,
             "the protocol's section does not fit"
-        )
+        );
+        assert!(
+            core::mem::size_of::<P::Signatures>() <= 2 * MAX_SIGNATURES,
+            "the protocol's signatures do not fit"
+        );
     };
-    let Some((header, section)) = out.split_first_chunk_mut::<HEADER>() else {
-        return 0; // `HEADER < MAX_IMAGE`: not reached.
+    let mut at = 0usize;
+    let mut push = |bytes: &[u8]| {
+        if let Some(target) = out.get_mut(at..at + bytes.len()) {
+            target.copy_from_slice(bytes);
+        }
+        at += bytes.len();
     };
-    let [heartbeat_low, heartbeat_high] = heartbeat_ms.to_le_bytes();
-    *header = [VERSION, node_id.raw(), heartbeat_low, heartbeat_high];
-    HEADER + protocol.persist(section).min(MAX_SECTION)
+    let mut flags = 0;
+    if parameters.is_some() {
+        flags |= HAS_PARAMETERS;
+    }
+    if access.secret.is_some() {
+        flags |= HAS_SECRET;
+    }
+    let audit = &access.audit;
+    // At most MAX_SIGNATURES (checked above), so the count fits its byte.
+    let count = audit.after.as_ref().len() as u8;
+    push(&[VERSION, node_id.raw(), flags, count]);
+    if let Some(secret) = &access.secret {
+        push(&secret.salt);
+        push(&secret.hash);
+    }
+    push(&audit.changes.to_le_bytes());
+    for signature in audit.before.as_ref().iter().chain(audit.after.as_ref()) {
+        push(&signature.to_le_bytes());
+    }
+    let Some((protocol, heartbeat_ms)) = parameters else {
+        return at.min(MAX_IMAGE);
+    };
+    push(&heartbeat_ms.to_le_bytes());
+    let Some(section) = out.get_mut(at..) else {
+        return MAX_IMAGE; // The access part is at most ACCESS_MAX: not reached.
+    };
+    (at + protocol.persist(section).min(MAX_SECTION)).min(MAX_IMAGE)
 }
 
-/// What the shell's header holds.
+/// What the shell's part of an image holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Header {
-    heartbeat_ms: u16,
+struct Header<S> {
+    /// 0x1017, when the image holds parameters (not when 0x1011 stored it).
+    heartbeat_ms: Option<u16>,
+    /// The access control's stored part.
+    access: Persisted<S>,
     /// The node-ID of the device that stored it.
     node_id: NodeId,
 }
 
-/// Parses a stored image, the protocol's section into `protocol`; all or nothing (`protocol`
-/// is unchanged on an error).
-fn decode<P: SafetyProtocol>(bytes: &[u8], protocol: &mut P) -> Result<Header, PersistError> {
+/// Parses a stored image, the protocol's section (if any) into `protocol`; all or nothing
+/// (`protocol` is unchanged on an error).
+fn decode<P: SafetyProtocol>(
+    bytes: &[u8],
+    protocol: &mut P,
+) -> Result<Header<P::Signatures>, PersistError> {
     let mut reader = Reader::new(bytes);
-    let version = reader.u8()?;
-    match version {
+    match reader.u8()? {
         VERSION => {}
-        1 => return Err(PersistError::PreviousFormat(version)),
-        _ => return Err(PersistError::UnknownVersion(version)),
+        version @ (1 | 2) => return Err(PersistError::PreviousFormat(version)),
+        version => return Err(PersistError::UnknownVersion(version)),
     }
     let raw_node_id = reader.u8()?;
     let node_id = NodeId::new(raw_node_id).map_err(|_| PersistError::BadNodeId(raw_node_id))?;
-    let heartbeat_ms = reader.u16()?;
-    protocol.restore(reader.rest())?;
+    let flags = reader.u8()?;
+    if flags & !(HAS_PARAMETERS | HAS_SECRET) != 0 {
+        return Err(PersistError::Malformed);
+    }
+    let mut access = Persisted::new(P::NO_SIGNATURES);
+    if usize::from(reader.u8()?) != access.audit.after.as_ref().len() {
+        return Err(PersistError::SrdoCountMismatch);
+    }
+    if flags & HAS_SECRET != 0 {
+        access.secret = Some(Secret {
+            salt: reader.take()?,
+            hash: reader.take()?,
+        });
+    }
+    let Audit {
+        changes,
+        before,
+        after,
+    } = &mut access.audit;
+    *changes = reader.u32()?;
+    for signature in before.as_mut().iter_mut().chain(after.as_mut()) {
+        *signature = reader.u16()?;
+    }
+    let heartbeat_ms = if flags & HAS_PARAMETERS != 0 {
+        let heartbeat_ms = reader.u16()?;
+        protocol.restore(reader.rest())?;
+        Some(heartbeat_ms)
+    } else if reader.is_empty() {
+        None
+    } else {
+        return Err(PersistError::Malformed);
+    };
     Ok(Header {
         heartbeat_ms,
+        access,
         node_id,
     })
 }
 
-/// Stores the parameters (0x1010) of the device with `node_id`.
+/// Stores the parameters (0x1010) of the device with `node_id`, with the access control's
+/// stored part.
 pub(super) fn store<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     protocol: &P,
     heartbeat_ms: u16,
     node_id: NodeId,
+    access: &Persisted<P::Signatures>,
 ) -> Result<(), StorageError> {
     let mut image = [0u8; MAX_IMAGE];
-    let len = encode(protocol, heartbeat_ms, node_id, &mut image);
+    let len = encode(Some((protocol, heartbeat_ms)), access, node_id, &mut image);
     storage::store(flash, image.get(..len).unwrap_or(&image))
 }
 
-/// Loads stored parameters into `protocol` and `heartbeat_ms`: `Ok(Some(node-ID))` when they
-/// were restored, with the node-ID of the device that stored them; `Ok(None)` when nothing is
-/// stored (defaults stay); `Err` when the stored image is unusable (nothing changed, the
-/// caller keeps the defaults).
+/// 0x1011: the defaults at the next reset. Erases the stored parameters when there is
+/// nothing of the access control to keep; otherwise stores an image with the access part
+/// alone, so the secret and the audit record stay (SC_REQ_43).
+pub(super) fn restore_defaults<F: Flash, P: SafetyProtocol>(
+    flash: &mut F,
+    node_id: NodeId,
+    access: &Persisted<P::Signatures>,
+) -> Result<(), StorageError> {
+    if *access == Persisted::new(P::NO_SIGNATURES) {
+        return storage::restore_defaults(flash);
+    }
+    let mut image = [0u8; MAX_IMAGE];
+    let len = encode::<P>(None, access, node_id, &mut image);
+    storage::store(flash, image.get(..len).unwrap_or(&image))
+}
+
+/// Loads stored parameters into `protocol` and `heartbeat_ms`, and the access control's
+/// stored part into `access`: `Ok(Some(node-ID))` when parameters were restored, with the
+/// node-ID of the device that stored them; `Ok(None)` when none are stored (defaults stay);
+/// `Err` when the stored image is unusable (nothing else changed, the caller keeps the
+/// defaults, and `access` holds no secret and no audit record: a damaged image is a new
+/// device, see docs/access-protection.md).
 pub(super) fn load<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     protocol: &mut P,
     heartbeat_ms: &mut u16,
+    access: &mut AccessControl<P::Signatures>,
 ) -> Result<Option<NodeId>, PersistError> {
+    access.restore(Persisted::new(P::NO_SIGNATURES));
     let mut image = [0u8; MAX_IMAGE];
     let Some(len) = storage::load(flash, &mut image).map_err(PersistError::Storage)? else {
         return Ok(None);
     };
     let header = decode(image.get(..len).ok_or(PersistError::Malformed)?, protocol)?;
-    *heartbeat_ms = header.heartbeat_ms;
+    access.restore(header.access);
+    let Some(stored_heartbeat_ms) = header.heartbeat_ms else {
+        return Ok(None);
+    };
+    *heartbeat_ms = stored_heartbeat_ms;
     Ok(Some(header.node_id))
 }
 
@@ -192,13 +313,29 @@ mod tests {
         config
     }
 
+    fn access() -> Persisted<[u16; 2]> {
+        Persisted {
+            secret: Some(Secret {
+                salt: [0x5A; SALT_LEN],
+                hash: [0xC3; 32],
+            }),
+            audit: Audit {
+                changes: 3,
+                before: [0x1234, 0],
+                after: [0x1234, 0xBEEF],
+            },
+        }
+    }
+
     /// A stopped SRDO table of `N` SRDOs, on the pre-defined set of node 1.
     fn table<const N: usize>() -> SrdoTable<N> {
         SrdoTable::new(&crate::node::tests::config(1)).unwrap()
     }
 
     /// [`decode`] into a fresh table of `N` SRDOs: the header and the table's records.
-    fn decode<const N: usize>(bytes: &[u8]) -> Result<(Header, SafetyConfig<N>), PersistError> {
+    fn decode<const N: usize>(
+        bytes: &[u8],
+    ) -> Result<(Header<[u16; N]>, SafetyConfig<N>), PersistError> {
         let mut table = table::<N>();
         let header = super::decode(bytes, &mut table)?;
         Ok((header, table.config().clone()))
@@ -212,9 +349,12 @@ mod tests {
         let mut out = [0u8; MAX_IMAGE];
         let mut table = table::<2>();
         table.safety = sample();
-        let len = encode(&table, 250, node(7), &mut out);
+        let len = encode(Some((&table, 250)), &access(), node(7), &mut out);
         (out, len)
     }
+
+    /// Where the parameters start in [`encoded`]: header, salt and hash, counter, signatures.
+    const PARAMETERS_AT: usize = HEADER + SALT_LEN + 32 + 4 + 4 * 2;
 
     #[test]
     fn image_round_trips_with_the_node_id() {
@@ -223,12 +363,39 @@ mod tests {
             decode::<2>(&out[..len]),
             Ok((
                 Header {
-                    heartbeat_ms: 250,
+                    heartbeat_ms: Some(250),
+                    access: access(),
                     node_id: node(7),
                 },
                 sample()
             ))
         );
+    }
+
+    #[test]
+    fn sc_req_43_an_image_without_parameters_keeps_secret_and_audit() {
+        let mut out = [0u8; MAX_IMAGE];
+        let len = encode::<SrdoTable<2>>(None, &access(), node(7), &mut out);
+        assert_eq!(len, PARAMETERS_AT);
+        let untouched = table::<2>().config().clone();
+        assert_eq!(
+            decode::<2>(&out[..len]),
+            Ok((
+                Header {
+                    heartbeat_ms: None,
+                    access: access(),
+                    node_id: node(7),
+                },
+                untouched
+            ))
+        );
+        let without_secret = Persisted {
+            secret: None,
+            ..access()
+        };
+        let len = encode::<SrdoTable<2>>(None, &without_secret, node(7), &mut out);
+        assert_eq!(decode::<2>(&out[..len]).unwrap().0.access, without_secret);
+        assert_eq!(decode::<2>(&out[..len + 1]), Err(PersistError::Malformed));
     }
 
     #[test]
@@ -252,6 +419,11 @@ mod tests {
             copy[1] = raw;
             assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::BadNodeId(raw)));
         }
+        for flags in [0x04, 0x80, 0xFF] {
+            let mut copy = out;
+            copy[2] = flags;
+            assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::Malformed));
+        }
         out[0] = 9;
         assert_eq!(
             decode::<2>(&out[..len]),
@@ -259,7 +431,7 @@ mod tests {
         );
     }
 
-    /// A version 1 image (no node-ID) is never misread as version 2, whatever it holds.
+    /// A version 1 image (no node-ID) is never misread as version 3, whatever it holds.
     #[test]
     fn a_version_1_image_is_refused_as_the_previous_format() {
         let (mut out, len) = encoded();
@@ -270,19 +442,33 @@ mod tests {
         );
     }
 
+    /// A version 2 image (no access control) is not misread as version 3: refused, so the
+    /// device starts on its defaults, not validated.
+    #[test]
+    fn a_version_2_image_is_refused_as_the_previous_format() {
+        let (mut out, len) = encoded();
+        out[0] = 2;
+        assert_eq!(
+            decode::<2>(&out[..len]),
+            Err(PersistError::PreviousFormat(2))
+        );
+    }
+
     #[test]
     fn an_out_of_range_mapping_count_is_refused_not_panicking() {
         let (mut out, len) = encoded();
-        // First record's mapping count sits after the header, 0x13FE, N and 12 bytes of the
-        // record.
-        out[HEADER + 2 + 12] = 200;
+        // First record's mapping count sits after the access part, the heartbeat time, 0x13FE,
+        // N and 12 bytes of the record.
+        out[PARAMETERS_AT + PARAMETERS_HEADER + 2 + 12] = 200;
         assert_eq!(decode::<2>(&out[..len]), Err(PersistError::Malformed));
     }
 
-    /// The figure the protocol slot's documentation gives for the largest section.
+    /// The figure the protocol slot's documentation gives for the largest section, and the
+    /// largest image with the access part of 64 signatures.
     #[test]
     fn the_largest_section_is_the_64_srdo_table_s() {
         assert_eq!(MAX_SECTION, 5_058);
-        assert_eq!(MAX_IMAGE, 5_062);
+        assert_eq!(ACCESS_MAX, 308);
+        assert_eq!(MAX_IMAGE, 5_372);
     }
 }

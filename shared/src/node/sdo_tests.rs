@@ -356,7 +356,14 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
     let mut bad = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
     bad.srdos[0].signature = signature::compute(&bad.srdos[0]) ^ 1;
     bad.configuration_valid = 0xA5;
-    persist::store(&mut medium, &table_with(bad), 0, node_id(33)).unwrap();
+    persist::store(
+        &mut medium,
+        &table_with(bad),
+        0,
+        node_id(33),
+        &super::access::Persisted::new([0; 4]),
+    )
+    .unwrap();
     let (mut node, mut sink) = node_on(33, medium);
     nmt(&mut node, &mut sink, NmtCommand::Start);
     assert_eq!(node.nmt_state(), NmtState::PreOperational);
@@ -429,7 +436,14 @@ fn en50325_5_6_4_1_6_configuration_valid_reads_0_after_a_refused_start() {
     let mut bad = SafetyConfig::<4>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);
     bad.srdos[0].signature = signature::compute(&bad.srdos[0]) ^ 1;
     bad.configuration_valid = 0xA5;
-    persist::store(&mut medium, &table_with(bad), 0, node_id(33)).unwrap();
+    persist::store(
+        &mut medium,
+        &table_with(bad),
+        0,
+        node_id(33),
+        &super::access::Persisted::new([0; 4]),
+    )
+    .unwrap();
     let (mut node, mut sink) = node_on(33, medium);
     assert_eq!(read(&mut node, &mut sink, 0x13FE, 0), Ok(vec![0xA5]));
     sink_clear(&mut sink);

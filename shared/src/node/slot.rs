@@ -41,6 +41,11 @@ use crate::time::Instant;
 ///   ([`SafetyProtocol::restore`]). Stored under another node-ID, the section is restored but
 ///   its validation withdrawn ([`SafetyProtocol::withdraw_validation`]; IEC 61784-3
 ///   addressing).
+/// - **Access.** The shell's access control (SC_REQ_43, [`super::access`]) refuses, while
+///   the device is locked, every write to an object [`SafetyProtocol::needs_unlock`] names,
+///   before the protocol sees it; after an accepted one it records a validated change with
+///   the protocol's [`SafetyProtocol::validated_signatures`] in the audit record, which is
+///   stored with the shell's parameters, not in the protocol's section.
 /// - **Safe state.** The shell owns the latch: one cause, EMCY, the
 ///   [`SafeState`](super::Event::SafeState) event, the GFC when configured. When it latches
 ///   for a cause of its own (a GFC, the application, ...), it first tells the protocol
@@ -92,6 +97,28 @@ pub trait SafetyProtocol {
     /// `true` when `index` is one of its objects (answered by [`SafetyProtocol::read`] and
     /// [`SafetyProtocol::write`], whether or not the sub-index exists).
     fn owns(&self, index: u16) -> bool;
+
+    /// `true` for those of its objects ([`SafetyProtocol::owns`]) whose writes change its
+    /// safety configuration: the shell lets them through only while the device is open or
+    /// unlocked (SC_REQ_43, [`super::access`]), as it does 0x1010 and 0x1011. An associated
+    /// function: which objects are safety configuration is the protocol's object model, not
+    /// its state, and a configuration tool asks the same question without a device.
+    fn needs_unlock(index: u16) -> bool;
+
+    /// The signatures of its configuration, one per part (the SRDO table: one per SRDO, as
+    /// 0x13FF holds them), as the audit record of validated changes keeps them (SC_REQ_43,
+    /// 5C12h and 5C13h). An array, so that the record has the protocol's size.
+    type Signatures: Copy + Eq + core::fmt::Debug + AsRef<[u16]> + AsMut<[u16]>;
+
+    /// The signatures of a configuration never validated: every one 0.
+    const NO_SIGNATURES: Self::Signatures;
+
+    /// The signatures of its configuration while that is validated (the SRDO table: 0x13FE
+    /// reads A5h, EN 50325-5 6.4.1.6), `None` otherwise. The shell asks after every accepted
+    /// write to an object [`SafetyProtocol::needs_unlock`] names, and records a validated
+    /// change in the audit when it gets signatures other than the last recorded ones; so an
+    /// accepted write that is not the validation itself must withdraw the validation.
+    fn validated_signatures(&self) -> Option<Self::Signatures>;
 
     /// Reads one of its objects by SDO rules.
     fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode>;

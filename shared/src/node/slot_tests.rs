@@ -82,6 +82,19 @@ impl SafetyProtocol for Beacon {
         index == BEACON_INDEX
     }
 
+    fn needs_unlock(index: u16) -> bool {
+        index == BEACON_INDEX
+    }
+
+    /// Its period stands for a signature.
+    type Signatures = [u16; 1];
+
+    const NO_SIGNATURES: [u16; 1] = [0];
+
+    fn validated_signatures(&self) -> Option<[u16; 1]> {
+        (self.valid == CONFIGURATION_VALID).then_some([self.period_ms])
+    }
+
     fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {
         let bytes: &[u8] = match address.sub {
             0 => &[2],
@@ -441,5 +454,100 @@ fn an_application_object_on_a_protocol_index_is_refused() {
     assert_eq!(
         BeaconNode::with_protocol(clashing, RamFlash::new(), Beacon::default()).err(),
         Some(NodeError::ReservedIndex(BEACON_INDEX))
+    );
+}
+
+/// The access control is the shell's, not the SRDO table's: on a device running another
+/// protocol it guards the objects that protocol says need the unlock, besides 0x1010, and its
+/// audit record holds that protocol's signatures.
+#[test]
+fn sc_req_43_the_shell_guards_what_the_protocol_names_and_audits_its_signatures() {
+    use super::access::{
+        ACCESS_INDEX, AccessState, CHANGE_COUNTER_INDEX, SALT_LEN, SIGNATURES_AFTER_INDEX,
+        SIGNATURES_BEFORE_INDEX, sub,
+    };
+    const SECRET: &[u8] = b"beacon secret";
+    let (mut node, mut sink) = beacon_node(RamFlash::new());
+    let mut write = |node: &mut BeaconNode, address: Address, data: &[u8]| {
+        sdo_client::download(|request| exchange(node, &mut sink, request), address, data)
+    };
+
+    // Open: configured and validated without a secret; the audit records the first change.
+    write(
+        &mut node,
+        Address::new(BEACON_INDEX, 1),
+        &25u16.to_le_bytes(),
+    )
+    .unwrap();
+    write(
+        &mut node,
+        Address::new(BEACON_INDEX, 2),
+        &[CONFIGURATION_VALID],
+    )
+    .unwrap();
+    assert_eq!(node.access().audit().changes, 1);
+    assert_eq!(node.access().audit().after, [25]);
+
+    let mut salted = [0x11u8; SALT_LEN + SECRET.len()];
+    salted[SALT_LEN..].copy_from_slice(SECRET);
+    write(
+        &mut node,
+        Address::new(ACCESS_INDEX, sub::SET_SECRET),
+        &salted,
+    )
+    .unwrap();
+    write(&mut node, Address::new(ACCESS_INDEX, sub::STATE), &[1]).unwrap();
+    assert_eq!(node.access().state(Instant::ZERO), AccessState::Locked);
+
+    // Locked: the protocol's guarded object and 0x1010 are refused, and nothing changed.
+    for (address, data) in [
+        (Address::new(BEACON_INDEX, 1), &40u16.to_le_bytes()[..]),
+        (Address::new(BEACON_INDEX, 2), &[0][..]),
+        (Address::new(0x1010, 1), &b"save"[..]),
+    ] {
+        assert_eq!(
+            write(&mut node, address, data),
+            Err(ClientError::Aborted(AbortCode::UnsupportedAccess)),
+            "{address:?}"
+        );
+    }
+    assert_eq!(
+        (node.protocol().period_ms, node.protocol().valid),
+        (25, 0xA5)
+    );
+    // The shell's own objects that are not safety configuration stay writable.
+    write(&mut node, Address::new(0x1017, 0), &100u16.to_le_bytes()).unwrap();
+
+    // Unlocked: a validated change is recorded with the protocol's signatures.
+    write(&mut node, Address::new(ACCESS_INDEX, sub::UNLOCK), SECRET).unwrap();
+    write(
+        &mut node,
+        Address::new(BEACON_INDEX, 1),
+        &40u16.to_le_bytes(),
+    )
+    .unwrap();
+    assert_eq!(node.access().audit().changes, 1, "not validated yet");
+    write(
+        &mut node,
+        Address::new(BEACON_INDEX, 2),
+        &[CONFIGURATION_VALID],
+    )
+    .unwrap();
+    let mut read = |address: Address| {
+        sdo_client::upload(|request| exchange(&mut node, &mut sink, request), address)
+            .map(|bytes| bytes.to_vec())
+    };
+    assert_eq!(
+        read(Address::new(CHANGE_COUNTER_INDEX, 0)),
+        Ok(vec![2, 0, 0, 0])
+    );
+    assert_eq!(read(Address::new(SIGNATURES_BEFORE_INDEX, 0)), Ok(vec![1]));
+    assert_eq!(
+        read(Address::new(SIGNATURES_BEFORE_INDEX, 1)),
+        Ok(vec![25, 0])
+    );
+    assert_eq!(
+        read(Address::new(SIGNATURES_AFTER_INDEX, 1)),
+        Ok(vec![40, 0])
     );
 }

@@ -16,7 +16,9 @@ use crate::canopen::od::{AbortCode, Address};
 use crate::frame::{CanFrame, CanId};
 use crate::process_image::ProcessImage;
 use crate::safety::MAX_SRDOS;
-use crate::safety::config::{MAX_MAPPING_ENTRIES, ResolvedMapping, SafetyConfig, SrdoRecord};
+use crate::safety::config::{
+    CONFIGURATION_VALID, MAX_MAPPING_ENTRIES, ResolvedMapping, SafetyConfig, SrdoRecord,
+};
 use crate::safety::srdo::{
     self, Consumer, Discarded, InvertedOutcome, PlainOutcome, Producer, SrdoFault, SrdoFaultCause,
 };
@@ -457,6 +459,21 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
 
     fn owns(&self, index: u16) -> bool {
         SafetyConfig::<N>::owns(index) || index == DOUBLE_RECEPTION_INDEX
+    }
+
+    /// The SRDO records, 0x13FE and 0x13FF; not the double-reception counters (read-only).
+    fn needs_unlock(index: u16) -> bool {
+        SafetyConfig::<N>::owns(index)
+    }
+
+    type Signatures = [u16; N];
+
+    const NO_SIGNATURES: [u16; N] = [0; N];
+
+    /// 0x13FF's, while 0x13FE reads A5h (every other accepted write sets it to 0).
+    fn validated_signatures(&self) -> Option<[u16; N]> {
+        (self.safety.configuration_valid == CONFIGURATION_VALID)
+            .then(|| self.safety.srdos.map(|record| record.signature))
     }
 
     fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {
