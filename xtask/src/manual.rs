@@ -418,6 +418,9 @@ fn advice(code: u8) -> Option<&'static str> {
         0x36..=0x38 => Some(
             "A limit of the channel's own design was reached (frames or events in one step, safety inputs, restoring an input after a reset), not a fault of the other channel. Keep the EMCY and the channels' logs for the manufacturer; if it recurs, the device is not fit for this configuration.",
         ),
+        0x3A => Some(
+            "A frame the node follows (its SRDOs, NMT, GFC or its own SDO request) found the channel's CAN receive queue full, so the channel cannot know that it saw every safety frame. Something sends on those identifiers faster than the node takes them: look for a babbling device or a tool flooding the node's SDO identifier, and check the bus load. If it recurs at normal load, replace the device.",
+        ),
         0x40 => Some(
             "The other channel entered its safe state first: read its own cause (the channel's status or log).",
         ),
