@@ -57,6 +57,7 @@ const HEADER: usize = 4;
 /// The most signatures a protocol has: one per SRDO of the largest SRDO table.
 const MAX_SIGNATURES: usize = MAX_SRDOS;
 /// Bytes of the access part at most: salt, hash, change counter, two signatures each.
+#[cfg(test)]
 const ACCESS_MAX: usize = SALT_LEN + 32 + 4 + 4 * MAX_SIGNATURES;
 /// Bytes of the parameters' own header: the heartbeat time.
 const PARAMETERS_HEADER: usize = 2;
@@ -64,7 +65,9 @@ const PARAMETERS_HEADER: usize = 2;
 /// SRDOs with 16 mapping entries each). A protocol whose
 /// [`MAX_PERSISTED`](SafetyProtocol::MAX_PERSISTED) is larger does not build.
 pub const MAX_SECTION: usize = SrdoTable::<MAX_SRDOS>::MAX_PERSISTED;
-/// The largest image.
+/// The largest image of any device (each device's own is its protocol's
+/// [`Image`](SafetyProtocol::Image), sized for it).
+#[cfg(test)]
 pub const MAX_IMAGE: usize = HEADER + ACCESS_MAX + PARAMETERS_HEADER + MAX_SECTION;
 
 /// Why stored parameters were not used.
@@ -132,12 +135,23 @@ fn encode<P: SafetyProtocol>(
     parameters: Option<(&P, u16)>,
     access: &Persisted<P::Signatures>,
     node_id: NodeId,
-    out: &mut [u8; MAX_IMAGE],
+    out: &mut [u8],
 ) -> usize {
     const {
         assert!(
             P::MAX_PERSISTED <= MAX_SECTION,
             "the protocol's section does not fit"
+        );
+        assert!(
+            core::mem::size_of::<P::Image>()
+                >= HEADER
+                    + SALT_LEN
+                    + 32
+                    + 4
+                    + 2 * core::mem::size_of::<P::Signatures>()
+                    + PARAMETERS_HEADER
+                    + P::MAX_PERSISTED,
+            "the protocol's image buffer does not hold its largest image"
         );
         assert!(
             core::mem::size_of::<P::Signatures>() <= 2 * MAX_SIGNATURES,
@@ -171,13 +185,14 @@ fn encode<P: SafetyProtocol>(
         push(&signature.to_le_bytes());
     }
     let Some((protocol, heartbeat_ms)) = parameters else {
-        return at.min(MAX_IMAGE);
+        return at.min(out.len());
     };
     push(&heartbeat_ms.to_le_bytes());
+    let len = out.len();
     let Some(section) = out.get_mut(at..) else {
-        return MAX_IMAGE; // The access part is at most ACCESS_MAX: not reached.
+        return len; // The buffer holds the access part (checked above): not reached.
     };
-    (at + protocol.persist(section).min(MAX_SECTION)).min(MAX_IMAGE)
+    (at + protocol.persist(section).min(P::MAX_PERSISTED)).min(len)
 }
 
 /// What the shell's part of an image holds.
@@ -253,9 +268,10 @@ pub(super) fn store<F: Flash, P: SafetyProtocol>(
     node_id: NodeId,
     access: &Persisted<P::Signatures>,
 ) -> Result<(), StorageError> {
-    let mut image = [0u8; MAX_IMAGE];
-    let len = encode(Some((protocol, heartbeat_ms)), access, node_id, &mut image);
-    storage::store(flash, image.get(..len).unwrap_or(&image))
+    let mut image = P::image();
+    let image = image.as_mut();
+    let len = encode(Some((protocol, heartbeat_ms)), access, node_id, image);
+    storage::store(flash, image.get(..len).unwrap_or(image))
 }
 
 /// 0x1011: the defaults at the next reset. Erases the stored parameters when there is
@@ -269,9 +285,10 @@ pub(super) fn restore_defaults<F: Flash, P: SafetyProtocol>(
     if *access == Persisted::new(P::NO_SIGNATURES) {
         return storage::restore_defaults(flash);
     }
-    let mut image = [0u8; MAX_IMAGE];
-    let len = encode::<P>(None, access, node_id, &mut image);
-    storage::store(flash, image.get(..len).unwrap_or(&image))
+    let mut image = P::image();
+    let image = image.as_mut();
+    let len = encode::<P>(None, access, node_id, image);
+    storage::store(flash, image.get(..len).unwrap_or(image))
 }
 
 /// Loads stored parameters into `protocol` and `heartbeat_ms`, and the access control's
@@ -287,8 +304,9 @@ pub(super) fn load<F: Flash, P: SafetyProtocol>(
     access: &mut AccessControl<P::Signatures>,
 ) -> Result<Option<NodeId>, PersistError> {
     access.restore(Persisted::new(P::NO_SIGNATURES));
-    let mut image = [0u8; MAX_IMAGE];
-    let Some(len) = storage::load(flash, &mut image).map_err(PersistError::Storage)? else {
+    let mut image = P::image();
+    let image = image.as_mut();
+    let Some(len) = storage::load(flash, image).map_err(PersistError::Storage)? else {
         return Ok(None);
     };
     let header = decode(image.get(..len).ok_or(PersistError::Malformed)?, protocol)?;
@@ -470,5 +488,37 @@ mod tests {
         assert_eq!(MAX_SECTION, 5_058);
         assert_eq!(ACCESS_MAX, 308);
         assert_eq!(MAX_IMAGE, 5_372);
+    }
+
+    /// The image buffer is the device's own size: 143 bytes per SRDO (the product's 4 SRDOs:
+    /// 572 bytes on the stack while parameters are stored or restored, where the largest
+    /// table's would be 5,372), and the largest image of that device fits it (the build checks
+    /// it too).
+    #[test]
+    fn the_image_buffer_is_sized_for_the_device_and_holds_its_largest_image() {
+        assert_eq!(
+            core::mem::size_of::<<SrdoTable<4> as SafetyProtocol>::Image>(),
+            572
+        );
+        let mut table = table::<4>();
+        for record in &mut table.safety.srdos {
+            record.mapping_count = 16;
+        }
+        let access = Persisted {
+            secret: Some(Secret {
+                salt: [0x5A; SALT_LEN],
+                hash: [0xC3; 32],
+            }),
+            audit: Audit {
+                changes: u32::MAX,
+                before: [0xFFFF; 4],
+                after: [0xFFFF; 4],
+            },
+        };
+        let mut image = <SrdoTable<4> as SafetyProtocol>::image();
+        let len = encode(Some((&table, 100)), &access, node(1), image.as_mut());
+        // 4 header + 52 secret and counter + 16 signatures + 2 heartbeat + 2 + 4 records of 79.
+        assert_eq!(len, 4 + 52 + 16 + 2 + 2 + 4 * 79);
+        assert!(len <= image.as_ref().len(), "{len}");
     }
 }

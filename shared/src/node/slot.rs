@@ -78,6 +78,15 @@ pub trait SafetyProtocol {
     /// when the device is built.
     const MAX_PERSISTED: usize;
 
+    /// A buffer for the device's whole stored image with this protocol's section: the shell's
+    /// header and access part and at most [`SafetyProtocol::MAX_PERSISTED`] bytes (checked
+    /// when the device is built). Sized for this device, not for the largest one: it is on
+    /// the stack while the parameters are stored or restored, the deepest point of start-up.
+    type Image: AsRef<[u8]> + AsMut<[u8]>;
+
+    /// A zeroed [`SafetyProtocol::Image`].
+    fn image() -> Self::Image;
+
     /// Its configuration back to the device's defaults (power-on, NMT reset, and before a
     /// stored section is restored).
     fn load_defaults(&mut self, config: &NodeConfig);

@@ -56,6 +56,12 @@ fn delivery_span(image: &ProcessImage) -> crate::process_image::Span {
 impl SafetyProtocol for Beacon {
     const MAX_PERSISTED: usize = 3;
 
+    type Image = [u8; 128];
+
+    fn image() -> [u8; 128] {
+        [0; 128]
+    }
+
     fn load_defaults(&mut self, _config: &NodeConfig) {
         self.period_ms = 10;
         self.valid = 0;

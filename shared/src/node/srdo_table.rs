@@ -386,9 +386,38 @@ impl<const N: usize> SrdoTable<N> {
     }
 }
 
+/// Bytes of a stored image per SRDO of the table, the shell's part included: a record with 16
+/// mapping entries (79 bytes) and its two audit signatures (4), and the shell's fixed part
+/// (60 bytes: header, salt, hash, change counter, heartbeat time, and this table's own two
+/// bytes) counted once per SRDO, which covers it for any table of at least one SRDO.
+const IMAGE_PER_SRDO: usize = RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES + 4 + 60;
+
+/// The stored image of a table of `N` SRDOs: `N` times [`IMAGE_PER_SRDO`] bytes, so that a
+/// device of 4 SRDOs restores its parameters through 572 bytes of stack, not the 5 KiB of the
+/// largest table (an array of arrays: its length is `N` itself, which stable Rust allows).
+pub struct SrdoImage<const N: usize>([[u8; IMAGE_PER_SRDO]; N]);
+
+impl<const N: usize> AsRef<[u8]> for SrdoImage<N> {
+    fn as_ref(&self) -> &[u8] {
+        self.0.as_flattened()
+    }
+}
+
+impl<const N: usize> AsMut<[u8]> for SrdoImage<N> {
+    fn as_mut(&mut self) -> &mut [u8] {
+        self.0.as_flattened_mut()
+    }
+}
+
 impl<const N: usize> SafetyProtocol for SrdoTable<N> {
-    /// 0x13FE, `N`, and 64 records with 16 mapping entries each at most.
-    const MAX_PERSISTED: usize = 2 + MAX_SRDOS * (RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES);
+    /// 0x13FE, `N`, and `N` records with 16 mapping entries each at most.
+    const MAX_PERSISTED: usize = 2 + N * (RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES);
+
+    type Image = SrdoImage<N>;
+
+    fn image() -> SrdoImage<N> {
+        SrdoImage([[0; IMAGE_PER_SRDO]; N])
+    }
 
     fn load_defaults(&mut self, config: &NodeConfig) {
         self.safety = Self::defaults(config);
