@@ -456,32 +456,7 @@ fn en50325_5_8_3_1_declaring_valid_requires_matching_signatures() {
 
 #[test]
 fn every_config_error_has_a_distinct_cause_code() {
-    use ConfigError::*;
-    let all = [
-        DirectionReserved,
-        CycleTimeZero,
-        SrvtZero,
-        SrvtNotBelowSct,
-        CobIdTooLow,
-        CobIdTooHigh,
-        CobIdParity,
-        CobIdsNotConsecutive,
-        CobIdInUse,
-        CobIdChangedWhileExists,
-        MappingWhileExists,
-        MappingNotDisabled,
-        MappingCountOdd,
-        MappingTooLong,
-        MappingEmpty,
-        MappedObjectMissing,
-        MappedSubIndexMissing,
-        NotMappable,
-        MappedLengthMismatch,
-        PairLengthMismatch,
-        PairSameObject,
-        NotDeclaredValid,
-        SignatureMismatch,
-    ];
+    let all = ConfigError::ALL;
     let mut codes: Vec<u8> = all.iter().map(|e| e.cause_code()).collect();
     codes.sort_unstable();
     codes.dedup();
