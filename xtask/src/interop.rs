@@ -274,7 +274,7 @@ fn canopen(root: &Path, python: &Path) -> Result<()> {
     let mut network = Network::start(root)?;
     let result = network
         .tool()
-        .and_then(|tool| canopen_checks(root, python, network::HUB_TCP, tool, "interop 3"));
+        .and_then(|tool| canopen_checks(root, python, &network::hub_tcp(), tool, "interop 3"));
     let faults = network.stop();
     result?;
     faults?;
@@ -638,7 +638,7 @@ pub fn bench(root: &Path) -> Result<()> {
     let mut network = Network::start(root)?;
     let emulated = network
         .tool()
-        .and_then(|tool| bench_on(root, &python, network::HUB_TCP, tool, &spec));
+        .and_then(|tool| bench_on(root, &python, &network::hub_tcp(), tool, &spec));
     let faults = network.stop();
     let emulated = emulated?;
     faults?;

@@ -52,9 +52,36 @@ pub const SRVT_MS: u64 = 100;
 /// The QEMU layer's link heartbeat period; a link is timed out after two.
 pub const LINK_PERIOD_MS: u64 = 100;
 
-/// The hub's socketcand port (bus `can0`).
-pub const HUB_TCP: &str = "127.0.0.1:29536";
-const HUB_CONTROL: &str = "127.0.0.1:29537";
+/// The hub's socketcand port (bus `can0`) when `CAN_HUB_PORT` does not name another.
+const DEFAULT_HUB_PORT: u16 = 29536;
+
+/// The hub's socketcand port (bus `can0`): 127.0.0.1, port `CAN_HUB_PORT` (default 29536),
+/// so that two emulated networks can run on one machine side by side.
+pub fn hub_tcp() -> String {
+    format!("127.0.0.1:{}", hub_port())
+}
+
+/// The hub's control port: the port after [`hub_tcp`]'s.
+fn hub_control() -> String {
+    format!("127.0.0.1:{}", hub_port() + 1)
+}
+
+/// `CAN_HUB_PORT`, or the default; a value that is not a port below 65535 is not taken
+/// silently for the default.
+fn hub_port() -> u16 {
+    match std::env::var("CAN_HUB_PORT") {
+        Ok(value) => match value.parse::<u16>() {
+            Ok(port) if port > 0 && port < u16::MAX => port,
+            _ => {
+                eprintln!(
+                    "CAN_HUB_PORT={value:?} is not a port from 1 to 65534; using {DEFAULT_HUB_PORT}"
+                );
+                DEFAULT_HUB_PORT
+            }
+        },
+        Err(_) => DEFAULT_HUB_PORT,
+    }
+}
 
 /// How long one SDO request of the tool waits over the emulated bus (four emulated MCUs on
 /// two shared cores answer in milliseconds; this leaves room for a loaded machine).
@@ -104,10 +131,10 @@ mapping = ["output", "output_inverted"]
 pub fn connect_tool(patience: Duration) -> Result<Client<SocketcandClient>> {
     let give_up = std::time::Instant::now() + patience;
     loop {
-        match SocketcandClient::connect(HUB_TCP, "can0") {
+        match SocketcandClient::connect(&hub_tcp(), "can0") {
             Ok(transport) => return Ok(Client::new(transport, SDO_TIMEOUT)),
             Err(error) if std::time::Instant::now() >= give_up => {
-                return Err(error).context(format!("the hub's socketcand port {HUB_TCP}"));
+                return Err(error).context(format!("the hub's socketcand port {}", hub_tcp()));
             }
             Err(_) => std::thread::sleep(Duration::from_millis(50)),
         }
@@ -201,8 +228,8 @@ fn qemu_instance(image: &Path, node: u8, can: &Path, log: &Path) -> Result<Child
 /// the hub would exit and the tool might talk to whatever listens there (another engineer's
 /// emulated network, say).
 fn ports_free() -> Result<()> {
-    for address in [HUB_TCP, HUB_CONTROL] {
-        if let Err(error) = std::net::TcpListener::bind(address) {
+    for address in [hub_tcp(), hub_control()] {
+        if let Err(error) = std::net::TcpListener::bind(&address) {
             if error.kind() == std::io::ErrorKind::AddrInUse {
                 bail!(
                     "{address} is in use: another emulated network (`cargo xtask run` or \
@@ -252,7 +279,7 @@ impl Network {
         let socket = |name: &str| sockets.join(format!("{name}.sock"));
 
         let mut hub = Command::new(root.join("target/debug/can-hub"));
-        hub.args(["--tcp", HUB_TCP, "--control", HUB_CONTROL, "--paced"]);
+        hub.args(["--tcp", &hub_tcp(), "--control", &hub_control(), "--paced"]);
         for (name, _, _) in CHANNELS {
             hub.arg("--socket")
                 .arg(format!("{name}={}", socket(name).display()));
@@ -273,7 +300,7 @@ impl Network {
         // The tool and the control port join first, so they see the boot-up messages.
         let (tool, control) = match (
             connect_tool(Duration::from_secs(5)),
-            Control::connect(HUB_CONTROL, Duration::from_secs(5)),
+            Control::connect(&hub_control(), Duration::from_secs(5)),
         ) {
             (Ok(tool), Ok(control)) => (tool, control),
             (tool, control) => {
@@ -285,7 +312,11 @@ impl Network {
                     (_, Err(error)) => error.to_string(),
                     _ => String::new(),
                 };
-                bail!("the hub did not accept connections on {HUB_TCP} / {HUB_CONTROL}: {error}");
+                bail!(
+                    "the hub did not accept connections on {} / {}: {error}",
+                    hub_tcp(),
+                    hub_control()
+                );
             }
         };
         // Connected to our hub, not to one that was there before it (it would have exited).

@@ -485,7 +485,7 @@ pub fn task(
     }
     let mut network = Network::start(root)?;
     // The monitor's own socketcand connection to the hub, beside the configuration tool's.
-    let mut bus = SocketcandClient::connect(network::HUB_TCP, "can0")?;
+    let mut bus = SocketcandClient::connect(&network::hub_tcp(), "can0")?;
     let file = network::network_file();
     let mut model = Monitor::for_network(&safety_config::network_file::parse(
         &file,
