@@ -53,6 +53,7 @@ pub fn object_name(address: Address) -> Option<String> {
         0x1381..=0x13C0 => Some(format!("SRDO {} mapping entry {sub}", index - 0x1380)),
         0x13FE => Some("configuration valid".into()),
         0x13FF => Some(format!("signature of SRDO {sub}")),
+        0x5E00..=0x5EFF => crate::simplecan::object_name(address),
         0x5C10 => Some(
             match sub {
                 1 => "unlock",

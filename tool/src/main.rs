@@ -81,7 +81,15 @@ enum Command {
         #[command(flatten)]
         unlock: Unlock,
     },
-    /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9).
+    /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9),
+    /// and each node's SimpleCAN configuration signature (CRC-32/MPEG-2, 0x5EFF) with the
+    /// node hash of each of its SDD entries.
+    ///
+    /// A node hash (SC_REQ_15) is the first non-zero 32-bit word (big-endian) of SHA-256 over
+    /// "safety-config/simplecan/node-hash/v1", the network name (length-prefixed), the
+    /// SC-ID, its producer's node-ID and the producer's vendor-ID, product code and serial
+    /// number from the file; a network whose hashes collide is refused.
+    #[command(verbatim_doc_comment)]
     Sign {
         /// The network file (TOML), or a node's DCF (`.dcf`).
         file: String,
@@ -366,15 +374,39 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
     if let Command::Sign { file } = &cli.command {
         let network = load(file)?;
         let signatures = procedure::offline_signatures(&network);
+        let simplecan = procedure::offline_simplecan(&network);
         if cli.json {
-            let rows: Vec<_> = signatures
+            let srdo: Vec<_> = signatures
                 .iter()
                 .map(|(node, srdo, value)| serde_json::json!({"node": node, "srdo": srdo, "signature": value}))
                 .collect();
-            println!("{}", json(&rows));
+            let simplecan: Vec<_> = simplecan
+                .iter()
+                .map(|(config, value)| serde_json::json!({"node": config.node_id, "signature": value, "configuration": config}))
+                .collect();
+            println!(
+                "{}",
+                json(&serde_json::json!({"srdo": srdo, "simplecan": simplecan}))
+            );
         } else {
             for (node, srdo, value) in signatures {
                 println!("node {node} SRDO {srdo}: signature {value:04X}h (0x13FF:{srdo:02X})");
+            }
+            for (config, value) in simplecan {
+                let node = config.node_id;
+                let state = if config.enabled == 1 { "on" } else { "off" };
+                println!(
+                    "node {node} SimpleCAN ({state}, {} SDD entries): signature {value:08X}h (0x5EFF:00)",
+                    config.entries.len()
+                );
+                for entry in &config.entries {
+                    println!(
+                        "  SC-ID {:02X}h {}: node hash {:08X}h",
+                        entry.sc_id,
+                        safety_config::simplecan::role_name(entry.role),
+                        entry.hash
+                    );
+                }
             }
         }
         return Ok(true);

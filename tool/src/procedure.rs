@@ -690,6 +690,23 @@ pub fn offline_signatures(network: &Network) -> Vec<(u8, u8, u16)> {
         .collect()
 }
 
+/// Each node's SimpleCAN configuration and its signature (the tool's own CRC-32), computed
+/// offline, in file order; empty when the file has no SimpleCAN section.
+pub fn offline_simplecan(network: &Network) -> Vec<(crate::simplecan::NodeConfig, u32)> {
+    let Some(simplecan) = &network.simplecan else {
+        return Vec::new();
+    };
+    network
+        .nodes
+        .iter()
+        .map(|node| {
+            let config = crate::simplecan::node_config(simplecan, node.id);
+            let value = crate::simplecan::signature::signature(&config);
+            (config, value)
+        })
+        .collect()
+}
+
 /// `object`, for messages outside this module.
 pub fn describe(address: Address) -> String {
     Object(address).to_string()

@@ -116,6 +116,16 @@ pub mod role {
     pub const MASTER_SYNCS: u8 = 3;
 }
 
+/// The role of an SDD entry in words.
+pub fn role_name(value: u8) -> &'static str {
+    match value {
+        role::PRODUCE => "produced",
+        role::CONSUME => "consumed",
+        role::MASTER_SYNCS => "a potential master's syncs",
+        _ => "of an unknown role",
+    }
+}
+
 /// One SDD entry as the node holds it (5E10h + n − 1, sub-indices 01h..06h).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct SddEntry {
