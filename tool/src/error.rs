@@ -203,6 +203,18 @@ pub enum ToolError {
         /// After which step.
         when: &'static str,
     },
+    /// The node did not keep the validity declaration of its SimpleCAN configuration.
+    #[error(
+        "node {node}: 0x5EFE reads {value:02X}h after {when}, not A5h: the node does not hold a valid SimpleCAN configuration (docs/simplecan.md section 11)"
+    )]
+    SimpleCanNotValid {
+        /// The node-ID.
+        node: u8,
+        /// The value read.
+        value: u8,
+        /// After which step.
+        when: &'static str,
+    },
     /// The node refuses changes of its safety configuration until it is unlocked (SC_REQ_43).
     #[error(
         "node {node} is locked against changes of its safety configuration (SC_REQ_43); nothing was written (pass --unlock and give the node's secret)"

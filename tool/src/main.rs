@@ -95,7 +95,9 @@ enum Command {
         file: String,
     },
     /// Configure, read back, sign, validate and store every node of a network file
-    /// (EN 50325-5 8.3.1).
+    /// (EN 50325-5 8.3.1); with a [simplecan] section also each node's SimpleCAN objects
+    /// (0x5E00..0x5EFF: written, read back and compared, signed with the tool's CRC-32,
+    /// 0x5EFE = A5h, stored).
     Configure {
         /// The network file (TOML), or a node's DCF (`.dcf`, as `dcf` writes it).
         file: String,
@@ -646,13 +648,16 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                 for result in &report.nodes {
                     match result {
                         NodeResult::Done(done) => println!(
-                            "node {}: configured and valid; signatures {}",
+                            "node {}: configured and valid; signatures {}{}",
                             done.node,
                             done.signatures
                                 .iter()
                                 .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
                                 .collect::<Vec<_>>()
-                                .join(", ")
+                                .join(", "),
+                            done.simplecan_signature
+                                .map(|value| format!("; SimpleCAN {value:08X}h (0x5EFF)"))
+                                .unwrap_or_default()
                         ),
                         NodeResult::Failed { node, error } => {
                             println!("node {node}: NOT configured: {error}")
@@ -690,6 +695,12 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                             configuration_valid,
                         } => println!(
                             "node {node}: matches the file but is NOT validated (0x13FE = {configuration_valid:02X}h)"
+                        ),
+                        Verdict::SimpleCanNotValidated {
+                            node,
+                            configuration_valid,
+                        } => println!(
+                            "node {node}: matches the file but its SimpleCAN configuration is NOT validated (0x5EFE = {configuration_valid:02X}h)"
                         ),
                         Verdict::Unreachable { node, error } => {
                             println!("node {node}: not verified: {error}")
