@@ -137,7 +137,10 @@ enum Command {
     },
     /// Watch the bus live: every node's NMT state and heartbeat, every SRDO as pairs (the
     /// inversion, the plain → inverted gap against SRVT, the period against SCT), GFC, EMCY
-    /// in words and SDO traffic. Keys: q quit, g send GFC, p pause, ? help. Not on a
+    /// in words and SDO traffic; SimpleCAN packets decoded with the file's node hashes (each
+    /// SC-ID's value and age against its timeout, its arrival against its configured slot
+    /// and the jitter, syncs per master, bad CRCs; without a file they cannot be decoded, the
+    /// hashes are never sent). Keys: q quit, g send GFC, p pause, ? help. Not on a
     /// terminal (or with --plain) it prints a line per happening and a summary at the end.
     Monitor {
         /// A network file (TOML) or DCF: the SRDOs to judge against their SCT and SRVT and
