@@ -430,3 +430,20 @@ fn sc_req_36_verify_reports_an_unvalidated_or_wrongly_signed_node() {
         )]
     );
 }
+
+/// The plan's size: 12 n + 19 SDO transfers for n entries (7 + 6 n writes, 6 n + 6 reads
+/// back, then 5EFFh, 5EFEh and the store with a read each); 31 for one entry, 979 for 80.
+#[test]
+fn sc_req_35_the_plan_takes_12_n_plus_19_sdo_transfers() {
+    let network = parse(FILE, "net.toml").unwrap();
+    let mut config = node_config(network.simplecan.as_ref().unwrap(), 33);
+    let template = config.entries[0];
+    for n in [0usize, 1, 2, 80] {
+        config.entries = vec![template; n];
+        let transfers = configure_plan(&config)
+            .iter()
+            .filter(|operation| !matches!(operation, Operation::Compare))
+            .count();
+        assert_eq!(transfers, 12 * n + 19, "{n} entries");
+    }
+}
