@@ -31,6 +31,7 @@
 pub mod access;
 mod dictionary;
 mod persist;
+pub mod simplecan;
 mod slot;
 mod srdo_table;
 
@@ -50,6 +51,7 @@ use crate::safety::types::SrdoNumber;
 use crate::time::{Duration, Instant};
 
 pub use persist::PersistError;
+pub use simplecan::SimpleCan;
 pub use slot::{Refused, SafetyProtocol, Slot};
 pub use srdo_table::{
     DOUBLE_RECEPTION_INDEX, DoubleReception, INTEGRITY_IDLE_PERIOD, IntegrityFault, RAM_PER_SRDO,
@@ -95,6 +97,15 @@ pub trait Sink {
     fn transmit(&mut self, frame: CanFrame);
     /// Reports `event` to the application.
     fn event(&mut self, event: Event);
+    /// Withdraws every frame on `id` handed over and not yet on the bus (aborts the transmit
+    /// mailbox, clears the queue entry). A protocol that bounds when its frames may be on the
+    /// bus asks for it: SimpleCAN at the end of a producer's slot and for a sync not confirmed
+    /// within 2 ms (`docs/simplecan.md` section 5; SC_REQ_18, SC_REQ_23). A sink that carries
+    /// SimpleCAN must implement it; the default does nothing, which is right only for a sink
+    /// whose protocols never withdraw a frame (CANopen Safety: the SRDO table never does).
+    fn abort(&mut self, id: CanId) {
+        let _ = id;
+    }
 }
 
 /// Why the device is in its latched safe state.
@@ -151,6 +162,17 @@ pub enum Event {
     /// The configuration did not pass the Operational-entry check; the device stays in its
     /// NMT state and in the safe state (EN 50325-5 8.3.1).
     ConfigurationRefused(ConfigFault),
+    /// A safety protocol other than the SRDO table refused its configuration at the
+    /// Operational entry (SimpleCAN: SC_REQ_16, SC_REQ_34); the device stays in its NMT state
+    /// and in the safe state. `cause` is a code of the cause table
+    /// ([`crate::safety::cause::Cause`]), `detail` what it names (a SimpleCAN SDD entry, 1-based,
+    /// or 0).
+    ProtocolConfigurationRefused {
+        /// The cause code.
+        cause: u8,
+        /// The entry it names, or 0.
+        detail: u8,
+    },
     /// A consumer discarded a frame as a CAN double reception (or an inverted frame seen
     /// first after monitoring started); nothing was delivered and nothing failed. Counted in
     /// [`SrdoTable::double_reception`].
@@ -418,6 +440,19 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         } else if id == 0x600 + u16::from(self.core.shell.config.node_id.raw()) {
             self.on_sdo_request(now, frame, sink);
         }
+    }
+
+    /// The controller reports that `frame`, handed to the sink before, went out on the bus
+    /// at `now` (a transmit mailbox completed): the protocol's confirmation (SimpleCAN: a
+    /// sync confirmed, SC_REQ_23; a data packet sent within its slot, SC_REQ_18).
+    pub fn on_transmitted(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
+        let Core {
+            shell,
+            protocol,
+            image,
+            ..
+        } = &mut self.core;
+        protocol.on_transmitted(now, frame, &mut Slot { shell, image, sink });
     }
 
     /// Runs every timer due at `now` and returns the instant of the next poll.
@@ -854,6 +889,8 @@ impl Shell {
 mod access_tests;
 #[cfg(test)]
 mod sdo_tests;
+#[cfg(test)]
+mod simplecan_tests;
 #[cfg(test)]
 mod slot_tests;
 #[cfg(test)]
