@@ -29,6 +29,7 @@
 //! but stop for good when their own two halves disagree.
 
 pub mod access;
+mod both;
 mod dictionary;
 mod persist;
 pub mod simplecan;
@@ -50,6 +51,7 @@ use crate::safety::srdo::{Discarded, SrdoFault};
 use crate::safety::types::SrdoNumber;
 use crate::time::{Duration, Instant};
 
+pub use both::{BothSignatures, SrdoAndSimpleCan, WithSrdoTable};
 pub use persist::PersistError;
 pub use simplecan::SimpleCan;
 pub use slot::{Refused, SafetyProtocol, Slot};
@@ -241,6 +243,20 @@ pub const VALIDATED_FOR_ANOTHER_NODE_ID: u8 = 0xF1;
 /// device shell with the SRDO table in its protocol slot.
 pub type Node<F, const N: usize> = Device<F, SrdoTable<N>>;
 
+/// A device with `N` SRDOs (`2..=32`) and SimpleCAN with `E` SDD entries beside them, storing
+/// its parameters in `F`: CANopen Safety as [`Node`], and SimpleCAN once configured
+/// (5E00h:04 = 1; `docs/simplecan.md` section 11).
+pub type SimpleCanNode<F, const N: usize, const E: usize> = Device<F, SrdoAndSimpleCan<N, E>>;
+
+impl<F: Flash, const N: usize, const E: usize> SimpleCanNode<F, N, E> {
+    /// A device with `N` SRDOs and SimpleCAN (disabled until configured) in NMT Initialising
+    /// with its parameters restored from `flash` (or the defaults).
+    pub fn new(config: NodeConfig, flash: F) -> Result<Self, NodeError> {
+        let both = SrdoAndSimpleCan::new(&config).ok_or(NodeError::SrdoCount)?;
+        Device::with_protocol(config, flash, both)
+    }
+}
+
 /// One device: the shell (NMT, SDO server, heartbeat, EMCY, GFC, storage, safe-state latch)
 /// around a process image, with the safety protocol `P` in its slot ([`SafetyProtocol`]),
 /// storing its parameters in `F`.
@@ -286,25 +302,32 @@ impl<F: Flash, const N: usize> Node<F, N> {
         let table = SrdoTable::new(&config).ok_or(NodeError::SrdoCount)?;
         Device::with_protocol(config, flash, table)
     }
+}
 
+/// The SRDO-specific part of every device whose slot holds an SRDO table ([`Node`],
+/// [`SimpleCanNode`]).
+impl<F: Flash, P, const N: usize> Device<F, P>
+where
+    P: SafetyProtocol + WithSrdoTable<Table = SrdoTable<N>>,
+{
     /// Valid pairs received (consumer) or sent (producer) by `srdo` since entering Operational.
     pub fn srdo_pairs(&self, srdo: SrdoNumber) -> u32 {
-        self.core.protocol.pairs(srdo)
+        self.core.protocol.srdo_table().pairs(srdo)
     }
 
     /// Remote frames ignored on SRDO identifiers since power-on or reset.
     pub fn remote_frames_ignored(&self) -> u32 {
-        self.core.protocol.remote_frames_ignored()
+        self.core.protocol.srdo_table().remote_frames_ignored()
     }
 
     /// The safety configuration (objects 0x1301..0x13FF).
     pub fn safety_config(&self) -> &SafetyConfig<N> {
-        self.core.protocol.config()
+        self.core.protocol.srdo_table().config()
     }
 
     /// Frames the consumers discarded as double receptions, since power-on or reset.
     pub fn double_reception(&self) -> DoubleReception {
-        self.core.protocol.double_reception()
+        self.core.protocol.srdo_table().double_reception()
     }
 
     /// Hands both payloads of transmit SRDO `srdo` at once: `plain` goes to the objects of the
@@ -333,6 +356,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
         let mapping = self
             .core
             .protocol
+            .srdo_table()
             .transmit_mapping(srdo, &self.core.image)?;
         if data.len() != usize::from(mapping.len) {
             return Err(ApiError::WrongLength);
@@ -360,7 +384,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
     /// path looks frames up in, as a memory fault would. Out-of-range positions flip nothing.
     #[cfg(feature = "fault-injection")]
     pub fn inject_identifier_table_flip(&mut self, byte: usize, bit: u8) {
-        if let Some(entry) = self.core.protocol.lookup.get_mut(byte) {
+        if let Some(entry) = self.core.protocol.srdo_table_mut().lookup.get_mut(byte) {
             *entry ^= 1 << (bit % 8);
         }
     }
@@ -370,7 +394,14 @@ impl<F: Flash, const N: usize> Node<F, N> {
     /// as a memory fault in the configuration would. Out-of-range positions flip nothing.
     #[cfg(feature = "fault-injection")]
     pub fn inject_record_flip(&mut self, index: usize, bit: u8) {
-        if let Some(record) = self.core.protocol.safety.srdos.get_mut(index) {
+        if let Some(record) = self
+            .core
+            .protocol
+            .srdo_table_mut()
+            .safety
+            .srdos
+            .get_mut(index)
+        {
             record.cycle_time ^= 1 << (bit % 16);
         }
     }

@@ -8,6 +8,7 @@ use super::simplecan::{
     COUNT_INDEX, CYCLE_INDEX, FIRST_ENTRY_INDEX, ROLE_CONSUME, ROLE_MASTER, ROLE_PRODUCE,
     SIGNATURE_INDEX, SimpleCanObjects, VALID_INDEX,
 };
+use super::srdo_table::SrdoTable;
 use super::tests::config;
 use super::*;
 use crate::canopen::emcy::code;
@@ -783,4 +784,83 @@ fn sc_req_23_a_sync_not_confirmed_within_2_ms_is_aborted() {
     });
     assert!(bench.wire.aborts.contains(&SYNC_IDENTIFIER.raw()));
     assert_eq!(bench.protocol().counters().syncs_aborted, 1);
+}
+
+// ---- Beside CANopen Safety ---------------------------------------------------------------
+
+/// One script for any device with the SRDO table in its slot: boot, validate the pre-defined
+/// configuration, start, valid pairs on SRDO 1, frames on every SimpleCAN identifier, an SDO
+/// read of 5E00h:04, then no pair until SCT has elapsed. Every frame and event handed out.
+fn srdo_script<P>(mut node: Device<RamFlash<8192>, P>) -> (StdVec<CanFrame>, StdVec<Event>)
+where
+    P: SafetyProtocol + WithSrdoTable<Table = SrdoTable<4>>,
+{
+    use crate::safety::signature;
+    let mut wire = Wire::default();
+    node.poll(Instant::ZERO, &mut wire);
+    let table = node.core.protocol.srdo_table_mut();
+    for record in table.safety.srdos.iter_mut() {
+        record.signature = signature::compute(record);
+    }
+    table.safety.configuration_valid = CONFIGURATION_VALID;
+    node.handle_frame(
+        Instant::ZERO,
+        &nmt::command_frame(NmtCommand::Start, 0),
+        &mut wire,
+    );
+    let mut now = Instant::ZERO;
+    for step in 0..40u64 {
+        now = Instant::from_millis(step * 5);
+        let value = step as u8;
+        let plain = CanFrame::new(CanId::new(0x141).unwrap(), &[value]).unwrap();
+        let inverted = CanFrame::new(CanId::new(0x142).unwrap(), &[!value]).unwrap();
+        node.handle_frame(now, &plain, &mut wire);
+        node.handle_frame(now + Duration::from_micros(200), &inverted, &mut wire);
+        let foreign = 0x02F + (step as u16 % 0x51);
+        node.handle_frame(
+            now + Duration::from_micros(300),
+            &CanFrame::new(CanId::new(foreign).unwrap(), &[value; 8]).unwrap(),
+            &mut wire,
+        );
+        node.poll(now + Duration::from_micros(400), &mut wire);
+    }
+    let read = CanFrame::new(
+        CanId::new(0x600 + u16::from(NODE)).unwrap(),
+        &[0x40, 0x00, 0x5E, 0x04, 0, 0, 0, 0],
+    )
+    .unwrap();
+    node.handle_frame(now, &read, &mut wire);
+    let mut at = now;
+    while at < Instant::from_millis(2_000) {
+        at = node.poll(at, &mut wire).max(at + Duration::from_micros(1));
+    }
+    assert!(node.fault().is_some(), "SCT elapsed: the safe state");
+    (wire.frames, wire.events)
+}
+
+/// SimpleCAN disabled (the default), the device with both protocols hands out exactly what
+/// the CANopen Safety node hands out, frame for frame and event for event, but the SDO answer
+/// to 5E00h:04 (0 where the other has no such object).
+#[test]
+fn with_simplecan_disabled_the_node_is_the_canopen_safety_node() {
+    let plain = Node::<RamFlash<8192>, 4>::new(config(NODE), RamFlash::new()).unwrap();
+    let both = SimpleCanNode::<RamFlash<8192>, 4, 4>::new(config(NODE), RamFlash::new()).unwrap();
+    let (frames, events) = srdo_script(plain);
+    let (frames_both, events_both) = srdo_script(both);
+    assert_eq!(events, events_both);
+    assert_eq!(frames.len(), frames_both.len());
+    let sdo = 0x580 + u16::from(NODE);
+    for (one, other) in frames.iter().zip(&frames_both) {
+        if one.id().raw() == sdo {
+            assert_eq!(one.data()[0], 0x80, "no object in the CANopen Safety node");
+            assert_eq!(other.data()[..5], [0x4F, 0x00, 0x5E, 0x04, 0]);
+        } else {
+            assert_eq!(one, other);
+        }
+    }
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, Event::SrdoReceived { .. }))
+    );
 }
