@@ -4,7 +4,7 @@
 use super::{Event, NodeConfig, PersistError, SafeStateCause, Shell, Sink};
 use crate::canopen::node_id::NodeId;
 use crate::canopen::od::{AbortCode, Address};
-use crate::frame::CanFrame;
+use crate::frame::{CanFrame, CanId};
 use crate::process_image::ProcessImage;
 use crate::time::Instant;
 
@@ -180,6 +180,13 @@ pub trait SafetyProtocol {
     /// The application changed the process image byte at `offset`: `true` when that makes the
     /// protocol due at once (event-driven transmission, EN 50325-5 6.2.1).
     fn object_changed(&mut self, offset: u8) -> bool;
+
+    /// The controller confirmed that `frame` went out on the bus at `now`
+    /// ([`super::Device::on_transmitted`]). Only a protocol that must know (SimpleCAN's syncs,
+    /// SC_REQ_23) acts on it; the SRDO table does not.
+    fn on_transmitted<S: Sink>(&mut self, now: Instant, frame: &CanFrame, slot: &mut Slot<'_, S>) {
+        let _ = (now, frame, slot);
+    }
 }
 
 /// A start the protocol refused; made only by [`Slot::refuse_configuration`], so a refusal is
@@ -219,6 +226,11 @@ impl<S: Sink> Slot<'_, S> {
     /// Sends `frame` on the bus.
     pub fn transmit(&mut self, frame: CanFrame) {
         self.sink.transmit(frame);
+    }
+
+    /// Withdraws the frames on `id` not yet on the bus ([`Sink::abort`]).
+    pub fn abort(&mut self, id: CanId) {
+        self.sink.abort(id);
     }
 
     /// Reports `event` to the application.
