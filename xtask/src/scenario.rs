@@ -165,7 +165,8 @@ struct Played {
 
 /// Plays `files` (every `*.toml` of `scenarios/emulated/` when none is given) on the
 /// emulated network, one network for as long as no scenario cuts a link (NMT reset node
-/// and the start again between scenarios, as `cargo xtask e2e` does between its cases).
+/// and the start again between scenarios, as `cargo xtask e2e` does between its cases; the
+/// scenarios that cut a link are played last, each on a network of its own).
 /// Every file is loaded and checked before QEMU starts. Fails when one does not parse,
 /// is not playable there, or an expectation fails.
 pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
@@ -182,6 +183,9 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
             .map_err(|why| anyhow!(why))?;
         scenarios.push(scenario);
     }
+    // A cut link ends a network: those scenarios last (in file order otherwise), so one
+    // network serves every other scenario.
+    scenarios.sort_by_key(player::cuts_a_link);
     let began = std::time::Instant::now();
     let mut running: Option<(Network, f64)> = None;
     let mut played = Vec::new();
@@ -190,8 +194,21 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
         let host = std::time::Instant::now();
         let (network, offset) = match &mut running {
             Some((network, offset)) => {
-                network.reset()?;
-                crate::e2e::nominal(network, "after NMT reset node")?;
+                // The reset is not part of the scenario. Seen once in three runs: NMT reset
+                // node between node 1's plain and inverted frames, and node 1's channel B
+                // sent the inverted frame after the restart, which its channel A took for a
+                // foreign frame (34h) and answered with a GFC. Said, and reset once more.
+                let reset = network
+                    .reset()
+                    .and_then(|()| crate::e2e::nominal(network, "after NMT reset node"));
+                if let Err(error) = reset {
+                    println!(
+                        "   the reset before {} did not bring both nodes back to work; resetting                          again. {error:#}",
+                        scenario.path.display()
+                    );
+                    network.reset()?;
+                    crate::e2e::nominal(network, "after a second NMT reset node")?;
+                }
                 (network, *offset)
             }
             None => {

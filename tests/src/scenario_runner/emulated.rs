@@ -72,9 +72,10 @@ pub fn commands(stimulus: &Stimulus) -> Result<Vec<Command>, String> {
         Stimulus::Fault(fault) => {
             if !fault.hub_can() {
                 return Err(format!(
-                    "the fault {fault:?} is one the hub cannot inject (its control port drops \
-                     one frame at a time and delays by whole milliseconds; the host-only \
-                     faults are not in its vocabulary)"
+                    "the fault `{}` as written here is one the hub cannot inject (its control \
+                     port drops one frame at a time, delays by whole milliseconds, and has \
+                     none of the host-only faults)",
+                    fault.kind()
                 ));
             }
             vec![match fault {
@@ -99,7 +100,7 @@ pub fn commands(stimulus: &Stimulus) -> Result<Vec<Command>, String> {
                 }
                 FaultSpec::Cut { node } => Command::Cut(format!("node{node}-link")),
                 FaultSpec::Clear => Command::Clear,
-                other => return Err(format!("the fault {other:?} is not the hub's")),
+                other => return Err(format!("the fault `{}` is not the hub's", other.kind())),
             }]
         }
     })
