@@ -223,8 +223,16 @@ mod emulated {
             statuses: vec![
                 ("node33a".into(), 9.9, on),
                 ("node33b".into(), 9.9, on),
-                ("node33a".into(), 10.44, status(false, 0, Cause::PeerSafeState)),
-                ("node33b".into(), 10.46, status(false, 0, Cause::SrvtElapsed)),
+                (
+                    "node33a".into(),
+                    10.44,
+                    status(false, 0, Cause::PeerSafeState),
+                ),
+                (
+                    "node33b".into(),
+                    10.46,
+                    status(false, 0, Cause::SrvtElapsed),
+                ),
             ],
             frames: Vec::new(),
             end: 10.8,
@@ -261,7 +269,10 @@ mod emulated {
         let failed = report.checks.iter().find(|check| !check.passed).unwrap();
         assert_eq!(failed.measured, "safe after 360.000 ms, cause SRVT elapsed");
         let timeline = report.timeline.as_deref().expect("a timeline");
-        assert!(timeline.contains("status  node33b: nmt=5 SAFE"), "{timeline}");
+        assert!(
+            timeline.contains("status  node33b: nmt=5 SAFE"),
+            "{timeline}"
+        );
         assert!(report.text(&scenario).contains("FAIL line 21"));
 
         let mut wrong = srvt_case();
@@ -285,9 +296,11 @@ mod emulated {
         };
         let report = emulated::judge(&scenario, &observed);
         assert!(report.passed(), "{}", report.text(&scenario));
-        observed
-            .statuses
-            .push(("node33b".into(), 5.3, status(false, 0, Cause::PlainRepeated)));
+        observed.statuses.push((
+            "node33b".into(),
+            5.3,
+            status(false, 0, Cause::PlainRepeated),
+        ));
         let emcy = shared::CanFrame::new(shared::CanId::new(0x081).unwrap(), &[0, 0x82]).unwrap();
         observed.frames.push((5.31, emcy));
         let report = emulated::judge(&scenario, &observed);

@@ -97,31 +97,47 @@ fn trace_offset(network: &mut Network) -> Result<f64> {
     )
 }
 
-/// Waits until the hub's clock has reached `t` (seconds).
-fn wait_until(network: &mut Network, t: f64) -> Result<()> {
-    let latest = |latest: &std::collections::HashMap<String, (f64, emulation_wire::Status)>| {
-        latest.values().map(|(at, _)| *at).fold(0.0, f64::max)
-    };
-    while network.hub_time() < t {
-        let left = Duration::from_secs_f64((t - network.hub_time()).max(0.0) + 2.0);
-        if network.wait_for(left, |now| latest(now) >= t)?.is_none() && network.hub_time() < t {
+/// Waits until the hub's clock has reached `t` (seconds). The clock is read from the
+/// frames on the bus (the tool's socketcand connection: each frame stamped with the hub's
+/// time, one every few tens of milliseconds: heartbeats and SRDOs every 100 ms) and from
+/// the status reports (every 250 ms when nothing changes), whichever is newer; `offset`
+/// moves the frames' stamps onto the control port's clock ([`trace_offset`]). A network
+/// whose clock stops is given up on after ten times the wait in host time, plus ten seconds.
+fn wait_until(network: &mut Network, t: f64, offset: f64) -> Result<()> {
+    use safety_config::Transport as _;
+    let mut on_the_bus = f64::MIN;
+    let left = (t - network.hub_time()).max(0.0);
+    let give_up = std::time::Instant::now() + Duration::from_secs_f64(10.0 * left + 10.0);
+    loop {
+        if network.hub_time().max(on_the_bus) >= t {
+            return Ok(());
+        }
+        let tool = network.tool()?;
+        let now = tool.transport.now();
+        while let Some((stamp, _)) = tool.transport.receive_stamped(now)? {
+            on_the_bus = on_the_bus.max(stamp.as_secs_f64() - offset);
+        }
+        // Reading the control port too, so the hub's reports to it never pile up.
+        network.control.watch(Duration::from_millis(2))?;
+        network.check_alive()?;
+        if std::time::Instant::now() >= give_up {
             bail!(
                 "the hub's clock did not reach {t:.3} s (it is at {:.3} s):\n{}",
-                network.hub_time(),
+                network.hub_time().max(on_the_bus),
                 network.table()
             );
         }
     }
-    Ok(())
 }
 
 /// Plays `scenario` on the running network from now: time 0 is a `clear` (no fault left),
-/// each step at the first status report at or after its time; returns what the hub saw.
+/// each step once the hub's clock has reached its time ([`wait_until`]); returns what the
+/// hub saw.
 fn play(network: &mut Network, scenario: &Scenario, offset: f64) -> Result<Observed> {
     let start = network.command("clear")?;
     let mut applied = Vec::new();
     for step in &scenario.steps {
-        wait_until(network, start + step.at_us as f64 / 1e6)?;
+        wait_until(network, start + step.at_us as f64 / 1e6, offset)?;
         let mut at = f64::NAN;
         for command in player::commands(&step.stimulus).map_err(|why| anyhow!(why))? {
             at = network.command(&command.to_string())?;
@@ -129,7 +145,9 @@ fn play(network: &mut Network, scenario: &Scenario, offset: f64) -> Result<Obser
         applied.push(at);
     }
     let end = start + scenario.run_us as f64 / 1e6;
-    wait_until(network, end)?;
+    wait_until(network, end, offset)?;
+    // Nothing reads the tool's connection until the next scenario needs it.
+    network.release_tool();
     let from = start - KEPT_BEFORE;
     let statuses = network
         .control
@@ -223,6 +241,13 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
             .with_context(|| format!("playing {}", scenario.path.display()))?;
         let report = player::judge(&scenario, &observed);
         print!("{}", report.text(&scenario));
+        for (step, applied) in scenario.steps.iter().zip(&observed.applied) {
+            println!(
+                "  {}, applied at t = {:.3} ms",
+                player::step_line(step),
+                (applied - observed.start) * 1e3
+            );
+        }
         let host_seconds = host.elapsed().as_secs_f64();
         println!("  ({host_seconds:.1} s of host time, the reset or start included)");
         if !report.passed() && failure.is_none() {

@@ -11,13 +11,17 @@
 //! `board::diagnostics::PERIOD` otherwise; the hub stamps each report with its time of
 //! arrival. So a measured latency includes the report's way over the emulated serial line
 //! (the e2e tests' `MARGIN_MS` covers that), and an output is "safe" from the report that
-//! says so. A scenario for the emulated network names the network `cargo xtask run`
+//! says so. A step is applied once the player sees the hub's clock at or past its time
+//! (from the frames on the bus, a few tens of milliseconds apart, and the reports), so a
+//! little late; every time the file gives after a step is measured from when the hub took
+//! that step's command ([`Observed::time_of`]), so a late step moves its expectations with
+//! it, and the run prints when each step was applied. A scenario for the emulated network names the network `cargo xtask run`
 //! configures (`scenarios/networks/emulated.toml`, checked against xtask's own), at
 //! its bit rate, and only faults the hub can inject; anything else is refused before the
 //! network is touched.
 
 use super::{BEFORE_EMULATED, Check, Played, Report, ms};
-use crate::scenario_runner::file::{Channel, Expectation, FaultSpec, Scenario, Stimulus};
+use crate::scenario_runner::file::{Channel, Expectation, FaultSpec, Scenario, Step, Stimulus};
 use can_hub::control::Command;
 use emulation_wire::Status;
 use shared::canopen::nmt;
@@ -161,8 +165,8 @@ pub struct Observed {
 
 impl Observed {
     /// The hub time of timeline time `us`: from the latest step at or before it, when that
-    /// step was applied (a step is applied at the first status report at or after its time,
-    /// so a little late; every time after it moves with it), else from the start.
+    /// step was applied (a little after its time; every time after it moves with it), else
+    /// from the start.
     pub fn time_of(&self, scenario: &Scenario, us: u64) -> f64 {
         scenario
             .steps
@@ -395,7 +399,13 @@ pub fn judge(scenario: &Scenario, observed: &Observed) -> Report {
         .zip(&windows)
         .find(|(check, _)| !check.passed)
         .map(|(check, (from, to))| {
-            timeline(observed, *from, to.min(observed.end), &check.expected)
+            timeline(
+                scenario,
+                observed,
+                *from,
+                to.min(observed.end),
+                &check.expected,
+            )
         });
     Report {
         checks,
@@ -404,10 +414,15 @@ pub fn judge(scenario: &Scenario, observed: &Observed) -> Report {
     }
 }
 
-/// The reports and frames from `from` to `to` (hub seconds), times from the scenario's
-/// start: what the hub saw around a failure.
-pub fn timeline(observed: &Observed, from: f64, to: f64, why: &str) -> String {
+/// The steps the hub took, the reports and the frames from `from` to `to` (hub seconds),
+/// times from the scenario's start: what the hub saw around a failure.
+pub fn timeline(scenario: &Scenario, observed: &Observed, from: f64, to: f64, why: &str) -> String {
     let mut lines: Vec<(f64, String)> = Vec::new();
+    for (step, applied) in scenario.steps.iter().zip(&observed.applied) {
+        if *applied >= from && *applied <= to {
+            lines.push((*applied, step_line(step)));
+        }
+    }
     for (when, frame) in &observed.frames {
         if *when >= from && *when <= to {
             lines.push((
@@ -447,6 +462,26 @@ pub fn timeline(observed: &Observed, from: f64, to: f64, why: &str) -> String {
         let _ = writeln!(text, "… {} more lines", lines.len() - 400);
     }
     text
+}
+
+/// A step as the timeline and the run's output show it: its line, its commands to the hub,
+/// when it was due.
+pub fn step_line(step: &Step) -> String {
+    let commands = commands(&step.stimulus).map_or_else(
+        |why| why,
+        |commands| {
+            commands
+                .iter()
+                .map(|command| format!("`{command}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        },
+    );
+    format!(
+        "step    line {}: {commands} (due at t = {})",
+        step.line,
+        ms(Duration::from_micros(step.at_us))
+    )
 }
 
 /// The frames of the hub's candump trace (`--candump`), with their stamps moved by `offset`
