@@ -221,7 +221,8 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
                     .and_then(|()| crate::e2e::nominal(network, "after NMT reset node"));
                 if let Err(error) = reset {
                     println!(
-                        "   the reset before {} did not bring both nodes back to work; resetting                          again. {error:#}",
+                        "   the reset before {} did not bring both nodes back to work; resetting \
+                         again. {error:#}",
                         scenario.path.display()
                     );
                     network.reset()?;
