@@ -55,7 +55,7 @@ pub struct Check {
     pub measured: String,
     /// Whether it held.
     pub passed: bool,
-    /// The span of the timeline that shows it.
+    /// The span of the timeline that shows it (of the emulated network: on the hub's clock).
     pub window: (Instant, Instant),
 }
 
