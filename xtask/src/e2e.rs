@@ -143,7 +143,7 @@ pub fn release(network: &mut Network) -> Result<()> {
 /// Waits until both nodes work and node 33 validates node 1's SRDOs again: every case starts
 /// from there, so that a fault left over from the previous one is reported as that, not as
 /// the next case's failure.
-fn nominal(network: &mut Network, when: &str) -> Result<()> {
+pub fn nominal(network: &mut Network, when: &str) -> Result<()> {
     let before = network
         .control
         .latest

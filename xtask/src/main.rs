@@ -184,6 +184,10 @@ enum Task {
     Scenario {
         /// Scenario files.
         files: Vec<std::path::PathBuf>,
+        /// Play them on the emulated network (the hub and the QEMU images of `cargo xtask
+        /// run`) instead: scenarios/emulated/*.toml unless FILES are given.
+        #[arg(long)]
+        emulated: bool,
     },
     /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
     /// every single-channel fault), judged by an oracle that does not reuse the
@@ -330,7 +334,14 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
-        Task::Scenario { files } => scenario::task(&root, &files),
+        Task::Scenario {
+            files,
+            emulated: false,
+        } => scenario::task(&root, &files),
+        Task::Scenario {
+            files,
+            emulated: true,
+        } => scenario::emulated(&root, &files),
         Task::Manual { check } => manual::run(&root, check),
         Task::Campaign {
             scenarios,
@@ -426,6 +437,12 @@ fn test(root: &Path) -> Result<()> {
     }
     step("end-to-end tests on the emulated network");
     e2e::task(root, false)?;
+    step("scenarios on the emulated network (a small set)");
+    let set: Vec<std::path::PathBuf> = scenario::CI_SET
+        .iter()
+        .map(|file| root.join(file))
+        .collect();
+    scenario::emulated(root, &set)?;
     step("traceability matrix");
     trace::report(root)?;
     step("all checks passed");
