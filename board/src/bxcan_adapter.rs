@@ -254,6 +254,9 @@ mod tests {
 
     // Word offsets of the registers (RM0090 32.9.5).
     const MSR: usize = 0x004 / 4;
+    const TSR: usize = 0x008 / 4;
+    /// CAN_TSR.TME0..TME2 (bits 26..=28): the transmit mailboxes empty.
+    const TME_ALL: u32 = 0b111 << 26;
     const FMR: usize = 0x200 / 4;
     const FM1R: usize = 0x204 / 4;
     const FS1R: usize = 0x20C / 4;
@@ -262,6 +265,11 @@ mod tests {
     const BANK0: usize = 0x240 / 4;
     /// The banks CAN2 owns with CAN2SB = 14, 14 to 27, in CAN_FA1R.
     const CAN2_BANKS: u32 = 0x0FFF_C000;
+
+    fn read(word: usize) -> u32 {
+        // SAFETY: in bounds of `FAKE`, under `FAKE_LOCK`, no bxcan call running.
+        unsafe { (*FAKE.0.get())[word] }
+    }
 
     fn write(word: usize, value: u32) {
         // SAFETY: in bounds of `FAKE`, under `FAKE_LOCK`, no bxcan call running.
@@ -273,22 +281,28 @@ mod tests {
     /// not use must be seen off): its result and the registers after it.
     fn programmed(layout: &BankLayout, owned: u8) -> (Result<(), FilterFault>, [u32; WORDS]) {
         let _guard = FAKE_LOCK.lock().unwrap();
+        let mut can = fake_can(owned);
+        let result = program(&mut can.modify_filters(), layout);
+        // SAFETY: as `write`; bxcan is done with the registers.
+        (result, unsafe { *FAKE.0.get() })
+    }
+
+    /// A `Can` on the zeroed fake, CAN_FMR as at reset but for CAN2SB = `owned`, all filter
+    /// banks active in 32-bit mask mode with filter and mask 0 (everything passes), every
+    /// transmit mailbox empty. Under `FAKE_LOCK`.
+    fn fake_can(owned: u8) -> bxcan::Can<FakeCan> {
         for word in 0..WORDS {
             write(word, 0);
         }
-        // CAN_FMR at reset (0x2A1C_0E01) but for CAN2SB: FINIT = 1. All banks active, in
-        // 32-bit scale, mask mode, filter and mask 0: everything passes.
         write(FMR, 0x2A1C_0001 | u32::from(owned) << 8);
         write(FA1R, 0x0FFF_FFFF);
         write(FS1R, 0x0FFF_FFFF);
+        write(TSR, TME_ALL);
         // `Can::builder` waits for INAK = 1, SLAK = 0; `leave_disabled` for the reverse.
         write(MSR, 0b01);
         let builder = bxcan::Can::builder(FakeCan);
         write(MSR, 0b10);
-        let mut can = builder.leave_disabled();
-        let result = program(&mut can.modify_filters(), layout);
-        // SAFETY: as `write`; bxcan is done with the registers.
-        (result, unsafe { *FAKE.0.get() })
+        builder.leave_disabled()
     }
 
     /// The FIFO the programmed registers send a standard frame with `id` and `remote` to, by
@@ -300,11 +314,18 @@ mod tests {
             if registers[FA1R] & (1 << bank) == 0 {
                 return None;
             }
-            assert_eq!(registers[FS1R] & (1 << bank), 0, "bank {bank}: 16-bit scale");
+            assert_eq!(
+                registers[FS1R] & (1 << bank),
+                0,
+                "bank {bank}: 16-bit scale"
+            );
             let [r1, r2] = [registers[BANK0 + 2 * bank], registers[BANK0 + 2 * bank + 1]];
             let halves = |r: u32| [r & 0xFFFF, r >> 16];
             let matched = if registers[FM1R] & (1 << bank) != 0 {
-                halves(r1).into_iter().chain(halves(r2)).any(|entry| entry == frame)
+                halves(r1)
+                    .into_iter()
+                    .chain(halves(r2))
+                    .any(|entry| entry == frame)
             } else {
                 [halves(r1), halves(r2)]
                     .into_iter()
@@ -400,7 +421,10 @@ mod tests {
     fn a_refused_filter_layout_leaves_the_banks_as_they_were() {
         let layout = bank_layout(&list(4), CAN1_BANKS).unwrap();
         let mut wide = layout.clone();
-        wide.banks[2] = (Bank::List16([0x001, 0x800, 0x001, 0x001]), filters::Fifo::Services);
+        wide.banks[2] = (
+            Bank::List16([0x001, 0x800, 0x001, 0x001]),
+            filters::Fifo::Services,
+        );
         let small = (layout, 2);
         for ((layout, owned), fault) in [
             (
@@ -410,13 +434,22 @@ mod tests {
                     value: 0x800,
                 },
             ),
-            (small, FilterFault::TooFewBanks { needed: 3, owned: 2 }),
+            (
+                small,
+                FilterFault::TooFewBanks {
+                    needed: 3,
+                    owned: 2,
+                },
+            ),
         ] {
             let (result, registers) = programmed(&layout, owned);
             assert_eq!(result, Err(fault));
             assert_eq!(registers[FA1R], 0x0FFF_FFFF, "{fault:?}: no bank disabled");
             assert_eq!(registers[FS1R], 0x0FFF_FFFF, "{fault:?}: no bank rescaled");
-            assert!(registers[BANK0..].iter().all(|&word| word == 0), "{fault:?}");
+            assert!(
+                registers[BANK0..].iter().all(|&word| word == 0),
+                "{fault:?}"
+            );
         }
     }
 
@@ -439,14 +472,27 @@ mod tests {
             seg2: 8,
             sync_jump_width: 4,
         };
-        assert_eq!(widest.register(), Ok(0x037F_03FF), "every field at its maximum");
+        assert_eq!(
+            widest.register(),
+            Ok(0x037F_03FF),
+            "every field at its maximum"
+        );
         for wrong in [
-            BitTiming { prescaler: 0, ..timing },
-            BitTiming { prescaler: 1025, ..timing },
+            BitTiming {
+                prescaler: 0,
+                ..timing
+            },
+            BitTiming {
+                prescaler: 1025,
+                ..timing
+            },
             BitTiming { seg1: 0, ..timing },
             BitTiming { seg1: 17, ..timing },
             BitTiming { seg2: 9, ..timing },
-            BitTiming { sync_jump_width: 5, ..timing },
+            BitTiming {
+                sync_jump_width: 5,
+                ..timing
+            },
         ] {
             assert_eq!(wrong.register(), Err(BitTimingOutOfRange), "{wrong:?}");
         }
@@ -504,5 +550,72 @@ mod tests {
             .map(|queued| queued.frame.data()[0])
             .collect();
         assert_eq!(order, [5, 6], "the first heartbeat still first");
+    }
+
+    /// What decides `docs/can-driver.md`: bxcan 0.8 puts a frame into a second or third
+    /// mailbox only when it has a higher priority than every pending one (its rule for
+    /// keeping frames of one identifier in order; it has no setter for CAN_MCR.TXFP), so
+    /// the CiA 304 9.5 loop-back plan, whose bursts must take mailboxes 0, 1 and 2 in their
+    /// own order, is refused at its third frame (`LoopbackFault::Refused(2)`), five frames in
+    /// all; the same bursts in falling identifier order fill the mailboxes. The hardware is
+    /// played by the test: after each frame bxcan accepts, its mailbox is marked pending
+    /// (TMEx = 0) and CODE names the lowest empty one; after each burst all are empty.
+    #[test]
+    fn bxcan_0_8_refuses_the_loopback_plan_in_its_mailbox_order() {
+        use dual_channel::can_loopback::PLAN;
+        let _guard = FAKE_LOCK.lock().unwrap();
+        let mut can = fake_can(14);
+        let mut burst_results = |bursts: &[std::vec::Vec<(u16, u8, u8)>]| {
+            let mut refused = std::vec::Vec::new();
+            for (index, burst) in bursts.iter().enumerate() {
+                let mut empty = [true; 3];
+                for (place, &(id, dlc, fill)) in burst.iter().enumerate() {
+                    let code = empty.iter().position(|&free| free).unwrap_or(0) as u32;
+                    let tme = (0..3)
+                        .filter(|&m| empty[m])
+                        .map(|m| 1 << (26 + m))
+                        .sum::<u32>();
+                    write(TSR, tme | code << 24);
+                    let data = bxcan::Data::new(&[fill; 8][..usize::from(dlc)]).unwrap();
+                    let frame = bxcan::Frame::new_data(StandardId::new(id).unwrap(), data);
+                    match can.transmit(&frame) {
+                        Ok(status) => {
+                            assert!(status.dequeued_frame().is_none());
+                            empty[status.mailbox() as usize] = false;
+                        }
+                        Err(_) => refused.push((index, place)),
+                    }
+                }
+                // The burst has left: mailboxes empty, their requests done (TXRQ = 0).
+                for mailbox in 0..3 {
+                    let tir = 0x180 / 4 + 4 * mailbox;
+                    let word = read(tir);
+                    write(tir, word & !1);
+                }
+            }
+            refused
+        };
+        let plan: std::vec::Vec<std::vec::Vec<(u16, u8, u8)>> = PLAN
+            .iter()
+            .map(|burst| burst.iter().map(|f| (f.id, f.dlc, f.fill)).collect())
+            .collect();
+        assert_eq!(
+            burst_results(&plan),
+            [(0, 2), (1, 1), (2, 2), (3, 1), (3, 2)],
+            "(burst, place) of each frame bxcan refuses"
+        );
+        let falling: std::vec::Vec<_> = plan
+            .iter()
+            .map(|burst| {
+                let mut burst = burst.clone();
+                burst.sort_by(|a, b| b.0.cmp(&a.0));
+                burst
+            })
+            .collect();
+        assert_eq!(
+            burst_results(&falling),
+            [],
+            "falling identifiers: all taken"
+        );
     }
 }
