@@ -252,9 +252,9 @@ mod tests {
         const NUM_FILTER_BANKS: u8 = 28;
     }
 
-    // Word offsets of the registers (RM0090 32.9.5).
-    const MSR: usize = 0x004 / 4;
-    const TSR: usize = 0x008 / 4;
+    // Word offsets of the registers (RM0090 32.9.5: byte offset / 4).
+    const MSR: usize = 1;
+    const TSR: usize = 2;
     /// CAN_TSR.TME0..TME2 (bits 26..=28): the transmit mailboxes empty.
     const TME_ALL: u32 = 0b111 << 26;
     const FMR: usize = 0x200 / 4;
@@ -509,7 +509,7 @@ mod tests {
         assert_eq!(ErrorState::from_esr(0b100), ErrorState::BusOff);
         // The last error code (bits 6:4) and the counters are not a state.
         assert_eq!(ErrorState::from_esr(0xFF7F_0070), ErrorState::Active);
-        let esr = 0x8A_F8_0003;
+        let esr = 0x8AF8_0003;
         assert_eq!(ErrorState::from_esr(esr), ErrorState::Passive);
         assert_eq!(transmit_errors(esr), 0xF8);
         assert_eq!(receive_errors(esr), 0x8A);
@@ -608,7 +608,7 @@ mod tests {
             .iter()
             .map(|burst| {
                 let mut burst = burst.clone();
-                burst.sort_by(|a, b| b.0.cmp(&a.0));
+                burst.sort_by_key(|frame| core::cmp::Reverse(frame.0));
                 burst
             })
             .collect();

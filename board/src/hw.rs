@@ -210,7 +210,9 @@ impl HwDriver<'_> {
     /// `true` when the controller has gone bus-off since the last call ([`ErrorState`]);
     /// every change of its error state is logged. The loop calls [`Driver::receive`] at every
     /// wake-up and at least every 1 ms, and a bus-off lasts at least 128 times 11 recessive
-    /// bits (2.8 ms at 500 kbit/s) before the automatic recovery: none passes unseen.
+    /// bits (2.8 ms at 500 kbit/s, 1.4 ms at 1 Mbit/s) before the automatic recovery, so none
+    /// passes unseen; only during a flash erase (a store, refused in Operational) does the
+    /// loop not run, and a bus-off then costs no SRDO frame.
     fn went_bus_off(&mut self) -> bool {
         let esr = embassy_stm32::pac::CAN1.esr().read().0;
         let state = ErrorState::from_esr(esr);
