@@ -66,6 +66,9 @@ pub struct Hub {
     pub links: Vec<(usize, LinkBytes)>,
     /// Grants the participants acknowledged (`crate::pace`): (participant, virtual time).
     pub acknowledgements: Vec<(usize, Instant)>,
+    /// Frames of emulated MCUs refused because their transmit queue was full: (time,
+    /// participant, frame). See [`Hub::receive`].
+    pub overflowed: Vec<(Instant, usize, CanFrame)>,
 }
 
 impl Hub {
@@ -87,6 +90,7 @@ impl Hub {
             statuses: Vec::new(),
             links: Vec::new(),
             acknowledgements: Vec::new(),
+            overflowed: Vec::new(),
         }
     }
 
@@ -147,26 +151,28 @@ impl Hub {
     /// malformed. From a socketcand client: its commands are served (replies by the next
     /// [`Hub::poll`]) and the frames it sends go on the bus.
     ///
-    /// Returns how many bytes were taken: all of them unless the participant's transmit FIFO
-    /// filled ([`crate::bus::TRANSMIT_QUEUE`]); then the sender waits, and the caller hands the
-    /// rest again after [`Hub::poll`] has put frames on the bus.
+    /// Returns how many bytes were taken. An emulated MCU's bytes are always all taken: its
+    /// acknowledgements of grants share the line with its frames, and the virtual time
+    /// waits for them (`crate::pace`). Were its intake stopped while its transmit queue is
+    /// full, the time would stand still, and with it the bus that would empty the queue:
+    /// under traffic of higher priority than the MCU's own frames, for longer than the
+    /// lookahead, the whole network froze (the bus-load case, `docs/can-receive.md`). A frame
+    /// that finds the queue full ([`crate::bus::TRANSMIT_QUEUE`]) is refused instead and
+    /// recorded in [`Hub::overflowed`], as `board::hw`'s full transmit queue refuses one (the
+    /// channel loop counts it as dropped there). A socketcand client is not paced: its intake
+    /// stops before the message that would overflow its queue, it waits, and the caller
+    /// hands the rest again after [`Hub::poll`] has put frames on the bus.
     pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) -> usize {
         self.join(id);
         if matches!(self.framings[id], Framing::Socketcand(_)) {
             return self.receive_socketcand(now, id, bytes);
         }
-        for (taken, &byte) in bytes.iter().enumerate() {
-            if !self.bus.has_room(id) {
-                return taken;
-            }
+        for &byte in bytes {
             let Framing::Serial(decoder) = &mut self.framings[id] else {
-                return taken;
+                break;
             };
             match decoder.push(byte) {
-                // `has_room` was checked before this byte, so the frame is queued.
-                Some(Ok(Wire::Can(frame))) => {
-                    let _ = self.bus.try_send(id, frame);
-                }
+                Some(Ok(Wire::Can(frame))) => self.queue_or_refuse(now, id, frame),
                 Some(Ok(Wire::Status(status))) => self.statuses.push((now, id, status)),
                 Some(Ok(Wire::Link(bytes))) => self.links.push((id, bytes)),
                 Some(Ok(Wire::Time(micros))) => self
@@ -178,6 +184,14 @@ impl Hub {
             }
         }
         bytes.len()
+    }
+
+    /// Queues an emulated MCU's `frame`, or records it in [`Hub::overflowed`] when its
+    /// transmit queue is full.
+    fn queue_or_refuse(&mut self, now: Instant, id: usize, frame: CanFrame) {
+        if self.bus.try_send(id, frame).is_err() {
+            self.overflowed.push((now, id, frame));
+        }
     }
 
     /// A socketcand client's bytes, one message (up to and including its `>`) at a time, so
@@ -409,28 +423,29 @@ mod tests {
         assert_eq!(hub.malformed.len(), 1);
     }
 
-    /// A participant that sends faster than the bus takes frames waits: the hub takes its
-    /// bytes up to a full transmit FIFO, the rest once the bus has room, and every frame
+    /// A socketcand client that sends faster than the bus takes frames waits: the hub takes
+    /// its bytes up to a full transmit FIFO, the rest once the bus has room, and every frame
     /// reaches the others, in order.
     #[test]
-    fn a_flooding_sender_waits_for_the_bus_and_loses_nothing() {
+    fn a_flooding_tool_waits_for_the_bus_and_loses_nothing() {
         let mut hub = Hub::new(1_000_000);
         hub.join(0);
-        hub.join(1);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
         let frames = 3 * crate::bus::TRANSMIT_QUEUE;
         let mut pending: Vec<u8> = (0..frames)
-            .flat_map(|n| encode(&frame(0x300, &(n as u16).to_le_bytes())).to_vec())
+            .flat_map(|n| format!("< send 300 2 {:02X} {:02X} >", n % 256, n / 256).into_bytes())
             .collect();
-        let first = hub.receive(Instant::ZERO, 0, &pending);
+        let first = hub.receive(Instant::ZERO, 1, &pending);
         assert!(first < pending.len(), "a full FIFO makes the sender wait");
-        assert!(!hub.has_room(0));
+        assert!(!hub.has_room(1));
         pending.drain(..first);
         let mut now = Instant::ZERO;
         let mut received = Vec::new();
         loop {
             let (out, next) = hub.poll(now);
-            received.extend(out.iter().filter(|o| o.to == 1).map(|o| decode(&o.bytes)));
-            let taken = hub.receive(now, 0, &pending);
+            received.extend(out.iter().filter(|o| o.to == 0).map(|o| decode(&o.bytes)));
+            let taken = hub.receive(now, 1, &pending);
             pending.drain(..taken);
             match next {
                 Some(next) => now = next,
@@ -442,6 +457,86 @@ mod tests {
             .map(|n| frame(0x300, &(n as u16).to_le_bytes()))
             .collect();
         assert_eq!(received, expected);
+        assert!(hub.overflowed.is_empty());
+    }
+
+    /// An emulated MCU whose transmit queue is full still has every byte taken: the frame
+    /// beyond the queue is refused and recorded, and what follows it on the line (here an
+    /// acknowledgement of a grant and a status report) is handled at once.
+    #[test]
+    fn an_emulated_mcu_with_a_full_transmit_queue_still_has_its_acknowledgements_taken() {
+        let mut hub = Hub::new(500_000);
+        hub.join(0);
+        hub.join(1);
+        let frames = crate::bus::TRANSMIT_QUEUE + 3;
+        let mut bytes: Vec<u8> = (0..frames)
+            .flat_map(|n| encode(&frame(0x5A1, &[n as u8])).to_vec())
+            .collect();
+        bytes.extend_from_slice(&encode_wire(&Wire::Time(4_000)));
+        bytes.extend_from_slice(&encode_wire(&Wire::Status(Status::default())));
+        let at = Instant::from_micros(5);
+        assert_eq!(hub.receive(at, 0, &bytes), bytes.len(), "every byte taken");
+        assert_eq!(hub.acknowledgements, [(0, Instant::from_micros(4_000))]);
+        assert_eq!(hub.statuses.len(), 1);
+        assert_eq!(hub.queued(0), crate::bus::TRANSMIT_QUEUE);
+        let refused: Vec<(Instant, usize, CanFrame)> = (crate::bus::TRANSMIT_QUEUE..frames)
+            .map(|n| (at, 0, frame(0x5A1, &[n as u8])))
+            .collect();
+        assert_eq!(hub.overflowed, refused);
+    }
+
+    /// The deadlock of the bus-load case, as a regression test on the hub and its pacer: a
+    /// tool floods the bus with frames that win arbitration over an emulated MCU's (281h over
+    /// 5A1h), the MCU's transmit queue is full, and it acknowledges every grant right after
+    /// its frames. The virtual time keeps running (before, it stood still one lookahead after
+    /// the start, and the whole network with it), and the bus keeps carrying the flood.
+    #[test]
+    fn the_virtual_time_runs_on_while_a_flood_of_higher_priority_holds_an_mcus_queue_full() {
+        use crate::pace::{GRANT_PERIOD, LOOKAHEAD, Pacer};
+        let mut hub = Hub::new(500_000);
+        let mut pacer = Pacer::new(LOOKAHEAD, GRANT_PERIOD);
+        hub.join(0);
+        pacer.join(0);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
+        let flood = b"< send 281 8 55 55 55 55 55 55 55 55 >".repeat(64);
+        // The MCU's line: its frames first, then (each step) the acknowledgement of a grant.
+        let mut line: Vec<u8> = (0..2 * crate::bus::TRANSMIT_QUEUE)
+            .flat_map(|n| encode(&frame(0x5A1, &[n as u8])).to_vec())
+            .collect();
+        let mut tool_backlog: Vec<u8> = Vec::new();
+        // Steps of 100 µs, so that the bus (a frame of 281h takes about 250 µs at 500 kbit/s)
+        // is hardly ever idle between them: about 660 frames in 200 ms.
+        for step in 0..=2_000u64 {
+            let host = Instant::from_micros(100 * step);
+            let now = pacer.advance(host);
+            if tool_backlog.len() < flood.len() {
+                tool_backlog.extend_from_slice(&flood);
+            }
+            let taken = hub.receive(now, 1, &tool_backlog);
+            tool_backlog.drain(..taken);
+            let taken = hub.receive(now, 0, &line);
+            line.drain(..taken);
+            for (id, time) in hub.acknowledgements.drain(..) {
+                pacer.acknowledged(id, time, host);
+            }
+            let _ = hub.poll(now);
+            for _ in pacer.grants_due(host) {
+                line.extend_from_slice(&encode_wire(&Wire::Time(now.as_micros())));
+            }
+        }
+        assert!(
+            pacer.now() >= Instant::from_millis(190),
+            "the virtual time stood still at {:?}",
+            pacer.now()
+        );
+        let flood_frames = hub
+            .completed
+            .iter()
+            .filter(|(_, frame, _)| frame.id().raw() == 0x281)
+            .count();
+        assert!(flood_frames > 600, "{flood_frames} flood frames on the bus");
+        assert_eq!(hub.overflowed.len(), crate::bus::TRANSMIT_QUEUE);
     }
 
     /// Link bytes and acknowledgements of grants are kept off the bus, in the order they came.

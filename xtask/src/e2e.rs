@@ -26,7 +26,6 @@
 
 use crate::network::{self, Network, output_33, working};
 use anyhow::{Result, bail};
-use safety_config::Transport;
 use shared::safety::cause::Cause;
 use std::time::Duration;
 
@@ -269,80 +268,186 @@ pub fn run_all(network: &mut Network, with_bus_load: bool) -> Result<Vec<Measure
     Ok(results)
 }
 
-/// The share of the bus [`bus_load`] fills beside the SRDOs.
-pub const LOAD: f64 = 0.30;
+/// The share of the bus, in percent, that the traffic other than SRDOs fills while
+/// [`bus_load`] runs (the hub's `load` command counts every frame outside the SRDO
+/// identifiers, node 33's SDO answers included).
+pub const LOAD_PERCENT: u32 = 30;
+/// How far the share the trace shows may be from [`LOAD_PERCENT`], in percentage points.
+pub const LOAD_TOLERANCE: f64 = 0.5;
 /// How long [`bus_load`] keeps it up (the network's time).
 pub const LOAD_SECONDS: f64 = 60.0;
 /// The identifier of the non-safety frames [`bus_load`] sends (a PDO of node 1's range that
 /// no node here uses).
 pub const LOAD_ID: u16 = 0x281;
+/// The SDO upload request to node 33 among them (1018h:01h, as python-canopen reads an
+/// identity), and node 33's answer's identifier.
+const SDO_REQUEST_ID: u16 = 0x621;
+const SDO_REQUEST_DATA: &str = "4018100100000000";
+const SDO_ANSWER_ID: u16 = 0x5A1;
+/// How long (host time) the network's virtual time may stand still before the case fails
+/// ([`Watchdog`]): far beyond any stall measured at a load average of 21 (374 ms), far below
+/// "hangs".
+pub const STALL_LIMIT: Duration = Duration::from_secs(30);
 
-/// SDO upload requests to node 33 (1018h:01h, as python-canopen reads an identity) and
-/// non-safety frames on [`LOAD`] of the bus, counted in the network's time, for
-/// [`LOAD_SECONDS`], through a socketcand client of its own; both nodes must keep working.
-fn bus_load(network: &mut Network) -> Result<()> {
-    use shared::{CanFrame, CanId};
-    let mut traffic = network::connect_tool(Duration::from_secs(5))?;
-    let frame = |id: u16, data: &[u8]| {
-        CanId::new(id)
-            .ok()
-            .and_then(|id| CanFrame::new(id, data).ok())
-            .ok_or_else(|| anyhow::anyhow!("no frame on {id:03X}h"))
-    };
-    let request = frame(0x621, &[0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0])?;
-    let other = frame(LOAD_ID, &[0x55; 8])?;
-    let bits = |frame: &CanFrame| f64::from(can_hub::bus::frame_bits(frame));
-    let bit_rate = f64::from(dual_channel::device::BIT_RATE);
-    let start = network.hub_time();
-    let mut queued_bits = 0.0;
-    let mut sent = 0u64;
-    println!(
-        "   bus load: SDO and non-safety frames on {:.0} % of the bus for {LOAD_SECONDS} s",
-        LOAD * 100.0
-    );
-    loop {
-        // Time runs on while the network reports; nothing is waited for.
-        network.wait_for(Duration::from_millis(20), |_| false)?;
+/// Fails a case when the network's virtual time stands still for [`STALL_LIMIT`] of host
+/// time, with a sentence naming what is stuck: the hub (it writes nothing on its control
+/// port any more) or the emulated MCU the time waits for (the hub's `slowest` line).
+struct Watchdog {
+    virtual_time: f64,
+    since: std::time::Instant,
+}
+
+impl Watchdog {
+    fn new(network: &Network) -> Self {
+        Watchdog {
+            virtual_time: network.hub_time(),
+            since: std::time::Instant::now(),
+        }
+    }
+
+    fn check(&mut self, network: &Network, case: &str) -> Result<()> {
         let now = network.hub_time();
-        if now - start >= LOAD_SECONDS {
+        if now > self.virtual_time {
+            self.virtual_time = now;
+            self.since = std::time::Instant::now();
+            return Ok(());
+        }
+        let stood = self.since.elapsed();
+        if stood < STALL_LIMIT {
+            return Ok(());
+        }
+        let control = &network.control;
+        let silent = control.last_line.map_or(stood, |at| at.elapsed());
+        if silent >= STALL_LIMIT {
+            bail!(
+                "{case}: the network's time has stood at {now:.3} s for {:.0} s of host time, \
+                 and the hub has written nothing on its control port for {:.0} s: the hub is \
+                 stuck (`gdb -p` on can-hub shows where its main loop blocks)",
+                stood.as_secs_f64(),
+                silent.as_secs_f64()
+            );
+        }
+        match &control.slowest {
+            Some((name, acknowledged)) => bail!(
+                "{case}: the network's time has stood at {now:.3} s for {:.0} s of host time: \
+                 the hub waits for {name}, which has acknowledged no grant of the virtual time \
+                 after {acknowledged:.3} s (its QEMU does not run, or the hub does not read its \
+                 line)\n{}",
+                stood.as_secs_f64(),
+                network.table()
+            ),
+            None => bail!(
+                "{case}: the network's time has stood at {now:.3} s for {:.0} s of host time, \
+                 and the hub has named no emulated MCU it waits for",
+                stood.as_secs_f64()
+            ),
+        }
+    }
+}
+
+/// SDO upload requests to node 33 and non-safety frames on [`LOAD_ID`], one request in five,
+/// generated by the hub in the network's time (its `load` command: nothing outside the hub's
+/// loop paces it, so nothing can block the clock) so that the traffic other than SRDOs
+/// fills [`LOAD_PERCENT`] of the bus, for [`LOAD_SECONDS`] of the network's time. Both nodes
+/// must keep working throughout, and no emulated MCU may lose a frame to a full transmit
+/// queue in the hub; a network whose time stands still fails the case ([`Watchdog`]).
+fn bus_load(network: &mut Network) -> Result<()> {
+    let request = format!("{SDO_REQUEST_ID:03X}#{SDO_REQUEST_DATA}");
+    let other = format!("{LOAD_ID:03X}#5555555555555555");
+    let frames = [&request, &other, &other, &other, &other]
+        .map(String::as_str)
+        .join(" ");
+    println!(
+        "   bus load: SDO requests to node 33 and non-safety frames, {LOAD_PERCENT} % of the \
+         bus beside the SRDOs for {LOAD_SECONDS} s"
+    );
+    let hub_err = network.dir().join("hub.err");
+    let refused_before = refused_frames(&hub_err).len();
+    let start = network.command(&format!("load {LOAD_PERCENT} {frames}"))?;
+    let mut watchdog = Watchdog::new(network);
+    let host_start = std::time::Instant::now();
+    loop {
+        let left = start + LOAD_SECONDS - network.hub_time();
+        if left <= 0.0 {
             break;
         }
-        let due = LOAD * bit_rate * (now - start);
-        // At most two transmit queues' worth per step: the hub stops reading a client whose
-        // queue is full, and a client blocked in a write reads neither the bus nor the
-        // control port (which the hub then waits for). Behind, the load is what the trace
-        // shows, reported.
-        let mut burst = 0;
-        while queued_bits < due && burst < 2 * can_hub::bus::TRANSMIT_QUEUE {
-            burst += 1;
-            // One SDO request in five: it and its answer, the rest other frames.
-            let next = if sent % 5 == 0 { request } else { other };
-            traffic.transport.send(&next)?;
-            queued_bits += bits(&next) * if sent % 5 == 0 { 2.0 } else { 1.0 };
-            sent += 1;
-        }
-        // Read what the hub sends this client, so that its writes never pile up.
-        let until = traffic.transport.now();
-        while traffic.transport.receive(until)?.is_some() {}
-        if !(working(&network.control.latest, 1) && working(&network.control.latest, 33)) {
+        let slice = Duration::from_secs_f64(left.min(1.0));
+        let left_working =
+            network.wait_for(slice, |latest| !(working(latest, 1) && working(latest, 33)))?;
+        if let Some(at) = left_working {
             bail!(
-                "under bus load ({sent} frames sent in {:.1} s) a node left the working \
-                 state:\n{}",
-                now - start,
+                "under bus load, {:.1} s into it, a node left the working state:\n{}",
+                at - start,
                 network.table()
             );
         }
+        watchdog.check(network, "bus load")?;
     }
-    drop(traffic);
-    nominal(network, "after the bus load")?;
-    println!("   bus load: {sent} frames sent, both nodes working throughout");
-    Ok(())
+    network.command("load off")?;
+    println!(
+        "   bus load: {LOAD_SECONDS} s of the network's time in {:.0} s of host time, both \
+         nodes working throughout",
+        host_start.elapsed().as_secs_f64()
+    );
+    let refused = refused_frames(&hub_err);
+    if refused.len() > refused_before {
+        bail!(
+            "under bus load the hub refused frames of emulated MCUs (their transmit queue \
+             full):\n{}",
+            refused[refused_before..].join("\n")
+        );
+    }
+    nominal(network, "after the bus load")
 }
 
-/// The SRDO plain-to-inverted gaps while [`bus_load`] ran (from its first to its last
-/// [`LOAD_ID`] frame in the candump trace `log`), in milliseconds, sorted, and the bus load
-/// the trace shows over that window.
-pub fn gaps(log: &str) -> (Vec<f64>, f64) {
+/// The hub's reports of emulated MCUs' frames it dropped at a full transmit queue.
+fn refused_frames(hub_err: &std::path::Path) -> Vec<String> {
+    std::fs::read_to_string(hub_err)
+        .unwrap_or_default()
+        .lines()
+        .filter(|line| line.contains("transmit queue is full"))
+        .map(str::to_string)
+        .collect()
+}
+
+/// What the candump trace shows of the bus while [`bus_load`] ran (from its first to its
+/// last [`LOAD_ID`] frame).
+#[derive(Debug, Default, PartialEq)]
+pub struct LoadTrace {
+    /// The SRDO plain-to-inverted gaps, in milliseconds, sorted.
+    pub gaps: Vec<f64>,
+    /// Bits on the bus over bit time, every frame.
+    pub load: f64,
+    /// The same for the frames outside the SRDO identifiers (what the hub's load counts).
+    pub other: f64,
+    /// SDO requests to node 33 over the whole trace (the configuration's and the load's).
+    pub requests: usize,
+    /// Node 33's SDO answers over the whole trace.
+    pub answers: usize,
+    /// How long after each request its answer ended on the bus, in milliseconds, sorted
+    /// (node 33's SDO server answers in order: the n-th answer is the n-th request's).
+    pub answer_latencies: Vec<f64>,
+}
+
+impl LoadTrace {
+    /// The gap at `share` (0.5: the median), `NaN` when there is none.
+    pub fn gap_at(&self, share: f64) -> f64 {
+        at_share(&self.gaps, share)
+    }
+}
+
+/// The value at `share` of the sorted `values` (0.5: the median), `NaN` when there is none.
+fn at_share(values: &[f64], share: f64) -> f64 {
+    let last = values.len().saturating_sub(1);
+    values
+        .get(((values.len() as f64 * share) as usize).min(last))
+        .copied()
+        .unwrap_or(f64::NAN)
+}
+
+/// Reads [`LoadTrace`] from the candump trace `log`.
+pub fn load_trace(log: &str) -> LoadTrace {
+    use shared::safety::types::SRDO_IDENTIFIERS;
     use shared::{CanFrame, CanId};
     let frames: Vec<(f64, CanFrame)> = log
         .lines()
@@ -361,30 +466,52 @@ pub fn gaps(log: &str) -> (Vec<f64>, f64) {
         frames.iter().position(|f| loaded(&f)),
         frames.iter().rposition(|f| loaded(&f)),
     ) else {
-        return (Vec::new(), 0.0);
+        return LoadTrace::default();
     };
+    let mut trace = LoadTrace::default();
+    let stamps = |id: u16| -> Vec<f64> {
+        frames
+            .iter()
+            .filter(|(_, frame)| frame.id().raw() == id)
+            .map(|(time, _)| *time)
+            .collect()
+    };
+    let (requests, answers) = (stamps(SDO_REQUEST_ID), stamps(SDO_ANSWER_ID));
+    (trace.requests, trace.answers) = (requests.len(), answers.len());
+    trace.answer_latencies = requests
+        .iter()
+        .zip(&answers)
+        .map(|(request, answer)| (answer - request) * 1000.0)
+        .collect();
+    trace.answer_latencies.sort_by(f64::total_cmp);
     let window = &frames[first..=last];
-    let mut gaps = Vec::new();
     let mut plain = None;
+    let (mut bits, mut other_bits) = (0.0, 0.0);
     for (time, frame) in window {
+        let frame_bits = f64::from(can_hub::bus::frame_bits(frame));
+        bits += frame_bits;
         match frame.id().raw() {
             network::PLAIN => plain = Some(*time),
             network::INVERTED => {
                 if let Some(at) = plain.take() {
-                    gaps.push((time - at) * 1000.0);
+                    trace.gaps.push((time - at) * 1000.0);
                 }
             }
             _ => {}
         }
+        if !SRDO_IDENTIFIERS.contains(&frame.id().raw()) {
+            other_bits += frame_bits;
+        }
     }
-    gaps.sort_by(f64::total_cmp);
-    let bits: f64 = window
-        .iter()
-        .map(|(_, frame)| f64::from(can_hub::bus::frame_bits(frame)))
-        .sum();
-    let seconds = window.last().map_or(0.0, |l| l.0) - window[0].0;
-    let load = bits / f64::from(dual_channel::device::BIT_RATE) / seconds.max(1e-9);
-    (gaps, load)
+    trace.gaps.sort_by(f64::total_cmp);
+    // The window runs from the start of the first load frame (it ends at its stamp) to the
+    // end of the last.
+    let first_bits = f64::from(can_hub::bus::frame_bits(&window[0].1));
+    let bit_rate = f64::from(dual_channel::device::BIT_RATE);
+    let seconds = window[window.len() - 1].0 - window[0].0 + first_bits / bit_rate;
+    trace.load = bits / bit_rate / seconds.max(1e-9);
+    trace.other = other_bits / bit_rate / seconds.max(1e-9);
+    trace
 }
 
 /// `cargo xtask e2e`.
@@ -420,24 +547,40 @@ pub fn task(root: &std::path::Path, with_bus_load: bool) -> Result<()> {
     println!("   {pace}");
     println!("   traces and logs: {}", dir.display());
     if outcome.is_ok() && with_bus_load {
-        let log = std::fs::read_to_string(dir.join("bus.log"))?;
-        let (gaps, load) = gaps(&log);
-        let at = |share: f64| {
-            gaps.get(((gaps.len() as f64 * share) as usize).min(gaps.len().saturating_sub(1)))
-                .copied()
-                .unwrap_or(f64::NAN)
-        };
+        let trace = load_trace(&std::fs::read_to_string(dir.join("bus.log"))?);
         println!(
-            "   bus load in the trace: {:.1} % of the bus (SRDOs included); {} SRDO pairs, \
-             plain-to-inverted gap median {:.2} ms, 99 % within {:.2} ms, longest {:.2} ms",
-            load * 100.0,
-            gaps.len(),
-            at(0.5),
-            at(0.99),
-            gaps.last().copied().unwrap_or(f64::NAN)
+            "   bus load in the trace: {:.1} % of the bus, {:.1} % of it outside the SRDOs; \
+             {} SDO requests to node 33, {} answers (median {:.2} ms after the request, 99 % \
+             within {:.2} ms, longest {:.2} ms); {} SRDO pairs, plain-to-inverted gap median \
+             {:.2} ms, 99 % within {:.2} ms, longest {:.2} ms",
+            trace.load * 100.0,
+            trace.other * 100.0,
+            trace.requests,
+            trace.answers,
+            at_share(&trace.answer_latencies, 0.5),
+            at_share(&trace.answer_latencies, 0.99),
+            trace.answer_latencies.last().copied().unwrap_or(f64::NAN),
+            trace.gaps.len(),
+            trace.gap_at(0.5),
+            trace.gap_at(0.99),
+            trace.gaps.last().copied().unwrap_or(f64::NAN)
         );
-        if gaps.is_empty() {
+        if trace.gaps.is_empty() {
             bail!("the trace shows no SRDO pair while the bus was loaded");
+        }
+        let other = trace.other * 100.0;
+        if (other - f64::from(LOAD_PERCENT)).abs() > LOAD_TOLERANCE {
+            bail!(
+                "the trace shows {other:.2} % of the bus outside the SRDOs under load, not \
+                 {LOAD_PERCENT} % (± {LOAD_TOLERANCE})"
+            );
+        }
+        if trace.answers != trace.requests {
+            bail!(
+                "node 33 answered {} of {} SDO requests under bus load",
+                trace.answers,
+                trace.requests
+            );
         }
     }
     outcome?;
