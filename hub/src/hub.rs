@@ -632,9 +632,8 @@ mod tests {
         assert!(!hub.has_room(1));
     }
 
-    /// Frames that end on the bus, for each receiver: polls from `now` until nothing is due.
-    fn frames_for(hub: &mut Hub, now: Instant, to: usize) -> Vec<u16> {
-        let (out, _) = run_idle(hub, now);
+    /// The identifiers of the frames in `out` for participant `to`, in order.
+    fn frames_for(out: &[Outgoing], to: usize) -> Vec<u16> {
         out.iter()
             .filter(|o| o.to == to)
             .map(|o| decode(&o.bytes).id().raw())
@@ -643,32 +642,32 @@ mod tests {
 
     /// An emulated channel receives every frame until it lists the identifiers its controller
     /// accepts, then only data frames on them (a list in several chunks once its last chunk
-    /// has come); a socketcand client keeps receiving every frame; a channel that leaves and
-    /// comes back receives everything again until it lists anew.
+    /// has come); a channel without a list keeps receiving every frame; a channel that leaves
+    /// and comes back receives everything again until it lists anew.
     #[test]
     fn an_emulated_channel_receives_only_what_its_controller_accepts() {
         let mut hub = Hub::new(1_000_000);
         for id in 0..3 {
             hub.join(id);
         }
-        let send_all = |hub: &mut Hub| {
+        // NMT, an SDO answer, an SDO request, and a remote frame on the request's identifier.
+        let send_all = |hub: &mut Hub, at: Instant| {
             for frame in [
                 frame(0x000, &[1, 0]),
                 frame(0x581, &[0x43, 0, 0x10, 0, 0, 0, 0, 0]),
                 frame(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]),
                 CanFrame::remote(CanId::new(0x601).unwrap(), 0).unwrap(),
             ] {
-                hub.receive(Instant::ZERO, 0, &encode(&frame));
+                hub.receive(at, 0, &encode(&frame));
             }
+            run_idle(hub, at).0
         };
-        send_all(&mut hub);
+        let everything = [0x000, 0x581, 0x601, 0x601];
         assert_eq!(hub.accepted(1), None);
-        assert_eq!(
-            frames_for(&mut hub, Instant::ZERO, 1),
-            [0x000, 0x581, 0x601, 0x601]
-        );
+        let out = send_all(&mut hub, Instant::ZERO);
+        assert_eq!(frames_for(&out, 1), everything);
 
-        // A list of more identifiers than one chunk holds: 0x000, 0x601 and filler.
+        // A list of more identifiers than one chunk holds: NMT, the SDO request and filler.
         let ids: Vec<u16> = [0x000, 0x601]
             .into_iter()
             .chain(0x100..0x100 + emulation_wire::ACCEPT_CHUNK as u16)
@@ -684,42 +683,19 @@ mod tests {
         sorted.sort_unstable();
         assert_eq!(hub.accepted(1), Some(sorted));
 
-        let now = Instant::from_millis(10);
-        for frame in [
-            frame(0x000, &[1, 0]),
-            frame(0x581, &[0x60, 0, 0x10, 0, 0, 0, 0, 0]),
-        ] {
-            hub.receive(now, 0, &encode(&frame));
-        }
-        hub.receive(
-            now,
-            0,
-            &encode(&frame(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0])),
-        );
-        hub.receive(
-            now,
-            0,
-            &encode(&CanFrame::remote(CanId::new(0x601).unwrap(), 0).unwrap()),
-        );
-        let (out, _) = run_idle(&mut hub, now);
-        let to = |n: usize| -> Vec<u16> {
-            out.iter()
-                .filter(|o| o.to == n)
-                .map(|o| decode(&o.bytes).id().raw())
-                .collect()
-        };
-        assert_eq!(to(1), [0x000, 0x601], "data frames on its identifiers only");
+        let out = send_all(&mut hub, Instant::from_millis(10));
         assert_eq!(
-            to(2),
-            [0x000, 0x581, 0x601, 0x601],
-            "another channel: no list"
+            frames_for(&out, 1),
+            [0x000, 0x601],
+            "data frames on its list only"
         );
+        assert_eq!(frames_for(&out, 2), everything, "no list: every frame");
 
         hub.leave(1);
         hub.join(1);
         assert_eq!(hub.accepted(1), None);
-        send_all(&mut hub);
-        assert_eq!(frames_for(&mut hub, Instant::from_millis(20), 1).len(), 4);
+        let out = send_all(&mut hub, Instant::from_millis(20));
+        assert_eq!(frames_for(&out, 1), everything);
     }
 
     /// A socketcand client receives every frame whatever the emulated channels listed.
