@@ -359,15 +359,26 @@ impl Driver for QemuDriver {
                     self.pending = Some(Pending::Input);
                 }
                 Wire::Time(granted) => Self::grant(granted),
-                Wire::Status(_) => defmt::warn!("CAN bridge: status from the hub"),
+                Wire::Status(_) | Wire::Accept(_) => {
+                    defmt::warn!("CAN bridge: a channel's message from the hub")
+                }
             }
         }
         None
     }
 
     fn apply_filters(&mut self, list: &AcceptanceList) {
-        // The hub sends every frame: the loop's software filter, the same list, is the one.
+        // The hub plays the controller's filter banks: it sends only frames on these
+        // identifiers (`Wire::Accept`); the loop's software filter, the same list, stays.
         defmt::info!("CAN filters: {=usize} identifiers", list.ids().len());
+        let mut ids = [0u16; dual_channel::filters::MAX_ACCEPTED];
+        for (slot, id) in ids.iter_mut().zip(list.ids()) {
+            *slot = id.raw();
+        }
+        let count = list.ids().len().min(ids.len());
+        for chunk in can_serial::AcceptChunk::split(&ids[..count]) {
+            send(&Wire::Accept(chunk));
+        }
     }
 
     fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {

@@ -5,13 +5,21 @@
 //! sans-I/O session ([`safety_config::socketcand::server`]), the same module the tool's own
 //! tests run in-process.
 //!
+//! An emulated channel receives only the frames its CAN controller would let through: the
+//! identifiers it listed last ([`Wire::Accept`], the acceptance list the hardware layer
+//! writes into bxCAN's filter banks), every frame before its first list. A socketcand client
+//! receives every frame, as a socketcand daemon's raw socket does.
+//!
 //! Sans-I/O like the rest: the program feeds it the bytes each participant sent and the time,
 //! and asks it what to write to whom and when to wake next.
 
 use crate::bus::{Bus, Delivery, Injection, QueueFull};
-use emulation_wire::{Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire};
+use emulation_wire::{
+    AcceptChunk, Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire,
+};
 use safety_config::socketcand::server::{self, Output, Session};
 use shared::{CanFrame, Instant};
+use std::collections::BTreeSet;
 
 /// Bytes for one participant, to be written in one write of their own: one CAN-over-serial
 /// frame, or one socketcand message (python-can compares each handshake reply it receives by
@@ -44,10 +52,46 @@ enum Framing {
     Socketcand(Box<Session>),
 }
 
+/// Which frames an emulated channel's controller lets through.
+#[derive(Clone, Debug, Default)]
+struct Acceptance {
+    /// The identifiers of the last complete list; `None`: no list yet, every frame.
+    list: Option<BTreeSet<u16>>,
+    /// A list whose last chunk has not come yet.
+    incoming: Option<BTreeSet<u16>>,
+}
+
+impl Acceptance {
+    /// Takes one chunk of a list; the list applies once its last chunk has come. A chunk
+    /// without the first one before it is dropped (the list before stays).
+    fn take(&mut self, chunk: &AcceptChunk) {
+        if chunk.is_first() {
+            self.incoming = Some(BTreeSet::new());
+        }
+        if let Some(incoming) = self.incoming.as_mut() {
+            incoming.extend(chunk.ids());
+            if chunk.is_last() {
+                self.list = self.incoming.take();
+            }
+        }
+    }
+
+    /// `true` when the controller lets `frame` through: a data frame on a listed identifier
+    /// (the channel follows no remote frame, `dual_channel::filters`), or any frame before
+    /// the first list.
+    fn accepts(&self, frame: &CanFrame) -> bool {
+        self.list
+            .as_ref()
+            .is_none_or(|ids| !frame.is_remote() && ids.contains(&frame.id().raw()))
+    }
+}
+
 /// The hub: each participant's framing, the bus, frames in flight.
 pub struct Hub {
     bus: Bus,
     framings: Vec<Framing>,
+    /// Per participant, the frames its controller lets through (emulated channels).
+    acceptance: Vec<Acceptance>,
     present: Vec<bool>,
     in_flight: Vec<Delivery>,
     /// Replies to socketcand clients not yet handed out by [`Hub::poll`].
@@ -81,6 +125,7 @@ impl Hub {
         Hub {
             bus,
             framings: Vec::new(),
+            acceptance: Vec::new(),
             present: Vec::new(),
             in_flight: Vec::new(),
             replies: Vec::new(),
@@ -105,6 +150,7 @@ impl Hub {
             self.present.resize(id + 1, false);
             self.framings
                 .resize_with(id + 1, || Framing::Serial(Decoder::new()));
+            self.acceptance.resize_with(id + 1, Acceptance::default);
         }
         self.present[id] = true;
     }
@@ -129,6 +175,9 @@ impl Hub {
         }
         if let Some(framing) = self.framings.get_mut(id) {
             *framing = Framing::Serial(Decoder::new());
+        }
+        if let Some(acceptance) = self.acceptance.get_mut(id) {
+            *acceptance = Acceptance::default();
         }
         self.replies.retain(|reply| reply.to != id);
         self.closing.retain(|closing| *closing != id);
@@ -178,6 +227,7 @@ impl Hub {
                 Some(Ok(Wire::Time(micros))) => self
                     .acknowledgements
                     .push((id, Instant::from_micros(micros))),
+                Some(Ok(Wire::Accept(chunk))) => self.acceptance[id].take(&chunk),
                 Some(Ok(Wire::Input(_))) => self.malformed.push((id, SerialError::Malformed)),
                 Some(Err(error)) => self.malformed.push((id, error)),
                 None => {}
@@ -228,6 +278,13 @@ impl Hub {
         taken
     }
 
+    /// The identifiers emulated channel `id` listed last ([`Wire::Accept`]), in order; `None`
+    /// before its first list (it receives every frame).
+    pub fn accepted(&self, id: usize) -> Option<Vec<u16>> {
+        let list = self.acceptance.get(id)?.list.as_ref()?;
+        Some(list.iter().copied().collect())
+    }
+
     /// How many frames participant `id` has waiting for the bus.
     pub fn queued(&self, id: usize) -> usize {
         self.bus.queued(id)
@@ -261,7 +318,8 @@ impl Hub {
     }
 
     /// Everything due at `now`: frames that ended go to every present participant but their
-    /// sender; the next arbitration starts when the bus is free. Returns what to write, and
+    /// sender whose controller lets them through; the next arbitration starts when the bus is
+    /// free. Returns what to write, and
     /// when to call again (`None`: when bytes arrive).
     ///
     /// Replies to socketcand clients come first; a socketcand client receives bus frames as
@@ -296,10 +354,13 @@ impl Hub {
                         continue;
                     }
                     match &mut self.framings[to] {
-                        Framing::Serial(_) => out.push(Outgoing {
-                            to,
-                            bytes: serial.clone(),
-                        }),
+                        Framing::Serial(_) if self.acceptance[to].accepts(&delivery.frame) => {
+                            out.push(Outgoing {
+                                to,
+                                bytes: serial.clone(),
+                            });
+                        }
+                        Framing::Serial(_) => {}
                         Framing::Socketcand(session) => {
                             if let Some(message) = session.frame(&delivery.frame, stamp, clock(now))
                             {
@@ -664,6 +725,91 @@ mod tests {
         let taken = hub.receive(Instant::ZERO, 1, &flood);
         assert_eq!(taken, message.len() * crate::bus::TRANSMIT_QUEUE);
         assert!(!hub.has_room(1));
+    }
+
+    /// The identifiers of the frames in `out` for participant `to`, in order.
+    fn frames_for(out: &[Outgoing], to: usize) -> Vec<u16> {
+        out.iter()
+            .filter(|o| o.to == to)
+            .map(|o| decode(&o.bytes).id().raw())
+            .collect()
+    }
+
+    /// An emulated channel receives every frame until it lists the identifiers its controller
+    /// accepts, then only data frames on them (a list in several chunks once its last chunk
+    /// has come); a channel without a list keeps receiving every frame; a channel that leaves
+    /// and comes back receives everything again until it lists anew.
+    #[test]
+    fn an_emulated_channel_receives_only_what_its_controller_accepts() {
+        let mut hub = Hub::new(1_000_000);
+        for id in 0..3 {
+            hub.join(id);
+        }
+        // NMT, an SDO answer, an SDO request, and a remote frame on the request's identifier.
+        let send_all = |hub: &mut Hub, at: Instant| {
+            for frame in [
+                frame(0x000, &[1, 0]),
+                frame(0x581, &[0x43, 0, 0x10, 0, 0, 0, 0, 0]),
+                frame(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]),
+                CanFrame::remote(CanId::new(0x601).unwrap(), 0).unwrap(),
+            ] {
+                hub.receive(at, 0, &encode(&frame));
+            }
+            run_idle(hub, at).0
+        };
+        let everything = [0x000, 0x581, 0x601, 0x601];
+        assert_eq!(hub.accepted(1), None);
+        let out = send_all(&mut hub, Instant::ZERO);
+        assert_eq!(frames_for(&out, 1), everything);
+
+        // A list of more identifiers than one chunk holds: NMT, the SDO request and filler.
+        let ids: Vec<u16> = [0x000, 0x601]
+            .into_iter()
+            .chain(0x100..0x100 + emulation_wire::ACCEPT_CHUNK as u16)
+            .collect();
+        let chunks: Vec<Vec<u8>> = AcceptChunk::split(&ids)
+            .map(|chunk| encode_wire(&Wire::Accept(chunk)).to_vec())
+            .collect();
+        assert_eq!(chunks.len(), 2);
+        hub.receive(Instant::ZERO, 1, &chunks[0]);
+        assert_eq!(hub.accepted(1), None, "not before the last chunk");
+        hub.receive(Instant::ZERO, 1, &chunks[1]);
+        let mut sorted = ids.clone();
+        sorted.sort_unstable();
+        assert_eq!(hub.accepted(1), Some(sorted));
+
+        let out = send_all(&mut hub, Instant::from_millis(10));
+        assert_eq!(
+            frames_for(&out, 1),
+            [0x000, 0x601],
+            "data frames on its list only"
+        );
+        assert_eq!(frames_for(&out, 2), everything, "no list: every frame");
+
+        hub.leave(1);
+        hub.join(1);
+        assert_eq!(hub.accepted(1), None);
+        let out = send_all(&mut hub, Instant::from_millis(20));
+        assert_eq!(frames_for(&out, 1), everything);
+    }
+
+    /// A socketcand client receives every frame whatever the emulated channels listed.
+    #[test]
+    fn a_socketcand_client_receives_every_frame() {
+        let mut hub = Hub::new(1_000_000);
+        hub.join(0);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
+        let list = AcceptChunk::split(&[0x000]).next().unwrap();
+        hub.receive(Instant::ZERO, 0, &encode_wire(&Wire::Accept(list)));
+        let later = Instant::ZERO + RAW_MODE_GRACE;
+        hub.receive(later, 0, &encode(&frame(0x701, &[0x05])));
+        let (out, _) = run_idle(&mut hub, later);
+        assert!(
+            out.iter()
+                .any(|o| o.to == 1 && text(o).starts_with("< frame 701 ")),
+            "{out:?}"
+        );
     }
 
     #[test]
