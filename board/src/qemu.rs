@@ -529,22 +529,24 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         driver.first_grant();
     }
     driver.diagnostics.input(driver.input);
-    let Ok(mut runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
-    else {
+    // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime through
+    // this task's stack frame (`docs/footprint.md`).
+    let mut built = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD);
+    let Ok(runtime) = &mut built else {
         defmt::error!("device description refused");
         exit(false);
     };
     let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
     loop {
-        let deadline = channel.service(&mut runtime, &mut driver);
+        let deadline = channel.service(runtime, &mut driver);
         let at = now();
         let stall = LONGEST_STALL_MS.load(Ordering::Relaxed);
         driver
             .diagnostics
             .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
         driver.diagnostics.stack(crate::stack::used());
-        if let Some(status) = driver.diagnostics.report(at, &runtime) {
+        if let Some(status) = driver.diagnostics.report(at, runtime) {
             send(&Wire::Status(status));
         }
         let deadline = deadline.min(driver.diagnostics.deadline());
