@@ -92,7 +92,7 @@ fn sc_req_16_a_good_file_gives_each_node_its_configuration() {
             (
                 0x41,
                 role::CONSUME,
-                0,
+                3,
                 12,
                 simplecan.hashes[&0x41],
                 0x6201_0108

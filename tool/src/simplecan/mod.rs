@@ -133,7 +133,7 @@ pub struct SddEntry {
     pub sc_id: u8,
     /// :02 the role ([`role`]).
     pub role: u8,
-    /// :03 the slot (produce), else 0.
+    /// :03 the producer's slot (produce and consume), else 0.
     pub slot: u16,
     /// :04 the safety timeout in ms (consume), else 0.
     pub timeout_ms: u16,
@@ -194,11 +194,21 @@ pub fn node_config(network: &SimpleCanNetwork, node_id: u8) -> NodeConfig {
             mapped: produced.object,
         });
     }
+    // A consumer judges each packet's timeliness by its producer's slot (section 5), so a
+    // consumed entry carries it; the file's check guarantees the SC-ID has a producer.
+    let producer_slot = |sc_id: u8| {
+        network
+            .nodes
+            .values()
+            .flat_map(|other| &other.produced)
+            .find(|produced| produced.sc_id == sc_id)
+            .map_or(0, |produced| produced.slot)
+    };
     for consumed in &node.consumed {
         config.entries.push(SddEntry {
             sc_id: consumed.sc_id,
             role: role::CONSUME,
-            slot: 0,
+            slot: producer_slot(consumed.sc_id),
             timeout_ms: consumed.timeout_ms,
             hash: hash(consumed.sc_id),
             mapped: consumed.object,
