@@ -313,36 +313,45 @@ impl Watchdog {
             return Ok(());
         }
         let stood = self.since.elapsed();
-        if stood < STALL_LIMIT {
-            return Ok(());
-        }
-        let control = &network.control;
-        let silent = control.last_line.map_or(stood, |at| at.elapsed());
-        if silent >= STALL_LIMIT {
-            bail!(
-                "{case}: the network's time has stood at {now:.3} s for {:.0} s of host time, \
-                 and the hub has written nothing on its control port for {:.0} s: the hub is \
-                 stuck (`gdb -p` on can-hub shows where its main loop blocks)",
-                stood.as_secs_f64(),
-                silent.as_secs_f64()
-            );
-        }
-        match &control.slowest {
-            Some((name, acknowledged)) => bail!(
-                "{case}: the network's time has stood at {now:.3} s for {:.0} s of host time: \
-                 the hub waits for {name}, which has acknowledged no grant of the virtual time \
-                 after {acknowledged:.3} s (its QEMU does not run, or the hub does not read its \
-                 line)\n{}",
-                stood.as_secs_f64(),
-                network.table()
-            ),
-            None => bail!(
-                "{case}: the network's time has stood at {now:.3} s for {:.0} s of host time, \
-                 and the hub has named no emulated MCU it waits for",
-                stood.as_secs_f64()
-            ),
+        let silent = network.control.last_line.map_or(stood, |at| at.elapsed());
+        match stalled(case, now, stood, silent, network.control.slowest.as_ref()) {
+            Some(why) => bail!("{why}\n{}", network.table()),
+            None => Ok(()),
         }
     }
+}
+
+/// The watchdog's verdict when the network's time has stood at `now` (seconds) for `stood`
+/// of host time, the hub's control port has been `silent` for as long, and the hub's latest
+/// `slowest` line named `slowest`: `None` within [`STALL_LIMIT`], else what is stuck.
+fn stalled(
+    case: &str,
+    now: f64,
+    stood: Duration,
+    silent: Duration,
+    slowest: Option<&(String, f64)>,
+) -> Option<String> {
+    if stood < STALL_LIMIT {
+        return None;
+    }
+    let (stood, silent) = (stood.as_secs_f64(), silent.as_secs_f64());
+    Some(match slowest {
+        _ if silent >= STALL_LIMIT.as_secs_f64() => format!(
+            "{case}: the network's time has stood at {now:.3} s for {stood:.0} s of host time, \
+             and the hub has written nothing on its control port for {silent:.0} s: the hub is \
+             stuck (`gdb -p` on can-hub shows where its main loop blocks)"
+        ),
+        Some((name, acknowledged)) => format!(
+            "{case}: the network's time has stood at {now:.3} s for {stood:.0} s of host time: \
+             the hub waits for {name}, which has acknowledged no grant of the virtual time \
+             after {acknowledged:.3} s (its QEMU does not run, or the hub does not read its \
+             line)"
+        ),
+        None => format!(
+            "{case}: the network's time has stood at {now:.3} s for {stood:.0} s of host time, \
+             and the hub has named no emulated MCU it waits for"
+        ),
+    })
 }
 
 /// SDO upload requests to node 33 and non-safety frames on [`LOAD_ID`], one request in five,
@@ -592,4 +601,75 @@ pub fn task(root: &std::path::Path, with_bus_load: bool) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The watchdog is quiet while the time has stood less than [`STALL_LIMIT`], and then
+    /// names what is stuck: the hub when it writes nothing, else the MCU it waits for.
+    #[test]
+    fn the_watchdog_names_the_hub_or_the_emulated_mcu_that_holds_the_time() {
+        let second = Duration::from_secs(1);
+        let slowest = ("node33a".to_string(), 61.25);
+        let just_under = STALL_LIMIT - Duration::from_millis(1);
+        assert_eq!(
+            stalled("bus load", 61.3, just_under, just_under, None),
+            None
+        );
+        let mcu = stalled("bus load", 61.3, STALL_LIMIT, second, Some(&slowest)).unwrap();
+        assert_eq!(
+            mcu,
+            "bus load: the network's time has stood at 61.300 s for 30 s of host time: the hub \
+             waits for node33a, which has acknowledged no grant of the virtual time after \
+             61.250 s (its QEMU does not run, or the hub does not read its line)"
+        );
+        let hub = stalled("bus load", 61.3, STALL_LIMIT, STALL_LIMIT, Some(&slowest)).unwrap();
+        assert!(hub.contains("the hub is stuck"), "{hub}");
+        let nobody = stalled("bus load", 61.3, STALL_LIMIT, second, None).unwrap();
+        assert!(nobody.contains("named no emulated MCU"), "{nobody}");
+    }
+
+    /// The trace's reading: the load window from the first to the last 281h frame, the share
+    /// of every frame and of those outside the SRDOs over it, each SRDO pair's gap, and the
+    /// SDO requests with their answers in order.
+    #[test]
+    fn the_load_trace_reads_shares_gaps_and_sdo_answers() {
+        let log = "\
+(100.000000) can0 621#4018100100000000
+(100.000400) can0 5A1#43181001BC0A0000
+(100.001000) can0 281#5555555555555555
+(100.002000) can0 101#01
+(100.012000) can0 102#FE
+(100.013000) can0 621#4018100100000000
+(100.015000) can0 5A1#43181001BC0A0000
+(100.101000) can0 281#5555555555555555
+(100.200000) can0 721#05
+";
+        let trace = load_trace(log);
+        assert_eq!(trace.gaps.len(), 1);
+        assert!((trace.gaps[0] - 10.0).abs() < 1e-6, "{:?}", trace.gaps);
+        assert_eq!((trace.requests, trace.answers), (2, 2));
+        let latencies: Vec<String> = trace
+            .answer_latencies
+            .iter()
+            .map(|ms| format!("{ms:.3}"))
+            .collect();
+        assert_eq!(latencies, ["0.400", "2.000"]);
+        let bits = |id: u16, data: &[u8]| {
+            let frame = shared::CanFrame::new(shared::CanId::new(id).unwrap(), data).unwrap();
+            f64::from(can_hub::bus::frame_bits(&frame))
+        };
+        let load_frame = bits(0x281, &[0x55; 8]);
+        let other = 2.0 * load_frame
+            + bits(0x621, &[0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0])
+            + bits(0x5A1, &[0x43, 0x18, 0x10, 0x01, 0xBC, 0x0A, 0, 0]);
+        let srdo = bits(0x101, &[1]) + bits(0x102, &[0xFE]);
+        let rate = f64::from(dual_channel::device::BIT_RATE);
+        let seconds = 0.100 + load_frame / rate;
+        assert!((trace.other - other / rate / seconds).abs() < 1e-12);
+        assert!((trace.load - (other + srdo) / rate / seconds).abs() < 1e-12);
+        assert_eq!(load_trace("(1.0) can0 721#05\n"), LoadTrace::default());
+    }
 }
