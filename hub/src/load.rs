@@ -16,7 +16,8 @@
 //! on top: "SDO and non-safety traffic at 30 % of the bus beside the SRDOs".
 //!
 //! Sans-I/O: fed the frames that completed and `now`, it hands out frames to queue and the
-//! time it wants to be asked again.
+//! time it wants to be asked again. The hub queues them one at a time (the next once the bus
+//! has taken the one before), so that they keep their turn when several are due at once.
 
 use crate::bus::frame_bits;
 use shared::safety::types::SRDO_IDENTIFIERS;
@@ -234,8 +235,9 @@ mod tests {
                 }
                 false
             });
-            while bus.has_room(GENERATOR) {
-                let Some(frame) = load.poll(now) else { break };
+            if bus.queued(GENERATOR) == 0
+                && let Some(frame) = load.poll(now)
+            {
                 bus.send(GENERATOR, frame);
             }
             if bus.next_start(now).is_some_and(|start| start <= now) {

@@ -63,8 +63,8 @@ enum Task {
     /// The end-to-end tests on the emulated network: nominal, emergency stop, dropped and
     /// corrupted frames, a stopped node, a channel that reads otherwise, a cut link.
     E2e {
-        /// Also 60 s of SDO and non-safety traffic beside the SRDOs (opt-in: its client can
-        /// deadlock with the paced hub).
+        /// Also 60 s of SDO and non-safety traffic on 30 % of the bus beside the SRDOs
+        /// (opt-in: it takes 11 to 19 minutes of host time on a loaded 2-core machine).
         #[arg(long)]
         bus_load: bool,
     },
