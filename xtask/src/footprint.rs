@@ -1,6 +1,5 @@
 //! Where the bytes of a firmware image go: flash per crate, from the image's own line tables,
-//! the largest functions, from its symbol table, and the largest stack frames, from its call
-//! frame information (`cargo xtask footprint`).
+//! and the largest functions, from its symbol table (`cargo xtask footprint`).
 //!
 //! Per crate: every byte of `.text` is given to the crate whose source the line table names for
 //! it. That is the innermost source location, so code inlined from `shared` into a board loop
@@ -37,8 +36,6 @@ pub struct Footprint {
     pub rodata_strings: u64,
     /// Vector table bytes.
     pub vectors: u64,
-    /// The largest stack frames: bytes and demangled function name without its hash.
-    pub frames: Vec<(u64, String)>,
 }
 
 /// The crate a source file belongs to, from its path as the line table has it: the images'
@@ -213,7 +210,6 @@ pub fn measure(elf: &Path) -> Result<Footprint> {
             run = 0;
         }
     }
-    let frames = stack_frames(&file)?;
     Ok(Footprint {
         sizes: images::measure(elf)?,
         crates,
@@ -223,55 +219,7 @@ pub fn measure(elf: &Path) -> Result<Footprint> {
         rodata: rodata.size(),
         rodata_strings,
         vectors,
-        frames,
     })
-}
-
-/// Each function's stack frame, largest first: the deepest the canonical frame address is
-/// above the stack pointer anywhere in the function (`.debug_frame`, DWARF 5 6.4), which counts
-/// the saved registers and the locals, not what the functions it calls use. A chain of calls
-/// uses the sum of its frames; the deepest chain is what the stack reserve must hold
-/// (`board::stack` measures it at run time).
-fn stack_frames(file: &object::File<'_>) -> Result<Vec<(u64, String)>> {
-    use gimli::{BaseAddresses, CfaRule, CieOrFde, DebugFrame, UnwindContext, UnwindSection};
-    let Some(section) = file.section_by_name(".debug_frame") else {
-        return Ok(Vec::new());
-    };
-    let mut debug_frame = DebugFrame::new(section.data()?, gimli::LittleEndian);
-    debug_frame.set_address_size(4);
-    let names: BTreeMap<u64, String> = file
-        .symbols()
-        .filter(|symbol| symbol.kind() == SymbolKind::Text)
-        .filter_map(|symbol| {
-            let name = format!("{:#}", rustc_demangle::demangle(symbol.name().ok()?));
-            // Thumb code addresses carry the mode in bit 0; the frame information does not.
-            Some((symbol.address() & !1, name))
-        })
-        .collect();
-    let bases = BaseAddresses::default();
-    let mut context = UnwindContext::new();
-    let mut frames = Vec::new();
-    let mut entries = debug_frame.entries(&bases);
-    while let Some(entry) = entries.next()? {
-        let CieOrFde::Fde(partial) = entry else {
-            continue;
-        };
-        let fde = partial.parse(|section, bases, offset| section.cie_from_offset(bases, offset))?;
-        let mut rows = fde.rows(&debug_frame, &bases, &mut context)?;
-        let mut deepest = 0;
-        while let Some(row) = rows.next_row()? {
-            if let CfaRule::RegisterAndOffset { offset, .. } = row.cfa() {
-                deepest = deepest.max(u64::try_from(*offset).unwrap_or(0));
-            }
-        }
-        let name = names
-            .get(&fde.initial_address())
-            .cloned()
-            .unwrap_or_else(|| format!("{:#x}", fde.initial_address()));
-        frames.push((deepest, name));
-    }
-    frames.sort_by(|a, b| b.cmp(a));
-    Ok(frames)
 }
 
 /// The markdown tables for both images of a layer.
@@ -345,19 +293,6 @@ fn report(layer: Layer, measured: &[(&str, Footprint)], out: &mut String) -> Res
         writeln!(out, "| bytes | function |")?;
         writeln!(out, "|---:|---|")?;
         for (size, function) in footprint.functions.iter().take(15) {
-            writeln!(out, "| {size} | `{}` |", function.replace('|', "\\|"))?;
-        }
-        writeln!(out)?;
-    }
-    for (name, footprint) in measured {
-        writeln!(
-            out,
-            "Largest stack frames of {name} (bytes, saved registers and locals, without the \
-             frames of the functions called):\n"
-        )?;
-        writeln!(out, "| bytes | function |")?;
-        writeln!(out, "|---:|---|")?;
-        for (size, function) in footprint.frames.iter().take(8) {
             writeln!(out, "| {size} | `{}` |", function.replace('|', "\\|"))?;
         }
         writeln!(out)?;
