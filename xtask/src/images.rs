@@ -38,11 +38,11 @@ pub const RAM_BUDGET: u64 = 21 * 1024;
 ///
 /// 12 KiB. Every path of the channel runs on top of the main task's stack frame, which held
 /// the runtime's construction inlined with two copies of the runtime: 10,428 bytes in the
-/// QEMU image of channel B, 10,644 in the hardware one, now 1,828 (hardware; the runtime built
+/// QEMU image of channel B, 10,644 in the hardware one, now 1,460 and 1,828 (the runtime built
 /// by an out-of-line `Runtime::new` and kept in its `Result`, `docs/footprint.md`). Measured on
 /// channel B's QEMU image run alone (start-up with the parameters restored, then the link
-/// time-out to the safe state): 13,676 bytes deepest before, 9,136 after, 3,152 bytes (26 %)
-/// below the reserve. The whole end-to-end run measured 15,436 to 15,608 bytes before, its
+/// time-out to the safe state): 13,676 bytes deepest before, 9,092 to 9,136 after (channel
+/// A 8,528), at least 3,152 bytes (26 %) below the reserve. The whole end-to-end run measured 15,436 to 15,608 bytes before, its
 /// deepest path on top of the same 10 KiB frame; `cargo xtask e2e` holds it to this reserve.
 /// The hardware layer runs the same channel code but its own drivers; its figure comes from
 /// its log once it runs on a board.
