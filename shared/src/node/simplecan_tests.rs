@@ -897,3 +897,19 @@ fn sc_req_16_both_protocols_are_stored_and_restored_together() {
     assert_eq!(untouched.simplecan.objects(), &SimpleCanObjects::DEFAULT);
     assert_ne!(untouched.srdo.config().srdos[0].cycle_time, 77);
 }
+
+/// A safe state the shell latches (a GFC) withdraws the packet still waiting for the bus at
+/// the next poll, before its slot ends (SC_REQ_40).
+#[test]
+fn sc_req_40_a_gfc_withdraws_the_packet_waiting_for_the_bus() {
+    let mut bench = synced();
+    bench.run_until(slot_start(11, OWN_SLOT), |_| false);
+    assert!(bench.wire.aborts.is_empty());
+    bench.now = slot_start(11, OWN_SLOT) + Duration::from_micros(100);
+    bench.receive(CanFrame::new(CanId::new(0x001).unwrap(), &[]).unwrap());
+    assert_eq!(bench.node.fault(), Some(SafeStateCause::Gfc));
+    assert_eq!(bench.wire.aborts, [u16::from(OWN)]);
+    let before = bench.wire.simplecan().len();
+    bench.run_until(slot_start(20, 0), |_| true);
+    assert_eq!(bench.wire.simplecan().len(), before);
+}
