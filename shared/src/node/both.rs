@@ -7,7 +7,7 @@
 //! checks nothing, sends nothing and claims only frames on 02Fh..07Fh, which the shell ignores
 //! anyway: the device is the CANopen Safety node it is without it.
 
-use super::simplecan::SimpleCan;
+use super::simplecan::{SimpleCan, SimpleCanObjects};
 use super::slot::{Refused, SafetyProtocol, Slot};
 use super::srdo_table::{IMAGE_PER_SRDO, SrdoTable};
 use super::{NodeConfig, PersistError, SafeStateCause, Sink};
@@ -131,18 +131,19 @@ impl<const N: usize, const E: usize> SafetyProtocol for SrdoAndSimpleCan<N, E> {
         2 + srdo + simplecan
     }
 
-    /// All or nothing: the SRDO table is restored only when SimpleCAN's section is well-formed
-    /// too (checked first on a copy).
+    /// All or nothing: SimpleCAN's section is read first (into its objects, on the stack:
+    /// 15 + 16 × E bytes), then the SRDO table is restored, then SimpleCAN's objects are put in
+    /// force.
     fn restore(&mut self, bytes: &[u8]) -> Result<(), PersistError> {
         let (length, rest) = bytes.split_at_checked(2).ok_or(PersistError::Malformed)?;
         let length = usize::from(u16::from_le_bytes([length[0], length[1]]));
         let (srdo, simplecan) = rest
             .split_at_checked(length)
             .ok_or(PersistError::Malformed)?;
-        let mut check = SimpleCan::<E>::new();
-        check.restore(simplecan)?;
+        let objects = SimpleCanObjects::<E>::from_stored(simplecan)?;
         self.srdo.restore(srdo)?;
-        self.simplecan.restore(simplecan)
+        self.simplecan.set_objects(objects);
+        Ok(())
     }
 
     fn withdraw_validation(&mut self) {

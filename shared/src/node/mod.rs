@@ -784,6 +784,9 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         self.protocol
             .enter_safe_state(&mut self.image, cause, already_latched);
         self.shell.latch(cause, sink);
+        // Polled at once: a protocol withdraws there what it had queued (SimpleCAN,
+        // SC_REQ_40), which `enter_safe_state` has no sink for.
+        self.shell.next_deadline = Instant::ZERO;
     }
 
     /// Heartbeat, GFC requests, and the protocol's timers.

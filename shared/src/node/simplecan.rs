@@ -164,6 +164,38 @@ impl<const E: usize> SimpleCanObjects<E> {
         }
         digest.finalize()
     }
+
+    /// The objects of a section [`SafetyProtocol::persist`] wrote, exactly `bytes` long.
+    pub(super) fn from_stored(bytes: &[u8]) -> Result<Self, PersistError> {
+        let mut reader = Reader::new(bytes);
+        let mut objects = Self::DEFAULT;
+        objects.valid = reader.u8()?;
+        objects.signature = reader.u32()?;
+        objects.slots = reader.u16()?;
+        objects.sync_every = reader.u16()?;
+        objects.buffering_us = reader.u16()?;
+        objects.enabled = reader.u8()?;
+        objects.potential_master = reader.u8()?;
+        objects.count = reader.u8()?;
+        if usize::from(reader.u8()?) != E {
+            return Err(PersistError::SrdoCountMismatch);
+        }
+        if usize::from(objects.count) > E {
+            return Err(PersistError::Malformed);
+        }
+        for entry in objects.entries.iter_mut() {
+            entry.sc_id = reader.u8()?;
+            entry.role = reader.u8()?;
+            entry.slot = reader.u16()?;
+            entry.timeout_ms = reader.u16()?;
+            entry.hash = reader.u32()?;
+            entry.mapped = reader.u32()?;
+        }
+        if !reader.is_empty() {
+            return Err(PersistError::Malformed);
+        }
+        Ok(objects)
+    }
 }
 
 /// Why a SimpleCAN configuration is refused, with the entry (1-based) it names, if any.
@@ -295,6 +327,11 @@ impl<const E: usize> SimpleCan<E> {
     /// The configuration objects.
     pub fn objects(&self) -> &SimpleCanObjects<E> {
         &self.objects
+    }
+
+    /// Puts restored objects in force (the SRDO table beside it restored them first).
+    pub(super) fn set_objects(&mut self, objects: SimpleCanObjects<E>) {
+        self.objects = objects;
     }
 
     /// What it counted since the Operational entry.
@@ -647,34 +684,7 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
     }
 
     fn restore(&mut self, bytes: &[u8]) -> Result<(), PersistError> {
-        let mut reader = Reader::new(bytes);
-        let mut objects = SimpleCanObjects::<E>::DEFAULT;
-        objects.valid = reader.u8()?;
-        objects.signature = reader.u32()?;
-        objects.slots = reader.u16()?;
-        objects.sync_every = reader.u16()?;
-        objects.buffering_us = reader.u16()?;
-        objects.enabled = reader.u8()?;
-        objects.potential_master = reader.u8()?;
-        objects.count = reader.u8()?;
-        if usize::from(reader.u8()?) != E {
-            return Err(PersistError::SrdoCountMismatch);
-        }
-        if usize::from(objects.count) > E {
-            return Err(PersistError::Malformed);
-        }
-        for entry in objects.entries.iter_mut() {
-            entry.sc_id = reader.u8()?;
-            entry.role = reader.u8()?;
-            entry.slot = reader.u16()?;
-            entry.timeout_ms = reader.u16()?;
-            entry.hash = reader.u32()?;
-            entry.mapped = reader.u32()?;
-        }
-        if !reader.is_empty() {
-            return Err(PersistError::Malformed);
-        }
-        self.objects = objects;
+        self.objects = SimpleCanObjects::from_stored(bytes)?;
         Ok(())
     }
 

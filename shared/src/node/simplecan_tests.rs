@@ -864,3 +864,52 @@ fn with_simplecan_disabled_the_node_is_the_canopen_safety_node() {
             .any(|e| matches!(e, Event::SrdoReceived { .. }))
     );
 }
+
+/// Both sections stored by 1010h and restored at power-on: the SRDO records and SimpleCAN's
+/// objects as they were (SC_REQ_16); a section cut short restores neither.
+#[test]
+fn sc_req_16_both_protocols_are_stored_and_restored_together() {
+    type Both = SimpleCanNode<RamFlash<8192>, 4, 4>;
+    let mut wire = Wire::default();
+    let mut node = Both::new(config(NODE), RamFlash::new()).unwrap();
+    node.poll(Instant::ZERO, &mut wire);
+    node.core.protocol.simplecan.set_objects(SimpleCanObjects {
+        enabled: 1,
+        count: 1,
+        signature: 0x1234_5678,
+        ..SimpleCanObjects::DEFAULT
+    });
+    node.core.protocol.srdo.safety.srdos[0].cycle_time = 77;
+    let mut image = SrdoAndSimpleCan::<4, 4>::image();
+    let length = node.core.protocol.persist(image.as_mut());
+    let mut restored = SrdoAndSimpleCan::<4, 4>::new(&config(NODE)).unwrap();
+    restored.restore(&image.as_ref()[..length]).unwrap();
+    assert_eq!(
+        restored.simplecan.objects(),
+        node.core.protocol.simplecan.objects()
+    );
+    assert_eq!(restored.srdo.config(), node.core.protocol.srdo.config());
+    let mut untouched = SrdoAndSimpleCan::<4, 4>::new(&config(NODE)).unwrap();
+    assert_eq!(
+        untouched.restore(&image.as_ref()[..length - 1]),
+        Err(PersistError::Malformed)
+    );
+    assert_eq!(untouched.simplecan.objects(), &SimpleCanObjects::DEFAULT);
+    assert_ne!(untouched.srdo.config().srdos[0].cycle_time, 77);
+}
+
+/// A safe state the shell latches (a GFC) withdraws the packet still waiting for the bus at
+/// the next poll, before its slot ends (SC_REQ_40).
+#[test]
+fn sc_req_40_a_gfc_withdraws_the_packet_waiting_for_the_bus() {
+    let mut bench = synced();
+    bench.run_until(slot_start(11, OWN_SLOT), |_| false);
+    assert!(bench.wire.aborts.is_empty());
+    bench.now = slot_start(11, OWN_SLOT) + Duration::from_micros(100);
+    bench.receive(CanFrame::new(CanId::new(0x001).unwrap(), &[]).unwrap());
+    assert_eq!(bench.node.fault(), Some(SafeStateCause::Gfc));
+    assert_eq!(bench.wire.aborts, [u16::from(OWN)]);
+    let before = bench.wire.simplecan().len();
+    bench.run_until(slot_start(20, 0), |_| true);
+    assert_eq!(bench.wire.simplecan().len(), before);
+}
