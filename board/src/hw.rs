@@ -412,13 +412,11 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         link_bytes: [0; 64],
         link_count: 0,
     };
-    let mut stack_reported = 0;
+    let mut stack_mark = crate::stack::Sampled::new();
     loop {
         let wake = channel.service(runtime, &mut driver);
         watchdog.pet();
-        let stack = crate::stack::used();
-        if stack > stack_reported {
-            stack_reported = stack;
+        if let Some(stack) = stack_mark.poll() {
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
         // What the wait takes (a frame, some link bytes) is kept for the next service.

@@ -538,7 +538,7 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     };
     let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
-    let mut stack_reported = 0;
+    let mut stack_mark = crate::stack::Sampled::new();
     loop {
         let deadline = channel.service(runtime, &mut driver);
         let at = now();
@@ -546,11 +546,9 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         driver
             .diagnostics
             .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
-        let stack = crate::stack::used();
-        driver.diagnostics.stack(stack);
-        // Logged as the hardware layer logs it, so an image run alone shows it too.
-        if stack > stack_reported {
-            stack_reported = stack;
+        if let Some(stack) = stack_mark.poll() {
+            driver.diagnostics.stack(stack);
+            // Logged as the hardware layer logs it, so an image run alone shows it too.
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
         if let Some(status) = driver.diagnostics.report(at, runtime) {
