@@ -722,22 +722,27 @@ pub fn with_section(document: &str, section: &str) -> String {
         out.push_str(section);
         return out;
     };
-    let rest = &document[start + BENCH_HEADING.len()..];
-    let end = rest
-        .find("\n## ")
-        .map_or(document.len(), |at| start + BENCH_HEADING.len() + at + 1);
+    let end = section_end(document, start);
     format!("{}{section}{}", &document[..start], &document[end..])
+}
+
+/// Where the section that starts at `start` ends: at the next heading of its level or the
+/// next generated block's marker (another writer's, `<!-- name:begin ... -->`), which belongs
+/// to what follows; else at the end of `document`.
+fn section_end(document: &str, start: usize) -> usize {
+    let from = start + BENCH_HEADING.len();
+    ["\n## ", "\n<!-- "]
+        .iter()
+        .filter_map(|next| document[from..].find(next))
+        .min()
+        .map_or(document.len(), |at| from + at + 1)
 }
 
 /// The [`BENCH_HEADING`] section of `document`, for a writer of the rest of the file to
 /// keep (`cargo xtask bench`).
 pub fn kept_section(document: &str) -> Option<&str> {
     let start = document.find(BENCH_HEADING)?;
-    let rest = &document[start + BENCH_HEADING.len()..];
-    let end = rest
-        .find("\n## ")
-        .map_or(document.len(), |at| start + BENCH_HEADING.len() + at + 1);
-    Some(&document[start..end])
+    Some(&document[start..section_end(document, start)])
 }
 
 #[cfg(test)]
@@ -765,6 +770,13 @@ mod tests {
             format!("# P\n\n{BENCH_HEADING}\ny\n")
         );
         assert_eq!(kept_section("# P\n"), None);
+        // Another writer's generated block after the section is not the section's.
+        let marked =
+            format!("{BENCH_HEADING}\nold\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n");
+        assert_eq!(
+            with_section(&marked, &format!("{BENCH_HEADING}\nnew\n")),
+            format!("{BENCH_HEADING}\nnew\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n")
+        );
     }
 
     /// The target counts as met only when every round of the tool beat every round of
