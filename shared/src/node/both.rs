@@ -8,7 +8,7 @@
 //! anyway: the device is the CANopen Safety node it is without it.
 
 use super::simplecan::{SimpleCan, SimpleCanObjects};
-use super::slot::{Refused, SafetyProtocol, Slot};
+use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::srdo_table::{IMAGE_PER_SRDO, SrdoTable};
 use super::{NodeConfig, PersistError, SafeStateCause, Sink};
 use crate::canopen::od::{AbortCode, Address};
@@ -75,19 +75,7 @@ impl<const N: usize> AsMut<[u16]> for BothSignatures<N> {
 
 /// The stored image of both: twice the SRDO table's, which holds the SimpleCAN section too
 /// for the entry counts the build check (`persist`) accepts (for 4 SRDOs: up to 51 entries).
-pub struct BothImage<const N: usize>([[[u8; IMAGE_PER_SRDO]; N]; 2]);
-
-impl<const N: usize> AsRef<[u8]> for BothImage<N> {
-    fn as_ref(&self) -> &[u8] {
-        self.0.as_flattened().as_flattened()
-    }
-}
-
-impl<const N: usize> AsMut<[u8]> for BothImage<N> {
-    fn as_mut(&mut self) -> &mut [u8] {
-        self.0.as_flattened_mut().as_flattened_mut()
-    }
-}
+pub type BothImage<const N: usize> = RowImage<{ 2 * IMAGE_PER_SRDO }, N>;
 
 impl<const N: usize, const E: usize> SrdoAndSimpleCan<N, E> {
     /// The SRDO table of the device described by `config` (`None` unless `2 ≤ N ≤ 32`) and a
@@ -110,7 +98,7 @@ impl<const N: usize, const E: usize> SafetyProtocol for SrdoAndSimpleCan<N, E> {
     type Image = BothImage<N>;
 
     fn image() -> BothImage<N> {
-        BothImage([[[0; IMAGE_PER_SRDO]; N]; 2])
+        RowImage::zeroed()
     }
 
     fn load_defaults(&mut self, config: &NodeConfig) {

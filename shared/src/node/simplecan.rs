@@ -32,7 +32,7 @@ use heapless::Vec;
 
 use super::dictionary::{exact, put};
 use super::persist::Reader;
-use super::slot::{Refused, SafetyProtocol, Slot};
+use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::{Event, NodeConfig, PersistError, SafeStateCause, Sink};
 use crate::canopen::emcy::code;
 use crate::canopen::od::{AbortCode, Address};
@@ -618,8 +618,8 @@ impl<const E: usize> Running<E> {
 }
 
 /// The stored image of a SimpleCAN layer of `E` entries: `E` times [`IMAGE_PER_ENTRY`]
-/// bytes (as [`super::srdo_table`]'s, an array of arrays: its length is `E` itself).
-pub struct SimpleCanImage<const E: usize>([[u8; IMAGE_PER_ENTRY]; E]);
+/// bytes.
+pub type SimpleCanImage<const E: usize> = RowImage<IMAGE_PER_ENTRY, E>;
 
 /// Bytes of the stored image per entry: the entry itself and the shell's fixed part with
 /// this section's own (the shell's header, salt, hash, change counter, the two audit
@@ -627,25 +627,13 @@ pub struct SimpleCanImage<const E: usize>([[u8; IMAGE_PER_ENTRY]; E]);
 /// entry, which covers it for any layer of at least one entry.
 const IMAGE_PER_ENTRY: usize = ENTRY_STORED + 66 + FIXED_STORED;
 
-impl<const E: usize> AsRef<[u8]> for SimpleCanImage<E> {
-    fn as_ref(&self) -> &[u8] {
-        self.0.as_flattened()
-    }
-}
-
-impl<const E: usize> AsMut<[u8]> for SimpleCanImage<E> {
-    fn as_mut(&mut self) -> &mut [u8] {
-        self.0.as_flattened_mut()
-    }
-}
-
 impl<const E: usize> SafetyProtocol for SimpleCan<E> {
     const MAX_PERSISTED: usize = FIXED_STORED + E * ENTRY_STORED;
 
     type Image = SimpleCanImage<E>;
 
     fn image() -> SimpleCanImage<E> {
-        SimpleCanImage([[0; IMAGE_PER_ENTRY]; E])
+        RowImage::zeroed()
     }
 
     fn load_defaults(&mut self, _config: &NodeConfig) {

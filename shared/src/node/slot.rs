@@ -258,3 +258,29 @@ impl<S: Sink> Slot<'_, S> {
         Refused(())
     }
 }
+
+/// A stored image of `N` rows of `ROW` bytes, zeroed: what a protocol whose persisted
+/// section grows with a count (`N` SRDOs, `N` entries) gives as its
+/// [`SafetyProtocol::Image`], so that a small device restores its parameters through a small
+/// buffer on the stack. An array of arrays, because its length is `N` itself, which stable
+/// Rust allows (`[u8; ROW * N]` it does not).
+pub struct RowImage<const ROW: usize, const N: usize>([[u8; ROW]; N]);
+
+impl<const ROW: usize, const N: usize> RowImage<ROW, N> {
+    /// The zeroed image.
+    pub const fn zeroed() -> Self {
+        RowImage([[0; ROW]; N])
+    }
+}
+
+impl<const ROW: usize, const N: usize> AsRef<[u8]> for RowImage<ROW, N> {
+    fn as_ref(&self) -> &[u8] {
+        self.0.as_flattened()
+    }
+}
+
+impl<const ROW: usize, const N: usize> AsMut<[u8]> for RowImage<ROW, N> {
+    fn as_mut(&mut self) -> &mut [u8] {
+        self.0.as_flattened_mut()
+    }
+}
