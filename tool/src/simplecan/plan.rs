@@ -70,42 +70,50 @@ const SETTINGS_SIZES: [(u8, usize); 5] = [(1, 2), (2, 2), (3, 2), (4, 1), (5, 1)
 /// An entry's sub-indices 01..06 and their sizes.
 const ENTRY_SIZES: [(u8, usize); 6] = [(1, 1), (2, 1), (3, 2), (4, 2), (5, 4), (6, 4)];
 
+/// Every value of `config` but the entry count, with its object and its type's size, in
+/// object order: the settings 01..05, then each entry's 01..06. The one list of which field
+/// goes where, for the writes and the comparison.
+fn values(config: &NodeConfig) -> Vec<(Address, usize, u32)> {
+    let settings = [
+        u32::from(config.slots_per_cycle),
+        u32::from(config.cycles_between_syncs),
+        u32::from(config.buffering_us),
+        u32::from(config.enabled),
+        u32::from(config.potential_master),
+    ];
+    let mut values: Vec<_> = SETTINGS_SIZES
+        .iter()
+        .zip(settings)
+        .map(|(&(sub, len), value)| (Address::new(SETTINGS, sub), len, value))
+        .collect();
+    for (n, entry) in (1..).zip(&config.entries) {
+        let fields = [
+            u32::from(entry.sc_id),
+            u32::from(entry.role),
+            u32::from(entry.slot),
+            u32::from(entry.timeout_ms),
+            entry.hash,
+            entry.mapped,
+        ];
+        values.extend(
+            ENTRY_SIZES
+                .iter()
+                .zip(fields)
+                .map(|(&(sub, len), value)| (Address::new(entry_index(n), sub), len, value)),
+        );
+    }
+    values
+}
+
 /// The writes of steps 1..4, in order.
 pub fn writes(config: &NodeConfig) -> Vec<Operation> {
     let write = |address: Address, data: Vec<u8>| Operation::Write { address, data };
-    let settings = |sub| Address::new(SETTINGS, sub);
-    let mut plan = vec![
-        write(ENTRIES_IN_USE, vec![0]),
-        write(settings(1), config.slots_per_cycle.to_le_bytes().to_vec()),
-        write(
-            settings(2),
-            config.cycles_between_syncs.to_le_bytes().to_vec(),
-        ),
-        write(settings(3), config.buffering_us.to_le_bytes().to_vec()),
-        write(settings(4), vec![config.enabled]),
-        write(settings(5), vec![config.potential_master]),
-    ];
-    for (n, entry) in (1..).zip(&config.entries) {
-        let index = entry_index(n);
-        plan.push(write(Address::new(index, 1), vec![entry.sc_id]));
-        plan.push(write(Address::new(index, 2), vec![entry.role]));
-        plan.push(write(
-            Address::new(index, 3),
-            entry.slot.to_le_bytes().to_vec(),
-        ));
-        plan.push(write(
-            Address::new(index, 4),
-            entry.timeout_ms.to_le_bytes().to_vec(),
-        ));
-        plan.push(write(
-            Address::new(index, 5),
-            entry.hash.to_le_bytes().to_vec(),
-        ));
-        plan.push(write(
-            Address::new(index, 6),
-            entry.mapped.to_le_bytes().to_vec(),
-        ));
-    }
+    let mut plan = vec![write(ENTRIES_IN_USE, vec![0])];
+    plan.extend(
+        values(config)
+            .into_iter()
+            .map(|(address, len, value)| write(address, value.to_le_bytes()[..len].to_vec())),
+    );
     // At most 80 entries (the file parser refuses more).
     plan.push(write(ENTRIES_IN_USE, vec![config.entries.len() as u8]));
     plan
@@ -211,50 +219,14 @@ pub fn config_diff(file: &NodeConfig, node: &NodeConfig) -> Vec<String> {
             ));
         }
     };
-    let settings = |sub| Address::new(SETTINGS, sub);
-    compare(
-        settings(1),
-        u32::from(file.slots_per_cycle),
-        u32::from(node.slots_per_cycle),
-    );
-    compare(
-        settings(2),
-        u32::from(file.cycles_between_syncs),
-        u32::from(node.cycles_between_syncs),
-    );
-    compare(
-        settings(3),
-        u32::from(file.buffering_us),
-        u32::from(node.buffering_us),
-    );
-    compare(
-        settings(4),
-        u32::from(file.enabled),
-        u32::from(node.enabled),
-    );
-    compare(
-        settings(5),
-        u32::from(file.potential_master),
-        u32::from(node.potential_master),
-    );
     compare(
         ENTRIES_IN_USE,
         file.entries.len() as u32,
         node.entries.len() as u32,
     );
-    for (n, (want, held)) in (1..).zip(file.entries.iter().zip(&node.entries)) {
-        let index = entry_index(n);
-        let at = |sub| Address::new(index, sub);
-        compare(at(1), u32::from(want.sc_id), u32::from(held.sc_id));
-        compare(at(2), u32::from(want.role), u32::from(held.role));
-        compare(at(3), u32::from(want.slot), u32::from(held.slot));
-        compare(
-            at(4),
-            u32::from(want.timeout_ms),
-            u32::from(held.timeout_ms),
-        );
-        compare(at(5), want.hash, held.hash);
-        compare(at(6), want.mapped, held.mapped);
+    // Settings first, then the entries both hold, in the same positions of both lists.
+    for ((address, _, want), (_, _, held)) in values(file).into_iter().zip(values(node)) {
+        compare(address, want, held);
     }
     lines
 }
