@@ -213,6 +213,11 @@ enum Task {
         /// Run only the scenario with this seed (with `--class`) and print its timeline.
         #[arg(long)]
         replay: Option<u64>,
+        /// Only this protocol's classes: `canopen-safety` (SRDOs) or `simplecan`
+        /// (simplecan-bad-crc, simplecan-replay, simplecan-masquerade, simplecan-lost; a
+        /// `--class` prefix picks several). Both when not given.
+        #[arg(long)]
+        protocol: Option<String>,
     },
     /// Run every fuzz target of every fuzz crate (shared/fuzz, dual-channel/fuzz) for a while,
     /// optimised, then each again with debug assertions and overflow checks. Installs the
@@ -349,6 +354,7 @@ fn task() -> Result<()> {
             bit_rates,
             seed,
             replay,
+            protocol,
         } => campaign::task(
             &root,
             &campaign::Options {
@@ -357,6 +363,7 @@ fn task() -> Result<()> {
                 bit_rates,
                 seed,
                 replay,
+                protocol,
             },
         ),
     }
