@@ -9,3 +9,4 @@ pub mod bus;
 pub mod report;
 pub mod residual;
 pub mod sfrt;
+pub mod simplecan;
