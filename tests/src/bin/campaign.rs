@@ -101,6 +101,13 @@ fn main() -> ExitCode {
     let (simplecan, canopen) = match args.protocol.as_deref() {
         None if args.classes.is_empty() => (true, true),
         None => (!simplecan_names.is_empty(), !canopen_names.is_empty()),
+        Some("simplecan") if !canopen_names.is_empty() => {
+            eprintln!(
+                "campaign: `{}` is not a SimpleCAN class; the SimpleCAN classes start with `simplecan`",
+                canopen_names[0]
+            );
+            return ExitCode::FAILURE;
+        }
         Some("simplecan") => (true, false),
         Some("canopen-safety") => (false, true),
         Some(other) => {
