@@ -8,6 +8,7 @@ use safety_config::calc::bus::Stream;
 use safety_config::calc::report;
 use safety_config::calc::residual::Sil;
 use safety_config::calc::sfrt::{self, DeviceTiming};
+use safety_config::calc::simplecan as calc_simplecan;
 use safety_config::client::Client;
 use safety_config::network_file::{self, NodeSpec};
 use safety_config::procedure::{self, NodeResult, Operator, Verdict};
@@ -167,7 +168,12 @@ enum Command {
     Gfc,
     /// Print the node's EDS (CiA 306, with the CANopen Safety keys of its Annex A), generated
     /// from the device description the firmware is built from.
-    Eds,
+    Eds {
+        /// The EDS of a node that speaks SimpleCAN beside CANopen Safety, with this many
+        /// safety data dictionary entries (5E10h.., 1 to 80).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=80))]
+        simplecan: Option<u8>,
+    },
     /// Read a node's whole object dictionary and print its DCF (CiA 306): the values it holds,
     /// signatures and 0x13FE included. `configure` and `verify` take a DCF as the file.
     Dcf {
@@ -416,8 +422,11 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         return Ok(true);
     }
-    if let Command::Eds = &cli.command {
-        print!("{}", safety_config::eds::eds());
+    if let Command::Eds { simplecan } = &cli.command {
+        match simplecan {
+            Some(entries) => print!("{}", safety_config::eds::simplecan_eds(*entries)),
+            None => print!("{}", safety_config::eds::eds()),
+        }
         return Ok(true);
     }
     if let Command::Monitor {
@@ -469,13 +478,23 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             &plan.traffic,
         );
         let reactions = sfrt::reactions(&network, &streams, plan.bit_rate, &timing)?;
+        let simplecan = match &network.simplecan {
+            Some(simplecan) => calc_simplecan::reactions(simplecan, plan.bit_rate, &timing)
+                .map_err(|error| ToolError::Usage(format!("{file}: {error}")))?,
+            None => Vec::new(),
+        };
         if cli.json {
             println!(
                 "{}",
-                json(&serde_json::json!({"timing": timing, "reactions": reactions}))
+                json(&serde_json::json!({
+                    "timing": timing,
+                    "reactions": reactions,
+                    "simplecan": simplecan,
+                }))
             );
         } else {
             print!("{}", report::reactions(&reactions, plan.bit_rate, &timing));
+            print!("{}", report::simplecan_reactions(&simplecan, plan.bit_rate));
         }
         return Ok(true);
     }
@@ -496,17 +515,29 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             traffic: plan.traffic.clone(),
         };
         let budget = budget::budget(&network, &plan_of, plan.bit_rate);
+        let simplecan = network
+            .simplecan
+            .as_ref()
+            .map(|simplecan| calc_simplecan::residual(simplecan, sil));
         if cli.json {
-            println!("{}", json(&budget));
+            // The budget's own fields as before, SimpleCAN's beside them when the file has it.
+            let mut value = serde_json::to_value(&budget).unwrap_or_default();
+            if let (Some(simplecan), Some(fields)) = (&simplecan, value.as_object_mut()) {
+                fields.insert("simplecan".into(), serde_json::json!(simplecan));
+            }
+            println!("{}", json(&value));
         } else {
             print!("{}", report::budget(&budget, sil));
+            if let Some(simplecan) = &simplecan {
+                print!("{}", report::simplecan_residual(simplecan, sil));
+            }
         }
-        return Ok(budget.warnings.is_empty());
+        return Ok(budget.warnings.is_empty() && simplecan.is_none_or(|s| s.within()));
     }
     let mut client = Client::new(open_bus(&cli.bus)?, timeout);
     match cli.command {
         Command::Sign { .. }
-        | Command::Eds
+        | Command::Eds { .. }
         | Command::Monitor { .. }
         | Command::Sfrt { .. }
         | Command::Budget { .. } => Ok(true),

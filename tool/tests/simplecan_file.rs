@@ -427,3 +427,50 @@ fn sc_req_15_hashes_are_distinct_and_never_zero_in_a_network() {
     let other = &other.simplecan.as_ref().unwrap().hashes;
     assert!(hashes.iter().all(|(sc_id, hash)| other[sc_id] != *hash));
 }
+
+/// `safety-config sfrt` and `budget` on a SimpleCAN network file print every consumed SC-ID's
+/// reaction and SimpleCAN's residual error rate (SC_REQ_04, SC_REQ_20), as the library
+/// computes them; `eds --simplecan N` lists 5E00h..5EFFh.
+#[test]
+fn sc_req_04_the_program_prints_simplecan_reactions_and_residual_rate() {
+    use std::process::Command;
+    let dir = std::env::temp_dir().join(format!("sc-calc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("net.toml");
+    std::fs::write(&file, GOOD).unwrap();
+    let run = |args: &[&str]| {
+        let output = Command::new(env!("CARGO_BIN_EXE_safety-config"))
+            .args(args)
+            .output()
+            .expect("the program runs");
+        (
+            output.status.success(),
+            String::from_utf8_lossy(&output.stdout).into_owned(),
+        )
+    };
+    let path = file.to_str().unwrap();
+    let network = parse(GOOD, "net.toml").unwrap();
+    let simplecan = network.simplecan.as_ref().unwrap();
+    let timing = safety_config::calc::sfrt::DeviceTiming::HARDWARE;
+    let reactions = safety_config::calc::simplecan::reactions(simplecan, 500_000, &timing).unwrap();
+    let (ok, sfrt) = run(&["sfrt", path]);
+    assert!(ok, "{sfrt}");
+    // Three consumed SC-IDs: 30h at nodes 2 and 33, 41h at node 33.
+    assert_eq!(sfrt.matches("SimpleCAN SC-ID").count(), 3, "{sfrt}");
+    assert_eq!(reactions.len(), 3);
+    for reaction in &reactions {
+        let worst = safety_config::calc::report::ms(reaction.worst_us);
+        assert!(sfrt.contains(&format!("**{worst}**")), "{worst} in {sfrt}");
+    }
+    let (ok, budget) = run(&["budget", path]);
+    assert!(ok, "{budget}");
+    assert!(budget.contains("SimpleCAN residual error rate"), "{budget}");
+    assert!(!budget.contains("-0.00"), "{budget}");
+    let (ok, eds) = run(&["eds", "--simplecan", "4"]);
+    assert!(ok);
+    for index in ["[5E00]", "[5E01]", "[5E10]", "[5E13]", "[5EFE]", "[5EFF]"] {
+        assert!(eds.contains(index), "{index}");
+    }
+    assert!(!eds.contains("[5E14]"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

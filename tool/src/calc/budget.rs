@@ -109,12 +109,14 @@ pub fn budget(network: &Network, plan: &Plan, bit_rate: u32) -> Budget {
     let per_second = |us: u64| 1e6 / us.max(1) as f64;
     // Without a stated interval, one event-driven pair per refresh time besides the cyclic
     // one, in the rate as on the bus (`planned_streams`): the worst the plan can assume.
-    let srdos_per_second: f64 = transmits()
+    // A fold from +0.0, not `sum()`: the sum of no `f64`s is −0.0, which a network without
+    // SRDOs would print as "-0.00e0 per hour".
+    let srdos_per_second = transmits()
         .map(|srdo| {
             let refresh = u64::from(srdo.settings.cycle_time) * 1000;
             per_second(refresh) + per_second(plan.event_interval_us.unwrap_or(refresh))
         })
-        .sum();
+        .fold(0.0, |sum, rate| sum + rate);
     let streams = planned_streams(network, plan.event_interval_us, &plan.traffic);
     let mut bit_rates: Vec<u32> = BIT_RATES.to_vec();
     if !bit_rates.contains(&bit_rate) {

@@ -2,7 +2,8 @@
 
 use super::budget::Budget;
 use super::residual::Sil;
-use super::sfrt::{DeviceTiming, Reaction};
+use super::sfrt::{DeviceTiming, Part, Reaction};
+use super::simplecan::{ScReaction, ScResidual};
 use std::fmt::Write;
 
 /// Microseconds as milliseconds with three decimals.
@@ -11,13 +12,19 @@ pub fn ms(micros: u64) -> String {
     format!("{}.{:03}", micros / 1000, micros % 1000)
 }
 
+/// The parts of a reaction as the first rows of a Markdown table.
+fn parts_table(parts: &[Part]) -> String {
+    let mut out = String::from("| part | worst case (ms) |\n|---|---:|\n");
+    for part in parts {
+        let _ = writeln!(out, "| {} | {} |", part.what, ms(part.micros));
+    }
+    out
+}
+
 /// One safety function's breakdown as a Markdown table.
 #[must_use]
 pub fn reaction_table(reaction: &Reaction) -> String {
-    let mut out = String::from("| part | worst case (ms) |\n|---|---:|\n");
-    for part in &reaction.parts {
-        let _ = writeln!(out, "| {} | {} |", part.what, ms(part.micros));
-    }
+    let mut out = parts_table(&reaction.parts);
     let _ = writeln!(
         out,
         "| **fault-free** | **{}** |",
@@ -97,6 +104,63 @@ pub fn budget(budget: &Budget, sil: Sil) -> String {
     );
     for warning in &budget.warnings {
         let _ = writeln!(out, "warning: {warning}");
+    }
+    out
+}
+
+/// Every consumed SC-ID of a SimpleCAN network, for `safety-config sfrt` on a file with a
+/// `[simplecan]` section.
+#[must_use]
+pub fn simplecan_reactions(reactions: &[ScReaction], bit_rate: u32) -> String {
+    let mut out = String::new();
+    for reaction in reactions {
+        let _ = writeln!(
+            out,
+            "node {} SimpleCAN SC-ID {:02X}h -> node {} at {} kbit/s:\n",
+            reaction.producer,
+            reaction.sc_id,
+            reaction.consumer,
+            bit_rate / 1000
+        );
+        out.push_str(&parts_table(&reaction.parts));
+        let _ = writeln!(
+            out,
+            "| **fault-free** | **{}** |",
+            ms(reaction.fault_free_us)
+        );
+        let _ = writeln!(
+            out,
+            "| with the packet after the demand lost (safety timeout, SC_REQ_20) | {} |",
+            ms(reaction.one_fault_us)
+        );
+        let _ = writeln!(
+            out,
+            "| **worst case: the network's part of the SFRT** | **{}** |\n",
+            ms(reaction.worst_us)
+        );
+    }
+    out
+}
+
+/// A SimpleCAN network's residual error rate against its share of a SIL's limit, for
+/// `safety-config budget` on a file with a `[simplecan]` section.
+#[must_use]
+pub fn simplecan_residual(residual: &ScResidual, sil: Sil) -> String {
+    let mut out = format!(
+        "\nSimpleCAN residual error rate (SC_REQ_04, docs/simplecan.md section 8): {:.2e} per hour at {:.1} packets per second; SimpleCAN's share of SIL {} is below {:.0e} per hour.\n",
+        residual.rate_per_hour,
+        residual.packets_per_second,
+        sil.level(),
+        residual.limit_per_hour
+    );
+    if !residual.within() {
+        let _ = writeln!(
+            out,
+            "warning: the SimpleCAN residual error rate {:.2e} per hour exceeds SIL {}'s share {:.0e} per hour: fewer producer slots or a longer cycle",
+            residual.rate_per_hour,
+            sil.level(),
+            residual.limit_per_hour
+        );
     }
     out
 }
