@@ -168,9 +168,9 @@ impl ErrorState {
 
     /// `true` when frames the filters would have passed may have gone unseen: bus-off. The
     /// channel then cannot know that it saw every safety frame, as after a FIFO overrun, and
-    /// the hardware layer reports it to the loop as one (`Received::Overrun`, the safe
-    /// state, cause 3Ah); its log names the bus-off. Warning and error passive lose no
-    /// frame: SRVT and SCT bound what they delay.
+    /// the hardware layer reports it to the loop (`Received::BusOff`: the safe state, with
+    /// its own cause 3Bh). Warning and error passive lose no frame: SRVT and SCT bound what
+    /// they delay.
     pub fn loses_frames(self) -> bool {
         self == ErrorState::BusOff
     }

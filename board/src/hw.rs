@@ -11,7 +11,8 @@
 //! runtime's next deadline, the 1 ms input sample). The loop reads the bxCAN's receive FIFOs
 //! itself, behind the acceptance filters it derives from the configuration (SRDO identifiers
 //! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun or a bus-off is the safe
-//! state ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`]). A small task drains the
+//! state, each with its own cause ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`],
+//! [`dual_channel::runtime::ChannelFault::BusOff`]). A small task drains the
 //! link transmit pipe into the USART. The independent watchdog is fed by the channel loop only.
 //!
 //! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
@@ -228,9 +229,7 @@ impl HwDriver<'_> {
         );
         self.error_state = state;
         if entered {
-            defmt::error!(
-                "CAN bus-off: frames may have gone unseen; reported as a receive overrun"
-            );
+            defmt::error!("CAN bus-off: frames may have gone unseen");
         }
         entered
     }
@@ -247,7 +246,7 @@ impl Driver for HwDriver<'_> {
 
     fn receive(&mut self) -> Option<channel_loop::Received> {
         if self.went_bus_off() {
-            return Some(channel_loop::Received::Overrun);
+            return Some(channel_loop::Received::BusOff);
         }
         self.can.receive()
     }

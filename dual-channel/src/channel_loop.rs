@@ -56,6 +56,9 @@ pub enum Received {
     Frame(CanFrame),
     /// Frames were lost since the last call because the queue was full.
     Overrun,
+    /// The CAN controller went bus-off since the last call: frames may have gone unseen
+    /// while it neither sent nor received.
+    BusOff,
 }
 
 /// A board as the channel loop sees it.
@@ -273,6 +276,10 @@ fn hand<F: Flash, R: Role<N>, const N: usize, D: Driver>(
         }
         Received::Overrun => {
             runtime.on_receive_overrun(io);
+            true
+        }
+        Received::BusOff => {
+            runtime.on_bus_off(io);
             true
         }
     }

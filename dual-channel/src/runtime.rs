@@ -234,6 +234,9 @@ pub enum ChannelFault {
     /// full, so the channel cannot know that it saw every safety frame
     /// ([`crate::channel_loop::Received::Overrun`]).
     ReceiveOverrun,
+    /// The channel's CAN controller went bus-off, so frames the channel follows may have gone
+    /// unseen ([`crate::channel_loop::Received::BusOff`]).
+    BusOff,
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -265,6 +268,7 @@ impl ChannelFault {
             ChannelFault::InputRestoreFailed => Cause::InputRestoreFailed,
             ChannelFault::ClockDrift => Cause::ClockDrift,
             ChannelFault::ReceiveOverrun => Cause::ReceiveOverrun,
+            ChannelFault::BusOff => Cause::BusOff,
             ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
         }
     }
@@ -493,6 +497,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     /// ([`ChannelFault::ReceiveOverrun`]), never a silent loss.
     pub fn on_receive_overrun(&mut self, io: &mut impl Io) {
         self.latch(ChannelFault::ReceiveOverrun, io);
+    }
+
+    /// The channel's CAN controller went bus-off: the safe state ([`ChannelFault::BusOff`]),
+    /// as for an overrun, under its own cause.
+    pub fn on_bus_off(&mut self, io: &mut impl Io) {
+        self.latch(ChannelFault::BusOff, io);
     }
 
     /// A byte from the link.

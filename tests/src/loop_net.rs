@@ -50,6 +50,8 @@ pub struct SimDriver {
     banks: Option<BankLayout>,
     fifos: [VecDeque<CanFrame>; 2],
     overrun: bool,
+    /// The controller went bus-off (and recovered): the next receive reports it.
+    pub bus_off: bool,
     sent: Vec<CanFrame>,
     link_out: Vec<u8>,
     link_in: VecDeque<u8>,
@@ -75,6 +77,7 @@ impl SimDriver {
             banks: None,
             fifos: [VecDeque::new(), VecDeque::new()],
             overrun: false,
+            bus_off: false,
             sent: Vec::new(),
             link_out: Vec::new(),
             link_in: VecDeque::new(),
@@ -112,7 +115,10 @@ impl SimDriver {
     }
 
     fn waiting(&self) -> bool {
-        self.fifos.iter().any(|fifo| !fifo.is_empty()) || self.overrun || !self.link_in.is_empty()
+        self.fifos.iter().any(|fifo| !fifo.is_empty())
+            || self.overrun
+            || self.bus_off
+            || !self.link_in.is_empty()
     }
 }
 
@@ -125,6 +131,9 @@ impl Driver for SimDriver {
         Ok(())
     }
     fn receive(&mut self) -> Option<Received> {
+        if std::mem::take(&mut self.bus_off) {
+            return Some(Received::BusOff);
+        }
         if std::mem::take(&mut self.overrun) {
             return Some(Received::Overrun);
         }

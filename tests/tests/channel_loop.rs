@@ -126,3 +126,27 @@ fn iec61784_3_loss_a_babbling_identifier_cannot_push_an_srdo_out_of_the_receive_
     assert_eq!(ChannelFault::ReceiveOverrun.cause_code(), 0x3A);
     assert!(open.node(33).drivers.iter().all(|driver| !driver.output));
 }
+
+/// EN 50325-5 7.1.2: channel A's controller of node 33 goes bus-off (it neither sent nor
+/// received for a while, so safety frames may have gone unseen): the channel goes to the
+/// safe state with bus-off's own cause 3Bh, not a receive overrun's, both channels' outputs
+/// go low, and the node names the cause in EMCY FF02h (byte 4).
+#[test]
+fn en50325_5_7_1_2_a_bus_off_controller_is_the_safe_state_with_its_own_cause() {
+    let mut net = started(Filtering::Banks);
+    let since = net.trace.len();
+    net.node_mut(33).drivers[0].bus_off = true;
+    net.run_for(Duration::from_millis(50));
+    assert_eq!(faults(&net).first(), Some(&(33, ChannelFault::BusOff)));
+    assert!(!faults(&net).contains(&(33, ChannelFault::ReceiveOverrun)));
+    assert_eq!(ChannelFault::BusOff.cause_code(), 0x3B);
+    assert!(net.node(33).drivers.iter().all(|driver| !driver.output));
+    assert!(
+        net.trace[since..]
+            .iter()
+            .any(|(_, frame, _)| frame.id().raw() == 0x0A1
+                && frame.data()[..2] == [0x02, 0xFF]
+                && frame.data()[4] == 0x3B),
+        "EMCY FF02h with cause 3Bh from node 33"
+    );
+}

@@ -421,6 +421,9 @@ fn advice(code: u8) -> Option<&'static str> {
         0x3A => Some(
             "A frame the node follows (its SRDOs, NMT, GFC or its own SDO request) found the channel's CAN receive queue full, so the channel cannot know that it saw every safety frame. Something sends on those identifiers faster than the node takes them: look for a babbling device or a tool flooding the node's SDO identifier, and check the bus load. If it recurs at normal load, replace the device.",
         ),
+        0x3B => Some(
+            "The channel's CAN controller went bus-off: its own frames met so many errors that it left the bus, and frames the node follows may have gone unseen. Check the wiring, the termination and the bit rate of every device (a device at another bit rate destroys frames), and the transceiver's supply; if it recurs on a sound bus, replace the device.",
+        ),
         0x40 => Some(
             "The other channel entered its safe state first: read its own cause (the channel's status or log).",
         ),

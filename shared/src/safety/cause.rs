@@ -73,6 +73,10 @@ pub enum Cause {
     /// A received frame the channel follows found its receive queue full: the channel cannot
     /// know that it saw every safety frame.
     ReceiveOverrun = 0x3A,
+    /// The channel's CAN controller went bus-off (its transmit error counter passed 255):
+    /// until its automatic recovery it neither sends nor receives, so the channel cannot know
+    /// that it saw every safety frame.
+    BusOff = 0x3B,
     /// The other channel went to its safe state.
     PeerSafeState = 0x40,
     /// A GFC was received (EN 50325-5 7.2.1).
@@ -105,7 +109,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 39] = [
+    pub const ALL: [Cause; 40] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -133,6 +137,7 @@ impl Cause {
         Cause::InputRestoreFailed,
         Cause::ClockDrift,
         Cause::ReceiveOverrun,
+        Cause::BusOff,
         Cause::PeerSafeState,
         Cause::Gfc,
         Cause::SimpleCanNotValidated,
@@ -188,6 +193,7 @@ impl Cause {
             Cause::InputRestoreFailed => "input not restored after reset",
             Cause::ClockDrift => "clock of one channel drifts",
             Cause::ReceiveOverrun => "CAN receive queue overrun",
+            Cause::BusOff => "CAN controller bus-off",
             Cause::PeerSafeState => "other channel safe",
             Cause::Gfc => "GFC",
             Cause::SimpleCanNotValidated => "SimpleCAN configuration not declared valid",
@@ -238,7 +244,7 @@ mod tests {
 
     #[test]
     fn a_number_that_is_no_cause_code_is_none_and_reads_other() {
-        for code in [0x03, 0x08, 0x15, 0x24, 0x3B, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
+        for code in [0x03, 0x08, 0x15, 0x24, 0x3C, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
             assert_eq!(Cause::from_code(code), None, "{code:#04x}");
             assert_eq!(Cause::describe_code(code), "other");
         }
@@ -253,6 +259,8 @@ mod tests {
             (Cause::LinkTimeout, 0x14),
             (Cause::VerdictUnconfirmed, 0x21),
             (Cause::InputDiscrepancy, 0x33),
+            (Cause::ReceiveOverrun, 0x3A),
+            (Cause::BusOff, 0x3B),
             (Cause::PeerSafeState, 0x40),
             (Cause::Gfc, 0x50),
             (Cause::IntegrityRecords, 0xF2),

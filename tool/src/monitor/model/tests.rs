@@ -273,6 +273,11 @@ fn monitor_decodes_this_devices_emcy_into_words() {
         ),
         (
             code::APPLICATION_FAULT,
+            [0, 0x3B, 0, 0, 0],
+            "channel cross-check: CAN controller bus-off",
+        ),
+        (
+            code::APPLICATION_FAULT,
             [0, 0x77, 0, 0, 0],
             "channel cross-check: cause 77h",
         ),
