@@ -177,3 +177,58 @@ fn socketcand_session_holds_frames_within_the_raw_mode_grace() {
         Some(Session::frame_message(&frame(0x104), later))
     );
 }
+
+/// A `receive` whose deadline has already passed reads without waiting; the socket must be
+/// blocking again afterwards, so that sends that fill the connection's buffers wait for the
+/// server instead of failing with `WouldBlock`. The server reads nothing for a while after
+/// the handshake, so the client's sends (more than the loopback buffers hold) must wait.
+#[test]
+fn socketcand_send_after_a_passed_deadline_waits_instead_of_failing() {
+    const FRAMES: usize = 200_000;
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap().to_string();
+    let server = std::thread::spawn(move || {
+        let (mut stream, _) = listener.accept().unwrap();
+        stream.write_all(GREETING.as_bytes()).unwrap();
+        let mut session = Session::new("can0");
+        let mut buffer = [0u8; 65536];
+        let mut sends = 0usize;
+        let mut raw_since: Option<std::time::Instant> = None;
+        loop {
+            // Once in raw mode, let the client's sends pile up before draining them.
+            if let Some(since) = raw_since.take() {
+                std::thread::sleep(Duration::from_millis(300).saturating_sub(since.elapsed()));
+            }
+            let count = match stream.read(&mut buffer) {
+                Ok(0) | Err(_) => return sends,
+                Ok(count) => count,
+            };
+            let was_raw = session.is_raw();
+            for output in session.feed(&buffer[..count], Duration::ZERO) {
+                match output {
+                    Output::Reply(text) => stream.write_all(text.as_bytes()).unwrap(),
+                    Output::Send(_) => sends += 1,
+                    Output::Close => return sends,
+                }
+            }
+            if !was_raw && session.is_raw() {
+                raw_since = Some(std::time::Instant::now());
+            }
+        }
+    });
+    let mut client = SocketcandClient::connect(&address, "can0").unwrap();
+    let passed = client.now();
+    assert_eq!(client.receive(passed).unwrap(), None);
+    let frame = CanFrame::new(
+        CanId::new(0x621).unwrap(),
+        &[0x40, 0x18, 0x10, 1, 0, 0, 0, 0],
+    )
+    .unwrap();
+    for sent in 0..FRAMES {
+        if let Err(error) = client.send(&frame) {
+            panic!("send {sent} of {FRAMES} failed: {error}");
+        }
+    }
+    drop(client);
+    assert_eq!(server.join().unwrap(), FRAMES);
+}

@@ -127,15 +127,15 @@ impl SocketcandClient {
                 return Ok(None);
             }
             waited = true;
-            match left {
-                Some(left) => {
-                    self.stream.set_nonblocking(false)?;
-                    self.stream.set_read_timeout(Some(left))?;
-                }
-                None => self.stream.set_nonblocking(true)?,
-            }
             let mut chunk = [0u8; 4096];
-            match self.stream.read(&mut chunk) {
+            let read = match left {
+                Some(left) => {
+                    self.stream.set_read_timeout(Some(left))?;
+                    self.stream.read(&mut chunk)
+                }
+                None => self.read_without_waiting(&mut chunk),
+            };
+            match read {
                 Ok(0) => return Err(TransportError::Closed),
                 Ok(count) => {
                     let text = std::str::from_utf8(&chunk[..count]).map_err(|_| {
@@ -150,6 +150,17 @@ impl SocketcandClient {
                 Err(error) => return Err(error.into()),
             }
         }
+    }
+
+    /// One read of what the connection already holds, without waiting. The socket is
+    /// non-blocking only for this read: it is blocking again before the result is looked at,
+    /// so a later [`Transport::send`] waits for room in the send buffer instead of failing
+    /// with `WouldBlock`.
+    fn read_without_waiting(&mut self, chunk: &mut [u8]) -> std::io::Result<usize> {
+        self.stream.set_nonblocking(true)?;
+        let read = self.stream.read(chunk);
+        self.stream.set_nonblocking(false)?;
+        read
     }
 }
 
