@@ -332,4 +332,13 @@ fn sc_req_24_the_variants_before_the_simplecan_packet_keep_their_encoding() {
     };
     let bytes = postcard::to_slice(&packet, &mut raw).unwrap().to_vec();
     assert_eq!(bytes, [8, 0x30, 8, 1, 2, 3, 4, 5, 6, 7, 8]);
+    // The largest: identifier FFFFh takes 3 varint octets; 13 + sequence 2 + CRC 4 = 19 of
+    // the raw bound's 32.
+    let largest = Message::SimpleCanPacket {
+        id: u16::MAX,
+        len: u8::MAX,
+        data: [0xFF; 8],
+    };
+    assert_eq!(postcard::to_slice(&largest, &mut raw).unwrap().len(), 13);
+    const { assert!(2 + 13 + 4 <= MAX_RAW) };
 }
