@@ -12,3 +12,4 @@ pub const CHANNEL: char = 'B';
 pub mod diverse;
 pub mod role;
 pub mod signature;
+pub mod simplecan;

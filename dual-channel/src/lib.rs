@@ -28,4 +28,6 @@ pub mod filters;
 pub mod link;
 pub mod runtime;
 pub mod selftest;
+#[cfg(feature = "simplecan")]
+pub mod simplecan;
 pub mod supervision;

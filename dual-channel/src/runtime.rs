@@ -1001,6 +1001,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                     self.latch(fault, io);
                 }
             }
+            // The SRDO runtime runs no SimpleCAN, so neither channel's runtime sends one: a
+            // SimpleCAN channel pair decodes them with channel B's own decoder
+            // (`channel_b::simplecan`).
+            #[cfg(feature = "simplecan")]
+            Message::SimpleCanPacket { .. } => {}
             Message::SafeState { cause } => {
                 // A channel already in its safe state (its own core found the fault too, say:
                 // both see the same bus) keeps its own cause, which is what it reports.

@@ -106,6 +106,19 @@ pub enum Message {
         /// The identifier.
         id: u16,
     },
+    /// Channel A received this SimpleCAN frame (data or sync) and forwards it to channel B
+    /// as it came off the bus, not unpacked (SC_REQ_24): B decodes and checks it with its
+    /// own code. Last variant, so postcard's encoding of the ones above is unchanged, and
+    /// behind the `simplecan` feature, which no firmware image enables yet.
+    #[cfg(feature = "simplecan")]
+    SimpleCanPacket {
+        /// CAN identifier (02Fh or an SC-ID).
+        id: u16,
+        /// Data length code as received (0..=8; anything but 8 is B's to reject).
+        len: u8,
+        /// The payload bytes as received, bytes beyond `len` 0.
+        data: [u8; 8],
+    },
 }
 
 /// Why the link is not trustworthy.

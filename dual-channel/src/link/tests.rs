@@ -6,8 +6,8 @@ use proptest::prelude::*;
 
 const TIMEOUT: Duration = Duration::from_millis(10);
 
-fn messages() -> [Message; 8] {
-    [
+fn messages() -> Vec<Message> {
+    vec![
         Message::Heartbeat {
             nmt: 0x05,
             working: true,
@@ -35,6 +35,13 @@ fn messages() -> [Message; 8] {
             data: u64::MAX,
         },
         Message::ForeignFrame { id: 0x7FF },
+        // The largest message: postcard's varint of 0x7FF takes 2 octets, 0xFFFF 3.
+        #[cfg(feature = "simplecan")]
+        Message::SimpleCanPacket {
+            id: u16::MAX,
+            len: 8,
+            data: [0xFF; 8],
+        },
     ]
 }
 
@@ -283,4 +290,55 @@ fn cia304_9_5_a_link_message_in_a_non_canonical_encoding_is_malformed() {
         feed(&mut receiver, Instant::ZERO, &frame),
         [Err(LinkFault::Malformed)]
     );
+}
+
+#[cfg(feature = "simplecan")]
+#[test]
+fn sc_req_24_a_forwarded_simplecan_packet_arrives_byte_exact_and_fits_the_bound() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    // Worked vector 2 of docs/simplecan.md section 9, and the largest encoding there is.
+    for message in [
+        Message::SimpleCanPacket {
+            id: 0x07F,
+            len: 8,
+            data: [0xEF, 0xBE, 0xAD, 0xDE, 0xFF, 0x8B, 0x1C, 0x68],
+        },
+        Message::SimpleCanPacket {
+            id: u16::MAX,
+            len: u8::MAX,
+            data: [0xFF; 8],
+        },
+    ] {
+        let wire = sender.encode(&message).unwrap();
+        assert!(wire.len() <= MAX_WIRE);
+        assert_eq!(feed(&mut receiver, Instant::ZERO, &wire), [Ok(message)]);
+    }
+}
+
+#[cfg(feature = "simplecan")]
+#[test]
+fn sc_req_24_the_variants_before_the_simplecan_packet_keep_their_encoding() {
+    // postcard numbers variants in order from 0: ForeignFrame stays 7, the new one is 8.
+    let mut raw = [0u8; MAX_RAW];
+    let foreign = postcard::to_slice(&Message::ForeignFrame { id: 0x7F }, &mut raw)
+        .unwrap()
+        .to_vec();
+    assert_eq!(foreign, [7, 0x7F]);
+    let packet = Message::SimpleCanPacket {
+        id: 0x30,
+        len: 8,
+        data: [1, 2, 3, 4, 5, 6, 7, 8],
+    };
+    let bytes = postcard::to_slice(&packet, &mut raw).unwrap().to_vec();
+    assert_eq!(bytes, [8, 0x30, 8, 1, 2, 3, 4, 5, 6, 7, 8]);
+    // The largest: identifier FFFFh takes 3 varint octets; 13 + sequence 2 + CRC 4 = 19 of
+    // the raw bound's 32.
+    let largest = Message::SimpleCanPacket {
+        id: u16::MAX,
+        len: u8::MAX,
+        data: [0xFF; 8],
+    };
+    assert_eq!(postcard::to_slice(&largest, &mut raw).unwrap().len(), 13);
+    const { assert!(2 + 13 + 4 <= MAX_RAW) };
 }
