@@ -120,20 +120,23 @@ impl Counter {
         }
         // Returns first: the instruction after the call is not part of it. A call returns
         // to its caller, so the innermost open calls close first.
+        // Calls opened inside it that have not returned (entered otherwise than by `bl`) end
+        // with it, uncounted: their instructions are its own.
         while let Some(index) = self.open.iter().rposition(|call| call.back == pc) {
-            let done: Vec<Open> = self.open.drain(index..).collect();
-            for call in done.into_iter().rev() {
-                for outer in self.open.iter_mut() {
-                    if nesting.contains(&outer.function) {
-                        outer.nested.push((call.function, call.instructions));
-                    }
+            self.open.truncate(index + 1);
+            let Some(call) = self.open.pop() else {
+                break;
+            };
+            for outer in self.open.iter_mut() {
+                if nesting.contains(&outer.function) {
+                    outer.nested.push((call.function, call.instructions));
                 }
-                self.counted.calls.push(Call {
-                    function: call.function,
-                    instructions: call.instructions,
-                    nested: call.nested,
-                });
             }
+            self.counted.calls.push(Call {
+                function: call.function,
+                instructions: call.instructions,
+                nested: call.nested,
+            });
         }
         for call in self.open.iter_mut() {
             call.instructions += 1;
@@ -184,11 +187,11 @@ mod tests {
     #[test]
     fn calls_are_counted_from_entry_to_return() {
         let mut text = vec!["IN: noise".to_owned()];
-        // bl at 0x100 → 0x200 (3 instructions, one of them a call of 0x300, and an interrupt
-        // handler of two that is not counted) → back at 0x104.
+        // bl at 0x100 → 0x200, bl at 0x202 → 0x300 (one instruction) → back at 0x206, an
+        // interrupt handler of two that is not counted, back at 0x104: 4 instructions.
         text.extend([line(0x100), line(0x200), line(0x202)]);
         text.extend([handler(0x500), handler(0x502)]);
-        text.extend([line(0x300), line(0x104), line(0x106)]);
+        text.extend([line(0x300), line(0x206), line(0x104), line(0x106)]);
         // A second call, cut off by the end of the trace.
         text.extend([line(0x110), line(0x200)]);
         let counted = count(&text, &[0x200, 0x300, 0x900], &[0]);
@@ -202,11 +205,12 @@ mod tests {
                 },
                 Call {
                     function: 0,
-                    instructions: 3,
+                    instructions: 4,
                     nested: vec![(1, 1)]
                 },
             ]
         );
-        assert_eq!(counted.calls[1].without(&[1]), 2);
+        assert_eq!(counted.lines, 12);
+        assert_eq!(counted.calls[1].without(&[1]), 3);
     }
 }
