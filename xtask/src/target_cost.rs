@@ -520,14 +520,20 @@ fn render(
             image: name.to_owned(),
             what: "`hand` of both frames only (the runtime's `on_frame`: the core's \
                    `handle_frame`, the verdict queued for the link)",
-            spread: spread(channels, name, "hand plain", |c| &c.hand_plain)?
-                .plus(spread(channels, name, "hand inverted", |c| &c.hand_inverted)?),
+            spread: spread(channels, name, "hand plain", |c| &c.hand_plain)?.plus(spread(
+                channels,
+                name,
+                "hand inverted",
+                |c| &c.hand_inverted,
+            )?),
             host: host(VALIDATED),
         });
     }
     let plain_sent = spread(channels, "node1a", "plain sent", |c| &c.plain_sent)?;
     let inverted_sent = spread(channels, "node1b", "inverted sent", |c| &c.inverted_sent)?;
-    let own_inverted = spread(channels, "node1a", "inverted received", |c| &c.inverted_received)?;
+    let own_inverted = spread(channels, "node1a", "inverted received", |c| {
+        &c.inverted_received
+    })?;
     rows.push(Row {
         operation: PRODUCED,
         image: "node1a".to_owned(),
@@ -614,8 +620,9 @@ fn render(
     };
 
     // The load of a node with 64 SRDOs at a 10 ms refresh, its busier channel.
-    let per =
-        |name: &str, pick: fn(&Channel) -> &Vec<u64>| spread(channels, name, "figure for the load", pick).map(|s| s.most);
+    let per = |name: &str, pick: fn(&Channel) -> &Vec<u64>| {
+        spread(channels, name, "figure for the load", pick).map(|s| s.most)
+    };
     let scale = LOAD_SRDOS / IMAGE_SRDOS;
     let mut overhead = Vec::new();
     for name in ["node1a", "node1b", "node33a", "node33b"] {
