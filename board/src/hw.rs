@@ -10,32 +10,28 @@
 //! for whatever comes first: a CAN frame, link bytes, or the instant the loop asked for (the
 //! runtime's next deadline, the 1 ms input sample). The loop reads the bxCAN's receive FIFOs
 //! itself, behind the acceptance filters it derives from the configuration (SRDO identifiers
-//! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun is the safe state
-//! ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`]). Two small tasks move frames from
-//! a priority queue into the transmit mailboxes and drain the link transmit pipe into the
-//! USART. The independent watchdog is fed by the channel loop only.
+//! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun or a bus-off is the safe
+//! state ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`]). A small task drains the
+//! link transmit pipe into the USART. The independent watchdog is fed by the channel loop only.
+//!
+//! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
+//! (`embassy_can`, the default; a task moves frames from a priority queue into the transmit
+//! mailboxes) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`; the loop's task
+//! fills the mailboxes itself). Each gives [`HwDriver`] the same `CanPort`.
 
-use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
-use dual_channel::filters::{self, AcceptanceList, Bank};
+use dual_channel::filters::{self, AcceptanceList};
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
-use embassy_stm32::can::enums::TryReadError;
-use embassy_stm32::can::filter::{ListEntry16, ListEntry32, Mask16};
-use embassy_stm32::can::{
-    Can, CanRx, CanTx, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler,
-    StandardId, TxInterruptHandler,
-};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
-use embassy_stm32::peripherals::{CAN1, IWDG, USART3};
+use embassy_stm32::peripherals::USART3;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
-use embassy_sync::priority_channel::{Min, PriorityChannel};
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::StorageError;
@@ -43,14 +39,19 @@ use shared::{CanFrame, Duration, Instant};
 use static_cell::StaticCell;
 
 use crate::Device;
+use crate::bxcan_adapter::ErrorState;
 use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
-use crate::transmit_queue::{Queued, Sequencer};
+
+#[cfg(feature = "can-bxcan")]
+mod bxcan_can;
+#[cfg(feature = "can-bxcan")]
+use bxcan_can::CanPort;
+#[cfg(not(feature = "can-bxcan"))]
+mod embassy_can;
+#[cfg(not(feature = "can-bxcan"))]
+use embassy_can::CanPort;
 
 bind_interrupts!(struct Irqs {
-    CAN1_RX0 => Rx0InterruptHandler<CAN1>;
-    CAN1_RX1 => Rx1InterruptHandler<CAN1>;
-    CAN1_SCE => SceInterruptHandler<CAN1>;
-    CAN1_TX => TxInterruptHandler<CAN1>;
     USART3 => usart::BufferedInterruptHandler<USART3>;
 });
 
@@ -63,10 +64,6 @@ pub const LINK_BAUD: u32 = 1_000_000;
 /// The watchdog bites when the runtime loop has not run for this long.
 pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
-/// Frames to send, from the runtime task: by identifier, not first in first out
-/// ([`crate::transmit_queue`]), so the node's own heartbeat or EMCY never holds back its SRDO
-/// or GFC.
-static CAN_TX: PriorityChannel<CriticalSectionRawMutex, Queued, Min, 16> = PriorityChannel::new();
 /// Link bytes to send.
 static LINK_TX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
 
@@ -194,17 +191,15 @@ impl EraseWindow {
     }
 }
 
-/// The board as the channel loop sees it: the bxCAN's receive FIFOs and filters, the transmit
-/// queue, the link USART, the input and output pins, embassy's clock.
+/// The board as the channel loop sees it: the bxCAN ([`CanPort`]), the link USART, the input
+/// and output pins, embassy's clock.
 struct HwDriver<'d> {
-    can: CanRx<'static>,
+    can: CanPort,
+    /// The controller's error state when last read, for reporting changes once.
+    error_state: ErrorState,
     link: BufferedUartRx<'static>,
     input: Input<'d>,
     output: Output<'d>,
-    /// Numbers the frames handed to [`CAN_TX`], for their order within one identifier.
-    sequencer: Sequencer,
-    /// A frame the wait took from a FIFO, for the loop's next [`Driver::receive`].
-    frame: Option<CanFrame>,
     /// Link bytes the wait read, for the loop's next [`Driver::link_read`] (which takes them
     /// whole: its buffer is as long).
     link_bytes: [u8; 64],
@@ -212,20 +207,32 @@ struct HwDriver<'d> {
 }
 
 impl HwDriver<'_> {
-    /// `true` (and the flags cleared) when a receive FIFO overflowed since the last call:
-    /// bxCAN keeps three frames per FIFO and, with RFLM = 0 (the reset value, kept), the
-    /// newest overwrites the third, so a frame the filters passed was lost (RM0090 32.7.5).
-    fn overrun() -> bool {
-        let can = embassy_stm32::pac::CAN1;
-        let mut lost = false;
-        for fifo in 0..2 {
-            if can.rfr(fifo).read().fovr() {
-                // FOVR is cleared by writing 1; FULL likewise, RFOM = 0 releases nothing.
-                can.rfr(fifo).write(|w| w.set_fovr(true));
-                lost = true;
-            }
+    /// `true` when the controller has gone bus-off since the last call ([`ErrorState`]);
+    /// every change of its error state is logged. The loop calls [`Driver::receive`] at every
+    /// wake-up and at least every 1 ms, and a bus-off lasts at least 128 times 11 recessive
+    /// bits (2.8 ms at 500 kbit/s, 1.4 ms at 1 Mbit/s) before the automatic recovery, so none
+    /// passes unseen; only during a flash erase (a store, refused in Operational) does the
+    /// loop not run, and a bus-off then costs no SRDO frame.
+    fn went_bus_off(&mut self) -> bool {
+        let esr = embassy_stm32::pac::CAN1.esr().read().0;
+        let state = ErrorState::from_esr(esr);
+        if state == self.error_state {
+            return false;
         }
-        lost
+        let entered = state.loses_frames() && !self.error_state.loses_frames();
+        defmt::warn!(
+            "CAN error state {} (transmit errors {=u8}, receive errors {=u8})",
+            state,
+            crate::bxcan_adapter::transmit_errors(esr),
+            crate::bxcan_adapter::receive_errors(esr)
+        );
+        self.error_state = state;
+        if entered {
+            defmt::error!(
+                "CAN bus-off: frames may have gone unseen; reported as a receive overrun"
+            );
+        }
+        entered
     }
 }
 
@@ -235,33 +242,14 @@ impl Driver for HwDriver<'_> {
     }
 
     fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
-        CAN_TX
-            .try_send(self.sequencer.queue(*frame))
-            .map_err(|_| QueueFull)
+        self.can.transmit(frame)
     }
 
     fn receive(&mut self) -> Option<channel_loop::Received> {
-        if Self::overrun() {
+        if self.went_bus_off() {
             return Some(channel_loop::Received::Overrun);
         }
-        if let Some(frame) = self.frame.take() {
-            return Some(channel_loop::Received::Frame(frame));
-        }
-        loop {
-            match self.can.try_read() {
-                Ok(envelope) => {
-                    // Not CANopen's (extended, length over 8): as if filtered out.
-                    if let Some(frame) = from_bxcan(&envelope.frame) {
-                        return Some(channel_loop::Received::Frame(frame));
-                    }
-                }
-                Err(TryReadError::Empty) => return None,
-                Err(TryReadError::BusError(error)) => {
-                    defmt::warn!("CAN bus error {}", error);
-                    return None;
-                }
-            }
-        }
+        self.can.receive()
     }
 
     fn apply_filters(&mut self, list: &AcceptanceList) {
@@ -272,37 +260,7 @@ impl Driver for HwDriver<'_> {
         if !layout.exact {
             defmt::warn!("CAN filters: SRDO range masked, the loop filters the rest");
         }
-        let id = |raw: u16| StandardId::new(raw).unwrap_or(StandardId::ZERO);
-        let mut banks = self.can.modify_filters();
-        banks.clear();
-        for (index, &(bank, fifo)) in layout.banks.iter().enumerate() {
-            let fifo = match fifo {
-                filters::Fifo::Srdo => Fifo::Fifo0,
-                filters::Fifo::Services => Fifo::Fifo1,
-            };
-            // At most 14 banks: the index fits.
-            let index = index as u8;
-            match bank {
-                Bank::List16(ids) => {
-                    banks.enable_bank(
-                        index,
-                        fifo,
-                        ids.map(|raw| ListEntry16::data_frames_with_id(id(raw))),
-                    );
-                }
-                Bank::Mask16(pairs) => {
-                    banks.enable_bank(
-                        index,
-                        fifo,
-                        pairs.map(|(raw, mask)| {
-                            *Mask16::frames_with_std_id(id(raw), id(mask)).data_frames_only()
-                        }),
-                    );
-                }
-            }
-        }
-        // Dropping the proxy leaves filter initialisation mode.
-        drop(banks);
+        self.can.apply_filters(&layout);
         defmt::info!("CAN filters: {=usize} identifiers", list.ids().len());
     }
 
@@ -348,89 +306,6 @@ impl Driver for HwDriver<'_> {
     }
 }
 
-/// The bxCAN in silent loop-back mode, for [`dual_channel::can_loopback::run`].
-struct Loopback<'a, 'd> {
-    can: &'a mut Can<'d>,
-}
-
-impl LoopbackController for Loopback<'_, '_> {
-    fn now(&self) -> Instant {
-        now()
-    }
-
-    fn queue(&mut self, frame: &CanFrame) -> Option<u8> {
-        let frame = to_bxcan(frame)?;
-        let status = self.can.try_write(&frame).ok()?;
-        Some(status.mailbox() as u8)
-    }
-
-    async fn receive(&mut self, until: Instant) -> Received {
-        match embassy_time::with_deadline(embassy_instant(until), self.can.read()).await {
-            Ok(Ok(envelope)) => match from_bxcan(&envelope.frame) {
-                Some(frame) => Received::Frame(frame),
-                None => Received::Unreadable {
-                    id: raw_id(&envelope.frame),
-                    dlc: envelope.frame.header().len(),
-                },
-            },
-            Ok(Err(_)) => Received::BusError,
-            Err(_) => Received::Nothing,
-        }
-    }
-}
-
-/// CiA 304 9.5: the controller's message buffers and filters, tested in silent loop-back mode
-/// before it joins the bus (plan, loop and verdict: [`dual_channel::can_loopback`]). Leaves
-/// the controller out of loop-back, for [`can_task`] to set its filters and enable it.
-async fn loopback_test(
-    can: &mut Can<'_>,
-    watchdog: &mut IndependentWatchdog<'_, IWDG>,
-) -> Result<(), LoopbackFault> {
-    use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
-    // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the
-    // test as missing.
-    let listed = |ids: [u16; 2]| {
-        ids.map(|id| {
-            ListEntry32::data_frames_with_id(StandardId::new(id).unwrap_or(StandardId::ZERO))
-        })
-    };
-    can.modify_config().set_loopback(true).set_silent(true);
-    can.modify_filters()
-        .clear()
-        .enable_bank(0, Fifo::Fifo0, listed(ACCEPT_FIFO0))
-        .enable_bank(1, Fifo::Fifo1, listed(ACCEPT_FIFO1));
-    // In queue order, so that a burst fills mailboxes 0, 1 and 2 one after the other.
-    can.set_tx_fifo_scheduling(true);
-    can.enable().await;
-    // Each burst takes at most BURST_WAIT (5 ms), well inside the watchdog's time.
-    let verdict =
-        dual_channel::can_loopback::run(&mut Loopback { can: &mut *can }, || watchdog.pet()).await;
-    can.set_tx_fifo_scheduling(false);
-    // Out of loop-back; dropping the configuration proxy leaves initialisation mode.
-    can.modify_config().set_loopback(false).set_silent(false);
-    verdict
-}
-
-/// A received frame's identifier as far as it fits (extended identifiers cut to 16 bits), for
-/// the report of a frame that is not CANopen's.
-fn raw_id(frame: &Frame) -> u16 {
-    match frame.id() {
-        embassy_stm32::can::Id::Standard(id) => id.as_raw(),
-        embassy_stm32::can::Id::Extended(id) => id.as_raw() as u16,
-    }
-}
-
-/// Moves frames from [`CAN_TX`], lowest identifier first, into the transmit mailboxes.
-#[embassy_executor::task]
-async fn can_tx_task(mut tx: CanTx<'static>) {
-    loop {
-        let queued = CAN_TX.receive().await;
-        if let Some(frame) = to_bxcan(&queued.frame) {
-            tx.write(&frame).await;
-        }
-    }
-}
-
 #[embassy_executor::task]
 async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
     let mut buf = [0u8; 64];
@@ -439,32 +314,6 @@ async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
         if tx.write_all(&buf[..n]).await.is_err() {
             defmt::warn!("link write failed");
         }
-    }
-}
-
-/// A standard data or remote frame from the bxCAN ([`crate::received_frame`] has the rules).
-/// The length is taken from the header and the data from the raw registers: embassy-stm32's
-/// `Frame::data` would panic on a length code over 8.
-fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
-    let embassy_stm32::can::Id::Standard(id) = frame.id() else {
-        return None;
-    };
-    let mut data = [0u8; 8];
-    data.copy_from_slice(frame.raw_data().get(..8)?);
-    crate::received_frame(
-        id.as_raw(),
-        frame.header().rtr(),
-        frame.header().len(),
-        &data,
-    )
-}
-
-fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
-    let id = StandardId::new(frame.id().raw())?;
-    if frame.is_remote() {
-        Frame::new_remote(id, usize::from(frame.dlc())).ok()
-    } else {
-        Frame::new_data(id, frame.data()).ok()
     }
 }
 
@@ -506,22 +355,13 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     };
     drop(switches);
 
-    let mut can = Can::new(p.CAN1, p.PB8, p.PB9, Irqs);
     // `Can::set_bitrate` unwraps the timing calculation, which links the `Debug` formatting of
     // its error into the image (`docs/footprint.md`); the same calculation, refused by name.
     let clock = embassy_stm32::rcc::frequency::<embassy_stm32::peripherals::CAN1>();
-    match embassy_stm32::can::util::calc_can_timings(clock, BIT_RATE) {
-        // The configuration leaves initialisation mode when it is dropped, as in `set_bitrate`.
-        Ok(timing) => drop(can.modify_config().set_bit_timing(timing)),
-        Err(_) => halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock"),
-    }
-    match loopback_test(&mut can, &mut watchdog).await {
-        Ok(()) => defmt::info!("self-test: CAN loop-back (3 mailboxes, 2 FIFOs, filters) passed"),
-        Err(fault) => {
-            defmt::error!("self-test: CAN loop-back failed {}", fault);
-            halt_safe("CAN controller self-test failed");
-        }
-    }
+    let Ok(timing) = embassy_stm32::can::util::calc_can_timings(clock, BIT_RATE) else {
+        halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock");
+    };
+    let can = CanPort::start(spawner, p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
     static LINK_TX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     static LINK_RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     let mut link_config = usart::Config::default();
@@ -543,13 +383,6 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     static LINK: StaticCell<BufferedUart<'static>> = StaticCell::new();
     let (link_tx, link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) =
         LINK.init(uart).split_ref();
-    // No filter bank enabled: the controller takes no frame until the channel loop has
-    // programmed the node's filters (its first service, before the core boots).
-    can.modify_filters().clear();
-    can.enable().await;
-    // `can` stays alive (its drop would reset the controller); its halves go to the tasks.
-    let (can_tx, can_rx) = can.split();
-    spawner.spawn(can_tx_task(can_tx).unwrap_or_else(|_| halt_safe("CAN task")));
     spawner.spawn(link_tx_task(link_tx).unwrap_or_else(|_| halt_safe("link task")));
 
     if !crate::self_tests() {
@@ -562,40 +395,39 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         STM32F405_SLOTS,
     );
     let config = (device.describe)(node_id);
-    let mut runtime = match Runtime::new(config, parameters, role, now(), LINK_PERIOD) {
+    // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime
+    // (3,584 bytes) through this task's stack frame (`docs/footprint.md`).
+    let mut built = Runtime::new(config, parameters, role, now(), LINK_PERIOD);
+    let runtime = match &mut built {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };
     let mut channel = ChannelLoop::new(device.pins);
     let mut driver = HwDriver {
-        can: can_rx,
+        can,
+        error_state: ErrorState::Active,
         link: link_rx,
         input,
         output,
-        sequencer: Sequencer::new(),
-        frame: None,
         link_bytes: [0; 64],
         link_count: 0,
     };
-    let mut stack_reported = 0;
+    let mut stack_mark = crate::stack::Sampled::new();
     loop {
-        let wake = channel.service(&mut runtime, &mut driver);
+        let wake = channel.service(runtime, &mut driver);
         watchdog.pet();
-        let stack = crate::stack::used();
-        if stack > stack_reported {
-            stack_reported = stack;
+        if let Some(stack) = stack_mark.poll() {
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
-        // What the wait takes (one frame, some link bytes) is kept for the next service.
+        // What the wait takes (a frame, some link bytes) is kept for the next service.
         match select3(
-            driver.can.read(),
+            driver.can.wait(),
             driver.link.read(&mut driver.link_bytes),
             Timer::at(embassy_instant(wake)),
         )
         .await
         {
-            Either3::First(Ok(envelope)) => driver.frame = from_bxcan(&envelope.frame),
-            Either3::First(Err(error)) => defmt::warn!("CAN bus error {}", error),
+            Either3::First(()) => {}
             Either3::Second(Ok(count)) => driver.link_count = count,
             Either3::Second(Err(_)) => defmt::warn!("link read error"),
             Either3::Third(()) => {}

@@ -21,6 +21,7 @@ use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 use shared::{CanFrame, CanId};
 
+pub mod bxcan_adapter;
 pub mod diagnostics;
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;

@@ -361,15 +361,26 @@ impl Driver for QemuDriver {
                     self.pending = Some(Pending::Input);
                 }
                 Wire::Time(granted) => Self::grant(granted),
-                Wire::Status(_) => defmt::warn!("CAN bridge: status from the hub"),
+                Wire::Status(_) | Wire::Accept(_) => {
+                    defmt::warn!("CAN bridge: a channel's message from the hub")
+                }
             }
         }
         None
     }
 
     fn apply_filters(&mut self, list: &AcceptanceList) {
-        // The hub sends every frame: the loop's software filter, the same list, is the one.
+        // The hub plays the controller's filter banks: it sends only frames on these
+        // identifiers (`Wire::Accept`); the loop's software filter, the same list, stays.
         defmt::info!("CAN filters: {=usize} identifiers", list.ids().len());
+        let mut ids = [0u16; dual_channel::filters::MAX_ACCEPTED];
+        for (slot, id) in ids.iter_mut().zip(list.ids()) {
+            *slot = id.raw();
+        }
+        let count = list.ids().len().min(ids.len());
+        for chunk in can_serial::AcceptChunk::split(&ids[..count]) {
+            send(&Wire::Accept(chunk));
+        }
     }
 
     fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {
@@ -521,22 +532,29 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         driver.first_grant();
     }
     driver.diagnostics.input(driver.input);
-    let Ok(mut runtime) = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD)
-    else {
+    // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime through
+    // this task's stack frame (`docs/footprint.md`).
+    let mut built = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD);
+    let Ok(runtime) = &mut built else {
         defmt::error!("device description refused");
         exit(false);
     };
     let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
+    let mut stack_mark = crate::stack::Sampled::new();
     loop {
-        let deadline = channel.service(&mut runtime, &mut driver);
+        let deadline = channel.service(runtime, &mut driver);
         let at = now();
         let stall = LONGEST_STALL_MS.load(Ordering::Relaxed);
         driver
             .diagnostics
             .stalled(u16::try_from(stall).unwrap_or(u16::MAX));
-        driver.diagnostics.stack(crate::stack::used());
-        if let Some(status) = driver.diagnostics.report(at, &runtime) {
+        if let Some(stack) = stack_mark.poll() {
+            driver.diagnostics.stack(stack);
+            // Logged as the hardware layer logs it, so an image run alone shows it too.
+            defmt::info!("stack high-water mark: {=usize} bytes", stack);
+        }
+        if let Some(status) = driver.diagnostics.report(at, runtime) {
             send(&Wire::Status(status));
         }
         let deadline = deadline.min(driver.diagnostics.deadline());

@@ -9,7 +9,7 @@
 //!
 //! - **Acceptance filters**: derived from the configuration ([`crate::filters`]) and handed to
 //!   the driver whenever they change; every received frame is also judged by the same list in
-//!   software, so a board whose controller passes more (QEMU's hub sends everything, the
+//!   software, so a board whose controller passes more (QEMU's hub before the first list, the
 //!   bank fallback passes the SRDO range) sees exactly the same frames.
 //! - **Receive**: the driver's queue, frame by frame; a queue overrun of frames the filters
 //!   passed is the safe state with its own cause ([`Received::Overrun`]), never a silent loss.

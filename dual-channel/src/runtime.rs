@@ -395,6 +395,7 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
 impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     /// A channel powered on at `now`, sending a link heartbeat every `link_period` and
     /// expecting one from the other channel within twice that.
+    #[inline(never)]
     pub fn new(
         config: NodeConfig,
         flash: F,

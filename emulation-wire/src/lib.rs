@@ -18,10 +18,22 @@
 //!                         body = dlc: u8 | data[dlc] (none for RTR)
 //!   word = 0x4001:        Input, body = value: u8
 //!   word = 0x4002:        Status, body = Status::LEN bytes (see Status::to_bytes)
-//!   word = 0x4003:        Time, body = microseconds: u64 LE (hub to channel: a grant;
-//!                         channel to hub: the grant it has handled)
+//!   word = 0x4003:        Time, body = microseconds: u64 LE without its high zero bytes,
+//!                         1 to 8 bytes (hub to channel: a grant; channel to hub: the
+//!                         grant it has handled)
 //!   word = 0x4004:        Link, body = 1..=LINK_CHUNK link bytes
+//!   word = 0x4005:        Accept (channel to hub), body = flags: u8 (bit 0: the list's
+//!                         first chunk, bit 1: its last) | 0..=ACCEPT_CHUNK identifiers:
+//!                         u16 LE
 //! ```
+//!
+//! A channel tells the hub which identifiers its CAN controller accepts ([`Wire::Accept`],
+//! the list `dual_channel::filters` derives from its configuration, which the hardware layer
+//! writes into bxCAN's filter banks), and from then on the hub sends it only the frames on
+//! those identifiers, as the controller would let through; before the first list, every
+//! frame. On a loaded host each byte on the line costs a hand-over between the emulator's
+//! threads (`docs/emulation.md`), so frames the controller would reject anyway made every
+//! channel's line, and with it the shared virtual time, slower.
 
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
@@ -44,12 +56,18 @@ pub const GRANT_PERIOD: shared::Duration = shared::Duration::from_millis(5);
 
 /// Most link bytes one [`Wire::Link`] message carries.
 pub const LINK_CHUNK: usize = 32;
-/// Largest unencoded message: word, the longest body (link bytes), CRC.
-const MAX_RAW: usize = 2 + const_max(Status::LEN, LINK_CHUNK) + 2;
+/// Most identifiers one [`Wire::Accept`] message carries.
+pub const ACCEPT_CHUNK: usize = 16;
+/// Largest unencoded message: word, the longest body (an acceptance chunk), CRC.
+const MAX_RAW: usize = 2 + const_max(const_max(Status::LEN, LINK_CHUNK), 1 + 2 * ACCEPT_CHUNK) + 2;
 const INPUT: u16 = 0x4001;
 const STATUS: u16 = 0x4002;
 const TIME: u16 = 0x4003;
 const LINK: u16 = 0x4004;
+const ACCEPT: u16 = 0x4005;
+/// [`AcceptChunk`] flag bits.
+const FIRST: u8 = 0b01;
+const LAST: u8 = 0b10;
 
 const fn const_max(a: usize, b: usize) -> usize {
     if a > b { a } else { b }
@@ -189,6 +207,56 @@ pub enum Wire {
     Time(u64),
     /// Bytes of the link between the two channels of a node, relayed by the hub.
     Link(LinkBytes),
+    /// Channel to hub: part of the list of identifiers the channel's controller accepts
+    /// (the whole list replaces the previous one once its last chunk has come).
+    Accept(AcceptChunk),
+}
+
+/// Up to [`ACCEPT_CHUNK`] identifiers of an acceptance list, and where in the list they are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AcceptChunk {
+    flags: u8,
+    len: u8,
+    /// The identifiers, zero past `len` (so that equality compares the identifiers carried).
+    ids: [u16; ACCEPT_CHUNK],
+}
+
+impl AcceptChunk {
+    /// The chunks that carry `ids` (11-bit identifiers) in order: one with no identifier
+    /// for an empty list.
+    pub fn split(ids: &[u16]) -> impl Iterator<Item = AcceptChunk> + '_ {
+        let count = ids.len().div_ceil(ACCEPT_CHUNK).max(1);
+        (0..count).map(move |n| {
+            let part = ids
+                .get(n * ACCEPT_CHUNK..ids.len().min((n + 1) * ACCEPT_CHUNK))
+                .unwrap_or_default();
+            let mut chunk = AcceptChunk {
+                flags: if n == 0 { FIRST } else { 0 } | if n + 1 == count { LAST } else { 0 },
+                // `part` holds at most ACCEPT_CHUNK = 16 identifiers.
+                len: part.len() as u8,
+                ids: [0; ACCEPT_CHUNK],
+            };
+            chunk.ids[..part.len()].copy_from_slice(part);
+            chunk
+        })
+    }
+
+    /// The identifiers carried.
+    pub fn ids(&self) -> &[u16] {
+        self.ids.get(..usize::from(self.len)).unwrap_or_default()
+    }
+
+    /// `true` for the first chunk of a list: the identifiers before it belong to the list it
+    /// replaces.
+    pub fn is_first(&self) -> bool {
+        self.flags & FIRST != 0
+    }
+
+    /// `true` for the last chunk of a list: the list is complete.
+    pub fn is_last(&self) -> bool {
+        self.flags & LAST != 0
+    }
 }
 
 /// 1 to [`LINK_CHUNK`] bytes of the link between two channels.
@@ -253,15 +321,27 @@ pub fn encode_wire(message: &Wire) -> heapless::Vec<u8, MAX_WIRE> {
             2 + Status::LEN
         }
         Wire::Time(micros) => {
+            // The shortest form (a grant goes every few milliseconds, and each byte on the
+            // line costs the emulator a hand-over): 4 bytes up to 71 minutes.
+            let bytes = micros.to_le_bytes();
+            let len = time_len(*micros);
             raw[..2].copy_from_slice(&TIME.to_le_bytes());
-            raw[2..10].copy_from_slice(&micros.to_le_bytes());
-            10
+            raw[2..2 + len].copy_from_slice(&bytes[..len]);
+            2 + len
         }
         Wire::Link(bytes) => {
             let bytes = bytes.as_slice();
             raw[..2].copy_from_slice(&LINK.to_le_bytes());
             raw[2..2 + bytes.len()].copy_from_slice(bytes);
             2 + bytes.len()
+        }
+        Wire::Accept(chunk) => {
+            raw[..2].copy_from_slice(&ACCEPT.to_le_bytes());
+            raw[2] = chunk.flags;
+            for (at, id) in chunk.ids().iter().enumerate() {
+                raw[3 + 2 * at..5 + 2 * at].copy_from_slice(&id.to_le_bytes());
+            }
+            3 + 2 * chunk.ids().len()
         }
     };
     let crc = CRC.checksum(&raw[..end]);
@@ -319,15 +399,54 @@ fn parse(raw: &[u8]) -> Result<Wire, SerialError> {
             _ => Err(SerialError::Malformed),
         },
         STATUS => Status::from_bytes(&body[2..]).map(Wire::Status),
-        TIME => <[u8; 8]>::try_from(&body[2..])
-            .map(|micros| Wire::Time(u64::from_le_bytes(micros)))
-            .map_err(|_| SerialError::Malformed),
+        TIME => parse_time(&body[2..]).map(Wire::Time),
         LINK => LinkBytes::new(&body[2..])
             .map(Wire::Link)
             .ok_or(SerialError::Malformed),
+        ACCEPT => parse_accept(&body[2..]).map(Wire::Accept),
         _ if word & 0x7800 != 0 => Err(SerialError::Malformed),
         _ => parse_frame(word, body).map(Wire::Can),
     }
+}
+
+/// Bytes of the shortest little-endian form of `micros`: at least one.
+fn time_len(micros: u64) -> usize {
+    (8 - micros.leading_zeros() as usize / 8).max(1)
+}
+
+/// A time in its shortest form only (so that no time has two encodings).
+fn parse_time(body: &[u8]) -> Result<u64, SerialError> {
+    if body.is_empty() || body.len() > 8 {
+        return Err(SerialError::Malformed);
+    }
+    let mut bytes = [0u8; 8];
+    bytes[..body.len()].copy_from_slice(body);
+    let micros = u64::from_le_bytes(bytes);
+    if time_len(micros) != body.len() {
+        return Err(SerialError::Malformed);
+    }
+    Ok(micros)
+}
+
+/// Flags, then whole 11-bit identifiers, at most [`ACCEPT_CHUNK`] of them.
+fn parse_accept(body: &[u8]) -> Result<AcceptChunk, SerialError> {
+    let (&flags, ids) = body.split_first().ok_or(SerialError::Malformed)?;
+    if flags & !(FIRST | LAST) != 0 || ids.len() % 2 != 0 || ids.len() > 2 * ACCEPT_CHUNK {
+        return Err(SerialError::Malformed);
+    }
+    let mut chunk = AcceptChunk {
+        flags,
+        // At most ACCEPT_CHUNK = 16 identifiers, checked above.
+        len: (ids.len() / 2) as u8,
+        ids: [0; ACCEPT_CHUNK],
+    };
+    for (slot, id) in chunk.ids.iter_mut().zip(ids.chunks_exact(2)) {
+        *slot = u16::from_le_bytes([id[0], id[1]]);
+        if *slot > 0x7FF {
+            return Err(SerialError::Malformed);
+        }
+    }
+    Ok(chunk)
 }
 
 fn parse_frame(word: u16, body: &[u8]) -> Result<CanFrame, SerialError> {
@@ -398,6 +517,29 @@ mod tests {
             }
         }
 
+        /// An acceptance list of any length goes over in chunks that carry it in order, the
+        /// first and the last marked.
+        #[test]
+        fn acceptance_lists_round_trip_in_chunks(
+            ids in proptest::collection::vec(0u16..=0x7FF, 0..=3 * ACCEPT_CHUNK),
+        ) {
+            let mut decoder = Decoder::new();
+            let chunks: Vec<AcceptChunk> = AcceptChunk::split(&ids)
+                .flat_map(|chunk| encode_wire(&Wire::Accept(chunk)))
+                .filter_map(|b| decoder.push(b))
+                .map(|message| match message {
+                    Ok(Wire::Accept(chunk)) => chunk,
+                    other => panic!("not an acceptance chunk: {other:?}"),
+                })
+                .collect();
+            prop_assert_eq!(chunks.len(), ids.len().div_ceil(ACCEPT_CHUNK).max(1));
+            prop_assert!(chunks[0].is_first() && chunks.iter().skip(1).all(|c| !c.is_first()));
+            prop_assert!(chunks[chunks.len() - 1].is_last());
+            prop_assert!(chunks[..chunks.len() - 1].iter().all(|c| !c.is_last()));
+            let carried: Vec<u16> = chunks.iter().flat_map(|c| c.ids().to_vec()).collect();
+            prop_assert_eq!(carried, ids);
+        }
+
         #[test]
         fn noise_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
             let mut decoder = Decoder::new();
@@ -407,17 +549,19 @@ mod tests {
         }
     }
 
-    /// A link message carries 1 to `LINK_CHUNK` bytes; a time is exactly 8 bytes. Anything
-    /// else with a valid CRC is refused, not truncated.
+    /// A link message carries 1 to `LINK_CHUNK` bytes; a time 1 to 8 bytes, its shortest
+    /// form only; an
+    /// acceptance chunk its flags and up to `ACCEPT_CHUNK` 11-bit identifiers. Anything else
+    /// with a valid CRC is refused, not truncated.
     #[test]
-    fn link_and_time_bodies_of_the_wrong_length_are_refused() {
+    fn bodies_of_the_wrong_length_or_range_are_refused() {
         assert!(LinkBytes::new(&[]).is_none());
         assert!(LinkBytes::new(&[0; LINK_CHUNK + 1]).is_none());
         assert_eq!(LinkBytes::new(&[1, 2]).unwrap().as_slice(), &[1, 2]);
         let sealed = |raw: &[u8]| {
             let mut raw = raw.to_vec();
             raw.extend_from_slice(&CRC.checksum(&raw).to_le_bytes());
-            let mut wire = [0u8; MAX_WIRE];
+            let mut wire = [0u8; 2 * MAX_WIRE];
             let len = cobs::encode(&raw, &mut wire);
             let mut decoder = Decoder::new();
             wire[..len]
@@ -425,14 +569,44 @@ mod tests {
                 .chain(&[0])
                 .find_map(|&b| decoder.push(b))
         };
+        assert_eq!(sealed(&[0x03, 0x40]), Some(Err(SerialError::Malformed)));
         assert_eq!(
-            sealed(&[0x03, 0x40, 1, 2, 3, 4, 5, 6, 7]),
+            sealed(&[0x03, 0x40, 1, 2, 3, 4, 5, 6, 7, 8, 9]),
             Some(Err(SerialError::Malformed))
         );
-        assert_eq!(sealed(&[0x04, 0x40]), Some(Err(SerialError::Malformed)));
         assert_eq!(
-            sealed(&[0x03, 0x40, 1, 0, 0, 0, 0, 0, 0, 0]),
-            Some(Ok(Wire::Time(1)))
+            sealed(&[0x03, 0x40, 1, 0]),
+            Some(Err(SerialError::Malformed)),
+            "not the shortest form"
         );
+        assert_eq!(sealed(&[0x04, 0x40]), Some(Err(SerialError::Malformed)));
+        assert_eq!(sealed(&[0x03, 0x40, 0]), Some(Ok(Wire::Time(0))));
+        assert_eq!(
+            sealed(&[0x03, 0x40, 0x40, 0x42, 0x0F]),
+            Some(Ok(Wire::Time(1_000_000)))
+        );
+        // A grant of an hour of virtual time is 10 bytes on the line, delimiter included.
+        assert_eq!(encode_wire(&Wire::Time(3_600_000_000)).len(), 10);
+        // Acceptance chunks: unknown flags, half an identifier, one that is not 11-bit, more
+        // than ACCEPT_CHUNK of them.
+        assert_eq!(
+            sealed(&[0x05, 0x40, 0x04]),
+            Some(Err(SerialError::Malformed))
+        );
+        assert_eq!(
+            sealed(&[0x05, 0x40, 0x03, 0x01]),
+            Some(Err(SerialError::Malformed))
+        );
+        assert_eq!(
+            sealed(&[0x05, 0x40, 0x03, 0x00, 0x08]),
+            Some(Err(SerialError::Malformed))
+        );
+        let mut long = vec![0x05, 0x40, 0x03];
+        long.extend(std::iter::repeat_n([0x01, 0x06], ACCEPT_CHUNK + 1).flatten());
+        assert_eq!(sealed(&long), Some(Err(SerialError::Malformed)));
+        assert!(matches!(
+            sealed(&[0x05, 0x40, 0x03, 0x01, 0x06]),
+            Some(Ok(Wire::Accept(chunk))) if chunk.ids() == [0x601]
+        ));
     }
 }

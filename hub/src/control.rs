@@ -14,6 +14,10 @@
 //! → mute node1a / unmute node1a
 //! → cut node33-link           the link relay stops passing bytes, both ways
 //! → clear                     every injected bus fault is removed
+//! → load 30 621#4018100100000000 281#5555555555555555
+//!                             the hub sends these frames in turn, in its virtual time, so
+//!                             that the traffic other than SRDOs fills 30 % of the bus
+//!                             (`can_hub::load`); `load off` stops it
 //! ← ok <command> t=<seconds on the hub's clock>   or   error <why>
 //!   (a line longer than MAX_LINE bytes, or not UTF-8, is refused with `error <why>`)
 //! ← status node1a t=1.234567 nmt=5 working=1 link=1 output=1 input=1 cause=0x00 sent=12
@@ -23,6 +27,9 @@
 //!          rtt_p99_ms=6.20 rtt_max_ms=48.90
 //!   (every second while the emulated MCUs are paced, `can_hub::pace`: how far the virtual
 //!   time is behind the host clock, its longest hold, the grants' round trips in host time)
+//! ← slowest node33a acknowledged=12.325678
+//!   (after each pace line: the emulated MCU whose acknowledgement of the virtual time is the
+//!   oldest; while the time stands still, the one the network waits for)
 //! ```
 
 use emulation_wire::Status;
@@ -128,6 +135,37 @@ pub enum Command {
     Cut(String),
     /// Remove every injected bus fault.
     Clear,
+    /// Generate load ([`crate::load`]): `percent` of the bus, these frames in turn
+    /// (identifier, data).
+    Load {
+        /// The share of the bus, in percent.
+        percent: u32,
+        /// The frames, sent in turn.
+        frames: Vec<(u16, Vec<u8>)>,
+    },
+    /// Stop the generated load.
+    LoadOff,
+}
+
+/// `ID#HEXDATA` (candump's notation, e.g. `281#5555`) → identifier and data bytes.
+fn candump_frame(word: &str) -> Result<(u16, Vec<u8>), String> {
+    let (id, data) = word
+        .split_once('#')
+        .ok_or_else(|| format!("{word} is not a frame (ID#DATA in hexadecimal, e.g. 281#5555)"))?;
+    let id = identifier(id)?;
+    if data.len() % 2 != 0 || data.len() > 16 {
+        return Err(format!(
+            "{word}: the data is not 0 to 8 bytes of two hexadecimal digits each"
+        ));
+    }
+    let data = (0..data.len() / 2)
+        .map(|i| {
+            data.get(2 * i..2 * i + 2)
+                .and_then(|byte| u8::from_str_radix(byte, 16).ok())
+                .ok_or_else(|| format!("{word}: the data is not hexadecimal"))
+        })
+        .collect::<Result<Vec<u8>, String>>()?;
+    Ok((id, data))
 }
 
 fn identifier(word: &str) -> Result<u16, String> {
@@ -213,11 +251,19 @@ impl Command {
             ["unmute", name] => Command::Mute((*name).to_string(), false),
             ["cut", name] => Command::Cut((*name).to_string()),
             ["clear"] => Command::Clear,
+            ["load", "off"] => Command::LoadOff,
+            ["load", percent, frames @ ..] => Command::Load {
+                percent: number(percent, "a share of the bus in percent")?,
+                frames: frames
+                    .iter()
+                    .map(|word| candump_frame(word))
+                    .collect::<Result<_, _>>()?,
+            },
             [] => return Err("empty command".into()),
             [verb, ..] => {
                 return Err(format!(
                     "`{verb}` with {} argument(s) is not a command (input, drop, corrupt, delay, \
-                     repeat, reorder, insert, mute, unmute, cut, clear)",
+                     repeat, reorder, insert, mute, unmute, cut, clear, load)",
                     words.len() - 1
                 ));
             }
@@ -245,6 +291,14 @@ impl fmt::Display for Command {
             Command::Mute(name, false) => write!(f, "unmute {name}"),
             Command::Cut(name) => write!(f, "cut {name}"),
             Command::Clear => write!(f, "clear"),
+            Command::Load { percent, frames } => {
+                write!(f, "load {percent}")?;
+                frames.iter().try_for_each(|(id, data)| {
+                    write!(f, " {id:03X}#")?;
+                    data.iter().try_for_each(|byte| write!(f, "{byte:02X}"))
+                })
+            }
+            Command::LoadOff => write!(f, "load off"),
         }
     }
 }
@@ -284,6 +338,24 @@ pub fn pace_line(report: &crate::pace::PaceReport) -> String {
         ms(report.round_trip_p99),
         ms(report.round_trip_max),
     )
+}
+
+/// A slowest line as the hub sends it after each pace line: the emulated MCU whose
+/// acknowledgement of the virtual time is the oldest, and that time (seconds); while the
+/// time stands still, the one the network waits for.
+pub fn slowest_line(name: &str, acknowledged: f64) -> String {
+    format!("slowest {name} acknowledged={acknowledged:.6}")
+}
+
+/// Reads a slowest line back: (participant, acknowledged time in seconds).
+pub fn parse_slowest(line: &str) -> Option<(String, f64)> {
+    let mut words = line.split_whitespace();
+    if words.next()? != "slowest" {
+        return None;
+    }
+    let name = words.next()?.to_string();
+    let acknowledged = words.next()?.strip_prefix("acknowledged=")?.parse().ok()?;
+    words.next().is_none().then_some((name, acknowledged))
 }
 
 /// Reads a pace line back (durations rounded as written).
@@ -372,6 +444,10 @@ mod tests {
         assert_eq!(parse_pace(&pace_line(&report)), Some(report));
         assert_eq!(parse_pace("pace t=1 hold_ms=-1"), None);
         assert_eq!(parse_pace("status node1a t=1"), None);
+        let line = slowest_line("node33a", 12.325678);
+        assert_eq!(line, "slowest node33a acknowledged=12.325678");
+        assert_eq!(parse_slowest(&line), Some(("node33a".into(), 12.325678)));
+        assert_eq!(parse_slowest("slowest node33a"), None);
     }
 
     /// A line past `MAX_LINE` bytes is refused with a sentence, held no longer than the bound,
@@ -423,6 +499,8 @@ mod tests {
             "unmute node1b",
             "cut node33-link",
             "clear",
+            "load 30 621#4018100100000000 281#5555555555555555 000#",
+            "load off",
         ] {
             let command = Command::parse(line).unwrap();
             assert_eq!(command.to_string(), line);
@@ -441,6 +519,11 @@ mod tests {
         assert!(error("insert 0x101 0 1 2 3 4 5 6 7 8").contains("at most 8"));
         assert!(error("insert 0x101 xyz").contains("data byte"));
         assert!(error("").contains("empty"));
+        assert!(error("load 30 281").contains("not a frame"));
+        assert!(error("load 30 281#555").contains("two hexadecimal digits"));
+        assert!(error("load 30 281#XY").contains("not hexadecimal"));
+        assert!(error("load 30 281#000000000000000000").contains("0 to 8 bytes"));
+        assert!(error("load much 281#00").contains("share of the bus"));
     }
 
     #[test]

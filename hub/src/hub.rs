@@ -5,13 +5,21 @@
 //! sans-I/O session ([`safety_config::socketcand::server`]), the same module the tool's own
 //! tests run in-process.
 //!
+//! An emulated channel receives only the frames its CAN controller would let through: the
+//! identifiers it listed last ([`Wire::Accept`], the acceptance list the hardware layer
+//! writes into bxCAN's filter banks), every frame before its first list. A socketcand client
+//! receives every frame, as a socketcand daemon's raw socket does.
+//!
 //! Sans-I/O like the rest: the program feeds it the bytes each participant sent and the time,
 //! and asks it what to write to whom and when to wake next.
 
 use crate::bus::{Bus, Delivery, Injection, QueueFull};
-use emulation_wire::{Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire};
+use emulation_wire::{
+    AcceptChunk, Decoder, LinkBytes, SerialError, Status, Wire, encode, encode_wire,
+};
 use safety_config::socketcand::server::{self, Output, Session};
 use shared::{CanFrame, Instant};
+use std::collections::BTreeSet;
 
 /// Bytes for one participant, to be written in one write of their own: one CAN-over-serial
 /// frame, or one socketcand message (python-can compares each handshake reply it receives by
@@ -44,10 +52,46 @@ enum Framing {
     Socketcand(Box<Session>),
 }
 
+/// Which frames an emulated channel's controller lets through.
+#[derive(Clone, Debug, Default)]
+struct Acceptance {
+    /// The identifiers of the last complete list; `None`: no list yet, every frame.
+    list: Option<BTreeSet<u16>>,
+    /// A list whose last chunk has not come yet.
+    incoming: Option<BTreeSet<u16>>,
+}
+
+impl Acceptance {
+    /// Takes one chunk of a list; the list applies once its last chunk has come. A chunk
+    /// without the first one before it is dropped (the list before stays).
+    fn take(&mut self, chunk: &AcceptChunk) {
+        if chunk.is_first() {
+            self.incoming = Some(BTreeSet::new());
+        }
+        if let Some(incoming) = self.incoming.as_mut() {
+            incoming.extend(chunk.ids());
+            if chunk.is_last() {
+                self.list = self.incoming.take();
+            }
+        }
+    }
+
+    /// `true` when the controller lets `frame` through: a data frame on a listed identifier
+    /// (the channel follows no remote frame, `dual_channel::filters`), or any frame before
+    /// the first list.
+    fn accepts(&self, frame: &CanFrame) -> bool {
+        self.list
+            .as_ref()
+            .is_none_or(|ids| !frame.is_remote() && ids.contains(&frame.id().raw()))
+    }
+}
+
 /// The hub: each participant's framing, the bus, frames in flight.
 pub struct Hub {
     bus: Bus,
     framings: Vec<Framing>,
+    /// Per participant, the frames its controller lets through (emulated channels).
+    acceptance: Vec<Acceptance>,
     present: Vec<bool>,
     in_flight: Vec<Delivery>,
     /// Replies to socketcand clients not yet handed out by [`Hub::poll`].
@@ -66,6 +110,9 @@ pub struct Hub {
     pub links: Vec<(usize, LinkBytes)>,
     /// Grants the participants acknowledged (`crate::pace`): (participant, virtual time).
     pub acknowledgements: Vec<(usize, Instant)>,
+    /// Frames of emulated MCUs refused because their transmit queue was full: (time,
+    /// participant, frame). See [`Hub::receive`].
+    pub overflowed: Vec<(Instant, usize, CanFrame)>,
 }
 
 impl Hub {
@@ -78,6 +125,7 @@ impl Hub {
         Hub {
             bus,
             framings: Vec::new(),
+            acceptance: Vec::new(),
             present: Vec::new(),
             in_flight: Vec::new(),
             replies: Vec::new(),
@@ -87,6 +135,7 @@ impl Hub {
             statuses: Vec::new(),
             links: Vec::new(),
             acknowledgements: Vec::new(),
+            overflowed: Vec::new(),
         }
     }
 
@@ -101,6 +150,7 @@ impl Hub {
             self.present.resize(id + 1, false);
             self.framings
                 .resize_with(id + 1, || Framing::Serial(Decoder::new()));
+            self.acceptance.resize_with(id + 1, Acceptance::default);
         }
         self.present[id] = true;
     }
@@ -126,6 +176,9 @@ impl Hub {
         if let Some(framing) = self.framings.get_mut(id) {
             *framing = Framing::Serial(Decoder::new());
         }
+        if let Some(acceptance) = self.acceptance.get_mut(id) {
+            *acceptance = Acceptance::default();
+        }
         self.replies.retain(|reply| reply.to != id);
         self.closing.retain(|closing| *closing != id);
         self.bus.leave(id);
@@ -147,37 +200,48 @@ impl Hub {
     /// malformed. From a socketcand client: its commands are served (replies by the next
     /// [`Hub::poll`]) and the frames it sends go on the bus.
     ///
-    /// Returns how many bytes were taken: all of them unless the participant's transmit FIFO
-    /// filled ([`crate::bus::TRANSMIT_QUEUE`]); then the sender waits, and the caller hands the
-    /// rest again after [`Hub::poll`] has put frames on the bus.
+    /// Returns how many bytes were taken. An emulated MCU's bytes are always all taken: its
+    /// acknowledgements of grants share the line with its frames, and the virtual time
+    /// waits for them (`crate::pace`). Were its intake stopped while its transmit queue is
+    /// full, the time would stand still, and with it the bus that would empty the queue:
+    /// under traffic of higher priority than the MCU's own frames, for longer than the
+    /// lookahead, the whole network froze (the bus-load case, `docs/can-receive.md`). A frame
+    /// that finds the queue full ([`crate::bus::TRANSMIT_QUEUE`]) is refused instead and
+    /// recorded in [`Hub::overflowed`], as `board::hw`'s full transmit queue refuses one (the
+    /// channel loop counts it as dropped there). A socketcand client is not paced: its intake
+    /// stops before the message that would overflow its queue, it waits, and the caller
+    /// hands the rest again after [`Hub::poll`] has put frames on the bus.
     pub fn receive(&mut self, now: Instant, id: usize, bytes: &[u8]) -> usize {
         self.join(id);
         if matches!(self.framings[id], Framing::Socketcand(_)) {
             return self.receive_socketcand(now, id, bytes);
         }
-        for (taken, &byte) in bytes.iter().enumerate() {
-            if !self.bus.has_room(id) {
-                return taken;
-            }
+        for &byte in bytes {
             let Framing::Serial(decoder) = &mut self.framings[id] else {
-                return taken;
+                break;
             };
             match decoder.push(byte) {
-                // `has_room` was checked before this byte, so the frame is queued.
-                Some(Ok(Wire::Can(frame))) => {
-                    let _ = self.bus.try_send(id, frame);
-                }
+                Some(Ok(Wire::Can(frame))) => self.queue_or_refuse(now, id, frame),
                 Some(Ok(Wire::Status(status))) => self.statuses.push((now, id, status)),
                 Some(Ok(Wire::Link(bytes))) => self.links.push((id, bytes)),
                 Some(Ok(Wire::Time(micros))) => self
                     .acknowledgements
                     .push((id, Instant::from_micros(micros))),
+                Some(Ok(Wire::Accept(chunk))) => self.acceptance[id].take(&chunk),
                 Some(Ok(Wire::Input(_))) => self.malformed.push((id, SerialError::Malformed)),
                 Some(Err(error)) => self.malformed.push((id, error)),
                 None => {}
             }
         }
         bytes.len()
+    }
+
+    /// Queues an emulated MCU's `frame`, or records it in [`Hub::overflowed`] when its
+    /// transmit queue is full.
+    fn queue_or_refuse(&mut self, now: Instant, id: usize, frame: CanFrame) {
+        if self.bus.try_send(id, frame).is_err() {
+            self.overflowed.push((now, id, frame));
+        }
     }
 
     /// A socketcand client's bytes, one message (up to and including its `>`) at a time, so
@@ -214,6 +278,13 @@ impl Hub {
         taken
     }
 
+    /// The identifiers emulated channel `id` listed last ([`Wire::Accept`]), in order; `None`
+    /// before its first list (it receives every frame).
+    pub fn accepted(&self, id: usize) -> Option<Vec<u16>> {
+        let list = self.acceptance.get(id)?.list.as_ref()?;
+        Some(list.iter().copied().collect())
+    }
+
     /// How many frames participant `id` has waiting for the bus.
     pub fn queued(&self, id: usize) -> usize {
         self.bus.queued(id)
@@ -247,7 +318,8 @@ impl Hub {
     }
 
     /// Everything due at `now`: frames that ended go to every present participant but their
-    /// sender; the next arbitration starts when the bus is free. Returns what to write, and
+    /// sender whose controller lets them through; the next arbitration starts when the bus is
+    /// free. Returns what to write, and
     /// when to call again (`None`: when bytes arrive).
     ///
     /// Replies to socketcand clients come first; a socketcand client receives bus frames as
@@ -282,10 +354,13 @@ impl Hub {
                         continue;
                     }
                     match &mut self.framings[to] {
-                        Framing::Serial(_) => out.push(Outgoing {
-                            to,
-                            bytes: serial.clone(),
-                        }),
+                        Framing::Serial(_) if self.acceptance[to].accepts(&delivery.frame) => {
+                            out.push(Outgoing {
+                                to,
+                                bytes: serial.clone(),
+                            });
+                        }
+                        Framing::Serial(_) => {}
                         Framing::Socketcand(session) => {
                             if let Some(message) = session.frame(&delivery.frame, stamp, clock(now))
                             {
@@ -409,28 +484,29 @@ mod tests {
         assert_eq!(hub.malformed.len(), 1);
     }
 
-    /// A participant that sends faster than the bus takes frames waits: the hub takes its
-    /// bytes up to a full transmit FIFO, the rest once the bus has room, and every frame
+    /// A socketcand client that sends faster than the bus takes frames waits: the hub takes
+    /// its bytes up to a full transmit FIFO, the rest once the bus has room, and every frame
     /// reaches the others, in order.
     #[test]
-    fn a_flooding_sender_waits_for_the_bus_and_loses_nothing() {
+    fn a_flooding_tool_waits_for_the_bus_and_loses_nothing() {
         let mut hub = Hub::new(1_000_000);
         hub.join(0);
-        hub.join(1);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
         let frames = 3 * crate::bus::TRANSMIT_QUEUE;
         let mut pending: Vec<u8> = (0..frames)
-            .flat_map(|n| encode(&frame(0x300, &(n as u16).to_le_bytes())).to_vec())
+            .flat_map(|n| format!("< send 300 2 {:02X} {:02X} >", n % 256, n / 256).into_bytes())
             .collect();
-        let first = hub.receive(Instant::ZERO, 0, &pending);
+        let first = hub.receive(Instant::ZERO, 1, &pending);
         assert!(first < pending.len(), "a full FIFO makes the sender wait");
-        assert!(!hub.has_room(0));
+        assert!(!hub.has_room(1));
         pending.drain(..first);
         let mut now = Instant::ZERO;
         let mut received = Vec::new();
         loop {
             let (out, next) = hub.poll(now);
-            received.extend(out.iter().filter(|o| o.to == 1).map(|o| decode(&o.bytes)));
-            let taken = hub.receive(now, 0, &pending);
+            received.extend(out.iter().filter(|o| o.to == 0).map(|o| decode(&o.bytes)));
+            let taken = hub.receive(now, 1, &pending);
             pending.drain(..taken);
             match next {
                 Some(next) => now = next,
@@ -442,6 +518,86 @@ mod tests {
             .map(|n| frame(0x300, &(n as u16).to_le_bytes()))
             .collect();
         assert_eq!(received, expected);
+        assert!(hub.overflowed.is_empty());
+    }
+
+    /// An emulated MCU whose transmit queue is full still has every byte taken: the frame
+    /// beyond the queue is refused and recorded, and what follows it on the line (here an
+    /// acknowledgement of a grant and a status report) is handled at once.
+    #[test]
+    fn an_emulated_mcu_with_a_full_transmit_queue_still_has_its_acknowledgements_taken() {
+        let mut hub = Hub::new(500_000);
+        hub.join(0);
+        hub.join(1);
+        let frames = crate::bus::TRANSMIT_QUEUE + 3;
+        let mut bytes: Vec<u8> = (0..frames)
+            .flat_map(|n| encode(&frame(0x5A1, &[n as u8])).to_vec())
+            .collect();
+        bytes.extend_from_slice(&encode_wire(&Wire::Time(4_000)));
+        bytes.extend_from_slice(&encode_wire(&Wire::Status(Status::default())));
+        let at = Instant::from_micros(5);
+        assert_eq!(hub.receive(at, 0, &bytes), bytes.len(), "every byte taken");
+        assert_eq!(hub.acknowledgements, [(0, Instant::from_micros(4_000))]);
+        assert_eq!(hub.statuses.len(), 1);
+        assert_eq!(hub.queued(0), crate::bus::TRANSMIT_QUEUE);
+        let refused: Vec<(Instant, usize, CanFrame)> = (crate::bus::TRANSMIT_QUEUE..frames)
+            .map(|n| (at, 0, frame(0x5A1, &[n as u8])))
+            .collect();
+        assert_eq!(hub.overflowed, refused);
+    }
+
+    /// The deadlock of the bus-load case, as a regression test on the hub and its pacer: a
+    /// tool floods the bus with frames that win arbitration over an emulated MCU's (281h over
+    /// 5A1h), the MCU's transmit queue is full, and it acknowledges every grant right after
+    /// its frames. The virtual time keeps running (before, it stood still one lookahead after
+    /// the start, and the whole network with it), and the bus keeps carrying the flood.
+    #[test]
+    fn the_virtual_time_runs_on_while_a_flood_of_higher_priority_holds_an_mcus_queue_full() {
+        use crate::pace::{GRANT_PERIOD, LOOKAHEAD, Pacer};
+        let mut hub = Hub::new(500_000);
+        let mut pacer = Pacer::new(LOOKAHEAD, GRANT_PERIOD);
+        hub.join(0);
+        pacer.join(0);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
+        let flood = b"< send 281 8 55 55 55 55 55 55 55 55 >".repeat(64);
+        // The MCU's line: its frames first, then (each step) the acknowledgement of a grant.
+        let mut line: Vec<u8> = (0..2 * crate::bus::TRANSMIT_QUEUE)
+            .flat_map(|n| encode(&frame(0x5A1, &[n as u8])).to_vec())
+            .collect();
+        let mut tool_backlog: Vec<u8> = Vec::new();
+        // Steps of 100 µs, so that the bus (a frame of 281h takes about 250 µs at 500 kbit/s)
+        // is hardly ever idle between them: about 660 frames in 200 ms.
+        for step in 0..=2_000u64 {
+            let host = Instant::from_micros(100 * step);
+            let now = pacer.advance(host);
+            if tool_backlog.len() < flood.len() {
+                tool_backlog.extend_from_slice(&flood);
+            }
+            let taken = hub.receive(now, 1, &tool_backlog);
+            tool_backlog.drain(..taken);
+            let taken = hub.receive(now, 0, &line);
+            line.drain(..taken);
+            for (id, time) in hub.acknowledgements.drain(..) {
+                pacer.acknowledged(id, time, host);
+            }
+            let _ = hub.poll(now);
+            for _ in pacer.grants_due(host) {
+                line.extend_from_slice(&encode_wire(&Wire::Time(now.as_micros())));
+            }
+        }
+        assert!(
+            pacer.now() >= Instant::from_millis(190),
+            "the virtual time stood still at {:?}",
+            pacer.now()
+        );
+        let flood_frames = hub
+            .completed
+            .iter()
+            .filter(|(_, frame, _)| frame.id().raw() == 0x281)
+            .count();
+        assert!(flood_frames > 600, "{flood_frames} flood frames on the bus");
+        assert_eq!(hub.overflowed.len(), crate::bus::TRANSMIT_QUEUE);
     }
 
     /// Link bytes and acknowledgements of grants are kept off the bus, in the order they came.
@@ -569,6 +725,91 @@ mod tests {
         let taken = hub.receive(Instant::ZERO, 1, &flood);
         assert_eq!(taken, message.len() * crate::bus::TRANSMIT_QUEUE);
         assert!(!hub.has_room(1));
+    }
+
+    /// The identifiers of the frames in `out` for participant `to`, in order.
+    fn frames_for(out: &[Outgoing], to: usize) -> Vec<u16> {
+        out.iter()
+            .filter(|o| o.to == to)
+            .map(|o| decode(&o.bytes).id().raw())
+            .collect()
+    }
+
+    /// An emulated channel receives every frame until it lists the identifiers its controller
+    /// accepts, then only data frames on them (a list in several chunks once its last chunk
+    /// has come); a channel without a list keeps receiving every frame; a channel that leaves
+    /// and comes back receives everything again until it lists anew.
+    #[test]
+    fn an_emulated_channel_receives_only_what_its_controller_accepts() {
+        let mut hub = Hub::new(1_000_000);
+        for id in 0..3 {
+            hub.join(id);
+        }
+        // NMT, an SDO answer, an SDO request, and a remote frame on the request's identifier.
+        let send_all = |hub: &mut Hub, at: Instant| {
+            for frame in [
+                frame(0x000, &[1, 0]),
+                frame(0x581, &[0x43, 0, 0x10, 0, 0, 0, 0, 0]),
+                frame(0x601, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]),
+                CanFrame::remote(CanId::new(0x601).unwrap(), 0).unwrap(),
+            ] {
+                hub.receive(at, 0, &encode(&frame));
+            }
+            run_idle(hub, at).0
+        };
+        let everything = [0x000, 0x581, 0x601, 0x601];
+        assert_eq!(hub.accepted(1), None);
+        let out = send_all(&mut hub, Instant::ZERO);
+        assert_eq!(frames_for(&out, 1), everything);
+
+        // A list of more identifiers than one chunk holds: NMT, the SDO request and filler.
+        let ids: Vec<u16> = [0x000, 0x601]
+            .into_iter()
+            .chain(0x100..0x100 + emulation_wire::ACCEPT_CHUNK as u16)
+            .collect();
+        let chunks: Vec<Vec<u8>> = AcceptChunk::split(&ids)
+            .map(|chunk| encode_wire(&Wire::Accept(chunk)).to_vec())
+            .collect();
+        assert_eq!(chunks.len(), 2);
+        hub.receive(Instant::ZERO, 1, &chunks[0]);
+        assert_eq!(hub.accepted(1), None, "not before the last chunk");
+        hub.receive(Instant::ZERO, 1, &chunks[1]);
+        let mut sorted = ids.clone();
+        sorted.sort_unstable();
+        assert_eq!(hub.accepted(1), Some(sorted));
+
+        let out = send_all(&mut hub, Instant::from_millis(10));
+        assert_eq!(
+            frames_for(&out, 1),
+            [0x000, 0x601],
+            "data frames on its list only"
+        );
+        assert_eq!(frames_for(&out, 2), everything, "no list: every frame");
+
+        hub.leave(1);
+        hub.join(1);
+        assert_eq!(hub.accepted(1), None);
+        let out = send_all(&mut hub, Instant::from_millis(20));
+        assert_eq!(frames_for(&out, 1), everything);
+    }
+
+    /// A socketcand client receives every frame whatever the emulated channels listed.
+    #[test]
+    fn a_socketcand_client_receives_every_frame() {
+        let mut hub = Hub::new(1_000_000);
+        hub.join(0);
+        hub.join_socketcand(1, "can0");
+        hub.receive(Instant::ZERO, 1, b"< open can0 >< rawmode >");
+        let list = AcceptChunk::split(&[0x000]).next().unwrap();
+        hub.receive(Instant::ZERO, 0, &encode_wire(&Wire::Accept(list)));
+        let later = Instant::ZERO + RAW_MODE_GRACE;
+        hub.receive(later, 0, &encode(&frame(0x701, &[0x05])));
+        let (out, _) = run_idle(&mut hub, later);
+        assert!(
+            out.iter()
+                .any(|o| o.to == 1 && text(o).starts_with("< frame 701 ")),
+            "{out:?}"
+        );
     }
 
     #[test]

@@ -9,12 +9,16 @@
 //!   socketcand (the tool library's server session, `safety_config::socketcand::server`).
 //! - [`pace`]: the shared virtual time of the emulated MCUs: the hub's clock waits for the
 //!   slowest of them, so host load slows the network down but does not change its verdicts.
-//! - [`control`]: the hub's control port (input pins, faults, link cuts, status reports).
+//! - [`load`]: bus load the hub generates itself, in the virtual time (the control port's
+//!   `load` command).
+//! - [`control`]: the hub's control port (input pins, faults, link cuts, load, status
+//!   reports).
 //! - [`tool`]: a client of the control port.
 
 pub mod bus;
 pub mod control;
 pub mod hub;
+pub mod load;
 pub mod pace;
 pub mod tool;
 pub mod trace;

@@ -22,10 +22,12 @@
 //! (`can_hub::pace`): the hub grants it to them and waits for the slowest. The control port's
 //! line protocol is in `can_hub::control`. The hub runs until killed.
 //!
-//! Nothing a participant sends makes the hub hold more and more: a participant whose transmit
-//! FIFO is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus. Its bytes stay with
-//! the hub only up to `BACKLOG` bytes; past that the hub stops reading its socket, so the
-//! sender's writes block. A control line is at most `can_hub::control::MAX_LINE` bytes, and a
+//! Nothing a participant sends makes the hub hold more and more. A tool whose transmit FIFO
+//! is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus: its bytes stay with the
+//! hub only up to `BACKLOG` bytes; past that the hub stops reading its socket, so the
+//! sender's writes block. An emulated MCU's bytes are always taken (its acknowledgements of
+//! the virtual time travel behind its frames; `can_hub::hub::Hub::receive` says why): a frame
+//! that finds its FIFO full is dropped and reported here, as `board::hw` drops it. A control line is at most `can_hub::control::MAX_LINE` bytes, and a
 //! tool or control client that does not read what the hub writes for `WRITE_TIMEOUT` is
 //! disconnected instead of stalling the bus. At most `MAX_CLIENTS` tools and `MAX_CLIENTS`
 //! control clients are connected at once; one more is told so in a sentence and closed, so
@@ -34,6 +36,7 @@
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
 use can_hub::control::{self, Command, status_line};
 use can_hub::hub::Hub;
+use can_hub::load::Load;
 use can_hub::pace::{self, Pacer};
 use can_hub::trace::{PcapWriter, candump_line};
 use clap::Parser;
@@ -314,8 +317,9 @@ fn start(args: &Args) -> Result<(), String> {
     if let Some(address) = &args.tcp {
         let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
-        // After the sockets: the hub's own sender (`insert` on the control port).
-        let first = sockets.len() + 1;
+        // After the sockets: the hub's own sender (`insert` on the control port), then its
+        // load generator (`load`).
+        let first = sockets.len() + 2;
         let tools = Connections::default();
         std::thread::spawn(move || {
             for (offset, stream) in listener.incoming().enumerate() {
@@ -411,9 +415,51 @@ struct Hosts {
     tools: HashMap<usize, TcpStream>,
     /// socketcand clients that closed their connection, whose frames still go on the bus.
     departing: Vec<usize>,
+    /// The load the hub generates (`load` on the control port), sent as participant
+    /// [`Hosts::load_sender`].
+    load: Option<Load>,
 }
 
 impl Hosts {
+    /// The participant the hub's own frames (`insert`) are sent as.
+    fn own_sender(&self) -> usize {
+        self.names.len()
+    }
+
+    /// The participant the generated load is sent as: its own transmit queue, so that an
+    /// `insert` never waits behind the load.
+    fn load_sender(&self) -> usize {
+        self.names.len() + 1
+    }
+
+    /// Queues the generated load's next frame when it is due at `now`, one at a time: the
+    /// next only once the bus has taken the one before. The hub's bus runs only when its loop
+    /// does, so a loop that wakes late (a loaded host) finds several frames due at once;
+    /// queued together they would leave by identifier (its 281h before its 621h), the SDO
+    /// requests bunched at the end and node 33's answers behind them filling its transmit
+    /// queue (seen: 25 answers dropped in one run). One at a time, the frames keep their turn
+    /// while the load catches up, and each other sender's frame with a lower identifier than
+    /// the load's next one wins the slot it competes for.
+    fn generate(&mut self, hub: &mut Hub, now: Instant) {
+        let sender = self.load_sender();
+        let Some(load) = self.load.as_mut() else {
+            return;
+        };
+        if hub.queued(sender) == 0
+            && let Some(frame) = load.poll(now)
+        {
+            // The queue is empty: the frame is queued.
+            let _ = hub.send(sender, frame);
+        }
+    }
+
+    /// When the generated load wants to be asked again (`None`: no load, or its frame is
+    /// still queued and the bus's next arbitration wakes the loop anyway).
+    fn load_deadline(&self, hub: &Hub) -> Option<Instant> {
+        let load = self.load.as_ref()?;
+        (hub.queued(self.load_sender()) == 0).then(|| load.deadline())
+    }
+
     fn participant(&self, name: &str) -> Result<usize, String> {
         self.names.iter().position(|n| n == name).ok_or_else(|| {
             format!(
@@ -456,7 +502,7 @@ impl Hosts {
                     .ok()
                     .and_then(|id| shared::CanFrame::new(id, data).ok())
                     .ok_or_else(|| format!("{command} is not a CAN frame"))?;
-                hub.send(self.names.len(), frame).map_err(|_| {
+                hub.send(self.own_sender(), frame).map_err(|_| {
                     format!(
                         "the hub's own transmit queue is full ({} frames waiting for the \
                              bus): {command} not sent",
@@ -483,6 +529,32 @@ impl Hosts {
                 self.links.cut.extend([a, b]);
             }
             Command::Clear => hub.retain_faults(|_| false),
+            Command::Load { percent, frames } => {
+                let frames = frames
+                    .iter()
+                    .map(|(id, data)| {
+                        shared::CanId::new(*id)
+                            .ok()
+                            .and_then(|id| shared::CanFrame::new(id, data).ok())
+                            .ok_or_else(|| format!("{id:03X}h with {data:02X?} is not a CAN frame"))
+                    })
+                    .collect::<Result<Vec<_>, String>>()?;
+                let load = Load::new(*percent, hub.bus().bit_rate(), frames, now)
+                    .map_err(|error| error.to_string())?;
+                // A new load replaces the old one, and what the old one still had queued.
+                hub.leave(self.load_sender());
+                self.load = Some(load);
+            }
+            Command::LoadOff => {
+                let load = self.load.take().ok_or("no load is running")?;
+                hub.leave(self.load_sender());
+                eprintln!(
+                    "can-hub: load of {} % stopped at t={:.6} s after {} frames",
+                    load.percent(),
+                    now.as_micros() as f64 / 1e6,
+                    load.sent()
+                );
+            }
         }
         Ok(())
     }
@@ -566,6 +638,7 @@ fn run(
         links,
         tools: HashMap::new(),
         departing: Vec::new(),
+        load: None,
     };
     let mut wake: Option<Instant> = None;
     let mut next_report = Instant::ZERO;
@@ -648,13 +721,14 @@ fn run(
             pacer.acknowledged(id, time, host());
         }
         let now = pacer.advance(host());
+        hosts.generate(hub, now);
         let (mut out, mut next) = hub.poll(now);
         if hosts.feed(hub, now) {
             let (more, later) = hub.poll(now);
             out.extend(more);
             next = later;
         }
-        wake = next;
+        wake = next.into_iter().chain(hosts.load_deadline(hub)).min();
         // Link messages go to the other end at once, in the order they came, on the same
         // line as the frames (so before any grant that follows them).
         let links: Vec<_> = hub.links.drain(..).collect();
@@ -681,6 +755,10 @@ fn run(
         if args.paced && host() >= next_report {
             next_report = host() + shared::Duration::from_millis(1000);
             hosts.tell_controls(&control::pace_line(&pacer.report(host())));
+            if let Some((id, acknowledged)) = pacer.slowest() {
+                let name = hosts.names.get(id).map_or("?", String::as_str).to_string();
+                hosts.tell_controls(&control::slowest_line(&name, seconds(acknowledged)));
+            }
         }
         let gone: Vec<usize> = hosts
             .departing
@@ -709,7 +787,11 @@ fn run(
             hosts.backlogs.remove(&id);
             hub.leave(id);
         }
-        for (at, frame, _) in hub.completed.drain(..) {
+        let load_sender = hosts.load_sender();
+        for (at, frame, from) in hub.completed.drain(..) {
+            if let Some(load) = hosts.load.as_mut() {
+                load.completed(&frame, from == load_sender);
+            }
             let stamp = epoch + at.as_micros();
             if let Some(candump) = candump.as_mut() {
                 writeln!(candump, "{}", candump_line(stamp, "can0", &frame))?;
@@ -728,6 +810,17 @@ fn run(
                 .cloned()
                 .unwrap_or_else(|| format!("tool{id}"));
             hosts.tell_controls(&status_line(&name, seconds(at), &status));
+        }
+        for (at, id, frame) in hub.overflowed.drain(..) {
+            let name = hosts.names.get(id).map_or("?", String::as_str);
+            eprintln!(
+                "can-hub: {name}'s transmit queue is full ({} frames waiting for the bus) at \
+                 t={:.6} s: its frame {:03X}h is dropped, as board::hw drops a frame its full \
+                 transmit queue refuses",
+                can_hub::bus::TRANSMIT_QUEUE,
+                seconds(at),
+                frame.id().raw()
+            );
         }
         for (id, error) in hub.malformed.drain(..) {
             eprintln!("can-hub: participant {id}: a message refused: {error}");

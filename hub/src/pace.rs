@@ -137,6 +137,15 @@ impl Pacer {
             .unwrap_or(Instant::NEVER)
     }
 
+    /// The paced participant whose acknowledgement is the oldest (the one that holds the
+    /// virtual time when it stands at [`Pacer::limit`]), with that acknowledgement.
+    pub fn slowest(&self) -> Option<(usize, Instant)> {
+        self.paced
+            .iter()
+            .map(|(&id, paced)| (id, paced.acknowledged))
+            .min_by_key(|&(_, acknowledged)| acknowledged)
+    }
+
     /// Moves the virtual time on with the host clock `host`, as far as the acknowledgements
     /// allow; returns it. Never goes backwards.
     pub fn advance(&mut self, host: Instant) -> Instant {

@@ -20,6 +20,12 @@ pub struct Control {
     pub history: Vec<(String, f64, Status)>,
     /// The latest pace line (`crate::pace`), when the hub paces its participants.
     pub pace: Option<crate::pace::PaceReport>,
+    /// The latest slowest line: the emulated MCU with the oldest acknowledgement of the
+    /// virtual time, and that time (seconds).
+    pub slowest: Option<(String, f64)>,
+    /// When (host time) the latest line of any kind arrived: a hub that has stopped writing
+    /// is told from one whose time stands still.
+    pub last_line: Option<Instant>,
 }
 
 impl Control {
@@ -40,6 +46,8 @@ impl Control {
             latest: HashMap::new(),
             history: Vec::new(),
             pace: None,
+            slowest: None,
+            last_line: None,
         })
     }
 
@@ -53,11 +61,14 @@ impl Control {
             Ok(0) => Err(io::Error::new(io::ErrorKind::UnexpectedEof, "hub closed")),
             Ok(_) => {
                 let line = line.trim_end().to_string();
+                self.last_line = Some(Instant::now());
                 if let Some((name, t, status)) = parse_status(&line) {
                     self.latest.insert(name.clone(), (t, status));
                     self.history.push((name, t, status));
                 } else if let Some(pace) = crate::control::parse_pace(&line) {
                     self.pace = Some(pace);
+                } else if let Some(slowest) = crate::control::parse_slowest(&line) {
+                    self.slowest = Some(slowest);
                 }
                 Ok(Some(line))
             }

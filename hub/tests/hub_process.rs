@@ -376,3 +376,82 @@ fn a_tool_past_the_limit_is_refused_in_words_and_a_freed_place_is_served() {
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// The control port's `load`: the hub sends the frames given in turn (one at a time, so
+/// that a late wake-up does not reorder them by identifier); the traffic never
+/// runs ahead of its share of the bit time since the command (each frame's timestamp, the
+/// end of the frame on the bus, bounds the bits before it); `load off` stops it; a load
+/// that cannot be generated is refused with a sentence.
+#[test]
+fn the_hub_generates_load_in_turn_within_its_share_and_stops_on_command() {
+    use can_hub::tool::Control;
+    let port = 20_000 + (std::process::id() % 20_000) as u16 + 6;
+    let control_port = port + 20_000;
+    let dir = std::env::temp_dir().join(format!("can-hub-load-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
+        .args(["--tcp", &format!("127.0.0.1:{port}")])
+        .args(["--control", &format!("127.0.0.1:{control_port}")])
+        .spawn()
+        .unwrap();
+    let _hub = Hub { child, dir };
+    let mut tool = tool(port);
+    let mut control = Control::connect(
+        &format!("127.0.0.1:{control_port}"),
+        Duration::from_secs(10),
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+
+    let error = control.command("load off").unwrap().unwrap_err();
+    assert_eq!(error, "no load is running");
+    let error = control.command("load 95 281#55").unwrap().unwrap_err();
+    assert!(error.contains("not one from 1 to 90 %"), "{error}");
+    let error = control.command("load 20 101#01").unwrap().unwrap_err();
+    assert!(error.contains("101h is an SRDO identifier"), "{error}");
+
+    let start = control
+        .command("load 20 281#5555555555555555 282#AA")
+        .unwrap()
+        .unwrap();
+    let frames = [
+        CanFrame::new(CanId::new(0x281).unwrap(), &[0x55; 8]).unwrap(),
+        CanFrame::new(CanId::new(0x282).unwrap(), &[0xAA]).unwrap(),
+    ];
+    let mut bits = 0u64;
+    for n in 0..400 {
+        let deadline = tool.now() + Duration::from_secs(5);
+        let (stamp, frame) = tool
+            .receive_stamped(deadline)
+            .unwrap()
+            .expect("a frame within 5 s");
+        assert_eq!(frame, frames[n % 2], "frame {n} in turn");
+        bits += u64::from(can_hub::bus::frame_bits(&frame));
+        // 20 % of 500 kbit/s: 100 bits per millisecond since the command.
+        let allowed = (stamp.as_secs_f64() - start) * 100_000.0;
+        assert!(
+            bits as f64 <= allowed + 0.5,
+            "frame {n}: {bits} bits by {:.6} s, more than the share's {allowed:.0}",
+            stamp.as_secs_f64()
+        );
+    }
+    let stopped = control.command("load off").unwrap().unwrap();
+    // What was queued before the stop may still end; nothing starts after it.
+    let last_frame = frames
+        .iter()
+        .map(|frame| can_hub::bus::frame_time(frame, 500_000).as_micros())
+        .max()
+        .unwrap() as f64
+        / 1e6;
+    loop {
+        let deadline = tool.now() + Duration::from_millis(300);
+        match tool.receive_stamped(deadline).unwrap() {
+            Some((stamp, _)) => assert!(
+                stamp.as_secs_f64() <= stopped + last_frame + 1e-6,
+                "a frame ended at {:.6} s, after the stop at {stopped:.6} s",
+                stamp.as_secs_f64()
+            ),
+            None => break,
+        }
+    }
+}

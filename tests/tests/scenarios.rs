@@ -184,3 +184,226 @@ fn only_faults_the_hub_can_inject_make_a_scenario_the_hubs() {
     assert!(delay(15_000));
     assert!(!delay(15_500), "the hub delays by whole milliseconds");
 }
+
+mod emulated {
+    //! The emulated network's half of the runner, on recorded observations (no QEMU): each
+    //! step as the hub's control command, and the expectations judged from status reports
+    //! and the bus trace on the hub's clock.
+
+    use super::dir;
+    use emulation_wire::Status;
+    use shared::safety::cause::Cause;
+    use system_tests::scenario_runner::emulated::{self, Observed};
+    use system_tests::scenario_runner::file::{self, Channel, FaultSpec, Stimulus};
+
+    fn emulated_scenario(name: &str) -> file::Scenario {
+        file::load(&dir().join("emulated").join(name)).unwrap_or_else(|error| panic!("{error}"))
+    }
+
+    fn status(working: bool, output: u8, cause: Cause) -> Status {
+        Status {
+            nmt: 5,
+            working,
+            link_up: true,
+            output,
+            input: 1,
+            cause: cause.code(),
+            ..Status::default()
+        }
+    }
+
+    /// Node 33 working from 9.9 s (both channels), the step at 200 ms applied late at
+    /// 10.25 s (start 10.0 s), then channel B safe first, telling channel A (40h), which
+    /// reports at 10.47 s.
+    fn srvt_case() -> Observed {
+        let on = status(true, 1, Cause::None);
+        Observed {
+            start: 10.0,
+            applied: vec![10.25],
+            statuses: vec![
+                ("node33a".into(), 9.9, on),
+                ("node33b".into(), 9.9, on),
+                (
+                    "node33a".into(),
+                    10.44,
+                    status(false, 0, Cause::PeerSafeState),
+                ),
+                (
+                    "node33b".into(),
+                    10.46,
+                    status(false, 0, Cause::SrvtElapsed),
+                ),
+            ],
+            frames: Vec::new(),
+            end: 10.8,
+        }
+    }
+
+    /// The safe state is measured from when the hub took the step's command, not from its
+    /// scheduled time, to the report that shows both channels safe; the cause is the one a
+    /// channel found itself, not "other channel safe" (40h).
+    #[test]
+    fn a_safe_expectation_is_measured_from_the_step_as_the_hub_applied_it() {
+        let scenario = emulated_scenario("loss-inverted-frame.toml");
+        let report = emulated::judge(&scenario, &srvt_case());
+        assert!(report.passed(), "{}", report.text(&scenario));
+        let safe = &report.checks[1];
+        assert_eq!(
+            safe.measured, "safe after 210.000 ms, cause SRVT elapsed",
+            "{}",
+            safe.measured
+        );
+        assert!(report.text(&scenario).contains("on the emulated network"));
+    }
+
+    /// Too late, or the wrong cause, fails with the measurement and prints the reports and
+    /// frames around it.
+    #[test]
+    fn a_late_safe_state_fails_with_its_measurement_and_the_timeline() {
+        let scenario = emulated_scenario("loss-inverted-frame.toml");
+        let mut late = srvt_case();
+        late.statuses[3].1 = 10.61;
+        late.end = 11.0;
+        let report = emulated::judge(&scenario, &late);
+        assert!(!report.passed());
+        let failed = report.checks.iter().find(|check| !check.passed).unwrap();
+        assert_eq!(failed.measured, "safe after 360.000 ms, cause SRVT elapsed");
+        let timeline = report.timeline.as_deref().expect("a timeline");
+        assert!(
+            timeline.contains("status  node33b: nmt=5 SAFE"),
+            "{timeline}"
+        );
+        assert!(report.text(&scenario).contains("FAIL line 21"));
+
+        let mut wrong = srvt_case();
+        wrong.statuses[3].2.cause = Cause::SctElapsed.code();
+        let report = emulated::judge(&scenario, &wrong);
+        assert!(!report.passed(), "SCT is not the SRVT the file expects");
+    }
+
+    /// A node that leaves the working state fails `working`, and an EMCY in the trace
+    /// fails `no_emcy`, each saying when.
+    #[test]
+    fn working_and_no_emcy_are_judged_from_the_reports_and_the_trace() {
+        let scenario = emulated_scenario("repetition-double-reception.toml");
+        let on = status(true, 1, Cause::None);
+        let mut observed = Observed {
+            start: 5.0,
+            applied: vec![5.21],
+            statuses: vec![("node33a".into(), 4.9, on), ("node33b".into(), 4.9, on)],
+            frames: Vec::new(),
+            end: 5.8,
+        };
+        let report = emulated::judge(&scenario, &observed);
+        assert!(report.passed(), "{}", report.text(&scenario));
+        observed.statuses.push((
+            "node33b".into(),
+            5.3,
+            status(false, 0, Cause::PlainRepeated),
+        ));
+        let emcy = shared::CanFrame::new(shared::CanId::new(0x081).unwrap(), &[0, 0x82]).unwrap();
+        observed.frames.push((5.31, emcy));
+        let report = emulated::judge(&scenario, &observed);
+        let measured: Vec<&str> = report.checks.iter().map(|c| c.measured.as_str()).collect();
+        assert_eq!(
+            measured,
+            [
+                "0x01",
+                "channel B left the working state at 300.000 ms (plain frame repeated with other data)",
+                "0x00",
+                "1 EMCY, the first at 310.000 ms: [00, 82]",
+            ]
+        );
+    }
+
+    /// Each step is the hub's control command (`hub/src/control.rs`); NMT and GFC are
+    /// frames the hub puts on the bus.
+    #[test]
+    fn each_step_is_the_hubs_control_command() {
+        let text = |stimulus: Stimulus| -> Vec<String> {
+            emulated::commands(&stimulus)
+                .expect("the hub's")
+                .iter()
+                .map(ToString::to_string)
+                .collect()
+        };
+        use shared::canopen::nmt::NmtCommand;
+        assert_eq!(
+            text(Stimulus::Nmt {
+                command: NmtCommand::Stop,
+                node: 1
+            }),
+            ["insert 0x000 02 01"]
+        );
+        assert_eq!(text(Stimulus::Gfc), ["insert 0x001"]);
+        assert_eq!(
+            text(Stimulus::Input {
+                node: 1,
+                channel: None,
+                value: 0
+            }),
+            ["input node1a 0", "input node1b 0"]
+        );
+        assert_eq!(
+            text(Stimulus::Fault(FaultSpec::Delay {
+                id: 0x102,
+                by_us: 150_000
+            })),
+            ["delay 0x102 150"]
+        );
+        assert_eq!(
+            text(Stimulus::Fault(FaultSpec::Mute {
+                node: 1,
+                channel: Channel::A
+            })),
+            ["mute node1a"]
+        );
+        assert_eq!(
+            text(Stimulus::Fault(FaultSpec::Cut { node: 33 })),
+            ["cut node33-link"]
+        );
+        let refused = emulated::commands(&Stimulus::Fault(FaultSpec::NoInverted { node: 1 }));
+        assert!(refused.unwrap_err().contains("the hub cannot inject"));
+    }
+
+    /// A host scenario (other network, or a host-only fault) is refused for the emulated
+    /// network in a sentence, before anything runs.
+    #[test]
+    fn a_scenario_for_another_network_or_with_host_only_faults_is_refused() {
+        let emulated_network = emulated_scenario("gfc-from-the-tool.toml").network;
+        let host = file::load(&dir().join("gfc-from-the-tool.toml")).expect("parses");
+        let why = emulated::check_playable(&host, &emulated_network, 500_000).unwrap_err();
+        assert!(why.contains("is not the emulated network's"), "{why}");
+        let mut host_only = emulated_scenario("gfc-from-the-tool.toml");
+        host_only.steps[0].stimulus = Stimulus::Fault(FaultSpec::Clock {
+            node: 33,
+            channel: Channel::A,
+            percent: 5,
+        });
+        let why = emulated::check_playable(&host_only, &emulated_network, 500_000).unwrap_err();
+        assert!(
+            why.contains("gfc-from-the-tool.toml:15: the fault `clock`"),
+            "{why}"
+        );
+        let why = emulated::check_playable(
+            &emulated_scenario("gfc-from-the-tool.toml"),
+            &emulated_network,
+            250_000,
+        )
+        .unwrap_err();
+        assert!(why.contains("the emulated bus at 250 kbit/s"), "{why}");
+    }
+
+    /// The emulated scenarios run on the host simulation too (the same network file, with
+    /// the emulated timing): there the bounds, which carry the emulation's margin, hold by far.
+    #[test]
+    fn every_emulated_scenario_file_passes_on_the_host_simulation_too() {
+        let files = system_tests::scenario_runner::files_in(&dir().join("emulated")).unwrap();
+        assert!(files.len() >= 10, "{} emulated scenarios", files.len());
+        for path in &files {
+            let scenario = file::load(path).unwrap_or_else(|error| panic!("{error}"));
+            let report = system_tests::scenario_runner::run(&scenario).unwrap();
+            assert!(report.passed(), "{}", report.text(&scenario));
+        }
+    }
+}

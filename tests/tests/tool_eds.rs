@@ -226,3 +226,103 @@ fn en50325_5_8_3_1_a_dcf_of_a_configured_node_configures_and_verifies_it_again()
     let error = network_file::parse_dcf(&anonymous, "node-33.dcf").unwrap_err();
     assert!(error.message.contains("NodeID"), "{error}");
 }
+
+/// The sections of an EDS text: `[name]` → its `key=value` lines.
+fn sections(text: &str) -> std::collections::BTreeMap<String, Vec<(String, String)>> {
+    let mut sections = std::collections::BTreeMap::new();
+    let mut current: Option<String> = None;
+    for line in text.lines().map(str::trim) {
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            current = Some(name.to_owned());
+            sections.insert(name.to_owned(), Vec::new());
+        } else if let (Some(name), Some((key, value))) = (&current, line.split_once('=')) {
+            sections
+                .get_mut(name)
+                .expect("inserted")
+                .push((key.to_owned(), value.to_owned()));
+        }
+    }
+    sections
+}
+
+/// The SimpleCAN EDS (`docs/simplecan.md` section 11), parsed from its text: every
+/// 5E00h..5EFFh entry it lists is served by an unconfigured SimpleCAN node with its data
+/// type's length and its default value; a read-only one refuses a write (0601 0002h), a
+/// writable one never with 0601 0002h; and the node serves no other object in 5E00h..5EFFh
+/// (the entry after its last SDD entry is 0602 0000h).
+#[test]
+fn sc_req_16_the_simplecan_eds_lists_5e00h_to_5effh_as_the_node_serves_them() {
+    use shared::canopen::sdo_client::ClientError;
+    use system_tests::simplecan_net::ScNetwork;
+    // ScDevice holds 4 SDD entries.
+    const ENTRIES: u8 = 4;
+    let mut net = ScNetwork::new(500_000, &[3]);
+    net.run_for(Duration::from_millis(10));
+    let mut client = Client::new(SimulatedBus::new(net), StdDuration::from_millis(200));
+    let text = eds::simplecan_eds(ENTRIES);
+    // Left for third-party readers (python-canopen's `import_od`).
+    let kept = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("safety-node-simplecan.eds");
+    std::fs::write(&kept, &text).unwrap_or_else(|error| panic!("{}: {error}", kept.display()));
+    let sections = sections(&text);
+    let mut checked = Vec::new();
+    for (name, keys) in &sections {
+        let Some((index, sub)) = name
+            .split_once("sub")
+            .or(Some((name.as_str(), "0")))
+            .filter(|(index, _)| index.len() == 4 && index.starts_with("5E"))
+        else {
+            continue;
+        };
+        let get = |key: &str| {
+            keys.iter()
+                .find(|(k, _)| k == key)
+                .map(|(_, value)| value.as_str())
+        };
+        if get("ObjectType") != Some("0x7") {
+            continue;
+        }
+        let address = Address::new(
+            u16::from_str_radix(index, 16).unwrap(),
+            u8::from_str_radix(sub, 16).unwrap(),
+        );
+        let data_type =
+            u16::from_str_radix(get("DataType").unwrap().trim_start_matches("0x"), 16).unwrap();
+        let bytes = client
+            .read(3, address)
+            .unwrap_or_else(|error| panic!("[{name}]: {error}"));
+        assert_eq!(Some(bytes.len()), length(data_type), "[{name}]");
+        let default = get("DefaultValue").unwrap_or_else(|| panic!("[{name}] has a default"));
+        let expected = match default.strip_prefix("0x") {
+            Some(hex) => u64::from_str_radix(hex, 16).unwrap(),
+            None => default.parse::<u64>().unwrap(),
+        };
+        let mut raw = [0u8; 8];
+        raw[..bytes.len()].copy_from_slice(&bytes);
+        assert_eq!(u64::from_le_bytes(raw), expected, "[{name}]");
+        let written = client.write(3, address, &bytes).err();
+        let read_only = written.as_ref().and_then(|error| error.sdo_client_error())
+            == Some(ClientError::Aborted(AbortCode::ReadOnly));
+        assert_eq!(
+            read_only,
+            get("AccessType") == Some("ro"),
+            "[{name}]: {written:?}"
+        );
+        checked.push(address);
+    }
+    // 5E00h:00..05, 5E01h, 4 × 7 entry sub-indices, 5EFEh, 5EFFh.
+    assert_eq!(
+        checked.len(),
+        6 + 1 + 7 * usize::from(ENTRIES) + 2,
+        "{checked:?}"
+    );
+    let beyond = client
+        .read(3, Address::new(0x5E10 + u16::from(ENTRIES), 1))
+        .expect_err("no fifth entry");
+    assert_eq!(
+        beyond.sdo_client_error(),
+        Some(ClientError::Aborted(AbortCode::NoObject)),
+        "{beyond}"
+    );
+    // The SRDO device's EDS does not list them: that node does not serve them.
+    assert!(!eds::eds().contains("[5E00]"));
+}

@@ -21,6 +21,8 @@ use shared::safety::gfc::GFC_PARAMETER;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+mod simplecan;
+
 /// CiA 301 data types used here.
 const UNSIGNED8: u16 = 0x0005;
 const UNSIGNED16: u16 = 0x0006;
@@ -443,13 +445,39 @@ pub struct Commissioning<'a> {
 
 /// The EDS text (CiA 306 4.0 syntax), or with `commissioning` a DCF.
 pub fn render(commissioning: Option<&Commissioning<'_>>) -> String {
+    render_objects(&objects(), "safety-node.eds", commissioning)
+}
+
+/// The dictionary of a device that also serves SimpleCAN with `entries` SDD entries
+/// (`shared::node::SimpleCanNode`): [`objects`] and 5E00h..5EFFh (`docs/simplecan.md`
+/// section 11), in index order.
+pub fn simplecan_objects(entries: u8) -> Vec<Object> {
+    let mut all = objects();
+    all.extend(simplecan::objects(entries));
+    all.sort_by_key(|object| object.index);
+    all
+}
+
+/// The EDS of a device that also serves SimpleCAN with `entries` SDD entries.
+pub fn simplecan_eds(entries: u8) -> String {
+    render_objects(
+        &simplecan_objects(entries),
+        "safety-node-simplecan.eds",
+        None,
+    )
+}
+
+fn render_objects(
+    objects: &[Object],
+    eds_name: &str,
+    commissioning: Option<&Commissioning<'_>>,
+) -> String {
     use dual_channel::device;
-    let objects = objects();
     let description = description();
     let mut text = String::new();
     let file_name = match commissioning {
         Some(commissioning) => format!("node-{}.dcf", commissioning.node),
-        None => "safety-node.eds".to_owned(),
+        None => eds_name.to_owned(),
     };
     let _ = write!(
         text,
@@ -525,7 +553,7 @@ pub fn render(commissioning: Option<&Commissioning<'_>>) -> String {
         commissioning
             .and_then(|commissioning| commissioning.values.get(&address).map(String::as_str))
     };
-    for object in &objects {
+    for object in objects {
         if object.object_type == 0x7 {
             write_entry(
                 &mut text,

@@ -53,6 +53,7 @@ pub fn object_name(address: Address) -> Option<String> {
         0x1381..=0x13C0 => Some(format!("SRDO {} mapping entry {sub}", index - 0x1380)),
         0x13FE => Some("configuration valid".into()),
         0x13FF => Some(format!("signature of SRDO {sub}")),
+        0x5E00..=0x5EFF => crate::simplecan::object_name(address),
         0x5C10 => Some(
             match sub {
                 1 => "unlock",
@@ -195,6 +196,18 @@ pub enum ToolError {
         "node {node}: 0x13FE reads {value:02X}h after {when}, not A5h: the node does not hold a valid configuration"
     )]
     NotValid {
+        /// The node-ID.
+        node: u8,
+        /// The value read.
+        value: u8,
+        /// After which step.
+        when: &'static str,
+    },
+    /// The node did not keep the validity declaration of its SimpleCAN configuration.
+    #[error(
+        "node {node}: 0x5EFE reads {value:02X}h after {when}, not A5h: the node does not hold a valid SimpleCAN configuration (docs/simplecan.md section 11)"
+    )]
+    SimpleCanNotValid {
         /// The node-ID.
         node: u8,
         /// The value read.

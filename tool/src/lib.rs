@@ -12,6 +12,8 @@
 //! - [`client`]: SDO and NMT over a transport, with errors that name the node and the object.
 //! - [`network_file`]: the network file (TOML) and its errors with line and column.
 //! - [`signature`]: the tool's own Table 9 signature (CRC-16/XMODEM), independent of the node's.
+//! - [`simplecan`]: SimpleCAN nodes: node hashes, the configuration objects and their CRC-32
+//!   signature (the tool's own), the configure/verify plan.
 //! - [`procedure`]: `configure` and `verify` (EN 50325-5 8.3.1), `scan`.
 //! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
 //! - [`monitor`]: the live bus monitor: SRDO pairs and their verdicts, NMT, EMCY, SDO; candump
@@ -27,6 +29,7 @@ pub mod monitor;
 pub mod network_file;
 pub mod procedure;
 pub mod signature;
+pub mod simplecan;
 pub mod slcan;
 #[cfg(feature = "socketcan")]
 pub mod socketcan;

@@ -81,13 +81,23 @@ enum Command {
         #[command(flatten)]
         unlock: Unlock,
     },
-    /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9).
+    /// Compute every SRDO signature of a network file offline (EN 50325-5 6.4.1.5, Table 9),
+    /// and each node's SimpleCAN configuration signature (CRC-32/MPEG-2, 0x5EFF) with the
+    /// node hash of each of its SDD entries.
+    ///
+    /// A node hash (SC_REQ_15) is the first non-zero 32-bit word (big-endian) of SHA-256 over
+    /// "safety-config/simplecan/node-hash/v1", the network name (length-prefixed), the
+    /// SC-ID, its producer's node-ID and the producer's vendor-ID, product code and serial
+    /// number from the file; a network whose hashes collide is refused.
+    #[command(verbatim_doc_comment)]
     Sign {
         /// The network file (TOML), or a node's DCF (`.dcf`).
         file: String,
     },
     /// Configure, read back, sign, validate and store every node of a network file
-    /// (EN 50325-5 8.3.1).
+    /// (EN 50325-5 8.3.1); with a [simplecan] section also each node's SimpleCAN objects
+    /// (0x5E00..0x5EFF: written, read back and compared, signed with the tool's CRC-32,
+    /// 0x5EFE = A5h, stored).
     Configure {
         /// The network file (TOML), or a node's DCF (`.dcf`, as `dcf` writes it).
         file: String,
@@ -127,7 +137,10 @@ enum Command {
     },
     /// Watch the bus live: every node's NMT state and heartbeat, every SRDO as pairs (the
     /// inversion, the plain → inverted gap against SRVT, the period against SCT), GFC, EMCY
-    /// in words and SDO traffic. Keys: q quit, g send GFC, p pause, ? help. Not on a
+    /// in words and SDO traffic; SimpleCAN packets decoded with the file's node hashes (each
+    /// SC-ID's value and age against its timeout, its arrival against its configured slot
+    /// and the jitter, syncs per master, bad CRCs; without a file they cannot be decoded, the
+    /// hashes are never sent). Keys: q quit, g send GFC, p pause, ? help. Not on a
     /// terminal (or with --plain) it prints a line per happening and a summary at the end.
     Monitor {
         /// A network file (TOML) or DCF: the SRDOs to judge against their SCT and SRVT and
@@ -367,15 +380,39 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
     if let Command::Sign { file } = &cli.command {
         let network = load(file)?;
         let signatures = procedure::offline_signatures(&network);
+        let simplecan = procedure::offline_simplecan(&network);
         if cli.json {
-            let rows: Vec<_> = signatures
+            let srdo: Vec<_> = signatures
                 .iter()
                 .map(|(node, srdo, value)| serde_json::json!({"node": node, "srdo": srdo, "signature": value}))
                 .collect();
-            println!("{}", json(&rows));
+            let simplecan: Vec<_> = simplecan
+                .iter()
+                .map(|(config, value)| serde_json::json!({"node": config.node_id, "signature": value, "configuration": config}))
+                .collect();
+            println!(
+                "{}",
+                json(&serde_json::json!({"srdo": srdo, "simplecan": simplecan}))
+            );
         } else {
             for (node, srdo, value) in signatures {
                 println!("node {node} SRDO {srdo}: signature {value:04X}h (0x13FF:{srdo:02X})");
+            }
+            for (config, value) in simplecan {
+                let node = config.node_id;
+                let state = if config.enabled == 1 { "on" } else { "off" };
+                println!(
+                    "node {node} SimpleCAN ({state}, {} SDD entries): signature {value:08X}h (0x5EFF:00)",
+                    config.entries.len()
+                );
+                for entry in &config.entries {
+                    println!(
+                        "  SC-ID {:02X}h {}: node hash {:08X}h",
+                        entry.sc_id,
+                        safety_config::simplecan::role_name(entry.role),
+                        entry.hash
+                    );
+                }
             }
         }
         return Ok(true);
@@ -615,13 +652,16 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                 for result in &report.nodes {
                     match result {
                         NodeResult::Done(done) => println!(
-                            "node {}: configured and valid; signatures {}",
+                            "node {}: configured and valid; signatures {}{}",
                             done.node,
                             done.signatures
                                 .iter()
                                 .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
                                 .collect::<Vec<_>>()
-                                .join(", ")
+                                .join(", "),
+                            done.simplecan_signature
+                                .map(|value| format!("; SimpleCAN {value:08X}h (0x5EFF)"))
+                                .unwrap_or_default()
                         ),
                         NodeResult::Failed { node, error } => {
                             println!("node {node}: NOT configured: {error}")
@@ -659,6 +699,12 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                             configuration_valid,
                         } => println!(
                             "node {node}: matches the file but is NOT validated (0x13FE = {configuration_valid:02X}h)"
+                        ),
+                        Verdict::SimpleCanNotValidated {
+                            node,
+                            configuration_valid,
+                        } => println!(
+                            "node {node}: matches the file but its SimpleCAN configuration is NOT validated (0x5EFE = {configuration_valid:02X}h)"
                         ),
                         Verdict::Unreachable { node, error } => {
                             println!("node {node}: not verified: {error}")

@@ -19,6 +19,9 @@
 //! mapping = ["input", "0x6001:1:8"]   # a name of the device description or index:sub:bits
 //! ```
 //!
+//! A SimpleCAN network adds a `[simplecan]` section and a `[node.simplecan]` table per node
+//! (`network_file::simplecan`, its format and rules; `docs/tool.md`).
+//!
 //! Every error comes back as a [`FileError`] with line, column and a sentence. SRDOs of a node
 //! that the file does not list are deleted (direction 0) by `configure`.
 
@@ -30,6 +33,8 @@ use shared::safety::config::ConfigError;
 use shared::safety::types::CobIdPair;
 use std::time::Duration;
 use toml::Spanned;
+
+mod simplecan;
 
 /// A mistake in the network file, where it is.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error, serde::Serialize)]
@@ -90,6 +95,9 @@ pub struct Network {
     pub sdo_timeout: Duration,
     /// The nodes, in file order.
     pub nodes: Vec<NodeSpec>,
+    /// The SimpleCAN part (`[simplecan]` and each `[node.simplecan]`), when the file has one
+    /// ([`crate::simplecan`]); without it `configure` leaves the SimpleCAN objects alone.
+    pub simplecan: Option<crate::simplecan::SimpleCanNetwork>,
 }
 
 fn millis<S: serde::Serializer>(duration: &Duration, serializer: S) -> Result<S::Ok, S::Error> {
@@ -103,6 +111,7 @@ struct RawFile {
     bus: RawBus,
     #[serde(default)]
     node: Vec<Spanned<RawNode>>,
+    simplecan: Option<Spanned<simplecan::RawSimpleCan>>,
 }
 
 #[derive(Deserialize, Default)]
@@ -121,6 +130,7 @@ struct RawNode {
     clear_gfc_indication: bool,
     #[serde(default)]
     srdo: Vec<Spanned<RawSrdo>>,
+    simplecan: Option<Spanned<simplecan::RawNodeSimpleCan>>,
 }
 
 #[derive(Deserialize)]
@@ -217,7 +227,12 @@ pub fn parse(text: &str, origin: &str) -> Result<Network, FileError> {
         }
         nodes.push(spec);
     }
-    Ok(Network { sdo_timeout, nodes })
+    let simplecan = simplecan::parse(&parser, raw.simplecan.as_ref(), &raw.node, &nodes)?;
+    Ok(Network {
+        sdo_timeout,
+        nodes,
+        simplecan,
+    })
 }
 
 const U32: std::ops::RangeInclusive<i64> = 0..=0xFFFF_FFFF;
@@ -375,7 +390,7 @@ fn srdo_spec(parser: &Parser<'_>, srdo: &RawSrdo) -> Result<SrdoSpec, FileError>
     }
     let mapping = entries
         .iter()
-        .map(|entry| mapping_entry(parser, number, entry, wanted))
+        .map(|entry| mapping_entry(parser, &format!("SRDO {number}"), entry, wanted))
         .collect::<Result<Vec<u32>, FileError>>()?;
     Ok(SrdoSpec {
         number,
@@ -390,10 +405,11 @@ fn srdo_spec(parser: &Parser<'_>, srdo: &RawSrdo) -> Result<SrdoSpec, FileError>
     })
 }
 
-/// A mapping entry: a name from the device description, or `index:sub:bits`.
+/// A mapping entry: a name from the device description, or `index:sub:bits`, mappable in
+/// direction `wanted`; `label` names what maps it in messages (`SRDO 1`, `node 1: SC-ID 30h`).
 fn mapping_entry(
     parser: &Parser<'_>,
-    number: u8,
+    label: &str,
     entry: &Spanned<String>,
     wanted: Mappable,
 ) -> Result<u32, FileError> {
@@ -433,14 +449,14 @@ fn mapping_entry(
                 _ => {
                     return Err(parser.error(
                         entry.span(),
-                        format!("SRDO {number}: {text:?} is not index:sub:bits (e.g. 0x6000:1:8)"),
+                        format!("{label}: {text:?} is not index:sub:bits (e.g. 0x6000:1:8)"),
                     ));
                 }
             },
             _ => {
                 return Err(parser.error(
                     entry.span(),
-                    format!("SRDO {number}: {text:?} is neither an object name ({}) nor index:sub:bits (e.g. 0x6000:1:8)", names()),
+                    format!("{label}: {text:?} is neither an object name ({}) nor index:sub:bits (e.g. 0x6000:1:8)", names()),
                 ));
             }
         }
@@ -455,7 +471,7 @@ fn mapping_entry(
                 return Err(parser.error(
                     entry.span(),
                     format!(
-                        "SRDO {number}: object {:04X}h:{:02X}h has {} bits, not {bits}",
+                        "{label}: object {:04X}h:{:02X}h has {} bits, not {bits}",
                         address.index,
                         address.sub,
                         u32::from(object.len) * 8
@@ -465,20 +481,20 @@ fn mapping_entry(
         }
         Some(_) => {
             let direction = if wanted == Mappable::Transmit {
-                "transmit"
+                "a transmit SRDO or a produced SC-ID"
             } else {
-                "receive"
+                "a receive SRDO or a consumed SC-ID"
             };
             return Err(parser.error(
                 entry.span(),
-                format!("SRDO {number}: object {:04X}h:{:02X}h cannot be mapped into a {direction} SRDO of this device", address.index, address.sub),
+                format!("{label}: object {:04X}h:{:02X}h cannot be mapped into {direction} of this device", address.index, address.sub),
             ));
         }
         None => {
             return Err(parser.error(
                 entry.span(),
                 format!(
-                    "SRDO {number}: the device has no mappable object {:04X}h:{:02X}h",
+                    "{label}: the device has no mappable object {:04X}h:{:02X}h",
                     address.index, address.sub
                 ),
             ));
@@ -650,5 +666,6 @@ pub fn parse_dcf(text: &str, origin: &str) -> Result<Network, FileError> {
             srdos,
             clear_gfc_indication: false,
         }],
+        simplecan: None,
     })
 }

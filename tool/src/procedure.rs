@@ -220,6 +220,9 @@ pub struct Configured {
     pub identity: NodeIdentity,
     /// The signature written for each SRDO (number, value).
     pub signatures: Vec<(u8, u16)>,
+    /// The SimpleCAN configuration signature written to 0x5EFF, when the file has a
+    /// SimpleCAN section ([`configure_simplecan`]).
+    pub simplecan_signature: Option<u32>,
     /// SDO requests this node's configuration took.
     pub sdo_requests: u64,
 }
@@ -255,6 +258,7 @@ pub fn configure_node<T: Transport>(
             node,
             identity,
             signatures,
+            simplecan_signature: None,
             sdo_requests: client.requests - before,
         }),
         Err(error) => match access::explain_refusal(error) {
@@ -507,7 +511,16 @@ pub fn configure<T: Transport>(
 ) -> Result<ConfigureReport, ToolError> {
     let mut nodes = Vec::new();
     for spec in &network.nodes {
-        match configure_node(client, spec, operator) {
+        let configured = configure_node(client, spec, operator).and_then(|mut done| {
+            if let Some(simplecan) = &network.simplecan {
+                let before = client.requests;
+                done.simplecan_signature =
+                    Some(configure_simplecan(client, simplecan, spec.id, operator)?);
+                done.sdo_requests += client.requests - before;
+            }
+            Ok(done)
+        });
+        match configured {
             Ok(done) => nodes.push(NodeResult::Done(done)),
             Err(ToolError::Transport(error)) => return Err(ToolError::Transport(error)),
             Err(error) => {
@@ -532,6 +545,39 @@ pub fn configure<T: Transport>(
     Ok(report)
 }
 
+/// Configures node `node`'s SimpleCAN objects from the file's SimpleCAN section, after
+/// [`configure_node`] checked its identity (SC_REQ_37/38), unlocked it (SC_REQ_43) and put it
+/// in Pre-operational (SC_REQ_39): the plan of [`crate::simplecan::plan`] (SC_REQ_35/36).
+/// Returns the signature written to 0x5EFF; any difference leaves 0x5EFE at 0.
+pub fn configure_simplecan<T: Transport>(
+    client: &mut Client<T>,
+    simplecan: &crate::simplecan::SimpleCanNetwork,
+    node: u8,
+    operator: &mut dyn Operator,
+) -> Result<u32, ToolError> {
+    let config = crate::simplecan::node_config(simplecan, node);
+    operator.note(&format!(
+        "node {node}: SimpleCAN {} with {} SDD entries: writing, reading back",
+        if config.enabled == 1 { "on" } else { "off" },
+        config.entries.len()
+    ));
+    let plan = crate::simplecan::plan::configure_plan(&config);
+    match crate::simplecan::plan::execute(client, &config, &plan) {
+        Ok(value) => {
+            operator.note(&format!(
+                "node {node}: SimpleCAN configured, signed ({value:08X}h), valid and stored"
+            ));
+            Ok(value)
+        }
+        Err(error) => {
+            operator.note(&format!(
+                "node {node}: 0x5EFE set to 0 (SimpleCAN configuration not valid)"
+            ));
+            Err(error)
+        }
+    }
+}
+
 /// What `verify` found on one node.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(tag = "status", rename_all = "snake_case")]
@@ -553,6 +599,13 @@ pub enum Verdict {
         /// The node-ID.
         node: u8,
         /// The value of 0x13FE.
+        configuration_valid: u8,
+    },
+    /// The node holds the file's SimpleCAN configuration but has not declared it valid.
+    SimpleCanNotValidated {
+        /// The node-ID.
+        node: u8,
+        /// The value of 0x5EFE.
         configuration_valid: u8,
     },
     /// The node could not be read.
@@ -619,7 +672,15 @@ pub fn verify<T: Transport>(
 ) -> Result<Vec<Verdict>, ToolError> {
     let mut verdicts = Vec::new();
     for spec in &network.nodes {
-        match verify_node(client, spec) {
+        let verdict = verify_node(client, spec).and_then(|verdict| match &network.simplecan {
+            Some(simplecan) => {
+                let file = crate::simplecan::node_config(simplecan, spec.id);
+                let checked = crate::simplecan::plan::verify(client, &file)?;
+                Ok(with_simplecan(verdict, checked))
+            }
+            None => Ok(verdict),
+        });
+        match verdict {
             Ok(verdict) => verdicts.push(verdict),
             Err(ToolError::Transport(error)) => return Err(ToolError::Transport(error)),
             Err(error) => verdicts.push(Verdict::Unreachable {
@@ -629,6 +690,37 @@ pub fn verify<T: Transport>(
         }
     }
     Ok(verdicts)
+}
+
+/// The verdict on a node's SRDOs joined with what was found on its SimpleCAN objects: any
+/// difference makes it [`Verdict::Differs`]; a node valid for its SRDOs but not for
+/// SimpleCAN is [`Verdict::SimpleCanNotValidated`].
+fn with_simplecan(verdict: Verdict, checked: crate::simplecan::plan::Checked) -> Verdict {
+    let crate::simplecan::plan::Checked {
+        diff: simplecan_diff,
+        configuration_valid,
+    } = checked;
+    match verdict {
+        Verdict::Differs { node, mut diff } => {
+            diff.extend(simplecan_diff);
+            Verdict::Differs { node, diff }
+        }
+        Verdict::Matches { node } | Verdict::NotValidated { node, .. }
+            if !simplecan_diff.is_empty() =>
+        {
+            Verdict::Differs {
+                node,
+                diff: simplecan_diff,
+            }
+        }
+        Verdict::Matches { node } if configuration_valid != crate::simplecan::VALID => {
+            Verdict::SimpleCanNotValidated {
+                node,
+                configuration_valid,
+            }
+        }
+        other => other,
+    }
 }
 
 /// A node found by `scan`.
@@ -686,6 +778,23 @@ pub fn offline_signatures(network: &Network) -> Vec<(u8, u8, u16)> {
             node.srdos
                 .iter()
                 .map(move |srdo| (node.id, srdo.number, signature(&srdo.settings)))
+        })
+        .collect()
+}
+
+/// Each node's SimpleCAN configuration and its signature (the tool's own CRC-32), computed
+/// offline, in file order; empty when the file has no SimpleCAN section.
+pub fn offline_simplecan(network: &Network) -> Vec<(crate::simplecan::NodeConfig, u32)> {
+    let Some(simplecan) = &network.simplecan else {
+        return Vec::new();
+    };
+    network
+        .nodes
+        .iter()
+        .map(|node| {
+            let config = crate::simplecan::node_config(simplecan, node.id);
+            let value = crate::simplecan::signature::signature(&config);
+            (config, value)
         })
         .collect()
 }

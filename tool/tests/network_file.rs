@@ -271,7 +271,7 @@ fn mapping_wrong_direction_or_object() {
         &error("\"input\",", "\"output\","),
         10,
         12,
-        "cannot be mapped into a transmit SRDO",
+        "cannot be mapped into a transmit SRDO or a produced SC-ID",
     );
     assert_at(
         &error("\"input\",", "\"0x6100:1:8\","),

@@ -1,6 +1,8 @@
 //! `cargo xtask campaign`: the seeded fault campaigns of `tests/src/campaign` (host
 //! simulation, judged by the independent oracle), run on every core.
-//! Every class runs at 125, 250, 500 and 1000 kbit/s unless `--bit-rate` picks some.
+//! Every class runs at 125, 250, 500 and 1000 kbit/s unless `--bit-rate` picks some; the
+//! SimpleCAN classes (`--protocol simplecan`, names `simplecan-…`) run on their own network
+//! at 500 kbit/s (`tests/src/campaign/simplecan.rs`). Without `--protocol`, both run.
 //! The full size (10,000 scenarios per class and rate, the default) writes `docs/campaigns.md` and
 //! the plots in `docs/campaigns/`; a smaller run writes its report to `target/campaign/`,
 //! so that CI's short run never replaces the measured full run. Fails when any scenario
@@ -24,6 +26,8 @@ pub struct Options {
     pub seed: u64,
     /// Replay one seed and print its timeline.
     pub replay: Option<u64>,
+    /// `canopen-safety` or `simplecan` only (both when `None`).
+    pub protocol: Option<String>,
 }
 
 /// Runs the campaign binary with `options`.
@@ -46,10 +50,15 @@ pub fn task(root: &Path, options: &Options) -> Result<()> {
     for kbit in &options.bit_rates {
         command.args(["--bit-rate", &kbit.to_string()]);
     }
+    if let Some(protocol) = &options.protocol {
+        command.args(["--protocol", protocol]);
+    }
     if let Some(seed) = options.replay {
         command.args(["--replay", &seed.to_string()]);
         return super::run(&mut command);
     }
+    // A full run writes its protocol's part of docs/campaigns.md: the CANopen Safety report
+    // keeps the SimpleCAN section, the SimpleCAN run replaces only that section.
     let full = options.scenarios >= FULL
         && options.classes.is_empty()
         && options.bit_rates.is_empty()
@@ -65,6 +74,9 @@ pub fn task(root: &Path, options: &Options) -> Result<()> {
     }
     for kbit in &options.bit_rates {
         line.push_str(&format!(" --bit-rate {kbit}"));
+    }
+    if let Some(protocol) = &options.protocol {
+        line.push_str(&format!(" --protocol {protocol}"));
     }
     if options.seed != 0 {
         line.push_str(&format!(" --seed {}", options.seed));

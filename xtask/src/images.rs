@@ -9,46 +9,44 @@ use std::process::Command;
 
 /// Flash budget per image, bytes.
 ///
-/// 68 KiB: channel B's hardware image measures 68,804 bytes and channel A's 67,868, a margin of
-/// 828 bytes (1.2 %) for the larger. It was 64 KiB (channel B 65,200 bytes, 336 bytes of
-/// margin) until the protection against unauthorised configuration (SC_REQ_43,
-/// `shared::node::access`) landed: +3,604 bytes on channel B, +3,804 on A, measured on the
-/// images before and after (SHA-256 of the secret 1.1 KiB with its constants, the unlock and
-/// lockout rules and the objects 5C10h..5C13h, the audit record and secret in the stored
-/// record). A safety requirement is not left open for a size target (as for the RAM budget
-/// below). 64 KiB came from 72 KiB by the footprint step: `opt-level = "z"`, no `core::fmt`
-/// rendering in the panic handler, embassy's and cobs' `unwrap`s (and the `Debug` formatting
-/// they link) replaced by checked calls, and the source paths of panic locations cut. The
-/// issue's target is 48 KiB; what stands between is in `docs/footprint.md`. The device has
-/// 768 KiB for code (`memory.x`).
-pub const FLASH_BUDGET: u64 = 68 * 1024;
+/// 67 KiB: channel B's hardware image measures 67,392 bytes and channel A's 67,180, a margin of
+/// 1,216 bytes (1.8 %) for the larger. It was 68 KiB (channel B 68,444 bytes) until the
+/// footprint steps of `docs/footprint.md`: identical code folded at link time, the runtime
+/// built out of line and kept where it is built. Before that: 64 KiB until the protection
+/// against unauthorised configuration (SC_REQ_43, `shared::node::access`, +3,604 bytes on
+/// channel B) landed, since a safety requirement is not left open for a size target; 72 KiB
+/// before the first footprint step (`opt-level = "z"`, no `core::fmt` rendering in the panic
+/// handler, checked calls for the `unwrap`s that linked `Debug` formatting, panic locations'
+/// source paths cut). The target is 48 KiB; what stands between is in
+/// `docs/footprint.md`. The device has 768 KiB for code (`memory.x`).
+pub const FLASH_BUDGET: u64 = 67 * 1024;
 /// RAM budget per image, bytes, including the stack reserve below.
 ///
-/// 27 KiB: channel B's hardware image measures 26,908 bytes (8,476 of static data, the rest
-/// the stack reserve), a margin of 740 bytes (104 bytes went to the access control of
-/// SC_REQ_43: its secret, audit record and lockout state); static data does not vary at run time, so the
-/// margin is what a change may add before it is looked at. It was 24 KiB (188 bytes of margin)
-/// until three things landed together: the check of the other channel's time base (its ring
-/// of 32 heartbeat times, 128 bytes), the transmit queue ordered by identifier
-/// (`board::transmit_queue`: each waiting frame carries a 64-bit sequence number, 192 bytes for
-/// 16 frames), which the fault campaign's oracle showed is needed (a GFC waited behind the
-/// node's own heartbeat and EMCY), and a stack reserve raised by 2 KiB (below). A safety defect
-/// is not left open for a size target; the architecture step (bxCAN filters, one channel loop)
-/// is where the bytes are to be won back. The QEMU images hold more (`docs/footprint.md`) and
-/// are not held to it.
-pub const RAM_BUDGET: u64 = 27 * 1024;
+/// 21 KiB: channel B's hardware image measures 20,768 bytes (8,480 of static data, the rest
+/// the stack reserve), a margin of 736 bytes; static data does not vary at run time, so the
+/// margin is what a change may add before it is looked at. It was 27 KiB with an 18 KiB stack
+/// reserve until the main task's stack frame shrank (below); before that 24 KiB, raised for
+/// the check of the other channel's time base (128 bytes), the transmit queue ordered by
+/// identifier (`board::transmit_queue`, 192 bytes), which the fault campaign's oracle showed is
+/// needed, and a deeper stack. The QEMU images hold more (`docs/footprint.md`) and are not
+/// held to it.
+pub const RAM_BUDGET: u64 = 21 * 1024;
 /// RAM set aside for the stack in the budget. The linker places the stack at the top of RAM.
 /// The figure is checked against the measured high-water mark: the stack is painted at
-/// start-up (`board::stack`) and every emulated channel reports its deepest use, which `cargo
-/// xtask e2e` fails on when it is above this (measured 2026-11-30 under QEMU: 14,988 bytes,
-/// after the parameter store moved out of the runtime's construction; 55,740 before;
-/// 2026-12-01: 15,164–15,368 bytes on the paced emulation, then 16,756 bytes on channel B and
-/// 15,852 on channel A once the size-optimised profile, the clock check, the tool's device
-/// description and the ordered transmit queue came together: which of them deepened it is not
-/// yet found, so the reserve is 18 KiB, 1.6 KiB above the deepest use measured). The hardware
-/// layer runs the same channel code but its own drivers; its figure comes from its log once it
-/// runs on a board.
-pub const STACK_RESERVE: u64 = 18 * 1024;
+/// start-up (`board::stack`), every emulated channel reports its deepest use, which `cargo
+/// xtask e2e` fails on when it is above this, and both layers log it.
+///
+/// 12 KiB. Every path of the channel runs on top of the main task's stack frame, which held
+/// the runtime's construction inlined with two copies of the runtime: 10,428 bytes in the
+/// QEMU image of channel B, 10,644 in the hardware one, now 1,460 and 1,828 (the runtime built
+/// by an out-of-line `Runtime::new` and kept in its `Result`, `docs/footprint.md`). Measured on
+/// channel B's QEMU image run alone (start-up with the parameters restored, then the link
+/// time-out to the safe state): 13,676 bytes deepest before, 9,092 to 9,136 after (channel
+/// A 8,528), at least 3,152 bytes (26 %) below the reserve. The whole end-to-end run measured 15,436 to 15,608 bytes before, its
+/// deepest path on top of the same 10 KiB frame; `cargo xtask e2e` holds it to this reserve.
+/// The hardware layer runs the same channel code but its own drivers; its figure comes from
+/// its log once it runs on a board.
+pub const STACK_RESERVE: u64 = 12 * 1024;
 
 /// The chip, as probe-rs names it.
 pub const CHIP: &str = "STM32F405RGTx";

@@ -579,6 +579,28 @@ fn bench_on(
     tool: &mut Client<SocketcandClient>,
     spec: &safety_config::network_file::Network,
 ) -> Result<(Vec<Round>, Vec<Round>)> {
+    // Both sides wait as long for an SDO answer (the script's RESPONSE_TIMEOUT): on the
+    // emulated network a loaded host holds the virtual time, and with it an answer, for
+    // seconds of host time now and then (`docs/emulation.md`), which the bench should time,
+    // not fail on.
+    let patience = std::mem::replace(&mut tool.sdo_timeout, BENCH_SDO_TIMEOUT);
+    let rounds = bench_rounds(root, python, address, tool, spec);
+    tool.sdo_timeout = patience;
+    rounds
+}
+
+/// How long each side of the bench waits for one SDO answer: python-canopen's
+/// `RESPONSE_TIMEOUT` in `xtask/interop/python_canopen_configure.py`.
+const BENCH_SDO_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// [`bench_on`]'s rounds, alternating.
+fn bench_rounds(
+    root: &Path,
+    python: &Path,
+    address: &str,
+    tool: &mut Client<SocketcandClient>,
+    spec: &safety_config::network_file::Network,
+) -> Result<(Vec<Round>, Vec<Round>)> {
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     for round in 1..=BENCH_ROUNDS {
         ours.push(tool_round(tool, spec)?);
@@ -700,22 +722,27 @@ pub fn with_section(document: &str, section: &str) -> String {
         out.push_str(section);
         return out;
     };
-    let rest = &document[start + BENCH_HEADING.len()..];
-    let end = rest
-        .find("\n## ")
-        .map_or(document.len(), |at| start + BENCH_HEADING.len() + at + 1);
+    let end = section_end(document, start);
     format!("{}{section}{}", &document[..start], &document[end..])
+}
+
+/// Where the section that starts at `start` ends: at the next heading of its level or the
+/// next generated block's marker (another writer's, `<!-- name:begin ... -->`), which belongs
+/// to what follows; else at the end of `document`.
+fn section_end(document: &str, start: usize) -> usize {
+    let from = start + BENCH_HEADING.len();
+    ["\n## ", "\n<!-- "]
+        .iter()
+        .filter_map(|next| document[from..].find(next))
+        .min()
+        .map_or(document.len(), |at| from + at + 1)
 }
 
 /// The [`BENCH_HEADING`] section of `document`, for a writer of the rest of the file to
 /// keep (`cargo xtask bench`).
 pub fn kept_section(document: &str) -> Option<&str> {
     let start = document.find(BENCH_HEADING)?;
-    let rest = &document[start + BENCH_HEADING.len()..];
-    let end = rest
-        .find("\n## ")
-        .map_or(document.len(), |at| start + BENCH_HEADING.len() + at + 1);
-    Some(&document[start..end])
+    Some(&document[start..section_end(document, start)])
 }
 
 #[cfg(test)]
@@ -743,6 +770,13 @@ mod tests {
             format!("# P\n\n{BENCH_HEADING}\ny\n")
         );
         assert_eq!(kept_section("# P\n"), None);
+        // Another writer's generated block after the section is not the section's.
+        let marked =
+            format!("{BENCH_HEADING}\nold\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n");
+        assert_eq!(
+            with_section(&marked, &format!("{BENCH_HEADING}\nnew\n")),
+            format!("{BENCH_HEADING}\nnew\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n")
+        );
     }
 
     /// The target counts as met only when every round of the tool beat every round of

@@ -63,8 +63,8 @@ enum Task {
     /// The end-to-end tests on the emulated network: nominal, emergency stop, dropped and
     /// corrupted frames, a stopped node, a channel that reads otherwise, a cut link.
     E2e {
-        /// Also 60 s of SDO and non-safety traffic beside the SRDOs (opt-in: its client can
-        /// deadlock with the paced hub).
+        /// Also 60 s of SDO and non-safety traffic on 30 % of the bus beside the SRDOs
+        /// (opt-in: it takes 11 to 19 minutes of host time on a loaded 2-core machine).
         #[arg(long)]
         bus_load: bool,
     },
@@ -184,6 +184,10 @@ enum Task {
     Scenario {
         /// Scenario files.
         files: Vec<std::path::PathBuf>,
+        /// Play them on the emulated network (the hub and the QEMU images of `cargo xtask
+        /// run`) instead: scenarios/emulated/*.toml unless FILES are given.
+        #[arg(long)]
+        emulated: bool,
     },
     /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
     /// every single-channel fault), judged by an oracle that does not reuse the
@@ -209,6 +213,11 @@ enum Task {
         /// Run only the scenario with this seed (with `--class`) and print its timeline.
         #[arg(long)]
         replay: Option<u64>,
+        /// Only this protocol's classes: `canopen-safety` (SRDOs) or `simplecan`
+        /// (simplecan-bad-crc, simplecan-replay, simplecan-masquerade, simplecan-lost; a
+        /// `--class` prefix picks several). Both when not given.
+        #[arg(long)]
+        protocol: Option<String>,
     },
     /// Run every fuzz target of every fuzz crate (shared/fuzz, dual-channel/fuzz) for a while,
     /// optimised, then each again with debug assertions and overflow checks. Installs the
@@ -330,7 +339,14 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
-        Task::Scenario { files } => scenario::task(&root, &files),
+        Task::Scenario {
+            files,
+            emulated: false,
+        } => scenario::task(&root, &files),
+        Task::Scenario {
+            files,
+            emulated: true,
+        } => scenario::emulated(&root, &files),
         Task::Manual { check } => manual::run(&root, check),
         Task::Campaign {
             scenarios,
@@ -338,6 +354,7 @@ fn task() -> Result<()> {
             bit_rates,
             seed,
             replay,
+            protocol,
         } => campaign::task(
             &root,
             &campaign::Options {
@@ -346,6 +363,7 @@ fn task() -> Result<()> {
                 bit_rates,
                 seed,
                 replay,
+                protocol,
             },
         ),
     }
@@ -426,6 +444,12 @@ fn test(root: &Path) -> Result<()> {
     }
     step("end-to-end tests on the emulated network");
     e2e::task(root, false)?;
+    step("scenarios on the emulated network (a small set)");
+    let set: Vec<std::path::PathBuf> = scenario::CI_SET
+        .iter()
+        .map(|file| root.join(file))
+        .collect();
+    scenario::emulated(root, &set)?;
     step("traceability matrix");
     trace::report(root)?;
     step("all checks passed");

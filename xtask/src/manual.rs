@@ -432,6 +432,18 @@ fn advice(code: u8) -> Option<&'static str> {
         0x50 => Some(
             "A GFC was received: another node detected a fault and stopped the safety network. Find the node that sent it (its EMCY).",
         ),
+        0x60..=0x62 => Some(
+            "The node refused its SimpleCAN configuration at start (not declared valid, signature differs, or inconsistent: the EMCY's byte 2 names the SDD entry). Configure it again with the tool, which reads back and signs before declaring it valid (SC_REQ_35, SC_REQ_36).",
+        ),
+        0x68 => Some(
+            "Two SimpleCAN masters sent syncs at once: two devices configured as potential masters with the same lowest SC-ID, or a master that did not stop when a lower one took over. Check which devices are potential masters (5E00h:05) before resetting.",
+        ),
+        0x69 => Some(
+            "SimpleCAN packets with a bad CRC came faster than one per 3.6 s until 1000 had accumulated: a disturbed bus (wiring, termination, EMC) or devices configured with other node hashes on the same SC-IDs. Check the bus and the configuration of every device before resetting.",
+        ),
+        0x6A => Some(
+            "A consumed SimpleCAN value was not refreshed within its safety timeout: check the producer (its NMT state, its own cause), the master (no sync for 2000 ms unsynchronises every node) and the bus.",
+        ),
         0xF0..=0xFF => Some(
             "The configuration in use no longer matches what was validated (a memory fault). Reset the node; if it recurs, replace the device.",
         ),

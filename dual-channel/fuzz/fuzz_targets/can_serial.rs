@@ -16,7 +16,7 @@
 mod reference;
 
 use arbitrary::Arbitrary;
-use emulation_wire::{Decoder, LinkBytes, Status, Wire, encode, encode_wire};
+use emulation_wire::{AcceptChunk, Decoder, LinkBytes, Status, Wire, encode, encode_wire};
 use libfuzzer_sys::fuzz_target;
 use shared::{CanFrame, CanId};
 
@@ -36,6 +36,8 @@ enum Message {
     },
     Time(u64),
     Link(Vec<u8>),
+    /// An acceptance list: its first chunk (identifiers masked to 11 bits).
+    Accept(Vec<u16>),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -67,6 +69,10 @@ fn wire(message: &Message) -> Option<Wire> {
         Message::Input(value) => Wire::Input(value),
         Message::Time(micros) => Wire::Time(micros),
         Message::Link(ref bytes) => Wire::Link(LinkBytes::new(bytes)?),
+        Message::Accept(ref ids) => {
+            let ids: Vec<u16> = ids.iter().map(|id| id & 0x07FF).collect();
+            Wire::Accept(AcceptChunk::split(&ids).next()?)
+        }
         Message::Status {
             bytes,
             flags,
@@ -108,11 +114,20 @@ fn reference_encoding(message: &Wire) -> Vec<u8> {
         }
         Wire::Time(micros) => {
             raw.extend_from_slice(&[0x03, 0x40]);
-            raw.extend_from_slice(&micros.to_le_bytes());
+            let bytes = micros.to_le_bytes();
+            let len = bytes.iter().rposition(|&b| b != 0).map_or(1, |at| at + 1);
+            raw.extend_from_slice(&bytes[..len]);
         }
         Wire::Link(bytes) => {
             raw.extend_from_slice(&[0x04, 0x40]);
             raw.extend_from_slice(bytes.as_slice());
+        }
+        Wire::Accept(chunk) => {
+            let flags = u8::from(chunk.is_first()) | u8::from(chunk.is_last()) << 1;
+            raw.extend_from_slice(&[0x05, 0x40, flags]);
+            for id in chunk.ids() {
+                raw.extend_from_slice(&id.to_le_bytes());
+            }
         }
     }
     reference::cobs(&reference::serial_raw(&raw))

@@ -27,7 +27,7 @@ pub(super) fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, AbortCode> {
 }
 
 /// `data` as exactly `L` bytes, or the length abort code (CiA 301 0607 0012h / 0607 0013h).
-fn exact<const L: usize>(data: &[u8]) -> Result<[u8; L], AbortCode> {
+pub(super) fn exact<const L: usize>(data: &[u8]) -> Result<[u8; L], AbortCode> {
     if data.len() > L {
         return Err(AbortCode::LengthTooHigh);
     }

@@ -29,8 +29,10 @@
 //! but stop for good when their own two halves disagree.
 
 pub mod access;
+mod both;
 mod dictionary;
 mod persist;
+pub mod simplecan;
 mod slot;
 mod srdo_table;
 
@@ -49,7 +51,9 @@ use crate::safety::srdo::{Discarded, SrdoFault};
 use crate::safety::types::SrdoNumber;
 use crate::time::{Duration, Instant};
 
+pub use both::{BothSignatures, SrdoAndSimpleCan, WithSrdoTable};
 pub use persist::PersistError;
+pub use simplecan::SimpleCan;
 pub use slot::{Refused, SafetyProtocol, Slot};
 pub use srdo_table::{
     DOUBLE_RECEPTION_INDEX, DoubleReception, INTEGRITY_IDLE_PERIOD, IntegrityFault, RAM_PER_SRDO,
@@ -95,6 +99,15 @@ pub trait Sink {
     fn transmit(&mut self, frame: CanFrame);
     /// Reports `event` to the application.
     fn event(&mut self, event: Event);
+    /// Withdraws every frame on `id` handed over and not yet on the bus (aborts the transmit
+    /// mailbox, clears the queue entry). A protocol that bounds when its frames may be on the
+    /// bus asks for it: SimpleCAN at the end of a producer's slot and for a sync not confirmed
+    /// within 2 ms (`docs/simplecan.md` section 5; SC_REQ_18, SC_REQ_23). A sink that carries
+    /// SimpleCAN must implement it; the default does nothing, which is right only for a sink
+    /// whose protocols never withdraw a frame (CANopen Safety: the SRDO table never does).
+    fn abort(&mut self, id: CanId) {
+        let _ = id;
+    }
 }
 
 /// Why the device is in its latched safe state.
@@ -151,6 +164,17 @@ pub enum Event {
     /// The configuration did not pass the Operational-entry check; the device stays in its
     /// NMT state and in the safe state (EN 50325-5 8.3.1).
     ConfigurationRefused(ConfigFault),
+    /// A safety protocol other than the SRDO table refused its configuration at the
+    /// Operational entry (SimpleCAN: SC_REQ_16, SC_REQ_34); the device stays in its NMT state
+    /// and in the safe state. `cause` is a code of the cause table
+    /// ([`crate::safety::cause::Cause`]), `detail` what it names (a SimpleCAN SDD entry, 1-based,
+    /// or 0).
+    ProtocolConfigurationRefused {
+        /// The cause code.
+        cause: u8,
+        /// The entry it names, or 0.
+        detail: u8,
+    },
     /// A consumer discarded a frame as a CAN double reception (or an inverted frame seen
     /// first after monitoring started); nothing was delivered and nothing failed. Counted in
     /// [`SrdoTable::double_reception`].
@@ -219,6 +243,20 @@ pub const VALIDATED_FOR_ANOTHER_NODE_ID: u8 = 0xF1;
 /// device shell with the SRDO table in its protocol slot.
 pub type Node<F, const N: usize> = Device<F, SrdoTable<N>>;
 
+/// A device with `N` SRDOs (`2..=32`) and SimpleCAN with `E` SDD entries beside them, storing
+/// its parameters in `F`: CANopen Safety as [`Node`], and SimpleCAN once configured
+/// (5E00h:04 = 1; `docs/simplecan.md` section 11).
+pub type SimpleCanNode<F, const N: usize, const E: usize> = Device<F, SrdoAndSimpleCan<N, E>>;
+
+impl<F: Flash, const N: usize, const E: usize> SimpleCanNode<F, N, E> {
+    /// A device with `N` SRDOs and SimpleCAN (disabled until configured) in NMT Initialising
+    /// with its parameters restored from `flash` (or the defaults).
+    pub fn new(config: NodeConfig, flash: F) -> Result<Self, NodeError> {
+        let both = SrdoAndSimpleCan::new(&config).ok_or(NodeError::SrdoCount)?;
+        Device::with_protocol(config, flash, both)
+    }
+}
+
 /// One device: the shell (NMT, SDO server, heartbeat, EMCY, GFC, storage, safe-state latch)
 /// around a process image, with the safety protocol `P` in its slot ([`SafetyProtocol`]),
 /// storing its parameters in `F`.
@@ -264,25 +302,32 @@ impl<F: Flash, const N: usize> Node<F, N> {
         let table = SrdoTable::new(&config).ok_or(NodeError::SrdoCount)?;
         Device::with_protocol(config, flash, table)
     }
+}
 
+/// The SRDO-specific part of every device whose slot holds an SRDO table ([`Node`],
+/// [`SimpleCanNode`]).
+impl<F: Flash, P, const N: usize> Device<F, P>
+where
+    P: SafetyProtocol + WithSrdoTable<Table = SrdoTable<N>>,
+{
     /// Valid pairs received (consumer) or sent (producer) by `srdo` since entering Operational.
     pub fn srdo_pairs(&self, srdo: SrdoNumber) -> u32 {
-        self.core.protocol.pairs(srdo)
+        self.core.protocol.srdo_table().pairs(srdo)
     }
 
     /// Remote frames ignored on SRDO identifiers since power-on or reset.
     pub fn remote_frames_ignored(&self) -> u32 {
-        self.core.protocol.remote_frames_ignored()
+        self.core.protocol.srdo_table().remote_frames_ignored()
     }
 
     /// The safety configuration (objects 0x1301..0x13FF).
     pub fn safety_config(&self) -> &SafetyConfig<N> {
-        self.core.protocol.config()
+        self.core.protocol.srdo_table().config()
     }
 
     /// Frames the consumers discarded as double receptions, since power-on or reset.
     pub fn double_reception(&self) -> DoubleReception {
-        self.core.protocol.double_reception()
+        self.core.protocol.srdo_table().double_reception()
     }
 
     /// Hands both payloads of transmit SRDO `srdo` at once: `plain` goes to the objects of the
@@ -311,6 +356,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
         let mapping = self
             .core
             .protocol
+            .srdo_table()
             .transmit_mapping(srdo, &self.core.image)?;
         if data.len() != usize::from(mapping.len) {
             return Err(ApiError::WrongLength);
@@ -338,7 +384,7 @@ impl<F: Flash, const N: usize> Node<F, N> {
     /// path looks frames up in, as a memory fault would. Out-of-range positions flip nothing.
     #[cfg(feature = "fault-injection")]
     pub fn inject_identifier_table_flip(&mut self, byte: usize, bit: u8) {
-        if let Some(entry) = self.core.protocol.lookup.get_mut(byte) {
+        if let Some(entry) = self.core.protocol.srdo_table_mut().lookup.get_mut(byte) {
             *entry ^= 1 << (bit % 8);
         }
     }
@@ -348,7 +394,14 @@ impl<F: Flash, const N: usize> Node<F, N> {
     /// as a memory fault in the configuration would. Out-of-range positions flip nothing.
     #[cfg(feature = "fault-injection")]
     pub fn inject_record_flip(&mut self, index: usize, bit: u8) {
-        if let Some(record) = self.core.protocol.safety.srdos.get_mut(index) {
+        if let Some(record) = self
+            .core
+            .protocol
+            .srdo_table_mut()
+            .safety
+            .srdos
+            .get_mut(index)
+        {
             record.cycle_time ^= 1 << (bit % 16);
         }
     }
@@ -418,6 +471,19 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         } else if id == 0x600 + u16::from(self.core.shell.config.node_id.raw()) {
             self.on_sdo_request(now, frame, sink);
         }
+    }
+
+    /// The controller reports that `frame`, handed to the sink before, went out on the bus
+    /// at `now` (a transmit mailbox completed): the protocol's confirmation (SimpleCAN: a
+    /// sync confirmed, SC_REQ_23; a data packet sent within its slot, SC_REQ_18).
+    pub fn on_transmitted(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
+        let Core {
+            shell,
+            protocol,
+            image,
+            ..
+        } = &mut self.core;
+        protocol.on_transmitted(now, frame, &mut Slot { shell, image, sink });
     }
 
     /// Runs every timer due at `now` and returns the instant of the next poll.
@@ -718,6 +784,9 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         self.protocol
             .enter_safe_state(&mut self.image, cause, already_latched);
         self.shell.latch(cause, sink);
+        // Polled at once: a protocol withdraws there what it had queued (SimpleCAN,
+        // SC_REQ_40), which `enter_safe_state` has no sink for.
+        self.shell.next_deadline = Instant::ZERO;
     }
 
     /// Heartbeat, GFC requests, and the protocol's timers.
@@ -854,6 +923,8 @@ impl Shell {
 mod access_tests;
 #[cfg(test)]
 mod sdo_tests;
+#[cfg(test)]
+mod simplecan_tests;
 #[cfg(test)]
 mod slot_tests;
 #[cfg(test)]

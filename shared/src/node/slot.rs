@@ -4,7 +4,7 @@
 use super::{Event, NodeConfig, PersistError, SafeStateCause, Shell, Sink};
 use crate::canopen::node_id::NodeId;
 use crate::canopen::od::{AbortCode, Address};
-use crate::frame::CanFrame;
+use crate::frame::{CanFrame, CanId};
 use crate::process_image::ProcessImage;
 use crate::time::Instant;
 
@@ -180,6 +180,13 @@ pub trait SafetyProtocol {
     /// The application changed the process image byte at `offset`: `true` when that makes the
     /// protocol due at once (event-driven transmission, EN 50325-5 6.2.1).
     fn object_changed(&mut self, offset: u8) -> bool;
+
+    /// The controller confirmed that `frame` went out on the bus at `now`
+    /// ([`super::Device::on_transmitted`]). Only a protocol that must know (SimpleCAN's syncs,
+    /// SC_REQ_23) acts on it; the SRDO table does not.
+    fn on_transmitted<S: Sink>(&mut self, now: Instant, frame: &CanFrame, slot: &mut Slot<'_, S>) {
+        let _ = (now, frame, slot);
+    }
 }
 
 /// A start the protocol refused; made only by [`Slot::refuse_configuration`], so a refusal is
@@ -221,6 +228,11 @@ impl<S: Sink> Slot<'_, S> {
         self.sink.transmit(frame);
     }
 
+    /// Withdraws the frames on `id` not yet on the bus ([`Sink::abort`]).
+    pub fn abort(&mut self, id: CanId) {
+        self.sink.abort(id);
+    }
+
     /// Reports `event` to the application.
     pub fn event(&mut self, event: Event) {
         self.sink.event(event);
@@ -244,5 +256,31 @@ impl<S: Sink> Slot<'_, S> {
         self.shell.refuse_configuration(detail, self.sink);
         self.sink.event(event);
         Refused(())
+    }
+}
+
+/// A stored image of `N` rows of `ROW` bytes, zeroed: what a protocol whose persisted
+/// section grows with a count (`N` SRDOs, `N` entries) gives as its
+/// [`SafetyProtocol::Image`], so that a small device restores its parameters through a small
+/// buffer on the stack. An array of arrays, because its length is `N` itself, which stable
+/// Rust allows (`[u8; ROW * N]` it does not).
+pub struct RowImage<const ROW: usize, const N: usize>([[u8; ROW]; N]);
+
+impl<const ROW: usize, const N: usize> RowImage<ROW, N> {
+    /// The zeroed image.
+    pub const fn zeroed() -> Self {
+        RowImage([[0; ROW]; N])
+    }
+}
+
+impl<const ROW: usize, const N: usize> AsRef<[u8]> for RowImage<ROW, N> {
+    fn as_ref(&self) -> &[u8] {
+        self.0.as_flattened()
+    }
+}
+
+impl<const ROW: usize, const N: usize> AsMut<[u8]> for RowImage<ROW, N> {
+    fn as_mut(&mut self) -> &mut [u8] {
+        self.0.as_flattened_mut()
     }
 }

@@ -10,7 +10,7 @@ use heapless::Vec;
 
 use super::dictionary::put;
 use super::persist::Reader;
-use super::slot::{Refused, SafetyProtocol, Slot};
+use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::{ApiError, Event, NodeConfig, PersistError, SafeStateCause, Sink};
 use crate::canopen::od::{AbortCode, Address};
 use crate::frame::{CanFrame, CanId};
@@ -390,24 +390,12 @@ impl<const N: usize> SrdoTable<N> {
 /// mapping entries (79 bytes) and its two audit signatures (4), and the shell's fixed part
 /// (60 bytes: header, salt, hash, change counter, heartbeat time, and this table's own two
 /// bytes) counted once per SRDO, which covers it for any table of at least one SRDO.
-const IMAGE_PER_SRDO: usize = RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES + 4 + 60;
+pub(super) const IMAGE_PER_SRDO: usize = RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES + 4 + 60;
 
 /// The stored image of a table of `N` SRDOs: `N` times [`IMAGE_PER_SRDO`] bytes, so that a
 /// device of 4 SRDOs restores its parameters through 572 bytes of stack, not the 5 KiB of the
-/// largest table (an array of arrays: its length is `N` itself, which stable Rust allows).
-pub struct SrdoImage<const N: usize>([[u8; IMAGE_PER_SRDO]; N]);
-
-impl<const N: usize> AsRef<[u8]> for SrdoImage<N> {
-    fn as_ref(&self) -> &[u8] {
-        self.0.as_flattened()
-    }
-}
-
-impl<const N: usize> AsMut<[u8]> for SrdoImage<N> {
-    fn as_mut(&mut self) -> &mut [u8] {
-        self.0.as_flattened_mut()
-    }
-}
+/// largest table.
+pub type SrdoImage<const N: usize> = RowImage<IMAGE_PER_SRDO, N>;
 
 impl<const N: usize> SafetyProtocol for SrdoTable<N> {
     /// 0x13FE, `N`, and `N` records with 16 mapping entries each at most.
@@ -416,7 +404,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
     type Image = SrdoImage<N>;
 
     fn image() -> SrdoImage<N> {
-        SrdoImage([[0; IMAGE_PER_SRDO]; N])
+        RowImage::zeroed()
     }
 
     fn load_defaults(&mut self, config: &NodeConfig) {

@@ -77,6 +77,22 @@ pub enum Cause {
     PeerSafeState = 0x40,
     /// A GFC was received (EN 50325-5 7.2.1).
     Gfc = 0x50,
+    /// SimpleCAN: at start, 5EFEh did not read A5h; the configuration was never declared
+    /// valid, or changed since (SC_REQ_16, SC_REQ_34).
+    SimpleCanNotValidated = 0x60,
+    /// SimpleCAN: at start, the CRC-32 of the configuration differed from 5EFFh
+    /// (SC_REQ_17, SC_REQ_34).
+    SimpleCanSignature = 0x61,
+    /// SimpleCAN: at start, the configuration broke a rule of the safety data dictionary,
+    /// the cycle or a mapped object (SC_REQ_12, SC_REQ_16, SC_REQ_18, SC_REQ_21, SC_REQ_22,
+    /// SC_REQ_04).
+    SimpleCanConfiguration = 0x62,
+    /// SimpleCAN: two masters sent syncs at once (SC_REQ_26).
+    SimpleCanSeveralMasters = 0x68,
+    /// SimpleCAN: packets with a bad CRC reached 1000 on the leaky counter (SC_REQ_42).
+    SimpleCanBadCrc = 0x69,
+    /// SimpleCAN: a consumed value grew older than its safety timeout (SC_REQ_20).
+    SimpleCanTimeout = 0x6A,
     /// In Operational the records no longer pass the Operational-entry check.
     IntegrityRecords = 0xF2,
     /// In Operational the identifier table differs from the records.
@@ -89,7 +105,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 33] = [
+    pub const ALL: [Cause; 39] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -119,6 +135,12 @@ impl Cause {
         Cause::ReceiveOverrun,
         Cause::PeerSafeState,
         Cause::Gfc,
+        Cause::SimpleCanNotValidated,
+        Cause::SimpleCanSignature,
+        Cause::SimpleCanConfiguration,
+        Cause::SimpleCanSeveralMasters,
+        Cause::SimpleCanBadCrc,
+        Cause::SimpleCanTimeout,
         Cause::IntegrityRecords,
         Cause::IntegrityIdentifierTable,
         Cause::IntegrityRuntime,
@@ -168,6 +190,12 @@ impl Cause {
             Cause::ReceiveOverrun => "CAN receive queue overrun",
             Cause::PeerSafeState => "other channel safe",
             Cause::Gfc => "GFC",
+            Cause::SimpleCanNotValidated => "SimpleCAN configuration not declared valid",
+            Cause::SimpleCanSignature => "SimpleCAN configuration signature differs",
+            Cause::SimpleCanConfiguration => "SimpleCAN configuration inconsistent",
+            Cause::SimpleCanSeveralMasters => "several SimpleCAN masters",
+            Cause::SimpleCanBadCrc => "1000 SimpleCAN packets with a bad CRC",
+            Cause::SimpleCanTimeout => "SimpleCAN value older than its safety timeout",
             Cause::IntegrityRecords => "configuration in use damaged (records)",
             Cause::IntegrityIdentifierTable => "configuration in use damaged (identifier table)",
             Cause::IntegrityRuntime => "configuration in use damaged (SRDO runtime)",

@@ -41,12 +41,110 @@ struct Args {
     /// The command line to name in the report.
     #[arg(long, default_value = "cargo xtask campaign")]
     command: String,
+    /// `canopen-safety` (the SRDO classes), `simplecan` (the SimpleCAN classes, names
+    /// `simplecan-…`), or both when not given.
+    #[arg(long)]
+    protocol: Option<String>,
+}
+
+/// The SimpleCAN campaign: the classes named (by prefix) or all, their lines, the report's
+/// SimpleCAN section. `Err` when a scenario was unsafe or the report could not be written.
+fn simplecan_run(args: &Args, names: &[&String]) -> Result<(), String> {
+    use system_tests::campaign::simplecan::{self, ScClass};
+    let mut classes: Vec<ScClass> = Vec::new();
+    for name in names {
+        let matching = ScClass::matching(name);
+        if matching.is_empty() {
+            return Err(format!(
+                "no SimpleCAN class `{name}`; the classes are: {}",
+                ScClass::ALL.map(ScClass::name).join(", ")
+            ));
+        }
+        for class in matching {
+            if !classes.contains(&class) {
+                classes.push(class);
+            }
+        }
+    }
+    if classes.is_empty() {
+        classes = ScClass::ALL.to_vec();
+    }
+    let mut rows = Vec::new();
+    for class in classes {
+        let summary = simplecan::campaign(class, args.seed, args.scenarios);
+        println!("{}", simplecan::line(class, &summary));
+        rows.push((class, summary));
+    }
+    if let Some(dir) = &args.report {
+        let path = dir.join("campaigns.md");
+        let report = std::fs::read_to_string(&path).unwrap_or_default();
+        let section = simplecan::section(&args.command, args.seed, args.scenarios, &rows);
+        std::fs::create_dir_all(dir).map_err(|error| format!("{}: {error}", dir.display()))?;
+        std::fs::write(&path, simplecan::with_section(&report, &section))
+            .map_err(|error| format!("{}: {error}", path.display()))?;
+        println!("campaign: SimpleCAN section in {}", path.display());
+    }
+    let unsafe_: u64 = rows.iter().map(|(_, summary)| summary.unsafe_).sum();
+    if unsafe_ == 0 {
+        Ok(())
+    } else {
+        Err(format!("{unsafe_} SimpleCAN scenario(s) unsafe"))
+    }
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    let (simplecan_names, canopen_names): (Vec<&String>, Vec<&String>) = args
+        .classes
+        .iter()
+        .partition(|name| name.starts_with("simplecan"));
+    let (simplecan, canopen) = match args.protocol.as_deref() {
+        None if args.classes.is_empty() => (true, true),
+        None => (!simplecan_names.is_empty(), !canopen_names.is_empty()),
+        Some("simplecan") if !canopen_names.is_empty() => {
+            eprintln!(
+                "campaign: `{}` is not a SimpleCAN class; the SimpleCAN classes start with `simplecan`",
+                canopen_names[0]
+            );
+            return ExitCode::FAILURE;
+        }
+        Some("simplecan") => (true, false),
+        Some("canopen-safety") => (false, true),
+        Some(other) => {
+            eprintln!(
+                "campaign: no protocol `{other}`; the protocols are: canopen-safety, simplecan"
+            );
+            return ExitCode::FAILURE;
+        }
+    };
+    if simplecan && let Some(seed) = args.replay {
+        use system_tests::campaign::simplecan::{self, ScClass};
+        for name in &simplecan_names {
+            for class in ScClass::matching(name) {
+                println!("{seed}: {:?}", simplecan::run(class, seed));
+            }
+        }
+    }
+    let simplecan_failed = if simplecan && args.replay.is_none() {
+        match simplecan_run(&args, &simplecan_names) {
+            Ok(()) => false,
+            Err(error) => {
+                eprintln!("campaign: {error}");
+                true
+            }
+        }
+    } else {
+        false
+    };
+    if !canopen {
+        return if simplecan_failed {
+            ExitCode::FAILURE
+        } else {
+            ExitCode::SUCCESS
+        };
+    }
     let mut classes = Vec::new();
-    for name in &args.classes {
+    for name in canopen_names {
         match Class::from_name(name) {
             Some(class) => classes.push(class),
             None => {
@@ -160,7 +258,7 @@ fn main() -> ExitCode {
         }
         println!("campaign: report in {}", dir.join("campaigns.md").display());
     }
-    if results.iter().all(|(_, _, summary)| summary.passed()) {
+    if !simplecan_failed && results.iter().all(|(_, _, summary)| summary.passed()) {
         ExitCode::SUCCESS
     } else {
         eprintln!("campaign: FAILED: a scenario was unsafe, late, or could not be run (above)");
@@ -225,5 +323,12 @@ fn write_report(
         }
     }
     let path = dir.join("campaigns.md");
+    // The SimpleCAN run's section, kept (it is written by its own run).
+    let previous = std::fs::read_to_string(&path).unwrap_or_default();
+    if let Some(section) = system_tests::campaign::simplecan::section_of(&previous) {
+        text.push('\n');
+        text.push_str(section);
+        text.push('\n');
+    }
     std::fs::write(&path, text).map_err(|error| format!("{}: {error}", path.display()))
 }

@@ -21,6 +21,8 @@
 
 pub mod oracle;
 pub mod report;
+pub mod simplecan;
+pub mod simplecan_oracle;
 
 use crate::bus::{Delivery, Fault, Injection, Match, frame_bits, frame_time};
 use crate::dual::{DualNetwork, Side};

@@ -207,6 +207,30 @@ impl FaultSpec {
         )
     }
 
+    /// Its `kind` as the file writes it (`drop`, `link-corrupt`, ...).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            FaultSpec::Drop { .. } => "drop",
+            FaultSpec::Corrupt { .. } => "corrupt",
+            FaultSpec::Delay { .. } => "delay",
+            FaultSpec::Repeat { .. } => "repeat",
+            FaultSpec::Reorder { .. } => "reorder",
+            FaultSpec::Insert { .. } => "insert",
+            FaultSpec::Mute { .. } => "mute",
+            FaultSpec::Cut { .. } => "cut",
+            FaultSpec::Clear => "clear",
+            FaultSpec::LinkCorrupt { .. } => "link-corrupt",
+            FaultSpec::LinkLatency { .. } => "link-latency",
+            FaultSpec::Clock { .. } => "clock",
+            FaultSpec::RecordFlip { .. } => "record-flip",
+            FaultSpec::IdentifierTableFlip { .. } => "identifier-table-flip",
+            FaultSpec::StuckInput { .. } => "stuck-input",
+            FaultSpec::Babbling { .. } => "babbling",
+            FaultSpec::BusOff { .. } => "bus-off",
+            FaultSpec::NoInverted { .. } => "no-inverted",
+        }
+    }
+
     /// The identifier it names, if any.
     fn id(&self) -> Option<u16> {
         match self {

@@ -11,6 +11,7 @@
 //! follows the tool's whole configuration procedure (EN 50325-5 8.3.1). The simulation is
 //! deterministic: the same file gives the same measurements.
 
+pub mod emulated;
 pub mod file;
 
 use crate::bus::{Fault, Injection, Match};
@@ -29,6 +30,19 @@ use std::fmt::Write as _;
 const BEFORE: Duration = Duration::from_millis(30);
 /// How much after its bound.
 const AFTER: Duration = Duration::from_millis(10);
+/// How much of the emulated network's timeline before a failed expectation's reference is
+/// printed, in seconds: more than on the host, as the channels report their status every
+/// 250 ms when nothing changes.
+const BEFORE_EMULATED: f64 = 0.300;
+
+/// Where a scenario was played.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Played {
+    /// On the dual-channel host simulation ([`run`]).
+    Host,
+    /// On the emulated network: the hub and the QEMU images ([`emulated`]).
+    Emulated,
+}
 
 /// One checked outcome.
 #[derive(Clone, Debug)]
@@ -41,7 +55,7 @@ pub struct Check {
     pub measured: String,
     /// Whether it held.
     pub passed: bool,
-    /// The span of the timeline that shows it.
+    /// The span of the timeline that shows it (of the emulated network: on the hub's clock).
     pub window: (Instant, Instant),
 }
 
@@ -52,6 +66,8 @@ pub struct Report {
     pub checks: Vec<Check>,
     /// The timeline around the first failed check.
     pub timeline: Option<String>,
+    /// Where it was played.
+    pub played: Played,
 }
 
 impl Report {
@@ -68,10 +84,10 @@ impl Report {
             scenario.name,
             scenario.covers,
             scenario.bit_rate / 1000,
-            if scenario.hub_only() {
-                "faults the hub can inject too"
-            } else {
-                "host-only faults"
+            match (self.played, scenario.hub_only()) {
+                (Played::Emulated, _) => "on the emulated network",
+                (Played::Host, true) => "faults the hub can inject too",
+                (Played::Host, false) => "host-only faults",
             }
         );
         for check in &self.checks {
@@ -463,7 +479,11 @@ pub fn run(scenario: &Scenario) -> Result<Report, String> {
         let (from, to) = check.window;
         crate::campaign::timeline(&net, from, to.min(end), &check.expected)
     });
-    Ok(Report { checks, timeline })
+    Ok(Report {
+        checks,
+        timeline,
+        played: Played::Host,
+    })
 }
 
 /// `duration` before `instant`, or time 0.

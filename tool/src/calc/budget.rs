@@ -207,6 +207,7 @@ mod tests {
         Network {
             sdo_timeout: std::time::Duration::from_millis(500),
             nodes,
+            simplecan: None,
         }
     }
 

@@ -9,5 +9,6 @@ pub mod bus;
 pub mod report;
 pub mod residual;
 pub mod sfrt;
+pub mod simplecan;
 pub mod target;
 mod target_measured;

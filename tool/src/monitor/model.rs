@@ -1,7 +1,7 @@
 //! What the monitor knows about the bus, built from frames alone (sans-I/O): fed
 //! `(now, frame)` and polled with `now`, it keeps per node the NMT state and heartbeat age,
 //! every SRDO as pairs with their verdicts (EN 50325-5 7.1), GFCs, EMCYs in words and SDO
-//! traffic. The terminal view ([`super::view`]) only draws this model; the model never reads
+//! traffic, and SimpleCAN's packets, syncs and slot timing ([`simplecan`]). The terminal view ([`super::view`]) only draws this model; the model never reads
 //! a clock and does no I/O, so a replayed log gives the same model as the live bus did.
 //!
 //! The model's time is the bus's: each frame's timestamp (the interface's own where it
@@ -373,6 +373,8 @@ pub struct Monitor {
     pub happened: u64,
     /// NMT commands seen.
     pub nmt_commands: u64,
+    /// SimpleCAN packets (02Fh..07Fh), decoded with the network file's node hashes.
+    pub simplecan: simplecan::SimpleCanView,
     /// Frames seen in all.
     pub frames: u64,
     /// The time of the latest frame or poll.
@@ -397,6 +399,9 @@ impl Monitor {
         for node in &network.nodes {
             monitor.nodes.entry(node.id).or_default().name = node.name.clone();
         }
+        if let Some(simplecan) = &network.simplecan {
+            monitor.simplecan = simplecan::SimpleCanView::for_network(simplecan);
+        }
         monitor
     }
 
@@ -412,6 +417,11 @@ impl Monitor {
         let data = frame.data();
         match id {
             0x000 => self.nmt_commands += 1,
+            0x02F..=0x07F => {
+                if let Some(line) = self.simplecan.feed(now, frame) {
+                    self.note(now, line);
+                }
+            }
             0x001 => {
                 self.gfcs += 1;
                 self.last_gfc = Some(now);
@@ -659,6 +669,8 @@ pub fn describe_emergency(emergency: &Emergency) -> String {
         other => format!("error code {other:04X}h"),
     }
 }
+
+pub mod simplecan;
 
 #[cfg(test)]
 mod tests;

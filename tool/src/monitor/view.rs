@@ -2,6 +2,7 @@
 //! same figures as plain lines for a summary. Nothing here decides a verdict; it only shows
 //! the model's, with the numbers it rests on.
 
+use super::model::simplecan::{ScIdView, SimpleCanView};
 use super::model::{Monitor, NodeView, PairVerdict, SrdoView, describe_emergency};
 use ratatui::Frame;
 use ratatui::layout::{Constraint, Layout, Rect};
@@ -159,6 +160,90 @@ fn srdo_cells(srdo: &SrdoView, now: Duration) -> [String; 9] {
     ]
 }
 
+/// Whether there is anything of SimpleCAN to show.
+fn shows_simplecan(view: &SimpleCanView) -> bool {
+    !view.sc_ids.is_empty() || !view.masters.is_empty() || view.undecodable_syncs > 0
+}
+
+fn sc_id_cells(sc_id: u8, view: &ScIdView, now: Duration) -> [String; 9] {
+    let watch = &view.watch;
+    let consumers = if watch.consumers.is_empty() {
+        "?".to_owned()
+    } else {
+        watch
+            .consumers
+            .iter()
+            .map(u8::to_string)
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let producer = watch
+        .producer
+        .map_or_else(|| "?".to_owned(), |node| node.to_string());
+    let (offsets, jitter) = match view.jitter() {
+        Some((min, max, spread)) => (format!("{min}..{max}"), spread.to_string()),
+        None => ("-".to_owned(), "-".to_owned()),
+    };
+    let value = if view.undecodable > 0 && view.packets == 0 {
+        format!("{} without hash", view.undecodable)
+    } else {
+        view.value
+            .map_or_else(|| "-".to_owned(), |(value, _)| format!("{value:08X}h"))
+    };
+    [
+        format!("{sc_id:02X}h"),
+        format!("{producer} → {consumers}"),
+        watch
+            .slot
+            .map_or_else(|| "?".to_owned(), |slot| slot.to_string()),
+        view.packets.to_string(),
+        value,
+        format!(
+            "{} / {}",
+            view.age(now).map_or_else(|| "-".to_owned(), ms),
+            limit(watch.timeout)
+        ),
+        offsets,
+        jitter,
+        format!("{} / {}", view.outside_slot, view.bad_crc),
+    ]
+}
+
+/// SimpleCAN's sync and error line: each master's syncs, then the counts.
+fn simplecan_lines(view: &SimpleCanView, now: Duration) -> Vec<String> {
+    let mut lines: Vec<String> = view
+        .masters
+        .iter()
+        .map(|(master, sync)| {
+            let mut line = format!("syncs from master SC-ID {master:02X}h: {}", sync.syncs);
+            if let Some(interval) = sync.interval {
+                line.push_str(&format!(", every {} ms", ms(interval)));
+            }
+            if let Some((at, cycle, offset)) = sync.last {
+                line.push_str(&format!(
+                    ", latest cycle {cycle} (+{offset} µs) {:.1} s ago",
+                    now.saturating_sub(at).as_secs_f64()
+                ));
+            }
+            line
+        })
+        .collect();
+    let mut counts = format!(
+        "SimpleCAN: {} bad CRCs, {} malformed",
+        view.bad_crc, view.malformed
+    );
+    if view.undecodable_syncs > 0 {
+        counts.push_str(&format!(", {} syncs", view.undecodable_syncs));
+    }
+    if !view.has_hashes() {
+        counts.push_str(
+            "; no network file: no node hash is known (they are never sent), so no packet can be checked or decoded",
+        );
+    }
+    lines.push(counts);
+    lines
+}
+
 /// The SDO, GFC and NMT lines: counts, then the latest aborts decoded.
 fn traffic_lines(monitor: &Monitor) -> Vec<String> {
     let (requests, responses) = monitor.sdo_totals();
@@ -206,6 +291,8 @@ fn table<'a, const N: usize>(
 pub fn draw(frame: &mut Frame<'_>, monitor: &Monitor, screen: &Screen) {
     let now = monitor.now;
     let traffic = traffic_lines(monitor);
+    let simplecan = shows_simplecan(&monitor.simplecan)
+        .then(|| (&monitor.simplecan, simplecan_lines(&monitor.simplecan, now)));
     let mut constraints = vec![Constraint::Length(1)];
     for (_, lines) in &screen.panels {
         constraints.push(Constraint::Length(lines.len() as u16 + 1));
@@ -213,6 +300,9 @@ pub fn draw(frame: &mut Frame<'_>, monitor: &Monitor, screen: &Screen) {
     constraints.extend([
         Constraint::Length(monitor.nodes.len().max(1) as u16 + 2),
         Constraint::Length(monitor.srdos.len().max(1) as u16 + 2),
+        Constraint::Length(simplecan.as_ref().map_or(0, |(view, lines)| {
+            (view.sc_ids.len() + lines.len()) as u16 + 2
+        })),
         Constraint::Length(traffic.len() as u16 + 1),
         Constraint::Min(2),
         Constraint::Length(1),
@@ -307,6 +397,60 @@ pub fn draw(frame: &mut Frame<'_>, monitor: &Monitor, screen: &Screen) {
         next(),
     );
 
+    let simplecan_area = next();
+    if let Some((view, lines)) = simplecan {
+        let [table_area, lines_area] = Layout::vertical([
+            Constraint::Length(view.sc_ids.len() as u16 + 2),
+            Constraint::Min(1),
+        ])
+        .areas(simplecan_area);
+        let rows = view
+            .sc_ids
+            .iter()
+            .map(|(sc_id, sc)| {
+                let style = if sc.bad_crc > 0 || sc.outside_slot > 0 {
+                    Style::new().fg(Color::Red)
+                } else if sc.packets == 0 {
+                    Style::new().fg(Color::DarkGray)
+                } else {
+                    Style::new()
+                };
+                (sc_id_cells(*sc_id, sc, now), style)
+            })
+            .collect();
+        frame.render_widget(
+            table(
+                [
+                    "SC-ID",
+                    "from → to",
+                    "slot",
+                    "packets",
+                    "value",
+                    "age/timeout ms",
+                    "slot offset µs",
+                    "jitter µs",
+                    "outside/bad CRC",
+                ],
+                rows,
+                [
+                    Constraint::Length(5),
+                    Constraint::Length(9),
+                    Constraint::Length(4),
+                    Constraint::Length(7),
+                    Constraint::Length(17),
+                    Constraint::Length(14),
+                    Constraint::Length(14),
+                    Constraint::Length(9),
+                    Constraint::Min(15),
+                ],
+                "SimpleCAN (values, age from the slot's start against the timeout, arrival against the configured slot)",
+            ),
+            table_area,
+        );
+        let text: Vec<Line<'_>> = lines.into_iter().map(Line::raw).collect();
+        frame.render_widget(Paragraph::new(text), lines_area);
+    }
+
     let traffic: Vec<Line<'_>> = traffic.into_iter().map(Line::raw).collect();
     frame.render_widget(
         Paragraph::new(traffic).block(block("GFC, SDO, NMT")),
@@ -400,6 +544,26 @@ pub fn summary(monitor: &Monitor) -> Vec<String> {
             limit(watch.sct),
             verdict_words(srdo, now),
         ));
+    }
+    if shows_simplecan(&monitor.simplecan) {
+        let view = &monitor.simplecan;
+        for (sc_id, sc) in &view.sc_ids {
+            let [
+                name,
+                route,
+                slot,
+                packets,
+                value,
+                age,
+                offsets,
+                jitter,
+                errors,
+            ] = sc_id_cells(*sc_id, sc, now);
+            lines.push(format!(
+                "SimpleCAN SC-ID {name} ({route}, slot {slot}): {packets} packets, value {value}, age/timeout {age} ms, slot offset {offsets} µs, jitter {jitter} µs, outside slot/bad CRC {errors}"
+            ));
+        }
+        lines.extend(simplecan_lines(view, now));
     }
     lines.extend(traffic_lines(monitor));
     lines

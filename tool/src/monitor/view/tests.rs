@@ -183,3 +183,115 @@ fn the_summary_gives_every_node_and_srdo_with_its_largest_gap_and_period() {
         "{lines:#?}"
     );
 }
+
+/// A SimpleCAN network from a file: node 1 (master, 30h in slot 0) and node 2 (41h in slot
+/// 3), node 33 consuming 41h with a timeout of 20 ms; a sync, two packets of 41h 200 and
+/// 500 µs into their slots, one packet of 30h with a bad CRC.
+#[test]
+fn sc_req_18_the_view_shows_simplecan_values_ages_slot_offsets_jitter_and_syncs() {
+    use shared::simplecan::frame::{DataPacket, SyncPacket};
+    use shared::simplecan::{NodeHash, ScId};
+    let file = r#"[simplecan]
+network_name = "view test"
+slots_per_cycle = 10
+cycles_between_syncs = 10
+buffering_us = 0
+[[node]]
+id = 1
+identity = { vendor = 1, product = 2, serial = 1 }
+[node.simplecan]
+potential_master = true
+produce = [{ sc_id = 0x30, slot = 0, object = "input" }]
+[[node]]
+id = 2
+identity = { vendor = 1, product = 2, serial = 2 }
+[node.simplecan]
+produce = [{ sc_id = 0x41, slot = 3, object = "input" }]
+[[node]]
+id = 33
+identity = { vendor = 1, product = 2, serial = 33 }
+[node.simplecan]
+consume = [{ sc_id = 0x41, timeout_ms = 20, object = "output" }]
+"#;
+    let network = crate::network_file::parse(file, "net.toml").unwrap();
+    let hashes = network.simplecan.as_ref().unwrap().hashes.clone();
+    let hash = |sc_id: u8| NodeHash(hashes[&sc_id]);
+    let sc = |raw| ScId::new(raw).unwrap();
+    let us = Duration::from_micros;
+    let packet = |sc_id: u8, value, stamp| {
+        DataPacket {
+            sc_id: sc(sc_id),
+            value,
+            cycle_stamp: stamp,
+        }
+        .encode(hash(sc_id))
+    };
+    let mut monitor = Monitor::for_network(&network);
+    monitor.feed(
+        us(9_300),
+        &SyncPacket::new(sc(0x30), 0, 300)
+            .unwrap()
+            .encode(hash(0x30)),
+    );
+    monitor.feed(us(13_200), &packet(0x41, 1, 1));
+    monitor.feed(us(23_500), &packet(0x41, 0xDEAD_BEEF, 2));
+    monitor.feed(
+        us(30_000),
+        &DataPacket {
+            sc_id: sc(0x30),
+            value: 1,
+            cycle_stamp: 3,
+        }
+        .encode(NodeHash(hashes[&0x30] ^ 1)),
+    );
+    let screen = rendered(&monitor, &Screen::default());
+    let row_41 = row(&screen, "41h");
+    for words in [
+        "2 → 33",
+        " 3 ",
+        "DEADBEEFh",
+        "7.0 / 20",
+        "200..500",
+        "300",
+        "0 / 0",
+    ] {
+        assert!(row_41.contains(words), "{words:?} in {row_41:?}");
+    }
+    assert!(row(&screen, "30h").contains("0 / 1"), "a bad CRC counted");
+    row(
+        &screen,
+        "syncs from master SC-ID 30h: 1, latest cycle 0 (+300 µs)",
+    );
+    row(&screen, "SimpleCAN: 1 bad CRCs, 0 malformed");
+    let summary = summary(&monitor);
+    assert!(
+        summary.iter().any(|line| line.starts_with(
+            "SimpleCAN SC-ID 41h (2 → 33, slot 3): 2 packets, value DEADBEEFh, age/timeout 7.0 / 20 ms, slot offset 200..500 µs, jitter 300 µs"
+        )),
+        "{summary:#?}"
+    );
+}
+
+/// Without a network file: the packets counted as undecodable without the hash, and the
+/// reason said.
+#[test]
+fn sc_req_15_the_view_says_why_simplecan_packets_are_not_decoded_without_a_file() {
+    let mut monitor = Monitor::default();
+    monitor.feed(
+        Duration::from_millis(1),
+        &frame(0x41, &[1, 0, 0, 0, 5, 1, 2, 3]),
+    );
+    monitor.feed(
+        Duration::from_millis(2),
+        &frame(0x41, &[1, 0, 0, 0, 6, 1, 2, 3]),
+    );
+    let screen = rendered(&monitor, &Screen::default());
+    assert!(
+        row(&screen, "41h").contains("2 without hash"),
+        "{screen:#?}"
+    );
+    row(
+        &screen,
+        "SimpleCAN: 0 bad CRCs, 0 malformed; no network file: no node hash is known",
+    );
+}

@@ -1,0 +1,304 @@
+//! CAN1 through embassy-stm32's own bxCAN driver: the shipped default (`docs/can-driver.md`).
+//!
+//! The channel loop reads the receive FIFOs itself ([`CanPort::receive`]); a FIFO overrun is
+//! read from CAN_RFxR.FOVR, which the driver does not report. A task moves frames from the
+//! priority queue [`CAN_TX`] into the transmit mailboxes.
+
+use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
+use dual_channel::channel_loop::{self, QueueFull};
+use dual_channel::filters::{self, Bank, BankLayout};
+use embassy_executor::Spawner;
+use embassy_stm32::Peri;
+use embassy_stm32::bind_interrupts;
+use embassy_stm32::can::enums::TryReadError;
+use embassy_stm32::can::filter::{ListEntry16, ListEntry32, Mask16};
+use embassy_stm32::can::{
+    Can, CanRx, CanTx, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler,
+    StandardId, TxInterruptHandler,
+};
+use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::priority_channel::{Min, PriorityChannel};
+use shared::{CanFrame, Instant};
+
+use super::{embassy_instant, halt_safe, now};
+use crate::transmit_queue::{Queued, Sequencer};
+
+bind_interrupts!(struct Irqs {
+    CAN1_RX0 => Rx0InterruptHandler<CAN1>;
+    CAN1_RX1 => Rx1InterruptHandler<CAN1>;
+    CAN1_SCE => SceInterruptHandler<CAN1>;
+    CAN1_TX => TxInterruptHandler<CAN1>;
+});
+
+/// Frames to send, from the runtime task: by identifier, not first in first out
+/// ([`crate::transmit_queue`]), so the node's own heartbeat or EMCY never holds back its SRDO
+/// or GFC.
+static CAN_TX: PriorityChannel<CriticalSectionRawMutex, Queued, Min, 16> = PriorityChannel::new();
+
+/// CAN1 as the channel loop uses it: the receive FIFOs and filters, the transmit queue.
+pub struct CanPort {
+    /// Kept, never used again: its drop would reset the controller under the halves.
+    _controller: Can<'static>,
+    rx: CanRx<'static>,
+    /// Numbers the frames handed to [`CAN_TX`], for their order within one identifier.
+    sequencer: Sequencer,
+    /// A frame the wait took from a FIFO, for the next [`CanPort::receive`].
+    frame: Option<CanFrame>,
+}
+
+impl CanPort {
+    /// Brings CAN1 up at `timing`: the CiA 304 9.5 loop-back test, then on the bus with no
+    /// filter bank enabled (the channel loop programs the node's before the core boots), and
+    /// the transmit task spawned.
+    pub async fn start(
+        spawner: Spawner,
+        can: Peri<'static, CAN1>,
+        rx: Peri<'static, PB8>,
+        tx: Peri<'static, PB9>,
+        timing: embassy_stm32::can::util::NominalBitTiming,
+        watchdog: &mut IndependentWatchdog<'_, IWDG>,
+    ) -> CanPort {
+        let mut can = Can::new(can, rx, tx, Irqs);
+        // `Can::set_bitrate` unwraps the timing calculation, which links the `Debug`
+        // formatting of its error into the image (`docs/footprint.md`); the board calculates
+        // it and hands the result in. The configuration leaves initialisation mode when it
+        // is dropped, as in `set_bitrate`.
+        drop(can.modify_config().set_bit_timing(timing));
+        match loopback_test(&mut can, watchdog).await {
+            Ok(()) => {
+                defmt::info!("self-test: CAN loop-back (3 mailboxes, 2 FIFOs, filters) passed")
+            }
+            Err(fault) => {
+                defmt::error!("self-test: CAN loop-back failed {}", fault);
+                halt_safe("CAN controller self-test failed");
+            }
+        }
+        // No filter bank enabled: the controller takes no frame until the channel loop has
+        // programmed the node's filters (its first service, before the core boots).
+        can.modify_filters().clear();
+        can.enable().await;
+        let (can_tx, can_rx) = can.split();
+        spawner.spawn(can_tx_task(can_tx).unwrap_or_else(|_| halt_safe("CAN task")));
+        CanPort {
+            _controller: can,
+            rx: can_rx,
+            sequencer: Sequencer::new(),
+            frame: None,
+        }
+    }
+
+    /// Queues `frame` for the transmit task.
+    pub fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
+        CAN_TX
+            .try_send(self.sequencer.queue(*frame))
+            .map_err(|_| QueueFull)
+    }
+
+    /// The next frame of the FIFOs, or their overrun (CAN_RFxR.FOVR: bxCAN keeps three
+    /// frames per FIFO and, with RFLM = 0, the reset value kept, the newest overwrites the
+    /// third, so a frame the filters passed was lost, RM0090 32.7.5).
+    pub fn receive(&mut self) -> Option<channel_loop::Received> {
+        let can = embassy_stm32::pac::CAN1;
+        let mut lost = false;
+        for fifo in 0..2 {
+            if can.rfr(fifo).read().fovr() {
+                // FOVR is cleared by writing 1; FULL likewise, RFOM = 0 releases nothing.
+                can.rfr(fifo).write(|w| w.set_fovr(true));
+                lost = true;
+            }
+        }
+        if lost {
+            return Some(channel_loop::Received::Overrun);
+        }
+        if let Some(frame) = self.frame.take() {
+            return Some(channel_loop::Received::Frame(frame));
+        }
+        loop {
+            match self.rx.try_read() {
+                Ok(envelope) => {
+                    // Not CANopen's (extended, length over 8): as if filtered out.
+                    if let Some(frame) = from_bxcan(&envelope.frame) {
+                        return Some(channel_loop::Received::Frame(frame));
+                    }
+                }
+                Err(TryReadError::Empty) => return None,
+                Err(TryReadError::BusError(error)) => {
+                    defmt::warn!("CAN bus error {}", error);
+                    return None;
+                }
+            }
+        }
+    }
+
+    /// Programs `layout` into CAN1's filter banks.
+    pub fn apply_filters(&mut self, layout: &BankLayout) {
+        let id = |raw: u16| StandardId::new(raw).unwrap_or(StandardId::ZERO);
+        let mut banks = self.rx.modify_filters();
+        banks.clear();
+        for (index, &(bank, fifo)) in layout.banks.iter().enumerate() {
+            let fifo = match fifo {
+                filters::Fifo::Srdo => Fifo::Fifo0,
+                filters::Fifo::Services => Fifo::Fifo1,
+            };
+            // At most 14 banks: the index fits.
+            let index = index as u8;
+            match bank {
+                Bank::List16(ids) => {
+                    banks.enable_bank(
+                        index,
+                        fifo,
+                        ids.map(|raw| ListEntry16::data_frames_with_id(id(raw))),
+                    );
+                }
+                Bank::Mask16(pairs) => {
+                    banks.enable_bank(
+                        index,
+                        fifo,
+                        pairs.map(|(raw, mask)| {
+                            *Mask16::frames_with_std_id(id(raw), id(mask)).data_frames_only()
+                        }),
+                    );
+                }
+            }
+        }
+        // Dropping the proxy leaves filter initialisation mode.
+    }
+
+    /// Waits for a received frame (kept for the next [`CanPort::receive`]).
+    pub async fn wait(&mut self) {
+        match self.rx.read().await {
+            Ok(envelope) => self.frame = from_bxcan(&envelope.frame),
+            Err(error) => defmt::warn!("CAN bus error {}", error),
+        }
+    }
+}
+
+/// The bxCAN in silent loop-back mode, for [`dual_channel::can_loopback::run`].
+struct Loopback<'a, 'd> {
+    can: &'a mut Can<'d>,
+}
+
+impl LoopbackController for Loopback<'_, '_> {
+    fn now(&self) -> Instant {
+        now()
+    }
+
+    fn queue(&mut self, frame: &CanFrame) -> Option<u8> {
+        let frame = to_bxcan(frame)?;
+        let status = self.can.try_write(&frame).ok()?;
+        Some(status.mailbox() as u8)
+    }
+
+    async fn receive(&mut self, until: Instant) -> Received {
+        match embassy_time::with_deadline(embassy_instant(until), self.can.read()).await {
+            Ok(Ok(envelope)) => match from_bxcan(&envelope.frame) {
+                Some(frame) => Received::Frame(frame),
+                None => Received::Unreadable {
+                    id: raw_id(&envelope.frame),
+                    dlc: envelope.frame.header().len(),
+                },
+            },
+            Ok(Err(_)) => Received::BusError,
+            Err(_) => Received::Nothing,
+        }
+    }
+}
+
+/// CiA 304 9.5: the controller's message buffers and filters, tested in silent loop-back mode
+/// before it joins the bus (plan, loop and verdict: [`dual_channel::can_loopback`]). Leaves
+/// the controller out of loop-back, for [`CanPort::start`] to clear its filters and enable it.
+async fn loopback_test(
+    can: &mut Can<'_>,
+    watchdog: &mut IndependentWatchdog<'_, IWDG>,
+) -> Result<(), LoopbackFault> {
+    use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
+    // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the
+    // test as missing.
+    let listed = |ids: [u16; 2]| {
+        ids.map(|id| {
+            ListEntry32::data_frames_with_id(StandardId::new(id).unwrap_or(StandardId::ZERO))
+        })
+    };
+    can.modify_config().set_loopback(true).set_silent(true);
+    can.modify_filters()
+        .clear()
+        .enable_bank(0, Fifo::Fifo0, listed(ACCEPT_FIFO0))
+        .enable_bank(1, Fifo::Fifo1, listed(ACCEPT_FIFO1));
+    // In queue order, so that a burst fills mailboxes 0, 1 and 2 one after the other.
+    can.set_tx_fifo_scheduling(true);
+    can.enable().await;
+    // Each burst takes at most BURST_WAIT (5 ms), well inside the watchdog's time.
+    let verdict =
+        dual_channel::can_loopback::run(&mut Loopback { can: &mut *can }, || watchdog.pet()).await;
+    can.set_tx_fifo_scheduling(false);
+    // Out of loop-back; dropping the configuration proxy leaves initialisation mode.
+    can.modify_config().set_loopback(false).set_silent(false);
+    verdict
+}
+
+/// A received frame's identifier as far as it fits (extended identifiers cut to 16 bits), for
+/// the report of a frame that is not CANopen's.
+fn raw_id(frame: &Frame) -> u16 {
+    match frame.id() {
+        embassy_stm32::can::Id::Standard(id) => id.as_raw(),
+        embassy_stm32::can::Id::Extended(id) => id.as_raw() as u16,
+    }
+}
+
+/// Moves frames from [`CAN_TX`], lowest identifier first, into the transmit mailboxes. A
+/// frame the driver takes back out of a mailbox for a higher-priority one (all three pending,
+/// `TransmitStatus::dequeued_frame`) goes back into the queue with its own number, so still
+/// ahead of later frames of its identifier; the driver handed it back, where it used to be
+/// dropped. When the runtime filled the queue while this task waited for a mailbox, it is
+/// lost as a frame the queue refuses is (a consumer's SRVT or SCT, and channel A's transmit
+/// check, catch a lost SRDO frame), and logged.
+#[embassy_executor::task]
+async fn can_tx_task(mut tx: CanTx<'static>) {
+    let mut mailboxes = crate::bxcan_adapter::Mailboxes::default();
+    loop {
+        let queued = CAN_TX.receive().await;
+        let Some(frame) = to_bxcan(&queued.frame) else {
+            continue;
+        };
+        let status = tx.write(&frame).await;
+        let mailbox = match status.mailbox() {
+            embassy_stm32::can::Mailbox::Mailbox0 => bxcan::Mailbox::Mailbox0,
+            embassy_stm32::can::Mailbox::Mailbox1 => bxcan::Mailbox::Mailbox1,
+            embassy_stm32::can::Mailbox::Mailbox2 => bxcan::Mailbox::Mailbox2,
+        };
+        let previous = mailboxes.placed(mailbox, queued);
+        if let (Some(_), Some(displaced)) = (status.dequeued_frame(), previous) {
+            if CAN_TX.try_send(displaced).is_err() {
+                defmt::warn!("CAN transmit queue full: a frame taken out of a mailbox is lost");
+            }
+        }
+    }
+}
+
+/// A standard data or remote frame from the bxCAN ([`crate::received_frame`] has the rules).
+/// The length is taken from the header and the data from the raw registers: embassy-stm32's
+/// `Frame::data` would panic on a length code over 8.
+fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
+    let embassy_stm32::can::Id::Standard(id) = frame.id() else {
+        return None;
+    };
+    let mut data = [0u8; 8];
+    data.copy_from_slice(frame.raw_data().get(..8)?);
+    crate::received_frame(
+        id.as_raw(),
+        frame.header().rtr(),
+        frame.header().len(),
+        &data,
+    )
+}
+
+fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
+    let id = StandardId::new(frame.id().raw())?;
+    if frame.is_remote() {
+        Frame::new_remote(id, usize::from(frame.dlc())).ok()
+    } else {
+        Frame::new_data(id, frame.data()).ok()
+    }
+}

@@ -1,0 +1,497 @@
+//! The scenario runner's half for the emulated network (the hub and four QEMU images,
+//! `cargo xtask scenario --emulated`): each step as the hub's control command
+//! ([`commands`], `hub/src/control.rs`), and the expectations judged from what the hub
+//! observed ([`judge`]): the channels' own status reports and the bus trace, both on the
+//! hub's virtual time. xtask does the I/O (starts the network, sends the commands when the
+//! hub's time reaches each step, collects the reports and the trace); everything here is
+//! sans-I/O, so it is tested on recorded observations without QEMU.
+//!
+//! **What the hub's reports can show.** A channel reports its status at once when its NMT
+//! state, working state, link, input, output or cause changes, and every
+//! `board::diagnostics::PERIOD` otherwise; the hub stamps each report with its time of
+//! arrival. So a measured latency includes the report's way over the emulated serial line
+//! (the e2e tests' `MARGIN_MS` covers that), and an output is "safe" from the report that
+//! says so. A step is applied once the player sees the hub's clock at or past its time
+//! (from the frames on the bus, a few tens of milliseconds apart, and the reports), so a
+//! little late; every time the file gives after a step is measured from when the hub took
+//! that step's command ([`Observed::time_of`]), so a late step moves its expectations with
+//! it, and the run prints when each step was applied. A scenario for the emulated network names the network `cargo xtask run`
+//! configures (`scenarios/networks/emulated.toml`, checked against xtask's own), at
+//! its bit rate, and only faults the hub can inject; anything else is refused before the
+//! network is touched.
+
+use super::{BEFORE_EMULATED, Check, Played, Report, ms};
+use crate::scenario_runner::file::{Channel, Expectation, FaultSpec, Scenario, Step, Stimulus};
+use can_hub::control::Command;
+use emulation_wire::Status;
+use shared::canopen::nmt;
+use shared::safety::cause::Cause;
+use shared::{CanFrame, Duration};
+use std::fmt::Write as _;
+
+/// How much of the timeline after a failed expectation's bound is printed.
+const AFTER: f64 = 0.100;
+
+/// The hub's participant name of node `node`'s channel (`node1a`, `node33b`: the names
+/// `xtask/src/network.rs` gives the QEMU instances).
+pub fn participant(node: u8, channel: Channel) -> String {
+    match channel {
+        Channel::A => format!("node{node}a"),
+        Channel::B => format!("node{node}b"),
+    }
+}
+
+/// The hub's control commands that apply `stimulus`, in order; an error is a sentence for
+/// a stimulus the hub cannot apply. An NMT command or a GFC is a frame the hub puts on the
+/// bus itself (`insert`), as the tool would send it: the hub's answer then gives the time
+/// the frame was queued, on the hub's clock.
+pub fn commands(stimulus: &Stimulus) -> Result<Vec<Command>, String> {
+    let frame = |frame: CanFrame| Command::Insert {
+        id: frame.id().raw(),
+        data: frame.data().to_vec(),
+    };
+    Ok(match stimulus {
+        Stimulus::Input {
+            node,
+            channel,
+            value,
+        } => {
+            let channels = match channel {
+                Some(channel) => vec![*channel],
+                None => vec![Channel::A, Channel::B],
+            };
+            channels
+                .into_iter()
+                .map(|channel| Command::Input {
+                    name: participant(*node, channel),
+                    value: *value,
+                })
+                .collect()
+        }
+        Stimulus::Nmt { command, node } => vec![frame(nmt::command_frame(*command, *node))],
+        Stimulus::Gfc => vec![Command::Insert {
+            id: 0x001,
+            data: Vec::new(),
+        }],
+        Stimulus::Fault(fault) => {
+            if !fault.hub_can() {
+                return Err(format!(
+                    "the fault `{}` as written here is one the hub cannot inject (its control \
+                     port drops one frame at a time, delays by whole milliseconds, and has \
+                     none of the host-only faults)",
+                    fault.kind()
+                ));
+            }
+            vec![match fault {
+                FaultSpec::Drop { id, .. } => Command::Drop(*id),
+                FaultSpec::Corrupt { id, byte, mask } => Command::Corrupt {
+                    id: *id,
+                    byte: *byte,
+                    mask: *mask,
+                },
+                FaultSpec::Delay { id, by_us } => Command::Delay {
+                    id: *id,
+                    ms: by_us / 1000,
+                },
+                FaultSpec::Repeat { id } => Command::Repeat(*id),
+                FaultSpec::Reorder { id } => Command::Reorder(*id),
+                FaultSpec::Insert { id, data } => Command::Insert {
+                    id: *id,
+                    data: data.clone(),
+                },
+                FaultSpec::Mute { node, channel } => {
+                    Command::Mute(participant(*node, *channel), true)
+                }
+                FaultSpec::Cut { node } => Command::Cut(format!("node{node}-link")),
+                FaultSpec::Clear => Command::Clear,
+                other => return Err(format!("the fault `{}` is not the hub's", other.kind())),
+            }]
+        }
+    })
+}
+
+/// `true` when the scenario cuts a link: the hub cannot join it again, so the network must
+/// be started anew before the next scenario.
+pub fn cuts_a_link(scenario: &Scenario) -> bool {
+    scenario
+        .steps
+        .iter()
+        .any(|step| matches!(step.stimulus, Stimulus::Fault(FaultSpec::Cut { .. })))
+}
+
+/// Refuses, in a sentence, a scenario the emulated network cannot play: another network
+/// than `emulated` (the one xtask configures), another bit rate than `bit_rate`, or a
+/// fault the hub cannot inject (named with its line).
+pub fn check_playable(
+    scenario: &Scenario,
+    emulated: &safety_config::network_file::Network,
+    bit_rate: u32,
+) -> Result<(), String> {
+    let path = scenario.path.display();
+    if &scenario.network != emulated {
+        return Err(format!(
+            "{path}: its network {} is not the emulated network's (the network file xtask \
+             configures: scenarios/networks/emulated.toml)",
+            scenario.network_path.display()
+        ));
+    }
+    if scenario.bit_rate != bit_rate {
+        return Err(format!(
+            "{path}: it runs at {} kbit/s, the emulated bus at {} kbit/s",
+            scenario.bit_rate / 1000,
+            bit_rate / 1000
+        ));
+    }
+    for step in &scenario.steps {
+        commands(&step.stimulus).map_err(|why| format!("{path}:{}: {why}", step.line))?;
+    }
+    Ok(())
+}
+
+/// What the hub observed while a scenario played, every time in seconds on the hub's clock.
+#[derive(Clone, Debug, Default)]
+pub struct Observed {
+    /// Time 0 of the timeline.
+    pub start: f64,
+    /// When each step took effect (the hub's answer to its last command), in step order.
+    pub applied: Vec<f64>,
+    /// Every status report: (participant, time, status).
+    pub statuses: Vec<(String, f64, Status)>,
+    /// Every frame on the bus with the time it completed.
+    pub frames: Vec<(f64, CanFrame)>,
+    /// The end of the run.
+    pub end: f64,
+}
+
+impl Observed {
+    /// The hub time of timeline time `us`: from the latest step at or before it, when that
+    /// step was applied (a little after its time; every time after it moves with it), else
+    /// from the start.
+    pub fn time_of(&self, scenario: &Scenario, us: u64) -> f64 {
+        scenario
+            .steps
+            .iter()
+            .zip(&self.applied)
+            .rev()
+            .find(|(step, _)| step.at_us <= us)
+            .map_or(self.start + us as f64 / 1e6, |(step, applied)| {
+                applied + (us - step.at_us) as f64 / 1e6
+            })
+    }
+
+    /// Node `node`'s two channels' latest statuses at `t` (`None` for one not heard yet).
+    fn at(&self, node: u8, t: f64) -> [Option<&Status>; 2] {
+        [Channel::A, Channel::B].map(|channel| {
+            let name = participant(node, channel);
+            self.statuses
+                .iter()
+                .filter(|(who, when, _)| *who == name && *when <= t)
+                .map(|(_, _, status)| status)
+                .next_back()
+        })
+    }
+
+    /// The times of node `node`'s reports from `from` on.
+    fn reports(&self, node: u8, from: f64) -> impl Iterator<Item = (f64, Channel, &Status)> {
+        let names = [Channel::A, Channel::B].map(|channel| (participant(node, channel), channel));
+        self.statuses.iter().filter_map(move |(who, when, status)| {
+            let (_, channel) = names.iter().find(|(name, _)| name == who)?;
+            (*when >= from).then_some((*when, *channel, status))
+        })
+    }
+}
+
+/// Both channels of a node report the safe state: not working, outputs at 0.
+fn safe(statuses: [Option<&Status>; 2]) -> bool {
+    statuses
+        .iter()
+        .all(|status| status.is_some_and(|status| !status.working && status.output == 0))
+}
+
+/// The cause of node `node`'s first safe state from `from`: the first report of a channel
+/// leaving the working state that names its own finding, not "other channel safe" (40h),
+/// which only says the other channel was first; 40h when neither names another.
+fn first_cause(observed: &Observed, node: u8, from: f64) -> Option<u8> {
+    let mut told = None;
+    for (_, _, status) in observed.reports(node, from) {
+        if status.working {
+            continue;
+        }
+        if status.cause != Cause::PeerSafeState.code() {
+            return Some(status.cause);
+        }
+        told = Some(status.cause);
+    }
+    told
+}
+
+fn cause_name(code: u8) -> String {
+    Cause::from_code(code).map_or(format!("{code:02X}h"), |cause| cause.to_string())
+}
+
+/// Judges `scenario`'s expectations from what the hub observed, in the host runs' words
+/// (PASS or FAIL, what was expected with its bound, the value measured), with the timeline
+/// of reports and frames around the first failure.
+pub fn judge(scenario: &Scenario, observed: &Observed) -> Report {
+    let t = |us: u64| format!("t = {}", ms(Duration::from_micros(us)));
+    let latency = |seconds: f64| ms(Duration::from_micros((seconds * 1e6).round() as u64));
+    let window = |from: f64, bound_s: f64| (from - BEFORE_EMULATED, from + bound_s + AFTER);
+    let mut checks = Vec::new();
+    let mut windows = Vec::new();
+    for expect in &scenario.expects {
+        let (expected, measured, passed, span) = match &expect.expectation {
+            Expectation::Safe {
+                node,
+                after_us,
+                within_us,
+                cause,
+            } => {
+                let reference = observed.time_of(scenario, *after_us);
+                let already = safe(observed.at(*node, reference));
+                let reached = observed
+                    .reports(*node, reference)
+                    .map(|(when, ..)| when)
+                    .find(|when| safe(observed.at(*node, *when)));
+                let found = first_cause(observed, *node, reference);
+                let in_time =
+                    reached.is_some_and(|when| (when - reference) * 1e6 <= *within_us as f64);
+                let right_cause =
+                    cause.is_none_or(|cause| found.is_some_and(|code| code == cause.code()));
+                let expected = format!(
+                    "node {node} safe within {} of {}{}",
+                    ms(Duration::from_micros(*within_us)),
+                    t(*after_us),
+                    cause.map_or(String::new(), |cause| format!(", cause {cause}"))
+                );
+                let measured = match (already, reached) {
+                    (true, _) => "safe already before".to_string(),
+                    (false, None) => "never safe".to_string(),
+                    (false, Some(when)) => format!(
+                        "safe after {}, cause {}",
+                        latency(when - reference),
+                        found.map_or("not named".to_string(), cause_name)
+                    ),
+                };
+                let (from, to) = window(reference, *within_us as f64 / 1e6);
+                let to = reached.map_or(to, |when| to.max(when + AFTER));
+                (
+                    expected,
+                    measured,
+                    !already && in_time && right_cause,
+                    (from, to),
+                )
+            }
+            Expectation::Output { node, at_us, value } => {
+                let when = observed.time_of(scenario, *at_us);
+                let [a, b] = observed.at(*node, when);
+                let measured = a.zip(b).map(|(a, b)| a.output & b.output);
+                (
+                    format!("node {node}'s output {value:#04x} at {}", t(*at_us)),
+                    measured.map_or("no report from both channels".to_string(), |output| {
+                        format!("{output:#04x}")
+                    }),
+                    measured.is_some_and(|output| u64::from(output) == *value),
+                    window(when, 0.0),
+                )
+            }
+            Expectation::Working { node, until_us } => {
+                let until = observed.time_of(scenario, *until_us);
+                let left = observed
+                    .reports(*node, observed.start)
+                    .find(|(when, _, status)| *when <= until && !status.working);
+                (
+                    format!("node {node} working from the start to {}", t(*until_us)),
+                    match left {
+                        None => "no safety event".to_string(),
+                        Some((when, channel, status)) => format!(
+                            "channel {channel:?} left the working state at {} ({})",
+                            latency(when - observed.start),
+                            cause_name(status.cause)
+                        ),
+                    },
+                    left.is_none(),
+                    left.map_or((observed.start, until.min(observed.end)), |(when, ..)| {
+                        window(when, 0.0)
+                    }),
+                )
+            }
+            Expectation::NoEmcy {
+                node,
+                from_us,
+                until_us,
+            } => {
+                let (from, until) = (
+                    observed.time_of(scenario, *from_us),
+                    observed.time_of(scenario, *until_us),
+                );
+                let emcy: Vec<&(f64, CanFrame)> = observed
+                    .frames
+                    .iter()
+                    .filter(|(when, frame)| {
+                        *when >= from
+                            && *when <= until
+                            && frame.id().raw() == 0x080 + u16::from(*node)
+                    })
+                    .collect();
+                (
+                    format!(
+                        "no EMCY from node {node} from {} to {}",
+                        t(*from_us),
+                        t(*until_us)
+                    ),
+                    match emcy.first() {
+                        None => "none".to_string(),
+                        Some((when, frame)) => format!(
+                            "{} EMCY, the first at {}: {:02X?}",
+                            emcy.len(),
+                            latency(when - observed.start),
+                            frame.data()
+                        ),
+                    },
+                    emcy.is_empty(),
+                    emcy.first()
+                        .map_or((from, until.min(observed.end)), |(when, _)| {
+                            window(*when, 0.0)
+                        }),
+                )
+            }
+            Expectation::Emcy {
+                node,
+                code,
+                after_us,
+                within_us,
+            } => {
+                let reference = observed.time_of(scenario, *after_us);
+                let seen = observed.frames.iter().find(|(when, frame)| {
+                    *when >= reference
+                        && frame.id().raw() == 0x080 + u16::from(*node)
+                        && frame.data().get(..2) == Some(&code.to_le_bytes()[..])
+                });
+                let after = seen.map(|(when, _)| when - reference);
+                (
+                    format!(
+                        "EMCY {code:04X}h from node {node} within {} of {}",
+                        ms(Duration::from_micros(*within_us)),
+                        t(*after_us)
+                    ),
+                    after.map_or("none".to_string(), |after| {
+                        format!("after {}", latency(after))
+                    }),
+                    after.is_some_and(|after| after * 1e6 <= *within_us as f64),
+                    window(reference, *within_us as f64 / 1e6),
+                )
+            }
+        };
+        checks.push(Check {
+            line: expect.line,
+            expected,
+            measured,
+            passed,
+            window: (
+                shared::Instant::from_micros(0),
+                shared::Instant::from_micros(0),
+            ),
+        });
+        windows.push(span);
+    }
+    let timeline = checks
+        .iter()
+        .zip(&windows)
+        .find(|(check, _)| !check.passed)
+        .map(|(check, (from, to))| {
+            timeline(
+                scenario,
+                observed,
+                *from,
+                to.min(observed.end),
+                &check.expected,
+            )
+        });
+    Report {
+        checks,
+        timeline,
+        played: Played::Emulated,
+    }
+}
+
+/// The steps the hub took, the reports and the frames from `from` to `to` (hub seconds),
+/// times from the scenario's start: what the hub saw around a failure.
+pub fn timeline(scenario: &Scenario, observed: &Observed, from: f64, to: f64, why: &str) -> String {
+    let mut lines: Vec<(f64, String)> = Vec::new();
+    for (step, applied) in scenario.steps.iter().zip(&observed.applied) {
+        if *applied >= from && *applied <= to {
+            lines.push((*applied, step_line(step)));
+        }
+    }
+    for (when, frame) in &observed.frames {
+        if *when >= from && *when <= to {
+            lines.push((
+                *when,
+                format!(
+                    "bus     {:03X} [{}] {:02X?}",
+                    frame.id().raw(),
+                    frame.dlc(),
+                    frame.data()
+                ),
+            ));
+        }
+    }
+    for (who, when, status) in &observed.statuses {
+        if *when >= from && *when <= to {
+            lines.push((
+                *when,
+                format!(
+                    "status  {who}: nmt={} {} link={} input={} output={} cause={:02X}h {}",
+                    status.nmt,
+                    if status.working { "working" } else { "SAFE" },
+                    u8::from(status.link_up),
+                    status.input,
+                    status.output,
+                    status.cause,
+                    Cause::describe_code(status.cause)
+                ),
+            ));
+        }
+    }
+    lines.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut text = format!("{why}\n");
+    for (when, line) in lines.iter().take(400) {
+        let _ = writeln!(text, "{:>10.3} ms  {line}", (when - observed.start) * 1e3);
+    }
+    if lines.len() > 400 {
+        let _ = writeln!(text, "… {} more lines", lines.len() - 400);
+    }
+    text
+}
+
+/// A step as the timeline and the run's output show it: its line, its commands to the hub,
+/// when it was due.
+pub fn step_line(step: &Step) -> String {
+    let commands = commands(&step.stimulus).map_or_else(
+        |why| why,
+        |commands| {
+            commands
+                .iter()
+                .map(|command| format!("`{command}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        },
+    );
+    format!(
+        "step    line {}: {commands} (due at t = {})",
+        step.line,
+        ms(Duration::from_micros(step.at_us))
+    )
+}
+
+/// The frames of the hub's candump trace (`--candump`), with their stamps moved by `offset`
+/// seconds onto the control port's clock (the trace's stamps are the hub's virtual time plus
+/// the host clock at its start; the control port's are the virtual time alone).
+pub fn trace_frames(log: &str, origin: &str, offset: f64) -> Result<Vec<(f64, CanFrame)>, String> {
+    let frames =
+        safety_config::monitor::candump::parse(log, origin).map_err(|error| error.to_string())?;
+    Ok(frames
+        .into_iter()
+        .map(|logged| (logged.at.as_secs_f64() - offset, logged.frame))
+        .collect())
+}
