@@ -61,7 +61,7 @@ const LOAD_SRDOS: u64 = 64;
 const LOAD_REFRESH_MS: u64 = 10;
 
 /// The tracked functions, by the end of their demangled names (each must name one symbol).
-const TRACKED: [&str; 13] = [
+const TRACKED: [&str; 14] = [
     "dual_channel::channel_loop::ChannelLoop::service",
     "dual_channel::channel_loop::hand",
     "shared::node::Device<F,P>::poll",
@@ -75,6 +75,7 @@ const TRACKED: [&str; 13] = [
     "board::qemu::marker::transmitted_inverted",
     "as dual_channel::runtime::Role<_>>::signature_digest",
     "dual_channel::runtime::Runtime<F,R,_>::heartbeat",
+    "dual_channel::runtime::Runtime<F,R,_>::confirmed",
 ];
 const SERVICE: usize = 0;
 const HAND: usize = 1;
@@ -89,6 +90,9 @@ const TX_PLAIN: usize = 9;
 const TX_INVERTED: usize = 10;
 const DIGEST: usize = 11;
 const HEARTBEAT: usize = 12;
+/// Both channels' verdicts agreed on a pair (CiA 304 9.5, EN 50325-5 7.1.2): called on the
+/// side whose verdict came second, the local one or the other channel's over the link.
+const CONFIRMED: usize = 13;
 /// The markers called by the loop: their instructions are not the loop's (the leaf markers
 /// are inside them).
 const MARKERS: [usize; 3] = [RECEIVED, TRANSMITTED, LINK];
@@ -137,8 +141,7 @@ struct Channel {
     idle: Vec<u64>,
     /// Every iteration.
     all: Vec<u64>,
-    /// Consumer: the iterations of one pair added (plain, inverted, the other channel's
-    /// verdict).
+    /// Consumer: the cost of one validated pair ([`Pair`]).
     pairs: Vec<u64>,
     /// `hand` of a plain and of an inverted frame (the runtime's `on_frame`), markers
     /// subtracted.
@@ -156,9 +159,7 @@ impl Channel {
             lines: counted.lines,
             ..Channel::default()
         };
-        // Consumer pairs: the iteration of the plain frame, of the inverted one, then of
-        // the other channel's verdict.
-        let mut pair: Option<(u64, bool)> = None;
+        let mut pair: Option<Pair> = None;
         for call in &counted.calls {
             match call.function {
                 SERVICE => channel.iteration(call, &mut pair),
@@ -190,7 +191,7 @@ impl Channel {
         )
     }
 
-    fn iteration(&mut self, call: &Call, pair: &mut Option<(u64, bool)>) {
+    fn iteration(&mut self, call: &Call, pair: &mut Option<Pair>) {
         let own = call.without(&MARKERS);
         self.all.push(own);
         let plain = call.made(RX_PLAIN);
@@ -237,17 +238,48 @@ impl Channel {
                 _ => {}
             }
         }
-        *pair = match (*pair, plain, inverted) {
-            (_, true, true) => Some((own, true)),
-            (_, true, false) => Some((own, false)),
-            (Some((sum, false)), false, true) => Some((sum + own, true)),
-            (Some((sum, true)), false, false) if verdict => {
-                self.pairs.push(sum + own);
-                None
+        // A plain frame opens a pair (a pair still open is dropped: its confirmation was
+        // not seen); its inverted frame and the other channel's verdict add their
+        // iterations, whichever comes first; the iteration that confirms closes it.
+        if plain {
+            *pair = Some(Pair {
+                sum: 0,
+                inverted: false,
+            });
+        }
+        if let Some(open) = pair.as_mut()
+            && (plain || inverted || verdict)
+        {
+            open.sum += own;
+            open.inverted |= inverted;
+        }
+        if call.made(CONFIRMED) {
+            if let Some(Pair {
+                sum,
+                inverted: true,
+            }) = pair.take()
+            {
+                self.pairs.push(sum);
             }
-            (other, _, _) => other,
-        };
+        }
     }
+}
+
+/// A validated pair on a consumer, as it is counted: the loop iterations that received its
+/// plain frame, its inverted frame and the other channel's verdict over the link (the
+/// iteration that took in link bytes and passed a verdict to the cross-check), added, from the
+/// plain frame's iteration up to the one in which `Runtime::confirmed` is called (both
+/// channels' verdicts agree, CiA 304 9.5). The other channel's verdict may come before this
+/// channel's inverted frame (its trace is not slowed down) or after it; then the pair is
+/// confirmed in the inverted frame's iteration or in the verdict's. Iterations in between that
+/// did nothing for the pair (idle polls, heartbeats) are not the pair's: they are counted
+/// as what they are.
+#[derive(Clone, Copy, Debug)]
+struct Pair {
+    /// Instructions of the pair's iterations so far, markers subtracted.
+    sum: u64,
+    /// Whether its inverted frame was received.
+    inverted: bool,
 }
 
 /// The x86 figure of a row of the host bench's table (`docs/performance.md`, `cargo xtask
@@ -765,8 +797,8 @@ mod tests {
     use super::*;
 
     /// A consumer's pair is the iterations of its plain frame, its inverted frame and the
-    /// other channel's verdict, markers subtracted; an idle iteration is one that received,
-    /// polled and sent nothing.
+    /// other channel's verdict, markers subtracted, closed by the confirmation; an idle
+    /// iteration is one that received, polled and sent nothing.
     #[test]
     fn a_pair_is_its_three_iterations_and_idle_is_nothing_done() {
         let call = |instructions, nested: Vec<(usize, u64)>| Call {
@@ -780,7 +812,7 @@ mod tests {
                 call(300, vec![(RX_PLAIN, 2), (RECEIVED, 10), (HAND, 200)]),
                 call(60, vec![(CORE_POLL, 20)]),
                 call(400, vec![(RX_INVERTED, 2), (RECEIVED, 10), (HAND, 250)]),
-                call(250, vec![(LINK, 5), (ARRIVE, 40)]),
+                call(250, vec![(LINK, 5), (ARRIVE, 40), (CONFIRMED, 30)]),
                 call(55, vec![]),
             ],
             lines: 0,
@@ -792,6 +824,43 @@ mod tests {
         assert_eq!(channel.hand_inverted, vec![250]);
         assert_eq!(channel.verdict, vec![245]);
         assert_eq!(channel.all.iter().max(), Some(&390));
+    }
+
+    /// The other channel's verdict may arrive before this channel's inverted frame: the pair
+    /// is then confirmed in the inverted frame's iteration, and an idle poll in between is
+    /// not the pair's. A pair whose confirmation is not seen is not counted.
+    #[test]
+    fn a_pair_confirmed_by_its_inverted_frame_counts_the_verdict_received_before() {
+        let call = |instructions, nested: Vec<(usize, u64)>| Call {
+            function: SERVICE,
+            instructions,
+            nested,
+        };
+        let counted = Counted {
+            calls: vec![
+                call(300, vec![(RX_PLAIN, 2), (RECEIVED, 10), (HAND, 200)]),
+                call(250, vec![(LINK, 5), (ARRIVE, 40)]),
+                call(50, vec![]),
+                call(
+                    400,
+                    vec![
+                        (RX_INVERTED, 2),
+                        (RECEIVED, 10),
+                        (HAND, 250),
+                        (CONFIRMED, 30),
+                    ],
+                ),
+                // A plain frame whose pair is never confirmed, then the next pair.
+                call(300, vec![(RX_PLAIN, 2), (RECEIVED, 10), (HAND, 200)]),
+                call(310, vec![(RX_PLAIN, 2), (RECEIVED, 10), (HAND, 200)]),
+                call(400, vec![(RX_INVERTED, 2), (RECEIVED, 10), (HAND, 250)]),
+                call(250, vec![(LINK, 5), (ARRIVE, 40), (CONFIRMED, 30)]),
+            ],
+            lines: 0,
+        };
+        let channel = Channel::of(counted);
+        assert_eq!(channel.pairs, vec![290 + 245 + 390, 300 + 390 + 245]);
+        assert_eq!(channel.idle, vec![50]);
     }
 
     /// The x86 figures come from the host bench's table.
