@@ -197,7 +197,8 @@ enum Command {
         /// window (5000).
         #[arg(long, default_value_t = DeviceTiming::HARDWARE.contact_skew_us)]
         contact_skew_us: u64,
-        /// One step of a channel (µs); the default is an assumption until measured on a board.
+        /// One step of a channel (µs); the default is the step measured on the target under
+        /// QEMU at a bounded cycles per instruction (`safety_config::calc::target`).
         #[arg(long, default_value_t = DeviceTiming::HARDWARE.processing_us)]
         processing_us: u64,
         /// The output stage after the pin (µs).

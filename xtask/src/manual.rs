@@ -31,6 +31,7 @@ use safety_config::calc::bus::{Stream, frame_micros};
 use safety_config::calc::report;
 use safety_config::calc::residual::{self, Sil};
 use safety_config::calc::sfrt::{self, DeviceTiming};
+use safety_config::calc::target;
 use safety_config::network_file;
 use shared::safety::cause::Cause;
 use shared::safety::config::ConfigError;
@@ -42,12 +43,13 @@ use std::process::Command;
 use std::time::Instant;
 
 /// The committed generated parts, relative to `manual/src/generated/`.
-const COMMITTED: [&str; 5] = [
+const COMMITTED: [&str; 6] = [
     "safety-objects.md",
     "causes.md",
     "sfrt.md",
     "residual.md",
     "evidence.md",
+    "processing.md",
 ];
 
 /// The demo's timing, which the reaction-time measurement and the campaigns use: node 1
@@ -129,12 +131,15 @@ fn committed_parts(root: &Path) -> Result<Vec<(&'static str, String)>> {
         .context("reading docs/campaigns.md")?;
     let causes = std::fs::read_to_string(root.join("shared/src/safety/cause.rs"))
         .context("reading shared/src/safety/cause.rs")?;
+    let bench = std::fs::read_to_string(root.join("docs/performance.md"))
+        .context("reading docs/performance.md")?;
     let parts = vec![
         (COMMITTED[0], safety_objects(&safety_config::eds::eds())?),
         (COMMITTED[1], cause_table(&causes)?),
         (COMMITTED[2], sfrt_part(&performance)?),
         (COMMITTED[3], residual_part()?),
         (COMMITTED[4], evidence_part(&campaigns, &performance)?),
+        (COMMITTED[5], processing_part(&bench)?),
     ];
     Ok(parts)
 }
@@ -584,6 +589,60 @@ fn sfrt_part(performance: &str) -> Result<String> {
             calculated as f64 / max_us.max(1) as f64
         );
     }
+    Ok(out)
+}
+
+/// The processing step the reaction times use (`safety_config::calc::target`, whose
+/// constants `cargo xtask bench --target-cost` writes), checked against that command's block
+/// of `docs/performance.md`, which it wrote in the same run: a step that differs from the
+/// measurement fails here.
+fn processing_part(bench: &str) -> Result<String> {
+    let measured = target::MEASURED;
+    let step = measured.processing_us();
+    let block = block(bench, crate::target_cost::MARKER)?;
+    let stated = format!(
+        "{} instructions, at {} cycles per instruction",
+        measured.path_instructions(),
+        target::CPI_BOUND
+    );
+    if !block.contains(&stated) || !block.contains(&format!("**{step} µs**")) {
+        bail!(
+            "docs/performance.md's target-cost block does not give the processing step of \
+             safety_config::calc::target ({stated}: {step} µs): run `cargo xtask bench \
+             --target-cost`, which writes both"
+        );
+    }
+    if DeviceTiming::HARDWARE.processing_us != step {
+        bail!(
+            "DeviceTiming::HARDWARE uses a processing step of {} µs, not the measured {step} µs",
+            DeviceTiming::HARDWARE.processing_us
+        );
+    }
+    let mut out = header("`safety_config::calc::target` and `docs/performance.md`");
+    let _ = writeln!(
+        out,
+        "| part of the longest processing path | Thumb instructions | how it is known |\n\
+         |---|---:|---|\n\
+         | wake-up: the interrupt to the loop's entry | {} | allowed by argument |\n\
+         | the loop iteration a frame may wait behind (the longest of any kind) | {} | measured (most seen) |\n\
+         | the loop iteration that handles the SRDO frame or verdict (the longest) | {} | measured (most seen) |\n\
+         | **path** | **{}** | |\n",
+        target::WAKE_INSTRUCTIONS,
+        measured.longest_iteration,
+        measured.longest_srdo_iteration,
+        measured.path_instructions()
+    );
+    let cycles = measured.path_instructions() * target::CPI_BOUND;
+    let _ = writeln!(
+        out,
+        "At {} cycles per instruction (an assumption: every instruction pays a flash line \
+         fetch with the 5 wait states of 168 MHz, as if the ART accelerator never hit) the path \
+         is {cycles} cycles, {:.1} µs at {} MHz; doubled for interrupts (an allowance by \
+         argument) and rounded up to 10 µs, the processing step is **{step} µs**.",
+        target::CPI_BOUND,
+        cycles as f64 * 1e6 / target::CLOCK_HZ as f64,
+        target::CLOCK_HZ / 1_000_000
+    );
     Ok(out)
 }
 

@@ -196,10 +196,28 @@ impl Drop for Network {
 
 /// One emulated MCU: USART2 on the hub's socket `can` (CAN frames, the link to the other
 /// channel, the input pin, its status and the virtual time, `paced`); USART1 and USART3
-/// unused.
-fn qemu_instance(image: &Path, node: u8, can: &Path, log: &Path) -> Result<Child> {
-    Command::new("qemu-system-arm")
-        .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
+/// unused. With `monitor` (for an instruction trace switched on at run time, `cargo xtask
+/// bench --target-cost`): QEMU's monitor on that Unix socket, and QEMU's clock counting
+/// instructions (`-icount shift=2`: 4 ns each, about the 168 MHz core's pace; idle, it
+/// follows the host's), so that a traced, slow QEMU still takes its 1 kHz SysTick every
+/// 250,000 instructions and not every millisecond of host time, which left the traced
+/// thread almost no instructions at all.
+fn qemu_instance(
+    image: &Path,
+    node: u8,
+    can: &Path,
+    log: &Path,
+    monitor: Option<&Path>,
+) -> Result<Child> {
+    let mut command = Command::new("qemu-system-arm");
+    command.args(["-M", "netduinoplus2", "-nographic", "-monitor"]);
+    match monitor {
+        Some(path) => command
+            .arg(format!("unix:{},server,nowait", path.display()))
+            .args(["-icount", "shift=2,align=off,sleep=on"]),
+        None => command.arg("none"),
+    };
+    command
         .args([
             "-semihosting-config",
             &format!("enable=on,target=native,arg=node={node},arg=paced"),
@@ -270,6 +288,12 @@ impl Network {
     /// the bus and starts them; returns once both nodes are Operational and node 33's output
     /// follows node 1's input.
     pub fn start(root: &Path) -> Result<Network> {
+        Network::start_with_monitors(root, &[])
+    }
+
+    /// As [`Network::start`], with QEMU's monitor of each channel named in `monitored` (as
+    /// in [`CHANNELS`]) on the Unix socket [`Network::monitor`].
+    pub fn start_with_monitors(root: &Path, monitored: &[&str]) -> Result<Network> {
         let cross = toolchain::ensure()?;
         toolchain::ensure_qemu()?;
         toolchain::ensure_defmt_print()?;
@@ -341,7 +365,8 @@ impl Network {
         for (name, node, channel) in CHANNELS {
             let image = qemu::image(&network.cross, root, channel);
             let log = network.dir.join(format!("{name}.defmt"));
-            let child = qemu_instance(&image, node, &socket(name), &log)?;
+            let monitor = monitored.contains(&name).then(|| network.monitor(name));
+            let child = qemu_instance(&image, node, &socket(name), &log, monitor.as_deref())?;
             network.children.push((name.to_string(), child));
         }
         if let Err(error) = network.configure() {
@@ -352,6 +377,12 @@ impl Network {
             )));
         }
         Ok(network)
+    }
+
+    /// Where QEMU's monitor of channel `name` listens, when it was started with one
+    /// ([`Network::start_with_monitors`]).
+    pub fn monitor(&self, name: &str) -> PathBuf {
+        self.dir.join(format!("{name}.monitor"))
     }
 
     /// The configuration tool, connected to the hub's socketcand port (again) if it is not.

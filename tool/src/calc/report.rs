@@ -67,11 +67,16 @@ pub fn reactions(reactions: &[Reaction], bit_rate: u32, timing: &DeviceTiming) -
     }
     let _ = writeln!(
         out,
-        "Assumed: input sample {} ms, contact skew up to {} ms, link {} µs per byte, {} ms per channel step, output stage {} ms. Not included: the sensor, the actuator, and the controller if there is one (EN 50325-5 9.3.1 formula (3) adds them).",
+        "Assumed: input sample {} ms, contact skew up to {} ms, link {} µs per byte, {} ms per channel step{}, output stage {} ms. Not included: the sensor, the actuator, and the controller if there is one (EN 50325-5 9.3.1 formula (3) adds them).",
         ms(timing.input_sample_us),
         ms(timing.contact_skew_us),
         timing.link_byte_us,
         ms(timing.processing_us),
+        if timing.processing_us == super::target::MEASURED.processing_us() {
+            " (instructions measured on the target under QEMU, cycles per instruction bounded by assumption: `safety_config::calc::target`)"
+        } else {
+            ""
+        },
         ms(timing.output_us)
     );
     out

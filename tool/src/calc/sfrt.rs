@@ -76,16 +76,17 @@ pub struct DeviceTiming {
 impl DeviceTiming {
     /// The hardware: the 1 ms input sample and the link USART at 1 Mbit/s (10 bits a byte) of
     /// `board::hw` (`SAMPLE_PERIOD`, `LINK_BAUD`); the contacts' skew up to the whole sample
-    /// window. Processing: 1 ms per step, an assumption, not a measurement (no board has run
-    /// this firmware yet; the host measures about 360 instructions per validated pair, 2 µs
-    /// at 168 MHz, so the assumption holds interrupt latency, the executor and flash wait
-    /// states with room). The output pin is written in the channel's step; the output stage
-    /// beyond the pin (relay, contactor) is the machine builder's and not included.
+    /// window. Processing: the step measured on the target ([`super::target::MEASURED`],
+    /// instructions counted by `cargo xtask bench --target-cost` in the real images under
+    /// QEMU, at the bounded cycles per instruction of [`super::target::CPI_BOUND`] on
+    /// 168 MHz, doubled for interrupts). The output pin is written in the channel's step; the
+    /// output stage beyond the pin (relay, contactor) is the machine builder's and not
+    /// included.
     pub const HARDWARE: DeviceTiming = DeviceTiming {
         input_sample_us: 1000,
         contact_skew_us: SAMPLE_WINDOW.as_micros(),
         link_byte_us: 10,
-        processing_us: 1000,
+        processing_us: super::target::MEASURED.processing_us(),
         output_us: 0,
     };
 }
@@ -427,13 +428,15 @@ mod tests {
         let simulated = &reactions(&network, &streams, 1_000_000, &SIMULATED).unwrap()[0];
         let hardware =
             &reactions(&network, &streams, 1_000_000, &DeviceTiming::HARDWARE).unwrap()[0];
+        let step = DeviceTiming::HARDWARE.processing_us;
+        assert!(step > 0, "the processing step is measured, not left at 0");
         // The window replaces B's digest over the link (1360 µs): the frame waits 5 ms at most.
         assert_eq!(
             hardware.fault_free_us - simulated.fault_free_us,
-            1000 + (SAMPLE_WINDOW.as_micros() - 1360) + 3 * 1000
+            1000 + (SAMPLE_WINDOW.as_micros() - 1360) + 3 * step
         );
         assert_eq!(hardware.parts[1].micros, SAMPLE_WINDOW.as_micros());
-        assert_eq!(hardware.one_fault_us - simulated.one_fault_us, 1000);
+        assert_eq!(hardware.one_fault_us - simulated.one_fault_us, step);
     }
 
     /// Higher-priority traffic lengthens both waits; a bus it fills gives no bound, and a
