@@ -24,8 +24,9 @@
 //! the hub's candump trace). Measured with the code as committed (2026-12-01, load average 28
 //! to 35): 30.2 % of the bus, 30.0 % outside the SRDOs, every one of 13,043 SDO requests
 //! answered, 601 pairs with gaps of median 13.73 ms, 99 % within 20.91 ms, longest 24.78 ms;
-//! no stall. Opt-in because the 60 s took 11 to 19 minutes of host time
-//! (`docs/can-receive.md`).
+//! no stall. The 60 s took 11 to 19 minutes of host time (`docs/can-receive.md`), so it is
+//! opt-in; `--bus-load-seconds N` runs the case for N seconds, and `cargo xtask test` runs it
+//! for [`CI_LOAD_SECONDS`].
 //!
 //! "refresh +" because a fault injected on the next frame waits for that frame.
 
