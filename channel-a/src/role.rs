@@ -12,6 +12,18 @@
 //! exception is CAN's double reception (ISO 11898-1: a frame whose last end-of-frame bit was
 //! disturbed is sent again and received twice): an exact copy of the inverted frame just
 //! accepted, within [`SAMPLE_WINDOW`], is ignored; it carries the newest data, not older.
+//!
+//! # A pair cut by NMT reset
+//!
+//! NMT reset can fall between a plain frame and its inverted frame: channel B may have
+//! co-signed the plain frame before its own reset, and its inverted frame reach channel A's
+//! loop only after A's reset and start (each channel runs its own loop; on the emulated network
+//! the hub may deliver it after both NMT frames). The pairs awaited at the reset are kept as
+//! *cut* for their refresh time: the exact inverse of a cut pair's plain frame, once, ends it
+//! quietly. Every other frame on the node's identifiers is foreign as before, so masquerade
+//! detection is armed right after the start; the inverse of a plain frame channel A itself sent
+//! is what channel B's inverted frame would be anyway, and is accepted once, as it would have
+//! been without the reset.
 
 use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
@@ -54,6 +66,9 @@ pub struct ChannelA {
     /// The last inverted frame accepted, and when: its copy within the window is a double
     /// reception.
     last_inverted: Option<(CanFrame, Instant)>,
+    /// The pairs awaited when NMT reset came: the inverse of one, once and within the SRDO's
+    /// refresh time, ends it (see the module documentation).
+    cut: [Option<Awaited>; 8],
 }
 
 impl ChannelA {
@@ -153,6 +168,20 @@ impl<const N: usize> Role<N> for ChannelA {
         if srdo.plain == id {
             return Err(ChannelFault::ForeignFrame { id }); // Never our own: we do not receive it.
         }
+        if let Some(cut) = self.cut.iter_mut().find(|slot| {
+            slot.is_some_and(|cut| {
+                cut.plain == srdo.plain
+                    && is_inverse(&cut.frame, frame)
+                    && cut
+                        .since
+                        .is_none_or(|since| !shared::time::expired(since + cut.limit, now))
+            })
+        }) {
+            *cut = None;
+            // Its copy within the window is a double reception, as for any inverted frame.
+            self.last_inverted = Some((*frame, now));
+            return Ok(None);
+        }
         let Some(awaited) = self
             .awaiting
             .iter_mut()
@@ -192,6 +221,16 @@ impl<const N: usize> Role<N> for ChannelA {
     }
 
     fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {
+        // A cut pair's end not seen within its refresh time will not come: forgotten, not a
+        // fault (the reset abandoned the pair on both channels).
+        for slot in &mut self.cut {
+            if let Some(cut) = slot {
+                let since = *cut.since.get_or_insert(now);
+                if shared::time::expired(since + cut.limit, now) {
+                    *slot = None;
+                }
+            }
+        }
         for awaited in self.awaiting.iter_mut().flatten() {
             let since = *awaited.since.get_or_insert(now);
             if shared::time::expired(since + awaited.limit, now) {
@@ -205,7 +244,9 @@ impl<const N: usize> Role<N> for ChannelA {
     }
 
     fn reset(&mut self) {
-        self.awaiting = [None; 8];
+        // Every pair awaited is cut; one cut before and still not ended is forgotten (at
+        // most one pair per SRDO is awaited, so the slots suffice).
+        self.cut = core::mem::take(&mut self.awaiting);
         self.deferred.clear();
         self.last_inverted = None;
     }
@@ -315,6 +356,42 @@ mod tests {
         assert_eq!(Role::<2>::poll(&mut a, sent), Ok(()));
         assert_eq!(a.observe(sent, &inverted(1), &config), Ok(None));
         assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(500)), Ok(()));
+    }
+
+    /// CiA 304 9.5, EN 50325-5 7.2.1: NMT reset between the plain and the inverted frame.
+    /// The inverse of the plain frame sent before the reset ends the cut pair once (and its
+    /// copy is a double reception); other data, a third one, or one after the refresh time
+    /// is foreign.
+    #[test]
+    fn cia304_9_5_a_pair_cut_by_nmt_reset_ends_only_with_its_inverse_once() {
+        let mut config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        config.srdos[0].cycle_time = 20;
+        let foreign = Err(ChannelFault::ForeignFrame { id: 0x102 });
+        let plain = CanFrame::new(CanId::new(0x101).unwrap(), &[1]).unwrap();
+        let sent = Instant::from_millis(100);
+        let cut = |a: &mut ChannelA| {
+            assert!(a.outgoing(plain, &config).is_some());
+            assert_eq!(Role::<2>::poll(a, sent), Ok(()));
+            Role::<2>::reset(a);
+        };
+        let mut a = ChannelA::default();
+        cut(&mut a);
+        assert_eq!(a.observe(sent, &inverted(2), &config), foreign);
+        let mut a = ChannelA::default();
+        cut(&mut a);
+        let soon = Instant::from_millis(103);
+        assert_eq!(a.observe(soon, &inverted(1), &config), Ok(None));
+        assert_eq!(a.observe(soon, &inverted(1), &config), Ok(None), "a copy");
+        let later = soon + SAMPLE_WINDOW;
+        assert_eq!(a.observe(later, &inverted(1), &config), foreign);
+        let mut a = ChannelA::default();
+        cut(&mut a);
+        assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(120)), Ok(()));
+        assert_eq!(
+            a.observe(Instant::from_millis(120), &inverted(1), &config),
+            foreign,
+            "after the refresh time"
+        );
     }
 
     /// CiA 304 9.5, EN 50325-5 7.1.1: the inverted frame on the bus must be the exact inverse

@@ -166,7 +166,10 @@ pub trait Role<const N: usize> {
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32;
 
     /// NMT reset node or communication: forget every pair in progress (the core forgot its
-    /// own; a pair begun before the reset is never completed after it).
+    /// own; a pair begun before the reset is never completed after it). The other half of
+    /// such a pair may still reach this channel after the reset, from the other channel's
+    /// loop: a role that watches for it says how it tells it from a foreign frame
+    /// (`channel_a::role`).
     fn reset(&mut self) {}
 
     /// `true` for the channel whose frames other than SRDOs go on the bus (channel A): its

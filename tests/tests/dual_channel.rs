@@ -566,3 +566,72 @@ fn channels_with_different_node_ids_never_leave_the_safe_state() {
     // Node 1 runs normally: the fault is node 33's alone.
     assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
 }
+
+/// How long channel A's loop holds back channel B's inverted frame in the tests of a pair cut
+/// by an NMT reset: the reset goes out at most 50 us after the frame, the start 1 ms after
+/// the reset, and node 1's first plain frame after the start 0.6 ms later (the bus at
+/// 500 kbit/s): A handles the stale frame once Operational, before its new pair.
+const STALE: Duration = Duration::from_micros(1_300);
+
+/// Runs `net` until the next frame on `id` is on the bus.
+fn until_on_bus(net: &mut DualNetwork, id: u16) {
+    let seen = net.trace.len();
+    let give_up = net.now + Duration::from_millis(200);
+    while !net.trace[seen..].iter().any(|(_, f, _)| f.id().raw() == id) {
+        assert!(net.now < give_up, "no frame on {id:03X}h");
+        net.run_for(Duration::from_micros(50));
+    }
+}
+
+/// NMT reset node, then start, as the scenario runner and `cargo xtask e2e` send them.
+fn reset_and_start(net: &mut DualNetwork, id: u8) {
+    net.nmt(NmtCommand::ResetNode, id);
+    net.nmt(NmtCommand::Start, id);
+}
+
+/// CiA 304 9.5, EN 50325-5 7.2.1: the NMT reset falls between node 1's plain and inverted
+/// frames, and channel A's loop handles channel B's inverted frame of that pair only after
+/// the reset and the start (on the emulated network the hub delivers it after both). It is
+/// the inverse of the plain frame A sent before the reset: the end of an abandoned pair, not
+/// a foreign frame, and the node keeps working.
+#[test]
+fn cia304_9_5_the_inverted_frame_of_a_pair_cut_by_an_nmt_reset_is_not_foreign() {
+    let mut net = running();
+    let now = net.now;
+    net.node_mut(1).receive_faults.push((
+        Side::A,
+        Injection::new(Match::next_with_id(0x102, now), Fault::Delay(STALE)),
+    ));
+    until_on_bus(&mut net, 0x102);
+    let since = net.log.len();
+    reset_and_start(&mut net, 1);
+    net.run_for(Duration::from_millis(300));
+    assert_eq!(fault_of(&net, since, 1), None, "{:?}", &net.log[since..]);
+    assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
+    assert_eq!(net.output(33), 1, "the consumer follows node 1 again");
+}
+
+/// EN 50325-5 7.2.1, CiA 304 9.5: masquerade detection is armed right after NMT reset and
+/// start, also while a pair cut by the reset may still end: a frame on node 1's inverted
+/// identifier that is not the inverse of the pre-reset plain frame, and one on its plain
+/// identifier, are foreign.
+#[test]
+fn en50325_5_7_2_1_a_foreign_frame_right_after_reset_and_start_is_detected() {
+    use shared::{CanFrame, CanId};
+    for (id, data) in [(0x102u16, 0x5Au8), (0x101, 0x01)] {
+        let mut net = running();
+        let now = net.now;
+        net.node_mut(1).receive_faults.push((
+            Side::A,
+            Injection::new(Match::next_with_id(0x102, now), Fault::Delay(STALE)),
+        ));
+        until_on_bus(&mut net, 0x102);
+        let since = net.log.len();
+        reset_and_start(&mut net, 1);
+        net.send_foreign(CanFrame::new(CanId::new(id).unwrap(), &[data]).unwrap());
+        net.run_for(Duration::from_millis(300));
+        let (_, _, fault) = fault_of(&net, since, 1).expect("node 1 detects it");
+        assert_eq!(fault, ChannelFault::ForeignFrame { id }, "on {id:03X}h");
+        assert_eq!(net.output(33), 0, "the consumer is in its safe state");
+    }
+}
