@@ -212,11 +212,11 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
         let host = std::time::Instant::now();
         let (network, offset) = match &mut running {
             Some((network, offset)) => {
-                // The reset is not part of the scenario. Seen in 4 of 51 resets: node 1
-                // safe right after its restart with cause 34h (a frame on its identifier it
-                // did not send) and a GFC; in the one trace read, NMT reset node had come
-                // between node 1's plain and inverted frames, and an inverted frame followed
-                // the restart (docs/scenarios.md, "Not yet"). Said, and reset once more.
+                // The reset is not part of the scenario. Before channel A kept the pairs a
+                // reset cuts, 4 of 51 resets left node 1 safe with cause 34h (the inverted
+                // frame of a pair cut by the reset taken as foreign; docs/scenarios.md). A
+                // reset that does not bring both nodes back is still said, and done once
+                // more.
                 let reset = network
                     .reset()
                     .and_then(|()| crate::e2e::nominal(network, "after NMT reset node"));
