@@ -12,33 +12,38 @@ pub fn ms(micros: u64) -> String {
     format!("{}.{:03}", micros / 1000, micros % 1000)
 }
 
-/// The parts of a reaction as the first rows of a Markdown table.
-fn parts_table(parts: &[Part]) -> String {
+/// A reaction as a Markdown table: its parts, the fault-free sum, the path with one fault
+/// (`one_fault`: what that fault is) and the larger of the two.
+fn breakdown(
+    parts: &[Part],
+    fault_free_us: u64,
+    one_fault: &str,
+    one_fault_us: u64,
+    worst_us: u64,
+) -> String {
     let mut out = String::from("| part | worst case (ms) |\n|---|---:|\n");
     for part in parts {
         let _ = writeln!(out, "| {} | {} |", part.what, ms(part.micros));
     }
+    let _ = writeln!(out, "| **fault-free** | **{}** |", ms(fault_free_us));
+    let _ = writeln!(out, "| {one_fault} | {} |", ms(one_fault_us));
+    let _ = writeln!(
+        out,
+        "| **worst case: the network's part of the SFRT** | **{}** |",
+        ms(worst_us)
+    );
     out
 }
 
 /// One safety function's breakdown as a Markdown table.
 #[must_use]
 pub fn reaction_table(reaction: &Reaction) -> String {
-    let mut out = parts_table(&reaction.parts);
-    let _ = writeln!(
-        out,
-        "| **fault-free** | **{}** |",
-        ms(reaction.fault_free_us)
-    );
-    let _ = writeln!(
-        out,
-        "| with one communication fault (SCT, one frame, one step, output) | {} |",
-        ms(reaction.one_fault_us)
-    );
-    let _ = writeln!(
-        out,
-        "| **worst case: the network's part of the SFRT** | **{}** |",
-        ms(reaction.worst_us)
+    let mut out = breakdown(
+        &reaction.parts,
+        reaction.fault_free_us,
+        "with one communication fault (SCT, one frame, one step, output)",
+        reaction.one_fault_us,
+        reaction.worst_us,
     );
     let _ = writeln!(
         out,
@@ -127,22 +132,14 @@ pub fn simplecan_reactions(reactions: &[ScReaction], bit_rate: u32) -> String {
             reaction.consumer,
             bit_rate / 1000
         );
-        out.push_str(&parts_table(&reaction.parts));
-        let _ = writeln!(
-            out,
-            "| **fault-free** | **{}** |",
-            ms(reaction.fault_free_us)
-        );
-        let _ = writeln!(
-            out,
-            "| with the packet after the demand lost (safety timeout, SC_REQ_20) | {} |",
-            ms(reaction.one_fault_us)
-        );
-        let _ = writeln!(
-            out,
-            "| **worst case: the network's part of the SFRT** | **{}** |\n",
-            ms(reaction.worst_us)
-        );
+        out.push_str(&breakdown(
+            &reaction.parts,
+            reaction.fault_free_us,
+            "with the packet after the demand lost (safety timeout, SC_REQ_20)",
+            reaction.one_fault_us,
+            reaction.worst_us,
+        ));
+        out.push('\n');
     }
     out
 }
