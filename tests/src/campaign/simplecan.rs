@@ -340,6 +340,13 @@ pub const SECTION_BEGIN: &str = "<!-- simplecan-campaign:begin -->";
 /// The end marker.
 pub const SECTION_END: &str = "<!-- simplecan-campaign:end -->";
 
+/// The longest latency of `summary` in µs, "–" when nothing was detected.
+fn max_latency(summary: &ScSummary) -> String {
+    summary
+        .max_latency
+        .map_or("–".to_string(), |latency| latency.as_micros().to_string())
+}
+
 /// One line of the console output for `summary` of `class`.
 pub fn line(class: ScClass, summary: &ScSummary) -> String {
     format!(
@@ -349,9 +356,7 @@ pub fn line(class: ScClass, summary: &ScSummary) -> String {
         summary.detected,
         summary.harmless,
         summary.unsafe_,
-        summary
-            .max_latency
-            .map_or("–".to_string(), |latency| latency.as_micros().to_string()),
+        max_latency(summary),
         u64::from(TIMEOUT_MS) * 1_000
     )
 }
@@ -386,9 +391,7 @@ pub fn section(
             summary.detected,
             summary.harmless,
             summary.unsafe_,
-            summary
-                .max_latency
-                .map_or("–".to_string(), |latency| latency.as_micros().to_string()),
+            max_latency(summary),
             u64::from(TIMEOUT_MS) * 1_000
         ));
     }
