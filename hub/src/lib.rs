@@ -13,10 +13,13 @@
 //!   `load` command).
 //! - [`control`]: the hub's control port (input pins, faults, link cuts, load, status
 //!   reports).
+//! - [`events`]: the event log (frames with their senders, output changes, on the virtual
+//!   time) that the scenario runner's oracle reads.
 //! - [`tool`]: a client of the control port.
 
 pub mod bus;
 pub mod control;
+pub mod events;
 pub mod hub;
 pub mod load;
 pub mod pace;

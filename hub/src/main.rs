@@ -6,7 +6,7 @@
 //! can-hub --socket node1a=/tmp/bus/node1a.sock --socket node1b=/tmp/bus/node1b.sock \
 //!         --link node1-link=node1a,node1b --paced \
 //!         --tcp 127.0.0.1:29536 --control 127.0.0.1:29537 \
-//!         --candump bus.log --pcap bus.pcap --bit-rate 500000
+//!         --candump bus.log --pcap bus.pcap --events events.log --bit-rate 500000
 //! ```
 //!
 //! The hub listens on each `--socket` path for one QEMU instance, which speaks CAN-over-serial
@@ -35,6 +35,7 @@
 
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
 use can_hub::control::{self, Command, status_line};
+use can_hub::events;
 use can_hub::hub::Hub;
 use can_hub::load::Load;
 use can_hub::pace::{self, Pacer};
@@ -83,6 +84,10 @@ struct Args {
     /// Write a pcap (SocketCAN link type) here.
     #[arg(long)]
     pcap: Option<PathBuf>,
+    /// Write the event log here: every frame with its sender and every change of an emulated
+    /// channel's output, on the virtual time (`can_hub::events`, which gives the line format).
+    #[arg(long)]
+    events: Option<PathBuf>,
     /// Drop the next frame with this identifier after this many seconds: `0x102@2.5`
     /// (repeatable).
     #[arg(long)]
@@ -460,6 +465,16 @@ impl Hosts {
         (hub.queued(self.load_sender()) == 0).then(|| load.deadline())
     }
 
+    /// Participant `id` as the event log names a frame's sender (`can_hub::events`).
+    fn sender_name(&self, id: usize) -> String {
+        match self.names.get(id) {
+            Some(name) => name.clone(),
+            None if id == self.own_sender() => "hub".to_string(),
+            None if id == self.load_sender() => "load".to_string(),
+            None => format!("tool{id}"),
+        }
+    }
+
     fn participant(&self, name: &str) -> Result<usize, String> {
         self.names.iter().position(|n| n == name).ok_or_else(|| {
             format!(
@@ -620,6 +635,16 @@ fn run(
                 .map_err(|error| cannot_create("pcap trace", path, error))
         })
         .transpose()?;
+    let mut event_log = args
+        .events
+        .as_ref()
+        .map(|path| {
+            File::create(path)
+                .map(BufWriter::new)
+                .map_err(|error| cannot_create("event log", path, error))
+        })
+        .transpose()?;
+    let mut outputs = events::Outputs::default();
     let epoch = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64);
@@ -788,6 +813,7 @@ fn run(
             hub.leave(id);
         }
         let load_sender = hosts.load_sender();
+        let mut logged: Vec<(Instant, String)> = Vec::new();
         for (at, frame, from) in hub.completed.drain(..) {
             if let Some(load) = hosts.load.as_mut() {
                 load.completed(&frame, from == load_sender);
@@ -801,6 +827,9 @@ fn run(
                 pcap.write(stamp, &frame)?;
                 pcap.flush()?;
             }
+            if event_log.is_some() {
+                logged.push((at, events::frame_line(at, &hosts.sender_name(from), &frame)));
+            }
         }
         let statuses: Vec<_> = hub.statuses.drain(..).collect();
         for (at, id, status) in statuses {
@@ -809,7 +838,20 @@ fn run(
                 .get(id)
                 .cloned()
                 .unwrap_or_else(|| format!("tool{id}"));
+            if event_log.is_some()
+                && let Some(line) = outputs.report(at, &name, status.output)
+            {
+                logged.push((at, line));
+            }
             hosts.tell_controls(&status_line(&name, seconds(at), &status));
+        }
+        // In time order: this round's reports were taken before its frames ended.
+        if let Some(log) = event_log.as_mut() {
+            logged.sort_by_key(|(at, _)| *at);
+            for (_, line) in logged.drain(..) {
+                writeln!(log, "{line}")?;
+            }
+            log.flush()?;
         }
         for (at, id, frame) in hub.overflowed.drain(..) {
             let name = hosts.names.get(id).map_or("?", String::as_str);

@@ -36,6 +36,8 @@ fn start(port: u16) -> Hub {
         .arg(dir.join("bus.log"))
         .arg("--pcap")
         .arg(dir.join("bus.pcap"))
+        .arg("--events")
+        .arg(dir.join("events.log"))
         .spawn()
         .unwrap();
     Hub { child, dir }
@@ -165,6 +167,53 @@ fn frames_reach_the_other_participants_and_the_traces() {
         Ok(output) => panic!("tshark failed: {}", String::from_utf8_lossy(&output.stderr)),
         Err(_) => panic!("tshark is missing: run `cargo xtask setup`"),
     }
+
+    // The event log: the same frames with their senders (the MCU by its name, the tools by
+    // their participant numbers, after the MCU, the hub's own sender and its load), then
+    // the MCU's output as its status reports give it: its first value and each change only.
+    for output in [0, 1, 1, 0] {
+        let status = emulation_wire::Status {
+            output,
+            ..emulation_wire::Status::default()
+        };
+        node.write_all(&encode_wire(&Wire::Status(status))).unwrap();
+    }
+    let path = hub.dir.join("events.log");
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let events = loop {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let events = can_hub::events::parse(&text).unwrap();
+        if events.len() >= 6 || Instant::now() > deadline {
+            break events;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let described: Vec<String> = events
+        .iter()
+        .map(|event| match event {
+            can_hub::events::Event::Frame { from, frame, .. } => {
+                format!("{from} {:03X}", frame.id().raw())
+            }
+            can_hub::events::Event::Output { channel, value, .. } => {
+                format!("{channel} output {value}")
+            }
+        })
+        .collect();
+    assert_eq!(
+        described,
+        [
+            "mcu 701",
+            "tool3 601",
+            "tool4 001",
+            "mcu output 0",
+            "mcu output 1",
+            "mcu output 0"
+        ]
+    );
+    assert!(
+        events.windows(2).all(|pair| pair[0].at() <= pair[1].at()),
+        "{events:?}"
+    );
 }
 
 /// The control port: commands are answered, bad ones with the reason; an inserted frame
