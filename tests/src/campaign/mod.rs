@@ -20,6 +20,7 @@
 //! hooks).
 
 pub mod oracle;
+pub mod recorded;
 pub mod report;
 pub mod simplecan;
 pub mod simplecan_oracle;

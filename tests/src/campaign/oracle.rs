@@ -320,10 +320,11 @@ impl Monitor {
         self.allowed[index.saturating_sub(1)]
     }
 
-    /// The bits allowed at some point of `[t - REACTION, t]`: a lowering the rules require
-    /// may take up to [`REACTION`]; a raise is allowed only from its pair on.
-    fn allowed_within_reaction(&self, t: u64) -> u64 {
-        let start = t.saturating_sub(REACTION.as_micros());
+    /// The bits allowed at some point of `[t - allowance, t]`: a lowering the rules require
+    /// may take up to `allowance` ([`REACTION`] on the host simulation); a raise is allowed
+    /// only from its pair on.
+    fn allowed_within_reaction(&self, t: u64, allowance: Duration) -> u64 {
+        let start = t.saturating_sub(allowance.as_micros());
         let mut bits = self.allowed_at(start).bits;
         for change in &self.allowed {
             if change.from > start && change.from <= t {
@@ -345,6 +346,20 @@ pub fn judge(
     frames: &[Observed],
     outputs: &[(Instant, usize, u64)],
     end: Instant,
+) -> Judgement {
+    judge_with_allowance(srdo, frames, outputs, end, REACTION)
+}
+
+/// [`judge`] with another allowance than [`REACTION`] for a lowering the rules require:
+/// for outputs observed on another clock than the frames', the bound of the two clocks'
+/// difference added (the emulated network's, `super::recorded::EMULATED_ALLOWANCE`). The
+/// rules are the same; a raise ahead of its pair on the frames' clock stays a violation.
+pub fn judge_with_allowance(
+    srdo: MonitoredSrdo,
+    frames: &[Observed],
+    outputs: &[(Instant, usize, u64)],
+    end: Instant,
+    allowance: Duration,
 ) -> Judgement {
     let mut monitor = Monitor::new(srdo);
     // In time order (stable: frames at the same instant keep the bus's order), whatever
@@ -384,7 +399,7 @@ pub fn judge(
         monitor
             .allowed
             .iter()
-            .map(|change| change.from + REACTION.as_micros()),
+            .map(|change| change.from + allowance.as_micros()),
     );
     checks.retain(|t| *t <= end.as_micros());
     checks.sort_unstable();
@@ -392,7 +407,7 @@ pub fn judge(
     let mut violations = Vec::new();
     for t in checks {
         let output = output_at(t);
-        let allowed = monitor.allowed_within_reaction(t);
+        let allowed = monitor.allowed_within_reaction(t, allowance);
         if output & !allowed != 0 {
             let rule = monitor.allowed_at(t);
             violations.push(Violation {
