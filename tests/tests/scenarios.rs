@@ -191,6 +191,7 @@ mod emulated {
     //! and the bus trace on the hub's clock.
 
     use super::dir;
+    use can_hub::events::Event;
     use emulation_wire::Status;
     use shared::safety::cause::Cause;
     use system_tests::scenario_runner::emulated::{self, Observed};
@@ -212,9 +213,37 @@ mod emulated {
         }
     }
 
+    /// A hand-made event log of the emulated network (`can_hub::events`): the tool starts all
+    /// nodes at `nmt` s, node 1's channels send released (01h, FEh) every 100 ms from
+    /// 100 ms later until `until` s, the inverted frame of the pair at `lost` s lost, then
+    /// `tail`; node 33's channels report their output on 10 ms after the first pair.
+    fn event_log(nmt: f64, until: f64, lost: Option<f64>, tail: &str) -> Vec<Event> {
+        let micros = |seconds: f64| (seconds * 1e6).round() as u64;
+        let t = |micros: u64| format!("{}.{:06}", micros / 1_000_000, micros % 1_000_000);
+        let mut text = format!("frame t={} from=tool6 000#0100\n", t(micros(nmt)));
+        let mut plain = micros(nmt) + 100_000;
+        while plain <= micros(until) {
+            text += &format!("frame t={} from=node1a 101#01\n", t(plain));
+            if lost.map(micros) != Some(plain) {
+                text += &format!("frame t={} from=node1b 102#FE\n", t(plain + 300));
+            }
+            if plain == micros(nmt) + 100_000 {
+                text += &format!("output t={} node33a 1\n", t(plain + 10_000));
+                text += &format!("output t={} node33b 1\n", t(plain + 10_000));
+            }
+            plain += 100_000;
+        }
+        text += tail;
+        let mut events = can_hub::events::parse(&text).expect("the log reads");
+        events.sort_by_key(Event::at);
+        events
+    }
+
     /// Node 33 working from 9.9 s (both channels), the step at 200 ms applied late at
     /// 10.25 s (start 10.0 s), then channel B safe first, telling channel A (40h), which
-    /// reports at 10.47 s.
+    /// reports at 10.47 s. The event log: node 1's pairs from 9.1 s, the inverted frame at
+    /// 10.3 s lost, node 33's output off at 10.44 s (SRVT elapsed at 10.4 s: within the
+    /// emulation's allowance).
     fn srvt_case() -> Observed {
         let on = status(true, 1, Cause::None);
         Observed {
@@ -236,6 +265,13 @@ mod emulated {
             ],
             frames: Vec::new(),
             end: 10.8,
+            events: event_log(
+                9.0,
+                10.3,
+                Some(10.3),
+                "output t=10.440000 node33a 0\noutput t=10.460000 node33b 0\n",
+            ),
+            judged_from: 0.0,
         }
     }
 
@@ -293,6 +329,8 @@ mod emulated {
             statuses: vec![("node33a".into(), 4.9, on), ("node33b".into(), 4.9, on)],
             frames: Vec::new(),
             end: 5.8,
+            events: event_log(4.0, 5.8, None, ""),
+            judged_from: 0.0,
         };
         let report = emulated::judge(&scenario, &observed);
         assert!(report.passed(), "{}", report.text(&scenario));
@@ -312,8 +350,72 @@ mod emulated {
                 "channel B left the working state at 300.000 ms (plain frame repeated with other data)",
                 "0x00",
                 "1 EMCY, the first at 310.000 ms: [00, 82]",
+                "no output unjustified",
             ]
         );
+    }
+
+    /// Beside the file's bounds, the campaigns' oracle judges the emulated run from the hub's
+    /// event log: node 33's output on after a well-formed pair from another sender (the
+    /// hub's `insert`: 101h#03, 102h#FCh) carrying a bit node 1 never sent fails the run,
+    /// at the instant and why, with the frames' senders in the timeline, although the
+    /// file's expectations hold; a finding before the scenario (`judged_from`) is the one
+    /// before's. A run without an event log is not passed for want of one.
+    #[test]
+    fn the_oracle_fails_an_emulated_run_whose_output_follows_a_foreign_pair() {
+        let scenario = emulated_scenario("masquerade-well-formed-pair.toml");
+        let on = status(true, 1, Cause::None);
+        let gfc = status(false, 0, Cause::Gfc);
+        let foreign = "frame t=5.200000 from=hub 101#03\nframe t=5.200300 from=hub 102#FC\n\
+                       output t=5.210000 node33a 3\noutput t=5.210000 node33b 3\n\
+                       frame t=5.260000 from=node1a 001#\n\
+                       output t=5.270000 node33a 0\noutput t=5.270000 node33b 0\n";
+        let mut observed = Observed {
+            start: 5.0,
+            applied: vec![5.199, 5.1995],
+            statuses: vec![
+                ("node33a".into(), 4.9, on),
+                ("node33b".into(), 4.9, on),
+                ("node33a".into(), 5.27, gfc),
+                ("node33b".into(), 5.27, gfc),
+            ],
+            frames: Vec::new(),
+            end: 5.6,
+            events: event_log(4.0, 5.15, None, foreign),
+            judged_from: 0.0,
+        };
+        let report = emulated::judge(&scenario, &observed);
+        let text = report.text(&scenario);
+        assert!(!report.passed(), "{text}");
+        let oracle = report.checks.last().expect("the oracle's check");
+        assert!(
+            report.checks[..report.checks.len() - 1]
+                .iter()
+                .all(|check| check.passed),
+            "the file's own bounds hold: {text}"
+        );
+        assert_eq!(oracle.line, 0);
+        assert!(
+            oracle
+                .measured
+                .starts_with("1 unjustified output(s), the first at 210.000 ms: output 0x3"),
+            "{}",
+            oracle.measured
+        );
+        let timeline = report.timeline.as_deref().expect("a timeline");
+        assert!(timeline.contains("101 [1] [03] from hub"), "{timeline}");
+        assert!(timeline.contains("output  node33b: 3"), "{timeline}");
+
+        observed.judged_from = 5.3;
+        assert!(emulated::judge(&scenario, &observed).passed());
+
+        observed.events.clear();
+        let report = emulated::judge(&scenario, &observed);
+        assert_eq!(
+            report.checks.last().map(|check| check.measured.as_str()),
+            Some("no event log: nothing was judged")
+        );
+        assert!(!report.passed());
     }
 
     /// Each step is the hub's control command (`hub/src/control.rs`); NMT and GFC are

@@ -21,8 +21,12 @@
 //! network is touched.
 
 use super::{BEFORE_EMULATED, Check, Played, Report, ms};
+use crate::campaign::oracle::Judgement;
+use crate::campaign::recorded::Recorded;
+use crate::dual::Side;
 use crate::scenario_runner::file::{Channel, Expectation, FaultSpec, Scenario, Step, Stimulus};
 use can_hub::control::Command;
+use can_hub::events::Event;
 use emulation_wire::Status;
 use shared::canopen::nmt;
 use shared::safety::cause::Cause;
@@ -161,6 +165,13 @@ pub struct Observed {
     pub frames: Vec<(f64, CanFrame)>,
     /// The end of the run.
     pub end: f64,
+    /// The hub's event log (`can_hub::events`) of the network the scenario played on, from
+    /// the network's start to [`Observed::end`]: the oracle's input.
+    pub events: Vec<Event>,
+    /// From when the oracle's findings count, on the hub's clock: the end of the scenario
+    /// played before on the same network (so the reset between them is judged with this
+    /// one), 0 for the first.
+    pub judged_from: f64,
 }
 
 impl Observed {
@@ -394,6 +405,10 @@ pub fn judge(scenario: &Scenario, observed: &Observed) -> Report {
         });
         windows.push(span);
     }
+    for (check, window) in oracle_checks(scenario, observed) {
+        checks.push(check);
+        windows.push(window);
+    }
     let timeline = checks
         .iter()
         .zip(&windows)
@@ -414,6 +429,71 @@ pub fn judge(scenario: &Scenario, observed: &Observed) -> Report {
     }
 }
 
+/// Seconds on the hub's clock as an instant.
+fn instant(seconds: f64) -> shared::Instant {
+    shared::Instant::from_micros((seconds.max(0.0) * 1e6).round() as u64)
+}
+
+/// The oracle's verdict on each receive SRDO 1 of the scenario's network whose producer is
+/// in it (the status reports carry receive SRDO 1's output only), from the hub's event log
+/// ([`Recorded`]: the same oracle as the campaigns and the host runs, with the emulation's
+/// allowance), with the timeline window around its first finding. The whole log from the
+/// network's start is judged, so the oracle knows every pair before the scenario; findings
+/// before [`Observed::judged_from`] belong to the scenario before and are left out.
+fn oracle_checks(scenario: &Scenario, observed: &Observed) -> Vec<(Check, (f64, f64))> {
+    if observed.events.is_empty() {
+        let check = Check {
+            line: 0,
+            expected: "the hub's event log, for the oracle to judge".to_string(),
+            measured: "no event log: nothing was judged".to_string(),
+            passed: false,
+            window: (instant(observed.start), instant(observed.end)),
+        };
+        return vec![(check, (observed.start, observed.end))];
+    }
+    let mut recorded = Recorded::new(&observed.events);
+    let channel = |side: Side| match side {
+        Side::A => Channel::A,
+        Side::B => Channel::B,
+    };
+    let watched = super::monitored(scenario, |node, side| {
+        recorded.participant(&participant(node, channel(side)))
+    });
+    let (start, end) = (instant(observed.start), instant(observed.end));
+    watched
+        .into_iter()
+        .filter(|(_, number, _)| *number == 1)
+        .map(|(consumer, number, srdo)| {
+            let channels = [
+                participant(consumer, Channel::A),
+                participant(consumer, Channel::B),
+            ];
+            let judged = recorded.judge(srdo, [&channels[0], &channels[1]], end);
+            let from = instant(observed.judged_from);
+            let judgement = Judgement {
+                violations: judged
+                    .violations
+                    .into_iter()
+                    .filter(|violation| violation.at >= from)
+                    .collect(),
+                first_error: judged.first_error,
+            };
+            let window =
+                judgement
+                    .violations
+                    .first()
+                    .map_or((observed.start, observed.end), |violation| {
+                        let at = violation.at.as_micros() as f64 / 1e6;
+                        (at - BEFORE_EMULATED, at + AFTER)
+                    });
+            (
+                super::oracle_check(consumer, number, &judgement, start, end),
+                window,
+            )
+        })
+        .collect()
+}
+
 /// The steps the hub took, the reports and the frames from `from` to `to` (hub seconds),
 /// times from the scenario's start: what the hub saw around a failure.
 pub fn timeline(scenario: &Scenario, observed: &Observed, from: f64, to: f64, why: &str) -> String {
@@ -423,18 +503,34 @@ pub fn timeline(scenario: &Scenario, observed: &Observed, from: f64, to: f64, wh
             lines.push((*applied, step_line(step)));
         }
     }
-    for (when, frame) in &observed.frames {
-        if *when >= from && *when <= to {
-            lines.push((
-                *when,
-                format!(
-                    "bus     {:03X} [{}] {:02X?}",
-                    frame.id().raw(),
-                    frame.dlc(),
-                    frame.data()
-                ),
-            ));
+    let bus = |frame: &CanFrame| {
+        format!(
+            "bus     {:03X} [{}] {:02X?}",
+            frame.id().raw(),
+            frame.dlc(),
+            frame.data()
+        )
+    };
+    if observed.events.is_empty() {
+        for (when, frame) in &observed.frames {
+            if *when >= from && *when <= to {
+                lines.push((*when, bus(frame)));
+            }
         }
+    }
+    // The event log's frames with their senders, and the output changes as reported.
+    for event in &observed.events {
+        let when = event.at().as_micros() as f64 / 1e6;
+        if when < from || when > to {
+            continue;
+        }
+        lines.push((
+            when,
+            match event {
+                Event::Frame { from, frame, .. } => format!("{} from {from}", bus(frame)),
+                Event::Output { channel, value, .. } => format!("output  {channel}: {value}"),
+            },
+        ));
     }
     for (who, when, status) in &observed.statuses {
         if *when >= from && *when <= to {

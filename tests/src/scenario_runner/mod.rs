@@ -361,8 +361,13 @@ fn output_at(net: &DualNetwork, id: u8, when: Instant) -> u64 {
 }
 
 /// The receive SRDOs whose producer is in the network, as the oracle watches them:
-/// (consumer, SRDO number, what to watch).
-fn monitored(scenario: &Scenario, net: &DualNetwork) -> Vec<(u8, u8, MonitoredSrdo)> {
+/// (consumer, SRDO number, what to watch); `participant` gives the bus participant of a
+/// node's channel (the host simulation's numbers, or the emulated network's names as the
+/// recorded log numbers them).
+fn monitored(
+    scenario: &Scenario,
+    mut participant: impl FnMut(u8, Side) -> usize,
+) -> Vec<(u8, u8, MonitoredSrdo)> {
     let mut watched = Vec::new();
     for consumer in &scenario.network.nodes {
         for srdo in consumer.srdos.iter().filter(|s| s.settings.direction == 2) {
@@ -392,8 +397,8 @@ fn monitored(scenario: &Scenario, net: &DualNetwork) -> Vec<(u8, u8, MonitoredSr
                     sct: Duration::from_millis(u64::from(srdo.settings.cycle_time)),
                     srvt: Duration::from_millis(u64::from(srdo.settings.srvt)),
                     producer: [
-                        participant(net, producer.id, Side::A),
-                        participant(net, producer.id, Side::B),
+                        participant(producer.id, Side::A),
+                        participant(producer.id, Side::B),
                     ],
                 },
             ));
@@ -446,7 +451,7 @@ pub fn run(scenario: &Scenario) -> Result<Report, String> {
         .iter()
         .map(|expect| check(&net, start, end, expect))
         .collect();
-    for (consumer, number, watched) in monitored(scenario, &net) {
+    for (consumer, number, watched) in monitored(scenario, |id, side| participant(&net, id, side)) {
         let outputs: Vec<(Instant, usize, u64)> = net
             .outputs
             .iter()
@@ -454,26 +459,7 @@ pub fn run(scenario: &Scenario) -> Result<Report, String> {
             .map(|(when, _, side, _, value)| (*when, *side as usize, *value))
             .collect();
         let judgement = oracle::judge(watched, &net.trace, &outputs, end);
-        let first = judgement.violations.first();
-        checks.push(Check {
-            line: 0,
-            expected: format!(
-                "node {consumer} SRDO {number} carries only data of valid pairs from its producer within SCT and SRVT"
-            ),
-            measured: match first {
-                None => "no output unjustified".to_string(),
-                Some(violation) => format!(
-                    "{} unjustified output(s), the first at {}: {}",
-                    judgement.violations.len(),
-                    ms(violation.at.saturating_since(start)),
-                    violation.why
-                ),
-            },
-            passed: first.is_none(),
-            window: first.map_or((start, end), |violation| {
-                (earlier(violation.at, BEFORE), violation.at + AFTER)
-            }),
-        });
+        checks.push(oracle_check(consumer, number, &judgement, start, end));
     }
     let timeline = checks.iter().find(|check| !check.passed).map(|check| {
         let (from, to) = check.window;
@@ -484,6 +470,48 @@ pub fn run(scenario: &Scenario) -> Result<Report, String> {
         timeline,
         played: Played::Host,
     })
+}
+
+/// The oracle's verdict on receive SRDO `number` of node `consumer` as a check: PASS when
+/// no output was unjustified, else the number of unjustified outputs, the first one's time
+/// from `start` and why; its window is around the first (or the whole run to `end`).
+fn oracle_check(
+    consumer: u8,
+    number: u8,
+    judgement: &oracle::Judgement,
+    start: Instant,
+    end: Instant,
+) -> Check {
+    let first = judgement.violations.first();
+    Check {
+        line: 0,
+        expected: format!(
+            "node {consumer} SRDO {number} carries only data of valid pairs from its producer within SCT and SRVT"
+        ),
+        measured: match first {
+            None => "no output unjustified".to_string(),
+            Some(violation) => format!(
+                "{} unjustified output(s), the first at {}: {}",
+                judgement.violations.len(),
+                ms_signed(violation.at, start),
+                violation.why
+            ),
+        },
+        passed: first.is_none(),
+        window: first.map_or((start, end), |violation| {
+            (earlier(violation.at, BEFORE), violation.at + AFTER)
+        }),
+    }
+}
+
+/// `at` from `start` in milliseconds, negative before it (the emulated runs judge the reset
+/// before a scenario's time 0 too).
+fn ms_signed(at: Instant, start: Instant) -> String {
+    if at >= start {
+        ms(at.saturating_since(start))
+    } else {
+        format!("-{}", ms(start.saturating_since(at)))
+    }
 }
 
 /// `duration` before `instant`, or time 0.
