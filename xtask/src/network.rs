@@ -319,6 +319,8 @@ impl Network {
             .arg(dir.join("bus.log"))
             .arg("--pcap")
             .arg(dir.join("bus.pcap"))
+            .arg("--events")
+            .arg(dir.join("events.log"))
             .stderr(std::fs::File::create(dir.join("hub.err"))?)
             .process_group(0);
         ports_free()?;

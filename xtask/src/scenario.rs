@@ -130,10 +130,43 @@ fn wait_until(network: &mut Network, t: f64, offset: f64) -> Result<()> {
     }
 }
 
+/// The hub's event log of `network` (`can-hub --events`, `can_hub::events`): every frame
+/// with its sender and every output change since the network started, up to `end` (hub
+/// seconds). The hub writes a round's events at the end of the round, after it told the
+/// control port the round's reports: the log is read until it holds an event after `end`
+/// (the bus carries a heartbeat every 100 ms), so that none up to `end` is missing.
+fn event_log(network: &mut Network, end: f64) -> Result<Vec<can_hub::events::Event>> {
+    let path = network.dir().join("events.log");
+    let end = shared::Instant::from_micros((end * 1e6).round() as u64);
+    for _ in 0..100 {
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading the hub's event log {}", path.display()))?;
+        let events = can_hub::events::parse(&text).with_context(|| path.display().to_string())?;
+        if events.last().is_some_and(|event| event.at() > end) {
+            return Ok(events
+                .into_iter()
+                .filter(|event| event.at() <= end)
+                .collect());
+        }
+        network.wait_for(Duration::from_millis(50), |_| false)?;
+    }
+    bail!(
+        "the hub's event log {} holds nothing after {:.6} s, the end of the scenario",
+        path.display(),
+        end.as_micros() as f64 / 1e6
+    )
+}
+
 /// Plays `scenario` on the running network from now: time 0 is a `clear` (no fault left),
 /// each step once the hub's clock has reached its time ([`wait_until`]); returns what the
-/// hub saw.
-fn play(network: &mut Network, scenario: &Scenario, offset: f64) -> Result<Observed> {
+/// hub saw, the oracle's findings counted from `judged_from` (hub seconds: the end of the
+/// scenario before on this network, 0 for the first).
+fn play(
+    network: &mut Network,
+    scenario: &Scenario,
+    offset: f64,
+    judged_from: f64,
+) -> Result<Observed> {
     let start = network.command("clear")?;
     let mut applied = Vec::new();
     for step in &scenario.steps {
@@ -172,6 +205,8 @@ fn play(network: &mut Network, scenario: &Scenario, offset: f64) -> Result<Obser
         statuses,
         frames,
         end,
+        events: event_log(network, end)?,
+        judged_from,
     })
 }
 
@@ -205,13 +240,14 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
     // network serves every other scenario.
     scenarios.sort_by_key(player::cuts_a_link);
     let began = std::time::Instant::now();
-    let mut running: Option<(Network, f64)> = None;
+    // The running network, its trace offset, and the end of the scenario played last on it.
+    let mut running: Option<(Network, f64, f64)> = None;
     let mut played = Vec::new();
     let mut failure = None;
     for scenario in scenarios {
         let host = std::time::Instant::now();
-        let (network, offset) = match &mut running {
-            Some((network, offset)) => {
+        let (network, offset, judged_from) = match &mut running {
+            Some((network, offset, judged_from)) => {
                 // The reset is not part of the scenario. Before channel A kept the pairs a
                 // reset cuts, 4 of 51 resets left node 1 safe with cause 34h (the inverted
                 // frame of a pair cut by the reset taken as foreign; docs/scenarios.md). A
@@ -229,18 +265,19 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
                     network.reset()?;
                     crate::e2e::nominal(network, "after a second NMT reset node")?;
                 }
-                (network, *offset)
+                (network, *offset, judged_from)
             }
             None => {
                 let mut network = Network::start(root)?;
                 crate::e2e::nominal(&mut network, "at the start")?;
                 let offset = trace_offset(&mut network)?;
-                let (network, offset) = running.insert((network, offset));
-                (network, *offset)
+                let (network, offset, judged_from) = running.insert((network, offset, 0.0));
+                (network, *offset, judged_from)
             }
         };
-        let observed = play(network, &scenario, offset)
+        let observed = play(network, &scenario, offset, *judged_from)
             .with_context(|| format!("playing {}", scenario.path.display()))?;
+        *judged_from = observed.end;
         let report = player::judge(&scenario, &observed);
         print!("{}", report.text(&scenario));
         for (step, applied) in scenario.steps.iter().zip(&observed.applied) {
@@ -256,14 +293,14 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
             failure = Some(scenario.path.display().to_string());
         }
         if player::cuts_a_link(&scenario) {
-            if let Some((network, _)) = running.take() {
+            if let Some((network, ..)) = running.take() {
                 let _ = network.stop()?;
             }
         }
         played.push(Played { scenario, report });
     }
-    let pace = running.as_ref().map(|(network, _)| network.pace_summary());
-    if let Some((network, _)) = running.take() {
+    let pace = running.as_ref().map(|(network, ..)| network.pace_summary());
+    if let Some((network, ..)) = running.take() {
         let _ = network.stop()?;
     }
     summary(&played);
