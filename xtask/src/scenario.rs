@@ -9,7 +9,9 @@
 //! images of `cargo xtask run` ([`crate::network`]), each step sent to the hub's control
 //! port when the hub's clock reaches it, every expectation judged from the channels' status
 //! reports and the hub's bus trace (`system_tests::scenario_runner::emulated`), printed as
-//! the host runs print it.
+//! the host runs print it; and the campaigns' oracle's verdict on each scenario from the
+//! hub's event log (`target/emulate/events.log`, `can_hub::events`), which fails the run
+//! when it finds an unjustified output.
 
 use crate::network::{self, Network};
 use anyhow::{Context, Result, anyhow, bail};

@@ -68,6 +68,31 @@ impl Recorded {
         }
     }
 
+    /// When the effective output of the consumer whose channels are `channels` (both in
+    /// series: 0 when either is 0, and before both have reported) was first 0 at or after
+    /// `from`: what the runner puts beside the moment the rules required the safe state.
+    pub fn off_from(&self, channels: [&str; 2], from: Instant) -> Option<Instant> {
+        let mut values = [0u8; 2];
+        let mut heard = [false; 2];
+        let off = |values: [u8; 2], heard: [bool; 2]| {
+            !(heard[0] && heard[1]) || values[0] & values[1] == 0
+        };
+        for (at, name, value) in &self.outputs {
+            if *at > from && off(values, heard) {
+                return Some(from);
+            }
+            let Some(channel) = channels.iter().position(|channel| channel == name) else {
+                continue;
+            };
+            values[channel] = *value;
+            heard[channel] = true;
+            if *at >= from && off(values, heard) {
+                return Some(*at);
+            }
+        }
+        off(values, heard).then_some(from)
+    }
+
     /// The oracle's judgement of receive SRDO `srdo` of the consumer whose two channels'
     /// outputs are `channels` (the names in the log, channel A first), up to `end`, with
     /// [`EMULATED_ALLOWANCE`].
@@ -201,6 +226,26 @@ mod tests {
             judgement.violations.first().map(|violation| violation.at),
             Some(Instant::from_micros(1_100_000))
         );
+    }
+
+    /// The consumer's output is off from the first report at or after the moment asked
+    /// about in which either channel is 0, or at once when it already was.
+    #[test]
+    fn the_consumer_is_off_from_the_first_report_of_a_channel_at_0() {
+        let events = events::parse(&log(
+            "output t=1.420000 node33b 0\noutput t=1.500000 node33b 1\n",
+        ))
+        .expect("the log reads");
+        let recorded = Recorded::new(&events);
+        let off = |ms| recorded.off_from(["node33a", "node33b"], Instant::from_millis(ms));
+        assert_eq!(
+            off(1_000),
+            Some(Instant::from_millis(1_000)),
+            "before any report"
+        );
+        assert_eq!(off(1_200), Some(Instant::from_millis(1_420)));
+        assert_eq!(off(1_450), Some(Instant::from_millis(1_450)), "off already");
+        assert_eq!(off(1_550), None, "on again to the end");
     }
 
     /// The allowance is the oracle's own plus twice the emulation's lookahead.

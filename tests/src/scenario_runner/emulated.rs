@@ -2,7 +2,12 @@
 //! `cargo xtask scenario --emulated`): each step as the hub's control command
 //! ([`commands`], `hub/src/control.rs`), and the expectations judged from what the hub
 //! observed ([`judge`]): the channels' own status reports and the bus trace, both on the
-//! hub's virtual time. xtask does the I/O (starts the network, sends the commands when the
+//! hub's virtual time. Beside the file's bounds, the campaigns' oracle
+//! ([`crate::campaign::oracle`], which does not reuse the implementation) judges every run
+//! from the hub's event log (`can_hub::events`: each frame with its sender, each output
+//! change; [`crate::campaign::recorded`] turns it into the oracle's input): an output not
+//! justified by a valid pair from node 1 within SCT and SRVT fails the run, with the
+//! instant and why. xtask does the I/O (starts the network, sends the commands when the
 //! hub's time reaches each step, collects the reports and the trace); everything here is
 //! sans-I/O, so it is tested on recorded observations without QEMU.
 //!
@@ -22,7 +27,7 @@
 
 use super::{BEFORE_EMULATED, Check, Played, Report, ms};
 use crate::campaign::oracle::Judgement;
-use crate::campaign::recorded::Recorded;
+use crate::campaign::recorded::{EMULATED_ALLOWANCE, Recorded};
 use crate::dual::Side;
 use crate::scenario_runner::file::{Channel, Expectation, FaultSpec, Scenario, Step, Stimulus};
 use can_hub::control::Command;
@@ -486,10 +491,25 @@ fn oracle_checks(scenario: &Scenario, observed: &Observed) -> Vec<(Check, (f64, 
                         let at = violation.at.as_micros() as f64 / 1e6;
                         (at - BEFORE_EMULATED, at + AFTER)
                     });
-            (
-                super::oracle_check(consumer, number, &judgement, start, end),
-                window,
-            )
+            let mut check = super::oracle_check(consumer, number, &judgement, start, end);
+            // Beside a pass, how soon after the rules first required the safe state the
+            // output was off, against the allowance.
+            if let (true, Some((at, why))) = (check.passed, judgement.first_error)
+                && at >= from
+            {
+                let off = recorded.off_from([&channels[0], &channels[1]], at);
+                let _ = write!(
+                    check.measured,
+                    "; the safe state first required at t = {} ({why}), the output off {}",
+                    super::ms_signed(at, start),
+                    off.map_or("never".to_string(), |off| format!(
+                        "{} later (allowed {})",
+                        ms(off.saturating_since(at)),
+                        ms(EMULATED_ALLOWANCE)
+                    ))
+                );
+            }
+            (check, window)
         })
         .collect()
 }
