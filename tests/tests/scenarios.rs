@@ -290,6 +290,35 @@ mod emulated {
             safe.measured
         );
         assert!(report.text(&scenario).contains("on the emulated network"));
+        let oracle = report.checks.last().expect("the oracle's check");
+        assert!(
+            oracle.measured.ends_with(
+                "the safe state first required at t = 400.000 ms (SRVT elapsed with a plain \
+                 frame pending), the output off 40.000 ms later (allowed 41.000 ms)"
+            ),
+            "{}",
+            oracle.measured
+        );
+        // Judged from after an NMT reset of all nodes and their start again, the first
+        // requirement is the one since the reset.
+        let mut later = srvt_case();
+        later.events.extend(
+            can_hub::events::parse(
+                "frame t=10.500000 from=tool6 000#8100\nframe t=10.600000 from=tool6 000#0100\n\
+                 frame t=10.700000 from=node1a 101#01\nframe t=10.750000 from=tool6 001#\n",
+            )
+            .expect("the log reads"),
+        );
+        later.judged_from = 10.55;
+        let report = emulated::judge(&scenario, &later);
+        let oracle = report.checks.last().expect("the oracle's check");
+        assert!(
+            oracle
+                .measured
+                .contains("first required at t = 750.000 ms (GFC on the bus)"),
+            "{}",
+            oracle.measured
+        );
     }
 
     /// Too late, or the wrong cause, fails with the measurement and prints the reports and

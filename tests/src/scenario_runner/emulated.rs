@@ -494,8 +494,7 @@ fn oracle_checks(scenario: &Scenario, observed: &Observed) -> Vec<(Check, (f64, 
             let mut check = super::oracle_check(consumer, number, &judgement, start, end);
             // Beside a pass, how soon after the rules first required the safe state the
             // output was off, against the allowance.
-            if let (true, Some((at, why))) = (check.passed, judgement.first_error)
-                && at >= from
+            if let (true, Some((at, why))) = (check.passed, first_error(&recorded, srdo, from, end))
             {
                 let off = recorded.off_from([&channels[0], &channels[1]], at);
                 let _ = write!(
@@ -512,6 +511,30 @@ fn oracle_checks(scenario: &Scenario, observed: &Observed) -> Vec<(Check, (f64, 
             (check, window)
         })
         .collect()
+}
+
+/// The first moment at or after `from` at which the oracle's rules require the safe state
+/// for `srdo`, and why. The oracle latches its first finding until an NMT reset, as the
+/// device does, so it is asked again on the frames from the last NMT reset (of the consumer
+/// or of all nodes) at or before `from` on: the reset between two scenarios on one network.
+fn first_error(
+    recorded: &Recorded,
+    srdo: crate::campaign::oracle::MonitoredSrdo,
+    from: shared::Instant,
+    end: shared::Instant,
+) -> Option<(shared::Instant, &'static str)> {
+    let reset = |frame: &CanFrame| {
+        frame.id().raw() == 0x000
+            && matches!(frame.data(), [0x81 | 0x82, node] if *node == 0 || *node == srdo.consumer)
+    };
+    let since = recorded
+        .frames
+        .iter()
+        .rposition(|(at, frame, _)| *at <= from && reset(frame))
+        .unwrap_or(0);
+    crate::campaign::oracle::judge(srdo, &recorded.frames[since..], &[], end)
+        .first_error
+        .filter(|(at, _)| *at >= from)
 }
 
 /// The steps the hub took, the reports and the frames from `from` to `to` (hub seconds),
