@@ -299,8 +299,8 @@ mod emulated {
             "{}",
             oracle.measured
         );
-        // Judged from after an NMT reset of all nodes and their start again, the first
-        // requirement is the one since the reset.
+        // A scenario after an NMT reset of all nodes and their start again: the first
+        // requirement named is the one since the reset, not the scenario's before.
         let mut later = srvt_case();
         later.events.extend(
             can_hub::events::parse(
@@ -310,12 +310,13 @@ mod emulated {
             .expect("the log reads"),
         );
         later.judged_from = 10.55;
+        later.start = 10.62;
         let report = emulated::judge(&scenario, &later);
         let oracle = report.checks.last().expect("the oracle's check");
         assert!(
             oracle
                 .measured
-                .contains("first required at t = 750.000 ms (GFC on the bus)"),
+                .contains("first required at t = 130.000 ms (GFC on the bus)"),
             "{}",
             oracle.measured
         );

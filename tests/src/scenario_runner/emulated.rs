@@ -494,7 +494,8 @@ fn oracle_checks(scenario: &Scenario, observed: &Observed) -> Vec<(Check, (f64, 
             let mut check = super::oracle_check(consumer, number, &judgement, start, end);
             // Beside a pass, how soon after the rules first required the safe state the
             // output was off, against the allowance.
-            if let (true, Some((at, why))) = (check.passed, first_error(&recorded, srdo, from, end))
+            if let (true, Some((at, why))) =
+                (check.passed, first_error(&recorded, srdo, start, end))
             {
                 let off = recorded.off_from([&channels[0], &channels[1]], at);
                 let _ = write!(
@@ -513,10 +514,11 @@ fn oracle_checks(scenario: &Scenario, observed: &Observed) -> Vec<(Check, (f64, 
         .collect()
 }
 
-/// The first moment at or after `from` at which the oracle's rules require the safe state
-/// for `srdo`, and why. The oracle latches its first finding until an NMT reset, as the
-/// device does, so it is asked again on the frames from the last NMT reset (of the consumer
-/// or of all nodes) at or before `from` on: the reset between two scenarios on one network.
+/// The first moment at or after `from` (the scenario's time 0) at which the oracle's rules
+/// require the safe state for `srdo`, and why. The oracle latches its first finding until
+/// an NMT reset, as the device does, so it is asked again on the frames from the last NMT
+/// reset (of the consumer or of all nodes) at or before `from` on: the reset that the player
+/// sends between two scenarios on one network.
 fn first_error(
     recorded: &Recorded,
     srdo: crate::campaign::oracle::MonitoredSrdo,
