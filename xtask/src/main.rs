@@ -80,6 +80,10 @@ enum Task {
         /// Stop after the start-up self-tests; fail unless they pass.
         #[arg(long)]
         selftest: bool,
+        /// With `--selftest`: count the instructions of each start-up self-test in a trace
+        /// of the run (one line per instruction) instead of printing the log.
+        #[arg(long, requires = "selftest")]
+        count: bool,
         /// Stop the run after this many seconds.
         #[arg(long, default_value_t = 5)]
         seconds: u64,
@@ -278,8 +282,9 @@ fn task() -> Result<()> {
         Task::Qemu {
             channel,
             selftest,
+            count,
             seconds,
-        } => qemu::task(&root, &channel, selftest, seconds),
+        } => qemu::task(&root, &channel, selftest, count, seconds),
         Task::Flash { channel } => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;
