@@ -5,6 +5,7 @@
 
 mod bench;
 mod campaign;
+mod child;
 mod e2e;
 mod footprint;
 mod fullnet;
@@ -261,6 +262,8 @@ fn main() -> std::process::ExitCode {
 fn task() -> Result<()> {
     let cli = Cli::parse();
     let root = workspace_root();
+    // Before any child starts: a signal ends every child with xtask (`child`).
+    child::end_with_xtask()?;
     match cli.command {
         Task::Setup { probe_rs, fuzz } => toolchain::setup(probe_rs, fuzz),
         Task::Build => {

@@ -2,6 +2,7 @@
 //! log decoded. With `--selftest` the image stops after its start-up self-tests and the run
 //! passes only when QEMU exits with 0 and the log shows the verdict.
 
+use crate::child::Guarded;
 use crate::images::{self, Layer};
 use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, bail};
@@ -40,30 +41,31 @@ fn run_alone_with(
         semihosting.push_str(",arg=");
         semihosting.push_str(argument);
     }
-    let mut qemu = Command::new("timeout")
-        .arg(format!("{}", limit.as_secs()))
-        .args([
-            "qemu-system-arm",
-            "-M",
-            "netduinoplus2",
-            "-nographic",
-            "-monitor",
-            "none",
-        ])
-        .args(["-semihosting-config", &semihosting])
-        // USART1 and USART3 unused, USART2 the CAN bridge (and, on a network, the link through
-        // the hub): nothing attached when alone.
-        .args([
-            "-serial", "null", "-serial", "null", "-serial", "null", "-kernel",
-        ])
-        .arg(image)
-        .args(extra)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .context("starting qemu-system-arm")?;
+    let mut qemu = Guarded::spawn(
+        Command::new("timeout")
+            .arg(format!("{}", limit.as_secs()))
+            .args([
+                "qemu-system-arm",
+                "-M",
+                "netduinoplus2",
+                "-nographic",
+                "-monitor",
+                "none",
+            ])
+            .args(["-semihosting-config", &semihosting])
+            // USART1 and USART3 unused, USART2 the CAN bridge (and, on a network, the link through
+            // the hub): nothing attached when alone.
+            .args([
+                "-serial", "null", "-serial", "null", "-serial", "null", "-kernel",
+            ])
+            .arg(image)
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null()),
+    )
+    .context("starting qemu-system-arm")?;
     let mut raw = Vec::new();
-    if let Some(mut stdout) = qemu.stdout.take() {
+    if let Some(mut stdout) = qemu.take_stdout() {
         std::io::Read::read_to_end(&mut stdout, &mut raw)?;
     }
     let status = qemu.wait()?;
