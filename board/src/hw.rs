@@ -316,11 +316,41 @@ async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
     }
 }
 
-/// Initialises the board, spawns the peripheral tasks and runs the channel until reset.
+/// The hardware's start-up: the board's self-tests, then the independent watchdog of
+/// [`WATCHDOG_TIMEOUT_US`], which only [`dual_channel::selftest::start_up`] arms.
+struct HwStartUp {
+    iwdg: embassy_stm32::Peri<'static, embassy_stm32::peripherals::IWDG>,
+}
+
+impl dual_channel::selftest::StartUp for HwStartUp {
+    type Watchdog = IndependentWatchdog<'static, embassy_stm32::peripherals::IWDG>;
+
+    fn self_test(&mut self, test: dual_channel::selftest::SelfTest) -> bool {
+        crate::self_test(test)
+    }
+
+    fn arm_watchdog(self) -> Self::Watchdog {
+        let mut watchdog = IndependentWatchdog::new(self.iwdg, WATCHDOG_TIMEOUT_US);
+        watchdog.unleash();
+        watchdog
+    }
+}
+
+/// Initialises the board, runs the start-up self-tests, arms the watchdog, spawns the
+/// peripheral tasks and runs the channel until reset.
 pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, role: R) -> ! {
     let p = embassy_stm32::init(clocks());
-    let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
-    watchdog.unleash();
+    // The self-tests first, then the watchdog (`dual_channel::selftest::start_up` says why).
+    let mut watchdog = match dual_channel::selftest::start_up(HwStartUp { iwdg: p.IWDG }) {
+        Ok(watchdog) => watchdog,
+        Err(test) => {
+            defmt::error!(
+                "start-up self-test {} failed; the watchdog stays unarmed",
+                test
+            );
+            halt_safe("start-up self-test failed");
+        }
+    };
 
     let output = Output::new(p.PC1, Level::Low, Speed::Low);
     let input = Input::new(p.PC0, Pull::Down);
@@ -384,9 +414,6 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         LINK.init(uart).split_ref();
     spawner.spawn(link_tx_task(link_tx).unwrap_or_else(|_| halt_safe("link task")));
 
-    if !crate::self_tests() {
-        halt_safe("start-up self-test failed");
-    }
     let parameters = SectorSlots::new(
         Stm32Sectors {
             flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
@@ -434,8 +461,9 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     }
 }
 
-/// A fault before the runtime runs: outputs stay low (their reset state), the watchdog is
-/// not fed, and the MCU resets into the same check.
+/// A fault before the runtime runs: outputs stay low (their reset state) and the watchdog is
+/// not fed. Once it is armed the MCU resets into the same check; a failed self-test comes
+/// before it is armed, so that channel stays halted until it is powered again.
 fn halt_safe(why: &str) -> ! {
     defmt::error!("halting in the safe state: {=str}", why);
     loop {

@@ -317,40 +317,54 @@ fn image() -> (&'static [u8], &'static [u8]) {
     }
 }
 
-/// The start-up self-tests both layers run before the channel starts: the image CRC against
-/// its seal, the RAM test's verdict (March C- over all RAM, run before RAM was initialised:
-/// [`ram`]) and the link CRC's known answer. `false` when one fails; the caller stays in the
-/// safe state.
+/// One start-up self-test, as both layers run them through
+/// [`dual_channel::selftest::start_up`] before the channel starts (and, on the hardware,
+/// before the independent watchdog is armed): the RAM test's verdict (March C- over all RAM,
+/// run before RAM was initialised: [`ram`]), the image CRC against its seal and the link
+/// CRC's known answer. `false` when it failed; the caller stays in the safe state.
 #[cfg(target_os = "none")]
 #[inline(never)]
-pub fn self_tests() -> bool {
-    use dual_channel::selftest;
-    let seal = core::ptr::addr_of!(IMAGE_SEAL) as usize - FLASH_ORIGIN;
-    let (code, data) = image();
-    match selftest::check_image(code, data, seal) {
-        Ok(()) => defmt::info!(
-            "self-test: image CRC passed ({=usize} bytes)",
-            code.len() + data.len()
-        ),
-        Err(fault) => {
-            defmt::error!("self-test: image CRC failed {}", fault);
-            return false;
+pub fn self_test(test: dual_channel::selftest::SelfTest) -> bool {
+    use dual_channel::selftest::{self, SelfTest};
+    match test {
+        SelfTest::Ram => match ram::verdict() {
+            Ok(bytes) => {
+                defmt::info!(
+                    "self-test: RAM (March C-, {=usize} bytes, before start-up) passed",
+                    bytes
+                );
+                true
+            }
+            Err(fault) => {
+                defmt::error!("self-test: RAM failed {}", fault);
+                false
+            }
+        },
+        SelfTest::ImageCrc => {
+            let seal = core::ptr::addr_of!(IMAGE_SEAL) as usize - FLASH_ORIGIN;
+            let (code, data) = image();
+            match selftest::check_image(code, data, seal) {
+                Ok(()) => {
+                    defmt::info!(
+                        "self-test: image CRC passed ({=usize} bytes)",
+                        code.len() + data.len()
+                    );
+                    true
+                }
+                Err(fault) => {
+                    defmt::error!("self-test: image CRC failed {}", fault);
+                    false
+                }
+            }
+        }
+        SelfTest::CrcKnownAnswer => {
+            let passed = selftest::crc_known_answer();
+            if passed {
+                defmt::info!("self-test: CRC known answer passed");
+            } else {
+                defmt::error!("self-test: CRC known answer failed");
+            }
+            passed
         }
     }
-    match ram::verdict() {
-        Ok(bytes) => defmt::info!(
-            "self-test: RAM (March C-, {=usize} bytes, before start-up) passed",
-            bytes
-        ),
-        Err(fault) => {
-            defmt::error!("self-test: RAM failed {}", fault);
-            return false;
-        }
-    }
-    if !selftest::crc_known_answer() {
-        defmt::error!("self-test: CRC known answer failed");
-        return false;
-    }
-    defmt::info!("self-test: CRC known answer passed");
-    true
 }

@@ -6,7 +6,7 @@
 //! out; the verdict word gets a pattern test of its own.
 //!
 //! The verdict waits in `.uninit` (which the start-up code does not touch) until
-//! [`crate::self_tests`] reads it: the channel starts only on a pass.
+//! [`crate::self_test`] reads it: the channel starts only on a pass.
 
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;

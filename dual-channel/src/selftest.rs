@@ -1,4 +1,4 @@
-//! Start-up self-tests that are not hardware glue (CiA 304 9.5, EN 50325-5 Annex A.4: a
+//! Start-up self-tests that are not hardware glue (CiA 304 9.5, EN 50325-5 6.4.1.6 NOTE: a
 //! channel leaves the safe state only after its own checks passed).
 //!
 //! - [`march`]: a March C- test of a RAM area (detects stuck-at, transition and coupling
@@ -8,6 +8,9 @@
 //!   link; [`crc_known_answer`] checks the channel's own CRC-32 against a known answer.
 //! - [`check_image`]: the CRC-32 of the firmware image in flash against the value `cargo
 //!   xtask` sealed into it after linking ([`image_crc`] computes both).
+//! - [`start_up`]: the order of the start-up, the one place both board layers take it from:
+//!   every self-test of [`SELF_TESTS`] first, the independent watchdog armed only after all
+//!   of them passed.
 
 /// Word-addressed memory under test.
 #[allow(clippy::len_without_is_empty)] // reason: a memory under test is never empty; the test reads `len` only
@@ -160,9 +163,61 @@ pub fn check_image(code: &[u8], data: &[u8], seal: usize) -> Result<(), ImageFau
     Ok(())
 }
 
+/// A start-up self-test that runs before the independent watchdog is armed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SelfTest {
+    /// March C- over RAM ([`march`]). It runs from the reset handler, before RAM is
+    /// initialised; here its verdict is read.
+    Ram,
+    /// The image in flash against its seal ([`check_image`]).
+    ImageCrc,
+    /// The link CRC against its check value ([`crc_known_answer`]).
+    CrcKnownAnswer,
+}
+
+/// The self-tests [`start_up`] runs, in this order.
+pub const SELF_TESTS: [SelfTest; 3] = [SelfTest::Ram, SelfTest::ImageCrc, SelfTest::CrcKnownAnswer];
+
+/// What a board layer gives [`start_up`]: its self-tests and its independent watchdog.
+pub trait StartUp {
+    /// The armed watchdog, which the channel loop feeds from then on.
+    type Watchdog;
+    /// Runs `test` (logging what it found); `false` when it failed.
+    fn self_test(&mut self, test: SelfTest) -> bool;
+    /// Arms the independent watchdog. Once armed it cannot be stopped but by a reset.
+    fn arm_watchdog(self) -> Self::Watchdog;
+}
+
+/// The start-up order (EN 50325-5 6.4.1.6 NOTE: a channel leaves the safe state only after
+/// its own self-tests passed): every test of [`SELF_TESTS`], then the watchdog.
+///
+/// Why the self-tests come first rather than the watchdog fed between their chunks: they are
+/// loops over fixed ranges (all of RAM, the image in flash, nine bytes) that wait on no
+/// peripheral, so they end by construction; a fed watchdog would add a feed point inside
+/// each loop and nothing it could catch. What they take grows with the image: the image CRC
+/// alone is about 8 Thumb instructions a byte (counted under QEMU by `cargo xtask qemu a
+/// --selftest --count`, `manual/src/device.md`), which a grown image could carry past the
+/// watchdog's time and into a reset before every start. Until the watchdog is armed the
+/// outputs are low (their reset state) and the channel has not joined the bus: a hang there
+/// is the safe state, which the other channel sees as a silent link. A test that fails
+/// returns it and leaves the watchdog unarmed: the channel stays halted in the safe state
+/// until it is powered again, rather than resetting into the same failure over and over. The
+/// start-up steps that wait on hardware (the CAN controller's loop-back test) come after,
+/// with the watchdog fed between their bursts.
+pub fn start_up<B: StartUp>(mut board: B) -> Result<B::Watchdog, SelfTest> {
+    for test in SELF_TESTS {
+        if !board.self_test(test) {
+            return Err(test);
+        }
+    }
+    Ok(board.arm_watchdog())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use core::cell::Cell;
 
     const DATA: [u8; 24] = [0xA5; 24];
 
@@ -333,5 +388,87 @@ mod tests {
     #[test]
     fn the_link_crc_gives_its_check_value() {
         assert!(crc_known_answer());
+    }
+
+    /// A board under simulated time: each self-test takes its time on `clock`, and the
+    /// watchdog, once armed, bites when the first feed comes later than its timeout.
+    struct SimulatedBoard<'a> {
+        clock: &'a Cell<u64>,
+        /// How long each test of [`SELF_TESTS`] takes (µs), and whether it passes.
+        tests: [(u64, bool); 3],
+        log: &'a mut Vec<&'static str>,
+    }
+
+    /// The independent watchdog armed at `armed_us`, 20 ms as the hardware layer's.
+    struct SimulatedWatchdog {
+        armed_us: u64,
+    }
+
+    impl SimulatedWatchdog {
+        const TIMEOUT_US: u64 = 20_000;
+
+        /// The channel loop's first feed, at `now_us`: `false` when it came too late.
+        fn fed_in_time(&self, now_us: u64) -> bool {
+            now_us - self.armed_us < Self::TIMEOUT_US
+        }
+    }
+
+    impl StartUp for SimulatedBoard<'_> {
+        type Watchdog = SimulatedWatchdog;
+        fn self_test(&mut self, test: SelfTest) -> bool {
+            let index = SELF_TESTS.iter().position(|t| *t == test).unwrap();
+            let (takes_us, passes) = self.tests[index];
+            self.clock.set(self.clock.get() + takes_us);
+            self.log.push(match test {
+                SelfTest::Ram => "ram",
+                SelfTest::ImageCrc => "image crc",
+                SelfTest::CrcKnownAnswer => "crc known answer",
+            });
+            passes
+        }
+        fn arm_watchdog(self) -> SimulatedWatchdog {
+            self.log.push("watchdog");
+            SimulatedWatchdog {
+                armed_us: self.clock.get(),
+            }
+        }
+    }
+
+    /// EN 50325-5 6.4.1.6 NOTE. Self-tests that together take longer than the watchdog's
+    /// time (RAM at 16 MHz before the clock is raised, the image CRC of a grown image) do not
+    /// reset the channel: the watchdog is armed after the last of them, and the channel
+    /// loop's first feed, 1 ms later, comes in time.
+    #[test]
+    fn start_up_runs_the_self_tests_before_the_watchdog_is_armed() {
+        let clock = Cell::new(0);
+        let mut log = Vec::new();
+        let board = SimulatedBoard {
+            clock: &clock,
+            tests: [(120_000, true), (30_000, true), (10, true)],
+            log: &mut log,
+        };
+        let watchdog = start_up(board).expect("every self-test passes");
+        assert!(watchdog.fed_in_time(clock.get() + 1_000));
+        assert_eq!(log, ["ram", "image crc", "crc known answer", "watchdog"]);
+    }
+
+    /// EN 50325-5 6.4.1.6 NOTE. A failed self-test is returned, the tests after it do not run and the watchdog is not
+    /// armed: the channel stays halted in the safe state instead of resetting into the same
+    /// failure.
+    #[test]
+    fn start_up_leaves_the_watchdog_unarmed_after_a_failed_self_test() {
+        for failing in 0..SELF_TESTS.len() {
+            let mut log = Vec::new();
+            let mut tests = [(1_000, true); 3];
+            tests[failing].1 = false;
+            let board = SimulatedBoard {
+                clock: &Cell::new(0),
+                tests,
+                log: &mut log,
+            };
+            assert_eq!(start_up(board).err(), Some(SELF_TESTS[failing]));
+            assert_eq!(log.len(), failing + 1, "{log:?}");
+            assert!(!log.contains(&"watchdog"), "{log:?}");
+        }
     }
 }

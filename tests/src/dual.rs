@@ -584,6 +584,32 @@ impl DualNetwork {
         self.bus.send(0, frame);
     }
 
+    /// Channel `side` of node `id`: its CAN controller goes bus-off now (ISO 11898-1 12.1.4.2:
+    /// a transmit error counter above 255). It sends nothing more and receives nothing, and
+    /// its runtime gets at once what the channel loop hands it when the board's driver
+    /// reports the bus-off state (`dual_channel::channel_loop::Received::BusOff`, bxCAN's
+    /// BOFF in CAN_ESR): [`Runtime::on_bus_off`]. The loop's own part (the driver's report
+    /// turned into that call) is [`crate::loop_net`]'s to test.
+    pub fn bus_off(&mut self, id: u8, side: Side) {
+        let now = self.now;
+        let index = self.index(id);
+        self.inject(Match::all_from(participant(index, side), now), Fault::Mute);
+        let everything = Match {
+            id: None,
+            from: None,
+            after: now,
+            count: None,
+        };
+        self.nodes[index]
+            .receive_faults
+            .push((side, Injection::new(everything, Fault::Drop)));
+        self.with_channel(index, side, |_, a, b, out| match (a, b) {
+            (Some(a), _) => a.on_bus_off(out),
+            (_, Some(b)) => b.on_bus_off(out),
+            _ => {}
+        });
+    }
+
     /// Adds a fault on the bus (every receiver sees it).
     pub fn inject(&mut self, when: Match, fault: Fault) {
         self.bus.inject(Injection::new(when, fault));

@@ -684,24 +684,32 @@ fn en50325_5_7_1_2_a_babbling_controller_is_safe_by_sct() {
     safe_within(&mut net, now, plus(SCT, REACTION), ms(120));
 }
 
-/// Node 33's channel A bus-off (neither sends nor receives): that channel's SCT runs out,
-/// and both channels are safe (EN 50325-5 7.1.2).
+/// A channel's CAN controller bus-off, as the channel loop sees it (the driver reports it:
+/// `Received::BusOff`): that channel latches the safe state at once under bus-off's own cause
+/// 3Bh, not by its SCT running out, and node 33 is safe within SCT + reaction whichever
+/// channel of which node it is (EN 50325-5 7.1.2).
 #[test]
-fn en50325_5_7_1_2_a_consumer_channel_bus_off_is_safe_by_sct() {
-    let mut net = steady(INPUT);
-    let now = net.now;
-    net.inject(Match::all_from(3, now), Fault::Mute);
-    let everything = Match {
-        id: None,
-        from: None,
-        after: now,
-        count: None,
-    };
-    net.node_mut(CONSUMER).receive_faults.push((
-        Side::A,
-        system_tests::bus::Injection::new(everything, Fault::Drop),
-    ));
-    safe_within(&mut net, now, plus(SCT, REACTION), ms(120));
+fn en50325_5_7_1_2_a_bus_off_controller_latches_its_own_cause_and_the_consumer_is_safe() {
+    for (id, side) in [
+        (CONSUMER, Side::A),
+        (CONSUMER, Side::B),
+        (PRODUCER, Side::A),
+        (PRODUCER, Side::B),
+    ] {
+        let mut net = steady(INPUT);
+        let now = net.now;
+        net.bus_off(id, side);
+        assert_eq!(
+            campaign::first_fault(&net, id, side, now),
+            Some(dual_channel::runtime::ChannelFault::BusOff),
+            "node {id} channel {side:?}"
+        );
+        assert_eq!(
+            dual_channel::runtime::ChannelFault::BusOff.cause_code(),
+            0x3B
+        );
+        safe_within(&mut net, now, plus(SCT, REACTION), ms(120));
+    }
 }
 
 /// Node 33's channel B clock 15 % fast (its runtime driven with scaled time): channel A

@@ -264,4 +264,9 @@ pub enum ToolError {
     /// The monitor stopped: its log, recording, terminal or bus failed.
     #[error(transparent)]
     Monitor(#[from] crate::monitor::MonitorError),
+    /// The result could not be written as JSON (`--json`).
+    #[error(
+        "the result could not be written as JSON ({0}), so none was printed; run the command without --json to read it"
+    )]
+    Json(serde_json::Error),
 }

@@ -376,9 +376,38 @@ fn load(file: &str) -> Result<network_file::Network, ToolError> {
     }
 }
 
-fn json(value: &impl serde::Serialize) -> String {
-    serde_json::to_string_pretty(value)
-        .unwrap_or_else(|error| format!("{{\"error\": \"{error}\"}}"))
+/// `value` as the JSON a command prints with `--json`. A value that does not serialise is an
+/// error, so that the program prints no partial report and exits non-zero; the values are
+/// serialised as they are: `serde_json::json!` panics on a value that does not serialise,
+/// so it only wraps numbers, strings and bytes here, which always do.
+fn json(value: &impl serde::Serialize) -> Result<String, ToolError> {
+    serde_json::to_string_pretty(value).map_err(ToolError::Json)
+}
+
+/// The budget's own fields, SimpleCAN's residual error rate beside them when the network
+/// file has SimpleCAN.
+#[derive(serde::Serialize)]
+struct BudgetReport<'a, B, S> {
+    #[serde(flatten)]
+    budget: &'a B,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    simplecan: Option<&'a S>,
+}
+
+/// One SRDO's signature, as `sign --json` lists it.
+#[derive(serde::Serialize)]
+struct SrdoSignature {
+    node: u8,
+    srdo: u8,
+    signature: u16,
+}
+
+/// One node's SimpleCAN signature with the configuration it covers.
+#[derive(serde::Serialize)]
+struct SimpleCanSignature<'a, C> {
+    node: u8,
+    signature: u32,
+    configuration: &'a C,
 }
 
 fn run(cli: Cli) -> Result<bool, ToolError> {
@@ -388,18 +417,30 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         let signatures = procedure::offline_signatures(&network);
         let simplecan = procedure::offline_simplecan(&network);
         if cli.json {
-            let srdo: Vec<_> = signatures
-                .iter()
-                .map(|(node, srdo, value)| serde_json::json!({"node": node, "srdo": srdo, "signature": value}))
-                .collect();
-            let simplecan: Vec<_> = simplecan
-                .iter()
-                .map(|(config, value)| serde_json::json!({"node": config.node_id, "signature": value, "configuration": config}))
-                .collect();
-            println!(
-                "{}",
-                json(&serde_json::json!({"srdo": srdo, "simplecan": simplecan}))
-            );
+            #[derive(serde::Serialize)]
+            struct Signatures<'a, C> {
+                srdo: Vec<SrdoSignature>,
+                simplecan: Vec<SimpleCanSignature<'a, C>>,
+            }
+            let report = Signatures {
+                srdo: signatures
+                    .iter()
+                    .map(|&(node, srdo, signature)| SrdoSignature {
+                        node,
+                        srdo,
+                        signature,
+                    })
+                    .collect(),
+                simplecan: simplecan
+                    .iter()
+                    .map(|(config, signature)| SimpleCanSignature {
+                        node: config.node_id,
+                        signature: *signature,
+                        configuration: config,
+                    })
+                    .collect(),
+            };
+            println!("{}", json(&report)?);
         } else {
             for (node, srdo, value) in signatures {
                 println!("node {node} SRDO {srdo}: signature {value:04X}h (0x13FF:{srdo:02X})");
@@ -485,14 +526,18 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             None => Vec::new(),
         };
         if cli.json {
-            println!(
-                "{}",
-                json(&serde_json::json!({
-                    "timing": timing,
-                    "reactions": reactions,
-                    "simplecan": simplecan,
-                }))
-            );
+            #[derive(serde::Serialize)]
+            struct Reactions<'a, T, R, S> {
+                timing: &'a T,
+                reactions: &'a R,
+                simplecan: &'a S,
+            }
+            let report = Reactions {
+                timing: &timing,
+                reactions: &reactions,
+                simplecan: &simplecan,
+            };
+            println!("{}", json(&report)?);
         } else {
             print!("{}", report::reactions(&reactions, plan.bit_rate, &timing));
             print!("{}", report::simplecan_reactions(&simplecan, plan.bit_rate));
@@ -521,12 +566,11 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             .as_ref()
             .map(|simplecan| calc_simplecan::residual(simplecan, sil));
         if cli.json {
-            // The budget's own fields as before, SimpleCAN's beside them when the file has it.
-            let mut value = serde_json::to_value(&budget).unwrap_or_default();
-            if let (Some(simplecan), Some(fields)) = (&simplecan, value.as_object_mut()) {
-                fields.insert("simplecan".into(), serde_json::json!(simplecan));
-            }
-            println!("{}", json(&value));
+            let report = BudgetReport {
+                budget: &budget,
+                simplecan: simplecan.as_ref(),
+            };
+            println!("{}", json(&report)?);
         } else {
             print!("{}", report::budget(&budget, sil));
             if let Some(simplecan) = &simplecan {
@@ -552,7 +596,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         Command::Scan { listen_ms } => {
             let found = procedure::scan(&mut client, Duration::from_millis(listen_ms))?;
             if cli.json {
-                println!("{}", json(&found));
+                println!("{}", json(&found)?);
             } else if found.is_empty() {
                 println!("no node sent a boot-up or heartbeat message in {listen_ms} ms");
             } else {
@@ -593,7 +637,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             if cli.json {
                 println!(
                     "{}",
-                    json(&serde_json::json!({"sent": true, "target": node}))
+                    json(&serde_json::json!({"sent": true, "target": node}))?
                 );
             }
             Ok(true)
@@ -606,7 +650,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                     "{}",
                     json(
                         &serde_json::json!({"node": node, "index": address.index, "sub": address.sub, "bytes": value})
-                    )
+                    )?
                 );
             } else {
                 let hex: Vec<String> = value.iter().map(|b| format!("{b:02X}")).collect();
@@ -658,7 +702,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             if cli.json {
                 println!(
                     "{}",
-                    json(&serde_json::json!({"node": node, "written": true}))
+                    json(&serde_json::json!({"node": node, "written": true}))?
                 );
             }
             Ok(true)
@@ -678,7 +722,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             };
             let report = procedure::configure(&mut client, &network, start, &mut person)?;
             if cli.json {
-                println!("{}", json(&report));
+                println!("{}", json(&report)?);
             } else {
                 for result in &report.nodes {
                     match result {
@@ -712,7 +756,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             client.sdo_timeout = network.sdo_timeout;
             let verdicts = procedure::verify(&mut client, &network)?;
             if cli.json {
-                println!("{}", json(&verdicts));
+                println!("{}", json(&verdicts)?);
             } else {
                 for verdict in &verdicts {
                     match verdict {
@@ -764,7 +808,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             if cli.json {
                 println!(
                     "{}",
-                    json(&serde_json::json!({"node": node, "secret_set": true}))
+                    json(&serde_json::json!({"node": node, "secret_set": true}))?
                 );
             } else {
                 println!("node {node}: secret set and stored");
@@ -772,12 +816,20 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             Ok(true)
         }
         Command::Audit { node } => {
+            #[derive(serde::Serialize)]
+            struct Audit<'a, A> {
+                state: String,
+                audit: &'a A,
+            }
             let state = access::state(&mut client, node)?;
             let audit = access::read_audit(&mut client, node)?;
             if cli.json {
                 println!(
                     "{}",
-                    json(&serde_json::json!({"state": format!("{state:?}"), "audit": audit}))
+                    json(&Audit {
+                        state: format!("{state:?}"),
+                        audit: &audit,
+                    })?
                 );
             } else {
                 let list = |signatures: &[u16]| {
@@ -800,7 +852,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         Command::Gfc => {
             client.transport.send(&shared::safety::gfc::frame())?;
             if cli.json {
-                println!("{}", json(&serde_json::json!({"sent": "gfc"})));
+                println!("{}", json(&serde_json::json!({"sent": "gfc"}))?);
             }
             Ok(true)
         }
@@ -866,12 +918,73 @@ fn main() -> ExitCode {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::FAILURE,
         Err(error) => {
-            if as_json {
-                println!("{}", json(&serde_json::json!({"error": error.to_string()})));
-            } else {
-                eprintln!("error: {error}");
+            #[derive(serde::Serialize)]
+            struct Failed {
+                error: String,
+            }
+            let failed = Failed {
+                error: error.to_string(),
+            };
+            match json(&failed) {
+                Ok(text) if as_json => println!("{text}"),
+                _ => eprintln!("error: {error}"),
             }
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+
+    /// A value JSON cannot carry (a map keyed by pairs: JSON keys are strings) is an error
+    /// that says so in a sentence, not an empty or partial report.
+    #[test]
+    fn a_result_that_does_not_serialise_is_an_error_not_a_partial_report() {
+        let pairs: BTreeMap<(u8, u8), u16> = [((1, 2), 0x1234)].into();
+        let error = json(&pairs).expect_err("JSON keys must be strings");
+        assert!(matches!(error, ToolError::Json(_)));
+        let sentence = error.to_string();
+        assert!(
+            sentence.starts_with("the result could not be written as JSON (")
+                && sentence.ends_with("run the command without --json to read it"),
+            "{sentence}"
+        );
+        // Inside a report, too: the whole report fails, no field is left out.
+        let report = BudgetReport {
+            budget: &serde_json::json!({"producers": 1}),
+            simplecan: Some(&pairs),
+        };
+        assert!(matches!(json(&report), Err(ToolError::Json(_))));
+    }
+
+    /// The budget report keeps the budget's own fields at the top level, SimpleCAN's beside
+    /// them only when the network file has SimpleCAN.
+    #[test]
+    fn the_budget_report_holds_every_field_of_the_budget_and_simplecan_when_present() {
+        let budget = serde_json::json!({"producers": 2, "warnings": ["w"]});
+        let without: serde_json::Value = serde_json::from_str(
+            &json(&BudgetReport::<_, u8> {
+                budget: &budget,
+                simplecan: None,
+            })
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(without, budget);
+        let with: serde_json::Value = serde_json::from_str(
+            &json(&BudgetReport {
+                budget: &budget,
+                simplecan: Some(&serde_json::json!({"within": true})),
+            })
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(
+            with,
+            serde_json::json!({"producers": 2, "warnings": ["w"], "simplecan": {"within": true}})
+        );
     }
 }

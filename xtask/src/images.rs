@@ -272,7 +272,7 @@ fn locate(elf: &Path, bytes: &[u8]) -> Result<Located> {
 
 /// Writes the seal into a linked image: [`dual_channel::selftest::SEALED`] and the CRC-32 of
 /// its flash contents, at the `IMAGE_SEAL` symbol. The image checks it at every start
-/// (`board::self_tests`). Returns the CRC. Idempotent: the seal's bytes are not part of it.
+/// (`board::self_test`). Returns the CRC. Idempotent: the seal's bytes are not part of it.
 pub fn seal(elf: &Path) -> Result<u32> {
     use dual_channel::selftest::{SEAL_LEN, SEALED, image_crc};
     let mut bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;

@@ -15,6 +15,7 @@
 //!    0800 0022h (EN 50325-5 8.2.2); in Pre-operational an SCT of 0 is aborted with
 //!    0609 0032h and a valid write is accepted and resets 0x13FE (EN 50325-5 6.4.1.6).
 
+use crate::child::Guarded;
 use crate::network::{self, Network};
 use anyhow::{Context, Result, bail};
 use safety_config::Transport;
@@ -26,7 +27,7 @@ use shared::canopen::od::Address;
 use shared::{CanFrame, CanId};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 /// The PyPI packages, pinned: what CI installs is what was tested.
@@ -75,16 +76,6 @@ fn python(root: &Path) -> Result<PathBuf> {
     Ok(python)
 }
 
-/// A child process killed when dropped.
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// A free TCP port on the loopback address (the hub of part 1 listens there, so that it
 /// never meets a network another task runs on the fixed ports).
 fn free_port() -> Result<u16> {
@@ -110,12 +101,9 @@ fn socketcand(root: &Path, python: &Path) -> Result<()> {
     crate::run(crate::cargo().args(["build", "--quiet", "-p", "can-hub"]))?;
     let port = free_port()?;
     let address = format!("127.0.0.1:{port}");
-    let _hub = Killed(
-        Command::new(root.join("target/debug/can-hub"))
-            .args(["--tcp", &address])
-            .spawn()
-            .context("starting can-hub")?,
-    );
+    let _hub =
+        Guarded::spawn(Command::new(root.join("target/debug/can-hub")).args(["--tcp", &address]))
+            .context("starting can-hub")?;
     let give_up = std::time::Instant::now() + Duration::from_secs(10);
     let mut tool = loop {
         match SocketcandClient::connect(&address, "can0") {
@@ -137,14 +125,13 @@ fn socketcand(root: &Path, python: &Path) -> Result<()> {
         frame(0x123, &[0xA5, 0x5A, 0x00])?,
         frame(0x7FE, &[1, 2, 3, 4, 5, 6, 7, 8])?,
     ];
-    let mut child = Killed(
+    let mut child = Guarded::spawn(
         Command::new(python)
             .arg(root.join("xtask/interop/python_can_bus.py"))
             .args(["127.0.0.1", &port.to_string(), &sent.len().to_string()])
-            .stdout(Stdio::piped())
-            .spawn()?,
-    );
-    let stdout = child.0.stdout.take().context("the script's output")?;
+            .stdout(Stdio::piped()),
+    )?;
+    let stdout = child.take_stdout().context("the script's output")?;
     let mut lines = BufReader::new(stdout).lines();
     match lines.next() {
         Some(Ok(line)) if line == "ready" => {}
@@ -248,12 +235,10 @@ fn simulated(root: &Path, python: &Path) -> Result<()> {
     ]))?;
     let port = free_port()?;
     let address = format!("127.0.0.1:{port}");
-    let _server = Killed(
-        Command::new(root.join("target/debug/socketcand_sim"))
-            .arg(port.to_string())
-            .spawn()
-            .context("starting socketcand_sim")?,
-    );
+    let _server = Guarded::spawn(
+        Command::new(root.join("target/debug/socketcand_sim")).arg(port.to_string()),
+    )
+    .context("starting socketcand_sim")?;
     let give_up = std::time::Instant::now() + Duration::from_secs(20);
     let transport = loop {
         match SocketcandClient::connect(&address, "can0") {
@@ -636,12 +621,10 @@ pub fn bench(root: &Path) -> Result<()> {
     let port = free_port()?;
     let address = format!("127.0.0.1:{port}");
     let simulated = {
-        let _server = Killed(
-            Command::new(root.join("target/debug/socketcand_sim"))
-                .arg(port.to_string())
-                .spawn()
-                .context("starting socketcand_sim")?,
-        );
+        let _server = Guarded::spawn(
+            Command::new(root.join("target/debug/socketcand_sim")).arg(port.to_string()),
+        )
+        .context("starting socketcand_sim")?;
         let give_up = std::time::Instant::now() + Duration::from_secs(20);
         let transport = loop {
             match SocketcandClient::connect(&address, "can0") {

@@ -5,6 +5,7 @@
 
 mod bench;
 mod campaign;
+mod child;
 mod e2e;
 mod footprint;
 mod fullnet;
@@ -80,6 +81,10 @@ enum Task {
         /// Stop after the start-up self-tests; fail unless they pass.
         #[arg(long)]
         selftest: bool,
+        /// With `--selftest`: count the instructions of each start-up self-test in a trace
+        /// of the run (one line per instruction) instead of printing the log.
+        #[arg(long, requires = "selftest")]
+        count: bool,
         /// Stop the run after this many seconds.
         #[arg(long, default_value_t = 5)]
         seconds: u64,
@@ -257,6 +262,8 @@ fn main() -> std::process::ExitCode {
 fn task() -> Result<()> {
     let cli = Cli::parse();
     let root = workspace_root();
+    // Before any child starts: a signal ends every child with xtask (`child`).
+    child::end_with_xtask()?;
     match cli.command {
         Task::Setup { probe_rs, fuzz } => toolchain::setup(probe_rs, fuzz),
         Task::Build => {
@@ -278,8 +285,9 @@ fn task() -> Result<()> {
         Task::Qemu {
             channel,
             selftest,
+            count,
             seconds,
-        } => qemu::task(&root, &channel, selftest, seconds),
+        } => qemu::task(&root, &channel, selftest, count, seconds),
         Task::Flash { channel } => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;

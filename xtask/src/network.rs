@@ -9,6 +9,7 @@
 //! Every child process is killed when the [`Network`] is dropped, whichever way the task
 //! ends (error, panic, Ctrl-C: see [`crate::interrupt`]).
 
+use crate::child::Guarded;
 use crate::images::{self, Layer};
 use crate::qemu;
 use crate::toolchain::{self, Cross};
@@ -23,9 +24,8 @@ use safety_config::socketcand::SocketcandClient;
 use shared::canopen::nmt::{NmtCommand, NmtState};
 use shared::safety::cause::Cause;
 use std::collections::HashMap;
-use std::os::unix::process::CommandExt as _;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 /// The four emulated MCUs: (participant name, node-ID, channel).
@@ -174,7 +174,7 @@ impl Operator for Narrator {
 
 /// The running network.
 pub struct Network {
-    children: Vec<(String, Child)>,
+    children: Vec<(String, Guarded)>,
     /// The configuration tool (the tool library over the hub's socketcand port), while it is
     /// needed: see [`Network::tool`].
     tool: Option<Client<SocketcandClient>>,
@@ -188,8 +188,7 @@ pub struct Network {
 impl Drop for Network {
     fn drop(&mut self) {
         for (_, child) in &mut self.children {
-            let _ = child.kill();
-            let _ = child.wait();
+            child.end();
         }
     }
 }
@@ -208,7 +207,7 @@ fn qemu_instance(
     can: &Path,
     log: &Path,
     monitor: Option<&Path>,
-) -> Result<Child> {
+) -> Result<Guarded> {
     let mut command = Command::new("qemu-system-arm");
     command.args(["-M", "netduinoplus2", "-nographic", "-monitor"]);
     match monitor {
@@ -233,16 +232,14 @@ fn qemu_instance(
         ])
         .arg("-kernel")
         .arg(image)
-        // Its own process group: Ctrl-C reaches `cargo xtask`, which ends the run in order
-        // and kills every child (see `Drop for Network`).
-        .process_group(0)
         .stdin(Stdio::null())
         .stdout(std::fs::File::create(log)?)
-        .stderr(std::fs::File::create(log.with_extension("err"))?)
-        .spawn()
-        .map_err(|error| {
-            anyhow!("qemu-system-arm could not be started ({error}): run `cargo xtask setup`")
-        })
+        .stderr(std::fs::File::create(log.with_extension("err"))?);
+    // Its own process group: Ctrl-C reaches `cargo xtask`, which ends the run in order and
+    // kills every child (`crate::child`).
+    Guarded::spawn(&mut command).map_err(|error| {
+        anyhow!("qemu-system-arm could not be started ({error}): run `cargo xtask setup`")
+    })
 }
 
 /// Fails with a sentence when one of the hub's TCP addresses is taken already: otherwise
@@ -321,10 +318,9 @@ impl Network {
             .arg(dir.join("bus.pcap"))
             .arg("--events")
             .arg(dir.join("events.log"))
-            .stderr(std::fs::File::create(dir.join("hub.err"))?)
-            .process_group(0);
+            .stderr(std::fs::File::create(dir.join("hub.err"))?);
         ports_free()?;
-        let hub = hub.spawn().context("starting can-hub")?;
+        let hub = Guarded::spawn(&mut hub).context("starting can-hub")?;
         let mut children = vec![("hub".to_string(), hub)];
         // The tool and the control port join first, so they see the boot-up messages.
         let (tool, control) = match (
@@ -334,7 +330,7 @@ impl Network {
             (Ok(tool), Ok(control)) => (tool, control),
             (tool, control) => {
                 for (_, child) in &mut children {
-                    let _ = child.kill();
+                    child.end();
                 }
                 let error = match (tool, control) {
                     (Err(error), _) => format!("{error:#}"),
@@ -658,8 +654,7 @@ impl Network {
             .collect();
         std::fs::write(self.dir.join("status.log"), history)?;
         for (_, child) in &mut self.children {
-            let _ = child.kill();
-            let _ = child.wait();
+            child.end();
         }
         let mut faults = Vec::new();
         for (name, _, channel) in CHANNELS {

@@ -476,7 +476,7 @@ pub fn task(
         let interrupted = interrupted.clone();
         // Ctrl-C or SIGTERM: end the run; the network's drop kills every child process. (On
         // the live view Ctrl-C is a key, the terminal being in raw mode.)
-        ctrlc::set_handler(move || interrupted.store(true, Ordering::SeqCst))?;
+        crate::child::on_interrupt(move || interrupted.store(true, Ordering::SeqCst));
     }
     let live = std::io::stdout().is_terminal() && std::io::stdin().is_terminal();
     let typed = !live && duration.is_none() && std::io::stdin().is_terminal();

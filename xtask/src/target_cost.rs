@@ -23,7 +23,7 @@
 //! called (`hand`, one received frame; `Device::poll`, the core polled; `VerdictCheck::arrive`,
 //! a verdict of the cross-check).
 
-mod count;
+pub(crate) mod count;
 
 use crate::images::{self, Layer};
 use crate::network::{CHANNELS, Network};

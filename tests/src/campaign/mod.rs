@@ -15,7 +15,8 @@
 //!
 //! The faults are wrappers around the bus ([`crate::dual::DualNetwork::tap`] and the bus's
 //! own [`Fault`] vocabulary shared with the hub), the link ([`crate::dual::LinkFaults`]),
-//! one channel's controller (muted, babbling, bus-off: [`Fault::Mute`] and receive faults),
+//! one channel's controller (muted or babbling: [`Fault::Mute`], frames sent; bus-off:
+//! [`DualNetwork::bus_off`], the path the channel loop takes, and the cause it latches),
 //! one channel's input, and one channel's core (bit flips through the `fault-injection`
 //! hooks).
 
@@ -25,9 +26,9 @@ pub mod report;
 pub mod simplecan;
 pub mod simplecan_oracle;
 
-use crate::bus::{Delivery, Fault, Injection, Match, frame_bits, frame_time};
+use crate::bus::{Delivery, Fault, Match, frame_bits, frame_time};
 use crate::dual::{DualNetwork, Side};
-use dual_channel::runtime::{ChannelEvent, SAMPLE_WINDOW};
+use dual_channel::runtime::{ChannelEvent, ChannelFault, SAMPLE_WINDOW};
 use oracle::{MonitoredSrdo, REACTION};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -264,7 +265,8 @@ pub enum Outcome {
     /// The oracle found an output not justified by a valid pair within SCT and SRVT.
     Unsafe,
     /// The safe state came later than the class's bound, or never for a fault that must be
-    /// detected (a clock beyond its tolerance).
+    /// detected (a clock beyond its tolerance; a bus-off the faulted channel did not latch
+    /// under its own cause).
     Late,
     /// The network did not reach its steady state before the fault (a harness failure).
     SetupFailed,
@@ -312,6 +314,10 @@ struct Injected {
     horizon: Duration,
     /// The fault must end in the safe state (a harmless end is a failure).
     must_detect: bool,
+    /// The channel the fault hits and the fault it must latch first, under its own cause
+    /// (a bus-off: [`ChannelFault::BusOff`], 3Bh). Read from the channels' logs, apart from
+    /// the oracle, which sees only the bus and node 33's outputs.
+    own_fault: Option<(u8, Side, ChannelFault)>,
 }
 
 impl Injected {
@@ -322,6 +328,7 @@ impl Injected {
             effect: Rc::new(Cell::new(Some(at))),
             horizon: Duration::ZERO,
             must_detect: false,
+            own_fault: None,
         }
     }
     fn tapped(fault: String, effect: Rc<Cell<Option<Instant>>>) -> Self {
@@ -331,6 +338,7 @@ impl Injected {
             effect,
             horizon: Duration::ZERO,
             must_detect: false,
+            own_fault: None,
         }
     }
     fn described_by(mut self, detail: Rc<RefCell<String>>) -> Self {
@@ -685,20 +693,16 @@ fn inject(class: Class, rng: &mut ChaCha8Rng, net: &mut DualNetwork, input: u8) 
         Class::BusOff => {
             let id = random_node(rng);
             let side = random_side(rng);
-            net.inject(Match::all_from(participant(id, side), now), Fault::Mute);
-            let everything = Match {
-                id: None,
-                from: None,
-                after: now,
-                count: None,
-            };
-            net.node_mut(id)
-                .receive_faults
-                .push((side, Injection::new(everything, Fault::Drop)));
-            Injected::at(
+            // The product's path: the controller silent and deaf, and the channel told by
+            // its driver (`DualNetwork::bus_off`); not a muted controller that only SCT finds.
+            net.bus_off(id, side);
+            let mut injected = Injected::at(
                 format!("node {id} channel {side:?}: CAN controller bus-off"),
                 now,
-            )
+            );
+            injected.must_detect = true;
+            injected.own_fault = Some((id, side, ChannelFault::BusOff));
+            injected
         }
         Class::ClockDrift => {
             let id = random_node(rng);
@@ -1201,20 +1205,45 @@ pub fn run(class: Class, seed: u64, bit_rate: u32) -> ScenarioResult {
     } else {
         Outcome::Harmless
     };
+    let own_fault = injected
+        .own_fault
+        .map(|(id, side, expected)| (id, side, expected, first_fault(&net, id, side, effect)));
+    let wrong_cause = match own_fault {
+        Some((id, side, expected, latched)) if latched != Some(expected) => {
+            // The channel's own safe state for this fault never came.
+            if !result.outcome.is_failure() {
+                result.outcome = Outcome::Late;
+            }
+            Some(format!(
+                "node {id} channel {side:?} latched {} first, not {} ({:02X}h)",
+                latched.map_or("nothing".to_string(), |fault| format!(
+                    "{} ({:02X}h)",
+                    fault.cause().describe(),
+                    fault.cause_code()
+                )),
+                expected.cause().describe(),
+                expected.cause_code()
+            ))
+        }
+        _ => None,
+    };
     if result.outcome.is_failure() {
-        let why = match result.outcome {
-            Outcome::Unsafe => judgement
-                .violations
-                .iter()
-                .take(3)
-                .map(|violation| violation.why.clone())
-                .collect::<Vec<_>>()
-                .join("; "),
-            _ => format!(
-                "safe state after {:?} µs, bound {} µs",
-                result.latency.map(Duration::as_micros),
-                bound.as_micros()
-            ),
+        let why = match (result.outcome, wrong_cause) {
+            (_, Some(why)) => why,
+            (outcome, None) => match outcome {
+                Outcome::Unsafe => judgement
+                    .violations
+                    .iter()
+                    .take(3)
+                    .map(|violation| violation.why.clone())
+                    .collect::<Vec<_>>()
+                    .join("; "),
+                _ => format!(
+                    "safe state after {:?} µs, bound {} µs",
+                    result.latency.map(Duration::as_micros),
+                    bound.as_micros()
+                ),
+            },
         };
         let around = judgement
             .violations
@@ -1224,6 +1253,18 @@ pub fn run(class: Class, seed: u64, bit_rate: u32) -> ScenarioResult {
         result.report = Some(timeline(&net, from, end, &why));
     }
     result
+}
+
+/// The first fault channel `side` of node `id` latched at or after `from`.
+pub fn first_fault(net: &DualNetwork, id: u8, side: Side, from: Instant) -> Option<ChannelFault> {
+    net.log
+        .iter()
+        .find_map(|(at, node, channel, event)| match event {
+            ChannelEvent::Fault(fault) if *at >= from && *node == id && *channel == side => {
+                Some(*fault)
+            }
+            _ => None,
+        })
 }
 
 /// The bus frames, channel events and node 33's outputs from `from` to `to`, as text.
