@@ -14,7 +14,7 @@
 pub mod emulated;
 pub mod file;
 
-use crate::bus::{Fault, Injection, Match};
+use crate::bus::{Fault, Match};
 use crate::campaign::oracle::{self, MonitoredSrdo};
 use crate::dual::{DualNetwork, Side};
 use dual_channel::runtime::ChannelEvent;
@@ -279,14 +279,7 @@ fn apply(
                     net.bus.send(from, babble);
                 }
             }
-            FaultSpec::BusOff { node, channel } => {
-                let side = side(*channel);
-                let from = participant(net, *node, side);
-                net.inject(Match::all_from(from, now), Fault::Mute);
-                net.node_mut(*node)
-                    .receive_faults
-                    .push((side, Injection::new(every(None, None), Fault::Drop)));
-            }
+            FaultSpec::BusOff { node, channel } => net.bus_off(*node, side(*channel)),
             FaultSpec::NoInverted { node } => {
                 let from = participant(net, *node, Side::B);
                 let spec = scenario.network.nodes.iter().find(|spec| spec.id == *node);
