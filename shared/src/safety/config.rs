@@ -178,6 +178,9 @@ impl ConfigError {
 
     /// A stable number for this reason, sent in the manufacturer-specific bytes of EMCY. (11
     /// was "transmission type fixed", now answered as a read-only entry; it is not reused.)
+    ///
+    /// Out of line: inlined, its table was in the firmware images twice (`docs/footprint.md`).
+    #[inline(never)]
     pub const fn cause_code(self) -> u8 {
         use ConfigError::*;
         match self {

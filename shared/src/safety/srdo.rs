@@ -213,7 +213,11 @@ impl Consumer {
 
     /// Fails when SRVT or SCT has elapsed at `now`. SRVT is reported first: when a plain frame
     /// is pending, its missing partner is the more specific cause.
-    #[inline]
+    ///
+    /// Out of line in the firmware images, where it was inlined three times
+    /// (`docs/footprint.md`); the host builds inline it.
+    #[cfg_attr(target_os = "none", inline(never))]
+    #[cfg_attr(not(target_os = "none"), inline)]
     pub fn check_timers(&self, now: Instant) -> Result<(), SrdoFaultCause> {
         if time::expired(self.srvt_deadline, now) {
             Err(SrdoFaultCause::SrvtElapsed)
