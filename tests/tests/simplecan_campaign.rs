@@ -68,6 +68,7 @@ fn sc_req_20_the_oracle_finds_a_value_held_beyond_its_timeout() {
     let valid = [ValidPacket {
         start: at(100),
         end: at(100) + Duration::from_micros(270),
+        produced: at(100),
         value: 1,
     }];
     let backed = [(at(100) + Duration::from_micros(300), 1), (at(140), 0)];
