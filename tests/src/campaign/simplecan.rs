@@ -650,7 +650,7 @@ fn takeover(bus: &[(Instant, Instant, CanFrame)], until: Instant) -> Duration {
     let last = syncs()
         .filter(|&(_, master)| master == ESTOP)
         .map(|(start, _)| start)
-        .last()
+        .next_back()
         .expect("a sync of 30h");
     let first = syncs()
         .find(|&(start, master)| master == SECOND && start > last)

@@ -228,7 +228,7 @@ pub fn last_sync_before(
         .filter(|(_, end, _)| *end <= at)
         .filter_map(|&(_, end, frame)| sync_of(entry, &frame, end))
         .map(|sync| sync.end)
-        .last()
+        .next_back()
 }
 
 /// The first instant at which `entry`'s consumer had heard several active masters
