@@ -1,13 +1,19 @@
 //! The independent SimpleCAN oracle: a bus monitor that knows the configured SDD (the SC-ID,
 //! its producer's slot, the slots per cycle, the safety timeout, the node hash) and judges,
-//! from the frames on the bus and the consumer's mapped output alone, whether the output ever
-//! held a value that no valid packet backed within its safety timeout (SC_REQ_20).
+//! from the frames the consumer received and its mapped output alone, whether the output
+//! ever held a value that no valid packet backed within its safety timeout (SC_REQ_20), and
+//! when the rules require the safe state at a frame: a second active master (SC_REQ_26), the
+//! bad-CRC leaky counter at 1000 (SC_REQ_42). A packet is valid only while the consumer must
+//! be synced: from the second sync of one master on, until 2000 ms after the last sync
+//! (SC_REQ_29, SC_REQ_30, SC_REQ_32).
 //!
 //! Diversity is required here, so this module does NOT call `shared::simplecan`: the CRC-24
 //! (`docs/simplecan.md` section 4) is computed bit by bit below instead of with the `crc`
 //! crate the node uses, the frames are decoded from their bytes as section 2 and 3 draw
-//! them, and the cycle a packet belongs to is taken from the master's sync packets and the
-//! bus time, not from the consumer's own time base.
+//! them, the cycle a packet belongs to is taken from the master's sync packets and the bus
+//! time, not from the consumer's own time base, and the synchronisation, the several-masters
+//! rule and the leaky counter are written from the requirement texts, not from
+//! `shared::simplecan::{sync, master, crc_monitor}`.
 
 use shared::{CanFrame, Duration, Instant};
 
