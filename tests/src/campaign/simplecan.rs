@@ -678,7 +678,7 @@ pub struct ScSummary {
     pub late: u64,
     /// The worst latency of a detection.
     pub max_latency: Option<Duration>,
-    /// The first seed of each kind of failure, to replay it.
+    /// The seeds of the unsafe, spurious and late scenarios, to replay them.
     pub failed_seeds: Vec<u64>,
 }
 
