@@ -124,6 +124,29 @@ pub struct ScNetwork {
     /// Every frame on the bus: when its transmission started, when it ended, who sent it
     /// (0: the tool).
     pub trace: Vec<(Instant, Instant, CanFrame, usize)>,
+    /// Frames that every receiver loses: the sender's controller confirms them, no device
+    /// receives them ([`ReceiveLoss`]; they stay in `trace`, which is the bus).
+    pub receive_loss: Vec<ReceiveLoss>,
+}
+
+/// Frames of one identifier lost by every receiver while they end within `[from, until)`:
+/// the sender sees them go out (it is told they were transmitted), no other device gets
+/// them, as when every receiver's path to the bus loses them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReceiveLoss {
+    /// The identifier.
+    pub id: u16,
+    /// From this instant on (frame ends).
+    pub from: Instant,
+    /// Until this instant (excluded).
+    pub until: Instant,
+}
+
+impl ReceiveLoss {
+    /// Whether every receiver loses `frame`, which ended at `end`.
+    pub fn loses(&self, frame: &CanFrame, end: Instant) -> bool {
+        frame.id().raw() == self.id && end >= self.from && end < self.until
+    }
 }
 
 /// The device description of node `id`.
@@ -155,6 +178,7 @@ impl ScNetwork {
             devices,
             in_flight: Vec::new(),
             trace: Vec::new(),
+            receive_loss: Vec::new(),
         }
     }
 
@@ -229,8 +253,12 @@ impl ScNetwork {
                     node.on_transmitted(now, &delivery.frame, outbox);
                 });
             }
+            let lost = self
+                .receive_loss
+                .iter()
+                .any(|loss| loss.loses(&delivery.frame, delivery.at));
             for index in 0..self.devices.len() {
-                if index + 1 != delivery.from {
+                if index + 1 != delivery.from && !lost {
                     self.with_device(index, |node, now, outbox| {
                         node.handle_frame(now, &delivery.frame, outbox);
                     });

@@ -1,8 +1,10 @@
 //! `cargo xtask campaign`: the seeded fault campaigns of `tests/src/campaign` (host
 //! simulation, judged by the independent oracle), run on every core.
 //! Every class runs at 125, 250, 500 and 1000 kbit/s unless `--bit-rate` picks some; the
-//! SimpleCAN classes (`--protocol simplecan`, names `simplecan-…`) run on their own network
-//! at 500 kbit/s (`tests/src/campaign/simplecan.rs`). Without `--protocol`, both run.
+//! SimpleCAN classes (`--protocol simplecan`, names `simplecan-…`: bad CRC, replay,
+//! masquerade, lost, delay, babbling, sync loss, two masters, master gone, leaky counter) run
+//! on their own network at 500 kbit/s (`tests/src/campaign/simplecan.rs`), one class per
+//! thread. Without `--protocol`, both run.
 //! The full size (10,000 scenarios per class and rate, the default) writes `docs/campaigns.md` and
 //! the plots in `docs/campaigns/`; a smaller run writes its report to `target/campaign/`,
 //! so that CI's short run never replaces the measured full run. Fails when any scenario
