@@ -141,7 +141,7 @@ fn sc_req_24_two_dual_channel_nodes_exchange_the_emergency_stop_without_a_fault(
 /// slot, then takes a frame time and a verdict's way over the link).
 #[test]
 fn sc_req_10_the_emergency_stop_reaches_the_dual_channel_output_within_a_cycle() {
-    let mut worst = 0;
+    let (mut best, mut worst) = (u64::MAX, 0);
     for offset_us in (0..10_000).step_by(500) {
         let mut net = running();
         net.run_for(Duration::from_micros(offset_us));
@@ -157,9 +157,10 @@ fn sc_req_10_the_emergency_stop_reaches_the_dual_channel_output_within_a_cycle()
             "{latency} us after pressing at {offset_us} us into the cycle"
         );
         assert_eq!(net.faults(33), [None, None], "a value of 0 is no fault");
+        best = best.min(latency);
         worst = worst.max(latency);
     }
-    println!("worst emergency-stop latency: {worst} us");
+    println!("emergency stop to output, pressed every 500 us over a cycle: {best}..{worst} us");
 }
 
 /// A copy channel A of node 33 forwards that differs from what channel B heard (A's
