@@ -125,13 +125,15 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let Some(layer) = self.node.protocol().simplecan() else {
             return;
         };
-        let Some(entry) = u8::try_from(raw.id).ok().and_then(|id| layer.consumed(id)) else {
+        let consumed = u8::try_from(raw.id)
+            .ok()
+            .and_then(|sc_id| Some((sc_id, layer.consumed(sc_id)?)));
+        let Some((sc_id, entry)) = consumed else {
             return; // Not a data packet the node consumes: nothing to deliver, no verdict.
         };
         if !self.is_working() {
             return; // The core latched on it (1000 bad CRCs): the latch is the reaction.
         }
-        let sc_id = raw.id as u8; // A consumed SC-ID, 30h..7Fh.
         let core_accepted = layer.accepted != accepted_before;
         let decoded = self.role.simplecan_decode(&raw, |id| layer.hash_of(id));
         let stamp = raw.data[4];
