@@ -315,3 +315,30 @@ fn sc_req_10_channel_a_s_packet_missing_on_the_bus_is_the_safe_state() {
         "{found:?} {sent:?}"
     );
 }
+
+/// Another device sends on node 1's own SC-ID (a second sender, a replay): channel A's
+/// controller receives it (it never receives A's own) and forwards it, channel B finds a
+/// packet of the node it did not compute at that moment. Node 1 is in the safe state, cause
+/// 78h (or 72h: the copy of a frame B took for the node's own is one it did not pair), and
+/// sends nothing from then on.
+#[test]
+fn sc_req_10_a_foreign_packet_on_the_node_s_sc_id_is_the_safe_state() {
+    let mut net = running();
+    // Mid-cycle, away from node 1's slot 0: the packet as node 1 would have sent it earlier.
+    let replayed = net
+        .trace
+        .iter()
+        .rev()
+        .find(|(_, frame, _)| frame.id().raw() == 0x030)
+        .map(|(_, frame, _)| *frame)
+        .expect("a packet of node 1");
+    net.run_for(Duration::from_millis(5));
+    net.bus.send(0, replayed);
+    net.run_for(TWO_CYCLES);
+    assert_safe_with_also(
+        &net,
+        1,
+        Cause::SimpleCanTransmitMismatch,
+        &[Cause::SimpleCanForwardUnheard],
+    );
+}
