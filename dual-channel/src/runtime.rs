@@ -371,6 +371,14 @@ pub trait Io {
     fn simplecan_output(&mut self, sc_id: u8, value: u32) {
         let _ = (sc_id, value);
     }
+    /// Withdraws the frames on `id` handed to [`Io::transmit`] and not yet on the bus (the
+    /// core's [`Sink::abort`]: a SimpleCAN packet at the end of its slot, a sync not
+    /// confirmed within 2 ms; SC_REQ_18, SC_REQ_23). The default withdraws nothing: a board
+    /// without SimpleCAN.
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        let _ = id;
+    }
 }
 
 /// Collects what the core hands out during one call.
@@ -379,6 +387,9 @@ struct Collect {
     events: heapless::Vec<Event, 16>,
     /// More than fit: treated as a fault of the channel (it cannot have seen everything).
     overflow: bool,
+    /// Identifiers whose frames the core withdrew ([`Sink::abort`]: SimpleCAN).
+    #[cfg(feature = "simplecan")]
+    aborts: heapless::Vec<shared::CanId, 8>,
 }
 
 impl Collect {
@@ -387,6 +398,8 @@ impl Collect {
             frames: heapless::Vec::new(),
             events: heapless::Vec::new(),
             overflow: false,
+            #[cfg(feature = "simplecan")]
+            aborts: heapless::Vec::new(),
         }
     }
 }
@@ -399,6 +412,12 @@ impl Sink for Collect {
     }
     fn event(&mut self, event: Event) {
         if self.events.push(event).is_err() {
+            self.overflow = true;
+        }
+    }
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        if self.aborts.push(id).is_err() {
             self.overflow = true;
         }
     }
@@ -923,6 +942,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 _ => {}
             }
         }
+        #[cfg(feature = "simplecan")]
+        self.simplecan_aborts(&collect.aborts, io);
         if collect.overflow {
             self.latch(ChannelFault::CoreOutputFull, io);
         }

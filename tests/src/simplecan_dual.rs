@@ -42,6 +42,7 @@ struct Out {
     link: Vec<u8>,
     events: Vec<ChannelEvent>,
     outputs: Vec<(u8, u32)>,
+    aborts: Vec<u16>,
 }
 
 impl Io for Out {
@@ -57,6 +58,9 @@ impl Io for Out {
     }
     fn simplecan_output(&mut self, sc_id: u8, value: u32) {
         self.outputs.push((sc_id, value));
+    }
+    fn abort(&mut self, id: shared::CanId) {
+        self.aborts.push(id.raw());
     }
 }
 
@@ -99,6 +103,10 @@ pub struct ScDualNetwork {
     pub trace: Vec<(Instant, CanFrame, usize)>,
     /// Every change of a channel's SimpleCAN output: (time, node-ID, channel, SC-ID, value).
     pub outputs: Vec<(Instant, u8, Side, u8, u32)>,
+    /// Every withdrawal a channel asked of its controller: (time, node-ID, channel,
+    /// identifier). The bus model cannot take back a queued frame; the log is what a test
+    /// checks.
+    pub aborts: Vec<(Instant, u8, Side, u16)>,
 }
 
 fn participant(index: usize, side: Side) -> usize {
@@ -145,6 +153,7 @@ impl ScDualNetwork {
             log: Vec::new(),
             trace: Vec::new(),
             outputs: Vec::new(),
+            aborts: Vec::new(),
         }
     }
 
@@ -166,6 +175,16 @@ impl ScDualNetwork {
         self.nodes[index]
             .receive_faults
             .push((side, Injection::new(when, fault)));
+    }
+
+    /// Adds a fault on the bus (every receiver sees it; [`Fault::Mute`] silences a sender).
+    pub fn inject(&mut self, when: Match, fault: Fault) {
+        self.bus.inject(Injection::new(when, fault));
+    }
+
+    /// The bus participant of channel `side` of node `id`.
+    pub fn participant(&self, id: u8, side: Side) -> usize {
+        participant(self.index(id), side)
     }
 
     /// Runs until `end`.
@@ -375,6 +394,9 @@ impl ScDualNetwork {
         }
         for (sc_id, value) in out.outputs {
             self.outputs.push((now, id, side, sc_id, value));
+        }
+        for abort in out.aborts {
+            self.aborts.push((now, id, side, abort));
         }
     }
 

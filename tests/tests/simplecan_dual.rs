@@ -342,3 +342,37 @@ fn sc_req_10_a_foreign_packet_on_the_node_s_sc_id_is_the_safe_state() {
         &[Cause::SimpleCanForwardUnheard],
     );
 }
+
+/// SC_REQ_18 on two channels: channel A's packet that has not gone out by the end of its
+/// slot (its controller is muted) is withdrawn: channel A's core asks its board at the end of
+/// the slot, and channel B finds the packet missing (79h).
+#[test]
+fn sc_req_10_a_packet_not_on_the_bus_by_the_end_of_its_slot_is_withdrawn_by_channel_a() {
+    let mut net = running();
+    let now = net.now;
+    let a = net.participant(1, Side::A);
+    net.inject(Match::all_from(a, now), Fault::Mute);
+    net.run_for(TWO_CYCLES);
+    let withdrawn = net
+        .aborts
+        .iter()
+        .find(|(at, id, side, frame)| *at >= now && *id == 1 && *side == Side::A && *frame == 0x030)
+        .map(|(at, ..)| *at)
+        .expect("channel A withdrew 30h");
+    // At the end of the slot, the instant channel B's Model A check gives up on it too (both
+    // count one slot from the slot's start, on one clock here).
+    let missing = net
+        .log
+        .iter()
+        .find(|(at, id, side, event)| {
+            *at >= now && *id == 1 && *side == Side::B && matches!(event, ChannelEvent::Fault(_))
+        })
+        .map(|(at, ..)| *at)
+        .expect("B latched");
+    assert_eq!(withdrawn, missing);
+    assert_safe_with(&net, 1, Cause::SimpleCanTransmitMissing);
+    assert!(
+        !net.aborts.iter().any(|(_, _, side, _)| *side == Side::B),
+        "channel B has nothing to withdraw"
+    );
+}

@@ -248,6 +248,17 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
     }
 
+    /// The core withdrew the frames on `aborts`: channel A's board withdraws them (channel
+    /// B's role sends no SimpleCAN packet, so there is nothing of B's to withdraw; its
+    /// Model A check reports A's packet missing when it does not come).
+    pub(super) fn simplecan_aborts(&mut self, aborts: &[shared::CanId], io: &mut impl Io) {
+        if self.role.speaks_for_the_node() {
+            for id in aborts {
+                io.abort(*id);
+            }
+        }
+    }
+
     /// Runs the SimpleCAN checks' time-outs at `now`; returns their next deadline.
     pub(super) fn simplecan_poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
         let checks: &Checks = &self.simplecan;
