@@ -281,6 +281,40 @@ impl<const N: usize> Role<N> for ChannelB {
         self.window
     }
 
+    /// Channel B's verdict on a SimpleCAN frame is its own decoder's
+    /// ([`crate::simplecan::check`]), written apart from the shared one (SC_REQ_10, Model C).
+    #[cfg(feature = "simplecan")]
+    fn simplecan_decode(
+        &self,
+        frame: &dual_channel::simplecan::RawFrame,
+        hash_of: impl Fn(u8) -> Option<u32>,
+    ) -> dual_channel::simplecan::Decoded {
+        use crate::simplecan::Verdict;
+        use dual_channel::simplecan::Decoded;
+        // The runtime hands over data frames only (`RawFrame::of`).
+        match crate::simplecan::check(frame.id, false, frame.len, frame.data, hash_of) {
+            Verdict::Data {
+                sc_id,
+                value,
+                cycle_stamp,
+            } => Decoded::Data {
+                sc_id,
+                value,
+                cycle_stamp,
+            },
+            Verdict::Sync {
+                master,
+                cycle,
+                offset_micros,
+            } => Decoded::Sync {
+                master,
+                cycle,
+                offset_micros,
+            },
+            Verdict::Invalid(_) | Verdict::NotSimpleCan => Decoded::Invalid,
+        }
+    }
+
     fn reset(&mut self) {
         // The pair in progress is forgotten; the input samples are not (they are the pins),
         // and neither are channel A's announcements: one may have arrived just before this

@@ -17,9 +17,31 @@
 //! confirmed pair that is the newest pair each channel accepted. A confirmation can come
 //! after a newer pair (its verdict was on the link while the newer one arrived on the bus);
 //! the confirmed [`Verdict`] therefore names its pair, so that the channel can discard it.
+//!
+//! The check is written once for every safety protocol of the node: it keeps verdicts apart
+//! by a [`Stream`] (an SRDO by default; with the feature `simplecan`, a consumed SimpleCAN
+//! SDD entry, `crate::simplecan::ConsumedEntry`).
 
 use shared::safety::types::SrdoNumber;
 use shared::{Duration, Instant};
+
+/// What verdicts are kept apart by: one stream of safety data of the protocol (an SRDO, a
+/// SimpleCAN SDD entry), numbered from 1 as the protocol numbers it.
+pub trait Stream: Copy + PartialEq + core::fmt::Debug {
+    /// The stream numbered `number`, `None` when the protocol has no such number.
+    fn from_number(number: u8) -> Option<Self>;
+    /// Its place among the check's slots, 0-based.
+    fn index(self) -> usize;
+}
+
+impl Stream for SrdoNumber {
+    fn from_number(number: u8) -> Option<Self> {
+        SrdoNumber::new(number)
+    }
+    fn index(self) -> usize {
+        SrdoNumber::index(self)
+    }
+}
 
 /// One channel's verdict on one pair.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -33,19 +55,20 @@ pub struct Verdict {
     pub data: u64,
 }
 
-/// Why the channels do not agree.
+/// Why the channels do not agree, on stream `S` (an SRDO unless said otherwise; the variants
+/// name the SRDO case, a SimpleCAN channel translates them into its own faults at once).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum CrossFault {
+pub enum CrossFault<S = SrdoNumber> {
     /// The two verdicts on the same SRDO differ (pair, validity or data).
     Disagreement {
         /// SRDO number.
-        srdo: SrdoNumber,
+        srdo: S,
     },
     /// A verdict was not matched by the other channel in time.
     Unconfirmed {
         /// SRDO number.
-        srdo: SrdoNumber,
+        srdo: S,
     },
     /// A verdict named an SRDO this node does not have.
     UnknownSrdo {
@@ -56,7 +79,7 @@ pub enum CrossFault {
     /// ([`DEPTH`]): it lost some, or is not validating at all.
     QueueFull {
         /// SRDO number.
-        srdo: SrdoNumber,
+        srdo: S,
     },
 }
 
@@ -94,54 +117,65 @@ enum Side {
     Remote,
 }
 
-/// Pending verdicts of `N` SRDOs, compared as they pair up.
+/// Pending verdicts of `N` streams (SRDOs unless `S` says otherwise), compared as they pair
+/// up.
 #[derive(Clone, Debug)]
-pub struct VerdictCheck<const N: usize> {
+pub struct VerdictCheck<const N: usize, S: Stream = SrdoNumber> {
     timeout: Duration,
     slots: [Slot; N],
+    stream: core::marker::PhantomData<S>,
 }
 
-impl<const N: usize> VerdictCheck<N> {
+impl<const N: usize, S: Stream> VerdictCheck<N, S> {
     /// Verdicts must be confirmed within `timeout` of arriving.
     pub fn new(timeout: Duration) -> Self {
         VerdictCheck {
             timeout,
             slots: core::array::from_fn(|_| Slot::default()),
+            stream: core::marker::PhantomData,
         }
     }
 
-    /// This channel's verdict on SRDO `srdo` (1-based) at `now`. Returns the confirmed
-    /// verdict (valid, with its pair and data) when the other channel's verdict was already
-    /// there and agrees.
+    /// This channel's verdict on stream `srdo` at `now`. Returns the confirmed verdict
+    /// (valid, with its pair and data) when the other channel's verdict was already there
+    /// and agrees.
     pub fn local(
         &mut self,
         now: Instant,
-        srdo: SrdoNumber,
+        srdo: S,
         verdict: Verdict,
-    ) -> Result<Option<Verdict>, CrossFault> {
-        self.arrive(now, srdo.get(), verdict, Side::Local)
+    ) -> Result<Option<Verdict>, CrossFault<S>> {
+        self.arrive(now, Ok(srdo), verdict, Side::Local)
     }
 
-    /// The other channel's verdict, received over the link.
+    /// The other channel's verdict on the stream it numbers `srdo`, received over the link.
     pub fn remote(
         &mut self,
         now: Instant,
         srdo: u8,
         verdict: Verdict,
-    ) -> Result<Option<Verdict>, CrossFault> {
-        self.arrive(now, srdo, verdict, Side::Remote)
+    ) -> Result<Option<Verdict>, CrossFault<S>> {
+        self.arrive(now, Err(srdo), verdict, Side::Remote)
     }
 
+    /// `srdo`: this channel's stream, or the number the other channel sent.
     fn arrive(
         &mut self,
         now: Instant,
-        srdo: u8,
+        srdo: Result<S, u8>,
         verdict: Verdict,
         side: Side,
-    ) -> Result<Option<Verdict>, CrossFault> {
-        let unknown = CrossFault::UnknownSrdo { srdo };
-        let number = SrdoNumber::new(srdo).ok_or(unknown)?;
-        let slot = self.slots.get_mut(number.index()).ok_or(unknown)?;
+    ) -> Result<Option<Verdict>, CrossFault<S>> {
+        let number = match srdo {
+            Ok(stream) => stream,
+            Err(raw) => S::from_number(raw).ok_or(CrossFault::UnknownSrdo { srdo: raw })?,
+        };
+        let Some(slot) = self.slots.get_mut(number.index()) else {
+            // A stream of the protocol the check has no slot for: the number as the other
+            // channel would send it (1-based, at most 255 slots are ever built).
+            let srdo = u8::try_from(number.index() + 1).unwrap_or(u8::MAX);
+            return Err(CrossFault::UnknownSrdo { srdo });
+        };
         let srdo = number;
         let (mine, theirs) = match side {
             Side::Local => (&mut slot.local, &mut slot.remote),
@@ -165,14 +199,16 @@ impl<const N: usize> VerdictCheck<N> {
     }
 
     /// [`CrossFault::Unconfirmed`] for a verdict older than the timeout (at the deadline itself).
-    pub fn poll(&self, now: Instant) -> Result<(), CrossFault> {
+    pub fn poll(&self, now: Instant) -> Result<(), CrossFault<S>> {
         for (index, slot) in self.slots.iter().enumerate() {
             if slot
                 .oldest()
                 .is_some_and(|since| shared::time::expired(since + self.timeout, now))
             {
-                // `slots` holds at most 64 SRDOs (`N`), so every slot has a number.
-                if let Some(srdo) = SrdoNumber::of_slot(index) {
+                // Every slot is one of the protocol's streams (at most 64 SRDOs, 80 SDD
+                // entries), so it has a number.
+                let number = u8::try_from(index + 1).ok().and_then(S::from_number);
+                if let Some(srdo) = number {
                     return Err(CrossFault::Unconfirmed { srdo });
                 }
             }

@@ -2,7 +2,8 @@
 //!
 //! - [`link`]: the inter-MCU link, its message set, framing and checks;
 //! - [`clock`]: the check of the other channel's time base against this channel's own;
-//! - [`crosscheck`]: the comparison of the two channels' verdicts on received SRDOs;
+//! - [`crosscheck`]: the comparison of the two channels' verdicts on received SRDOs (and,
+//!   generically, on any protocol's streams);
 //! - [`can_loopback`]: the start-up test of the CAN controller's message buffers and filters;
 //! - [`supervision`]: the runtime's checks of the other channel (inputs, NMT state and epoch,
 //!   configuration), each a small value with `poll` and `deadline`;
@@ -12,7 +13,9 @@
 //!   interface (CAN, link, pins, time);
 //! - [`runtime`]: one channel around its copy of the protocol core: bus, link, cross-checks
 //!   and output, with the channel-specific parts ([`runtime::Role`]) supplied by channel A and
-//!   channel B.
+//!   channel B;
+//! - `simplecan` (feature `simplecan`, host-side): SimpleCAN on the two channels, forwarding,
+//!   the verdict cross-check and Model A transmission (SC_REQ_10, SC_REQ_24).
 //!
 //! Everything here is sans-I/O and runs in host tests exactly as on the MCU.
 

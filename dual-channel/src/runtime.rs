@@ -73,7 +73,10 @@ use crate::supervision::{ConfigurationCheck, InputCheck, NmtCheck};
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::storage::Flash;
-use shared::node::{Event, Node, NodeConfig, NodeError, SafeStateCause, Sink};
+use shared::node::{
+    Device, Event, NodeConfig, NodeError, SafeStateCause, SafetyProtocol, Sink, SrdoTable,
+    WithSrdoTable,
+};
 use shared::safety::cause::Cause;
 use shared::safety::config::SafetyConfig;
 use shared::safety::types::{SRDO_IDENTIFIERS, SrdoNumber};
@@ -113,6 +116,29 @@ pub fn safe_state_code(cause: &SafeStateCause) -> u8 {
         SafeStateCause::Integrity(fault) => fault.emergency_detail()[1],
         // The protocol's cause code, as in its EMCY byte 1.
         SafeStateCause::Protocol { cause, .. } => *cause,
+    }
+}
+
+/// The safety protocol in a channel's core: the SRDO table (`shared::node::Node`, every
+/// firmware image), or with the feature `simplecan` (host-side) the SRDO table beside
+/// SimpleCAN (`shared::node::SimpleCanNode`, `crate::simplecan`).
+pub trait ChannelProtocol<const N: usize>:
+    SafetyProtocol + WithSrdoTable<Table = SrdoTable<N>> + Sized
+{
+    /// The protocol of the device `config` describes (`None`: it cannot hold `N` SRDOs).
+    fn build(config: &NodeConfig) -> Option<Self>;
+
+    /// The SimpleCAN layer beside the SRDOs, as the channel's cross-checks read it (`None`:
+    /// the protocol has none, or it is disabled).
+    #[cfg(feature = "simplecan")]
+    fn simplecan(&self) -> Option<crate::simplecan::Layer> {
+        None
+    }
+}
+
+impl<const N: usize> ChannelProtocol<N> for SrdoTable<N> {
+    fn build(config: &NodeConfig) -> Option<Self> {
+        SrdoTable::new(config)
     }
 }
 
@@ -183,6 +209,21 @@ pub trait Role<const N: usize> {
     fn window(&self) -> Duration {
         SAMPLE_WINDOW
     }
+
+    /// This channel's own decoding of a SimpleCAN frame with the node hashes `hash_of`
+    /// (SC_REQ_10: each channel validates every packet). The default is the frame's fields
+    /// as they stand, unchecked: a channel without a decoder of its own (channel A) has its
+    /// core's, which checked the frame already. Channel B answers with its diverse decoder
+    /// (`channel_b::simplecan`).
+    #[cfg(feature = "simplecan")]
+    fn simplecan_decode(
+        &self,
+        frame: &crate::simplecan::RawFrame,
+        hash_of: impl Fn(u8) -> Option<u32>,
+    ) -> crate::simplecan::Decoded {
+        let _ = hash_of;
+        crate::simplecan::Decoded::fields(frame)
+    }
 }
 
 /// Why a channel went to the safe state on its own account (faults of the SRDOs themselves
@@ -245,6 +286,10 @@ pub enum ChannelFault {
         /// The other channel's cause code.
         cause: u8,
     },
+    /// The channels' SimpleCAN checks found a fault (forwarding, verdicts, Model A
+    /// transmission: `crate::simplecan`).
+    #[cfg(feature = "simplecan")]
+    SimpleCan(crate::simplecan::SimpleCanFault),
 }
 
 impl ChannelFault {
@@ -273,6 +318,8 @@ impl ChannelFault {
             ChannelFault::ReceiveOverrun => Cause::ReceiveOverrun,
             ChannelFault::BusOff => Cause::BusOff,
             ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
+            #[cfg(feature = "simplecan")]
+            ChannelFault::SimpleCan(fault) => fault.cause(),
         }
     }
 
@@ -298,6 +345,14 @@ pub enum ChannelEvent {
         /// The data.
         data: u64,
     },
+    /// Both channels confirmed this value of a consumed SimpleCAN SC-ID (SC_REQ_10).
+    #[cfg(feature = "simplecan")]
+    SimpleCanConfirmed {
+        /// The SC-ID.
+        sc_id: u8,
+        /// The value.
+        value: u32,
+    },
 }
 
 /// The board layer, as the runtime sees it.
@@ -310,6 +365,20 @@ pub trait Io {
     fn output(&mut self, srdo: SrdoNumber, data: u64);
     /// Reports an event (log, diagnostics).
     fn event(&mut self, event: ChannelEvent);
+    /// Drives the physical output(s) behind the consumed SimpleCAN SC-ID `sc_id` to `value`
+    /// (0: safe state). The default drives nothing: a board without SimpleCAN outputs.
+    #[cfg(feature = "simplecan")]
+    fn simplecan_output(&mut self, sc_id: u8, value: u32) {
+        let _ = (sc_id, value);
+    }
+    /// Withdraws the frames on `id` handed to [`Io::transmit`] and not yet on the bus (the
+    /// core's [`Sink::abort`]: a SimpleCAN packet at the end of its slot, a sync not
+    /// confirmed within 2 ms; SC_REQ_18, SC_REQ_23). The default withdraws nothing: a board
+    /// without SimpleCAN.
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        let _ = id;
+    }
 }
 
 /// Collects what the core hands out during one call.
@@ -318,6 +387,9 @@ struct Collect {
     events: heapless::Vec<Event, 16>,
     /// More than fit: treated as a fault of the channel (it cannot have seen everything).
     overflow: bool,
+    /// Identifiers whose frames the core withdrew ([`Sink::abort`]: SimpleCAN).
+    #[cfg(feature = "simplecan")]
+    aborts: heapless::Vec<shared::CanId, 8>,
 }
 
 impl Collect {
@@ -326,6 +398,8 @@ impl Collect {
             frames: heapless::Vec::new(),
             events: heapless::Vec::new(),
             overflow: false,
+            #[cfg(feature = "simplecan")]
+            aborts: heapless::Vec::new(),
         }
     }
 }
@@ -338,6 +412,12 @@ impl Sink for Collect {
     }
     fn event(&mut self, event: Event) {
         if self.events.push(event).is_err() {
+            self.overflow = true;
+        }
+    }
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        if self.aborts.push(id).is_err() {
             self.overflow = true;
         }
     }
@@ -358,9 +438,10 @@ impl InputSample {
     }
 }
 
-/// One channel: its core, its role, the link and the cross-checks.
-pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
-    node: Node<F, N>,
+/// One channel: its core (with the safety protocol `P`, the SRDO table unless said
+/// otherwise), its role, the link and the cross-checks.
+pub struct Runtime<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N> = SrdoTable<N>> {
+    node: Device<F, P>,
     role: R,
     sender: Sender,
     receiver: Receiver,
@@ -397,9 +478,17 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize> {
     early: heapless::Vec<(Instant, CanFrame), 4>,
     /// The last transmit SRDO frame per identifier this channel's core handed on.
     handed_on: FrameSlots<N>,
+    /// The channels' SimpleCAN checks (forwarding, verdicts, Model A transmission).
+    #[cfg(feature = "simplecan")]
+    simplecan: crate::simplecan::Checks,
 }
 
-impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
+/// SimpleCAN on the two channels: the runtime's part (`crate::simplecan` holds the checks).
+#[cfg(feature = "simplecan")]
+#[path = "simplecan/runtime.rs"]
+mod simplecan;
+
+impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, N, P> {
     /// A channel powered on at `now`, sending a link heartbeat every `link_period` and
     /// expecting one from the other channel within twice that.
     #[inline(never)]
@@ -411,8 +500,11 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         link_period: Duration,
     ) -> Result<Self, NodeError> {
         let timeout = Duration::from_micros(2 * link_period.as_micros());
+        let protocol = P::build(&config).ok_or(NodeError::SrdoCount)?;
+        #[cfg(feature = "simplecan")]
+        let window = role.window();
         Ok(Runtime {
-            node: Node::new(config, flash)?,
+            node: Device::with_protocol(config, flash, protocol)?,
             role,
             sender: Sender::new(),
             receiver: Receiver::new(now, timeout, STARTUP),
@@ -432,18 +524,20 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             waiting: FrameSlots::default(),
             early: heapless::Vec::new(),
             handed_on: FrameSlots::default(),
+            #[cfg(feature = "simplecan")]
+            simplecan: crate::simplecan::Checks::new(window, timeout),
         })
     }
 
     /// The channel's core.
-    pub fn node(&self) -> &Node<F, N> {
+    pub fn node(&self) -> &Device<F, P> {
         &self.node
     }
 
     /// The channel's core, for fault injection in system tests (feature `fault-injection`,
     /// which no firmware image enables).
     #[cfg(feature = "fault-injection")]
-    pub fn node_mut(&mut self) -> &mut Node<F, N> {
+    pub fn node_mut(&mut self) -> &mut Device<F, P> {
         &mut self.node
     }
 
@@ -477,6 +571,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     pub fn on_frame(&mut self, now: Instant, frame: &CanFrame, io: &mut impl Io) {
         if !self.link_up {
             return; // The core has not booted: the node is not on the bus yet.
+        }
+        #[cfg(feature = "simplecan")]
+        if self.simplecan_frame(now, frame, io) {
+            return;
         }
         if self.node.nmt_state() == NmtState::Operational {
             // Also in the safe state: a foreign sender on our identifiers is reported (and a
@@ -617,6 +715,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.input_check.deadline(),
             self.waiting_deadline(),
         ];
+        #[cfg(feature = "simplecan")]
+        let node_deadline = node_deadline.min(self.simplecan_poll(now, io));
         supervision
             .into_iter()
             .filter(|deadline| *deadline > now)
@@ -790,8 +890,12 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 if self.fault.is_none() {
                     self.core_frame(now, frame, io);
                 }
-            } else if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
-                io.transmit(frame);
+            } else {
+                #[cfg(feature = "simplecan")]
+                self.simplecan_own(now, &frame, io);
+                if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
+                    io.transmit(frame);
+                }
             }
         }
         let mut nmt_changed = false;
@@ -838,6 +942,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                 _ => {}
             }
         }
+        #[cfg(feature = "simplecan")]
+        self.simplecan_aborts(&collect.aborts, io);
         if collect.overflow {
             self.latch(ChannelFault::CoreOutputFull, io);
         }
@@ -858,6 +964,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             self.clear_outputs(io);
         }
         if self.node.nmt_state() != NmtState::Operational {
+            #[cfg(feature = "simplecan")]
+            self.simplecan.reset();
             self.verdicts.reset();
             self.pairs = [0; N];
             self.peer_pairs = [0; N];
@@ -1004,11 +1112,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
                     self.latch(fault, io);
                 }
             }
-            // The SRDO runtime runs no SimpleCAN, so neither channel's runtime sends one: a
-            // SimpleCAN channel pair decodes them with channel B's own decoder
-            // (`channel_b::simplecan`).
             #[cfg(feature = "simplecan")]
-            Message::SimpleCanPacket { .. } => {}
+            message @ (Message::SimpleCanPacket { .. } | Message::SimpleCanVerdict { .. }) => {
+                self.simplecan_message(now, message, io);
+            }
             Message::SafeState { cause } => {
                 // A channel already in its safe state (its own core found the fault too, say:
                 // both see the same bus) keeps its own cause, which is what it reports.
@@ -1020,7 +1127,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     }
 
     /// Writes a sample and its inverted copy to the core's objects.
-    fn write_input(node: &mut Node<F, N>, sample: &InputSample) -> Result<(), AbortCode> {
+    fn write_input(node: &mut Device<F, P>, sample: &InputSample) -> Result<(), AbortCode> {
         let value = sample.bytes.get(..sample.len).unwrap_or_default();
         let mut flipped = [0u8; 8];
         for (out, byte) in flipped.iter_mut().zip(value) {
@@ -1104,6 +1211,8 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     }
 
     fn clear_outputs(&mut self, io: &mut impl Io) {
+        #[cfg(feature = "simplecan")]
+        self.simplecan.clear_outputs(io);
         // N <= 64 (the core refuses more), so every slot has a number.
         for (index, output) in self.outputs.iter_mut().enumerate() {
             if *output != 0 {
@@ -1340,7 +1449,7 @@ mod tests {
         let mut config =
             crate::device::config(shared::canopen::NodeId::new(1).unwrap(), "input table test");
         config.app_objects = &MANY_INPUTS;
-        let mut runtime = Runtime::new(
+        let mut runtime = Runtime::<_, _, 1>::new(
             config,
             shared::canopen::storage::RamFlash::<4096>::new(),
             Quiet,

@@ -14,6 +14,8 @@
 //!   (`cargo xtask scenario`).
 //! - [`campaign`]: seeded fault campaigns judged by an oracle that does not reuse the
 //!   implementation (`cargo xtask campaign`).
+//! - [`simplecan_dual`]: a SimpleCAN network of dual-channel nodes (forwarding, verdict
+//!   cross-check, Model A transmission).
 //! - [`simplecan_net`]: a SimpleCAN network: devices with the SRDO table and SimpleCAN,
 //!   configured by SDO, with transmit confirmations and aborts.
 //! - [`tool_bus`]: the configuration tool's transport on the simulated bus.
@@ -26,5 +28,6 @@ pub mod loop_net;
 pub mod network;
 pub mod scenario;
 pub mod scenario_runner;
+pub mod simplecan_dual;
 pub mod simplecan_net;
 pub mod tool_bus;

@@ -365,91 +365,9 @@ impl ScNetwork {
         client(self).read(id, address).map_err(sdo_error)
     }
 
-    /// Configures node `id` as a tool does (SC_REQ_35, SC_REQ_36): its SRDOs deleted and
-    /// the SRDO table declared valid; SimpleCAN's objects written, the count last; every
-    /// object read back and compared; the signature computed from the values read back by a
-    /// bit-by-bit CRC-32 of its own (not the device's), written, then 5EFEh = A5h; stored.
+    /// Configures node `id` as a tool does ([`configure`]).
     pub fn configure(&mut self, id: u8, config: &ScConfig) -> Result<(), String> {
-        let fail = |what: &str, error: ClientError| format!("node {id}: {what}: {error:?}");
-        for n in 0..4u16 {
-            self.write(id, Address::new(0x1301 + n, 1), &[0])
-                .map_err(|e| fail("deleting an SRDO", e))?;
-        }
-        self.write(id, Address::new(0x13FE, 0), &[0xA5])
-            .map_err(|e| fail("13FEh", e))?;
-        let mut writes: Vec<(Address, Vec<u8>)> = vec![
-            (
-                Address::new(CYCLE_INDEX, 1),
-                config.slots.to_le_bytes().to_vec(),
-            ),
-            (
-                Address::new(CYCLE_INDEX, 2),
-                config.sync_every.to_le_bytes().to_vec(),
-            ),
-            (
-                Address::new(CYCLE_INDEX, 3),
-                config.buffering_us.to_le_bytes().to_vec(),
-            ),
-            (Address::new(CYCLE_INDEX, 4), vec![1]),
-            (
-                Address::new(CYCLE_INDEX, 5),
-                vec![u8::from(config.potential_master)],
-            ),
-            (Address::new(COUNT_INDEX, 0), vec![0]),
-        ];
-        for (n, entry) in config.entries.iter().enumerate() {
-            let index = FIRST_ENTRY_INDEX + n as u16;
-            writes.extend([
-                (Address::new(index, 1), vec![entry.sc_id]),
-                (Address::new(index, 2), vec![entry.role]),
-                (Address::new(index, 3), entry.slot.to_le_bytes().to_vec()),
-                (
-                    Address::new(index, 4),
-                    entry.timeout_ms.to_le_bytes().to_vec(),
-                ),
-                (
-                    Address::new(index, 5),
-                    node_hash(entry.sc_id).to_le_bytes().to_vec(),
-                ),
-                (Address::new(index, 6), entry.mapped.to_le_bytes().to_vec()),
-            ]);
-        }
-        writes.push((
-            Address::new(COUNT_INDEX, 0),
-            vec![config.entries.len() as u8],
-        ));
-        for (address, data) in &writes {
-            self.write(id, *address, data)
-                .map_err(|e| fail(&format!("{:04X}h:{:02X}", address.index, address.sub), e))?;
-        }
-        let mut fed = vec![id];
-        for (address, data) in writes.iter().filter(|(a, _)| a.index != COUNT_INDEX) {
-            let back = self
-                .read(id, *address)
-                .map_err(|e| fail("reading back", e))?;
-            if &back != data {
-                return Err(format!(
-                    "node {id}: {:04X}h:{:02X} reads back {back:02X?}, {data:02X?} was written",
-                    address.index, address.sub
-                ));
-            }
-            fed.extend(&back);
-            if address.index == CYCLE_INDEX && address.sub == 5 {
-                fed.push(config.entries.len() as u8);
-            }
-        }
-        let signature = crc32_mpeg2(&fed);
-        self.write(
-            id,
-            Address::new(SIGNATURE_INDEX, 0),
-            &signature.to_le_bytes(),
-        )
-        .map_err(|e| fail("5EFFh", e))?;
-        self.write(id, Address::new(VALID_INDEX, 0), &[0xA5])
-            .map_err(|e| fail("5EFEh", e))?;
-        self.write(id, Address::new(0x1010, 1), b"save")
-            .map_err(|e| fail("1010h", e))?;
-        Ok(())
+        configure(self, id, config)
     }
 
     /// The SimpleCAN frames on the bus of identifier `id`: (start, end) of each.
@@ -490,6 +408,104 @@ pub fn crc32_mpeg2(bytes: &[u8]) -> u32 {
         }
     }
     crc
+}
+
+/// Configures node `id` as a tool does (SC_REQ_35, SC_REQ_36): its SRDOs deleted and
+/// the SRDO table declared valid; SimpleCAN's objects written, the count last; every
+/// object read back and compared; the signature computed from the values read back by a
+/// bit-by-bit CRC-32 of its own (not the device's), written, then 5EFEh = A5h; stored.
+/// The network may be any simulated one the tool reaches ([`Simulation`]): this one, or
+/// one of dual-channel nodes (`crate::simplecan_dual`).
+pub fn configure(net: &mut impl Simulation, id: u8, config: &ScConfig) -> Result<(), String> {
+    let fail = |what: &str, error: ClientError| format!("node {id}: {what}: {error:?}");
+    for n in 0..4u16 {
+        sdo_write(net, id, Address::new(0x1301 + n, 1), &[0])
+            .map_err(|e| fail("deleting an SRDO", e))?;
+    }
+    sdo_write(net, id, Address::new(0x13FE, 0), &[0xA5]).map_err(|e| fail("13FEh", e))?;
+    let mut writes: Vec<(Address, Vec<u8>)> = vec![
+        (
+            Address::new(CYCLE_INDEX, 1),
+            config.slots.to_le_bytes().to_vec(),
+        ),
+        (
+            Address::new(CYCLE_INDEX, 2),
+            config.sync_every.to_le_bytes().to_vec(),
+        ),
+        (
+            Address::new(CYCLE_INDEX, 3),
+            config.buffering_us.to_le_bytes().to_vec(),
+        ),
+        (Address::new(CYCLE_INDEX, 4), vec![1]),
+        (
+            Address::new(CYCLE_INDEX, 5),
+            vec![u8::from(config.potential_master)],
+        ),
+        (Address::new(COUNT_INDEX, 0), vec![0]),
+    ];
+    for (n, entry) in config.entries.iter().enumerate() {
+        let index = FIRST_ENTRY_INDEX + n as u16;
+        writes.extend([
+            (Address::new(index, 1), vec![entry.sc_id]),
+            (Address::new(index, 2), vec![entry.role]),
+            (Address::new(index, 3), entry.slot.to_le_bytes().to_vec()),
+            (
+                Address::new(index, 4),
+                entry.timeout_ms.to_le_bytes().to_vec(),
+            ),
+            (
+                Address::new(index, 5),
+                node_hash(entry.sc_id).to_le_bytes().to_vec(),
+            ),
+            (Address::new(index, 6), entry.mapped.to_le_bytes().to_vec()),
+        ]);
+    }
+    writes.push((
+        Address::new(COUNT_INDEX, 0),
+        vec![config.entries.len() as u8],
+    ));
+    for (address, data) in &writes {
+        sdo_write(net, id, *address, data)
+            .map_err(|e| fail(&format!("{:04X}h:{:02X}", address.index, address.sub), e))?;
+    }
+    let mut fed = vec![id];
+    for (address, data) in writes.iter().filter(|(a, _)| a.index != COUNT_INDEX) {
+        let back = sdo_read(net, id, *address).map_err(|e| fail("reading back", e))?;
+        if &back != data {
+            return Err(format!(
+                "node {id}: {:04X}h:{:02X} reads back {back:02X?}, {data:02X?} was written",
+                address.index, address.sub
+            ));
+        }
+        fed.extend(&back);
+        if address.index == CYCLE_INDEX && address.sub == 5 {
+            fed.push(config.entries.len() as u8);
+        }
+    }
+    let signature = crc32_mpeg2(&fed);
+    sdo_write(
+        net,
+        id,
+        Address::new(SIGNATURE_INDEX, 0),
+        &signature.to_le_bytes(),
+    )
+    .map_err(|e| fail("5EFFh", e))?;
+    sdo_write(net, id, Address::new(VALID_INDEX, 0), &[0xA5]).map_err(|e| fail("5EFEh", e))?;
+    sdo_write(net, id, Address::new(0x1010, 1), b"save").map_err(|e| fail("1010h", e))?;
+    Ok(())
+}
+
+fn sdo_write(
+    net: &mut impl Simulation,
+    id: u8,
+    address: Address,
+    data: &[u8],
+) -> Result<(), ClientError> {
+    client(net).write(id, address, data).map_err(sdo_error)
+}
+
+fn sdo_read(net: &mut impl Simulation, id: u8, address: Address) -> Result<Vec<u8>, ClientError> {
+    client(net).read(id, address).map_err(sdo_error)
 }
 
 impl Simulation for ScNetwork {

@@ -395,7 +395,8 @@ fn cause_docs(source: &str) -> Result<BTreeMap<u8, String>> {
 
 /// What the machine builder does about a cause, by group of codes (the groups of the cause
 /// table: SRDO communication 0xh, the link 1xh, the receive cross-check 2xh, the channels'
-/// agreement 3xh, the other channel 40h, GFC 50h, the configuration in use Fxh).
+/// agreement 3xh, the other channel 40h, GFC 50h, SimpleCAN 6xh, SimpleCAN on the two
+/// channels 7xh, the configuration in use Fxh).
 fn advice(code: u8) -> Option<&'static str> {
     match code {
         0x00 => Some("Nothing: no safe state since power-on or the last NMT reset."),
@@ -446,6 +447,15 @@ fn advice(code: u8) -> Option<&'static str> {
         ),
         0x6A => Some(
             "A consumed SimpleCAN value was not refreshed within its safety timeout: check the producer (its NMT state, its own cause), the master (no sync for 2000 ms unsynchronises every node) and the bus.",
+        ),
+        0x70..=0x73 => Some(
+            "The node's two channels did not see the same SimpleCAN frames: channel A's copy over the link differed from, came later than, or was never heard beside what channel B received on the bus. It is inside the device (the link or one CAN controller): if it recurs after a power cycle, replace the device.",
+        ),
+        0x74..=0x77 => Some(
+            "The two channels judged a consumed SimpleCAN packet differently or not in time. Recurring: a fault inside the device (replace it), or a bus so loaded that the channels receive packets far apart (check the load and the cycle).",
+        ),
+        0x78 | 0x79 => Some(
+            "The SimpleCAN packet channel A sent differed from the one channel B computed for the same slot, or did not go out within its slot: the channels disagree about what the node sends (values, cycle, time), or the bus was too busy for the slot. Check the bus load against the cycle; otherwise a fault inside the device: replace it.",
         ),
         0xF0..=0xFF => Some(
             "The configuration in use no longer matches what was validated (a memory fault). Reset the node; if it recurs, replace the device.",

@@ -804,7 +804,7 @@ mod tests {
         }
         let lines = channel_lines(&statuses(&[]));
         assert!(lines[1].ends_with("none"), "{}", lines[1]);
-        assert_eq!(cause_words(0x77), "code 77h, no cause this device knows");
+        assert_eq!(cause_words(0xE7), "code E7h, no cause this device knows");
     }
 
     /// A terminal a person looks at: `tmux` at 120 × 40, the screen read with `capture-pane`.

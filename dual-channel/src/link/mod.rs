@@ -119,6 +119,22 @@ pub enum Message {
         /// The payload bytes as received, bytes beyond `len` 0.
         data: [u8; 8],
     },
+    /// The sender's verdict on one received SimpleCAN data packet of an SDD entry it
+    /// consumes (SC_REQ_10: both channels validate, the verdicts are cross-checked as SRDO
+    /// verdicts are). After [`Message::SimpleCanPacket`], behind the same feature.
+    #[cfg(feature = "simplecan")]
+    SimpleCanVerdict {
+        /// The SDD entry, 1-based (5E10h + entry − 1).
+        entry: u8,
+        /// The packet's SC-ID (its identifier).
+        sc_id: u8,
+        /// The packet's cycle stamp (byte 4).
+        cycle_stamp: u8,
+        /// The packet's value (bytes 0..4, little-endian).
+        value: u32,
+        /// `true` when the sender's channel accepted it (CRC, slot, cycle: delivered).
+        valid: bool,
+    },
 }
 
 /// Why the link is not trustworthy.

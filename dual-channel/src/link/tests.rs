@@ -342,3 +342,25 @@ fn sc_req_24_the_variants_before_the_simplecan_packet_keep_their_encoding() {
     assert_eq!(postcard::to_slice(&largest, &mut raw).unwrap().len(), 13);
     const { assert!(2 + 13 + 4 <= MAX_RAW) };
 }
+
+#[cfg(feature = "simplecan")]
+#[test]
+fn sc_req_10_a_simplecan_verdict_crosses_the_link_and_fits_the_bound() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    // The largest: value FFFF FFFFh takes 5 varint octets, the rest one each, variant 9.
+    let largest = Message::SimpleCanVerdict {
+        entry: u8::MAX,
+        sc_id: u8::MAX,
+        cycle_stamp: u8::MAX,
+        value: u32::MAX,
+        valid: true,
+    };
+    let mut raw = [0u8; MAX_RAW];
+    let bytes = postcard::to_slice(&largest, &mut raw).unwrap().to_vec();
+    assert_eq!(bytes.len(), 10);
+    assert_eq!(bytes[0], 9, "after SimpleCanPacket");
+    let wire = sender.encode(&largest).unwrap();
+    assert!(wire.len() <= MAX_WIRE);
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &wire), [Ok(largest)]);
+}

@@ -97,6 +97,35 @@ pub enum Cause {
     SimpleCanBadCrc = 0x69,
     /// SimpleCAN: a consumed value grew older than its safety timeout (SC_REQ_20).
     SimpleCanTimeout = 0x6A,
+    /// SimpleCAN, two channels: channel A's forwarded copy of a SimpleCAN frame differs from
+    /// the frame channel B heard on the bus (SC_REQ_24).
+    SimpleCanForwardDiffers = 0x70,
+    /// SimpleCAN, two channels: channel B heard a SimpleCAN frame and channel A's copy did
+    /// not come over the link in time (SC_REQ_24).
+    SimpleCanForwardLost = 0x71,
+    /// SimpleCAN, two channels: channel A forwarded a SimpleCAN frame channel B did not hear
+    /// (SC_REQ_24).
+    SimpleCanForwardUnheard = 0x72,
+    /// SimpleCAN, two channels: more SimpleCAN frames waited for their other copy than
+    /// channel B holds (SC_REQ_24).
+    SimpleCanForwardOverrun = 0x73,
+    /// SimpleCAN, two channels: the channels' verdicts on a consumed packet differ (SC-ID,
+    /// cycle stamp, value or validity; SC_REQ_10).
+    SimpleCanVerdictsDisagree = 0x74,
+    /// SimpleCAN, two channels: a verdict on a consumed packet was not matched by the other
+    /// channel in time (SC_REQ_10).
+    SimpleCanVerdictUnconfirmed = 0x75,
+    /// SimpleCAN, two channels: a verdict named an SDD entry the channel does not consume.
+    SimpleCanVerdictForUnknownEntry = 0x76,
+    /// SimpleCAN, two channels: more verdicts on one SDD entry waited for the other channel's
+    /// than it can be behind by (SC_REQ_10).
+    SimpleCanVerdictQueueFull = 0x77,
+    /// SimpleCAN, two channels: the packet channel A put on the bus differs from the one
+    /// channel B computed for the same slot (SC_REQ_10, Model A).
+    SimpleCanTransmitMismatch = 0x78,
+    /// SimpleCAN, two channels: channel B computed a packet of the node's and channel A's
+    /// did not appear on the bus within its slot (a sync: within 2 ms; SC_REQ_10, Model A).
+    SimpleCanTransmitMissing = 0x79,
     /// In Operational the records no longer pass the Operational-entry check.
     IntegrityRecords = 0xF2,
     /// In Operational the identifier table differs from the records.
@@ -109,7 +138,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 40] = [
+    pub const ALL: [Cause; 50] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -146,6 +175,16 @@ impl Cause {
         Cause::SimpleCanSeveralMasters,
         Cause::SimpleCanBadCrc,
         Cause::SimpleCanTimeout,
+        Cause::SimpleCanForwardDiffers,
+        Cause::SimpleCanForwardLost,
+        Cause::SimpleCanForwardUnheard,
+        Cause::SimpleCanForwardOverrun,
+        Cause::SimpleCanVerdictsDisagree,
+        Cause::SimpleCanVerdictUnconfirmed,
+        Cause::SimpleCanVerdictForUnknownEntry,
+        Cause::SimpleCanVerdictQueueFull,
+        Cause::SimpleCanTransmitMismatch,
+        Cause::SimpleCanTransmitMissing,
         Cause::IntegrityRecords,
         Cause::IntegrityIdentifierTable,
         Cause::IntegrityRuntime,
@@ -202,6 +241,16 @@ impl Cause {
             Cause::SimpleCanSeveralMasters => "several SimpleCAN masters",
             Cause::SimpleCanBadCrc => "1000 SimpleCAN packets with a bad CRC",
             Cause::SimpleCanTimeout => "SimpleCAN value older than its safety timeout",
+            Cause::SimpleCanForwardDiffers => "SimpleCAN copy from channel A differs",
+            Cause::SimpleCanForwardLost => "SimpleCAN copy from channel A lost",
+            Cause::SimpleCanForwardUnheard => "SimpleCAN copy from channel A not heard by B",
+            Cause::SimpleCanForwardOverrun => "SimpleCAN copies waiting beyond the queue",
+            Cause::SimpleCanVerdictsDisagree => "SimpleCAN verdicts differ",
+            Cause::SimpleCanVerdictUnconfirmed => "SimpleCAN verdict not confirmed in time",
+            Cause::SimpleCanVerdictForUnknownEntry => "SimpleCAN verdict for an unknown entry",
+            Cause::SimpleCanVerdictQueueFull => "SimpleCAN verdict queue full",
+            Cause::SimpleCanTransmitMismatch => "SimpleCAN packet sent differs from channel B's",
+            Cause::SimpleCanTransmitMissing => "SimpleCAN packet of the node not sent",
             Cause::IntegrityRecords => "configuration in use damaged (records)",
             Cause::IntegrityIdentifierTable => "configuration in use damaged (identifier table)",
             Cause::IntegrityRuntime => "configuration in use damaged (SRDO runtime)",

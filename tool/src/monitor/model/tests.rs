@@ -278,8 +278,8 @@ fn monitor_decodes_this_devices_emcy_into_words() {
         ),
         (
             code::APPLICATION_FAULT,
-            [0, 0x77, 0, 0, 0],
-            "channel cross-check: cause 77h",
+            [0, 0xE7, 0, 0, 0],
+            "channel cross-check: cause E7h",
         ),
         (code::GLOBAL_FAIL_SAFE, [0; 5], "GFC received: safe state"),
         (

@@ -1,0 +1,481 @@
+//! A SimpleCAN network of dual-channel nodes under simulated time (SC_REQ_10, SC_REQ_24):
+//! each node is channel A and channel B, each a [`Runtime`] around its own core with the SRDO
+//! table and SimpleCAN in its slot ([`SrdoAndSimpleCan`]), its own CAN controller on the bus
+//! and a serial link between them, configured by SDO over the same bus by the tool library's
+//! client (participant 0, [`crate::simplecan_net::configure`]).
+//!
+//! The controllers: each channel's frames go out by identifier (as `board::hw` queues them);
+//! a frame is confirmed to its sender when it has been on the bus
+//! ([`Runtime::on_transmitted`]), and delivered to every other controller, the sender's own
+//! never (one transceiver, Model III). Faults can be injected into one channel's view of the
+//! bus ([`Fault::Drop`], [`Fault::Corrupt`], [`Fault::Delay`]), as in [`crate::dual`].
+
+use crate::bus::{Bus, Delivery, Fault, Injection, Match, ORDERED_BY_IDENTIFIER};
+use crate::dual::{LINK_BYTE_TIME, LINK_PERIOD, Side};
+use crate::simplecan_net::{ScConfig, configure, device_config};
+use crate::tool_bus::Simulation;
+use channel_a::role::ChannelA;
+use channel_b::role::ChannelB;
+use dual_channel::runtime::{ChannelEvent, Io, Runtime};
+use shared::canopen::nmt::{self, NmtCommand};
+use shared::canopen::od::Address;
+use shared::canopen::storage::RamFlash;
+use shared::node::SrdoAndSimpleCan;
+use shared::safety::types::SrdoNumber;
+use shared::{CanFrame, Duration, Instant};
+use std::collections::VecDeque;
+
+/// The core's protocol: 4 SRDOs and 4 SDD entries, as the single-channel network's devices.
+pub type Protocol = SrdoAndSimpleCan<4, 4>;
+/// Channel A of a node.
+pub type ScChannelA = Runtime<RamFlash<8192>, ChannelA, 4, Protocol>;
+/// Channel B of a node.
+pub type ScChannelB = Runtime<RamFlash<8192>, ChannelB, 4, Protocol>;
+
+/// Channel B samples the same input object as channel A (its own contact).
+const B_INPUTS: [(u16, u8, u8); 1] = [(0x6000, 1, 1)];
+
+/// What one channel handed out during one call.
+#[derive(Default)]
+struct Out {
+    frames: Vec<CanFrame>,
+    link: Vec<u8>,
+    events: Vec<ChannelEvent>,
+    outputs: Vec<(u8, u32)>,
+    aborts: Vec<u16>,
+}
+
+impl Io for Out {
+    fn transmit(&mut self, frame: CanFrame) {
+        self.frames.push(frame);
+    }
+    fn link(&mut self, bytes: &[u8]) {
+        self.link.extend_from_slice(bytes);
+    }
+    fn output(&mut self, _: SrdoNumber, _: u64) {}
+    fn event(&mut self, event: ChannelEvent) {
+        self.events.push(event);
+    }
+    fn simplecan_output(&mut self, sc_id: u8, value: u32) {
+        self.outputs.push((sc_id, value));
+    }
+    fn abort(&mut self, id: shared::CanId) {
+        self.aborts.push(id.raw());
+    }
+}
+
+/// One direction of a link: bytes in flight with their arrival times.
+#[derive(Default)]
+struct Wire {
+    bytes: VecDeque<(Instant, u8)>,
+    busy_until: Instant,
+}
+
+/// One dual-channel SimpleCAN node.
+pub struct ScDualNode {
+    /// Node-ID.
+    pub id: u8,
+    /// Channel A.
+    pub a: ScChannelA,
+    /// Channel B.
+    pub b: ScChannelB,
+    a_to_b: Wire,
+    b_to_a: Wire,
+    deadlines: [Instant; 2],
+    /// Faults in one channel's receive path (that channel's controller alone).
+    pub receive_faults: Vec<(Side, Injection)>,
+    held_back: Vec<(Instant, Side, CanFrame)>,
+}
+
+/// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
+/// channel B `2i + 2`.
+pub struct ScDualNetwork {
+    /// Simulated time.
+    pub now: Instant,
+    /// The bus.
+    pub bus: Bus,
+    /// The nodes.
+    pub nodes: Vec<ScDualNode>,
+    in_flight: Vec<Delivery>,
+    /// Everything the channels reported: (time, node-ID, channel, event).
+    pub log: Vec<(Instant, u8, Side, ChannelEvent)>,
+    /// Every frame on the bus, as delivered, with its sender.
+    pub trace: Vec<(Instant, CanFrame, usize)>,
+    /// Every change of a channel's SimpleCAN output: (time, node-ID, channel, SC-ID, value).
+    pub outputs: Vec<(Instant, u8, Side, u8, u32)>,
+    /// Every withdrawal a channel asked of its controller: (time, node-ID, channel,
+    /// identifier). The bus model cannot take back a queued frame; the log is what a test
+    /// checks.
+    pub aborts: Vec<(Instant, u8, Side, u16)>,
+}
+
+fn participant(index: usize, side: Side) -> usize {
+    1 + 2 * index + side as usize
+}
+
+impl ScDualNetwork {
+    /// Dual-channel nodes with node-IDs `ids` on a bus at `bit_rate`, powered on at t = 0.
+    pub fn new(bit_rate: u32, ids: &[u8]) -> Self {
+        let nodes: Vec<ScDualNode> = ids
+            .iter()
+            .map(|&id| ScDualNode {
+                id,
+                a: Runtime::new(
+                    device_config(id),
+                    RamFlash::new(),
+                    ChannelA::default(),
+                    Instant::ZERO,
+                    LINK_PERIOD,
+                )
+                .expect("valid device"),
+                b: Runtime::new(
+                    device_config(id),
+                    RamFlash::new(),
+                    ChannelB::new(&B_INPUTS).expect("valid inputs"),
+                    Instant::ZERO,
+                    LINK_PERIOD,
+                )
+                .expect("valid device"),
+                a_to_b: Wire::default(),
+                b_to_a: Wire::default(),
+                deadlines: [Instant::ZERO; 2],
+                receive_faults: Vec::new(),
+                held_back: Vec::new(),
+            })
+            .collect();
+        let mut bus = Bus::new(bit_rate, 1 + 2 * nodes.len());
+        bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
+        ScDualNetwork {
+            now: Instant::ZERO,
+            bus,
+            nodes,
+            in_flight: Vec::new(),
+            log: Vec::new(),
+            trace: Vec::new(),
+            outputs: Vec::new(),
+            aborts: Vec::new(),
+        }
+    }
+
+    fn index(&self, id: u8) -> usize {
+        self.nodes
+            .iter()
+            .position(|node| node.id == id)
+            .expect("a node with this ID")
+    }
+
+    /// The node with node-ID `id`.
+    pub fn node(&self, id: u8) -> &ScDualNode {
+        &self.nodes[self.index(id)]
+    }
+
+    /// Channel `side` of node `id` receives what `when` matches altered by `fault`.
+    pub fn inject_receive(&mut self, id: u8, side: Side, when: Match, fault: Fault) {
+        let index = self.index(id);
+        self.nodes[index]
+            .receive_faults
+            .push((side, Injection::new(when, fault)));
+    }
+
+    /// Adds a fault on the bus (every receiver sees it; [`Fault::Mute`] silences a sender).
+    pub fn inject(&mut self, when: Match, fault: Fault) {
+        self.bus.inject(Injection::new(when, fault));
+    }
+
+    /// The bus participant of channel `side` of node `id`.
+    pub fn participant(&self, id: u8, side: Side) -> usize {
+        participant(self.index(id), side)
+    }
+
+    /// Runs until `end`.
+    pub fn run_until(&mut self, end: Instant) {
+        loop {
+            let next = self.next_activity();
+            if next > end {
+                self.now = self.now.max(end);
+                return;
+            }
+            self.now = self.now.max(next);
+            self.step();
+        }
+    }
+
+    /// Runs for `duration`.
+    pub fn run_for(&mut self, duration: Duration) {
+        self.run_until(self.now + duration);
+    }
+
+    fn next_activity(&self) -> Instant {
+        let deliveries = self.in_flight.iter().map(|d| d.at);
+        let channels = self.nodes.iter().flat_map(|node| node.deadlines);
+        let held_back = self
+            .nodes
+            .iter()
+            .flat_map(|node| node.held_back.iter().map(|(at, ..)| *at));
+        let links = self.nodes.iter().flat_map(|node| {
+            node.a_to_b
+                .bytes
+                .front()
+                .into_iter()
+                .chain(node.b_to_a.bytes.front())
+                .map(|(at, _)| *at)
+        });
+        deliveries
+            .chain(channels)
+            .chain(held_back)
+            .chain(links)
+            .chain(self.bus.next_start(self.now))
+            .min()
+            .unwrap_or(Instant::NEVER)
+    }
+
+    fn step(&mut self) {
+        let now = self.now;
+        let (due, later): (Vec<_>, Vec<_>) = self.in_flight.drain(..).partition(|d| d.at <= now);
+        self.in_flight = later;
+        for delivery in due {
+            self.trace
+                .push((delivery.at, delivery.frame, delivery.from));
+            for index in 0..self.nodes.len() {
+                for side in [Side::A, Side::B] {
+                    if participant(index, side) == delivery.from {
+                        // The sender's controller confirms; it does not receive its own.
+                        self.with_channel(index, side, |now, a, b, out| match (a, b) {
+                            (Some(a), _) => a.on_transmitted(now, &delivery.frame, out),
+                            (_, Some(b)) => b.on_transmitted(now, &delivery.frame, out),
+                            _ => {}
+                        });
+                        continue;
+                    }
+                    if let Some(frame) = self.received_by(index, side, delivery.frame, now) {
+                        self.receive(index, side, frame);
+                    }
+                }
+            }
+        }
+        for index in 0..self.nodes.len() {
+            let (due, later): (Vec<_>, Vec<_>) = self.nodes[index]
+                .held_back
+                .drain(..)
+                .partition(|(at, ..)| *at <= now);
+            self.nodes[index].held_back = later;
+            for (_, side, frame) in due {
+                self.receive(index, side, frame);
+            }
+        }
+        for index in 0..self.nodes.len() {
+            for side in [Side::A, Side::B] {
+                self.deliver_link(index, side, now);
+            }
+        }
+        for index in 0..self.nodes.len() {
+            for side in [Side::A, Side::B] {
+                if self.nodes[index].deadlines[side as usize] <= now {
+                    self.with_channel(index, side, |_, _, _, _| {});
+                }
+            }
+        }
+        if self.bus.next_start(now) == Some(now) {
+            let deliveries = self.bus.arbitrate(now);
+            self.in_flight.extend(deliveries);
+        }
+    }
+
+    fn receive(&mut self, index: usize, side: Side, frame: CanFrame) {
+        self.with_channel(index, side, |now, a, b, out| match (a, b) {
+            (Some(a), _) => a.on_frame(now, &frame, out),
+            (_, Some(b)) => b.on_frame(now, &frame, out),
+            _ => {}
+        });
+    }
+
+    /// The frame as channel `side` of node `index` receives it, after its receive faults.
+    fn received_by(
+        &mut self,
+        index: usize,
+        side: Side,
+        frame: CanFrame,
+        now: Instant,
+    ) -> Option<CanFrame> {
+        let mut frame = frame;
+        for (fault_side, injection) in self.nodes[index].receive_faults.iter_mut() {
+            let matches = *fault_side == side
+                && now >= injection.when.after
+                && injection.when.id.is_none_or(|id| id == frame.id().raw())
+                && injection
+                    .when
+                    .count
+                    .is_none_or(|count| injection.applied < count);
+            if !matches {
+                continue;
+            }
+            injection.applied += 1;
+            match injection.fault {
+                Fault::Drop | Fault::Mute => return None,
+                Fault::Corrupt { byte, mask } => {
+                    let mut data = *frame.raw_data();
+                    if let Some(target) = data.get_mut(byte) {
+                        *target ^= mask;
+                    }
+                    frame = CanFrame::from_parts(frame.id(), frame.dlc(), data).ok()?;
+                }
+                Fault::Delay(delay) => {
+                    self.nodes[index].held_back.push((now + delay, side, frame));
+                    return None;
+                }
+                Fault::Repeat | Fault::Reorder => {}
+            }
+        }
+        Some(frame)
+    }
+
+    /// Delivers the link bytes due at `now` to channel `side` of node `index`.
+    fn deliver_link(&mut self, index: usize, side: Side, now: Instant) {
+        loop {
+            let node = &mut self.nodes[index];
+            let wire = match side {
+                Side::A => &mut node.b_to_a,
+                Side::B => &mut node.a_to_b,
+            };
+            let Some(&(at, byte)) = wire.bytes.front() else {
+                return;
+            };
+            if at > now {
+                return;
+            }
+            wire.bytes.pop_front();
+            self.with_channel(index, side, |_, a, b, out| match (a, b) {
+                (Some(a), _) => a.on_link_byte(at, byte, out),
+                (_, Some(b)) => b.on_link_byte(at, byte, out),
+                _ => {}
+            });
+        }
+    }
+
+    /// Runs `action` on one channel, polls it, and applies what it handed out.
+    fn with_channel(
+        &mut self,
+        index: usize,
+        side: Side,
+        action: impl FnOnce(Instant, Option<&mut ScChannelA>, Option<&mut ScChannelB>, &mut Out),
+    ) {
+        let mut out = Out::default();
+        let now = self.now;
+        let node = &mut self.nodes[index];
+        let deadline = match side {
+            Side::A => {
+                action(now, Some(&mut node.a), None, &mut out);
+                node.a.poll(now, &mut out)
+            }
+            Side::B => {
+                action(now, None, Some(&mut node.b), &mut out);
+                node.b.poll(now, &mut out)
+            }
+        };
+        node.deadlines[side as usize] = deadline;
+        let id = node.id;
+        if !out.link.is_empty() {
+            let wire = match side {
+                Side::A => &mut node.a_to_b,
+                Side::B => &mut node.b_to_a,
+            };
+            let mut at = wire.busy_until.max(now);
+            for &byte in &out.link {
+                at = at + LINK_BYTE_TIME;
+                wire.bytes.push_back((at, byte));
+            }
+            wire.busy_until = at;
+        }
+        for frame in out.frames {
+            self.bus.send(participant(index, side), frame);
+        }
+        for event in out.events {
+            self.log.push((now, id, side, event));
+        }
+        for (sc_id, value) in out.outputs {
+            self.outputs.push((now, id, side, sc_id, value));
+        }
+        for abort in out.aborts {
+            self.aborts.push((now, id, side, abort));
+        }
+    }
+
+    /// Both channels of node `id` sample their safety input 6000h:01 as `value` (the two
+    /// contacts of an emergency stop; 1 closed, released).
+    pub fn set_inputs(&mut self, id: u8, value: u8) {
+        let index = self.index(id);
+        let plain = Address::new(0x6000, 1);
+        let inverted = Address::new(0x6001, 1);
+        for side in [Side::A, Side::B] {
+            self.with_channel(index, side, |now, a, b, out| {
+                let result = match (a, b) {
+                    (Some(a), _) => a.set_input(now, plain, inverted, &[value], out),
+                    (_, Some(b)) => b.set_input(now, plain, inverted, &[value], out),
+                    _ => Ok(()),
+                };
+                result.expect("input object");
+            });
+        }
+    }
+
+    /// The effective output of node `id` for consumed SC-ID `sc_id`: both channels'
+    /// outputs in series (AND).
+    pub fn output(&self, id: u8, sc_id: u8) -> u32 {
+        let node = self.node(id);
+        node.a.simplecan_output(sc_id) & node.b.simplecan_output(sc_id)
+    }
+
+    /// The tool sends an NMT command to `target` (0: all).
+    pub fn nmt(&mut self, command: NmtCommand, target: u8) {
+        self.bus.send(0, nmt::command_frame(command, target));
+        self.run_for(Duration::from_millis(1));
+    }
+
+    /// Waits for every node's boot-up (both channels up, the link first), configures each
+    /// node with its SimpleCAN configuration by the tool's procedure
+    /// ([`crate::simplecan_net::configure`]: both channels take in the same SDO writes, A
+    /// answers), closes every input and starts the network.
+    pub fn configure_and_start(&mut self, configs: &[(u8, ScConfig)]) -> Result<(), String> {
+        for _ in 0..100 {
+            if self.nodes.iter().all(|node| {
+                node.a.node().nmt_state() == shared::canopen::nmt::NmtState::PreOperational
+            }) {
+                break;
+            }
+            self.run_for(Duration::from_millis(1));
+        }
+        for (id, config) in configs {
+            configure(self, *id, config)?;
+        }
+        let ids: Vec<u8> = self.nodes.iter().map(|node| node.id).collect();
+        for id in ids {
+            self.set_inputs(id, 1);
+        }
+        self.nmt(NmtCommand::Start, 0);
+        Ok(())
+    }
+
+    /// The fault each channel of node `id` latched, if any (channel A, channel B).
+    pub fn faults(&self, id: u8) -> [Option<dual_channel::runtime::ChannelFault>; 2] {
+        let node = self.node(id);
+        [node.a.fault(), node.b.fault()]
+    }
+}
+
+impl Simulation for ScDualNetwork {
+    fn now(&self) -> Instant {
+        self.now
+    }
+    fn tool_send(&mut self, frame: CanFrame) {
+        self.bus.send(0, frame);
+    }
+    fn traced(&self, index: usize) -> Option<CanFrame> {
+        self.trace.get(index).map(|(_, frame, _)| *frame)
+    }
+    fn traced_count(&self) -> usize {
+        self.trace.len()
+    }
+    fn run_until(&mut self, end: Instant) {
+        ScDualNetwork::run_until(self, end);
+    }
+}

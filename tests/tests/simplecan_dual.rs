@@ -1,0 +1,378 @@
+//! SimpleCAN on dual-channel nodes (SC_REQ_10, SC_REQ_24): two nodes of two channels each
+//! on the simulated bus at 500 kbit/s (`system_tests::simplecan_dual`), configured by SDO as
+//! a tool does. Node 1 is the master and produces the emergency stop (SC-ID 30h, slot 0,
+//! its input 6000h:01); node 33 consumes it (safety timeout 50 ms) into its output
+//! (6200h:01). N = 10 slots of 1 ms, a sync every 10 cycles (100 ms).
+
+use dual_channel::crosscheck::CrossFault;
+use dual_channel::runtime::{ChannelEvent, ChannelFault};
+use dual_channel::simplecan::{ForwardFault, SimpleCanFault};
+use shared::Duration;
+use shared::safety::cause::Cause;
+use system_tests::bus::{Fault, Match};
+use system_tests::dual::Side;
+use system_tests::simplecan_dual::ScDualNetwork;
+use system_tests::simplecan_net::{INPUT, OUTPUT_1, ROLE_CONSUME, ROLE_PRODUCE, ScConfig, ScEntry};
+
+const ESTOP: u8 = 0x30;
+/// The longest 8-byte frame at 500 kbit/s, each SCL's stated buffering time (SC_REQ_33).
+const FRAME_US: u16 = 270;
+/// One cycle: N = 10 slots of 1 ms.
+const CYCLE: Duration = Duration::from_millis(10);
+/// Long enough for the next packet and every check it starts.
+const TWO_CYCLES: Duration = Duration::from_millis(20);
+
+fn config(potential_master: bool, entry: ScEntry) -> ScConfig {
+    ScConfig {
+        slots: 10,
+        sync_every: 10,
+        buffering_us: FRAME_US,
+        potential_master,
+        entries: vec![entry],
+    }
+}
+
+/// Both nodes configured and started, run until the consumer's output is on (both channels
+/// confirmed a value of 1).
+fn running() -> ScDualNetwork {
+    let mut net = ScDualNetwork::new(500_000, &[1, 33]);
+    let producer = ScEntry {
+        sc_id: ESTOP,
+        role: ROLE_PRODUCE,
+        slot: 0,
+        timeout_ms: 0,
+        mapped: INPUT,
+    };
+    let consumer = ScEntry {
+        sc_id: ESTOP,
+        role: ROLE_CONSUME,
+        slot: 0,
+        timeout_ms: 50,
+        mapped: OUTPUT_1,
+    };
+    net.configure_and_start(&[(1, config(true, producer)), (33, config(false, consumer))])
+        .expect("configured");
+    let until = net.now + Duration::from_millis(1500);
+    while net.output(33, ESTOP) != 1 && net.now < until {
+        net.run_for(Duration::from_millis(1));
+    }
+    assert_eq!(
+        net.output(33, ESTOP),
+        1,
+        "faults: {:?} {:?}",
+        net.faults(1),
+        net.faults(33)
+    );
+    net
+}
+
+/// Both channels of `id` are in the safe state: one of them with `cause`, the other with
+/// it, following it (PeerSafeState) or with one of `also` (the same fault found another way
+/// first).
+fn assert_safe_with_also(net: &ScDualNetwork, id: u8, cause: Cause, also: &[Cause]) {
+    let faults = net.faults(id);
+    let causes: Vec<u8> = faults
+        .iter()
+        .flatten()
+        .map(|fault| fault.cause_code())
+        .collect();
+    assert_eq!(causes.len(), 2, "both channels safe: {faults:?}");
+    assert!(causes.contains(&cause.code()), "{cause:?} in {faults:?}");
+    let allowed = |code: u8| {
+        code == cause.code()
+            || code == Cause::PeerSafeState.code()
+            || also.iter().any(|other| other.code() == code)
+    };
+    assert!(causes.iter().all(|&code| allowed(code)), "{faults:?}");
+}
+
+/// Both channels of `id` are in the safe state: one with `cause`, the other with it or
+/// following it (PeerSafeState).
+fn assert_safe_with(net: &ScDualNetwork, id: u8, cause: Cause) {
+    assert_safe_with_also(net, id, cause, &[]);
+}
+
+#[test]
+fn sc_req_24_two_dual_channel_nodes_exchange_the_emergency_stop_without_a_fault() {
+    let mut net = running();
+    let start = net.now;
+    net.run_for(Duration::from_millis(2000));
+    assert_eq!(net.faults(1), [None, None]);
+    assert_eq!(net.faults(33), [None, None]);
+    assert_eq!(net.output(33, ESTOP), 1);
+    // Every packet of 30h in those 2 s was confirmed by both of node 33's channels.
+    let packets = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at >= start && frame.id().raw() == 0x030)
+        .count();
+    let confirmed = |side| {
+        net.log
+            .iter()
+            .filter(|(at, id, s, event)| {
+                *at >= start
+                    && *id == 33
+                    && *s == side
+                    && matches!(
+                        event,
+                        ChannelEvent::SimpleCanConfirmed {
+                            sc_id: ESTOP,
+                            value: 1
+                        }
+                    )
+            })
+            .count()
+    };
+    assert_eq!(packets, 200, "one per 10 ms cycle");
+    assert!(
+        confirmed(Side::A) >= packets - 1,
+        "{} of {packets}",
+        confirmed(Side::A)
+    );
+    assert!(
+        confirmed(Side::B) >= packets - 1,
+        "{} of {packets}",
+        confirmed(Side::B)
+    );
+}
+
+/// The emergency stop pressed on both contacts of node 1: node 33's output (both channels
+/// in series) is 0 within one cycle and one slot (the packet waits at most a cycle for its
+/// slot, then takes a frame time and a verdict's way over the link).
+#[test]
+fn sc_req_10_the_emergency_stop_reaches_the_dual_channel_output_within_a_cycle() {
+    let (mut best, mut worst) = (u64::MAX, 0);
+    for offset_us in (0..10_000).step_by(500) {
+        let mut net = running();
+        net.run_for(Duration::from_micros(offset_us));
+        let pressed = net.now;
+        net.set_inputs(1, 0);
+        let until = pressed + Duration::from_millis(100);
+        while net.output(33, ESTOP) != 0 && net.now < until {
+            net.run_for(Duration::from_micros(10));
+        }
+        let latency = net.now.as_micros() - pressed.as_micros();
+        assert!(
+            latency <= CYCLE.as_micros() + 1_000,
+            "{latency} us after pressing at {offset_us} us into the cycle"
+        );
+        assert_eq!(net.faults(33), [None, None], "a value of 0 is no fault");
+        best = best.min(latency);
+        worst = worst.max(latency);
+    }
+    println!("emergency stop to output, pressed every 500 us over a cycle: {best}..{worst} us");
+}
+
+/// A copy channel A of node 33 forwards that differs from what channel B heard (A's
+/// controller passed on a corrupted frame) is the pair's fault: safe state, cause 70h found
+/// by channel B.
+#[test]
+fn sc_req_24_a_corrupted_forwarded_copy_puts_both_channels_in_the_safe_state() {
+    let mut net = running();
+    let now = net.now;
+    net.inject_receive(
+        33,
+        Side::A,
+        Match::next_with_id(0x030, now),
+        Fault::Corrupt {
+            byte: 0,
+            mask: 0x01,
+        },
+    );
+    net.run_for(TWO_CYCLES);
+    // Channel A, whose core rejected its corrupted copy (bad CRC), may find that B's verdict
+    // differs before B's safe state reaches it: the same fault, seen from A's side.
+    assert_safe_with_also(
+        &net,
+        33,
+        Cause::SimpleCanForwardDiffers,
+        &[Cause::SimpleCanVerdictsDisagree],
+    );
+    assert_eq!(
+        net.node(33).b.fault(),
+        Some(ChannelFault::SimpleCan(SimpleCanFault::Forward(
+            ForwardFault::Differs {
+                heard: 0x030,
+                forwarded: 0x030
+            }
+        )))
+    );
+    assert_eq!(net.output(33, ESTOP), 0);
+    assert_eq!(net.faults(1), [None, None], "the producer is not concerned");
+}
+
+/// A frame channel B heard whose copy from channel A never comes (A's controller lost it):
+/// safe state, cause 71h, within the forwarding bound.
+#[test]
+fn sc_req_24_a_lost_forwarded_copy_puts_both_channels_in_the_safe_state() {
+    let mut net = running();
+    let now = net.now;
+    net.inject_receive(33, Side::A, Match::next_with_id(0x030, now), Fault::Drop);
+    net.run_for(TWO_CYCLES);
+    assert_safe_with(&net, 33, Cause::SimpleCanForwardLost);
+    assert_eq!(net.output(33, ESTOP), 0);
+}
+
+/// The two channels of node 33 judge one packet differently: channel B's controller hands
+/// it in 4 ms late, outside the producer's slot widened by the 2 ms tolerance, so B's core
+/// rejects it as untimely while A's accepted it. Cause 74h.
+#[test]
+fn sc_req_10_differing_verdicts_put_both_channels_in_the_safe_state() {
+    let mut net = running();
+    let now = net.now;
+    net.inject_receive(
+        33,
+        Side::B,
+        Match::next_with_id(0x030, now),
+        Fault::Delay(Duration::from_millis(4)),
+    );
+    net.run_for(TWO_CYCLES);
+    assert_safe_with(&net, 33, Cause::SimpleCanVerdictsDisagree);
+    let disagreement = |fault: Option<ChannelFault>| {
+        matches!(
+            fault,
+            Some(ChannelFault::SimpleCan(SimpleCanFault::Verdict(
+                CrossFault::Disagreement { .. }
+            )))
+        )
+    };
+    let node = net.node(33);
+    assert!(disagreement(node.a.fault()) || disagreement(node.b.fault()));
+    assert_eq!(net.output(33, ESTOP), 0);
+}
+
+/// Model A: channel A of node 1 transmits, channel B computed the same packet; the packet as
+/// B's controller receives it differs (a bit flipped on A's transmit path as B sees it):
+/// node 1 is in the safe state, cause 78h.
+#[test]
+fn sc_req_10_channel_a_s_packet_differing_from_channel_b_s_is_the_safe_state() {
+    let mut net = running();
+    let now = net.now;
+    net.inject_receive(
+        1,
+        Side::B,
+        Match::next_with_id(0x030, now),
+        Fault::Corrupt {
+            byte: 4,
+            mask: 0x80,
+        },
+    );
+    net.run_for(TWO_CYCLES);
+    assert_safe_with(&net, 1, Cause::SimpleCanTransmitMismatch);
+    assert_eq!(
+        net.node(1).b.fault(),
+        Some(ChannelFault::SimpleCan(SimpleCanFault::TransmitMismatch {
+            id: 0x030
+        }))
+    );
+    // Node 1 sends nothing from then on (SC_REQ_40): node 33 goes to its safe state at its
+    // safety timeout.
+    let latched = net.now;
+    net.run_for(Duration::from_millis(100));
+    let after: Vec<_> = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at > latched && frame.id().raw() == 0x030)
+        .collect();
+    assert!(after.is_empty(), "{after:?}");
+    assert_eq!(net.output(33, ESTOP), 0);
+    let cause = net
+        .node(33)
+        .a
+        .node()
+        .fault()
+        .map(|cause| dual_channel::runtime::safe_state_code(&cause));
+    assert_eq!(cause, Some(Cause::SimpleCanTimeout.code()));
+}
+
+/// Model A: B computed a packet and A's does not appear in its slot (B's controller missed
+/// it): node 1 is in the safe state, cause 79h, at the end of the slot.
+#[test]
+fn sc_req_10_channel_a_s_packet_missing_on_the_bus_is_the_safe_state() {
+    let mut net = running();
+    let now = net.now;
+    net.inject_receive(1, Side::B, Match::next_with_id(0x030, now), Fault::Drop);
+    net.run_for(TWO_CYCLES);
+    assert_safe_with(&net, 1, Cause::SimpleCanTransmitMissing);
+    let found = net
+        .log
+        .iter()
+        .find(|(at, id, side, event)| {
+            *at >= now && *id == 1 && *side == Side::B && matches!(event, ChannelEvent::Fault(_))
+        })
+        .map(|(at, ..)| *at)
+        .expect("B latched");
+    let sent = net
+        .trace
+        .iter()
+        .find(|(at, frame, _)| *at >= now && frame.id().raw() == 0x030)
+        .map(|(at, ..)| *at)
+        .expect("A's packet");
+    // The packet ended at `sent`; B's deadline is the end of its slot, 1 ms after B computed
+    // it at the slot's start.
+    assert!(
+        found > sent && found <= sent + Duration::from_millis(1),
+        "{found:?} {sent:?}"
+    );
+}
+
+/// Another device sends on node 1's own SC-ID (a second sender, a replay): channel A's
+/// controller receives it (it never receives A's own) and forwards it, channel B finds a
+/// packet of the node it did not compute at that moment. Node 1 is in the safe state, cause
+/// 78h (or 72h: the copy of a frame B took for the node's own is one it did not pair), and
+/// sends nothing from then on.
+#[test]
+fn sc_req_10_a_foreign_packet_on_the_node_s_sc_id_is_the_safe_state() {
+    let mut net = running();
+    // Mid-cycle, away from node 1's slot 0: the packet as node 1 would have sent it earlier.
+    let replayed = net
+        .trace
+        .iter()
+        .rev()
+        .find(|(_, frame, _)| frame.id().raw() == 0x030)
+        .map(|(_, frame, _)| *frame)
+        .expect("a packet of node 1");
+    net.run_for(Duration::from_millis(5));
+    net.bus.send(0, replayed);
+    net.run_for(TWO_CYCLES);
+    assert_safe_with_also(
+        &net,
+        1,
+        Cause::SimpleCanTransmitMismatch,
+        &[Cause::SimpleCanForwardUnheard],
+    );
+}
+
+/// SC_REQ_18 on two channels: channel A's packet that has not gone out by the end of its
+/// slot (its controller is muted) is withdrawn: channel A's core asks its board at the end of
+/// the slot, and channel B finds the packet missing (79h).
+#[test]
+fn sc_req_10_a_packet_not_on_the_bus_by_the_end_of_its_slot_is_withdrawn_by_channel_a() {
+    let mut net = running();
+    let now = net.now;
+    let a = net.participant(1, Side::A);
+    net.inject(Match::all_from(a, now), Fault::Mute);
+    net.run_for(TWO_CYCLES);
+    let withdrawn = net
+        .aborts
+        .iter()
+        .find(|(at, id, side, frame)| *at >= now && *id == 1 && *side == Side::A && *frame == 0x030)
+        .map(|(at, ..)| *at)
+        .expect("channel A withdrew 30h");
+    // At the end of the slot, the instant channel B's Model A check gives up on it too (both
+    // count one slot from the slot's start, on one clock here).
+    let missing = net
+        .log
+        .iter()
+        .find(|(at, id, side, event)| {
+            *at >= now && *id == 1 && *side == Side::B && matches!(event, ChannelEvent::Fault(_))
+        })
+        .map(|(at, ..)| *at)
+        .expect("B latched");
+    assert_eq!(withdrawn, missing);
+    assert_safe_with(&net, 1, Cause::SimpleCanTransmitMissing);
+    assert!(
+        !net.aborts.iter().any(|(_, _, side, _)| *side == Side::B),
+        "channel B has nothing to withdraw"
+    );
+}
