@@ -223,8 +223,9 @@ enum Task {
         #[arg(long)]
         replay: Option<u64>,
         /// Only this protocol's classes: `canopen-safety` (SRDOs) or `simplecan`
-        /// (simplecan-bad-crc, simplecan-replay, simplecan-masquerade, simplecan-lost; a
-        /// `--class` prefix picks several). Both when not given.
+        /// (simplecan-bad-crc, -replay, -masquerade, -lost, -delay, -babbling, -sync-loss,
+        /// -two-masters, -master-gone, -leaky-counter; a `--class` prefix picks several).
+        /// Both when not given.
         #[arg(long)]
         protocol: Option<String>,
     },
