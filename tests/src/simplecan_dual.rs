@@ -436,14 +436,7 @@ impl ScDualNetwork {
     /// ([`crate::simplecan_net::configure`]: both channels take in the same SDO writes, A
     /// answers), closes every input and starts the network.
     pub fn configure_and_start(&mut self, configs: &[(u8, ScConfig)]) -> Result<(), String> {
-        for _ in 0..100 {
-            if self.nodes.iter().all(|node| {
-                node.a.node().nmt_state() == shared::canopen::nmt::NmtState::PreOperational
-            }) {
-                break;
-            }
-            self.run_for(Duration::from_millis(1));
-        }
+        self.wait_for_boot_up();
         for (id, config) in configs {
             configure(self, *id, config)?;
         }
@@ -453,6 +446,50 @@ impl ScDualNetwork {
         }
         self.nmt(NmtCommand::Start, 0);
         Ok(())
+    }
+
+    /// As [`Self::configure_and_start`], but configured by the configuration tool's own
+    /// procedure from a network file (`safety_config::procedure::configure`: identity check,
+    /// writes, read-back, the tool's CRC-32 signature, 5EFEh, store; the node hashes the
+    /// tool derives from the file, SC_REQ_15), so that a test runs exactly the configuration
+    /// the tool's calculators are given.
+    pub fn configure_from_file_and_start(
+        &mut self,
+        file: &safety_config::network_file::Network,
+    ) -> Result<(), String> {
+        self.wait_for_boot_up();
+        let mut quiet = safety_config::procedure::Quiet {
+            accept_identity: false,
+        };
+        let report = safety_config::procedure::configure(
+            &mut crate::tool_bus::client(self),
+            file,
+            false,
+            &mut quiet,
+        )
+        .map_err(|error| error.to_string())?;
+        if !report.success() {
+            return Err(format!("the tool did not configure every node: {report:?}"));
+        }
+        let ids: Vec<u8> = self.nodes.iter().map(|node| node.id).collect();
+        for id in ids {
+            self.set_inputs(id, 1);
+        }
+        self.nmt(NmtCommand::Start, 0);
+        Ok(())
+    }
+
+    /// Runs until channel A of every node is Pre-operational (both channels booted, the
+    /// link first), at most 100 ms.
+    fn wait_for_boot_up(&mut self) {
+        for _ in 0..100 {
+            if self.nodes.iter().all(|node| {
+                node.a.node().nmt_state() == shared::canopen::nmt::NmtState::PreOperational
+            }) {
+                break;
+            }
+            self.run_for(Duration::from_millis(1));
+        }
     }
 
     /// The fault each channel of node `id` latched, if any (channel A, channel B).
