@@ -516,3 +516,92 @@ impl Simulation for ScDualNetwork {
         ScDualNetwork::run_until(self, end);
     }
 }
+
+impl ScDualNetwork {
+    /// When node `id`'s effective output for SC-ID `sc_id` (both channels' outputs in
+    /// series) went to 0 at or after `from`: when the first of its channels switched off.
+    pub fn output_off(&self, id: u8, sc_id: u8, from: Instant) -> Option<Instant> {
+        self.outputs
+            .iter()
+            .find(|&&(at, node, _, sc, value)| {
+                at >= from && node == id && sc == sc_id && value == 0
+            })
+            .map(|&(at, ..)| at)
+    }
+}
+
+/// The SimpleCAN nodes of `file` (those with a `[node.simplecan]` table) on a bus at
+/// `bit_rate`, configured by the tool's procedure from `file`
+/// ([`ScDualNetwork::configure_from_file_and_start`]), started, and run until every
+/// consumer's output is on for every SC-ID it consumes (both channels confirmed a value of
+/// 1), at most 1.5 s; a network without a consumer runs the 1.5 s.
+pub fn running_from_file(
+    file: &safety_config::network_file::Network,
+    bit_rate: u32,
+) -> Result<ScDualNetwork, String> {
+    let simplecan = file
+        .simplecan
+        .as_ref()
+        .ok_or("the network file has no [simplecan] section")?;
+    let ids: Vec<u8> = simplecan.nodes.keys().copied().collect();
+    let consumed: Vec<(u8, u8)> = simplecan
+        .nodes
+        .iter()
+        .flat_map(|(&id, node)| node.consumed.iter().map(move |c| (id, c.sc_id)))
+        .collect();
+    let mut net = ScDualNetwork::new(bit_rate, &ids);
+    net.configure_from_file_and_start(file)?;
+    let until = net.now + Duration::from_millis(1500);
+    let all_on = |net: &ScDualNetwork| {
+        !consumed.is_empty() && consumed.iter().all(|&(id, sc)| net.output(id, sc) == 1)
+    };
+    while net.now < until && !all_on(&net) {
+        net.run_for(Duration::from_millis(1));
+    }
+    for &(id, sc_id) in &consumed {
+        if net.output(id, sc_id) != 1 {
+            return Err(format!(
+                "node {id}'s output for SC-ID {sc_id:02X}h is not on 1.5 s after the start (faults {:?})",
+                net.faults(id)
+            ));
+        }
+    }
+    Ok(net)
+}
+
+/// The emergency stop of `file`'s network: node `producer`'s input pressed at `phases`
+/// instants spread evenly over one cycle (N ms) after the start, each on a network of its
+/// own ([`running_from_file`]); for each the time from the press until node `consumer`'s
+/// output for `sc_id` is off (µs). A consumer that latches a fault instead of taking the
+/// value 0 is an error.
+pub fn emergency_stop_reactions(
+    file: &safety_config::network_file::Network,
+    bit_rate: u32,
+    (producer, consumer, sc_id): (u8, u8, u8),
+    phases: u64,
+) -> Result<Vec<u64>, String> {
+    let cycle_us = file
+        .simplecan
+        .as_ref()
+        .map(|simplecan| u64::from(simplecan.slots_per_cycle) * 1000)
+        .ok_or("the network file has no [simplecan] section")?;
+    let mut reactions = Vec::new();
+    for phase in 0..phases {
+        let mut net = running_from_file(file, bit_rate)?;
+        net.run_for(Duration::from_micros(phase * cycle_us / phases));
+        let pressed = net.now;
+        net.set_inputs(producer, 0);
+        net.run_for(Duration::from_micros(10 * cycle_us));
+        let off = net.output_off(consumer, sc_id, pressed).ok_or(format!(
+            "node {consumer}'s output stayed on after the press"
+        ))?;
+        if net.faults(consumer) != [None, None] {
+            return Err(format!(
+                "node {consumer} latched a fault instead of taking the value 0: {:?}",
+                net.faults(consumer)
+            ));
+        }
+        reactions.push(off.saturating_since(pressed).as_micros());
+    }
+    Ok(reactions)
+}

@@ -19,7 +19,7 @@ use shared::canopen::nmt::NmtState;
 use shared::{CanFrame, CanId, Duration, Instant};
 use system_tests::bus::{Fault, Match, frame_time};
 use system_tests::dual::{LINK_BYTE_TIME, Side};
-use system_tests::simplecan_dual::ScDualNetwork;
+use system_tests::simplecan_dual::{ScDualNetwork, emergency_stop_reactions, running_from_file};
 
 /// The safety manual's worked example, the file `cargo xtask manual` computes its figures from.
 const FILE: &str = include_str!("../../manual/src/examples/simplecan-network.toml");
@@ -59,36 +59,9 @@ fn bound(timing: &DeviceTiming) -> ScReaction {
     reactions.remove(0)
 }
 
-/// Nodes `ids` configured by the tool from `file`, started, and run until every consumer's
-/// output is on (both channels confirmed a value of 1) or, without a consumer, for 1.5 s.
-fn running(file: &Network, ids: &[u8]) -> ScDualNetwork {
-    let mut net = ScDualNetwork::new(BIT_RATE, ids);
-    net.configure_from_file_and_start(file)
-        .expect("the tool configures every node");
-    let until = net.now + Duration::from_millis(1500);
-    let consumer = ids.contains(&33);
-    while net.now < until && !(consumer && net.output(33, ESTOP) == 1) {
-        net.run_for(Duration::from_millis(1));
-    }
-    if consumer {
-        assert_eq!(
-            net.output(33, ESTOP),
-            1,
-            "faults: {:?} {:?}",
-            net.faults(1),
-            net.faults(33)
-        );
-    }
-    net
-}
-
-/// When node 33's effective output (both channels' outputs in series) went to 0 at or after
-/// `from`: the first channel that switched its output off.
-fn output_off(net: &ScDualNetwork, from: Instant) -> Option<Instant> {
-    net.outputs
-        .iter()
-        .find(|&&(at, id, _, sc_id, value)| at >= from && id == 33 && sc_id == ESTOP && value == 0)
-        .map(|&(at, ..)| at)
+/// The network of `file`, configured by the tool, started, its consumer's output on.
+fn running(file: &Network) -> ScDualNetwork {
+    running_from_file(file, BIT_RATE).expect("the tool configures and starts every node")
 }
 
 /// The SimpleCAN frames on the bus from `from` on: (end of the frame, frame).
@@ -122,25 +95,18 @@ fn verdicts(net: &ScDualNetwork, from: Instant) -> Vec<(Side, ChannelEvent)> {
 #[test]
 fn sc_req_45_the_computed_reaction_bounds_the_measured_one_and_the_timeout_covers_the_chain() {
     let host = bound(&host_timing());
-    let mut worst = 0;
-    for phase in 0..20u64 {
-        let mut net = running(&file(), &[1, 33]);
-        net.run_for(Duration::from_micros(phase * 500));
-        let pressed = net.now;
-        net.set_inputs(1, 0);
-        net.run_for(Duration::from_millis(100));
-        let off = output_off(&net, pressed).expect("the output goes off");
-        let reaction = off.saturating_since(pressed).as_micros();
+    let reactions =
+        emergency_stop_reactions(&file(), BIT_RATE, (1, 33, ESTOP), 20).expect("reactions");
+    for (phase, &reaction) in reactions.iter().enumerate() {
         assert!(
             reaction <= host.fault_free_us,
             "phase {phase}: measured {reaction} µs, computed {} µs",
             host.fault_free_us
         );
-        assert_eq!(net.faults(33), [None, None], "a value of 0 is no fault");
-        worst = worst.max(reaction);
     }
+    let worst = reactions.iter().copied().max().expect("20 phases");
     // Every packet after the demand lost at node 33 (both controllers): the value ages out.
-    let mut net = running(&file(), &[1, 33]);
+    let mut net = running(&file());
     net.run_for(Duration::from_micros(2_500));
     let pressed = net.now;
     let every_packet = Match {
@@ -154,7 +120,9 @@ fn sc_req_45_the_computed_reaction_bounds_the_measured_one_and_the_timeout_cover
     }
     net.set_inputs(1, 0);
     net.run_for(Duration::from_millis(200));
-    let off = output_off(&net, pressed).expect("the value ages out");
+    let off = net
+        .output_off(33, ESTOP, pressed)
+        .expect("the value ages out");
     let timed_out = off.saturating_since(pressed).as_micros();
     let timeout_us = 50_000;
     assert!(
@@ -269,7 +237,7 @@ fn sc_req_08_non_safety_traffic_beside_simplecan_changes_no_slot_and_no_verdict(
         .expect("streams");
     let mut measured = Vec::new();
     for loaded in [false, true] {
-        let mut net = running(&file(), &[1, 33]);
+        let mut net = running(&file());
         let start = net.now;
         run(&mut net, Duration::from_millis(500), &streams, loaded);
         let pressed = net.now;
@@ -285,7 +253,9 @@ fn sc_req_08_non_safety_traffic_beside_simplecan_changes_no_slot_and_no_verdict(
         assert_eq!(net.faults(1), [None, None], "loaded: {loaded}");
         assert_eq!(net.faults(33), [None, None], "loaded: {loaded}");
         assert_eq!(net.node(33).a.node().nmt_state(), NmtState::Operational);
-        let off = output_off(&net, pressed).expect("the output goes off");
+        let off = net
+            .output_off(33, ESTOP, pressed)
+            .expect("the output goes off");
         measured.push((
             simplecan_frames(&net, start),
             verdicts(&net, start),
@@ -348,7 +318,7 @@ fn producer_only() -> Network {
 /// frame, and which this bus model, like SimpleCAN, does not look at (SC_REQ_09).
 #[test]
 fn sc_req_09_a_producer_with_no_consumer_keeps_producing_on_time() {
-    let mut net = running(&producer_only(), &[1]);
+    let mut net = running(&producer_only());
     let start = net.now;
     net.run_for(Duration::from_millis(1000));
     let pressed = net.now;
