@@ -212,3 +212,46 @@ fn cia304_9_5_a_real_discrepancy_right_after_reset_and_start_is_a_transmit_misma
     }
     assert_eq!(net.output(33), 0, "node 33 is in its safe state");
 }
+
+/// EN 50325-5 7.2.1, CiA 304 9.5 (rule 2): channel B co-signs a plain frame only against
+/// channel A's announcement of it, and one announcement made before A's reset must not outlive
+/// it. NMT reset and start at every phase of node 1's cycle (100 us steps, the link as fast as
+/// the USART or 1 ms late), then the emergency stop pressed and released: node 1 reports no
+/// fault, and node 33's output follows both changes. Before channel B forgot A's
+/// announcements on A's reset, the announcement of a plain frame that B saw before its own
+/// reset, or that was still in A's queue at the reset, stayed in its slot: every later frame
+/// that reached B before its own announcement was compared with the one before it, and the
+/// press was a foreign frame (34h) on node 1's plain identifier.
+#[test]
+fn en50325_5_7_2_1_an_input_change_after_reset_and_start_at_any_phase_is_not_a_foreign_frame() {
+    let mut failed = Vec::new();
+    for latency in [Duration::ZERO, Duration::from_millis(1)] {
+        let mut net = running(latency);
+        for step in 0..REFRESH.as_micros() / STEP.as_micros() {
+            until_on_bus(&mut net, PLAIN);
+            net.run_for(Duration::from_micros(step * STEP.as_micros()));
+            let (log, _) = reset(&mut net, Duration::from_millis(20));
+            start(&mut net);
+            net.run_for(Duration::from_millis(100));
+            net.set_inputs(1, 0, 0);
+            net.run_for(Duration::from_millis(100));
+            let pressed = net.output(33);
+            net.set_inputs(1, 1, 1);
+            net.run_for(Duration::from_millis(100));
+            let faults: Vec<_> = faults(&net, log)
+                .into_iter()
+                .filter(|(_, id, ..)| *id == 1)
+                .collect();
+            if !faults.is_empty() || pressed != 0 || net.output(33) != 1 {
+                failed.push((latency, step, faults, pressed, net.output(33)));
+                // A node in its safe state sends no pairs to take the phase from.
+                net = running(latency);
+            }
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} resets failed: {failed:?}",
+        failed.len()
+    );
+}
