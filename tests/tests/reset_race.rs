@@ -2,7 +2,7 @@
 //! dual-channel host network (both channel runtimes, their link, the simulated bus): each
 //! channel handles the NMT frames in its own loop, and a plain frame may be in channel A's
 //! transmit queue when the reset comes, so that it reaches the bus after the NMT frame. None of
-//! that may leave a node in its safe state (CiA 304 9.5, CiA 301 7.2.8.3.2.1), and a pair left
+//! that may leave a node in its safe state (CiA 304 9.5, CiA 301 7.2.8.3.1), and a pair left
 //! without its inverted frame after the start must still be a transmit mismatch (30h).
 
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
@@ -83,7 +83,7 @@ fn plain_frame_after_the_reset(net: &DualNetwork, since: usize) -> bool {
         .any(|(_, f, _)| f.id().raw() == PLAIN)
 }
 
-/// CiA 304 9.5, CiA 301 7.2.8.3.2.1: NMT reset node and start at every phase of node 1's SRDO
+/// CiA 304 9.5, CiA 301 7.2.8.3.1: NMT reset node and start at every phase of node 1's SRDO
 /// cycle (0 to the refresh time in 100 us steps, from the plain frame on the bus), with the
 /// start 1 ms and 20 ms after the reset (within the refresh time: a pair the reset cut may
 /// still end) and the link as fast as the USART or 1 ms late: both nodes work again after every
