@@ -198,6 +198,11 @@ pub trait Role<const N: usize> {
     /// (`channel_a::role`).
     fn reset(&mut self) {}
 
+    /// The other channel went through an NMT reset (its heartbeat names a new epoch; the
+    /// link keeps the order, so every message before it was sent before that reset). A role
+    /// that keeps what the other channel announced forgets it here (`channel_b::role`).
+    fn peer_reset(&mut self) {}
+
     /// `true` for the channel whose frames other than SRDOs go on the bus (channel A): its
     /// core boots only after the other channel's has.
     fn speaks_for_the_node(&self) -> bool {
@@ -1023,7 +1028,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             if self.peer_clock.heartbeat(now, nmt, epoch).is_err() {
                 self.latch(ChannelFault::ClockDrift, io);
             }
+            let before = self.nmt.peer_epoch();
             self.nmt.peer(now, nmt, epoch, self.node.nmt_state());
+            if before.is_some_and(|before| before != epoch) {
+                self.role.peer_reset();
+            }
             return;
         }
         // An announcement of a plain frame counts whatever the epochs: it says what channel A
