@@ -43,6 +43,9 @@ cob_ids = [0x103, 0x104]
 mapping = ["output", "output_inverted"]
 "#;
 
+/// What configuring one node gave: node-ID, each SRDO's signature, SDO requests.
+type Done = (u8, Vec<(u8, u16)>, u64);
+
 /// `socketcand_sim`, killed when dropped.
 struct Server(Child);
 
@@ -171,7 +174,7 @@ fn two_nodes_are_configured_and_verified_side_by_side_each_over_its_own_connecti
     );
     assert!(report.success(), "{:?}", report.nodes);
     assert!(!report.started);
-    let done = |report: &procedure::ConfigureReport| -> Vec<(u8, Vec<(u8, u16)>, u64)> {
+    let done = |report: &procedure::ConfigureReport| -> Vec<Done> {
         report
             .nodes
             .iter()
