@@ -606,17 +606,19 @@ fn bench_on(root: &Path, python: &Path, address: &str) -> Result<[Case; 2]> {
     // emulated network a loaded host holds the virtual time, and with it an answer, for
     // seconds of host time now and then (`docs/emulation.md`), which the bench should time,
     // not fail on.
-    let mut clients = BENCH_NODES
-        .iter()
-        .map(|_| {
-            SocketcandClient::connect(address, "can0")
-                .map(|transport| Client::new(transport, BENCH_SDO_TIMEOUT))
-                .context("the bench's connections to the socketcand server")
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let mut case = |nodes: usize| -> Result<Case> {
+    // Connected per case, so that no connection sits unread through a case it has no part
+    // in (the server's frames would pile up in it, and its first request drain them).
+    let case = |nodes: usize| -> Result<Case> {
+        let mut clients = BENCH_NODES[..nodes]
+            .iter()
+            .map(|_| {
+                SocketcandClient::connect(address, "can0")
+                    .map(|transport| Client::new(transport, BENCH_SDO_TIMEOUT))
+                    .context("the bench's connections to the socketcand server")
+            })
+            .collect::<Result<Vec<_>>>()?;
         let spec = safety_config::network_file::parse(&bench_file(nodes), "bench network file")?;
-        let (tool, python) = bench_rounds(root, python, address, &mut clients[..nodes], &spec)?;
+        let (tool, python) = bench_rounds(root, python, address, &mut clients, &spec)?;
         Ok(Case { tool, python })
     };
     Ok([case(1)?, case(BENCH_NODES.len())?])
