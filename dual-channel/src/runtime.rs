@@ -493,7 +493,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         }
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
-        self.after_core(now, collect, io);
+        self.after_core(now, &collect, io);
     }
 
     /// The board's receive queue overflowed with frames the channel follows: the safe state
@@ -569,7 +569,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         if self.link_up {
             let mut collect = Collect::new();
             self.node.poll(now, &mut collect);
-            self.after_core(now, collect, io);
+            self.after_core(now, &collect, io);
         }
         // After the core's frame for this sample: a sample back where it was supersedes the
         // frame of the short difference, which never goes on the bus.
@@ -582,7 +582,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let node_deadline = if self.link_up {
             let mut collect = Collect::new();
             let deadline = self.node.poll(now, &mut collect);
-            self.after_core(now, collect, io);
+            self.after_core(now, &collect, io);
             deadline
         } else {
             Instant::NEVER
@@ -669,7 +669,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
         let _ = self.node.request_gfc();
         let mut collect = Collect::new();
         self.node.poll(now, &mut collect);
-        self.after_core(now, collect, io);
+        self.after_core(now, &collect, io);
         for frame in held {
             io.transmit(frame);
         }
@@ -784,8 +784,10 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
     }
 
     /// What the core handed out: frames through the role, events through the cross-checks.
-    fn after_core(&mut self, now: Instant, collect: Collect, io: &mut impl Io) {
-        for frame in collect.frames {
+    /// Borrowed, not moved: `Collect` is 0.8 kB, and moving it (into the call and into each
+    /// loop) was a tenth of the full-network simulation's instructions in `memcpy`.
+    fn after_core(&mut self, now: Instant, collect: &Collect, io: &mut impl Io) {
+        for &frame in &collect.frames {
             if is_srdo(&frame) {
                 if self.fault.is_none() {
                     self.core_frame(now, frame, io);
@@ -795,7 +797,7 @@ impl<F: Flash, R: Role<N>, const N: usize> Runtime<F, R, N> {
             }
         }
         let mut nmt_changed = false;
-        for event in collect.events {
+        for &event in &collect.events {
             io.event(ChannelEvent::Node(event));
             nmt_changed |= matches!(event, Event::NmtState(_));
             match event {

@@ -90,11 +90,71 @@ impl Io for Scratch {
     }
 }
 
-/// One direction of a link: bytes in flight with their arrival times.
+/// One direction of a link: bytes in flight, and when they arrive. Bytes sent back to back
+/// arrive [`LINK_BYTE_TIME`] apart, so a run of them is its first byte's arrival and its
+/// length, not an entry per byte.
 #[derive(Default)]
 struct Wire {
-    bytes: VecDeque<(Instant, u8)>,
+    /// Bytes in flight from `head` on, oldest first.
+    bytes: Vec<u8>,
+    head: usize,
+    /// Runs of bytes sent back to back: (the first byte's arrival, how many), oldest first.
+    runs: VecDeque<(Instant, usize)>,
     busy_until: Instant,
+}
+
+impl Wire {
+    /// Queues `bytes`, written at `now`, behind what is in flight; calls `delimiter` with the
+    /// arrival of every frame delimiter (00h).
+    fn send(&mut self, now: Instant, bytes: &[u8], mut delimiter: impl FnMut(Instant)) {
+        let start = self.busy_until.max(now);
+        let first = start + LINK_BYTE_TIME;
+        match self.runs.back_mut() {
+            // Right behind the last run (it ends at `busy_until`): the same run goes on.
+            Some((_, len)) if start == self.busy_until => *len += bytes.len(),
+            _ => self.runs.push_back((first, bytes.len())),
+        }
+        if self.head == self.bytes.len() {
+            self.bytes.clear();
+            self.head = 0;
+        } else if self.head > 4096 {
+            // A wire that never runs empty still does not grow without bound.
+            self.bytes.drain(..self.head);
+            self.head = 0;
+        }
+        self.bytes.extend_from_slice(bytes);
+        let mut at = start;
+        for &byte in bytes {
+            at = at + LINK_BYTE_TIME;
+            if byte == 0 {
+                delimiter(at);
+            }
+        }
+        self.busy_until = at;
+    }
+
+    /// Hands every byte that arrived by `until` to `receive`, with its arrival, in order.
+    fn receive(&mut self, until: Instant, mut receive: impl FnMut(Instant, u8)) {
+        let step = LINK_BYTE_TIME.as_micros();
+        while let Some((first, len)) = self.runs.front_mut() {
+            if *first > until {
+                return;
+            }
+            let arrived = until.saturating_since(*first).as_micros() / step + 1;
+            let count = (*len).min(usize::try_from(arrived).unwrap_or(usize::MAX));
+            for (k, &byte) in self.bytes[self.head..self.head + count].iter().enumerate() {
+                receive(*first + Duration::from_micros(k as u64 * step), byte);
+            }
+            self.head += count;
+            if count == *len {
+                self.runs.pop_front();
+            } else {
+                *first = *first + Duration::from_micros(count as u64 * step);
+                *len -= count;
+                return;
+            }
+        }
+    }
 }
 
 /// One dual-channel node of the simulation.
@@ -543,16 +603,11 @@ impl<O: Observer> Engine<O> {
                 Side::A => Side::B,
                 Side::B => Side::A,
             };
-            let wire = &mut node.wires[other as usize];
-            let mut at = wire.busy_until.max(now);
-            for &byte in &out.link {
-                at = at + LINK_BYTE_TIME;
-                wire.bytes.push_back((at, byte));
-                if byte == 0 {
-                    self.link_ends.push(Reverse((at, channel(index, other))));
-                }
-            }
-            wire.busy_until = at;
+            let receiver = channel(index, other);
+            let link_ends = &mut self.link_ends;
+            node.wires[other as usize].send(now, &out.link, |at| {
+                link_ends.push(Reverse((at, receiver)));
+            });
         }
         let participant = c as usize + 1;
         for &frame in &out.frames {
@@ -690,13 +745,7 @@ fn act<R: Role<4>>(
         Action::Poll => {}
         Action::Frame(frame) => runtime.on_frame(now, &frame, out),
         Action::Link(until) => {
-            while let Some(&(at, byte)) = incoming.bytes.front() {
-                if at > until {
-                    break;
-                }
-                incoming.bytes.pop_front();
-                runtime.on_link_byte(at, byte, out);
-            }
+            incoming.receive(until, |at, byte| runtime.on_link_byte(at, byte, out));
         }
         Action::Input(value) => runtime
             .set_input(
