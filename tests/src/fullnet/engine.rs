@@ -759,3 +759,70 @@ fn act<R: Role<4>>(
     }
     runtime.poll(now, out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every byte as the per-byte model had it: byte k of what is written at `now` arrives
+    /// at max(now, the previous byte's arrival) + (k + 1) × the byte time.
+    fn per_byte(writes: &[(u64, &[u8])]) -> Vec<(Instant, u8)> {
+        let mut busy = Instant::ZERO;
+        let mut out = Vec::new();
+        for &(now, bytes) in writes {
+            let mut at = busy.max(Instant::from_micros(now));
+            for &byte in bytes {
+                at = at + LINK_BYTE_TIME;
+                out.push((at, byte));
+            }
+            busy = at;
+        }
+        out
+    }
+
+    /// Runs of bytes give every byte the arrival the per-byte model gives it, whether a write
+    /// lands behind bytes still in flight (one run) or on an idle wire (a new run), and
+    /// whatever instants the receiver reads at (mid-run included); delimiters are announced
+    /// at their arrival.
+    #[test]
+    fn a_wire_of_runs_delivers_every_byte_at_its_per_byte_arrival() {
+        let writes: [(u64, &[u8]); 4] = [
+            (100, &[1, 2, 0]),
+            (105, &[3, 0]),    // behind the first: the same run
+            (500, &[4, 5, 0]), // the wire idle again: a new run
+            (530, &[6, 0]),    // right at the end of the previous run
+        ];
+        let expected = per_byte(&writes);
+        for reads in [vec![10_000], vec![125, 131, 149, 530, 549, 10_000], {
+            (0..700).collect::<Vec<u64>>()
+        }] {
+            let mut wire = Wire::default();
+            let mut delimiters = Vec::new();
+            let mut received = Vec::new();
+            let mut pending = writes.iter().peekable();
+            for until in reads {
+                while let Some(&&(now, bytes)) = pending.peek() {
+                    if now > until {
+                        break;
+                    }
+                    wire.send(Instant::from_micros(now), bytes, |at| delimiters.push(at));
+                    pending.next();
+                }
+                wire.receive(Instant::from_micros(until), |at, byte| {
+                    assert!(
+                        at <= Instant::from_micros(until),
+                        "a byte handed over early"
+                    );
+                    received.push((at, byte));
+                });
+            }
+            assert_eq!(received, expected);
+            let ends: Vec<Instant> = expected
+                .iter()
+                .filter(|(_, byte)| *byte == 0)
+                .map(|(at, _)| *at)
+                .collect();
+            assert_eq!(delimiters, ends);
+        }
+    }
+}
