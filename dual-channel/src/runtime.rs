@@ -596,7 +596,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
-        self.after_core(now, collect, io);
+        self.after_core(now, &collect, io);
     }
 
     /// The board's receive queue overflowed with frames the channel follows: the safe state
@@ -672,7 +672,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if self.link_up {
             let mut collect = Collect::new();
             self.node.poll(now, &mut collect);
-            self.after_core(now, collect, io);
+            self.after_core(now, &collect, io);
         }
         // After the core's frame for this sample: a sample back where it was supersedes the
         // frame of the short difference, which never goes on the bus.
@@ -685,7 +685,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let node_deadline = if self.link_up {
             let mut collect = Collect::new();
             let deadline = self.node.poll(now, &mut collect);
-            self.after_core(now, collect, io);
+            self.after_core(now, &collect, io);
             deadline
         } else {
             Instant::NEVER
@@ -774,7 +774,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let _ = self.node.request_gfc();
         let mut collect = Collect::new();
         self.node.poll(now, &mut collect);
-        self.after_core(now, collect, io);
+        self.after_core(now, &collect, io);
         for frame in held {
             io.transmit(frame);
         }
@@ -889,8 +889,10 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     }
 
     /// What the core handed out: frames through the role, events through the cross-checks.
-    fn after_core(&mut self, now: Instant, collect: Collect, io: &mut impl Io) {
-        for frame in collect.frames {
+    /// Borrowed, not moved: `Collect` holds 16 frames and 16 events, and moving it (into the call and into each
+    /// loop) was a tenth of the full-network simulation's instructions in `memcpy`.
+    fn after_core(&mut self, now: Instant, collect: &Collect, io: &mut impl Io) {
+        for &frame in &collect.frames {
             if is_srdo(&frame) {
                 if self.fault.is_none() {
                     self.core_frame(now, frame, io);
@@ -904,7 +906,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             }
         }
         let mut nmt_changed = false;
-        for event in collect.events {
+        for &event in &collect.events {
             io.event(ChannelEvent::Node(event));
             nmt_changed |= matches!(event, Event::NmtState(_));
             match event {
