@@ -24,6 +24,13 @@
 //! detection is armed right after the start; the inverse of a plain frame channel A itself sent
 //! is what channel B's inverted frame would be anyway, and is accepted once, as it would have
 //! been without the reset.
+//!
+//! A pair awaited after the start comes before a cut one: its first plain frame usually
+//! carries the cut pair's data (the input did not change), and a plain frame still in the
+//! transmit queue at the reset reaches the bus after the NMT frame, so channel B, reset by
+//! then, never co-signs it. The inverted frame of the new pair is then the inverse of both;
+//! taken as the cut pair's end, it would leave the new pair without one, and a refresh time
+//! later a transmit mismatch (30h) with nothing wrong.
 
 use dual_channel::runtime::{ChannelFault, FrameSlots, Role, SAMPLE_WINDOW, fold_signatures};
 use shared::canopen::od::Address;
@@ -168,26 +175,31 @@ impl<const N: usize> Role<N> for ChannelA {
         if srdo.plain == id {
             return Err(ChannelFault::ForeignFrame { id }); // Never our own: we do not receive it.
         }
-        if let Some(cut) = self.cut.iter_mut().find(|slot| {
-            slot.is_some_and(|cut| {
-                cut.plain == srdo.plain
-                    && is_inverse(&cut.frame, frame)
-                    && cut
-                        .since
-                        .is_none_or(|since| !shared::time::expired(since + cut.limit, now))
-            })
-        }) {
-            *cut = None;
-            // Its copy within the window is a double reception, as for any inverted frame.
-            self.last_inverted = Some((*frame, now));
-            return Ok(None);
-        }
-        let Some(awaited) = self
+        // The pair awaited now comes before a cut one (see the module documentation).
+        let awaited_slot = self
             .awaiting
             .iter_mut()
-            .find(|slot| slot.is_some_and(|awaited| awaited.plain == srdo.plain))
-            .and_then(Option::take)
-        else {
+            .find(|slot| slot.is_some_and(|awaited| awaited.plain == srdo.plain));
+        let ends_awaited = awaited_slot
+            .as_ref()
+            .is_some_and(|slot| slot.is_some_and(|awaited| is_inverse(&awaited.frame, frame)));
+        if !ends_awaited {
+            if let Some(cut) = self.cut.iter_mut().find(|slot| {
+                slot.is_some_and(|cut| {
+                    cut.plain == srdo.plain
+                        && is_inverse(&cut.frame, frame)
+                        && cut
+                            .since
+                            .is_none_or(|since| !shared::time::expired(since + cut.limit, now))
+                })
+            }) {
+                *cut = None;
+                // Its copy within the window is a double reception, as for any inverted frame.
+                self.last_inverted = Some((*frame, now));
+                return Ok(None);
+            }
+        }
+        let Some(awaited) = awaited_slot.and_then(Option::take) else {
             let copy = self.last_inverted.is_some_and(|(last, at)| {
                 last == *frame && !shared::time::expired(at + SAMPLE_WINDOW, now)
             });
@@ -391,6 +403,56 @@ mod tests {
             a.observe(Instant::from_millis(120), &inverted(1), &config),
             foreign,
             "after the refresh time"
+        );
+    }
+
+    /// CiA 304 9.5: after NMT reset and start, channel A's first plain frame usually carries
+    /// the data of the pair the reset cut, so one inverted frame is the inverse of both. It
+    /// ends the pair awaited now, not the cut one: no transmit mismatch a refresh time later.
+    /// The cut pair's own inverted frame, if it still comes, is then that frame again, and
+    /// ends the cut pair quietly.
+    #[test]
+    fn cia304_9_5_the_first_pair_after_reset_and_start_ends_with_its_own_inverted_frame() {
+        let mut config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        config.srdos[0].cycle_time = 20;
+        let mut a = ChannelA::default();
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        Role::<2>::reset(&mut a);
+        let started = Instant::from_millis(105);
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        assert_eq!(Role::<2>::poll(&mut a, started), Ok(()));
+        let answered = Instant::from_micros(105_120);
+        assert_eq!(a.observe(answered, &inverted(1), &config), Ok(None));
+        assert_eq!(Role::<2>::deadline(&a), Instant::NEVER, "nothing awaited");
+        let late = answered + SAMPLE_WINDOW;
+        assert_eq!(
+            a.observe(late, &inverted(1), &config),
+            Ok(None),
+            "the cut end"
+        );
+        assert_eq!(Role::<2>::poll(&mut a, Instant::from_millis(200)), Ok(()));
+    }
+
+    /// CiA 304 9.5: the pair cut by NMT reset does not hide a new pair left without its
+    /// inverted frame: the inverse of the cut pair's plain frame ends the cut pair only, and
+    /// the new pair, with other data, is still a transmit mismatch at its refresh time.
+    #[test]
+    fn cia304_9_5_a_cut_pair_does_not_hide_a_new_pair_left_without_its_inverted_frame() {
+        let mut config = SafetyConfig::<2>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        config.srdos[0].cycle_time = 20;
+        let mut a = ChannelA::default();
+        assert!(a.outgoing(frame(0x101), &config).is_some());
+        Role::<2>::reset(&mut a);
+        let started = Instant::from_millis(105);
+        let other = CanFrame::new(CanId::new(0x101).unwrap(), &[0]).unwrap();
+        assert!(a.outgoing(other, &config).is_some());
+        assert_eq!(Role::<2>::poll(&mut a, started), Ok(()));
+        assert_eq!(a.observe(started, &inverted(1), &config), Ok(None));
+        assert_eq!(
+            Role::<2>::poll(&mut a, Instant::from_millis(125)),
+            Err(ChannelFault::TransmitMismatch {
+                srdo: SrdoNumber::FIRST
+            })
         );
     }
 

@@ -320,10 +320,23 @@ impl<const N: usize> Role<N> for ChannelB {
         // and neither are channel A's announcements: one may have arrived just before this
         // channel's own reset, for A's first plain frame after it (A handled the NMT frames
         // first). An announcement only ever lets through a bus frame equal to it, and a newer
-        // one for the same SRDO replaces it.
+        // one for the same SRDO replaces it; those A made before its own reset go when its
+        // heartbeat names the new epoch (`peer_reset`).
         self.held = None;
         self.unannounced = None;
         self.last_plain = None;
+    }
+
+    fn peer_reset(&mut self) {
+        // What channel A announced before its reset is about frames of the ending epoch: a
+        // plain frame this channel saw before its own reset (its wait cleared there), or one
+        // still in A's transmit queue at the reset, which reaches the bus after the NMT frame
+        // and is co-signed by nobody (A cut that pair). Kept, such an announcement would wait
+        // in its slot for ever and be taken for the next plain frame on the bus that comes
+        // before its own announcement (a slow link): from then on each frame is compared with
+        // the announcement before its own, and the first changed data is a foreign frame
+        // (34h). Announcements made after A's reset come after this heartbeat, and are kept.
+        self.announced.clear();
     }
 
     fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {

@@ -128,6 +128,11 @@ impl NmtCheck {
         self.compare(now, own);
     }
 
+    /// The other channel's epoch as its last heartbeat said (none yet before the first).
+    pub fn peer_epoch(&self) -> Option<u8> {
+        self.peer.map(|(_, epoch)| epoch)
+    }
+
     /// `true` unless the other channel's last heartbeat was in another epoch than ours: its
     /// messages are then not about the present and are ignored.
     pub fn same_epoch(&self) -> bool {

@@ -13,7 +13,7 @@ use system_tests::bus::{Fault, Injection, Match, frame_bits};
 use system_tests::dual::{B_INPUTS, DualNetwork, LINK_PERIOD, Side};
 use system_tests::fullnet::configure::{node_spec, receive, stored_image, transmit};
 use system_tests::fullnet::engine::{Engine, Observer, Unobserved};
-use system_tests::fullnet::network;
+use system_tests::fullnet::{network, report};
 use system_tests::network::device_config;
 
 /// Every event per channel, in order, with its time.
@@ -136,13 +136,17 @@ fn reference() -> DualNetwork {
     net
 }
 
-fn engine(unfiltered: bool) -> Engine<Events> {
+/// The fast engine on the reference's nodes; with `threads` 2 every batch of two calls or
+/// more at one instant is split between two threads.
+fn engine(unfiltered: bool, threads: usize) -> Engine<Events> {
     let nodes = images()
         .into_iter()
         .map(|(id, image)| (id, Some(image)))
         .collect();
     let mut engine = Engine::new(500_000, nodes, LINK_PERIOD, Events::default());
     engine.unfiltered = unfiltered;
+    engine.threads = threads;
+    engine.batch_threshold = 2;
     engine.trace = Some(Vec::new());
     engine
 }
@@ -162,7 +166,7 @@ fn per_channel(
 /// makes the same calls as `DualNetwork`: on a script with every path the full network uses
 /// and several faults, the same frames at the same microseconds from the same senders, and
 /// every channel reports the same events at the same instants. Filtering or not changes
-/// nothing either.
+/// nothing either, nor does stepping the calls of one instant on two threads.
 #[test]
 fn fast_engine_gives_the_dual_network_trace_frame_for_frame() {
     let mut reference = reference();
@@ -193,8 +197,8 @@ fn fast_engine_gives_the_dual_network_trace_frame_for_frame() {
             >= 4,
         "{expected_events:?}"
     );
-    for unfiltered in [false, true] {
-        let mut fast = engine(unfiltered);
+    for (unfiltered, threads) in [(false, 1), (true, 1), (false, 2)] {
+        let mut fast = engine(unfiltered, threads);
         script(&mut fast);
         let trace = fast.trace.take().unwrap();
         let first_difference = expected
@@ -205,14 +209,15 @@ fn fast_engine_gives_the_dual_network_trace_frame_for_frame() {
         assert_eq!(
             (first_difference, trace.len()),
             (expected.len(), expected.len()),
-            "unfiltered {unfiltered}: traces differ from frame {first_difference}: {:?} / {:?}",
+            "unfiltered {unfiltered}, {threads} threads: traces differ from frame \
+             {first_difference}: {:?} / {:?}",
             expected.get(first_difference),
             trace.get(first_difference)
         );
         assert_eq!(
             per_channel(&fast.observer.0),
             per_channel(&expected_events),
-            "unfiltered {unfiltered}"
+            "unfiltered {unfiltered}, {threads} threads"
         );
     }
 }
@@ -257,7 +262,7 @@ fn stored_image_equals_the_one_configured_over_the_bus() {
 /// pairs keep within SCT and SRVT, and every input change reaches its consumer's output.
 #[test]
 fn en50325_5_7_1_2_full_network_without_faults_has_no_sct_or_srvt_event() {
-    let report = network::run(Duration::from_millis(3500), 7, false).expect("runs");
+    let report = network::run(Duration::from_millis(3500), 7, false, 2).expect("runs");
     let monitor = &report.monitor;
     assert_eq!(monitor.faults, 0, "{:?}", monitor.fault_lines);
     let srvt = u64::from(report.timing.srvt_ms) * 1000;
@@ -277,12 +282,33 @@ fn en50325_5_7_1_2_full_network_without_faults_has_no_sct_or_srvt_event() {
     assert!(monitor.to_safe.max_us < srvt + u64::from(report.timing.refresh_ms) * 1000);
 }
 
+/// The full network on two threads (the calls of one instant, 254 at every link heartbeat,
+/// split between them) gives the report of one thread: every frame at the same microsecond
+/// from the same sender, and every line of the report but the wall time.
+#[test]
+fn full_network_on_two_threads_gives_the_one_thread_report() {
+    let runs: Vec<_> = [1, 2]
+        .into_iter()
+        .map(|threads| network::run(Duration::from_millis(1200), 11, true, threads).expect("runs"))
+        .collect();
+    let text = |run: &network::Report| -> String {
+        report::full_network(run)
+            .lines()
+            .filter(|line| !line.starts_with("**Wall time**"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert!(runs[0].monitor.to_safe.count + runs[0].monitor.srdos[0].pairs > 50);
+    assert_eq!(runs[0].trace, runs[1].trace);
+    assert_eq!(text(&runs[0]), text(&runs[1]));
+}
+
 /// The bus load the report gives is the bits of the frames on the bus, recomputed here
 /// from the frames themselves (stuff bits included), over the bit times elapsed; the bus
 /// model's own count covers the same frames.
 #[test]
 fn full_network_bus_load_is_the_frames_bit_times_summed() {
-    let report = network::run(Duration::from_millis(1000), 3, true).expect("runs");
+    let report = network::run(Duration::from_millis(1000), 3, true, 1).expect("runs");
     let trace = report.trace.as_ref().expect("kept");
     let started = report.monitor.started.expect("started");
     let since_start: u64 = trace

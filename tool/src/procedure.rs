@@ -511,27 +511,157 @@ pub fn configure<T: Transport>(
 ) -> Result<ConfigureReport, ToolError> {
     let mut nodes = Vec::new();
     for spec in &network.nodes {
-        let configured = configure_node(client, spec, operator).and_then(|mut done| {
-            if let Some(simplecan) = &network.simplecan {
-                let before = client.requests;
-                done.simplecan_signature =
-                    Some(configure_simplecan(client, simplecan, spec.id, operator)?);
-                done.sdo_requests += client.requests - before;
-            }
-            Ok(done)
-        });
-        match configured {
-            Ok(done) => nodes.push(NodeResult::Done(done)),
-            Err(ToolError::Transport(error)) => return Err(ToolError::Transport(error)),
-            Err(error) => {
-                operator.note(&error.to_string());
-                nodes.push(NodeResult::Failed {
-                    node: spec.id,
-                    error: error.to_string(),
-                });
-            }
+        // A transport failure ends the whole run: the interface is gone for every node.
+        nodes.push(configure_one(client, network, spec, operator)?);
+    }
+    finish_configure(client, network, nodes, start)
+}
+
+/// [`configure`] with the nodes side by side: node `i` of the file over `clients[i]`, each on
+/// its own thread, so that one node's SDO round trips overlap the others'. CiA 301 7.2.4 lets
+/// a client have one transfer at a time with each SDO server; a server is its node's (600h +
+/// node-ID, 580h + node-ID), so transfers to different nodes may run at once. Each client
+/// sees every frame on the bus and takes only its own node's answers ([`Client`]); for
+/// socketcand, each is its own connection, as a socketcand daemon serves several clients on
+/// one bus. Each node goes through exactly the steps of [`configure`], in its order; what the
+/// operator is told or asked comes from one node at a time. The nodes are started (the first
+/// client, one after another) only when every node was configured; a transport failure of
+/// any client ends the run with that failure once the others are done.
+///
+/// Fails with [`ToolError::Usage`] when there are fewer clients than nodes.
+pub fn configure_concurrently<T: Transport + Send>(
+    clients: &mut [Client<T>],
+    network: &Network,
+    start: bool,
+    operator: &mut (dyn Operator + Send),
+) -> Result<ConfigureReport, ToolError> {
+    let shared = std::sync::Mutex::new(operator);
+    let results = side_by_side(clients, network, |client, spec| {
+        configure_one(client, network, spec, &mut SharedOperator(&shared))
+    })?;
+    let nodes = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let first = clients
+        .first_mut()
+        .ok_or_else(|| ToolError::Usage("no client to configure the nodes with".into()))?;
+    finish_configure(first, network, nodes, start)
+}
+
+/// [`verify`] with the nodes side by side, as [`configure_concurrently`] runs them: node `i`
+/// of the file read over `clients[i]`, each on its own thread.
+pub fn verify_concurrently<T: Transport + Send>(
+    clients: &mut [Client<T>],
+    network: &Network,
+) -> Result<Vec<Verdict>, ToolError> {
+    side_by_side(clients, network, |client, spec| {
+        verify_one(client, network, spec)
+    })?
+    .into_iter()
+    .collect()
+}
+
+/// Runs `job` for node `i` of `network` with `clients[i]`, each on a thread of its own;
+/// returns the results in file order. Fails when there are fewer clients than nodes.
+fn side_by_side<T, R, F>(
+    clients: &mut [Client<T>],
+    network: &Network,
+    job: F,
+) -> Result<Vec<R>, ToolError>
+where
+    T: Transport + Send,
+    R: Send,
+    F: Fn(&mut Client<T>, &NodeSpec) -> R + Sync,
+{
+    if clients.len() < network.nodes.len() {
+        return Err(ToolError::Usage(format!(
+            "{} node(s) to work on side by side, but {} client(s) to do it with",
+            network.nodes.len(),
+            clients.len()
+        )));
+    }
+    let job = &job;
+    Ok(std::thread::scope(|scope| {
+        let running: Vec<_> = clients
+            .iter_mut()
+            .zip(&network.nodes)
+            .map(|(client, spec)| scope.spawn(move || job(client, spec)))
+            .collect();
+        running
+            .into_iter()
+            .map(|thread| {
+                thread
+                    .join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            })
+            .collect()
+    }))
+}
+
+/// One operator shared by the threads of [`configure_concurrently`]: each call holds it alone,
+/// so the person is told or asked about one node at a time.
+struct SharedOperator<'a, 'b>(&'a std::sync::Mutex<&'b mut (dyn Operator + Send)>);
+
+impl SharedOperator<'_, '_> {
+    fn with<R>(&mut self, call: impl FnOnce(&mut dyn Operator) -> R) -> R {
+        // A thread that panicked while holding it cannot have left it half-told.
+        let mut operator = self
+            .0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        call(&mut **operator)
+    }
+}
+
+impl Operator for SharedOperator<'_, '_> {
+    fn note(&mut self, line: &str) {
+        self.with(|operator| operator.note(line));
+    }
+    fn confirm_identity(&mut self, node: &NodeSpec, differences: &str) -> bool {
+        self.with(|operator| operator.confirm_identity(node, differences))
+    }
+    fn secret(&mut self, node: u8) -> Result<Option<Secret>, ToolError> {
+        self.with(|operator| operator.secret(node))
+    }
+}
+
+/// One node of [`configure`]: its SRDOs ([`configure_node`]) and, when the file has a
+/// SimpleCAN section, its SimpleCAN objects. `Err` only for a transport failure; anything
+/// else is the node's [`NodeResult::Failed`], told to the operator.
+fn configure_one<T: Transport>(
+    client: &mut Client<T>,
+    network: &Network,
+    spec: &NodeSpec,
+    operator: &mut dyn Operator,
+) -> Result<NodeResult<Configured>, ToolError> {
+    let configured = configure_node(client, spec, operator).and_then(|mut done| {
+        if let Some(simplecan) = &network.simplecan {
+            let before = client.requests;
+            done.simplecan_signature =
+                Some(configure_simplecan(client, simplecan, spec.id, operator)?);
+            done.sdo_requests += client.requests - before;
+        }
+        Ok(done)
+    });
+    match configured {
+        Ok(done) => Ok(NodeResult::Done(done)),
+        Err(ToolError::Transport(error)) => Err(ToolError::Transport(error)),
+        Err(error) => {
+            operator.note(&error.to_string());
+            Ok(NodeResult::Failed {
+                node: spec.id,
+                error: error.to_string(),
+            })
         }
     }
+}
+
+/// The report of [`configure`] from each node's result; starts the nodes (NMT start, each
+/// node, over `client`) only when `start` is set and every node was configured.
+fn finish_configure<T: Transport>(
+    client: &mut Client<T>,
+    network: &Network,
+    nodes: Vec<NodeResult<Configured>>,
+    start: bool,
+) -> Result<ConfigureReport, ToolError> {
     let mut report = ConfigureReport {
         nodes,
         started: false,
@@ -670,26 +800,37 @@ pub fn verify<T: Transport>(
     client: &mut Client<T>,
     network: &Network,
 ) -> Result<Vec<Verdict>, ToolError> {
-    let mut verdicts = Vec::new();
-    for spec in &network.nodes {
-        let verdict = verify_node(client, spec).and_then(|verdict| match &network.simplecan {
-            Some(simplecan) => {
-                let file = crate::simplecan::node_config(simplecan, spec.id);
-                let checked = crate::simplecan::plan::verify(client, &file)?;
-                Ok(with_simplecan(verdict, checked))
-            }
-            None => Ok(verdict),
-        });
-        match verdict {
-            Ok(verdict) => verdicts.push(verdict),
-            Err(ToolError::Transport(error)) => return Err(ToolError::Transport(error)),
-            Err(error) => verdicts.push(Verdict::Unreachable {
-                node: spec.id,
-                error: error.to_string(),
-            }),
+    network
+        .nodes
+        .iter()
+        .map(|spec| verify_one(client, network, spec))
+        .collect()
+}
+
+/// One node of [`verify`]: its SRDOs ([`verify_node`]) and, when the file has a SimpleCAN
+/// section, its SimpleCAN objects. `Err` only for a transport failure; a node that cannot be
+/// read is [`Verdict::Unreachable`].
+fn verify_one<T: Transport>(
+    client: &mut Client<T>,
+    network: &Network,
+    spec: &NodeSpec,
+) -> Result<Verdict, ToolError> {
+    let verdict = verify_node(client, spec).and_then(|verdict| match &network.simplecan {
+        Some(simplecan) => {
+            let file = crate::simplecan::node_config(simplecan, spec.id);
+            let checked = crate::simplecan::plan::verify(client, &file)?;
+            Ok(with_simplecan(verdict, checked))
         }
+        None => Ok(verdict),
+    });
+    match verdict {
+        Err(ToolError::Transport(error)) => Err(ToolError::Transport(error)),
+        Err(error) => Ok(Verdict::Unreachable {
+            node: spec.id,
+            error: error.to_string(),
+        }),
+        verdict => verdict,
     }
-    Ok(verdicts)
 }
 
 /// The verdict on a node's SRDOs joined with what was found on its SimpleCAN objects: any

@@ -2,10 +2,13 @@
 the same SDO writes and read-backs as `safety-config configure` and `verify`
 (EN 50325-5 8.3.1), timed, so the two can be compared on the same emulated bus.
 
-Usage: python_canopen_configure.py HOST PORT EDS NODE SPEC
+Usage: python_canopen_configure.py HOST PORT EDS SPEC
 
-SPEC is JSON: {"srdos": [{"number", "direction", "cycle_time", "srvt", "cob_id_1",
-"cob_id_2", "mapping"}]}. In the tool's order: identity (1018h), NMT pre-operational, the
+SPEC is JSON: {"nodes": [{"id", "srdos": [{"number", "direction", "cycle_time", "srvt",
+"cob_id_1", "cob_id_2", "mapping"}]}]}. The nodes are configured one after another, then
+verified one after another (python-canopen's SDO client waits for each answer; the script
+runs no thread per node). For each node, in the tool's order: identity (1018h), NMT
+pre-operational, the
 SRDO count (13FFh:00h), every SRDO deleted (direction 0), mappings, communication
 parameters, every record read back in the reverse order and compared, the signatures
 (EN 50325-5 Table 9, CRC-16/XMODEM: Python's `binascii.crc_hqx` with seed 0) written to
@@ -13,8 +16,8 @@ parameters, every record read back in the reverse order and compared, the signat
 verification: identity, 13FEh, every record and signature read and the signatures
 recomputed. Every transfer is python-canopen's SDO client (`upload`/`download`, expedited).
 
-Prints one JSON line: the seconds each part took, the SDO transactions, the signatures; exits
-1 with a sentence when anything read back differs.
+Prints one JSON line: the seconds each part took (all nodes), the SDO transactions (all
+nodes), the signatures per node; exits 1 with a sentence when anything read back differs.
 """
 
 import binascii
@@ -90,68 +93,85 @@ def fail(message):
     sys.exit(1)
 
 
+def configure(node, sdo, wanted):
+    """The configuration of one node, in the tool's order; returns its identity and signatures."""
+    node_id = node.id
+    identity = [sdo.read(0x1018, sub, 4) for sub in range(1, 5)]
+    node.nmt.state = "PRE-OPERATIONAL"
+    count = sdo.read(0x13FF, 0, 1)
+    for n in range(1, count + 1):
+        sdo.write(0x1300 + n, 1, 0, 1)
+    for n, srdo in sorted(wanted.items()):
+        mapping = 0x1380 + n
+        sdo.write(mapping, 0, 0, 1)
+        for sub, entry in enumerate(srdo["mapping"], start=1):
+            sdo.write(mapping, sub, entry, 4)
+        sdo.write(mapping, 0, len(srdo["mapping"]), 1)
+    for n, srdo in sorted(wanted.items()):
+        comm = 0x1300 + n
+        sdo.write(comm, 2, srdo["cycle_time"], 2)
+        sdo.write(comm, 3, srdo["srvt"], 1)
+        sdo.write(comm, 5, srdo["cob_id_1"], 4)
+        sdo.write(comm, 6, srdo["cob_id_2"], 4)
+        sdo.write(comm, 1, srdo["direction"], 1)
+    signatures = {}
+    for n in range(count, 0, -1):
+        held = record(sdo, n)
+        if n in wanted and held != wanted[n]:
+            fail(f"node {node_id} SRDO {n} reads back {held}, not {wanted[n]}")
+        signatures[n] = signature(wanted.get(n, held))
+    for n in range(1, count + 1):
+        sdo.write(0x13FF, n, signatures[n], 2)
+    for n in range(count, 0, -1):
+        if sdo.read(0x13FF, n, 2) != signatures[n]:
+            fail(f"node {node_id}: the signature of SRDO {n} does not read back")
+    sdo.write(0x13FE, 0, 0xA5, 1)
+    if sdo.read(0x13FE, 0, 1) != 0xA5:
+        fail(f"node {node_id}: 0x13FE does not read A5h after writing it")
+    sdo.write_bytes(0x1010, 1, b"save")
+    if sdo.read(0x13FE, 0, 1) != 0xA5:
+        fail(f"node {node_id}: 0x13FE does not read A5h after storing")
+    return identity, count, signatures
+
+
+def verify(node_id, sdo, wanted, identity, count):
+    """The verification of one node: identity, 13FEh, every record and signature."""
+    if [sdo.read(0x1018, sub, 4) for sub in range(1, 5)] != identity:
+        fail(f"node {node_id}: the identity changed")
+    if sdo.read(0x13FE, 0, 1) != 0xA5:
+        fail(f"node {node_id}: not validated")
+    for n in range(1, count + 1):
+        held = record(sdo, n)
+        if sdo.read(0x13FF, n, 2) != signature(held):
+            fail(f"node {node_id}: the signature of SRDO {n} does not match its record")
+        if n in wanted and held != wanted[n]:
+            fail(f"node {node_id} SRDO {n} holds {held}, not {wanted[n]}")
+
+
 def main() -> int:
-    host, port, eds, node_id, spec = sys.argv[1:6]
-    node_id = int(node_id)
-    wanted = {srdo["number"]: srdo for srdo in json.loads(spec)["srdos"]}
+    host, port, eds, spec = sys.argv[1:5]
     network = canopen.Network()
     network.connect(interface="socketcand", host=host, port=int(port), channel="can0")
     try:
-        node = canopen.RemoteNode(node_id, canopen.import_od(eds, node_id))
-        network.add_node(node)
-        node.sdo.RESPONSE_TIMEOUT = 2.0
-        sdo = Counted(node.sdo)
+        nodes = []
+        for entry in json.loads(spec)["nodes"]:
+            node = canopen.RemoteNode(entry["id"], canopen.import_od(eds, entry["id"]))
+            network.add_node(node)
+            node.sdo.RESPONSE_TIMEOUT = 2.0
+            wanted = {srdo["number"]: srdo for srdo in entry["srdos"]}
+            nodes.append((node, Counted(node.sdo), wanted))
 
         started = time.perf_counter()
-        identity = [sdo.read(0x1018, sub, 4) for sub in range(1, 5)]
-        node.nmt.state = "PRE-OPERATIONAL"
-        count = sdo.read(0x13FF, 0, 1)
-        for n in range(1, count + 1):
-            sdo.write(0x1300 + n, 1, 0, 1)
-        for n, srdo in sorted(wanted.items()):
-            mapping = 0x1380 + n
-            sdo.write(mapping, 0, 0, 1)
-            for sub, entry in enumerate(srdo["mapping"], start=1):
-                sdo.write(mapping, sub, entry, 4)
-            sdo.write(mapping, 0, len(srdo["mapping"]), 1)
-        for n, srdo in sorted(wanted.items()):
-            comm = 0x1300 + n
-            sdo.write(comm, 2, srdo["cycle_time"], 2)
-            sdo.write(comm, 3, srdo["srvt"], 1)
-            sdo.write(comm, 5, srdo["cob_id_1"], 4)
-            sdo.write(comm, 6, srdo["cob_id_2"], 4)
-            sdo.write(comm, 1, srdo["direction"], 1)
-        signatures = {}
-        for n in range(count, 0, -1):
-            held = record(sdo, n)
-            if n in wanted and held != wanted[n]:
-                fail(f"node {node_id} SRDO {n} reads back {held}, not {wanted[n]}")
-            signatures[n] = signature(wanted.get(n, held))
-        for n in range(1, count + 1):
-            sdo.write(0x13FF, n, signatures[n], 2)
-        for n in range(count, 0, -1):
-            if sdo.read(0x13FF, n, 2) != signatures[n]:
-                fail(f"node {node_id}: the signature of SRDO {n} does not read back")
-        sdo.write(0x13FE, 0, 0xA5, 1)
-        if sdo.read(0x13FE, 0, 1) != 0xA5:
-            fail(f"node {node_id}: 0x13FE does not read A5h after writing it")
-        sdo.write_bytes(0x1010, 1, b"save")
-        if sdo.read(0x13FE, 0, 1) != 0xA5:
-            fail(f"node {node_id}: 0x13FE does not read A5h after storing")
+        configured_nodes = [
+            configure(node, sdo, wanted) for node, sdo, wanted in nodes
+        ]
         configured = time.perf_counter()
-        configure_transactions = sdo.transactions
+        configure_transactions = sum(sdo.transactions for _, sdo, _ in nodes)
 
-        if [sdo.read(0x1018, sub, 4) for sub in range(1, 5)] != identity:
-            fail(f"node {node_id}: the identity changed")
-        if sdo.read(0x13FE, 0, 1) != 0xA5:
-            fail(f"node {node_id}: not validated")
-        for n in range(1, count + 1):
-            held = record(sdo, n)
-            if sdo.read(0x13FF, n, 2) != signature(held):
-                fail(f"node {node_id}: the signature of SRDO {n} does not match its record")
-            if n in wanted and held != wanted[n]:
-                fail(f"node {node_id} SRDO {n} holds {held}, not {wanted[n]}")
+        for (node, sdo, wanted), (identity, count, _) in zip(nodes, configured_nodes):
+            verify(node.id, sdo, wanted, identity, count)
         verified = time.perf_counter()
+        transactions = sum(sdo.transactions for _, sdo, _ in nodes)
 
         print(
             json.dumps(
@@ -159,8 +179,11 @@ def main() -> int:
                     "configure_s": configured - started,
                     "verify_s": verified - configured,
                     "configure_transactions": configure_transactions,
-                    "verify_transactions": sdo.transactions - configure_transactions,
-                    "signatures": {str(n): value for n, value in signatures.items()},
+                    "verify_transactions": transactions - configure_transactions,
+                    "signatures": {
+                        str(node.id): {str(n): value for n, value in signed.items()}
+                        for (node, _, _), (_, _, signed) in zip(nodes, configured_nodes)
+                    },
                 }
             )
         )

@@ -367,20 +367,28 @@ pub const BENCH_HEADING: &str = "## Configuration tool beside python-canopen";
 /// and the range).
 const BENCH_ROUNDS: usize = 5;
 
-/// Node 1 of the bench, with every SRDO the firmware holds (`dual_channel::device::SRDO_COUNT`)
-/// transmitting the input and its inverted copy, as `tool_bench`'s 16 do on the host
-/// simulation.
-fn bench_file() -> String {
-    let mut file = String::from(
-        "[[node]]\nid = 1\nidentity = { vendor = 0xABC, product = 0x304, revision = 1, serial = 1 }\n",
-    );
-    for n in 1..=dual_channel::device::SRDO_COUNT {
-        let plain = 0x0FF + 2 * n;
+/// The bench's nodes: node 1, and in the second case node 33 beside it.
+const BENCH_NODES: [u8; 2] = [1, 33];
+
+/// The bench's network file for the first `nodes` of [`BENCH_NODES`]: each with every SRDO the
+/// firmware holds (`dual_channel::device::SRDO_COUNT`) transmitting the input and its inverted
+/// copy, as `tool_bench`'s 16 do on the host simulation; node 1 on 101h..108h, node 33 on the
+/// next identifiers (the bench does not start the nodes, but no two SRDOs share one).
+fn bench_file(nodes: usize) -> String {
+    let mut file = String::new();
+    for (index, id) in BENCH_NODES.iter().take(nodes).enumerate() {
         file.push_str(&format!(
-            "\n[[node.srdo]]\nnumber = {n}\ndirection = \"transmit\"\nrefresh_time_ms = 100\n\
-             srvt_ms = 20\ncob_ids = [0x{plain:X}, 0x{:X}]\nmapping = [\"input\", \"input_inverted\"]\n",
-            plain + 1
+            "[[node]]\nid = {id}\nidentity = {{ vendor = 0xABC, product = 0x304, revision = 1, serial = {id} }}\n"
         ));
+        for n in 1..=dual_channel::device::SRDO_COUNT {
+            let plain = 0x0FF + 2 * (index * dual_channel::device::SRDO_COUNT + n);
+            file.push_str(&format!(
+                "\n[[node.srdo]]\nnumber = {n}\ndirection = \"transmit\"\nrefresh_time_ms = 100\n\
+                 srvt_ms = 20\ncob_ids = [0x{plain:X}, 0x{:X}]\nmapping = [\"input\", \"input_inverted\"]\n",
+                plain + 1
+            ));
+        }
+        file.push('\n');
     }
     file
 }
@@ -394,31 +402,38 @@ struct Round {
     verify_transactions: u64,
 }
 
-/// The tool library configures and verifies the bench node; fails unless the node is
-/// configured, valid and matches the file.
+/// The tool library configures and verifies the bench's nodes; fails unless every node is
+/// configured, valid and matches the file. One node: `configure` and `verify` over
+/// `clients[0]`, as the program runs them; several: `configure_concurrently` and
+/// `verify_concurrently`, node `i` over `clients[i]`.
 fn tool_round(
-    tool: &mut Client<SocketcandClient>,
+    clients: &mut [Client<SocketcandClient>],
     spec: &safety_config::network_file::Network,
 ) -> Result<Round> {
-    let before = tool.requests;
+    let requests = |clients: &[Client<SocketcandClient>]| -> u64 {
+        clients.iter().map(|client| client.requests).sum()
+    };
+    let quiet = &mut procedure::Quiet {
+        accept_identity: false,
+    };
+    let before = requests(clients);
     let started = std::time::Instant::now();
-    let report = procedure::configure(
-        tool,
-        spec,
-        false,
-        &mut procedure::Quiet {
-            accept_identity: false,
-        },
-    )?;
+    let report = match clients {
+        [client] => procedure::configure(client, spec, false, quiet)?,
+        _ => procedure::configure_concurrently(clients, spec, false, quiet)?,
+    };
     let configured = std::time::Instant::now();
-    let configure_transactions = tool.requests - before;
+    let configure_transactions = requests(clients) - before;
     if !report.success() {
         bail!(
-            "the tool did not configure the bench node: {:?}",
+            "the tool did not configure the bench's nodes: {:?}",
             report.nodes
         );
     }
-    let verdicts = procedure::verify(tool, spec)?;
+    let verdicts = match clients {
+        [client] => procedure::verify(client, spec)?,
+        _ => procedure::verify_concurrently(clients, spec)?,
+    };
     let verified = std::time::Instant::now();
     if !verdicts
         .iter()
@@ -430,7 +445,7 @@ fn tool_round(
         configure: configured - started,
         verify: verified - configured,
         configure_transactions,
-        verify_transactions: tool.requests - before - configure_transactions,
+        verify_transactions: requests(clients) - before - configure_transactions,
     })
 }
 
@@ -444,16 +459,23 @@ fn python_round(
     spec: &safety_config::network_file::Network,
 ) -> Result<Round> {
     let (host, port) = address.split_once(':').context("the server's address")?;
-    let srdos: Vec<serde_json::Value> = spec.nodes[0]
-        .srdos
+    let nodes: Vec<serde_json::Value> = spec
+        .nodes
         .iter()
-        .map(|srdo| {
-            let s = &srdo.settings;
-            serde_json::json!({
-                "number": srdo.number, "direction": s.direction, "cycle_time": s.cycle_time,
-                "srvt": s.srvt, "cob_id_1": s.cob_id_1, "cob_id_2": s.cob_id_2,
-                "mapping": s.mapping,
-            })
+        .map(|node| {
+            let srdos: Vec<serde_json::Value> = node
+                .srdos
+                .iter()
+                .map(|srdo| {
+                    let s = &srdo.settings;
+                    serde_json::json!({
+                        "number": srdo.number, "direction": s.direction,
+                        "cycle_time": s.cycle_time, "srvt": s.srvt, "cob_id_1": s.cob_id_1,
+                        "cob_id_2": s.cob_id_2, "mapping": s.mapping,
+                    })
+                })
+                .collect();
+            serde_json::json!({ "id": node.id, "srdos": srdos })
         })
         .collect();
     let result = script_json(
@@ -461,8 +483,7 @@ fn python_round(
             .arg(root.join("xtask/interop/python_canopen_configure.py"))
             .args([host, port])
             .arg(root.join("eds/safety-node.eds"))
-            .arg(spec.nodes[0].id.to_string())
-            .arg(serde_json::json!({ "srdos": srdos }).to_string()),
+            .arg(serde_json::json!({ "nodes": nodes }).to_string()),
     )?;
     let verdicts = procedure::verify(tool, spec)?;
     if !verdicts
@@ -539,8 +560,8 @@ fn verdict(tool: &[Round], python: &[Round]) -> String {
     }
 }
 
-/// The rounds of both sides on one bus, as table rows.
-fn bench_rows(bus: &str, tool: &[Round], python: &[Round]) -> String {
+/// The rounds of both sides on one bus with `nodes` nodes, as table rows.
+fn bench_rows(bus: &str, nodes: &str, tool: &[Round], python: &[Round]) -> String {
     let mut rows = String::new();
     for (who, rounds) in [("safety-config", tool), ("python-canopen 2.4.1", python)] {
         let (_, configure) = spread(rounds.iter().map(|r| r.configure).collect());
@@ -548,50 +569,65 @@ fn bench_rows(bus: &str, tool: &[Round], python: &[Round]) -> String {
         let (_, both) = spread(rounds.iter().map(|r| r.configure + r.verify).collect());
         let first = rounds[0];
         rows.push_str(&format!(
-            "| {bus} | {who} | {} + {} | {configure} | {verify} | {both} |\n",
+            "| {bus} | {nodes} | {who} | {} + {} | {configure} | {verify} | {both} |\n",
             first.configure_transactions, first.verify_transactions
         ));
     }
     rows
 }
 
-/// Both sides, [`BENCH_ROUNDS`] times each, alternating, on the socketcand server at
-/// `address`.
-fn bench_on(
-    root: &Path,
-    python: &Path,
-    address: &str,
-    tool: &mut Client<SocketcandClient>,
-    spec: &safety_config::network_file::Network,
-) -> Result<(Vec<Round>, Vec<Round>)> {
+/// One case of the bench on one bus: the tool's rounds and python-canopen's.
+struct Case {
+    tool: Vec<Round>,
+    python: Vec<Round>,
+}
+
+/// Both cases (node 1 alone, nodes 1 and 33) on the socketcand server at `address`: each
+/// side [`BENCH_ROUNDS`] times, alternating. The tool has a connection of its own per node
+/// (`procedure::configure_concurrently`), python-canopen one for all; both connect before
+/// their clocks start.
+fn bench_on(root: &Path, python: &Path, address: &str) -> Result<[Case; 2]> {
     // Both sides wait as long for an SDO answer (the script's RESPONSE_TIMEOUT): on the
     // emulated network a loaded host holds the virtual time, and with it an answer, for
     // seconds of host time now and then (`docs/emulation.md`), which the bench should time,
     // not fail on.
-    let patience = std::mem::replace(&mut tool.sdo_timeout, BENCH_SDO_TIMEOUT);
-    let rounds = bench_rounds(root, python, address, tool, spec);
-    tool.sdo_timeout = patience;
-    rounds
+    // Connected per case, so that no connection sits unread through a case it has no part
+    // in (the server's frames would pile up in it, and its first request drain them).
+    let case = |nodes: usize| -> Result<Case> {
+        let mut clients = BENCH_NODES[..nodes]
+            .iter()
+            .map(|_| {
+                SocketcandClient::connect(address, "can0")
+                    .map(|transport| Client::new(transport, BENCH_SDO_TIMEOUT))
+                    .context("the bench's connections to the socketcand server")
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let spec = safety_config::network_file::parse(&bench_file(nodes), "bench network file")?;
+        let (tool, python) = bench_rounds(root, python, address, &mut clients, &spec)?;
+        Ok(Case { tool, python })
+    };
+    Ok([case(1)?, case(BENCH_NODES.len())?])
 }
 
 /// How long each side of the bench waits for one SDO answer: python-canopen's
 /// `RESPONSE_TIMEOUT` in `xtask/interop/python_canopen_configure.py`.
 const BENCH_SDO_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// [`bench_on`]'s rounds, alternating.
+/// [`bench_on`]'s rounds of one case, alternating.
 fn bench_rounds(
     root: &Path,
     python: &Path,
     address: &str,
-    tool: &mut Client<SocketcandClient>,
+    clients: &mut [Client<SocketcandClient>],
     spec: &safety_config::network_file::Network,
 ) -> Result<(Vec<Round>, Vec<Round>)> {
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     for round in 1..=BENCH_ROUNDS {
-        ours.push(tool_round(tool, spec)?);
-        theirs.push(python_round(root, python, address, tool, spec)?);
+        ours.push(tool_round(clients, spec)?);
+        theirs.push(python_round(root, python, address, &mut clients[0], spec)?);
         println!(
-            "xtask: bench round {round}: tool {:?} + {:?}, python-canopen {:?} + {:?}",
+            "xtask: bench round {round} ({} node(s)): tool {:?} + {:?}, python-canopen {:?} + {:?}",
+            spec.nodes.len(),
             ours[round - 1].configure,
             ours[round - 1].verify,
             theirs[round - 1].configure,
@@ -602,11 +638,10 @@ fn bench_rounds(
 }
 
 /// `cargo xtask interop --bench`: the tool and python-canopen configure and verify the same
-/// node on the emulated bus (and on the host simulation behind `socketcand_sim`), wall
-/// times side by side, written into docs/performance.md.
+/// node, then two nodes, on the emulated bus (and on the host simulation behind
+/// `socketcand_sim`), wall times side by side, written into docs/performance.md.
 pub fn bench(root: &Path) -> Result<()> {
     let python = python(root)?;
-    let spec = safety_config::network_file::parse(&bench_file(), "bench network file")?;
     let count = dual_channel::device::SRDO_COUNT;
 
     crate::step("interop bench 1: the host simulation behind socketcand_sim (no QEMU)");
@@ -625,58 +660,80 @@ pub fn bench(root: &Path) -> Result<()> {
             Command::new(root.join("target/debug/socketcand_sim")).arg(port.to_string()),
         )
         .context("starting socketcand_sim")?;
+        // The simulation configures its nodes before it listens.
         let give_up = std::time::Instant::now() + Duration::from_secs(20);
-        let transport = loop {
-            match SocketcandClient::connect(&address, "can0") {
-                Ok(client) => break client,
-                Err(_) if std::time::Instant::now() < give_up => {
-                    std::thread::sleep(Duration::from_millis(50))
-                }
-                Err(error) => return Err(error).context("the simulation's socketcand port"),
+        while SocketcandClient::connect(&address, "can0").is_err() {
+            if std::time::Instant::now() >= give_up {
+                bail!("socketcand_sim did not listen on {address} within 20 s");
             }
-        };
-        let mut tool = Client::new(transport, Duration::from_millis(1000));
-        bench_on(root, &python, &address, &mut tool, &spec)?
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        bench_on(root, &python, &address)?
     };
 
     crate::step("interop bench 2: the emulated network (QEMU) through can-hub");
     let mut network = Network::start(root)?;
-    let emulated = network
-        .tool()
-        .and_then(|tool| bench_on(root, &python, &network::hub_tcp(), tool, &spec));
+    // The network's own connection would not be read during the bench.
+    network.release_tool();
+    let emulated = bench_on(root, &python, &network::hub_tcp());
     let faults = network.stop();
     let emulated = emulated?;
     faults?;
 
-    let simulated_rows = bench_rows(
-        "host simulation (socketcand_sim)",
-        &simulated.0,
-        &simulated.1,
-    );
-    let emulated_rows = bench_rows("emulated network (QEMU, can-hub)", &emulated.0, &emulated.1);
+    let buses = [
+        (
+            "host simulation (socketcand_sim)",
+            "host simulation",
+            &simulated,
+        ),
+        (
+            "emulated network (QEMU, can-hub)",
+            "emulated network",
+            &emulated,
+        ),
+    ];
+    let mut rows = String::new();
+    let mut verdicts = String::new();
+    for (index, (nodes, named)) in [("1", "Node 1"), ("1 and 33", "Nodes 1 and 33")]
+        .into_iter()
+        .enumerate()
+    {
+        for (bus, short, cases) in &buses {
+            let case = &cases[index];
+            rows.push_str(&bench_rows(bus, nodes, &case.tool, &case.python));
+            verdicts.push_str(&format!(
+                " {named}, {short}: {}.",
+                verdict(&case.tool, &case.python)
+            ));
+        }
+    }
     let section = format!(
         "{BENCH_HEADING}\n\n\
-         Generated by `cargo xtask interop --bench` ({}): node 1 with its {count} SRDOs \
-         (`dual_channel::device::SRDO_COUNT`, all the firmware holds; each transmits the input \
-         and its inverted copy) configured and verified {BENCH_ROUNDS} times by each side, \
-         alternating, through a socketcand server: `safety-config`'s `configure` and `verify` \
-         (the library, as the program runs them), and python-canopen 2.4.1 doing the same SDO \
-         writes and read-backs in the same order (`xtask/interop/python_canopen_configure.py`: \
-         identity, NMT pre-operational, every SRDO deleted, mappings, communication parameters, \
-         every record read back and compared, signatures by `binascii.crc_hqx` written and \
-         read back, 0x13FE, store, 0x13FE again; then identity, 0x13FE, every record and \
-         signature; the tool's verify reads 0x13FF:00h as well). After every python-canopen round the tool's `verify` confirms the same \
-         result: the node matches the file, signed and valid. Wall time, host load included, \
-         median (min–max) of the rounds; on the emulated network the bus runs on the hub's \
-         virtual time, so host load slows both sides alike.\n\n\
-         | bus | who | SDO transactions (configure + verify) | configure | verify | both |\n\
-         |-----|-----|--------------------------------------:|----------:|-------:|-----:|\n\
-         {simulated_rows}{emulated_rows}\n\
+         Generated by `cargo xtask interop --bench` ({}): node 1, then nodes 1 and 33, each \
+         node with its {count} SRDOs (`dual_channel::device::SRDO_COUNT`, all the firmware \
+         holds; each transmits the input and its inverted copy) configured and verified \
+         {BENCH_ROUNDS} times by each side, alternating, through a socketcand server: \
+         `safety-config`'s `configure` and `verify` (the library, as the program runs them; \
+         with two nodes `configure_concurrently` and `verify_concurrently`, each node over a \
+         connection of its own, the nodes side by side, CiA 301 7.2.4 allowing one transfer at \
+         a time per SDO server), and python-canopen 2.4.1 doing the same SDO writes and \
+         read-backs in the same order, node after node \
+         (`xtask/interop/python_canopen_configure.py`: identity, NMT pre-operational, every \
+         SRDO deleted, mappings, communication parameters, every record read back and \
+         compared, signatures by `binascii.crc_hqx` written and read back, 0x13FE, store, \
+         0x13FE again; then identity, 0x13FE, every record and signature; the tool's verify \
+         reads 0x13FF:00h as well; python-canopen could run a thread per node too, the script \
+         does not). After every python-canopen round the tool's `verify` confirms the same \
+         result: every node matches the file, signed and valid. Both sides connect before \
+         their clocks start. Wall time, host load included, median (min–max) of the rounds; \
+         on the emulated network the bus runs on the hub's virtual time, so host load slows \
+         both sides alike.\n\n\
+         | bus | nodes | who | SDO transactions (configure + verify) | configure | verify | both |\n\
+         |-----|-------|-----|--------------------------------------:|----------:|-------:|-----:|\n\
+         {rows}\n\
          Target: faster than python-canopen for the same verified result (configure + \
-         verify, every round). Host simulation: {}. Emulated network: {}.\n",
+         verify, every round).{verdicts}\n",
         load_average(),
-        verdict(&simulated.0, &simulated.1),
-        verdict(&emulated.0, &emulated.1),
     );
     let docs = root.join("docs/performance.md");
     let old = std::fs::read_to_string(&docs).unwrap_or_default();
@@ -785,14 +842,22 @@ mod tests {
         assert!(slower.starts_with("NOT met"), "{slower}");
     }
 
-    /// The bench's network file is valid and gives node 1 every SRDO the firmware holds.
+    /// The bench's network files are valid and give each node every SRDO the firmware
+    /// holds, no identifier used twice.
     #[test]
-    fn the_bench_network_file_configures_every_srdo_of_the_device() {
-        let network = safety_config::network_file::parse(&bench_file(), "bench").unwrap();
-        assert_eq!(network.nodes.len(), 1);
-        assert_eq!(
-            network.nodes[0].srdos.len(),
-            dual_channel::device::SRDO_COUNT
-        );
+    fn the_bench_network_files_configure_every_srdo_of_the_device() {
+        for nodes in 1..=BENCH_NODES.len() {
+            let network = safety_config::network_file::parse(&bench_file(nodes), "bench").unwrap();
+            let ids: Vec<u8> = network.nodes.iter().map(|node| node.id).collect();
+            assert_eq!(ids, BENCH_NODES[..nodes]);
+            let mut cob_ids = std::collections::BTreeSet::new();
+            for node in &network.nodes {
+                assert_eq!(node.srdos.len(), dual_channel::device::SRDO_COUNT);
+                for srdo in &node.srdos {
+                    assert!(cob_ids.insert(srdo.settings.cob_id_1));
+                    assert!(cob_ids.insert(srdo.settings.cob_id_2));
+                }
+            }
+        }
     }
 }

@@ -61,7 +61,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         let mut collect = Collect::new();
         self.node.on_transmitted(now, frame, &mut collect);
-        self.after_core(now, collect, io);
+        self.after_core(now, &collect, io);
     }
 
     fn simplecan_fault(&mut self, fault: impl Into<SimpleCanFault>, io: &mut impl Io) {
@@ -107,7 +107,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         let mut collect = Collect::new();
         self.node.handle_frame(now, frame, &mut collect);
-        self.after_core(now, collect, io);
+        self.after_core(now, &collect, io);
         self.simplecan_verdict(now, raw, layer.accepted, io);
         true
     }

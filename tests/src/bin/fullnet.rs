@@ -24,6 +24,11 @@ enum Part {
         /// Seed of the input changes and the background phases.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Threads for the large batches of calls at one instant: 1 or 2 (the report is the
+        /// same but for its times). 1 by default: on this shared machine, loaded, two were
+        /// not faster (docs/network-performance.md).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+        threads: u8,
     },
     /// Node 1 → node 33 by event-driven SRDO, GFC and SCT expiry at every bit rate.
     Reaction {
@@ -38,13 +43,17 @@ enum Part {
 
 fn main() -> ExitCode {
     match Args::parse().part {
-        Part::Network { minutes, seed } => {
+        Part::Network {
+            minutes,
+            seed,
+            threads,
+        } => {
             if !(minutes > 0.0 && minutes <= 24.0 * 60.0) {
                 eprintln!("fullnet: --minutes must be above 0 and at most 1440 (24 h)");
                 return ExitCode::FAILURE;
             }
             let bus_time = Duration::from_micros((minutes * 60e6) as u64);
-            match network::run(bus_time, seed, false) {
+            match network::run(bus_time, seed, false, usize::from(threads)) {
                 Ok(result) => {
                     print!("{}", report::full_network(&result));
                     let srvt = u64::from(result.timing.srvt_ms) * 1000;

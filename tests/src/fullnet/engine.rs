@@ -64,6 +64,16 @@ struct Scratch {
     link: Vec<u8>,
     events: Vec<ChannelEvent>,
     outputs: usize,
+    /// The channel (engine numbering) the call was on.
+    channel: u32,
+    /// Whether the call ran (a deadline call is skipped when the deadline moved).
+    ran: bool,
+    /// Its new deadline, when it changed and is not [`Instant::NEVER`]: a timer entry.
+    timer: Option<Instant>,
+    /// Arrivals of the frame delimiters it put on the wire to the other channel.
+    link_ends: Vec<Instant>,
+    /// This channel's output of the node's watched receive SRDO after the call.
+    own_output: u64,
 }
 
 impl Scratch {
@@ -72,6 +82,9 @@ impl Scratch {
         self.link.clear();
         self.events.clear();
         self.outputs = 0;
+        self.ran = false;
+        self.timer = None;
+        self.link_ends.clear();
     }
 }
 
@@ -90,11 +103,71 @@ impl Io for Scratch {
     }
 }
 
-/// One direction of a link: bytes in flight with their arrival times.
+/// One direction of a link: bytes in flight, and when they arrive. Bytes sent back to back
+/// arrive [`LINK_BYTE_TIME`] apart, so a run of them is its first byte's arrival and its
+/// length, not an entry per byte.
 #[derive(Default)]
 struct Wire {
-    bytes: VecDeque<(Instant, u8)>,
+    /// Bytes in flight from `head` on, oldest first.
+    bytes: Vec<u8>,
+    head: usize,
+    /// Runs of bytes sent back to back: (the first byte's arrival, how many), oldest first.
+    runs: VecDeque<(Instant, usize)>,
     busy_until: Instant,
+}
+
+impl Wire {
+    /// Queues `bytes`, written at `now`, behind what is in flight; calls `delimiter` with the
+    /// arrival of every frame delimiter (00h).
+    fn send(&mut self, now: Instant, bytes: &[u8], mut delimiter: impl FnMut(Instant)) {
+        let start = self.busy_until.max(now);
+        let first = start + LINK_BYTE_TIME;
+        match self.runs.back_mut() {
+            // Right behind the last run (it ends at `busy_until`): the same run goes on.
+            Some((_, len)) if start == self.busy_until => *len += bytes.len(),
+            _ => self.runs.push_back((first, bytes.len())),
+        }
+        if self.head == self.bytes.len() {
+            self.bytes.clear();
+            self.head = 0;
+        } else if self.head > 4096 {
+            // A wire that never runs empty still does not grow without bound.
+            self.bytes.drain(..self.head);
+            self.head = 0;
+        }
+        self.bytes.extend_from_slice(bytes);
+        let mut at = start;
+        for &byte in bytes {
+            at = at + LINK_BYTE_TIME;
+            if byte == 0 {
+                delimiter(at);
+            }
+        }
+        self.busy_until = at;
+    }
+
+    /// Hands every byte that arrived by `until` to `receive`, with its arrival, in order.
+    fn receive(&mut self, until: Instant, mut receive: impl FnMut(Instant, u8)) {
+        let step = LINK_BYTE_TIME.as_micros();
+        while let Some((first, len)) = self.runs.front_mut() {
+            if *first > until {
+                return;
+            }
+            let arrived = until.saturating_since(*first).as_micros() / step + 1;
+            let count = (*len).min(usize::try_from(arrived).unwrap_or(usize::MAX));
+            for (k, &byte) in self.bytes[self.head..self.head + count].iter().enumerate() {
+                receive(*first + Duration::from_micros(k as u64 * step), byte);
+            }
+            self.head += count;
+            if count == *len {
+                self.runs.pop_front();
+            } else {
+                *first = *first + Duration::from_micros(count as u64 * step);
+                *len -= count;
+                return;
+            }
+        }
+    }
 }
 
 /// One dual-channel node of the simulation.
@@ -112,6 +185,8 @@ pub struct SimNode {
     operational: [bool; 2],
     /// The receive SRDO whose effective output is reported to the observer.
     watched: Option<SrdoNumber>,
+    /// Each channel's output of it as last applied, and their AND as last reported.
+    outputs: [u64; 2],
     output: u64,
 }
 
@@ -187,6 +262,11 @@ pub struct Engine<O: Observer> {
     arrivals: Vec<Delivery>,
     tool_inbox: VecDeque<CanFrame>,
     link_period: Duration,
+    /// Threads for large batches of calls at one instant (1: none but the caller's).
+    pub threads: usize,
+    /// How many calls at one instant make a batch worth two threads.
+    pub batch_threshold: usize,
+    batch_scratch: Vec<Scratch>,
 }
 
 /// Channel number `c`: node `c / 2`, side A for even, B for odd; participant `c + 1`.
@@ -252,6 +332,7 @@ impl<O: Observer> Engine<O> {
                     deadlines: [Instant::ZERO; 2],
                     operational: [false; 2],
                     watched: None,
+                    outputs: [0; 2],
                     output: 0,
                 }
             })
@@ -288,6 +369,9 @@ impl<O: Observer> Engine<O> {
             arrivals: Vec::new(),
             tool_inbox: VecDeque::new(),
             link_period,
+            threads: 1,
+            batch_threshold: 16,
+            batch_scratch: Vec::new(),
         }
     }
 
@@ -306,8 +390,10 @@ impl<O: Observer> Engine<O> {
 
     /// Reports the effective output of receive SRDO `srdo` of node `index` to the observer.
     pub fn watch(&mut self, index: usize, srdo: SrdoNumber) {
-        self.nodes[index].watched = Some(srdo);
-        self.nodes[index].output = self.nodes[index].output(srdo);
+        let node = &mut self.nodes[index];
+        node.watched = Some(srdo);
+        node.outputs = [node.a.output(srdo), node.b.output(srdo)];
+        node.output = node.output(srdo);
     }
 
     /// Adds a background sender; returns its participant number.
@@ -419,10 +505,7 @@ impl<O: Observer> Engine<O> {
         }
         due.sort_unstable();
         due.dedup();
-        for &c in &due {
-            let (node, side) = split(c);
-            self.call(node, side, Action::Link(now));
-        }
+        self.call_batch(&due, Action::Link(now), false);
         // Deadlines.
         due.clear();
         self.due = due;
@@ -430,12 +513,7 @@ impl<O: Observer> Engine<O> {
         let mut due = std::mem::take(&mut self.due);
         due.sort_unstable();
         due.dedup();
-        for &c in &due {
-            let (node, side) = split(c);
-            if self.nodes[node].deadlines[side as usize] <= now {
-                self.call(node, side, Action::Poll);
-            }
-        }
+        self.call_batch(&due, Action::Poll, true);
         due.clear();
         self.due = due;
         // Background senders.
@@ -521,38 +599,34 @@ impl<O: Observer> Engine<O> {
 
     /// Runs `action` on one channel, polls it, and applies what it handed out.
     fn call(&mut self, index: usize, side: Side, action: Action) {
-        let now = self.now;
         let mut out = std::mem::take(&mut self.scratch);
-        out.clear();
-        let node = &mut self.nodes[index];
-        let incoming = &mut node.wires[side as usize];
-        let deadline = match side {
-            Side::A => act(&mut node.a, incoming, now, action, &mut out),
-            Side::B => act(&mut node.b, incoming, now, action, &mut out),
-        };
-        let c = channel(index, side);
-        if node.deadlines[side as usize] != deadline {
-            node.deadlines[side as usize] = deadline;
-            if deadline != Instant::NEVER {
-                self.timers.push(Reverse((deadline, c)));
-            }
+        run_call(
+            &mut self.nodes[index],
+            index,
+            side,
+            self.now,
+            action,
+            &mut out,
+        );
+        self.apply(&out);
+        self.scratch = out;
+    }
+
+    /// Applies what one channel's call handed out to everything outside its node: timer and
+    /// link heaps, the bus, the observer, the acceptance filters.
+    fn apply(&mut self, out: &Scratch) {
+        if !out.ran {
+            return;
         }
-        if !out.link.is_empty() {
-            // The other channel receives: the wire towards it.
-            let other = match side {
-                Side::A => Side::B,
-                Side::B => Side::A,
-            };
-            let wire = &mut node.wires[other as usize];
-            let mut at = wire.busy_until.max(now);
-            for &byte in &out.link {
-                at = at + LINK_BYTE_TIME;
-                wire.bytes.push_back((at, byte));
-                if byte == 0 {
-                    self.link_ends.push(Reverse((at, channel(index, other))));
-                }
-            }
-            wire.busy_until = at;
+        let now = self.now;
+        let c = out.channel;
+        let (index, side) = split(c);
+        if let Some(deadline) = out.timer {
+            self.timers.push(Reverse((deadline, c)));
+        }
+        let other = channel(index, side) ^ 1;
+        for &at in &out.link_ends {
+            self.link_ends.push(Reverse((at, other)));
         }
         let participant = c as usize + 1;
         for &frame in &out.frames {
@@ -561,18 +635,64 @@ impl<O: Observer> Engine<O> {
         for event in &out.events {
             self.observer.event(now, index, side, event);
         }
-        if out.outputs > 0 {
-            let node = &mut self.nodes[index];
-            if let Some(srdo) = node.watched {
-                let value = node.output(srdo);
-                if value != node.output {
-                    node.output = value;
-                    self.observer.output(now, index, value);
-                }
+        let node = &mut self.nodes[index];
+        node.outputs[side as usize] = out.own_output;
+        if out.outputs > 0 && node.watched.is_some() {
+            let value = node.outputs[0] & node.outputs[1];
+            if value != node.output {
+                node.output = value;
+                self.observer.output(now, index, value);
             }
         }
-        self.scratch = out;
         self.update_filter(index, side);
+    }
+
+    /// The calls `due` (channels, in order) all make at `self.now`, each with `action` (a
+    /// deadline call only if the channel's deadline is still due). Large batches run on two
+    /// threads when [`Engine::threads`] says so: the nodes are independent within one
+    /// instant (a call changes its own node only; bytes it puts on the link arrive later),
+    /// and what each call handed out is applied afterwards in channel order, as one call
+    /// after the other would have applied it, so the result is the same.
+    fn call_batch(&mut self, due: &[u32], action: Action, deadline_only: bool) {
+        let now = self.now;
+        if self.threads < 2 || due.len() < self.batch_threshold {
+            for &c in due {
+                let (node, side) = split(c);
+                if !deadline_only || self.nodes[node].deadlines[side as usize] <= now {
+                    self.call(node, side, action);
+                }
+            }
+            return;
+        }
+        // Split at a node boundary: both channels of a node on one thread, in order.
+        let middle = split(due[due.len() / 2]).0;
+        let cut = due.partition_point(|&c| split(c).0 < middle);
+        let (first, second) = due.split_at(cut);
+        let mut pool = std::mem::take(&mut self.batch_scratch);
+        while pool.len() < due.len() {
+            pool.push(Scratch::default());
+        }
+        let (first_out, second_out) = pool[..due.len()].split_at_mut(cut);
+        let (low, high) = self.nodes.split_at_mut(middle);
+        let run = |nodes: &mut [SimNode], offset: usize, calls: &[u32], outs: &mut [Scratch]| {
+            for (&c, out) in calls.iter().zip(outs.iter_mut()) {
+                let (index, side) = split(c);
+                let node = &mut nodes[index - offset];
+                if deadline_only && node.deadlines[side as usize] > now {
+                    out.clear();
+                    continue;
+                }
+                run_call(node, index, side, now, action, out);
+            }
+        };
+        rayon::join(
+            || run(low, 0, first, first_out),
+            || run(high, middle, second, second_out),
+        );
+        for out in &pool[..due.len()] {
+            self.apply(out);
+        }
+        self.batch_scratch = pool;
     }
 
     /// Moves a channel between "every frame" and its identifiers when it entered or left
@@ -677,6 +797,46 @@ impl<O: Observer> Transport for Engine<O> {
     }
 }
 
+/// One call on channel `side` of `node` (index `index`) at `now`: the action, the poll, the
+/// new deadline and the bytes for the other channel's wire; everything outside the node goes
+/// into `out`, for [`Engine::apply`].
+fn run_call(
+    node: &mut SimNode,
+    index: usize,
+    side: Side,
+    now: Instant,
+    action: Action,
+    out: &mut Scratch,
+) {
+    out.clear();
+    out.ran = true;
+    out.channel = channel(index, side);
+    let incoming = &mut node.wires[side as usize];
+    let deadline = match side {
+        Side::A => act(&mut node.a, incoming, now, action, out),
+        Side::B => act(&mut node.b, incoming, now, action, out),
+    };
+    if node.deadlines[side as usize] != deadline {
+        node.deadlines[side as usize] = deadline;
+        if deadline != Instant::NEVER {
+            out.timer = Some(deadline);
+        }
+    }
+    if !out.link.is_empty() {
+        // The other channel receives: the wire towards it.
+        let other = match side {
+            Side::A => Side::B,
+            Side::B => Side::A,
+        };
+        let link_ends = &mut out.link_ends;
+        node.wires[other as usize].send(now, &out.link, |at| link_ends.push(at));
+    }
+    out.own_output = node.watched.map_or(0, |srdo| match side {
+        Side::A => node.a.output(srdo),
+        Side::B => node.b.output(srdo),
+    });
+}
+
 /// One call on a channel (either role: their runtimes differ in type only), then its poll;
 /// returns the channel's next deadline.
 fn act<R: Role<4>>(
@@ -690,13 +850,7 @@ fn act<R: Role<4>>(
         Action::Poll => {}
         Action::Frame(frame) => runtime.on_frame(now, &frame, out),
         Action::Link(until) => {
-            while let Some(&(at, byte)) = incoming.bytes.front() {
-                if at > until {
-                    break;
-                }
-                incoming.bytes.pop_front();
-                runtime.on_link_byte(at, byte, out);
-            }
+            incoming.receive(until, |at, byte| runtime.on_link_byte(at, byte, out));
         }
         Action::Input(value) => runtime
             .set_input(
@@ -709,4 +863,71 @@ fn act<R: Role<4>>(
             .expect("input object"),
     }
     runtime.poll(now, out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every byte as the per-byte model had it: byte k of what is written at `now` arrives
+    /// at max(now, the previous byte's arrival) + (k + 1) × the byte time.
+    fn per_byte(writes: &[(u64, &[u8])]) -> Vec<(Instant, u8)> {
+        let mut busy = Instant::ZERO;
+        let mut out = Vec::new();
+        for &(now, bytes) in writes {
+            let mut at = busy.max(Instant::from_micros(now));
+            for &byte in bytes {
+                at = at + LINK_BYTE_TIME;
+                out.push((at, byte));
+            }
+            busy = at;
+        }
+        out
+    }
+
+    /// Runs of bytes give every byte the arrival the per-byte model gives it, whether a write
+    /// lands behind bytes still in flight (one run) or on an idle wire (a new run), and
+    /// whatever instants the receiver reads at (mid-run included); delimiters are announced
+    /// at their arrival.
+    #[test]
+    fn a_wire_of_runs_delivers_every_byte_at_its_per_byte_arrival() {
+        let writes: [(u64, &[u8]); 4] = [
+            (100, &[1, 2, 0]),
+            (105, &[3, 0]),    // behind the first: the same run
+            (500, &[4, 5, 0]), // the wire idle again: a new run
+            (530, &[6, 0]),    // right at the end of the previous run
+        ];
+        let expected = per_byte(&writes);
+        for reads in [vec![10_000], vec![125, 131, 149, 530, 549, 10_000], {
+            (0..700).collect::<Vec<u64>>()
+        }] {
+            let mut wire = Wire::default();
+            let mut delimiters = Vec::new();
+            let mut received = Vec::new();
+            let mut pending = writes.iter().peekable();
+            for until in reads {
+                while let Some(&&(now, bytes)) = pending.peek() {
+                    if now > until {
+                        break;
+                    }
+                    wire.send(Instant::from_micros(now), bytes, |at| delimiters.push(at));
+                    pending.next();
+                }
+                wire.receive(Instant::from_micros(until), |at, byte| {
+                    assert!(
+                        at <= Instant::from_micros(until),
+                        "a byte handed over early"
+                    );
+                    received.push((at, byte));
+                });
+            }
+            assert_eq!(received, expected);
+            let ends: Vec<Instant> = expected
+                .iter()
+                .filter(|(_, byte)| *byte == 0)
+                .map(|(at, _)| *at)
+                .collect();
+            assert_eq!(delimiters, ends);
+        }
+    }
 }

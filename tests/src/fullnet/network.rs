@@ -249,9 +249,11 @@ pub struct Report {
     pub sdo_requests: u64,
     /// Wall time of the simulation (boot and the run).
     pub simulation_wall: std::time::Duration,
-    /// CPU time the simulating thread got meanwhile, where the system says
-    /// ([`thread_cpu_time`]): on a shared machine the wall time includes waiting for a core.
+    /// CPU time the process got meanwhile, all its threads, where the system says
+    /// ([`process_cpu_time`]): on a shared machine the wall time includes waiting for a core.
     pub simulation_cpu: Option<std::time::Duration>,
+    /// Threads the batches of calls ran on.
+    pub threads: usize,
     /// The monitor.
     pub monitor: Monitor,
     /// Bits the bus model counted since power-on, and bits of frames not yet delivered at
@@ -297,8 +299,15 @@ pub fn specs(roles: &[Role], timing: &Timing) -> Vec<safety_config::network_file
 }
 
 /// Runs the full network for `bus_time` after the NMT start, inputs changing at moments
-/// drawn from `seed`; keeps the trace when `keep_trace` (for tests: short runs only).
-pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, String> {
+/// drawn from `seed`, large batches of calls on `threads` threads (1 or 2; the report is the
+/// same either way but for its times); keeps the trace when `keep_trace` (for tests: short
+/// runs only).
+pub fn run(
+    bus_time: Duration,
+    seed: u64,
+    keep_trace: bool,
+    threads: usize,
+) -> Result<Report, String> {
     let roles = plan::roles();
     let timing = Timing::derive(PRODUCERS, roles.len() as u32, BIT_RATE);
     let specs = specs(&roles, &timing);
@@ -314,12 +323,13 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     let configuration_wall = configuration.elapsed();
 
     let simulation = std::time::Instant::now();
-    let cpu_before = thread_cpu_time();
+    let cpu_before = process_cpu_time();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut engine = Engine::new(BIT_RATE, nodes, timing.link_period, Monitor::new(&roles));
     if keep_trace {
         engine.trace = Some(Vec::new());
     }
+    engine.threads = threads;
     for stream in 0..plan::PDO_STREAMS {
         let first = Instant::from_micros(rng.random_range(0..plan::PDO_PERIOD.as_micros()));
         engine.add_sender(Periodic {
@@ -387,7 +397,7 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     }
     engine.run_until(end);
     let simulation_wall = simulation.elapsed();
-    let simulation_cpu = thread_cpu_time()
+    let simulation_cpu = process_cpu_time()
         .zip(cpu_before)
         .map(|(after, before)| after.saturating_sub(before));
     Ok(Report {
@@ -398,6 +408,7 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
         sdo_requests,
         simulation_wall,
         simulation_cpu,
+        threads,
         bus_bits: engine.bus.bits_sent,
         bus_frames: engine.bus.frames_sent,
         bit_rate: BIT_RATE,
@@ -406,10 +417,14 @@ pub fn run(bus_time: Duration, seed: u64, keep_trace: bool) -> Result<Report, St
     })
 }
 
-/// The CPU time this thread has run for, from Linux's `/proc/thread-self/schedstat` (its first
-/// field, in nanoseconds); `None` where there is no such file.
-pub fn thread_cpu_time() -> Option<std::time::Duration> {
-    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    let nanos: u64 = text.split_whitespace().next()?.parse().ok()?;
-    Some(std::time::Duration::from_nanos(nanos))
+/// The CPU time this process has run for, all threads, user and system, from Linux's
+/// `/proc/self/stat` (fields 14 and 15, in clock ticks of 10 ms: Linux's `USER_HZ` is 100 on
+/// every architecture it exposes to user space); `None` where there is no such file.
+pub fn process_cpu_time() -> Option<std::time::Duration> {
+    let text = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces: count after it.
+    let mut fields = text.get(text.rfind(')')? + 1..)?.split_whitespace();
+    let user: u64 = fields.nth(11)?.parse().ok()?;
+    let system: u64 = fields.next()?.parse().ok()?;
+    Some(std::time::Duration::from_millis((user + system) * 10))
 }

@@ -213,7 +213,8 @@ pub fn full_network(report: &Report) -> String {
         || "CPU time not available".to_string(),
         |cpu| {
             format!(
-                "{:.1} s of it on a core ({:.1} s per simulated minute), the rest waiting for one",
+                "{:.1} s of CPU time in all ({:.1} s per simulated minute), user and system, \
+                 the rest of the wall time waiting for a core",
                 cpu.as_secs_f64(),
                 cpu.as_secs_f64() * 60.0 / simulated_s.max(1e-9)
             )
@@ -221,9 +222,17 @@ pub fn full_network(report: &Report) -> String {
     );
     let _ = writeln!(
         text,
-        "**Wall time** (release build, this 2-core machine, shared with other work): \
+        "**Wall time** (release build, this 2-core machine, shared with other work; {}): \
          configuring the 127 nodes {:.3} s ({} SDO requests, the tool's procedure against each \
          core alone); simulation {:.1} s for {:.1} s simulated ({cpu}).",
+        if report.threads > 1 {
+            format!(
+                "batches of calls at one instant on {} threads",
+                report.threads
+            )
+        } else {
+            "one thread".to_string()
+        },
         report.configuration_wall.as_secs_f64(),
         report.sdo_requests,
         report.simulation_wall.as_secs_f64(),
