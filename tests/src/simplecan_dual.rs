@@ -605,3 +605,45 @@ pub fn emergency_stop_reactions(
     }
     Ok(reactions)
 }
+
+/// This network's devices as the calculators describe a device
+/// (`safety_config::calc::sfrt::DeviceTiming`): the input is the object itself (no
+/// sampling, no contact skew), every step takes no time, no output stage; the link between
+/// the channels is this simulation's, [`LINK_BYTE_TIME`] a byte.
+pub fn calculator_timing() -> safety_config::calc::sfrt::DeviceTiming {
+    safety_config::calc::sfrt::DeviceTiming {
+        input_sample_us: 0,
+        contact_skew_us: 0,
+        link_byte_us: LINK_BYTE_TIME.as_micros(),
+        processing_us: 0,
+        output_us: 0,
+    }
+}
+
+/// As [`emergency_stop_reactions`] for one press, 2.5 ms after the start, with every packet
+/// of `sc_id` lost by both of the consumer's controllers from the press on: the time until
+/// the consumer's output is off (µs), which its safety timeout sets (SC_REQ_20).
+pub fn reaction_with_every_packet_lost(
+    file: &safety_config::network_file::Network,
+    bit_rate: u32,
+    (producer, consumer, sc_id): (u8, u8, u8),
+) -> Result<u64, String> {
+    let mut net = running_from_file(file, bit_rate)?;
+    net.run_for(Duration::from_micros(2_500));
+    let pressed = net.now;
+    let every_packet = Match {
+        id: Some(u16::from(sc_id)),
+        from: None,
+        after: pressed,
+        count: None,
+    };
+    for side in [Side::A, Side::B] {
+        net.inject_receive(consumer, side, every_packet, Fault::Drop);
+    }
+    net.set_inputs(producer, 0);
+    net.run_for(Duration::from_millis(1000));
+    let off = net.output_off(consumer, sc_id, pressed).ok_or(format!(
+        "node {consumer}'s output stayed on with every packet lost"
+    ))?;
+    Ok(off.saturating_since(pressed).as_micros())
+}

@@ -17,9 +17,12 @@ use safety_config::calc::simplecan::{self as calc, ScReaction};
 use safety_config::network_file::{self, Network};
 use shared::canopen::nmt::NmtState;
 use shared::{CanFrame, CanId, Duration, Instant};
-use system_tests::bus::{Fault, Match, frame_time};
-use system_tests::dual::{LINK_BYTE_TIME, Side};
-use system_tests::simplecan_dual::{ScDualNetwork, emergency_stop_reactions, running_from_file};
+use system_tests::bus::frame_time;
+use system_tests::dual::Side;
+use system_tests::simplecan_dual::{
+    ScDualNetwork, calculator_timing, emergency_stop_reactions, reaction_with_every_packet_lost,
+    running_from_file,
+};
 
 /// The safety manual's worked example, the file `cargo xtask manual` computes its figures from.
 const FILE: &str = include_str!("../../manual/src/examples/simplecan-network.toml");
@@ -35,19 +38,6 @@ const SLOT_US: u64 = 1_000;
 
 fn file() -> Network {
     network_file::parse(FILE, "simplecan-network.toml").expect("the manual's example parses")
-}
-
-/// The host network's devices as the calculator describes a device: the input is the
-/// object itself (no sampling, no contact skew), every step takes no time, no output stage;
-/// the link between the channels is the simulation's, [`LINK_BYTE_TIME`] a byte.
-fn host_timing() -> DeviceTiming {
-    DeviceTiming {
-        input_sample_us: 0,
-        contact_skew_us: 0,
-        link_byte_us: LINK_BYTE_TIME.as_micros(),
-        processing_us: 0,
-        output_us: 0,
-    }
 }
 
 /// The one consumed SC-ID's bound for the example file on `timing`.
@@ -94,7 +84,7 @@ fn verdicts(net: &ScDualNetwork, from: Instant) -> Vec<(Side, ChannelEvent)> {
 /// actuator and filtering).
 #[test]
 fn sc_req_45_the_computed_reaction_bounds_the_measured_one_and_the_timeout_covers_the_chain() {
-    let host = bound(&host_timing());
+    let host = bound(&calculator_timing());
     let reactions =
         emergency_stop_reactions(&file(), BIT_RATE, (1, 33, ESTOP), 20).expect("reactions");
     for (phase, &reaction) in reactions.iter().enumerate() {
@@ -106,24 +96,8 @@ fn sc_req_45_the_computed_reaction_bounds_the_measured_one_and_the_timeout_cover
     }
     let worst = reactions.iter().copied().max().expect("20 phases");
     // Every packet after the demand lost at node 33 (both controllers): the value ages out.
-    let mut net = running(&file());
-    net.run_for(Duration::from_micros(2_500));
-    let pressed = net.now;
-    let every_packet = Match {
-        id: Some(u16::from(ESTOP)),
-        from: None,
-        after: pressed,
-        count: None,
-    };
-    for side in [Side::A, Side::B] {
-        net.inject_receive(33, side, every_packet, Fault::Drop);
-    }
-    net.set_inputs(1, 0);
-    net.run_for(Duration::from_millis(200));
-    let off = net
-        .output_off(33, ESTOP, pressed)
-        .expect("the value ages out");
-    let timed_out = off.saturating_since(pressed).as_micros();
+    let timed_out =
+        reaction_with_every_packet_lost(&file(), BIT_RATE, (1, 33, ESTOP)).expect("a reaction");
     let timeout_us = 50_000;
     assert!(
         timed_out <= host.one_fault_us,

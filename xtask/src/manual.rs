@@ -43,14 +43,18 @@ use std::process::Command;
 use std::time::Instant;
 
 /// The committed generated parts, relative to `manual/src/generated/`.
-const COMMITTED: [&str; 6] = [
+const COMMITTED: [&str; 7] = [
     "safety-objects.md",
     "causes.md",
     "sfrt.md",
     "residual.md",
     "evidence.md",
     "processing.md",
+    "simplecan.md",
 ];
+
+/// The SimpleCAN network of the chapter's worked example, relative to the repository.
+const SIMPLECAN_EXAMPLE: &str = "manual/src/examples/simplecan-network.toml";
 
 /// The demo's timing, which the reaction-time measurement and the campaigns use: node 1
 /// refreshes every 25 ms, node 33 allows SCT 50 ms and SRVT 20 ms.
@@ -140,6 +144,7 @@ fn committed_parts(root: &Path) -> Result<Vec<(&'static str, String)>> {
         (COMMITTED[3], residual_part()?),
         (COMMITTED[4], evidence_part(&campaigns, &performance)?),
         (COMMITTED[5], processing_part(&bench)?),
+        (COMMITTED[6], simplecan_part(root)?),
     ];
     Ok(parts)
 }
@@ -599,6 +604,107 @@ fn sfrt_part(performance: &str) -> Result<String> {
             calculated as f64 / max_us.max(1) as f64
         );
     }
+    Ok(out)
+}
+
+/// The SimpleCAN worked example: `safety-config sfrt` on the example file with the
+/// hardware's timing, its residual error rate against SIL 3, and the same calculation on the
+/// host network's timing beside the emergency-stop reactions measured on two dual-channel
+/// nodes configured by the tool from that file (`system_tests::simplecan_dual`, 20 presses
+/// spread over the cycle; the test `sc_req_45_…` checks the same). A measured reaction above
+/// its bound fails here.
+fn simplecan_part(root: &Path) -> Result<String> {
+    use safety_config::calc::simplecan as calc;
+    use system_tests::simplecan_dual::{
+        calculator_timing, emergency_stop_reactions, reaction_with_every_packet_lost,
+    };
+    const PHASES: u64 = 20;
+    let text = std::fs::read_to_string(root.join(SIMPLECAN_EXAMPLE))
+        .with_context(|| format!("reading {SIMPLECAN_EXAMPLE}"))?;
+    let file = network_file::parse(&text, SIMPLECAN_EXAMPLE)?;
+    let Some(simplecan) = file.simplecan.as_ref() else {
+        bail!("{SIMPLECAN_EXAMPLE} has no [simplecan] section");
+    };
+    let bit_rate = dual_channel::device::BIT_RATE;
+    let hardware = calc::reactions(simplecan, bit_rate, &DeviceTiming::HARDWARE)?;
+    let host = calc::reactions(simplecan, bit_rate, &calculator_timing())?;
+    let (Some(hw), Some(sim)) = (hardware.first(), host.first()) else {
+        bail!("{SIMPLECAN_EXAMPLE} has no consumed SC-ID");
+    };
+    let Some(timeout_ms) = simplecan
+        .nodes
+        .get(&sim.consumer)
+        .and_then(|node| node.consumed.iter().find(|c| c.sc_id == sim.sc_id))
+        .map(|consumed| consumed.timeout_ms)
+    else {
+        bail!(
+            "{SIMPLECAN_EXAMPLE}: node {} does not consume SC-ID {:02X}h",
+            sim.consumer,
+            sim.sc_id
+        );
+    };
+    let measured = emergency_stop_reactions(
+        &file,
+        bit_rate,
+        (sim.producer, sim.consumer, sim.sc_id),
+        PHASES,
+    )
+    .map_err(|error| anyhow::anyhow!("{SIMPLECAN_EXAMPLE}: {error}"))?;
+    let lost =
+        reaction_with_every_packet_lost(&file, bit_rate, (sim.producer, sim.consumer, sim.sc_id))
+            .map_err(|error| anyhow::anyhow!("{SIMPLECAN_EXAMPLE}: {error}"))?;
+    let worst = measured.iter().copied().max().unwrap_or_default();
+    let best = measured.iter().copied().min().unwrap_or_default();
+    if lost > sim.one_fault_us {
+        bail!(
+            "the SimpleCAN reaction with every packet lost, measured {} ms on the host network, is above its calculated bound {} ms",
+            report::ms(lost),
+            report::ms(sim.one_fault_us)
+        );
+    }
+    if worst > sim.fault_free_us {
+        bail!(
+            "the SimpleCAN reaction measured on the host network, {} ms, is above its calculated bound {} ms",
+            report::ms(worst),
+            report::ms(sim.fault_free_us)
+        );
+    }
+    let mut out = header(&format!(
+        "`{SIMPLECAN_EXAMPLE}` by `safety_config::calc::simplecan` and `system_tests::simplecan_dual`"
+    ));
+    let _ = writeln!(
+        out,
+        "The example network file (`safety-config sfrt simplecan-network.toml --bit-rate {bit_rate}`):\n\n```toml\n{text}```\n\nIts output, with the hardware's timing (`DeviceTiming::HARDWARE`):\n"
+    );
+    out.push_str(&report::simplecan_reactions(&hardware, bit_rate));
+    if hw.fault_free_us <= u64::from(timeout_ms) * 1000 {
+        let _ = writeln!(
+            out,
+            "The fault-free chain, {} ms, is within the configured safety timeout of {timeout_ms} ms: the reaction time is the timeout's path, {} ms, the safety timeout and the steps around it (SC_REQ_45).",
+            report::ms(hw.fault_free_us),
+            report::ms(hw.worst_us)
+        );
+    } else {
+        let _ = writeln!(
+            out,
+            "The fault-free chain, {} ms, is longer than the configured safety timeout of {timeout_ms} ms: the reaction time is that chain, {} ms, not the timeout; a longer timeout makes it the timeout's path (SC_REQ_45).",
+            report::ms(hw.fault_free_us),
+            report::ms(hw.worst_us)
+        );
+    }
+    out.push_str(&report::simplecan_residual(
+        &calc::residual(simplecan, Sil::Sil3),
+        Sil::Sil3,
+    ));
+    let _ = writeln!(
+        out,
+        "\nThe same calculation with the host network's timing (no sampling or processing time, the simulation's link) beside the emergency stop measured on two dual-channel nodes configured by the tool from this file, pressed at {PHASES} instants spread over the cycle:\n\n| path | measured (ms) | calculated bound (ms) |\n|---|---:|---:|\n| fault-free | {} .. {} | {} |\n| every packet after the demand lost (safety timeout) | {} | {} |",
+        report::ms(best),
+        report::ms(worst),
+        report::ms(sim.fault_free_us),
+        report::ms(lost),
+        report::ms(sim.one_fault_us)
+    );
     Ok(out)
 }
 
