@@ -65,7 +65,7 @@ const TRACKED: [&str; 14] = [
     "dual_channel::channel_loop::ChannelLoop::service",
     "dual_channel::channel_loop::hand",
     "shared::node::Device<F,P>::poll",
-    "dual_channel::crosscheck::VerdictCheck<_>::arrive",
+    "dual_channel::crosscheck::VerdictCheck<_,S>::arrive",
     "board::qemu::marker::received",
     "board::qemu::marker::transmitted",
     "board::qemu::marker::link_received",
@@ -74,8 +74,8 @@ const TRACKED: [&str; 14] = [
     "board::qemu::marker::transmitted_plain",
     "board::qemu::marker::transmitted_inverted",
     "as dual_channel::runtime::Role<_>>::signature_digest",
-    "dual_channel::runtime::Runtime<F,R,_>::heartbeat",
-    "dual_channel::runtime::Runtime<F,R,_>::confirmed",
+    "dual_channel::runtime::Runtime<F,R,_,P>::heartbeat",
+    "dual_channel::runtime::Runtime<F,R,_,P>::confirmed",
 ];
 const SERVICE: usize = 0;
 const HAND: usize = 1;
@@ -442,7 +442,7 @@ fn address(elf: &Path, name: &str) -> Result<u32> {
     match found.as_slice() {
         [address] => Ok(*address),
         [] => bail!(
-            "no function named like `{name}` in {} (inlined by the compiler?)",
+            "no function named like `{name}` in {} (inlined by the compiler, or renamed: a generic parameter added?)",
             elf.display()
         ),
         _ => bail!(

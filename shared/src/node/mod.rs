@@ -487,7 +487,13 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     }
 
     /// Runs every timer due at `now` and returns the instant of the next poll.
-    #[inline]
+    ///
+    /// Out of line in the firmware images: `cargo xtask bench --target-cost` counts the
+    /// core's poll by this function's entry and exit on the real image
+    /// (docs/performance.md), which LLVM's inlining threshold of 45 would otherwise fold into
+    /// the channel loop.
+    #[cfg_attr(not(target_os = "none"), inline)]
+    #[cfg_attr(target_os = "none", inline(never))]
     pub fn poll(&mut self, now: Instant, sink: &mut impl Sink) -> Instant {
         if now < self.core.shell.next_deadline {
             return self.core.shell.next_deadline;
