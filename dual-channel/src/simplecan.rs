@@ -278,6 +278,19 @@ impl Layer {
             .min()
     }
 
+    /// The entries that produce their value from the object at `address`.
+    pub fn produced_from(
+        &self,
+        address: shared::canopen::od::Address,
+    ) -> impl Iterator<Item = &EntryObjects> {
+        self.in_use().iter().filter(move |entry| {
+            let [_, sub, low, high] = entry.mapped.to_le_bytes();
+            entry.role == ROLE_PRODUCE
+                && address.index == u16::from_le_bytes([low, high])
+                && address.sub == sub
+        })
+    }
+
     /// `true` for a frame only this node sends: a data packet of an SC-ID it produces, or
     /// a sync naming its own master SC-ID.
     pub fn is_own(&self, frame: &RawFrame) -> bool {
@@ -451,7 +464,7 @@ impl Checks {
         Checks {
             forward: ForwardCheck::new(window),
             verdicts: VerdictCheck::new(timeout),
-            transmit: TransmitCheck::new(),
+            transmit: TransmitCheck::new(window),
             outputs: [Output::default(); ENTRIES],
         }
     }

@@ -418,6 +418,34 @@ impl ScDualNetwork {
         }
     }
 
+    /// Channel `side` of node `id` alone samples its contact of 6000h:01 as `value` (the
+    /// two contacts of one emergency stop never move at exactly the same moment).
+    pub fn set_input_of(&mut self, id: u8, side: Side, value: u8) {
+        let index = self.index(id);
+        let plain = Address::new(0x6000, 1);
+        let inverted = Address::new(0x6001, 1);
+        self.with_channel(index, side, |now, a, b, out| {
+            let result = match (a, b) {
+                (Some(a), _) => a.set_input(now, plain, inverted, &[value], out),
+                (_, Some(b)) => b.set_input(now, plain, inverted, &[value], out),
+                _ => Ok(()),
+            };
+            result.expect("input object");
+        });
+    }
+
+    /// The next start of slot `slot` at least `ahead` from now, by the global time channel
+    /// A of node `id` has (its own as the master, or the one it is synced to).
+    pub fn next_slot_start(&self, id: u8, slot: u16, ahead: Duration) -> Instant {
+        let layer = &self.node(id).a.node().protocol().simplecan;
+        let cycle = u64::from(layer.objects().slots) * 1000;
+        let from = self.now + ahead;
+        let global = layer.global_time(from).expect("a global time");
+        let offset = u64::from(slot) * 1000;
+        let start = (global.saturating_sub(offset)).div_ceil(cycle) * cycle + offset;
+        from + Duration::from_micros(start - global)
+    }
+
     /// The effective output of node `id` for consumed SC-ID `sc_id`: both channels'
     /// outputs in series (AND).
     pub fn output(&self, id: u8, sc_id: u8) -> u32 {

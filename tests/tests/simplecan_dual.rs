@@ -7,8 +7,8 @@
 use dual_channel::crosscheck::CrossFault;
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use dual_channel::simplecan::{ForwardFault, SimpleCanFault};
-use shared::Duration;
 use shared::safety::cause::Cause;
+use shared::{Duration, Instant};
 use system_tests::bus::{Fault, Match};
 use system_tests::dual::Side;
 use system_tests::simplecan_dual::ScDualNetwork;
@@ -375,4 +375,72 @@ fn sc_req_10_a_packet_not_on_the_bus_by_the_end_of_its_slot_is_withdrawn_by_chan
         !net.aborts.iter().any(|(_, _, side, _)| *side == Side::B),
         "channel B has nothing to withdraw"
     );
+}
+
+/// The two contacts of node 1's emergency stop move `first_us` before and `second_us` after
+/// the start of its slot 0 (the channel `first` moves first), from `from` to `to`; then two
+/// cycles pass. The faults each channel of node 1 latched.
+fn contacts_across_a_slot_start(
+    first: Side,
+    first_us: u64,
+    second_us: u64,
+    from: u8,
+    to: u8,
+) -> [Option<ChannelFault>; 2] {
+    let mut net = running();
+    if from != 1 {
+        net.set_inputs(1, from);
+        net.run_for(TWO_CYCLES);
+    }
+    let second = match first {
+        Side::A => Side::B,
+        Side::B => Side::A,
+    };
+    let start = net.next_slot_start(1, 0, Duration::from_micros(first_us + 1_000));
+    net.run_until(Instant::from_micros(start.as_micros() - first_us));
+    net.set_input_of(1, first, to);
+    net.run_until(start + Duration::from_micros(second_us));
+    net.set_input_of(1, second, to);
+    net.run_for(TWO_CYCLES);
+    net.faults(1)
+}
+
+/// SC_REQ_10 with the channels' sample window (as an SRDO frame has it, `SAMPLE_WINDOW`):
+/// the contacts of channels A and B moving less than the window apart across the start of
+/// the produced value's slot give no fault, whichever moves first, on a press and on a
+/// release; channel B accepts channel A's value as one of its own samples within the window.
+/// Further apart, A's packet carries a value B did not sample within the window: 78h.
+#[test]
+fn sc_req_10_contacts_moving_within_the_sample_window_across_a_slot_start_are_no_fault() {
+    use dual_channel::runtime::SAMPLE_WINDOW;
+    let window = SAMPLE_WINDOW.as_micros();
+    // The packet is heard a frame time after its slot's start; B measures from there.
+    let margin = u64::from(FRAME_US) + 100;
+    for (from, to) in [(1, 0), (0, 1)] {
+        for (first, before, after) in [
+            (Side::A, 300, window - margin - 300),
+            (Side::B, window - margin - 300, 300),
+            (Side::A, 2_000, 2_000),
+            (Side::B, 2_000, 2_000),
+        ] {
+            assert_eq!(
+                contacts_across_a_slot_start(first, before, after, from, to),
+                [None, None],
+                "{from} -> {to}, {first:?} first, {before} us before and {after} us after"
+            );
+        }
+        for (first, before, after) in [
+            (Side::A, 300, window + 1_000),
+            (Side::B, window + 1_000, 300),
+        ] {
+            let faults = contacts_across_a_slot_start(first, before, after, from, to);
+            assert!(
+                faults
+                    .iter()
+                    .flatten()
+                    .any(|fault| fault.cause_code() == Cause::SimpleCanTransmitMismatch.code()),
+                "{from} -> {to}, {first:?} first, {before} us before and {after} us after: {faults:?}"
+            );
+        }
+    }
 }

@@ -64,6 +64,56 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         self.after_core(now, &collect, io);
     }
 
+    /// Channel B: channel A's packet on the bus stands for B's `own`, which B's core learns
+    /// of as sent (Model A).
+    fn own_sent(&mut self, now: Instant, own: RawFrame, io: &mut impl Io) {
+        // B's own packet was a frame its core built, so it is one.
+        if let Ok(id) = shared::CanId::new(own.id)
+            && let Ok(own) = CanFrame::from_parts(id, own.len, own.data)
+        {
+            self.on_transmitted(now, &own, io);
+        }
+    }
+
+    /// Channel B sampled its input `plain` at `now`, `before` then `value` (the sample's
+    /// bytes, little-endian): for each value the node produces from that object, the
+    /// Model A check learns B's sample, and a packet of A's waiting for it stands for B's.
+    pub(super) fn simplecan_sampled(
+        &mut self,
+        now: Instant,
+        plain: shared::canopen::od::Address,
+        before: u64,
+        value: u64,
+        io: &mut impl Io,
+    ) {
+        if self.role.speaks_for_the_node() {
+            return;
+        }
+        let Some(layer) = self.node.protocol().simplecan() else {
+            return;
+        };
+        for entry in layer.produced_from(plain) {
+            let bits = entry.mapped & 0xFF;
+            let mask = if bits >= 32 {
+                u32::MAX
+            } else {
+                (1u32 << bits) - 1
+            };
+            // The produced value is the object's bytes, at most 4 (docs/simplecan.md section 2).
+            let of = |sample: u64| (sample as u32) & mask;
+            let id = u16::from(entry.sc_id);
+            if let Some(own) = self
+                .simplecan
+                .transmit
+                .sampled(now, id, of(before), of(value))
+                && layer.running
+                && self.is_working()
+            {
+                self.own_sent(now, own, io);
+            }
+        }
+    }
+
     fn simplecan_fault(&mut self, fault: impl Into<SimpleCanFault>, io: &mut impl Io) {
         self.latch(ChannelFault::SimpleCan(fault.into()), io);
     }
@@ -90,14 +140,10 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         } else if layer.is_own(&raw) {
             // Model A: the node's own packet, channel A's on the bus.
             let decoded = self.role.simplecan_decode(&raw, |id| layer.hash_of(id));
-            match self.simplecan.transmit.heard(raw, decoded) {
-                Ok(own) => {
-                    let own = CanFrame::from_parts(frame.id(), own.len, own.data);
-                    // B's own packet was a frame its core built, so it is one.
-                    if let Ok(own) = own {
-                        self.on_transmitted(now, &own, io);
-                    }
-                }
+            match self.simplecan.transmit.heard(now, raw, decoded) {
+                Ok(Some(own)) => self.own_sent(now, own, io),
+                // Its value waits for B's next sample (the window).
+                Ok(None) => {}
                 Err(fault) => self.simplecan_fault(fault, io),
             }
             return true;

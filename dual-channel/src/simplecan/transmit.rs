@@ -19,12 +19,27 @@
 //!   (SC_REQ_23).
 //! - A packet of the node (an SC-ID it produces, a sync naming its master SC-ID) that B did
 //!   not compute is a mismatch too: A's core is not doing what B's does.
+//! - **The sample window.** Each channel's core reads the produced value from its own sample
+//!   (its own contact of an emergency stop) at the start of the slot, and two contacts never
+//!   move at exactly the same moment: across a slot start A's packet may carry the value
+//!   before the change and B's the one after, or the other way round. A data packet that
+//!   differs from B's only in its value, with a CRC B's own decoder accepts and B's cycle
+//!   stamp, stands for B's when its value is one of B's samples within the window (as for
+//!   an SRDO frame, `channel_b::role`): B's previous sample, replaced less than the window
+//!   before the packet was heard, or B's next sample, taken within the window after it (the
+//!   packet waits for it, [`TransmitCheck::sampled`]). Otherwise, and at once for any other
+//!   difference, it is a mismatch. A SimpleCAN packet cannot wait for the channels' samples
+//!   to agree as a changed SRDO frame does: it must go in its slot (section 5).
 //!
 //! Sans-I/O: fed frames and `now`, it returns faults and its next deadline.
 
 use super::{Decoded, RawFrame};
 use shared::time::expired;
 use shared::{Duration, Instant};
+
+/// How many produced values channel B keeps a sample history of, and how many of A's
+/// packets may wait for B's next sample: one per SDD entry.
+const PRODUCED: usize = super::ENTRIES;
 
 /// How far apart the offsets of the two channels' syncs may be: the channels' loops handle
 /// NMT start (which starts both masters' clocks) within the link latency of each other
@@ -56,16 +71,69 @@ pub enum TransmitFault {
     },
 }
 
+/// Channel B's previous sample of a produced value: the value before its latest change, and
+/// when it changed.
+#[derive(Clone, Copy, Debug)]
+struct Previous {
+    id: u16,
+    value: u32,
+    replaced: Instant,
+}
+
+/// Channel A's data packet on the bus whose value is not B's, waiting until `until` for B's
+/// next sample to take that value.
+#[derive(Clone, Copy, Debug)]
+struct Disputed {
+    own: RawFrame,
+    value: u32,
+    until: Instant,
+}
+
 /// Channel B's packets of the node that wait for channel A's on the bus.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct TransmitCheck {
+    window: Duration,
     waiting: heapless::Vec<(RawFrame, Instant), WAITING>,
+    previous: heapless::Vec<Previous, PRODUCED>,
+    disputed: heapless::Vec<Disputed, PRODUCED>,
 }
 
 impl TransmitCheck {
-    /// Nothing waiting.
-    pub fn new() -> Self {
-        TransmitCheck::default()
+    /// Nothing waiting; A's value is accepted when it is one of B's samples within `window`
+    /// (the channels' sample window).
+    pub fn new(window: Duration) -> Self {
+        TransmitCheck {
+            window,
+            waiting: heapless::Vec::new(),
+            previous: heapless::Vec::new(),
+            disputed: heapless::Vec::new(),
+        }
+    }
+
+    /// Channel B's own sample of the value it produces on identifier `id` changed at `now`
+    /// from `before` to `after`. A packet of A's waiting for that value stands for B's now:
+    /// B's own packet, to confirm to B's core as sent.
+    pub fn sampled(&mut self, now: Instant, id: u16, before: u32, after: u32) -> Option<RawFrame> {
+        if before != after {
+            let previous = Previous {
+                id,
+                value: before,
+                replaced: now,
+            };
+            match self.previous.iter_mut().find(|kept| kept.id == id) {
+                Some(kept) => *kept = previous,
+                // One per produced SC-ID, at most ENTRIES: a value beyond is not kept, and
+                // A's packet then has to equal B's own.
+                None => {
+                    let _ = self.previous.push(previous);
+                }
+            }
+        }
+        let index = self
+            .disputed
+            .iter()
+            .position(|disputed| disputed.own.id == id && disputed.value == after)?;
+        Some(self.disputed.swap_remove(index).own)
     }
 
     /// B's core handed out `own` at `now`: channel A's must appear by its deadline. A packet
@@ -83,9 +151,15 @@ impl TransmitCheck {
             .map_err(|_| TransmitFault::Mismatch { id: own.id })
     }
 
-    /// A packet of the node was heard on the bus (`decoded` by B's own decoder): B's own
-    /// packet it stands for, to confirm to B's core as sent.
-    pub fn heard(&mut self, heard: RawFrame, decoded: Decoded) -> Result<RawFrame, TransmitFault> {
+    /// A packet of the node was heard on the bus at `now` (`decoded` by B's own decoder):
+    /// `Ok(Some(own))`, B's own packet it stands for, to confirm to B's core as sent;
+    /// `Ok(None)`, a data packet whose value waits for B's next sample (the window).
+    pub fn heard(
+        &mut self,
+        now: Instant,
+        heard: RawFrame,
+        decoded: Decoded,
+    ) -> Result<Option<RawFrame>, TransmitFault> {
         let mismatch = TransmitFault::Mismatch { id: heard.id };
         let index = self
             .waiting
@@ -94,32 +168,87 @@ impl TransmitCheck {
             .ok_or(mismatch)?;
         let (own, _) = self.waiting.swap_remove(index);
         if agrees(&own, &heard, decoded) {
-            Ok(own)
-        } else {
-            Err(mismatch)
+            return Ok(Some(own));
         }
+        let Some(value) = other_value(&own, &heard, decoded) else {
+            return Err(mismatch);
+        };
+        let recent = self.previous.iter().any(|previous| {
+            previous.id == own.id
+                && previous.value == value
+                && !expired(previous.replaced + self.window, now)
+        });
+        if recent {
+            return Ok(Some(own));
+        }
+        let disputed = Disputed {
+            own,
+            value,
+            until: now + self.window,
+        };
+        // At most one of B's packets per produced SC-ID waits, so at most one dispute.
+        self.disputed
+            .push(disputed)
+            .map(|()| None)
+            .map_err(|_| mismatch)
     }
 
-    /// The fault of a packet of B's whose deadline has passed at `now`, if any.
+    /// The fault of a packet of B's whose deadline has passed at `now`, if any: not on the
+    /// bus in time, or on the bus with a value B's next sample did not take in time.
     pub fn poll(&self, now: Instant) -> Result<(), TransmitFault> {
-        match self.waiting.iter().find(|(_, at)| expired(*at, now)) {
-            Some((own, _)) => Err(TransmitFault::Missing { id: own.id }),
+        if let Some((own, _)) = self.waiting.iter().find(|(_, at)| expired(*at, now)) {
+            return Err(TransmitFault::Missing { id: own.id });
+        }
+        match self
+            .disputed
+            .iter()
+            .find(|disputed| expired(disputed.until, now))
+        {
+            Some(disputed) => Err(TransmitFault::Mismatch {
+                id: disputed.own.id,
+            }),
             None => Ok(()),
         }
     }
 
     /// When [`poll`](Self::poll) must run next ([`Instant::NEVER`]: nothing waits).
     pub fn deadline(&self) -> Instant {
-        self.waiting
-            .iter()
-            .map(|(_, at)| *at)
-            .min()
-            .unwrap_or(Instant::NEVER)
+        let waiting = self.waiting.iter().map(|(_, at)| *at);
+        let disputed = self.disputed.iter().map(|disputed| disputed.until);
+        waiting.chain(disputed).min().unwrap_or(Instant::NEVER)
     }
 
-    /// Forgets every waiting packet (leaving Operational, NMT reset).
+    /// Forgets every waiting packet (leaving Operational, NMT reset); B's sample history
+    /// stays, it is the inputs', not the layer's.
     pub fn reset(&mut self) {
         self.waiting.clear();
+        self.disputed.clear();
+    }
+}
+
+/// The value of `heard`, a data packet that differs from B's `own` in its value alone: the
+/// same identifier, length and cycle stamp, and a CRC B's decoder accepted (`decoded`).
+/// `None` for any other difference.
+fn other_value(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> Option<u32> {
+    match (Decoded::fields(own), decoded) {
+        (
+            Decoded::Data {
+                sc_id, cycle_stamp, ..
+            },
+            Decoded::Data {
+                sc_id: heard_id,
+                value,
+                cycle_stamp: heard_stamp,
+            },
+        ) if heard.id == own.id
+            && heard.len == own.len
+            && u16::from(heard_id) == own.id
+            && sc_id == heard_id
+            && heard_stamp == cycle_stamp =>
+        {
+            Some(value)
+        }
+        _ => None,
     }
 }
 
@@ -168,40 +297,135 @@ mod tests {
         data: [0x30, 0x01, 0x02, 0x00, 0xFA, 0xFD, 0x34, 0x07],
     };
 
+    const WINDOW: Duration = Duration::from_millis(5);
+
     fn at(micros: u64) -> Instant {
         Instant::from_micros(micros)
     }
 
     #[test]
     fn sc_req_10_a_data_packet_equal_to_channel_b_s_within_its_slot_is_confirmed() {
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(1_000), DATA).unwrap();
         assert_eq!(check.deadline(), at(2_000));
-        assert_eq!(check.heard(DATA, Decoded::fields(&DATA)), Ok(DATA));
+        assert_eq!(
+            check.heard(at(1_500), DATA, Decoded::fields(&DATA)),
+            Ok(Some(DATA))
+        );
         assert_eq!(check.deadline(), Instant::NEVER);
         assert_eq!(check.poll(at(10_000)), Ok(()));
     }
 
+    /// Every single-bit flip fails the CRC (section 4), so B's decoder rejects it: a
+    /// mismatch at once, whatever B's samples were.
     #[test]
     fn sc_req_10_a_data_packet_that_differs_in_any_bit_is_a_mismatch() {
         for bit in 0..64 {
             let mut heard = DATA;
             heard.data[bit / 8] ^= 1 << (bit % 8);
-            let mut check = TransmitCheck::new();
+            let mut check = TransmitCheck::new(WINDOW);
+            let _ = check.sampled(at(0), 0x030, 0, 1);
             check.computed(at(0), DATA).unwrap();
             assert_eq!(
-                check.heard(heard, Decoded::fields(&heard)),
+                check.heard(at(100), heard, Decoded::Invalid),
                 Err(TransmitFault::Mismatch { id: 0x030 }),
                 "bit {bit}"
             );
         }
     }
 
+    /// DATA as channel A would send it with value 0 (a valid packet; B's decoder's verdict).
+    fn with_value_0() -> (RawFrame, Decoded) {
+        let mut heard = DATA;
+        heard.data[0] = 0;
+        let decoded = Decoded::Data {
+            sc_id: 0x30,
+            value: 0,
+            cycle_stamp: 5,
+        };
+        (heard, decoded)
+    }
+
+    /// B's contact moved first (0 to 1, 3 ms before the slot): A's packet with B's previous
+    /// value stands for B's; 5 ms after B's change it no longer does.
+    #[test]
+    fn sc_req_10_a_value_that_was_channel_b_s_within_the_window_is_accepted() {
+        let (heard, decoded) = with_value_0();
+        for (heard_at, accepted) in [(3_270, true), (4_999, true), (5_000, false)] {
+            let mut check = TransmitCheck::new(WINDOW);
+            assert_eq!(check.sampled(at(0), 0x030, 0, 1), None);
+            check.computed(at(3_000), DATA).unwrap();
+            let result = check.heard(at(heard_at), heard, decoded);
+            assert_eq!(
+                result == Ok(Some(DATA)),
+                accepted,
+                "heard at {heard_at}: {result:?}"
+            );
+        }
+    }
+
+    /// A's contact moved first: A's packet waits for B's next sample, at most the window; B
+    /// taking A's value confirms B's own packet; B not taking it is a mismatch at the end.
+    #[test]
+    fn sc_req_10_a_value_channel_b_samples_within_the_window_is_accepted() {
+        let (heard, decoded) = with_value_0();
+        let mut check = TransmitCheck::new(WINDOW);
+        check.computed(at(10_000), DATA).unwrap();
+        assert_eq!(check.heard(at(10_270), heard, decoded), Ok(None));
+        assert_eq!(check.deadline(), at(15_270));
+        assert_eq!(
+            check.sampled(at(15_000), 0x031, 1, 0),
+            None,
+            "another value"
+        );
+        assert_eq!(check.sampled(at(15_100), 0x030, 1, 0), Some(DATA));
+        assert_eq!(check.deadline(), Instant::NEVER);
+        assert_eq!(check.poll(at(20_000)), Ok(()));
+
+        let mut check = TransmitCheck::new(WINDOW);
+        check.computed(at(10_000), DATA).unwrap();
+        assert_eq!(check.heard(at(10_270), heard, decoded), Ok(None));
+        assert_eq!(check.poll(at(15_269)), Ok(()));
+        assert_eq!(
+            check.poll(at(15_270)),
+            Err(TransmitFault::Mismatch { id: 0x030 })
+        );
+    }
+
+    /// Only the value may differ: another cycle stamp, or a value B's decoder did not read
+    /// from a packet of this SC-ID, is a mismatch at once.
+    #[test]
+    fn sc_req_10_a_packet_differing_in_more_than_its_value_is_a_mismatch_at_once() {
+        let (heard, _) = with_value_0();
+        for decoded in [
+            Decoded::Data {
+                sc_id: 0x30,
+                value: 0,
+                cycle_stamp: 6,
+            },
+            Decoded::Data {
+                sc_id: 0x31,
+                value: 0,
+                cycle_stamp: 5,
+            },
+            Decoded::Invalid,
+        ] {
+            let mut check = TransmitCheck::new(WINDOW);
+            let _ = check.sampled(at(0), 0x030, 0, 1);
+            check.computed(at(1_000), DATA).unwrap();
+            assert_eq!(
+                check.heard(at(1_270), heard, decoded),
+                Err(TransmitFault::Mismatch { id: 0x030 }),
+                "{decoded:?}"
+            );
+        }
+    }
+
     #[test]
     fn sc_req_10_a_packet_of_the_node_channel_b_did_not_compute_is_a_mismatch() {
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         assert_eq!(
-            check.heard(DATA, Decoded::fields(&DATA)),
+            check.heard(at(0), DATA, Decoded::fields(&DATA)),
             Err(TransmitFault::Mismatch { id: 0x030 })
         );
     }
@@ -209,7 +433,7 @@ mod tests {
     /// At the end of the slot itself, as every deadline of the node.
     #[test]
     fn sc_req_10_a_data_packet_not_on_the_bus_by_the_end_of_its_slot_is_missing() {
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(5_000), DATA).unwrap();
         assert_eq!(check.poll(at(5_999)), Ok(()));
         assert_eq!(
@@ -233,20 +457,24 @@ mod tests {
             (with_offset(250 - tolerance), true),
             (with_offset(250 + tolerance + 1), false),
         ] {
-            let mut check = TransmitCheck::new();
+            let mut check = TransmitCheck::new(WINDOW);
             check.computed(at(0), SYNC).unwrap();
             assert_eq!(check.deadline(), at(2_000), "SC_REQ_23: 2 ms");
-            let result = check.heard(heard, decoded(&heard));
+            let result = check.heard(at(300), heard, decoded(&heard));
             assert_eq!(result.is_ok(), agrees, "{heard:?}");
         }
         // Another cycle, or a sync B's decoder rejected, is a mismatch.
         let mut other_cycle = SYNC;
         other_cycle.data[2] = 0x03;
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(0), SYNC).unwrap();
-        assert!(check.heard(other_cycle, decoded(&other_cycle)).is_err());
-        let mut check = TransmitCheck::new();
+        assert!(
+            check
+                .heard(at(300), other_cycle, decoded(&other_cycle))
+                .is_err()
+        );
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(0), SYNC).unwrap();
-        assert!(check.heard(SYNC, Decoded::Invalid).is_err());
+        assert!(check.heard(at(300), SYNC, Decoded::Invalid).is_err());
     }
 }
