@@ -240,6 +240,8 @@ pub struct Layer {
     pub running: bool,
     /// Data packets it accepted and delivered since the Operational entry.
     pub accepted: u32,
+    /// 5E00h:03, the stated maximum buffering time of a received packet (SC_REQ_33).
+    pub buffering: Duration,
 }
 
 impl Layer {
@@ -330,6 +332,7 @@ impl<const N: usize, const E: usize> ChannelProtocol<N> for SrdoAndSimpleCan<N, 
             potential_master: objects.potential_master == 1,
             running: layer.is_running(),
             accepted: layer.counters().accepted,
+            buffering: Duration::from_micros(u64::from(objects.buffering_us)),
         })
     }
 }

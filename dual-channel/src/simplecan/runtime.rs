@@ -64,14 +64,20 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         self.after_core(now, &collect, io);
     }
 
-    /// Channel B: channel A's packet on the bus stands for B's `own`, which B's core learns
-    /// of as sent (Model A).
-    fn own_sent(&mut self, now: Instant, own: RawFrame, io: &mut impl Io) {
-        // B's own packet was a frame its core built, so it is one.
-        if let Ok(id) = shared::CanId::new(own.id)
-            && let Ok(own) = CanFrame::from_parts(id, own.len, own.data)
+    /// Channel B: channel A's packet `on_bus` stands for one of B's own, which B's core
+    /// learns of as sent (Model A); a sync's time B's master takes from A's
+    /// (`Device::on_partner_transmitted`).
+    fn own_sent(&mut self, now: Instant, on_bus: RawFrame, io: &mut impl Io) {
+        if !self.link_up {
+            return;
+        }
+        // A frame off the bus, or B's own packet, which its core built: a frame either way.
+        if let Ok(id) = shared::CanId::new(on_bus.id)
+            && let Ok(frame) = CanFrame::from_parts(id, on_bus.len, on_bus.data)
         {
-            self.on_transmitted(now, &own, io);
+            let mut collect = Collect::new();
+            self.node.on_partner_transmitted(now, &frame, &mut collect);
+            self.after_core(now, &collect, io);
         }
     }
 
@@ -140,7 +146,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         } else if layer.is_own(&raw) {
             // Model A: the node's own packet, channel A's on the bus.
             let decoded = self.role.simplecan_decode(&raw, |id| layer.hash_of(id));
-            match self.simplecan.transmit.heard(now, raw, decoded) {
+            let buffering = layer.buffering;
+            match self.simplecan.transmit.heard(now, raw, decoded, buffering) {
                 Ok(Some(own)) => self.own_sent(now, own, io),
                 // Its value waits for B's next sample (the window).
                 Ok(None) => {}

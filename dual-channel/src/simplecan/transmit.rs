@@ -12,11 +12,18 @@
 //! - A data packet must come back from the bus **bit for bit** as B computed it (value,
 //!   cycle stamp, CRC), within its slot (1 ms, docs/simplecan.md section 5): otherwise
 //!   [`TransmitFault::Mismatch`] or, at the end of the slot, [`TransmitFault::Missing`].
-//! - A sync carries the time its master read when it sent it, so the two channels' syncs
-//!   agree in the master's SC-ID and the cycle number and differ in the offset by as much as
-//!   their clocks do: B requires the same master and cycle, an offset within
-//!   [`SYNC_OFFSET_TOLERANCE`] of its own and a CRC its own decoder accepts, within 2 ms
-//!   (SC_REQ_23).
+//! - **Syncs, each channel on its own clock.** B's master decides on B's own clock when its
+//!   syncs are due (listening, `t_wait`, the cycle: `shared::simplecan::master`), and A's sync
+//!   on the bus is checked against B's own: the same master and cycle, a CRC B's own decoder
+//!   accepts, within 2 ms of B's (SC_REQ_23), and **not ahead of B's own time** by more than
+//!   [`SYNC_OFFSET_TOLERANCE`]: the global time A's sync gives (its cycle and offset, plus the
+//!   buffering time the node states, 5E00h:03, as every receiver takes it, SC_REQ_33) against
+//!   B's global time when it hears it. A sync that agrees is confirmed to B's core with A's
+//!   frame, and B's master takes its time from it (`Device::on_partner_transmitted`): so two
+//!   clocks within 50 ppm of each other (SC_REQ_31) part by at most a sync interval's drift
+//!   (50 µs at 500 ms), while a clock of A's running ahead of B's by more than the tolerance
+//!   over one sync interval (2000 ppm at 100 ms, 400 ppm at 500 ms) is a mismatch. Behind,
+//!   A's sync cannot be told from one that waited for the bus; 2 ms is the bound there.
 //! - A packet of the node (an SC-ID it produces, a sync naming its master SC-ID) that B did
 //!   not compute is a mismatch too: A's core is not doing what B's does.
 //! - **The sample window.** Each channel's core reads the produced value from its own sample
@@ -41,9 +48,13 @@ use shared::{Duration, Instant};
 /// packets may wait for B's next sample: one per SDD entry.
 const PRODUCED: usize = super::ENTRIES;
 
-/// How far apart the offsets of the two channels' syncs may be: the channels' loops handle
-/// NMT start (which starts both masters' clocks) within the link latency of each other
-/// (about 0.2 ms at most), far less than the 2 ms a receiver tolerates (SC_REQ_30).
+/// How far channel A's sync may be ahead of channel B's own time: the global time A's sync
+/// gives when B hears it (with the stated buffering time) against B's. Two clocks within
+/// 50 ppm (SC_REQ_31) part by 50 µs over the longest sync interval (500 ms), the channels'
+/// loops handle NMT start (which starts both masters) within the link latency of each other
+/// (about 0.2 ms at most, once, before the first sync aligns them), and the stated buffering
+/// time exceeds the sync's real frame time by a few bit times: far less than the 2 ms a
+/// receiver tolerates (SC_REQ_30).
 pub const SYNC_OFFSET_TOLERANCE: Duration = Duration::from_micros(200);
 
 /// How long a data packet of the node may take to appear on the bus: its slot.
@@ -154,11 +165,15 @@ impl TransmitCheck {
     /// A packet of the node was heard on the bus at `now` (`decoded` by B's own decoder):
     /// `Ok(Some(own))`, B's own packet it stands for, to confirm to B's core as sent;
     /// `Ok(None)`, a data packet whose value waits for B's next sample (the window).
+    ///
+    /// A sync that agrees is answered with `heard`, A's own: B's core takes its time from it.
+    /// `buffering` is the node's stated buffering time (5E00h:03, SC_REQ_33).
     pub fn heard(
         &mut self,
         now: Instant,
         heard: RawFrame,
         decoded: Decoded,
+        buffering: Duration,
     ) -> Result<Option<RawFrame>, TransmitFault> {
         let mismatch = TransmitFault::Mismatch { id: heard.id };
         let index = self
@@ -166,8 +181,16 @@ impl TransmitCheck {
             .iter()
             .position(|(own, _)| own.id == heard.id)
             .ok_or(mismatch)?;
-        let (own, _) = self.waiting.swap_remove(index);
-        if agrees(&own, &heard, decoded) {
+        let (own, deadline) = self.waiting.swap_remove(index);
+        if let Decoded::Sync { .. } = Decoded::fields(&own) {
+            // B computed its own sync SYNC_WITHIN before the deadline.
+            let computed = Instant::from_micros(deadline.as_micros() - SYNC_WITHIN.as_micros());
+            let since = now.saturating_since(computed);
+            return sync_agrees(&own, decoded, since, buffering)
+                .then_some(Some(heard))
+                .ok_or(mismatch);
+        }
+        if own == heard {
             return Ok(Some(own));
         }
         let Some(value) = other_value(&own, &heard, decoded) else {
@@ -252,31 +275,32 @@ fn other_value(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> Option<u32
     }
 }
 
-/// `heard` on the bus stands for B's `own` packet: a data packet bit for bit; a sync by
-/// master, cycle and an offset within [`SYNC_OFFSET_TOLERANCE`], with a CRC B's decoder
-/// accepted (`decoded`).
-fn agrees(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> bool {
-    match (Decoded::fields(own), decoded) {
-        (
-            Decoded::Sync {
-                master,
-                cycle,
-                offset_micros,
-            },
-            Decoded::Sync {
-                master: heard_master,
-                cycle: heard_cycle,
-                offset_micros: heard_offset,
-            },
-        ) => {
-            master == heard_master
-                && cycle == heard_cycle
-                && u64::from(offset_micros.abs_diff(heard_offset))
-                    <= SYNC_OFFSET_TOLERANCE.as_micros()
-        }
-        (Decoded::Data { .. }, _) => own == heard,
-        _ => false,
-    }
+/// A's sync (`decoded` by B's own decoder, heard `since` B computed `own`) stands for B's
+/// `own`: the same master and cycle, and the global time it gives with `buffering` not ahead
+/// of B's own global time by more than [`SYNC_OFFSET_TOLERANCE`]. B's global time at the
+/// hearing is its own sync's plus `since`; both syncs' cycles are the same, so the offsets
+/// say it.
+fn sync_agrees(own: &RawFrame, decoded: Decoded, since: Duration, buffering: Duration) -> bool {
+    let (
+        Decoded::Sync {
+            master,
+            cycle,
+            offset_micros,
+        },
+        Decoded::Sync {
+            master: heard_master,
+            cycle: heard_cycle,
+            offset_micros: heard_offset,
+        },
+    ) = (Decoded::fields(own), decoded)
+    else {
+        return false;
+    };
+    let own_time = u64::from(offset_micros) + since.as_micros();
+    let given = u64::from(heard_offset) + buffering.as_micros();
+    master == heard_master
+        && cycle == heard_cycle
+        && given <= own_time + SYNC_OFFSET_TOLERANCE.as_micros()
 }
 
 #[cfg(test)]
@@ -309,7 +333,7 @@ mod tests {
         check.computed(at(1_000), DATA).unwrap();
         assert_eq!(check.deadline(), at(2_000));
         assert_eq!(
-            check.heard(at(1_500), DATA, Decoded::fields(&DATA)),
+            check.heard(at(1_500), DATA, Decoded::fields(&DATA), Duration::ZERO),
             Ok(Some(DATA))
         );
         assert_eq!(check.deadline(), Instant::NEVER);
@@ -327,7 +351,7 @@ mod tests {
             let _ = check.sampled(at(0), 0x030, 0, 1);
             check.computed(at(0), DATA).unwrap();
             assert_eq!(
-                check.heard(at(100), heard, Decoded::Invalid),
+                check.heard(at(100), heard, Decoded::Invalid, Duration::ZERO),
                 Err(TransmitFault::Mismatch { id: 0x030 }),
                 "bit {bit}"
             );
@@ -355,7 +379,7 @@ mod tests {
             let mut check = TransmitCheck::new(WINDOW);
             assert_eq!(check.sampled(at(0), 0x030, 0, 1), None);
             check.computed(at(3_000), DATA).unwrap();
-            let result = check.heard(at(heard_at), heard, decoded);
+            let result = check.heard(at(heard_at), heard, decoded, Duration::ZERO);
             assert_eq!(
                 result == Ok(Some(DATA)),
                 accepted,
@@ -371,7 +395,10 @@ mod tests {
         let (heard, decoded) = with_value_0();
         let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(10_000), DATA).unwrap();
-        assert_eq!(check.heard(at(10_270), heard, decoded), Ok(None));
+        assert_eq!(
+            check.heard(at(10_270), heard, decoded, Duration::ZERO),
+            Ok(None)
+        );
         assert_eq!(check.deadline(), at(15_270));
         assert_eq!(
             check.sampled(at(15_000), 0x031, 1, 0),
@@ -384,7 +411,10 @@ mod tests {
 
         let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(10_000), DATA).unwrap();
-        assert_eq!(check.heard(at(10_270), heard, decoded), Ok(None));
+        assert_eq!(
+            check.heard(at(10_270), heard, decoded, Duration::ZERO),
+            Ok(None)
+        );
         assert_eq!(check.poll(at(15_269)), Ok(()));
         assert_eq!(
             check.poll(at(15_270)),
@@ -414,7 +444,7 @@ mod tests {
             let _ = check.sampled(at(0), 0x030, 0, 1);
             check.computed(at(1_000), DATA).unwrap();
             assert_eq!(
-                check.heard(at(1_270), heard, decoded),
+                check.heard(at(1_270), heard, decoded, Duration::ZERO),
                 Err(TransmitFault::Mismatch { id: 0x030 }),
                 "{decoded:?}"
             );
@@ -425,7 +455,7 @@ mod tests {
     fn sc_req_10_a_packet_of_the_node_channel_b_did_not_compute_is_a_mismatch() {
         let mut check = TransmitCheck::new(WINDOW);
         assert_eq!(
-            check.heard(at(0), DATA, Decoded::fields(&DATA)),
+            check.heard(at(0), DATA, Decoded::fields(&DATA), Duration::ZERO),
             Err(TransmitFault::Mismatch { id: 0x030 })
         );
     }
@@ -443,25 +473,30 @@ mod tests {
     }
 
     #[test]
-    fn sc_req_10_a_sync_agrees_by_master_cycle_and_an_offset_within_the_tolerance() {
+    /// B computed its sync 250 µs into the last slot and hears A's 300 µs later, with 270 µs
+    /// of stated buffering: B's time is then 550 µs into the slot, and A's sync may give at
+    /// most 200 µs more (offset 480); behind (an earlier offset) it agrees, and B's core is
+    /// confirmed with A's frame, whose time it takes.
+    fn sc_req_10_a_sync_agrees_by_master_cycle_and_not_ahead_of_channel_b_s_time() {
         let with_offset = |offset: u16| {
             let mut sync = SYNC;
             sync.data[3..5].copy_from_slice(&offset.to_be_bytes());
             sync
         };
         let decoded = |frame: &RawFrame| Decoded::fields(frame);
-        let tolerance = SYNC_OFFSET_TOLERANCE.as_micros() as u16;
-        for (heard, agrees) in [
-            (with_offset(250), true),
-            (with_offset(250 + tolerance), true),
-            (with_offset(250 - tolerance), true),
-            (with_offset(250 + tolerance + 1), false),
-        ] {
+        let buffering = Duration::from_micros(270);
+        for (offset, agrees) in [(250, true), (480, true), (481, false), (0, true)] {
+            let heard = with_offset(offset);
             let mut check = TransmitCheck::new(WINDOW);
             check.computed(at(0), SYNC).unwrap();
             assert_eq!(check.deadline(), at(2_000), "SC_REQ_23: 2 ms");
-            let result = check.heard(at(300), heard, decoded(&heard));
-            assert_eq!(result.is_ok(), agrees, "{heard:?}");
+            let result = check.heard(at(300), heard, decoded(&heard), buffering);
+            let expected = if agrees {
+                Ok(Some(heard))
+            } else {
+                Err(TransmitFault::Mismatch { id: 0x02F })
+            };
+            assert_eq!(result, expected, "offset {offset}");
         }
         // Another cycle, or a sync B's decoder rejected, is a mismatch.
         let mut other_cycle = SYNC;
@@ -470,11 +505,15 @@ mod tests {
         check.computed(at(0), SYNC).unwrap();
         assert!(
             check
-                .heard(at(300), other_cycle, decoded(&other_cycle))
+                .heard(at(300), other_cycle, decoded(&other_cycle), Duration::ZERO)
                 .is_err()
         );
         let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(0), SYNC).unwrap();
-        assert!(check.heard(at(300), SYNC, Decoded::Invalid).is_err());
+        assert!(
+            check
+                .heard(at(300), SYNC, Decoded::Invalid, Duration::ZERO)
+                .is_err()
+        );
     }
 }

@@ -1109,6 +1109,41 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
             }
         }
     }
+
+    /// The other channel's sync (or data packet) on the bus stands for this one's (Model A):
+    /// confirmed as [`SafetyProtocol::on_transmitted`] confirms, and for a sync of this master
+    /// its time base moves to the other channel's: the global time at `now` is that sync's
+    /// (its cycle, the offset it carries) plus the buffering time this SCL states (5E00h:03),
+    /// as a receiver takes a sync's time (SC_REQ_33). The caller has checked the sync against
+    /// this channel's own (`dual_channel::simplecan::transmit`).
+    fn on_partner_transmitted<S: Sink>(
+        &mut self,
+        now: Instant,
+        frame: &CanFrame,
+        slot: &mut Slot<'_, S>,
+    ) {
+        let buffering = u64::from(self.objects.buffering_us);
+        let aligned = self.running.as_ref().and_then(|running| {
+            let (master, _) = running.master.as_ref()?;
+            let cycle = master.confirming_cycle()?;
+            let schedule = running.schedule.cycle();
+            if frame.id() != SYNC_IDENTIFIER || !running.sync_pending {
+                return None;
+            }
+            let data = frame.raw_data();
+            let offset = u64::from(u16::from_be_bytes([data[3], data[4]]));
+            let start = schedule.slot_start(cycle, schedule.sync_slot());
+            Some(start + offset + buffering)
+        });
+        self.on_transmitted(now, frame, slot);
+        if let (Some(global), Some(running)) = (aligned, &mut self.running)
+            && let Some((master, _)) = &mut running.master
+        {
+            master.align(now, global);
+            let latched = slot.latched();
+            slot.wake_at(self.deadline(now, latched));
+        }
+    }
 }
 
 /// `value` when it lies in `low..=high`; otherwise the abort code that says which side.

@@ -169,6 +169,34 @@ impl Master {
         }
     }
 
+    /// The cycle of the sync handed out and not confirmed yet, if one is.
+    pub const fn confirming_cycle(&self) -> Option<u64> {
+        match self.state {
+            State::Confirming { cycle, .. } => Some(cycle),
+            _ => None,
+        }
+    }
+
+    /// The time base moves so that the global time is `global` at `now`; the next sync stays
+    /// due at the same global time, now by the new time base. For the channel of a
+    /// dual-channel device that does not transmit (Model A, SC_REQ_10): it computes its own
+    /// syncs on its own clock, checks the other channel's on the bus against them and takes
+    /// the other channel's time from each (`dual_channel::simplecan`), so that two crystals
+    /// within 50 ppm (SC_REQ_31) part by at most a sync interval's drift. Nothing while not
+    /// active.
+    pub fn align(&mut self, now: Instant, global: u64) {
+        let aligned = Anchor { local: now, global };
+        match &mut self.state {
+            State::Active { anchor, next_sync } => {
+                let due = anchor.global_at(*next_sync);
+                *anchor = aligned;
+                *next_sync = aligned.local_at(due);
+            }
+            State::Confirming { anchor, .. } => *anchor = aligned,
+            _ => {}
+        }
+    }
+
     /// The controller reported an error while sending the sync (a collision, say) at `now`:
     /// abort it and back off `t_wait` (SC_REQ_28).
     pub fn on_transmit_error(&mut self, now: Instant) -> Option<Action> {
@@ -382,6 +410,31 @@ mod tests {
                 (sc(raw), 0, 0)
             );
         }
+    }
+
+    /// SC_REQ_31 with two channels: aligned to the other channel's time (100 µs ahead of its
+    /// own), the master keeps its next sync due at the same global time, now 100 µs earlier
+    /// on its own clock; a master that is not active has no time to move.
+    #[test]
+    fn sc_req_31_an_aligned_master_keeps_its_next_sync_at_the_same_global_time() {
+        let mut master = Master::new(sc(0x30), &schedule(), at(0));
+        master.align(at(1), 5_000);
+        assert_eq!(master.global_time(at(1)), None, "listening: nothing moves");
+        let Some(Action::Send(_)) = master.poll(at(500)) else {
+            panic!("no sync at 500 ms");
+        };
+        assert_eq!(master.confirming_cycle(), Some(0));
+        master.on_transmitted();
+        assert_eq!(master.confirming_cycle(), None);
+        assert_eq!(master.deadline(), at(600));
+        // Its own time at 500.3 ms is 9,300 µs (the sync slot of cycle 0 began at 500 ms).
+        master.align(at_us(500_300), 9_400);
+        assert_eq!(master.global_time(at_us(500_300)), Some(9_400));
+        assert_eq!(master.deadline(), at_us(599_900));
+        let Some(Action::Send(sync)) = master.poll(at_us(599_900)) else {
+            panic!("no sync at 599.9 ms");
+        };
+        assert_eq!((sync.cycle(), sync.offset_micros()), (10, 0));
     }
 
     /// Masters powered up together: the lowest SC-ID sends first, the next hears it within
