@@ -1133,7 +1133,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 }
             }
             #[cfg(feature = "simplecan")]
-            message @ (Message::SimpleCanPacket { .. } | Message::SimpleCanVerdict { .. }) => {
+            message @ (Message::SimpleCanPacket { .. }
+            | Message::SimpleCanVerdict { .. }
+            | Message::SimpleCanFault { .. }) => {
                 self.simplecan_message(now, message, io);
             }
             Message::SafeState { cause } => {
@@ -1277,6 +1279,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 let [low, high] = id.to_le_bytes();
                 [low, high, 0]
             }
+            #[cfg(feature = "simplecan")]
+            ChannelFault::SimpleCan(fault) => self.simplecan_named(fault),
             _ => [0; 3],
         };
         self.node

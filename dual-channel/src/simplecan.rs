@@ -413,6 +413,65 @@ pub enum SimpleCanFault {
 }
 
 impl SimpleCanFault {
+    /// The link message by which channel B hands this fault to channel A
+    /// ([`Message::SimpleCanFault`]).
+    pub fn message(self) -> Message {
+        let (id, other) = match self {
+            SimpleCanFault::Forward(ForwardFault::Differs { heard, forwarded }) => {
+                (heard, forwarded)
+            }
+            SimpleCanFault::Forward(ForwardFault::Lost { id } | ForwardFault::Unheard { id })
+            | SimpleCanFault::TransmitMismatch { id }
+            | SimpleCanFault::TransmitMissing { id } => (id, 0),
+            SimpleCanFault::Forward(ForwardFault::Overrun) => (0, 0),
+            SimpleCanFault::Verdict(
+                CrossFault::Disagreement { srdo: entry }
+                | CrossFault::Unconfirmed { srdo: entry }
+                | CrossFault::QueueFull { srdo: entry },
+            ) => (u16::from(entry.get()), 0),
+            SimpleCanFault::Verdict(CrossFault::UnknownSrdo { srdo }) => (u16::from(srdo), 0),
+        };
+        Message::SimpleCanFault {
+            cause: self.cause().code(),
+            id,
+            other,
+        }
+    }
+
+    /// The fault [`SimpleCanFault::message`] carried as `cause`, `id` and `other`; `None`
+    /// for a cause that is no SimpleCAN fault of the pair of channels, or an entry that is
+    /// none (not a message of the set).
+    pub fn from_message(cause: u8, id: u16, other: u16) -> Option<Self> {
+        let entry = || ConsumedEntry::from_number(u8::try_from(id).ok()?);
+        let fault = match Cause::from_code(cause)? {
+            Cause::SimpleCanForwardDiffers => SimpleCanFault::Forward(ForwardFault::Differs {
+                heard: id,
+                forwarded: other,
+            }),
+            Cause::SimpleCanForwardLost => SimpleCanFault::Forward(ForwardFault::Lost { id }),
+            Cause::SimpleCanForwardUnheard => SimpleCanFault::Forward(ForwardFault::Unheard { id }),
+            Cause::SimpleCanForwardOverrun => SimpleCanFault::Forward(ForwardFault::Overrun),
+            Cause::SimpleCanVerdictsDisagree => {
+                SimpleCanFault::Verdict(CrossFault::Disagreement { srdo: entry()? })
+            }
+            Cause::SimpleCanVerdictUnconfirmed => {
+                SimpleCanFault::Verdict(CrossFault::Unconfirmed { srdo: entry()? })
+            }
+            Cause::SimpleCanVerdictForUnknownEntry => {
+                SimpleCanFault::Verdict(CrossFault::UnknownSrdo {
+                    srdo: u8::try_from(id).ok()?,
+                })
+            }
+            Cause::SimpleCanVerdictQueueFull => {
+                SimpleCanFault::Verdict(CrossFault::QueueFull { srdo: entry()? })
+            }
+            Cause::SimpleCanTransmitMismatch => SimpleCanFault::TransmitMismatch { id },
+            Cause::SimpleCanTransmitMissing => SimpleCanFault::TransmitMissing { id },
+            _ => return None,
+        };
+        Some(fault)
+    }
+
     /// The fault's cause code and name ([`Cause`]).
     pub const fn cause(self) -> Cause {
         match self {

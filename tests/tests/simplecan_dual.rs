@@ -503,3 +503,57 @@ fn sc_req_10_channel_a_s_clock_running_ahead_beyond_the_tolerance_is_found_at_it
     );
     assert_safe_with(&net, 1, Cause::SimpleCanTransmitMismatch);
 }
+
+/// The EMCYs of node `id` on the bus since `since`: (error code, manufacturer-specific bytes).
+fn emergencies(net: &ScDualNetwork, id: u8, since: Instant) -> Vec<(u16, [u8; 5])> {
+    net.trace
+        .iter()
+        .filter(|(at, frame, _)| *at >= since && frame.id().raw() == 0x80 + u16::from(id))
+        .map(|(_, frame, _)| {
+            let d = frame.raw_data();
+            (
+                u16::from_le_bytes([d[0], d[1]]),
+                [d[3], d[4], d[5], d[6], d[7]],
+            )
+        })
+        .collect()
+}
+
+/// A SimpleCAN fault's EMCY names the packet (as an SRDO's names the SRDO): node 1's Model A
+/// mismatch on 30h is FF02h with cause 78h and the identifier 030h in bytes 2..=3 (as a
+/// foreign frame's); node 33's value at its timeout is 8250h with the SC-ID 30h in byte 0 and
+/// cause 6Ah in byte 1. The monitor says so in words.
+#[test]
+fn sc_req_14_the_emcy_of_a_simplecan_fault_names_the_sc_id() {
+    let mut net = running();
+    let now = net.now;
+    net.inject_receive(
+        1,
+        Side::B,
+        Match::next_with_id(0x030, now),
+        Fault::Corrupt {
+            byte: 4,
+            mask: 0x80,
+        },
+    );
+    net.run_for(Duration::from_millis(100));
+    let node_1 = emergencies(&net, 1, now);
+    assert_eq!(node_1, vec![(0xFF02, [0, 0x78, 0x30, 0x00, 0])]);
+    let node_33 = emergencies(&net, 33, now);
+    assert_eq!(node_33, vec![(0x8250, [0x30, 0x6A, 0, 0, 0])]);
+    let words = |(code, detail): (u16, [u8; 5])| {
+        safety_config::monitor::model::describe_emergency(&shared::canopen::emcy::Emergency {
+            code,
+            register: 0,
+            detail,
+        })
+    };
+    assert_eq!(
+        words(node_1[0]),
+        "channel cross-check: SimpleCAN packet sent differs from channel B's (030h)"
+    );
+    assert_eq!(
+        words(node_33[0]),
+        "SC-ID 30h: SimpleCAN value older than its safety timeout"
+    );
+}

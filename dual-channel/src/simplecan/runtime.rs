@@ -120,8 +120,45 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
     }
 
+    /// What the EMCY FF02h of `fault` names in bytes 2..=4, as for a foreign frame: the CAN
+    /// identifier of the packet concerned (least significant octet first; a consumed entry's
+    /// by its SC-ID), and for a copy that differs the identifier of A's copy in byte 4
+    /// (SimpleCAN identifiers are 02Fh..07Fh); nothing for an overrun or an unknown entry.
+    pub(super) fn simplecan_named(&self, fault: SimpleCanFault) -> [u8; 3] {
+        use crate::crosscheck::CrossFault;
+        use crate::simplecan::ForwardFault;
+        let entry_id = |entry: crate::simplecan::ConsumedEntry| {
+            self.node
+                .protocol()
+                .simplecan()
+                .and_then(|layer| layer.entries.get(entry.index()).map(|e| u16::from(e.sc_id)))
+        };
+        let (id, other) = match fault {
+            SimpleCanFault::Forward(ForwardFault::Differs { heard, forwarded }) => {
+                (Some(heard), forwarded as u8)
+            }
+            SimpleCanFault::Forward(ForwardFault::Lost { id } | ForwardFault::Unheard { id })
+            | SimpleCanFault::TransmitMismatch { id }
+            | SimpleCanFault::TransmitMissing { id } => (Some(id), 0),
+            SimpleCanFault::Verdict(
+                CrossFault::Disagreement { srdo: entry }
+                | CrossFault::Unconfirmed { srdo: entry }
+                | CrossFault::QueueFull { srdo: entry },
+            ) => (entry_id(entry), 0),
+            SimpleCanFault::Forward(ForwardFault::Overrun)
+            | SimpleCanFault::Verdict(CrossFault::UnknownSrdo { .. }) => (None, 0),
+        };
+        let [low, high] = id.unwrap_or(0).to_le_bytes();
+        [low, high, other]
+    }
+
     fn simplecan_fault(&mut self, fault: impl Into<SimpleCanFault>, io: &mut impl Io) {
-        self.latch(ChannelFault::SimpleCan(fault.into()), io);
+        let fault = fault.into();
+        if !self.role.speaks_for_the_node() && self.fault.is_none() {
+            // Channel A speaks for the node: its EMCY names what B found (SC_REQ_14).
+            self.send(&fault.message(), io);
+        }
+        self.latch(ChannelFault::SimpleCan(fault), io);
     }
 
     /// A frame from the bus: `true` when it was a SimpleCAN frame handled here (the caller
@@ -281,6 +318,17 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                     Ok(None) => {}
                     Err(fault) => self.simplecan_fault(SimpleCanFault::Verdict(fault), io),
                 }
+            }
+            Message::SimpleCanFault { cause, id, other } => {
+                // Channel B found it; channel A latches the same fault, so that the node's
+                // EMCY names it. Anything else is no message of the set.
+                let fault = SimpleCanFault::from_message(cause, id, other)
+                    .filter(|_| self.role.speaks_for_the_node())
+                    .map_or(
+                        ChannelFault::Link(LinkFault::Malformed),
+                        ChannelFault::SimpleCan,
+                    );
+                self.latch(fault, io);
             }
             _ => {}
         }
