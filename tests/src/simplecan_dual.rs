@@ -513,6 +513,13 @@ impl ScDualNetwork {
         from + Duration::from_micros(start - global)
     }
 
+    /// The global time channel A of node `id` has at the network's time `at`, if any.
+    pub fn global_time(&self, id: u8, at: Instant) -> Option<u64> {
+        let node = self.node(id);
+        let layer = &node.a.node().protocol().simplecan;
+        layer.global_time(node.clock(Side::A).local(at))
+    }
+
     /// The effective output of node `id` for consumed SC-ID `sc_id`: both channels'
     /// outputs in series (AND).
     pub fn output(&self, id: u8, sc_id: u8) -> u32 {

@@ -8,7 +8,7 @@ use dual_channel::crosscheck::CrossFault;
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use dual_channel::simplecan::{ForwardFault, SimpleCanFault};
 use shared::safety::cause::Cause;
-use shared::{Duration, Instant};
+use shared::{CanFrame, Duration, Instant};
 use system_tests::bus::{Fault, Match};
 use system_tests::dual::Side;
 use system_tests::simplecan_dual::ScDualNetwork;
@@ -555,5 +555,59 @@ fn sc_req_14_the_emcy_of_a_simplecan_fault_names_the_sc_id() {
     assert_eq!(
         words(node_33[0]),
         "SC-ID 30h: SimpleCAN value older than its safety timeout"
+    );
+}
+
+/// SC_REQ_23 and SC_REQ_18 together: the bus is busy with higher-priority frames (another
+/// device's, 020h) for the whole of the sync's slot, so node 1's sync is still queued when its
+/// slot-0 packet is due. Withdrawing goes by identifier (02Fh only), and the sync is not
+/// withdrawn here (it goes out within its 2 ms); the slot-0 packet waits behind it for one
+/// frame time (02Fh outranks 030h) and still ends inside its slot: no packet withdrawn, no
+/// fault, on either node, and channel B takes no more than 50 µs back from the late sync.
+#[test]
+fn sc_req_23_a_sync_held_up_by_the_bus_neither_withdraws_nor_loses_the_slot_0_packet() {
+    let mut net = running();
+    // The next sync slot: slot 9 of a cycle whose number is a multiple of k = 10.
+    let mut ahead = Duration::from_millis(1);
+    let sync_slot = loop {
+        let start = net.next_slot_start(1, 9, ahead);
+        let global = net.global_time(1, start).expect("global time");
+        if (global / 10_000) % 10 == 0 {
+            break start;
+        }
+        ahead = Duration::from_micros(ahead.as_micros() + CYCLE.as_micros());
+    };
+    net.run_until(Instant::from_micros(sync_slot.as_micros() - 20));
+    let other = CanFrame::from_parts(shared::CanId::new(0x020).unwrap(), 8, [0x55; 8]).unwrap();
+    for _ in 0..5 {
+        net.bus.send(0, other);
+    }
+    net.run_for(Duration::from_millis(200));
+    assert_eq!(net.faults(1), [None, None]);
+    assert_eq!(net.faults(33), [None, None]);
+    assert_eq!(net.output(33, ESTOP), 1);
+    let after = |id: u16| {
+        net.trace
+            .iter()
+            .find(|(at, frame, _)| *at > sync_slot && frame.id().raw() == id)
+            .map(|(at, ..)| at.as_micros() - sync_slot.as_micros())
+            .expect("on the bus")
+    };
+    let (sync, data) = (after(0x02F), after(0x030));
+    println!("after the sync slot's start: sync ends at {sync} us, slot-0 packet at {data} us");
+    assert!(
+        sync > 1_000 && sync < 2_000,
+        "the sync went in slot 0: {sync} us"
+    );
+    assert!(
+        data > sync && data < 2_000,
+        "the packet ended in its slot: {data} us"
+    );
+    assert!(
+        !net.aborts
+            .iter()
+            .any(|(at, id, _, frame)| *at > sync_slot && *id == 1 && *frame == 0x030),
+        "{:?}",
+        net.aborts
     );
 }

@@ -18,6 +18,13 @@ use super::schedule::{Cycle, Schedule};
 use super::{MAX_SYNC_INTERVAL, SYNC_CONFIRMATION_TIMEOUT, SYNC_LOSS_TIMEOUT, ScId};
 use crate::time::{Duration, Instant, expired};
 
+/// How far back [`Master::align`] moves a time base at one sync: the most two clocks within
+/// 50 ppm of the true time (SC_REQ_31) part over the longest sync interval (2 × 50 ppm ×
+/// 500 ms = 50 µs). Ahead it follows the other channel's time in full (the caller checked
+/// it); back only this far, because a sync that waited for the bus behind other frames says
+/// a time older than the true one by the wait, which a single reading cannot tell apart.
+pub const ALIGN_BACK_LIMIT: Duration = Duration::from_micros(50);
+
 /// What the master asks of the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -184,7 +191,13 @@ impl Master {
     /// the other channel's time from each (`dual_channel::simplecan`), so that two crystals
     /// within 50 ppm (SC_REQ_31) part by at most a sync interval's drift. Nothing while not
     /// active.
+    ///
+    /// A `global` behind its own time at `now` moves it back by [`ALIGN_BACK_LIMIT`] at most.
     pub fn align(&mut self, now: Instant, global: u64) {
+        let Some(own) = self.global_time(now) else {
+            return;
+        };
+        let global = global.max(own.saturating_sub(ALIGN_BACK_LIMIT.as_micros()));
         let aligned = Anchor { local: now, global };
         match &mut self.state {
             State::Active { anchor, next_sync } => {
@@ -435,6 +448,14 @@ mod tests {
             panic!("no sync at 599.9 ms");
         };
         assert_eq!((sync.cycle(), sync.offset_micros()), (10, 0));
+        master.on_transmitted();
+        // Behind its own time by 1 ms (a sync that waited for the bus, say): back 50 µs only.
+        let own = master.global_time(at(600)).unwrap();
+        master.align(at(600), own - 1_000);
+        assert_eq!(
+            master.global_time(at(600)),
+            Some(own - ALIGN_BACK_LIMIT.as_micros())
+        );
     }
 
     /// Masters powered up together: the lowest SC-ID sends first, the next hears it within
