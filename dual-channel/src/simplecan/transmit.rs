@@ -6,7 +6,8 @@
 //! boot-up, SDO answers, EMCY, the plain SRDO frames), and channel B's controller receives
 //! what A's sends (one transceiver, Model III), so B can see every packet of the node and A
 //! cannot see its own. B's core runs the same SimpleCAN layer on the same configuration and
-//! the same received frames, so it hands out the same packets at the same slots; the
+//! the same received frames, on its own samples and its own clock, so it hands out the same
+//! packets at the same slots (within the sample window and the sync tolerance below); the
 //! runtime keeps them here instead of sending them.
 //!
 //! - A data packet must come back from the bus **bit for bit** as B computed it (value,
