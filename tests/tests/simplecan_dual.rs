@@ -611,3 +611,28 @@ fn sc_req_23_a_sync_held_up_by_the_bus_neither_withdraws_nor_loses_the_slot_0_pa
         net.aborts
     );
 }
+
+/// The other way (SC_REQ_10, Model A): channel A's clock running 2500 ppm slow. Its syncs
+/// come late, which B cannot tell from a sync that waited for the bus, so B's time moves
+/// back 50 µs per sync only (`ALIGN_BACK_LIMIT`) and runs ahead of A's by 200 µs per 100 ms
+/// interval: A's packets then come later than the end of B's slot, 79h on 030h, within half
+/// a second (measured 370 ms; 1000 ppm slow: 1.4 s; 500 ppm, what the limit makes up for at
+/// a sync every 100 ms: not found).
+#[test]
+fn sc_req_10_channel_a_s_clock_running_slow_beyond_the_limit_is_found_by_its_packets() {
+    let mut net = running();
+    let start = net.now;
+    net.set_clock(1, Side::A, -2_500);
+    let mut found = None;
+    while found.is_none() && net.now < start + Duration::from_millis(1_000) {
+        net.run_for(Duration::from_millis(10));
+        found = net.node(1).b.fault().map(|fault| (net.now, fault));
+    }
+    let (at, fault) = found.expect("found within 1 s");
+    assert_eq!(
+        fault,
+        ChannelFault::SimpleCan(SimpleCanFault::TransmitMissing { id: 0x030 })
+    );
+    assert!(at <= start + Duration::from_millis(500), "{at:?}");
+    assert_safe_with(&net, 1, Cause::SimpleCanTransmitMissing);
+}
