@@ -653,6 +653,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             len,
         };
         Self::write_input(&mut self.node, &sample)?;
+        let before = self
+            .inputs
+            .iter()
+            .find(|entry| entry.plain == plain)
+            .map_or(sample.value(), InputSample::value);
         match self.inputs.iter_mut().find(|entry| entry.plain == plain) {
             Some(entry) => *entry = sample,
             None => {
@@ -677,6 +682,10 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         // After the core's frame for this sample: a sample back where it was supersedes the
         // frame of the short difference, which never goes on the bus.
         self.release_waiting(now, io);
+        #[cfg(feature = "simplecan")]
+        self.simplecan_sampled(now, plain, before, sample.value(), io);
+        #[cfg(not(feature = "simplecan"))]
+        let _ = before;
         Ok(())
     }
 
@@ -1124,7 +1133,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 }
             }
             #[cfg(feature = "simplecan")]
-            message @ (Message::SimpleCanPacket { .. } | Message::SimpleCanVerdict { .. }) => {
+            message @ (Message::SimpleCanPacket { .. }
+            | Message::SimpleCanVerdict { .. }
+            | Message::SimpleCanFault { .. }) => {
                 self.simplecan_message(now, message, io);
             }
             Message::SafeState { cause } => {
@@ -1268,6 +1279,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 let [low, high] = id.to_le_bytes();
                 [low, high, 0]
             }
+            #[cfg(feature = "simplecan")]
+            ChannelFault::SimpleCan(fault) => self.simplecan_named(fault),
             _ => [0; 3],
         };
         self.node

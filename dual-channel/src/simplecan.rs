@@ -240,6 +240,8 @@ pub struct Layer {
     pub running: bool,
     /// Data packets it accepted and delivered since the Operational entry.
     pub accepted: u32,
+    /// 5E00h:03, the stated maximum buffering time of a received packet (SC_REQ_33).
+    pub buffering: Duration,
 }
 
 impl Layer {
@@ -276,6 +278,19 @@ impl Layer {
             .filter(|entry| entry.role == ROLE_PRODUCE)
             .map(|entry| entry.sc_id)
             .min()
+    }
+
+    /// The entries that produce their value from the object at `address`.
+    pub fn produced_from(
+        &self,
+        address: shared::canopen::od::Address,
+    ) -> impl Iterator<Item = &EntryObjects> {
+        self.in_use().iter().filter(move |entry| {
+            let [_, sub, low, high] = entry.mapped.to_le_bytes();
+            entry.role == ROLE_PRODUCE
+                && address.index == u16::from_le_bytes([low, high])
+                && address.sub == sub
+        })
     }
 
     /// `true` for a frame only this node sends: a data packet of an SC-ID it produces, or
@@ -317,6 +332,7 @@ impl<const N: usize, const E: usize> ChannelProtocol<N> for SrdoAndSimpleCan<N, 
             potential_master: objects.potential_master == 1,
             running: layer.is_running(),
             accepted: layer.counters().accepted,
+            buffering: Duration::from_micros(u64::from(objects.buffering_us)),
         })
     }
 }
@@ -397,6 +413,65 @@ pub enum SimpleCanFault {
 }
 
 impl SimpleCanFault {
+    /// The link message by which channel B hands this fault to channel A
+    /// ([`Message::SimpleCanFault`]).
+    pub fn message(self) -> Message {
+        let (id, other) = match self {
+            SimpleCanFault::Forward(ForwardFault::Differs { heard, forwarded }) => {
+                (heard, forwarded)
+            }
+            SimpleCanFault::Forward(ForwardFault::Lost { id } | ForwardFault::Unheard { id })
+            | SimpleCanFault::TransmitMismatch { id }
+            | SimpleCanFault::TransmitMissing { id } => (id, 0),
+            SimpleCanFault::Forward(ForwardFault::Overrun) => (0, 0),
+            SimpleCanFault::Verdict(
+                CrossFault::Disagreement { srdo: entry }
+                | CrossFault::Unconfirmed { srdo: entry }
+                | CrossFault::QueueFull { srdo: entry },
+            ) => (u16::from(entry.get()), 0),
+            SimpleCanFault::Verdict(CrossFault::UnknownSrdo { srdo }) => (u16::from(srdo), 0),
+        };
+        Message::SimpleCanFault {
+            cause: self.cause().code(),
+            id,
+            other,
+        }
+    }
+
+    /// The fault [`SimpleCanFault::message`] carried as `cause`, `id` and `other`; `None`
+    /// for a cause that is no SimpleCAN fault of the pair of channels, or an entry that is
+    /// none (not a message of the set).
+    pub fn from_message(cause: u8, id: u16, other: u16) -> Option<Self> {
+        let entry = || ConsumedEntry::from_number(u8::try_from(id).ok()?);
+        let fault = match Cause::from_code(cause)? {
+            Cause::SimpleCanForwardDiffers => SimpleCanFault::Forward(ForwardFault::Differs {
+                heard: id,
+                forwarded: other,
+            }),
+            Cause::SimpleCanForwardLost => SimpleCanFault::Forward(ForwardFault::Lost { id }),
+            Cause::SimpleCanForwardUnheard => SimpleCanFault::Forward(ForwardFault::Unheard { id }),
+            Cause::SimpleCanForwardOverrun => SimpleCanFault::Forward(ForwardFault::Overrun),
+            Cause::SimpleCanVerdictsDisagree => {
+                SimpleCanFault::Verdict(CrossFault::Disagreement { srdo: entry()? })
+            }
+            Cause::SimpleCanVerdictUnconfirmed => {
+                SimpleCanFault::Verdict(CrossFault::Unconfirmed { srdo: entry()? })
+            }
+            Cause::SimpleCanVerdictForUnknownEntry => {
+                SimpleCanFault::Verdict(CrossFault::UnknownSrdo {
+                    srdo: u8::try_from(id).ok()?,
+                })
+            }
+            Cause::SimpleCanVerdictQueueFull => {
+                SimpleCanFault::Verdict(CrossFault::QueueFull { srdo: entry()? })
+            }
+            Cause::SimpleCanTransmitMismatch => SimpleCanFault::TransmitMismatch { id },
+            Cause::SimpleCanTransmitMissing => SimpleCanFault::TransmitMissing { id },
+            _ => return None,
+        };
+        Some(fault)
+    }
+
     /// The fault's cause code and name ([`Cause`]).
     pub const fn cause(self) -> Cause {
         match self {
@@ -451,7 +526,7 @@ impl Checks {
         Checks {
             forward: ForwardCheck::new(window),
             verdicts: VerdictCheck::new(timeout),
-            transmit: TransmitCheck::new(),
+            transmit: TransmitCheck::new(window),
             outputs: [Output::default(); ENTRIES],
         }
     }

@@ -85,6 +85,58 @@ pub struct ScDualNode {
     /// Faults in one channel's receive path (that channel's controller alone).
     pub receive_faults: Vec<(Side, Injection)>,
     held_back: Vec<(Instant, Side, CanFrame)>,
+    /// How fast each channel's clock runs against the network's time (channel A, channel B;
+    /// exact unless [`ScDualNetwork::set_clock`] says otherwise). Each channel is handed its
+    /// own time, `Clock::local`.
+    clocks: [Clock; 2],
+}
+
+/// One channel's time base: the network's time, running `ppm` parts per million fast (or
+/// slow) from `from` on (SC_REQ_31: a crystal within 50 ppm).
+#[derive(Clone, Copy, Default)]
+struct Clock {
+    ppm: i64,
+    from: Instant,
+}
+
+impl Clock {
+    /// The channel's own time at the network's time `real`.
+    fn local(&self, real: Instant) -> Instant {
+        if self.ppm == 0 || real == Instant::NEVER || real <= self.from {
+            return real;
+        }
+        let micros = i128::from(real.as_micros());
+        let since = i128::from(real.as_micros() - self.from.as_micros());
+        let local = micros + since * i128::from(self.ppm) / 1_000_000;
+        Instant::from_micros(u64::try_from(local.max(0)).unwrap_or(u64::MAX))
+    }
+
+    /// The first network time at which the channel's own time has reached `local`.
+    fn real(&self, local: Instant) -> Instant {
+        if self.ppm == 0 || local == Instant::NEVER {
+            return local;
+        }
+        if local <= self.from {
+            return local;
+        }
+        let from = i128::from(self.from.as_micros());
+        let since = i128::from(local.as_micros()) - from;
+        let guess = from + since * 1_000_000 / (1_000_000 + i128::from(self.ppm));
+        let mut real = u64::try_from(guess.max(0)).unwrap_or(u64::MAX);
+        while real > 0 && self.local(Instant::from_micros(real - 1)) >= local {
+            real -= 1;
+        }
+        while self.local(Instant::from_micros(real)) < local {
+            real += 1;
+        }
+        Instant::from_micros(real)
+    }
+}
+
+impl ScDualNode {
+    fn clock(&self, side: Side) -> Clock {
+        self.clocks[side as usize]
+    }
 }
 
 /// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
@@ -141,6 +193,7 @@ impl ScDualNetwork {
                 deadlines: [Instant::ZERO; 2],
                 receive_faults: Vec::new(),
                 held_back: Vec::new(),
+                clocks: [Clock::default(); 2],
             })
             .collect();
         let mut bus = Bus::new(bit_rate, 1 + 2 * nodes.len());
@@ -344,6 +397,7 @@ impl ScDualNetwork {
                 return;
             }
             wire.bytes.pop_front();
+            let at = node.clock(side).local(at);
             self.with_channel(index, side, |_, a, b, out| match (a, b) {
                 (Some(a), _) => a.on_link_byte(at, byte, out),
                 (_, Some(b)) => b.on_link_byte(at, byte, out),
@@ -362,17 +416,19 @@ impl ScDualNetwork {
         let mut out = Out::default();
         let now = self.now;
         let node = &mut self.nodes[index];
+        let clock = node.clock(side);
+        let local = clock.local(now);
         let deadline = match side {
             Side::A => {
-                action(now, Some(&mut node.a), None, &mut out);
-                node.a.poll(now, &mut out)
+                action(local, Some(&mut node.a), None, &mut out);
+                node.a.poll(local, &mut out)
             }
             Side::B => {
-                action(now, None, Some(&mut node.b), &mut out);
-                node.b.poll(now, &mut out)
+                action(local, None, Some(&mut node.b), &mut out);
+                node.b.poll(local, &mut out)
             }
         };
-        node.deadlines[side as usize] = deadline;
+        node.deadlines[side as usize] = clock.real(deadline);
         let id = node.id;
         if !out.link.is_empty() {
             let wire = match side {
@@ -416,6 +472,52 @@ impl ScDualNetwork {
                 result.expect("input object");
             });
         }
+    }
+
+    /// From now on, channel `side` of node `id`'s clock runs `ppm` parts per million fast
+    /// (negative: slow) against the network's time, from an exact one.
+    pub fn set_clock(&mut self, id: u8, side: Side, ppm: i64) {
+        let index = self.index(id);
+        self.nodes[index].clocks[side as usize] = Clock {
+            ppm,
+            from: self.now,
+        };
+    }
+
+    /// Channel `side` of node `id` alone samples its contact of 6000h:01 as `value` (the
+    /// two contacts of one emergency stop never move at exactly the same moment).
+    pub fn set_input_of(&mut self, id: u8, side: Side, value: u8) {
+        let index = self.index(id);
+        let plain = Address::new(0x6000, 1);
+        let inverted = Address::new(0x6001, 1);
+        self.with_channel(index, side, |now, a, b, out| {
+            let result = match (a, b) {
+                (Some(a), _) => a.set_input(now, plain, inverted, &[value], out),
+                (_, Some(b)) => b.set_input(now, plain, inverted, &[value], out),
+                _ => Ok(()),
+            };
+            result.expect("input object");
+        });
+    }
+
+    /// The next start of slot `slot` at least `ahead` from now, by the global time channel
+    /// A of node `id` has (its own as the master, or the one it is synced to).
+    pub fn next_slot_start(&self, id: u8, slot: u16, ahead: Duration) -> Instant {
+        let layer = &self.node(id).a.node().protocol().simplecan;
+        let cycle = u64::from(layer.objects().slots) * 1000;
+        let from = self.now + ahead;
+        let local = self.node(id).clock(Side::A).local(from);
+        let global = layer.global_time(local).expect("a global time");
+        let offset = u64::from(slot) * 1000;
+        let start = (global.saturating_sub(offset)).div_ceil(cycle) * cycle + offset;
+        from + Duration::from_micros(start - global)
+    }
+
+    /// The global time channel A of node `id` has at the network's time `at`, if any.
+    pub fn global_time(&self, id: u8, at: Instant) -> Option<u64> {
+        let node = self.node(id);
+        let layer = &node.a.node().protocol().simplecan;
+        layer.global_time(node.clock(Side::A).local(at))
     }
 
     /// The effective output of node `id` for consumed SC-ID `sc_id`: both channels'

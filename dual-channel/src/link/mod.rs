@@ -135,6 +135,20 @@ pub enum Message {
         /// `true` when the sender's channel accepted it (CRC, slot, cycle: delivered).
         valid: bool,
     },
+    /// Channel B found a SimpleCAN fault of the pair of channels (sent before its
+    /// [`Message::SafeState`]): channel A, which speaks for the node, latches the same fault,
+    /// so that its EMCY FF02h carries the cause and names the identifier, as for
+    /// [`Message::TransmitMismatch`]. After [`Message::SimpleCanVerdict`], behind the same
+    /// feature.
+    #[cfg(feature = "simplecan")]
+    SimpleCanFault {
+        /// The cause code, 70h..79h (`crate::simplecan::SimpleCanFault::cause`).
+        cause: u8,
+        /// The identifier concerned (a consumed entry's fault: the entry number, 1-based).
+        id: u16,
+        /// A copy that differs: the identifier of channel A's copy; otherwise 0.
+        other: u16,
+    },
 }
 
 /// Why the link is not trustworthy.

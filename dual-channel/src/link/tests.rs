@@ -364,3 +364,22 @@ fn sc_req_10_a_simplecan_verdict_crosses_the_link_and_fits_the_bound() {
     assert!(wire.len() <= MAX_WIRE);
     assert_eq!(feed(&mut receiver, Instant::ZERO, &wire), [Ok(largest)]);
 }
+
+#[cfg(feature = "simplecan")]
+#[test]
+fn sc_req_14_a_simplecan_fault_crosses_the_link_and_fits_the_bound() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let largest = Message::SimpleCanFault {
+        cause: u8::MAX,
+        id: u16::MAX,
+        other: u16::MAX,
+    };
+    let mut raw = [0u8; MAX_RAW];
+    let bytes = postcard::to_slice(&largest, &mut raw).unwrap().to_vec();
+    assert_eq!(bytes.len(), 8);
+    assert_eq!(bytes[0], 10, "after SimpleCanVerdict");
+    let wire = sender.encode(&largest).unwrap();
+    assert!(wire.len() <= MAX_WIRE);
+    assert_eq!(feed(&mut receiver, Instant::ZERO, &wire), [Ok(largest)]);
+}

@@ -64,8 +64,101 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         self.after_core(now, &collect, io);
     }
 
+    /// Channel B: channel A's packet `on_bus` stands for one of B's own, which B's core
+    /// learns of as sent (Model A); a sync's time B's master takes from A's
+    /// (`Device::on_partner_transmitted`).
+    fn own_sent(&mut self, now: Instant, on_bus: RawFrame, io: &mut impl Io) {
+        if !self.link_up {
+            return;
+        }
+        // A frame off the bus, or B's own packet, which its core built: a frame either way.
+        if let Ok(id) = shared::CanId::new(on_bus.id)
+            && let Ok(frame) = CanFrame::from_parts(id, on_bus.len, on_bus.data)
+        {
+            let mut collect = Collect::new();
+            self.node.on_partner_transmitted(now, &frame, &mut collect);
+            self.after_core(now, &collect, io);
+        }
+    }
+
+    /// Channel B sampled its input `plain` at `now`, `before` then `value` (the sample's
+    /// bytes, little-endian): for each value the node produces from that object, the
+    /// Model A check learns B's sample, and a packet of A's waiting for it stands for B's.
+    pub(super) fn simplecan_sampled(
+        &mut self,
+        now: Instant,
+        plain: shared::canopen::od::Address,
+        before: u64,
+        value: u64,
+        io: &mut impl Io,
+    ) {
+        if self.role.speaks_for_the_node() {
+            return;
+        }
+        let Some(layer) = self.node.protocol().simplecan() else {
+            return;
+        };
+        for entry in layer.produced_from(plain) {
+            let bits = entry.mapped & 0xFF;
+            let mask = if bits >= 32 {
+                u32::MAX
+            } else {
+                (1u32 << bits) - 1
+            };
+            // The produced value is the object's bytes, at most 4 (docs/simplecan.md section 2).
+            let of = |sample: u64| (sample as u32) & mask;
+            let id = u16::from(entry.sc_id);
+            if let Some(own) = self
+                .simplecan
+                .transmit
+                .sampled(now, id, of(before), of(value))
+                && layer.running
+                && self.is_working()
+            {
+                self.own_sent(now, own, io);
+            }
+        }
+    }
+
+    /// What the EMCY FF02h of `fault` names in bytes 2..=4, as for a foreign frame: the CAN
+    /// identifier of the packet concerned (least significant octet first; a consumed entry's
+    /// by its SC-ID), and for a copy that differs the identifier of A's copy in byte 4
+    /// (SimpleCAN identifiers are 02Fh..07Fh); nothing for an overrun or an unknown entry.
+    pub(super) fn simplecan_named(&self, fault: SimpleCanFault) -> [u8; 3] {
+        use crate::crosscheck::CrossFault;
+        use crate::simplecan::ForwardFault;
+        let entry_id = |entry: crate::simplecan::ConsumedEntry| {
+            self.node
+                .protocol()
+                .simplecan()
+                .and_then(|layer| layer.entries.get(entry.index()).map(|e| u16::from(e.sc_id)))
+        };
+        let (id, other) = match fault {
+            SimpleCanFault::Forward(ForwardFault::Differs { heard, forwarded }) => {
+                (Some(heard), forwarded as u8)
+            }
+            SimpleCanFault::Forward(ForwardFault::Lost { id } | ForwardFault::Unheard { id })
+            | SimpleCanFault::TransmitMismatch { id }
+            | SimpleCanFault::TransmitMissing { id } => (Some(id), 0),
+            SimpleCanFault::Verdict(
+                CrossFault::Disagreement { srdo: entry }
+                | CrossFault::Unconfirmed { srdo: entry }
+                | CrossFault::QueueFull { srdo: entry },
+            ) => (entry_id(entry), 0),
+            SimpleCanFault::Forward(ForwardFault::Overrun)
+            | SimpleCanFault::Verdict(CrossFault::UnknownSrdo { .. }) => (None, 0),
+        };
+        let [low, high] = id.unwrap_or(0).to_le_bytes();
+        [low, high, other]
+    }
+
     fn simplecan_fault(&mut self, fault: impl Into<SimpleCanFault>, io: &mut impl Io) {
-        self.latch(ChannelFault::SimpleCan(fault.into()), io);
+        let fault = fault.into();
+        if !self.role.speaks_for_the_node() && self.fault.is_none() {
+            // Channel A speaks for the node: its EMCY names what B found (SC_REQ_14).
+            self.send(&fault.message(), io);
+        }
+        self.latch(ChannelFault::SimpleCan(fault), io);
     }
 
     /// A frame from the bus: `true` when it was a SimpleCAN frame handled here (the caller
@@ -90,14 +183,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         } else if layer.is_own(&raw) {
             // Model A: the node's own packet, channel A's on the bus.
             let decoded = self.role.simplecan_decode(&raw, |id| layer.hash_of(id));
-            match self.simplecan.transmit.heard(raw, decoded) {
-                Ok(own) => {
-                    let own = CanFrame::from_parts(frame.id(), own.len, own.data);
-                    // B's own packet was a frame its core built, so it is one.
-                    if let Ok(own) = own {
-                        self.on_transmitted(now, &own, io);
-                    }
-                }
+            let buffering = layer.buffering;
+            match self.simplecan.transmit.heard(now, raw, decoded, buffering) {
+                Ok(Some(own)) => self.own_sent(now, own, io),
+                // Its value waits for B's next sample (the window).
+                Ok(None) => {}
                 Err(fault) => self.simplecan_fault(fault, io),
             }
             return true;
@@ -228,6 +318,17 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                     Ok(None) => {}
                     Err(fault) => self.simplecan_fault(SimpleCanFault::Verdict(fault), io),
                 }
+            }
+            Message::SimpleCanFault { cause, id, other } => {
+                // Channel B found it; channel A latches the same fault, so that the node's
+                // EMCY names it. Anything else is no message of the set.
+                let fault = SimpleCanFault::from_message(cause, id, other)
+                    .filter(|_| self.role.speaks_for_the_node())
+                    .map_or(
+                        ChannelFault::Link(LinkFault::Malformed),
+                        ChannelFault::SimpleCan,
+                    );
+                self.latch(fault, io);
             }
             _ => {}
         }

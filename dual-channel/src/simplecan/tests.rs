@@ -211,6 +211,7 @@ fn sc_req_10_a_layer_knows_the_node_s_own_packets_and_its_consumed_entries() {
         potential_master: true,
         running: true,
         accepted: 0,
+        buffering: Duration::ZERO,
     };
     let frame = |id, first| RawFrame {
         id,

@@ -6,19 +6,38 @@
 //! boot-up, SDO answers, EMCY, the plain SRDO frames), and channel B's controller receives
 //! what A's sends (one transceiver, Model III), so B can see every packet of the node and A
 //! cannot see its own. B's core runs the same SimpleCAN layer on the same configuration and
-//! the same received frames, so it hands out the same packets at the same slots; the
+//! the same received frames, on its own samples and its own clock, so it hands out the same
+//! packets at the same slots (within the sample window and the sync tolerance below); the
 //! runtime keeps them here instead of sending them.
 //!
 //! - A data packet must come back from the bus **bit for bit** as B computed it (value,
 //!   cycle stamp, CRC), within its slot (1 ms, docs/simplecan.md section 5): otherwise
 //!   [`TransmitFault::Mismatch`] or, at the end of the slot, [`TransmitFault::Missing`].
-//! - A sync carries the time its master read when it sent it, so the two channels' syncs
-//!   agree in the master's SC-ID and the cycle number and differ in the offset by as much as
-//!   their clocks do: B requires the same master and cycle, an offset within
-//!   [`SYNC_OFFSET_TOLERANCE`] of its own and a CRC its own decoder accepts, within 2 ms
-//!   (SC_REQ_23).
+//! - **Syncs, each channel on its own clock.** B's master decides on B's own clock when its
+//!   syncs are due (listening, `t_wait`, the cycle: `shared::simplecan::master`), and A's sync
+//!   on the bus is checked against B's own: the same master and cycle, a CRC B's own decoder
+//!   accepts, within 2 ms of B's (SC_REQ_23), and **not ahead of B's own time** by more than
+//!   [`SYNC_OFFSET_TOLERANCE`]: the global time A's sync gives (its cycle and offset, plus the
+//!   buffering time the node states, 5E00h:03, as every receiver takes it, SC_REQ_33) against
+//!   B's global time when it hears it. A sync that agrees is confirmed to B's core with A's
+//!   frame, and B's master takes its time from it (`Device::on_partner_transmitted`): so two
+//!   clocks within 50 ppm of each other (SC_REQ_31) part by at most a sync interval's drift
+//!   (50 µs at 500 ms), while a clock of A's running ahead of B's by more than the tolerance
+//!   over one sync interval (2000 ppm at 100 ms, 400 ppm at 500 ms) is a mismatch. Behind,
+//!   A's sync cannot be told from one that waited for the bus; 2 ms is the bound there.
 //! - A packet of the node (an SC-ID it produces, a sync naming its master SC-ID) that B did
 //!   not compute is a mismatch too: A's core is not doing what B's does.
+//! - **The sample window.** Each channel's core reads the produced value from its own sample
+//!   (its own contact of an emergency stop) at the start of the slot, and two contacts never
+//!   move at exactly the same moment: across a slot start A's packet may carry the value
+//!   before the change and B's the one after, or the other way round. A data packet that
+//!   differs from B's only in its value, with a CRC B's own decoder accepts and B's cycle
+//!   stamp, stands for B's when its value is one of B's samples within the window (as for
+//!   an SRDO frame, `channel_b::role`): B's previous sample, replaced less than the window
+//!   before the packet was heard, or B's next sample, taken within the window after it (the
+//!   packet waits for it, [`TransmitCheck::sampled`]). Otherwise, and at once for any other
+//!   difference, it is a mismatch. A SimpleCAN packet cannot wait for the channels' samples
+//!   to agree as a changed SRDO frame does: it must go in its slot (section 5).
 //!
 //! Sans-I/O: fed frames and `now`, it returns faults and its next deadline.
 
@@ -26,9 +45,17 @@ use super::{Decoded, RawFrame};
 use shared::time::expired;
 use shared::{Duration, Instant};
 
-/// How far apart the offsets of the two channels' syncs may be: the channels' loops handle
-/// NMT start (which starts both masters' clocks) within the link latency of each other
-/// (about 0.2 ms at most), far less than the 2 ms a receiver tolerates (SC_REQ_30).
+/// How many produced values channel B keeps a sample history of, and how many of A's
+/// packets may wait for B's next sample: one per SDD entry.
+const PRODUCED: usize = super::ENTRIES;
+
+/// How far channel A's sync may be ahead of channel B's own time: the global time A's sync
+/// gives when B hears it (with the stated buffering time) against B's. Two clocks within
+/// 50 ppm (SC_REQ_31) part by 50 µs over the longest sync interval (500 ms), the channels'
+/// loops handle NMT start (which starts both masters) within the link latency of each other
+/// (about 0.2 ms at most, once, before the first sync aligns them), and the stated buffering
+/// time exceeds the sync's real frame time by a few bit times: far less than the 2 ms a
+/// receiver tolerates (SC_REQ_30).
 pub const SYNC_OFFSET_TOLERANCE: Duration = Duration::from_micros(200);
 
 /// How long a data packet of the node may take to appear on the bus: its slot.
@@ -56,16 +83,69 @@ pub enum TransmitFault {
     },
 }
 
+/// Channel B's previous sample of a produced value: the value before its latest change, and
+/// when it changed.
+#[derive(Clone, Copy, Debug)]
+struct Previous {
+    id: u16,
+    value: u32,
+    replaced: Instant,
+}
+
+/// Channel A's data packet on the bus whose value is not B's, waiting until `until` for B's
+/// next sample to take that value.
+#[derive(Clone, Copy, Debug)]
+struct Disputed {
+    own: RawFrame,
+    value: u32,
+    until: Instant,
+}
+
 /// Channel B's packets of the node that wait for channel A's on the bus.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct TransmitCheck {
+    window: Duration,
     waiting: heapless::Vec<(RawFrame, Instant), WAITING>,
+    previous: heapless::Vec<Previous, PRODUCED>,
+    disputed: heapless::Vec<Disputed, PRODUCED>,
 }
 
 impl TransmitCheck {
-    /// Nothing waiting.
-    pub fn new() -> Self {
-        TransmitCheck::default()
+    /// Nothing waiting; A's value is accepted when it is one of B's samples within `window`
+    /// (the channels' sample window).
+    pub fn new(window: Duration) -> Self {
+        TransmitCheck {
+            window,
+            waiting: heapless::Vec::new(),
+            previous: heapless::Vec::new(),
+            disputed: heapless::Vec::new(),
+        }
+    }
+
+    /// Channel B's own sample of the value it produces on identifier `id` changed at `now`
+    /// from `before` to `after`. A packet of A's waiting for that value stands for B's now:
+    /// B's own packet, to confirm to B's core as sent.
+    pub fn sampled(&mut self, now: Instant, id: u16, before: u32, after: u32) -> Option<RawFrame> {
+        if before != after {
+            let previous = Previous {
+                id,
+                value: before,
+                replaced: now,
+            };
+            match self.previous.iter_mut().find(|kept| kept.id == id) {
+                Some(kept) => *kept = previous,
+                // One per produced SC-ID, at most ENTRIES: a value beyond is not kept, and
+                // A's packet then has to equal B's own.
+                None => {
+                    let _ = self.previous.push(previous);
+                }
+            }
+        }
+        let index = self
+            .disputed
+            .iter()
+            .position(|disputed| disputed.own.id == id && disputed.value == after)?;
+        Some(self.disputed.swap_remove(index).own)
     }
 
     /// B's core handed out `own` at `now`: channel A's must appear by its deadline. A packet
@@ -83,71 +163,145 @@ impl TransmitCheck {
             .map_err(|_| TransmitFault::Mismatch { id: own.id })
     }
 
-    /// A packet of the node was heard on the bus (`decoded` by B's own decoder): B's own
-    /// packet it stands for, to confirm to B's core as sent.
-    pub fn heard(&mut self, heard: RawFrame, decoded: Decoded) -> Result<RawFrame, TransmitFault> {
+    /// A packet of the node was heard on the bus at `now` (`decoded` by B's own decoder):
+    /// `Ok(Some(own))`, B's own packet it stands for, to confirm to B's core as sent;
+    /// `Ok(None)`, a data packet whose value waits for B's next sample (the window).
+    ///
+    /// A sync that agrees is answered with `heard`, A's own: B's core takes its time from it.
+    /// `buffering` is the node's stated buffering time (5E00h:03, SC_REQ_33).
+    pub fn heard(
+        &mut self,
+        now: Instant,
+        heard: RawFrame,
+        decoded: Decoded,
+        buffering: Duration,
+    ) -> Result<Option<RawFrame>, TransmitFault> {
         let mismatch = TransmitFault::Mismatch { id: heard.id };
         let index = self
             .waiting
             .iter()
             .position(|(own, _)| own.id == heard.id)
             .ok_or(mismatch)?;
-        let (own, _) = self.waiting.swap_remove(index);
-        if agrees(&own, &heard, decoded) {
-            Ok(own)
-        } else {
-            Err(mismatch)
+        let (own, deadline) = self.waiting.swap_remove(index);
+        if let Decoded::Sync { .. } = Decoded::fields(&own) {
+            // B computed its own sync SYNC_WITHIN before the deadline.
+            let computed = Instant::from_micros(deadline.as_micros() - SYNC_WITHIN.as_micros());
+            let since = now.saturating_since(computed);
+            return sync_agrees(&own, decoded, since, buffering)
+                .then_some(Some(heard))
+                .ok_or(mismatch);
         }
+        if own == heard {
+            return Ok(Some(own));
+        }
+        let Some(value) = other_value(&own, &heard, decoded) else {
+            return Err(mismatch);
+        };
+        let recent = self.previous.iter().any(|previous| {
+            previous.id == own.id
+                && previous.value == value
+                && !expired(previous.replaced + self.window, now)
+        });
+        if recent {
+            return Ok(Some(own));
+        }
+        let disputed = Disputed {
+            own,
+            value,
+            until: now + self.window,
+        };
+        // At most one of B's packets per produced SC-ID waits, so at most one dispute.
+        self.disputed
+            .push(disputed)
+            .map(|()| None)
+            .map_err(|_| mismatch)
     }
 
-    /// The fault of a packet of B's whose deadline has passed at `now`, if any.
+    /// The fault of a packet of B's whose deadline has passed at `now`, if any: not on the
+    /// bus in time, or on the bus with a value B's next sample did not take in time.
     pub fn poll(&self, now: Instant) -> Result<(), TransmitFault> {
-        match self.waiting.iter().find(|(_, at)| expired(*at, now)) {
-            Some((own, _)) => Err(TransmitFault::Missing { id: own.id }),
+        if let Some((own, _)) = self.waiting.iter().find(|(_, at)| expired(*at, now)) {
+            return Err(TransmitFault::Missing { id: own.id });
+        }
+        match self
+            .disputed
+            .iter()
+            .find(|disputed| expired(disputed.until, now))
+        {
+            Some(disputed) => Err(TransmitFault::Mismatch {
+                id: disputed.own.id,
+            }),
             None => Ok(()),
         }
     }
 
     /// When [`poll`](Self::poll) must run next ([`Instant::NEVER`]: nothing waits).
     pub fn deadline(&self) -> Instant {
-        self.waiting
-            .iter()
-            .map(|(_, at)| *at)
-            .min()
-            .unwrap_or(Instant::NEVER)
+        let waiting = self.waiting.iter().map(|(_, at)| *at);
+        let disputed = self.disputed.iter().map(|disputed| disputed.until);
+        waiting.chain(disputed).min().unwrap_or(Instant::NEVER)
     }
 
-    /// Forgets every waiting packet (leaving Operational, NMT reset).
+    /// Forgets every waiting packet (leaving Operational, NMT reset); B's sample history
+    /// stays, it is the inputs', not the layer's.
     pub fn reset(&mut self) {
         self.waiting.clear();
+        self.disputed.clear();
     }
 }
 
-/// `heard` on the bus stands for B's `own` packet: a data packet bit for bit; a sync by
-/// master, cycle and an offset within [`SYNC_OFFSET_TOLERANCE`], with a CRC B's decoder
-/// accepted (`decoded`).
-fn agrees(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> bool {
+/// The value of `heard`, a data packet that differs from B's `own` in its value alone: the
+/// same identifier, length and cycle stamp, and a CRC B's decoder accepted (`decoded`).
+/// `None` for any other difference.
+fn other_value(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> Option<u32> {
     match (Decoded::fields(own), decoded) {
         (
-            Decoded::Sync {
-                master,
-                cycle,
-                offset_micros,
+            Decoded::Data {
+                sc_id, cycle_stamp, ..
             },
-            Decoded::Sync {
-                master: heard_master,
-                cycle: heard_cycle,
-                offset_micros: heard_offset,
+            Decoded::Data {
+                sc_id: heard_id,
+                value,
+                cycle_stamp: heard_stamp,
             },
-        ) => {
-            master == heard_master
-                && cycle == heard_cycle
-                && u64::from(offset_micros.abs_diff(heard_offset))
-                    <= SYNC_OFFSET_TOLERANCE.as_micros()
+        ) if heard.id == own.id
+            && heard.len == own.len
+            && u16::from(heard_id) == own.id
+            && sc_id == heard_id
+            && heard_stamp == cycle_stamp =>
+        {
+            Some(value)
         }
-        (Decoded::Data { .. }, _) => own == heard,
-        _ => false,
+        _ => None,
     }
+}
+
+/// A's sync (`decoded` by B's own decoder, heard `since` B computed `own`) stands for B's
+/// `own`: the same master and cycle, and the global time it gives with `buffering` not ahead
+/// of B's own global time by more than [`SYNC_OFFSET_TOLERANCE`]. B's global time at the
+/// hearing is its own sync's plus `since`; both syncs' cycles are the same, so the offsets
+/// say it.
+fn sync_agrees(own: &RawFrame, decoded: Decoded, since: Duration, buffering: Duration) -> bool {
+    let (
+        Decoded::Sync {
+            master,
+            cycle,
+            offset_micros,
+        },
+        Decoded::Sync {
+            master: heard_master,
+            cycle: heard_cycle,
+            offset_micros: heard_offset,
+        },
+    ) = (Decoded::fields(own), decoded)
+    else {
+        return false;
+    };
+    let own_time = u64::from(offset_micros) + since.as_micros();
+    let given = u64::from(heard_offset) + buffering.as_micros();
+    master == heard_master
+        && cycle == heard_cycle
+        && given <= own_time + SYNC_OFFSET_TOLERANCE.as_micros()
 }
 
 #[cfg(test)]
@@ -168,40 +322,141 @@ mod tests {
         data: [0x30, 0x01, 0x02, 0x00, 0xFA, 0xFD, 0x34, 0x07],
     };
 
+    const WINDOW: Duration = Duration::from_millis(5);
+
     fn at(micros: u64) -> Instant {
         Instant::from_micros(micros)
     }
 
     #[test]
     fn sc_req_10_a_data_packet_equal_to_channel_b_s_within_its_slot_is_confirmed() {
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(1_000), DATA).unwrap();
         assert_eq!(check.deadline(), at(2_000));
-        assert_eq!(check.heard(DATA, Decoded::fields(&DATA)), Ok(DATA));
+        assert_eq!(
+            check.heard(at(1_500), DATA, Decoded::fields(&DATA), Duration::ZERO),
+            Ok(Some(DATA))
+        );
         assert_eq!(check.deadline(), Instant::NEVER);
         assert_eq!(check.poll(at(10_000)), Ok(()));
     }
 
+    /// Every single-bit flip fails the CRC (section 4), so B's decoder rejects it: a
+    /// mismatch at once, whatever B's samples were.
     #[test]
     fn sc_req_10_a_data_packet_that_differs_in_any_bit_is_a_mismatch() {
         for bit in 0..64 {
             let mut heard = DATA;
             heard.data[bit / 8] ^= 1 << (bit % 8);
-            let mut check = TransmitCheck::new();
+            let mut check = TransmitCheck::new(WINDOW);
+            let _ = check.sampled(at(0), 0x030, 0, 1);
             check.computed(at(0), DATA).unwrap();
             assert_eq!(
-                check.heard(heard, Decoded::fields(&heard)),
+                check.heard(at(100), heard, Decoded::Invalid, Duration::ZERO),
                 Err(TransmitFault::Mismatch { id: 0x030 }),
                 "bit {bit}"
             );
         }
     }
 
+    /// DATA as channel A would send it with value 0 (a valid packet; B's decoder's verdict).
+    fn with_value_0() -> (RawFrame, Decoded) {
+        let mut heard = DATA;
+        heard.data[0] = 0;
+        let decoded = Decoded::Data {
+            sc_id: 0x30,
+            value: 0,
+            cycle_stamp: 5,
+        };
+        (heard, decoded)
+    }
+
+    /// B's contact moved first (0 to 1, 3 ms before the slot): A's packet with B's previous
+    /// value stands for B's; 5 ms after B's change it no longer does.
+    #[test]
+    fn sc_req_10_a_value_that_was_channel_b_s_within_the_window_is_accepted() {
+        let (heard, decoded) = with_value_0();
+        for (heard_at, accepted) in [(3_270, true), (4_999, true), (5_000, false)] {
+            let mut check = TransmitCheck::new(WINDOW);
+            assert_eq!(check.sampled(at(0), 0x030, 0, 1), None);
+            check.computed(at(3_000), DATA).unwrap();
+            let result = check.heard(at(heard_at), heard, decoded, Duration::ZERO);
+            assert_eq!(
+                result == Ok(Some(DATA)),
+                accepted,
+                "heard at {heard_at}: {result:?}"
+            );
+        }
+    }
+
+    /// A's contact moved first: A's packet waits for B's next sample, at most the window; B
+    /// taking A's value confirms B's own packet; B not taking it is a mismatch at the end.
+    #[test]
+    fn sc_req_10_a_value_channel_b_samples_within_the_window_is_accepted() {
+        let (heard, decoded) = with_value_0();
+        let mut check = TransmitCheck::new(WINDOW);
+        check.computed(at(10_000), DATA).unwrap();
+        assert_eq!(
+            check.heard(at(10_270), heard, decoded, Duration::ZERO),
+            Ok(None)
+        );
+        assert_eq!(check.deadline(), at(15_270));
+        assert_eq!(
+            check.sampled(at(15_000), 0x031, 1, 0),
+            None,
+            "another value"
+        );
+        assert_eq!(check.sampled(at(15_100), 0x030, 1, 0), Some(DATA));
+        assert_eq!(check.deadline(), Instant::NEVER);
+        assert_eq!(check.poll(at(20_000)), Ok(()));
+
+        let mut check = TransmitCheck::new(WINDOW);
+        check.computed(at(10_000), DATA).unwrap();
+        assert_eq!(
+            check.heard(at(10_270), heard, decoded, Duration::ZERO),
+            Ok(None)
+        );
+        assert_eq!(check.poll(at(15_269)), Ok(()));
+        assert_eq!(
+            check.poll(at(15_270)),
+            Err(TransmitFault::Mismatch { id: 0x030 })
+        );
+    }
+
+    /// Only the value may differ: another cycle stamp, or a value B's decoder did not read
+    /// from a packet of this SC-ID, is a mismatch at once.
+    #[test]
+    fn sc_req_10_a_packet_differing_in_more_than_its_value_is_a_mismatch_at_once() {
+        let (heard, _) = with_value_0();
+        for decoded in [
+            Decoded::Data {
+                sc_id: 0x30,
+                value: 0,
+                cycle_stamp: 6,
+            },
+            Decoded::Data {
+                sc_id: 0x31,
+                value: 0,
+                cycle_stamp: 5,
+            },
+            Decoded::Invalid,
+        ] {
+            let mut check = TransmitCheck::new(WINDOW);
+            let _ = check.sampled(at(0), 0x030, 0, 1);
+            check.computed(at(1_000), DATA).unwrap();
+            assert_eq!(
+                check.heard(at(1_270), heard, decoded, Duration::ZERO),
+                Err(TransmitFault::Mismatch { id: 0x030 }),
+                "{decoded:?}"
+            );
+        }
+    }
+
     #[test]
     fn sc_req_10_a_packet_of_the_node_channel_b_did_not_compute_is_a_mismatch() {
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         assert_eq!(
-            check.heard(DATA, Decoded::fields(&DATA)),
+            check.heard(at(0), DATA, Decoded::fields(&DATA), Duration::ZERO),
             Err(TransmitFault::Mismatch { id: 0x030 })
         );
     }
@@ -209,7 +464,7 @@ mod tests {
     /// At the end of the slot itself, as every deadline of the node.
     #[test]
     fn sc_req_10_a_data_packet_not_on_the_bus_by_the_end_of_its_slot_is_missing() {
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(5_000), DATA).unwrap();
         assert_eq!(check.poll(at(5_999)), Ok(()));
         assert_eq!(
@@ -219,34 +474,47 @@ mod tests {
     }
 
     #[test]
-    fn sc_req_10_a_sync_agrees_by_master_cycle_and_an_offset_within_the_tolerance() {
+    /// B computed its sync 250 µs into the last slot and hears A's 300 µs later, with 270 µs
+    /// of stated buffering: B's time is then 550 µs into the slot, and A's sync may give at
+    /// most 200 µs more (offset 480); behind (an earlier offset) it agrees, and B's core is
+    /// confirmed with A's frame, whose time it takes.
+    fn sc_req_10_a_sync_agrees_by_master_cycle_and_not_ahead_of_channel_b_s_time() {
         let with_offset = |offset: u16| {
             let mut sync = SYNC;
             sync.data[3..5].copy_from_slice(&offset.to_be_bytes());
             sync
         };
         let decoded = |frame: &RawFrame| Decoded::fields(frame);
-        let tolerance = SYNC_OFFSET_TOLERANCE.as_micros() as u16;
-        for (heard, agrees) in [
-            (with_offset(250), true),
-            (with_offset(250 + tolerance), true),
-            (with_offset(250 - tolerance), true),
-            (with_offset(250 + tolerance + 1), false),
-        ] {
-            let mut check = TransmitCheck::new();
+        let buffering = Duration::from_micros(270);
+        for (offset, agrees) in [(250, true), (480, true), (481, false), (0, true)] {
+            let heard = with_offset(offset);
+            let mut check = TransmitCheck::new(WINDOW);
             check.computed(at(0), SYNC).unwrap();
             assert_eq!(check.deadline(), at(2_000), "SC_REQ_23: 2 ms");
-            let result = check.heard(heard, decoded(&heard));
-            assert_eq!(result.is_ok(), agrees, "{heard:?}");
+            let result = check.heard(at(300), heard, decoded(&heard), buffering);
+            let expected = if agrees {
+                Ok(Some(heard))
+            } else {
+                Err(TransmitFault::Mismatch { id: 0x02F })
+            };
+            assert_eq!(result, expected, "offset {offset}");
         }
         // Another cycle, or a sync B's decoder rejected, is a mismatch.
         let mut other_cycle = SYNC;
         other_cycle.data[2] = 0x03;
-        let mut check = TransmitCheck::new();
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(0), SYNC).unwrap();
-        assert!(check.heard(other_cycle, decoded(&other_cycle)).is_err());
-        let mut check = TransmitCheck::new();
+        assert!(
+            check
+                .heard(at(300), other_cycle, decoded(&other_cycle), Duration::ZERO)
+                .is_err()
+        );
+        let mut check = TransmitCheck::new(WINDOW);
         check.computed(at(0), SYNC).unwrap();
-        assert!(check.heard(SYNC, Decoded::Invalid).is_err());
+        assert!(
+            check
+                .heard(at(300), SYNC, Decoded::Invalid, Duration::ZERO)
+                .is_err()
+        );
     }
 }

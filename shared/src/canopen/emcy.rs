@@ -46,8 +46,8 @@ pub struct Emergency {
     pub code: u16,
     /// The error register at the time of the error.
     pub register: u8,
-    /// Five manufacturer-specific bytes; this device puts the SRDO number first and the
-    /// cause number second.
+    /// Five manufacturer-specific bytes; this device puts the SRDO number (SimpleCAN: the
+    /// packet's identifier) first and the cause number second.
     pub detail: [u8; 5],
 }
 

@@ -248,4 +248,13 @@ impl<const N: usize, const E: usize> SafetyProtocol for SrdoAndSimpleCan<N, E> {
     fn on_transmitted<S: Sink>(&mut self, now: Instant, frame: &CanFrame, slot: &mut Slot<'_, S>) {
         self.simplecan.on_transmitted(now, frame, slot);
     }
+
+    fn on_partner_transmitted<S: Sink>(
+        &mut self,
+        now: Instant,
+        frame: &CanFrame,
+        slot: &mut Slot<'_, S>,
+    ) {
+        self.simplecan.on_partner_transmitted(now, frame, slot);
+    }
 }

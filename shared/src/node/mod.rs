@@ -129,14 +129,18 @@ pub enum SafeStateCause {
     /// detail byte 1 F2h..F5h names what differed). Producers stop too.
     Integrity(IntegrityFault),
     /// A fault the safety protocol in the slot found that the causes above do not name,
-    /// reported in the EMCY it gives: error code `code` with `cause` in byte 1 of the
-    /// manufacturer-specific field. Small on purpose: the cause travels by value through
-    /// every event and latch.
+    /// reported in the EMCY it gives: error code `code` with `named` in byte 0 and `cause` in
+    /// byte 1 of the manufacturer-specific field, as an SRDO's EMCY names the SRDO and its
+    /// cause. Small on purpose: the cause travels by value through every event and latch.
     Protocol {
         /// The EMCY error code (CiA 301 Table 21, or the protocol's profile).
         code: u16,
         /// The protocol's cause code (EMCY manufacturer-specific byte 1).
         cause: u8,
+        /// What the fault concerns, in the protocol's numbering (EMCY manufacturer-specific
+        /// byte 0; SimpleCAN: the CAN identifier of the packet, its SC-ID or 2Fh for a sync);
+        /// 0: nothing in particular.
+        named: u8,
     },
 }
 
@@ -484,6 +488,20 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             ..
         } = &mut self.core;
         protocol.on_transmitted(now, frame, &mut Slot { shell, image, sink });
+    }
+
+    /// The other channel of a dual-channel device put `frame` on the bus at `now`, standing
+    /// for a frame this device handed to the sink (Model A, SC_REQ_10: this channel computes
+    /// the node's packets, the other transmits them): a confirmation as
+    /// [`Device::on_transmitted`]'s, and SimpleCAN's master takes the time of a sync from it.
+    pub fn on_partner_transmitted(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
+        let Core {
+            shell,
+            protocol,
+            image,
+            ..
+        } = &mut self.core;
+        protocol.on_partner_transmitted(now, frame, &mut Slot { shell, image, sink });
     }
 
     /// Runs every timer due at `now` and returns the instant of the next poll.
@@ -888,7 +906,7 @@ impl Shell {
                 )
             }
             SafeStateCause::Integrity(fault) => (emcy::code::DATA_SET, fault.emergency_detail()),
-            SafeStateCause::Protocol { code, cause } => (code, [0, cause, 0, 0, 0]),
+            SafeStateCause::Protocol { code, cause, named } => (code, [named, cause, 0, 0, 0]),
         };
         self.error_register |= emcy::register::GENERIC | emcy::register::COMMUNICATION;
         self.send_emergency(code, detail, sink);

@@ -483,11 +483,14 @@ impl<const E: usize> SimpleCan<E> {
         }
     }
 
-    /// A fault of its own: its values to the safe state, then the shell's latch.
-    fn fault<S: Sink>(&mut self, cause: Cause, emergency: u16, slot: &mut Slot<'_, S>) {
+    /// A fault of its own concerning the packets on identifier `named` (an SC-ID, or 2Fh for
+    /// syncs; EMCY byte 0, as an SRDO's EMCY names the SRDO): its values to the safe state,
+    /// then the shell's latch.
+    fn fault<S: Sink>(&mut self, cause: Cause, emergency: u16, named: u8, slot: &mut Slot<'_, S>) {
         let cause = SafeStateCause::Protocol {
             code: emergency,
             cause: cause.code(),
+            named,
         };
         let latched = slot.latched();
         self.enter_safe_state(slot.image_mut(), cause, latched);
@@ -522,8 +525,15 @@ impl<const E: usize> SimpleCan<E> {
         let Some(running) = &mut self.running else {
             return;
         };
-        if running.monitor.on_sync(now, sync.master()).is_err() {
-            self.fault(Cause::SimpleCanSeveralMasters, code::PROTOCOL_ERROR, slot);
+        if let Err(several) = running.monitor.on_sync(now, sync.master()) {
+            // Named: the master that kept sending.
+            let named = several.higher.raw();
+            self.fault(
+                Cause::SimpleCanSeveralMasters,
+                code::PROTOCOL_ERROR,
+                named,
+                slot,
+            );
             return;
         }
         let change = running.tracker.on_sync(now, &sync);
@@ -922,7 +932,9 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
             Err(error) => {
                 self.counters.rejected = self.counters.rejected.saturating_add(1);
                 if error.is_bad_crc() && running.bad_crc.bad_packet(now) == Verdict::Tripped {
-                    self.fault(Cause::SimpleCanBadCrc, code::PROTOCOL_ERROR, slot);
+                    // Named: the identifier of the packet that tripped it (02Fh..07Fh).
+                    let named = frame.id().raw() as u8;
+                    self.fault(Cause::SimpleCanBadCrc, code::PROTOCOL_ERROR, named, slot);
                 }
             }
         }
@@ -959,7 +971,7 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
         }
         let global = running.global_time(now);
         let cycle = running.schedule.cycle();
-        let mut timed_out = false;
+        let mut timed_out = None;
         for stream in running.streams.iter_mut() {
             match stream {
                 Stream::Produce {
@@ -997,16 +1009,19 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
                     *pending_until = Some(local_of(now, global, end));
                     slot.transmit(packet.encode(*hash));
                 }
-                Stream::Consume { span, value, .. } => {
+                Stream::Consume {
+                    sc_id, span, value, ..
+                } => {
                     if value.poll(now) == Age::TimedOut {
                         slot.image_mut().clear(*span);
-                        timed_out = true;
+                        // Named: the first SC-ID found at its timeout.
+                        timed_out = timed_out.or(Some(sc_id.raw()));
                     }
                 }
             }
         }
-        if timed_out {
-            self.fault(Cause::SimpleCanTimeout, code::RPDO_TIMEOUT, slot);
+        if let Some(named) = timed_out {
+            self.fault(Cause::SimpleCanTimeout, code::RPDO_TIMEOUT, named, slot);
         }
     }
 
@@ -1089,9 +1104,15 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
                 master.on_transmitted();
                 // Its own sync counts for the several-masters check too (SC_REQ_26).
                 if let Some(own) = running.sdd.lowest_produced()
-                    && running.monitor.on_sync(now, own).is_err()
+                    && let Err(several) = running.monitor.on_sync(now, own)
                 {
-                    self.fault(Cause::SimpleCanSeveralMasters, code::PROTOCOL_ERROR, slot);
+                    let named = several.higher.raw();
+                    self.fault(
+                        Cause::SimpleCanSeveralMasters,
+                        code::PROTOCOL_ERROR,
+                        named,
+                        slot,
+                    );
                 }
             }
             return;
@@ -1107,6 +1128,41 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
             {
                 self.counters.sent += 1;
             }
+        }
+    }
+
+    /// The other channel's sync (or data packet) on the bus stands for this one's (Model A):
+    /// confirmed as [`SafetyProtocol::on_transmitted`] confirms, and for a sync of this master
+    /// its time base moves to the other channel's: the global time at `now` is that sync's
+    /// (its cycle, the offset it carries) plus the buffering time this SCL states (5E00h:03),
+    /// as a receiver takes a sync's time (SC_REQ_33). The caller has checked the sync against
+    /// this channel's own (`dual_channel::simplecan::transmit`).
+    fn on_partner_transmitted<S: Sink>(
+        &mut self,
+        now: Instant,
+        frame: &CanFrame,
+        slot: &mut Slot<'_, S>,
+    ) {
+        let buffering = u64::from(self.objects.buffering_us);
+        let aligned = self.running.as_ref().and_then(|running| {
+            let (master, _) = running.master.as_ref()?;
+            let cycle = master.confirming_cycle()?;
+            let schedule = running.schedule.cycle();
+            if frame.id() != SYNC_IDENTIFIER || !running.sync_pending {
+                return None;
+            }
+            let data = frame.raw_data();
+            let offset = u64::from(u16::from_be_bytes([data[3], data[4]]));
+            let start = schedule.slot_start(cycle, schedule.sync_slot());
+            Some(start + offset + buffering)
+        });
+        self.on_transmitted(now, frame, slot);
+        if let (Some(global), Some(running)) = (aligned, &mut self.running)
+            && let Some((master, _)) = &mut running.master
+        {
+            master.align(now, global);
+            let latched = slot.latched();
+            slot.wake_at(self.deadline(now, latched));
         }
     }
 }

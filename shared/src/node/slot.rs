@@ -187,6 +187,19 @@ pub trait SafetyProtocol {
     fn on_transmitted<S: Sink>(&mut self, now: Instant, frame: &CanFrame, slot: &mut Slot<'_, S>) {
         let _ = (now, frame, slot);
     }
+
+    /// The other channel of a dual-channel device put `frame` on the bus at `now` for a frame
+    /// this protocol handed out (Model A: this channel computes, the other transmits;
+    /// [`super::Device::on_partner_transmitted`]). The default is the confirmation of
+    /// [`SafetyProtocol::on_transmitted`]; SimpleCAN also takes the time of a sync from it.
+    fn on_partner_transmitted<S: Sink>(
+        &mut self,
+        now: Instant,
+        frame: &CanFrame,
+        slot: &mut Slot<'_, S>,
+    ) {
+        self.on_transmitted(now, frame, slot);
+    }
 }
 
 /// A start the protocol refused; made only by [`Slot::refuse_configuration`], so a refusal is

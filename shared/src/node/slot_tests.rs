@@ -180,6 +180,7 @@ impl SafetyProtocol for Beacon {
                 let cause = SafeStateCause::Protocol {
                     code: code::APPLICATION_FAULT,
                     cause: STOP_CAUSE,
+                    named: 0,
                 };
                 let latched = slot.latched();
                 self.enter_safe_state(slot.image_mut(), cause, latched);
@@ -373,6 +374,7 @@ fn en50325_5_8_2_2_a_second_protocol_latches_the_safe_state_through_the_slot() {
     let cause = SafeStateCause::Protocol {
         code: code::APPLICATION_FAULT,
         cause: STOP_CAUSE,
+        named: 0,
     };
     assert_eq!(node.fault(), Some(cause));
     assert!(!node.is_working());

@@ -18,6 +18,13 @@ use super::schedule::{Cycle, Schedule};
 use super::{MAX_SYNC_INTERVAL, SYNC_CONFIRMATION_TIMEOUT, SYNC_LOSS_TIMEOUT, ScId};
 use crate::time::{Duration, Instant, expired};
 
+/// How far back [`Master::align`] moves a time base at one sync: the most two clocks within
+/// 50 ppm of the true time (SC_REQ_31) part over the longest sync interval (2 × 50 ppm ×
+/// 500 ms = 50 µs). Ahead it follows the other channel's time in full (the caller checked
+/// it); back only this far, because a sync that waited for the bus behind other frames says
+/// a time older than the true one by the wait, which a single reading cannot tell apart.
+pub const ALIGN_BACK_LIMIT: Duration = Duration::from_micros(50);
+
 /// What the master asks of the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -166,6 +173,40 @@ impl Master {
                 anchor,
                 next_sync: anchor.local_at(global),
             };
+        }
+    }
+
+    /// The cycle of the sync handed out and not confirmed yet, if one is.
+    pub const fn confirming_cycle(&self) -> Option<u64> {
+        match self.state {
+            State::Confirming { cycle, .. } => Some(cycle),
+            _ => None,
+        }
+    }
+
+    /// The time base moves so that the global time is `global` at `now`; the next sync stays
+    /// due at the same global time, now by the new time base. For the channel of a
+    /// dual-channel device that does not transmit (Model A, SC_REQ_10): it computes its own
+    /// syncs on its own clock, checks the other channel's on the bus against them and takes
+    /// the other channel's time from each (`dual_channel::simplecan`), so that two crystals
+    /// within 50 ppm (SC_REQ_31) part by at most a sync interval's drift. Nothing while not
+    /// active.
+    ///
+    /// A `global` behind its own time at `now` moves it back by [`ALIGN_BACK_LIMIT`] at most.
+    pub fn align(&mut self, now: Instant, global: u64) {
+        let Some(own) = self.global_time(now) else {
+            return;
+        };
+        let global = global.max(own.saturating_sub(ALIGN_BACK_LIMIT.as_micros()));
+        let aligned = Anchor { local: now, global };
+        match &mut self.state {
+            State::Active { anchor, next_sync } => {
+                let due = anchor.global_at(*next_sync);
+                *anchor = aligned;
+                *next_sync = aligned.local_at(due);
+            }
+            State::Confirming { anchor, .. } => *anchor = aligned,
+            _ => {}
         }
     }
 
@@ -382,6 +423,39 @@ mod tests {
                 (sc(raw), 0, 0)
             );
         }
+    }
+
+    /// SC_REQ_31 with two channels: aligned to the other channel's time (100 µs ahead of its
+    /// own), the master keeps its next sync due at the same global time, now 100 µs earlier
+    /// on its own clock; a master that is not active has no time to move.
+    #[test]
+    fn sc_req_31_an_aligned_master_keeps_its_next_sync_at_the_same_global_time() {
+        let mut master = Master::new(sc(0x30), &schedule(), at(0));
+        master.align(at(1), 5_000);
+        assert_eq!(master.global_time(at(1)), None, "listening: nothing moves");
+        let Some(Action::Send(_)) = master.poll(at(500)) else {
+            panic!("no sync at 500 ms");
+        };
+        assert_eq!(master.confirming_cycle(), Some(0));
+        master.on_transmitted();
+        assert_eq!(master.confirming_cycle(), None);
+        assert_eq!(master.deadline(), at(600));
+        // Its own time at 500.3 ms is 9,300 µs (the sync slot of cycle 0 began at 500 ms).
+        master.align(at_us(500_300), 9_400);
+        assert_eq!(master.global_time(at_us(500_300)), Some(9_400));
+        assert_eq!(master.deadline(), at_us(599_900));
+        let Some(Action::Send(sync)) = master.poll(at_us(599_900)) else {
+            panic!("no sync at 599.9 ms");
+        };
+        assert_eq!((sync.cycle(), sync.offset_micros()), (10, 0));
+        master.on_transmitted();
+        // Behind its own time by 1 ms (a sync that waited for the bus, say): back 50 µs only.
+        let own = master.global_time(at(600)).unwrap();
+        master.align(at(600), own - 1_000);
+        assert_eq!(
+            master.global_time(at(600)),
+            Some(own - ALIGN_BACK_LIMIT.as_micros())
+        );
     }
 
     /// Masters powered up together: the lowest SC-ID sends first, the next hears it within

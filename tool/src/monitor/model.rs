@@ -630,13 +630,23 @@ fn cause_words(byte: u8) -> String {
     Cause::from_code(byte).map_or_else(|| format!("cause {byte:02X}h"), |c| c.describe().into())
 }
 
+/// `true` for a SimpleCAN cause (60h..7Fh), whose EMCY names an SC-ID or a CAN identifier
+/// rather than an SRDO.
+fn is_simplecan(cause: u8) -> bool {
+    (0x60..0x80).contains(&cause)
+}
+
 /// An EMCY in words: what this device means by its code and manufacturer-specific bytes
-/// (byte 0 the SRDO number, byte 1 the cause; see `shared::node` and `shared::safety::cause`).
+/// (byte 0 the SRDO number, or for a SimpleCAN cause the packet's identifier, its SC-ID or
+/// 2Fh for a sync; byte 1 the cause; FF02h: bytes 2..=3 the identifier of the frame
+/// concerned; see `shared::node` and `shared::safety::cause`).
 pub fn describe_emergency(emergency: &Emergency) -> String {
-    let [srdo, cause, third, ..] = emergency.detail;
+    let [srdo, cause, third, fourth, _] = emergency.detail;
     let srdo_words = |text: String| {
         if srdo == 0 {
             text
+        } else if is_simplecan(cause) {
+            format!("SC-ID {srdo:02X}h: {text}")
         } else {
             format!("SRDO {srdo}: {text}")
         }
@@ -648,7 +658,15 @@ pub fn describe_emergency(emergency: &Emergency) -> String {
         }
         code::INTERNAL_SOFTWARE => srdo_words(Cause::TransmitHalvesNotInverted.to_string()),
         code::GLOBAL_FAIL_SAFE => "GFC received: safe state".to_owned(),
-        code::APPLICATION_FAULT => format!("channel cross-check: {}", cause_words(cause)),
+        code::APPLICATION_FAULT => {
+            let id = u16::from_le_bytes([third, fourth]);
+            let named = (is_simplecan(cause) || cause == Cause::ForeignFrame.code()) && id != 0;
+            if named {
+                format!("channel cross-check: {} ({id:03X}h)", cause_words(cause))
+            } else {
+                format!("channel cross-check: {}", cause_words(cause))
+            }
+        }
         code::DATA_SET => match cause {
             shared::node::STORED_PARAMETERS_REJECTED => {
                 "stored parameters rejected: defaults in force, not validated".to_owned()
