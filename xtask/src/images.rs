@@ -118,6 +118,13 @@ pub enum Layer {
     Hw,
     /// QEMU's netduinoplus2.
     Qemu,
+    /// QEMU's netduinoplus2 with SimpleCAN beside the SRDOs (`simplecan` of both images,
+    /// `board::Protocol`): the images of `cargo xtask run --protocol simplecan`, built only
+    /// there and by `cargo xtask footprint`, not by `cargo xtask build`.
+    QemuSimpleCan,
+    /// The hardware images with SimpleCAN beside the SRDOs: measured by `cargo xtask
+    /// footprint` against the budgets, never flashed (docs/footprint.md says why).
+    HwSimpleCan,
 }
 
 impl Layer {
@@ -126,7 +133,14 @@ impl Layer {
         match self {
             Layer::Hw => cross.target_dir(root),
             Layer::Qemu => cross.target_dir(root).join("qemu"),
+            Layer::QemuSimpleCan => cross.target_dir(root).join("qemu-simplecan"),
+            Layer::HwSimpleCan => cross.target_dir(root).join("hw-simplecan"),
         }
+    }
+
+    /// `true` for the QEMU layers.
+    fn is_qemu(self) -> bool {
+        matches!(self, Layer::Qemu | Layer::QemuSimpleCan)
     }
 }
 
@@ -136,6 +150,13 @@ pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
     let features = match layer {
         Layer::Hw => "channel-a/defmt,channel-b/defmt",
         Layer::Qemu => "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
+        Layer::QemuSimpleCan => {
+            "channel-a/qemu,channel-a/defmt,channel-a/simplecan,\
+             channel-b/qemu,channel-b/defmt,channel-b/simplecan"
+        }
+        Layer::HwSimpleCan => {
+            "channel-a/defmt,channel-a/simplecan,channel-b/defmt,channel-b/simplecan"
+        }
     };
     let mut command = cross.cargo(root).args([
         verb,
@@ -146,7 +167,7 @@ pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
         "-p",
         "board",
     ]);
-    if layer == Layer::Qemu {
+    if layer.is_qemu() {
         command = command.args(["--no-default-features"]);
     }
     for image in IMAGES {
