@@ -820,6 +820,37 @@ mod tests {
             .collect()
     }
 
+    /// SC_REQ_26: a SimpleCAN run passes only when node 1 (30h) was the only master the
+    /// monitor saw sync; another master's syncs fail it with a sentence naming them, and a
+    /// run whose node 33 confirmed no value fails in SimpleCAN's words.
+    #[test]
+    fn sc_req_26_a_simplecan_run_passes_only_with_node_1_the_only_master() {
+        let simplecan = network::Protocol::Simplecan;
+        let alone = ending_for(simplecan, &statuses(&[]), 90, &[], Some(&[0x30]));
+        assert!(alone.passed, "{alone:?}");
+        assert!(
+            alone.sentence.contains("SimpleCAN values of 30h"),
+            "{alone:?}"
+        );
+        let two = ending_for(simplecan, &statuses(&[]), 90, &[], Some(&[0x30, 0x38]));
+        assert!(!two.passed, "{two:?}");
+        assert!(two.sentence.contains("[30, 38]"), "{two:?}");
+        let none = ending_for(simplecan, &statuses(&[]), 90, &[], Some(&[]));
+        assert!(!none.passed, "{none:?}");
+        let mut silent = statuses(&[]);
+        for (_, status) in silent.values_mut() {
+            status.validated = 0;
+        }
+        let unconfirmed = ending_for(simplecan, &silent, 0, &[], Some(&[0x30]));
+        assert!(!unconfirmed.passed);
+        assert!(
+            unconfirmed
+                .sentence
+                .ends_with("node 33 validated no SimpleCAN values of 30h"),
+            "{unconfirmed:?}"
+        );
+    }
+
     /// The summary says how the run ended from what was observed: all working passes; a
     /// safe state with no fault injected fails and names the channel and the cause in words;
     /// after an injected fault it is the expected reaction.
