@@ -59,6 +59,9 @@ pub struct SimDriver {
     sent: Vec<CanFrame>,
     /// Frames of this controller that have been on the bus, not yet reported to the loop.
     confirmed: VecDeque<CanFrame>,
+    /// The controller reports its frames on the bus ([`Driver::transmitted`]); `false`: a
+    /// controller that never does (the frames still go out).
+    pub confirms: bool,
     /// Every withdrawal the loop asked of the controller: (time, identifier). The bus model
     /// cannot take back a queued frame; the log is what a test checks.
     pub aborts: Vec<(Instant, u16)>,
@@ -89,6 +92,7 @@ impl SimDriver {
             bus_off: false,
             sent: Vec::new(),
             confirmed: VecDeque::new(),
+            confirms: true,
             aborts: Vec::new(),
             link_out: Vec::new(),
             link_in: VecDeque::new(),
@@ -359,7 +363,7 @@ impl<P: ChannelProtocol<4>> LoopNetwork<P> {
                 for side in 0..2 {
                     if 1 + 2 * index + side != delivery.from {
                         node.drivers[side].deliver(delivery.frame);
-                    } else {
+                    } else if node.drivers[side].confirms {
                         // One transceiver: the sender never receives its own frame, its
                         // controller confirms it (a transmit mailbox completed).
                         node.drivers[side].confirmed.push_back(delivery.frame);

@@ -282,3 +282,73 @@ fn sc_req_05_a_simplecan_emergency_stop_switches_the_output_pins_off_and_on_thro
     assert!(net.node(33).drivers.iter().all(|driver| driver.output));
     assert_eq!(faults(&net), []);
 }
+
+/// SC_REQ_18, SC_REQ_23: a controller that confirms nothing (node 1's channel A): its core
+/// withdraws each packet of 30h at the end of its slot, and the loop hands the withdrawal to
+/// the controller (`Driver::abort`), 1 ms after the slot's start; the sync likewise 2 ms
+/// after it was handed out.
+#[test]
+fn sc_req_18_the_loop_hands_the_cores_withdrawal_of_an_unconfirmed_packet_to_the_controller() {
+    let mut net = simplecan_started();
+    net.node_mut(1).drivers[0].confirms = false;
+    let since = net.now;
+    net.run_for(Duration::from_millis(250));
+    let aborts: Vec<(shared::Instant, u16)> = net.node(1).drivers[0]
+        .aborts
+        .iter()
+        .filter(|(at, _)| *at >= since)
+        .copied()
+        .collect();
+    let packets: Vec<shared::Instant> = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at >= since && frame.id().raw() == u16::from(ESTOP))
+        .map(|(at, _, _)| *at)
+        .collect();
+    assert!(!packets.is_empty());
+    let withdrawn: Vec<&(shared::Instant, u16)> = aborts
+        .iter()
+        .filter(|(_, id)| *id == u16::from(ESTOP))
+        .collect();
+    assert!(
+        withdrawn.len() + 1 >= packets.len(),
+        "{} withdrawals of 30h for {} packets",
+        withdrawn.len(),
+        packets.len()
+    );
+    for (at, _) in &withdrawn {
+        // The packet's frame ended (270 us or less) after its slot's start; the withdrawal
+        // comes at the slot's end.
+        let packet = packets
+            .iter()
+            .rev()
+            .find(|end| *end <= at)
+            .expect("a packet before");
+        let after = at.as_micros() - packet.as_micros();
+        assert!(
+            (700..=1000).contains(&after),
+            "{after} us after the packet's end"
+        );
+    }
+    let sync_withdrawn = aborts
+        .iter()
+        .find(|(_, id)| *id == 0x02F)
+        .map(|(at, _)| *at)
+        .expect("the sync withdrawn too");
+    let sync_end = net
+        .trace
+        .iter()
+        .rev()
+        .find(|(at, frame, _)| *at <= sync_withdrawn && frame.id().raw() == 0x02F)
+        .map(|(at, _, _)| *at)
+        .expect("the sync on the bus");
+    let after = sync_withdrawn.as_micros() - sync_end.as_micros();
+    assert!(
+        (1700..=2000).contains(&after),
+        "sync withdrawn {after} us after its end"
+    );
+    assert!(
+        net.node(1).drivers[1].aborts.is_empty(),
+        "channel B sends nothing to withdraw"
+    );
+}
