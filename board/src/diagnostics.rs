@@ -7,7 +7,9 @@
 //! cause), and otherwise every [`PERIOD`], so counters stay fresh and a silent channel is
 //! noticed.
 
-use dual_channel::runtime::{ChannelEvent, Role, Runtime, is_srdo, safe_state_code};
+use dual_channel::runtime::{
+    ChannelEvent, ChannelProtocol, Role, Runtime, is_srdo, safe_state_code,
+};
 use emulation_wire::Status;
 use shared::canopen::storage::Flash;
 use shared::node::Event;
@@ -73,6 +75,12 @@ impl Diagnostics {
             ChannelEvent::Node(Event::SrdoReceived { .. }) => {
                 self.status.validated = self.status.validated.wrapping_add(1);
             }
+            // A consumed SimpleCAN value both channels confirmed counts as a valid reception
+            // as an SRDO pair does (`Status::validated`).
+            #[cfg(feature = "simplecan")]
+            ChannelEvent::SimpleCanConfirmed { .. } => {
+                self.status.validated = self.status.validated.wrapping_add(1);
+            }
             ChannelEvent::Node(Event::SafeState(cause)) => {
                 self.status.cause = safe_state_code(cause);
             }
@@ -115,16 +123,28 @@ impl Diagnostics {
 
     /// The report to send at `now`, if one is due: when something a watcher acts on changed
     /// since the last one, or [`PERIOD`] after it.
-    pub fn report<F: Flash, R: Role<N>, const N: usize>(
+    pub fn report<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>>(
         &mut self,
         now: Instant,
-        runtime: &Runtime<F, R, N>,
+        runtime: &Runtime<F, R, N, P>,
     ) -> Option<Status> {
         self.status.nmt = runtime.node().nmt_state().heartbeat_code();
         self.status.working = runtime.is_working();
         self.status.link_up = runtime.link_up();
         // The output pin is the lowest byte of receive SRDO 1 (the demo device's relay).
         self.status.output = runtime.output(SrdoNumber::FIRST) as u8;
+        // With SimpleCAN enabled: the value of the first consumed SC-ID (the demo device's
+        // relay follows it), as the channel drives it.
+        #[cfg(feature = "simplecan")]
+        if let Some(layer) = runtime.node().protocol().simplecan() {
+            let entries = layer.entries.get(..layer.count).unwrap_or(&layer.entries);
+            let consumed = entries
+                .iter()
+                .find(|entry| entry.role == shared::node::simplecan::ROLE_CONSUME);
+            if let Some(entry) = consumed {
+                self.status.output = runtime.simplecan_output(entry.sc_id) as u8;
+            }
+        }
         let discarded = runtime.node().double_reception();
         self.status.discarded = u16::try_from(
             discarded

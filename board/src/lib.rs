@@ -36,6 +36,20 @@ pub mod ram;
 pub mod stack;
 pub mod transmit_queue;
 
+/// SDD entries of the SimpleCAN layer in an image with the feature `simplecan`
+/// ([`Protocol`]): the demo network's nodes use one each (node 1 produces 30h, node 33
+/// consumes it); the channels cross-check at most [`dual_channel::simplecan::ENTRIES`].
+#[cfg(feature = "simplecan")]
+pub const SIMPLECAN_ENTRIES: usize = 2;
+
+/// The safety protocol in the image's channel core: the SRDO table.
+#[cfg(not(feature = "simplecan"))]
+pub type Protocol<const N: usize> = shared::node::SrdoTable<N>;
+/// The safety protocol in the image's channel core: the SRDO table and SimpleCAN beside it
+/// (feature `simplecan`), with [`SIMPLECAN_ENTRIES`] SDD entries.
+#[cfg(feature = "simplecan")]
+pub type Protocol<const N: usize> = shared::node::SrdoAndSimpleCan<N, SIMPLECAN_ENTRIES>;
+
 /// What a board layer needs to know about the device it runs.
 #[derive(Clone, Copy)]
 pub struct Device {

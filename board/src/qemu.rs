@@ -271,6 +271,11 @@ struct QemuDriver {
     /// The input pin as the hub last set it (released, 1, until it says otherwise).
     input: u8,
     diagnostics: Diagnostics,
+    /// SimpleCAN frames handed to the hub, not yet confirmed to the loop. The hub puts a
+    /// frame on the emulated bus as it gets it (within the lookahead, docs/emulation.md), so
+    /// the board confirms it as sent at once; there is no mailbox to withdraw it from.
+    #[cfg(feature = "simplecan")]
+    sent: heapless::Deque<CanFrame, 8>,
 }
 
 impl QemuDriver {
@@ -335,7 +340,21 @@ impl Driver for QemuDriver {
         marker::transmitted(frame);
         self.diagnostics.transmitted(frame);
         usart_write(USART2, &can_serial::encode(frame));
+        #[cfg(feature = "simplecan")]
+        if dual_channel::simplecan::RawFrame::of(frame).is_some()
+            && self.sent.push_back(*frame).is_err()
+        {
+            // More than the loop confirms in one call: the oldest confirmation is lost, and
+            // the core withdraws that packet (its producer sends the next in its slot).
+            let _ = self.sent.pop_front();
+            let _ = self.sent.push_back(*frame);
+        }
         Ok(())
+    }
+
+    #[cfg(feature = "simplecan")]
+    fn transmitted(&mut self) -> Option<CanFrame> {
+        self.sent.pop_front()
     }
 
     fn receive(&mut self) -> Option<Received> {
@@ -538,6 +557,8 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         // QEMU models no GPIO: the input reads as released until the hub sets it.
         input: 1,
         diagnostics: Diagnostics::new(),
+        #[cfg(feature = "simplecan")]
+        sent: heapless::Deque::new(),
     };
     if arguments.paced {
         // The channel powers on at the network's virtual time, not at zero: the hub may have
@@ -548,7 +569,13 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     driver.diagnostics.input(driver.input);
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime through
     // this task's stack frame (`docs/footprint.md`).
-    let mut built = Runtime::new((device.describe)(id), parameters, role, now(), LINK_PERIOD);
+    let mut built = Runtime::<_, _, N, crate::Protocol<N>>::new(
+        (device.describe)(id),
+        parameters,
+        role,
+        now(),
+        LINK_PERIOD,
+    );
     let Ok(runtime) = &mut built else {
         defmt::error!("device description refused");
         exit(false);

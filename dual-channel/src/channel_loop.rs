@@ -22,10 +22,16 @@
 //!   the hub says so: the same rule gives it the same behaviour.
 //! - **Outputs**: each output pin follows the received object the device description names
 //!   for it ([`crate::device::OUTPUT_PINS`]), read from the confirmed data of the receive
-//!   SRDO that maps it; low when none does and in the safe state.
+//!   SRDO that maps it, or (feature `simplecan`) from the confirmed value of the consumed
+//!   SimpleCAN SC-ID whose SDD entry maps it; low when none does and in the safe state.
+//! - **SimpleCAN's transmissions** (feature `simplecan`, a runtime whose protocol
+//!   ([`ChannelProtocol`]) has SimpleCAN beside the SRDOs): the frames the controller
+//!   confirmed as sent ([`Driver::transmitted`]) go to the runtime
+//!   ([`Runtime::on_transmitted`]: SC_REQ_18, SC_REQ_23), and the frames the core withdraws
+//!   go to the controller ([`Driver::abort`]).
 
 use crate::filters::AcceptanceList;
-use crate::runtime::{ChannelEvent, Io, Role, Runtime};
+use crate::runtime::{ChannelEvent, ChannelProtocol, Io, Role, Runtime};
 use shared::canopen::od::Address;
 use shared::canopen::storage::Flash;
 use shared::safety::config::SrdoRecord;
@@ -83,6 +89,22 @@ pub trait Driver {
     fn set_output(&mut self, pin: usize, level: bool);
     /// Reports `event` (log, diagnostics).
     fn event(&mut self, event: &ChannelEvent);
+    /// The oldest frame the controller put on the bus since the last call (a transmit
+    /// mailbox completed), `None` when there is none (SimpleCAN's producers and master must
+    /// know: SC_REQ_18, SC_REQ_23). The default reports none: a board whose controller
+    /// confirms nothing, whose SimpleCAN packets are then withdrawn at the end of their slot.
+    #[cfg(feature = "simplecan")]
+    fn transmitted(&mut self) -> Option<CanFrame> {
+        None
+    }
+    /// Withdraws the frames on `id` queued by [`Driver::transmit`] and not yet on the bus (a
+    /// SimpleCAN packet at the end of its slot, a sync not confirmed within 2 ms: SC_REQ_18,
+    /// SC_REQ_23). The default withdraws nothing: a board whose frames are on the bus as soon
+    /// as they are queued.
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        let _ = id;
+    }
 }
 
 /// Frames and bytes the driver's queues had no room for, since power-on (saturating).
@@ -119,6 +141,14 @@ impl<D: Driver> Io for DriverIo<'_, D> {
     }
     fn event(&mut self, event: ChannelEvent) {
         self.driver.event(&event);
+    }
+    #[cfg(feature = "simplecan")]
+    fn simplecan_output(&mut self, _: u8, _: u32) {
+        self.outputs_changed = true;
+    }
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        self.driver.abort(id);
     }
 }
 
@@ -183,9 +213,9 @@ impl ChannelLoop {
     /// latest (`now` itself when frames were left in the queue).
     #[must_use = "the loop must be called again at the returned instant"]
     #[inline(never)]
-    pub fn service<F: Flash, R: Role<N>, const N: usize>(
+    pub fn service<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>>(
         &mut self,
-        runtime: &mut Runtime<F, R, N>,
+        runtime: &mut Runtime<F, R, N, P>,
         driver: &mut impl Driver,
     ) -> Instant {
         let mut io = DriverIo {
@@ -230,10 +260,34 @@ impl ChannelLoop {
         self.next_sample = now + SAMPLE_PERIOD;
         if handed || shared::time::expired(self.runtime_deadline, now) {
             self.runtime_deadline = runtime.poll(now, &mut io);
-            let list = AcceptanceList::of(runtime.node().node_id(), runtime.node().safety_config());
+            #[cfg_attr(
+                not(feature = "simplecan"),
+                expect(unused_mut, reason = "only SimpleCAN adds to the list")
+            )]
+            let mut list =
+                AcceptanceList::of(runtime.node().node_id(), runtime.node().safety_config());
+            #[cfg(feature = "simplecan")]
+            if let Some(layer) = runtime.node().protocol().simplecan() {
+                list.add_simplecan(&layer);
+            }
             if self.filters.as_ref() != Some(&list) {
                 io.driver.apply_filters(&list);
                 self.filters = Some(list);
+            }
+        }
+        // SimpleCAN's producers and master learn what went out (what the calls above sent,
+        // on a board whose controller confirms at once, and what completed since the last
+        // call); what the confirmations make due runs at once.
+        #[cfg(feature = "simplecan")]
+        {
+            let mut confirmed = false;
+            while let Some(frame) = io.driver.transmitted() {
+                let at = io.driver.now();
+                runtime.on_transmitted(at, &frame, &mut io);
+                confirmed = true;
+            }
+            if confirmed {
+                self.runtime_deadline = runtime.poll(now, &mut io);
             }
         }
         if io.outputs_changed || !self.driven {
@@ -256,8 +310,8 @@ impl ChannelLoop {
 
 /// Hands one received item to the runtime; `true` when the runtime saw it.
 #[inline(never)]
-fn hand<F: Flash, R: Role<N>, const N: usize, D: Driver>(
-    runtime: &mut Runtime<F, R, N>,
+fn hand<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>, D: Driver>(
+    runtime: &mut Runtime<F, R, N, P>,
     received: Received,
     filters: &Option<AcceptanceList>,
     io: &mut DriverIo<'_, D>,
@@ -286,12 +340,17 @@ fn hand<F: Flash, R: Role<N>, const N: usize, D: Driver>(
 }
 
 /// The level of the output pin driven by `object`: the object's value in the confirmed
-/// data of a receive SRDO that maps it is not 0.
+/// data of a receive SRDO that maps it is not 0, or (feature `simplecan`) the confirmed value
+/// of a consumed SimpleCAN SC-ID whose SDD entry maps it is not 0.
 #[inline(never)]
-fn output_level<F: Flash, R: Role<N>, const N: usize>(
-    runtime: &Runtime<F, R, N>,
+fn output_level<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>>(
+    runtime: &Runtime<F, R, N, P>,
     object: Address,
 ) -> bool {
+    #[cfg(feature = "simplecan")]
+    if simplecan_level(runtime, object) {
+        return true;
+    }
     runtime
         .node()
         .safety_config()
@@ -304,6 +363,29 @@ fn output_level<F: Flash, R: Role<N>, const N: usize>(
             mapped_value(record, object, runtime.output(srdo))
         })
         .any(|value| value != 0)
+}
+
+/// `true` when a consumed SimpleCAN SC-ID whose SDD entry maps `object` (5E10h.. :06) has a
+/// confirmed value that is not 0 (`Runtime::simplecan_output`: 0 in the safe state).
+#[cfg(feature = "simplecan")]
+fn simplecan_level<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>>(
+    runtime: &Runtime<F, R, N, P>,
+    object: Address,
+) -> bool {
+    let Some(layer) = runtime.node().protocol().simplecan() else {
+        return false;
+    };
+    layer.entries[..layer.count.min(layer.entries.len())]
+        .iter()
+        .filter(|entry| entry.role == shared::node::simplecan::ROLE_CONSUME)
+        .filter(|entry| mapped_object(entry.mapped) == object)
+        .any(|entry| runtime.simplecan_output(entry.sc_id) != 0)
+}
+
+/// The object of a mapping entry `index << 16 | sub-index << 8 | bits` (EN 50325-5 6.4.1.3,
+/// and SimpleCAN's 5E10h.. :06 alike).
+fn mapped_object(entry: u32) -> Address {
+    Address::new((entry >> 16) as u16, (entry >> 8) as u8)
 }
 
 /// The value of `object` in an SRDO's plain data `data` (little-endian, as the frame carries
@@ -319,7 +401,7 @@ pub fn mapped_value(record: &SrdoRecord, object: Address, data: u64) -> Option<u
         if bits == 0 || bits % 8 != 0 || offset + bits > 64 {
             return None; // Not a mapping the validation accepts: drives nothing.
         }
-        if Address::new((entry >> 16) as u16, (entry >> 8) as u8) == object {
+        if mapped_object(entry) == object {
             let value = data >> offset;
             return Some(if bits == 64 {
                 value

@@ -42,9 +42,10 @@ pub static INPUT_PINS: [(Address, Address); 1] = [(INPUT, INPUT_INVERTED)];
 
 /// The channel's output pins, in pin order, each with the received safety object that drives
 /// it (pin 0: the channel's relay, hardware PC1, energised while 0x6200:1 is not 0). A pin
-/// follows its object as both channels confirmed it (the cross-checked data of the receive
-/// SRDO that maps it), and is low whenever no SRDO maps it, in the safe state
-/// (SC_REQ_05) and before the first confirmed pair.
+/// follows its object as both channels confirmed it: the cross-checked data of the receive
+/// SRDO that maps it, or (SimpleCAN, SC_REQ_20) the cross-checked value of the consumed
+/// SC-ID whose SDD entry maps it (5E10h.. :06); it is low whenever neither maps it, in the
+/// safe state (SC_REQ_05) and before the first confirmed value.
 pub static OUTPUT_PINS: [Address; 1] = [OUTPUT];
 
 /// Each plain safety object with its inverted copy (EN 50325-5 6.4.1.3: an SRDO maps a

@@ -30,8 +30,16 @@ pub const SDO_REQUEST_BASE: u16 = 0x600;
 
 /// The most SRDOs a node has (0x1301..=0x1340, EN 50325-5 Table 5).
 pub const MAX_SRDOS: usize = 64;
-/// The most identifiers a channel accepts: two per SRDO, NMT, GFC and SDO.
-pub const MAX_ACCEPTED: usize = 2 * MAX_SRDOS + 3;
+/// The SimpleCAN identifiers a channel may accept besides (feature `simplecan`): the sync
+/// and the SC-ID of every SDD entry the channels cross-check ([`crate::simplecan::ENTRIES`]).
+#[cfg(feature = "simplecan")]
+pub const SIMPLECAN_ACCEPTED: usize = 1 + crate::simplecan::ENTRIES;
+/// The SimpleCAN identifiers a channel may accept besides: none without the feature
+/// `simplecan`.
+#[cfg(not(feature = "simplecan"))]
+pub const SIMPLECAN_ACCEPTED: usize = 0;
+/// The most identifiers a channel accepts: two per SRDO, NMT, GFC, SDO and the SimpleCAN ones.
+pub const MAX_ACCEPTED: usize = 2 * MAX_SRDOS + 3 + SIMPLECAN_ACCEPTED;
 
 /// Filter banks CAN1 of the STM32F405 owns: the 28 banks are shared with CAN2, and the reset
 /// value of CAN_FMR.CAN2SB (14), which the board keeps, gives CAN1 banks 0 to 13 (RM0090
@@ -77,9 +85,31 @@ impl AcceptanceList {
         AcceptanceList { ids }
     }
 
-    /// The identifiers: NMT, GFC, the SRDO identifiers in the order of the records, SDO.
+    /// The identifiers: NMT, GFC, the SRDO identifiers in the order of the records, SDO,
+    /// then the SimpleCAN ones ([`AcceptanceList::add_simplecan`]).
     pub fn ids(&self) -> &[CanId] {
         &self.ids
+    }
+
+    /// Adds what the SimpleCAN layer `layer` follows (SC_REQ_12, SC_REQ_24): the sync 02Fh
+    /// (its master's, and any other master's for the several-masters check) and the SC-ID of
+    /// every SDD entry in use, consumed and produced (channel B checks channel A's packets on
+    /// the bus, and both report another sender on the node's SC-IDs).
+    #[cfg(feature = "simplecan")]
+    pub fn add_simplecan(&mut self, layer: &crate::simplecan::Layer) {
+        let sync = shared::simplecan::frame::SYNC_IDENTIFIER;
+        let entries = layer.entries.get(..layer.count).unwrap_or(&layer.entries);
+        let ids = core::iter::once(sync).chain(
+            entries
+                .iter()
+                .filter_map(|entry| CanId::new(u16::from(entry.sc_id)).ok()),
+        );
+        for id in ids {
+            if !self.ids.contains(&id) {
+                // SIMPLECAN_ACCEPTED places beyond the SRDOs': the list never fills.
+                let _ = self.ids.push(id);
+            }
+        }
     }
 
     /// `true` when the channel follows `frame`: a data frame on one of the identifiers.

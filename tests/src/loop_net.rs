@@ -6,7 +6,10 @@
 //!
 //! [`DualNetwork`](crate::dual::DualNetwork) drives the channel runtimes directly and stays
 //! the network of the campaigns and the system tests; this one checks what only the loop
-//! does: filters, receive queues, input sampling, output pins.
+//! does: filters, receive queues, input sampling, output pins. Its channels' protocol is the
+//! SRDO table unless said otherwise ([`LoopNetwork<P>`], P a [`ChannelProtocol`]): with
+//! [`SimpleCanLoopNetwork`] the cores run SimpleCAN beside the SRDOs, and each controller
+//! confirms its frames to its loop when they have been on the bus ([`Driver::transmitted`]).
 
 use crate::bus::{Bus, Delivery, ORDERED_BY_IDENTIFIER};
 use crate::dual::{B_INPUTS, LINK_PERIOD, NETWORK_FILE};
@@ -16,12 +19,13 @@ use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
 use dual_channel::channel_loop::{ChannelLoop, Driver, Pins, QueueFull, Received};
 use dual_channel::filters::{AcceptanceList, BankLayout, CAN1_BANKS, Fifo, bank_layout};
-use dual_channel::runtime::{ChannelEvent, Runtime};
+use dual_channel::runtime::{ChannelEvent, ChannelProtocol, Runtime};
 use safety_config::ToolError;
 use safety_config::network_file;
 use safety_config::procedure::{self, Quiet};
 use shared::canopen::nmt::{self, NmtCommand, NmtState};
 use shared::canopen::storage::RamFlash;
+use shared::node::{SrdoAndSimpleCan, SrdoTable};
 use shared::{CanFrame, Duration, Instant};
 use std::collections::VecDeque;
 
@@ -53,6 +57,14 @@ pub struct SimDriver {
     /// The controller went bus-off (and recovered): the next receive reports it.
     pub bus_off: bool,
     sent: Vec<CanFrame>,
+    /// Frames of this controller that have been on the bus, not yet reported to the loop.
+    confirmed: VecDeque<CanFrame>,
+    /// The controller reports its frames on the bus ([`Driver::transmitted`]); `false`: a
+    /// controller that never does (the frames still go out).
+    pub confirms: bool,
+    /// Every withdrawal the loop asked of the controller: (time, identifier). The bus model
+    /// cannot take back a queued frame; the log is what a test checks.
+    pub aborts: Vec<(Instant, u16)>,
     link_out: Vec<u8>,
     link_in: VecDeque<u8>,
     /// The input pin's level.
@@ -79,6 +91,9 @@ impl SimDriver {
             overrun: false,
             bus_off: false,
             sent: Vec::new(),
+            confirmed: VecDeque::new(),
+            confirms: true,
+            aborts: Vec::new(),
             link_out: Vec::new(),
             link_in: VecDeque::new(),
             input: false,
@@ -119,6 +134,7 @@ impl SimDriver {
             || self.overrun
             || self.bus_off
             || !self.link_in.is_empty()
+            || !self.confirmed.is_empty()
     }
 }
 
@@ -169,21 +185,34 @@ impl Driver for SimDriver {
     fn event(&mut self, event: &ChannelEvent) {
         self.events.push((self.now, *event));
     }
+    fn transmitted(&mut self) -> Option<CanFrame> {
+        self.confirmed.pop_front()
+    }
+    fn abort(&mut self, id: shared::CanId) {
+        self.aborts.push((self.now, id.raw()));
+    }
 }
 
-/// Channel A's runtime.
-pub type RuntimeA = Runtime<RamFlash<8192>, ChannelA, 4>;
-/// Channel B's runtime.
-pub type RuntimeB = Runtime<RamFlash<8192>, ChannelB, 4>;
+/// Channel A's runtime, with the protocol `P`.
+pub type RuntimeA<P = SrdoTable<4>> = Runtime<RamFlash<8192>, ChannelA, 4, P>;
+/// Channel B's runtime, with the protocol `P`.
+pub type RuntimeB<P = SrdoTable<4>> = Runtime<RamFlash<8192>, ChannelB, 4, P>;
+
+/// The SimpleCAN channels' protocol: 4 SRDOs and 4 SDD entries beside them, as
+/// [`crate::simplecan_dual`]'s nodes.
+pub type SimpleCanProtocol = SrdoAndSimpleCan<4, 4>;
+
+/// A loop network whose cores run SimpleCAN beside the SRDOs.
+pub type SimpleCanLoopNetwork = LoopNetwork<SimpleCanProtocol>;
 
 /// One node: both channels' runtimes, their loops and their boards.
-pub struct LoopNode {
+pub struct LoopNode<P: ChannelProtocol<4> = SrdoTable<4>> {
     /// Node-ID.
     pub id: u8,
     /// Channel A.
-    pub a: RuntimeA,
+    pub a: RuntimeA<P>,
     /// Channel B.
-    pub b: RuntimeB,
+    pub b: RuntimeB<P>,
     /// Channel A's loop, channel B's loop.
     pub loops: [ChannelLoop; 2],
     /// Channel A's board, channel B's board.
@@ -194,13 +223,13 @@ pub struct LoopNode {
 
 /// The network: participant 0 is the tool, node `i`'s channels are `2i + 1` and `2i + 2`,
 /// the babbler (if any) comes last.
-pub struct LoopNetwork {
+pub struct LoopNetwork<P: ChannelProtocol<4> = SrdoTable<4>> {
     /// Simulated time.
     pub now: Instant,
     /// The bus.
     pub bus: Bus,
     /// The nodes.
-    pub nodes: Vec<LoopNode>,
+    pub nodes: Vec<LoopNode<P>>,
     in_flight: Vec<Delivery>,
     /// Every frame on the bus, as delivered: (time, frame, sender).
     pub trace: Vec<(Instant, CanFrame, usize)>,
@@ -212,7 +241,7 @@ pub struct LoopNetwork {
     pub service_interval: Duration,
 }
 
-impl LoopNetwork {
+impl<P: ChannelProtocol<4>> LoopNetwork<P> {
     /// Nodes with these node-IDs, powered on at t = 0, their controllers filtering so.
     pub fn new(bit_rate: u32, ids: &[u8], filtering: Filtering) -> Self {
         let nodes = ids
@@ -259,12 +288,12 @@ impl LoopNetwork {
     }
 
     /// The node with node-ID `id`.
-    pub fn node(&self, id: u8) -> &LoopNode {
+    pub fn node(&self, id: u8) -> &LoopNode<P> {
         self.nodes.iter().find(|node| node.id == id).expect("node")
     }
 
     /// The node with node-ID `id`, mutably.
-    pub fn node_mut(&mut self, id: u8) -> &mut LoopNode {
+    pub fn node_mut(&mut self, id: u8) -> &mut LoopNode<P> {
         self.nodes
             .iter_mut()
             .find(|node| node.id == id)
@@ -334,6 +363,10 @@ impl LoopNetwork {
                 for side in 0..2 {
                     if 1 + 2 * index + side != delivery.from {
                         node.drivers[side].deliver(delivery.frame);
+                    } else if node.drivers[side].confirms {
+                        // One transceiver: the sender never receives its own frame, its
+                        // controller confirms it (a transmit mailbox completed).
+                        node.drivers[side].confirmed.push_back(delivery.frame);
                     }
                 }
             }
@@ -392,9 +425,8 @@ impl LoopNetwork {
         self.bus.send(0, nmt::command_frame(command, target));
     }
 
-    /// Configures node 1 to produce and node 33 to consume SRDO 1 ([`NETWORK_FILE`]) by the
-    /// tool's procedure, and starts the network with node 1's contacts closed.
-    pub fn configure_and_start(&mut self) -> Result<(), ToolError> {
+    /// Runs until every node's channel A is Pre-operational (booted), at most 100 ms.
+    fn wait_for_boot(&mut self) {
         for _ in 0..100 {
             if self
                 .nodes
@@ -405,6 +437,12 @@ impl LoopNetwork {
             }
             self.run_for(Duration::from_millis(1));
         }
+    }
+
+    /// Configures node 1 to produce and node 33 to consume SRDO 1 ([`NETWORK_FILE`]) by the
+    /// tool's procedure, and starts the network with node 1's contacts closed.
+    pub fn configure_and_start(&mut self) -> Result<(), ToolError> {
+        self.wait_for_boot();
         let file = network_file::parse(NETWORK_FILE, "dual::NETWORK_FILE")?;
         let mut quiet = Quiet {
             accept_identity: false,
@@ -417,9 +455,28 @@ impl LoopNetwork {
         self.nmt(NmtCommand::Start, 0);
         Ok(())
     }
+
+    /// Configures each node with its SimpleCAN configuration by SDO as a tool does
+    /// ([`crate::simplecan_net::configure`]), closes every node's contacts and starts the
+    /// network.
+    pub fn configure_simplecan_and_start(
+        &mut self,
+        configs: &[(u8, crate::simplecan_net::ScConfig)],
+    ) -> Result<(), String> {
+        self.wait_for_boot();
+        for (id, config) in configs {
+            crate::simplecan_net::configure(self, *id, config)?;
+        }
+        let ids: Vec<u8> = self.nodes.iter().map(|node| node.id).collect();
+        for id in ids {
+            self.press(id, true);
+        }
+        self.nmt(NmtCommand::Start, 0);
+        Ok(())
+    }
 }
 
-impl Simulation for LoopNetwork {
+impl<P: ChannelProtocol<4>> Simulation for LoopNetwork<P> {
     fn now(&self) -> Instant {
         self.now
     }
@@ -433,6 +490,6 @@ impl Simulation for LoopNetwork {
         self.trace.len()
     }
     fn run_until(&mut self, end: Instant) {
-        LoopNetwork::run_until(self, end);
+        LoopNetwork::<P>::run_until(self, end);
     }
 }

@@ -2,10 +2,12 @@
 //! the network the other system tests run, but every channel behind its acceptance filters
 //! and two receive FIFOs of three frames, its pins driven by the loop.
 
+use dual_channel::runtime::ChannelProtocol;
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use shared::canopen::nmt::NmtState;
 use shared::{CanFrame, CanId, Duration};
-use system_tests::loop_net::{Filtering, LoopNetwork};
+use system_tests::loop_net::{Filtering, LoopNetwork, SimpleCanLoopNetwork};
+use system_tests::simplecan_net::{INPUT, OUTPUT_1, ROLE_CONSUME, ROLE_PRODUCE, ScConfig, ScEntry};
 
 fn started(filtering: Filtering) -> LoopNetwork {
     let mut net = LoopNetwork::new(500_000, &[1, 33], filtering);
@@ -18,7 +20,7 @@ fn started(filtering: Filtering) -> LoopNetwork {
     net
 }
 
-fn faults(net: &LoopNetwork) -> Vec<(u8, ChannelFault)> {
+fn faults<P: ChannelProtocol<4>>(net: &LoopNetwork<P>) -> Vec<(u8, ChannelFault)> {
     net.nodes
         .iter()
         .flat_map(|node| {
@@ -148,5 +150,205 @@ fn en50325_5_7_1_2_a_bus_off_controller_is_the_safe_state_with_its_own_cause() {
                 && frame.data()[..2] == [0x02, 0xFF]
                 && frame.data()[4] == 0x3B),
         "EMCY FF02h with cause 3Bh from node 33"
+    );
+}
+
+/// The emergency stop's SC-ID in the SimpleCAN loop network.
+const ESTOP: u8 = 0x30;
+
+/// Node 1 the master and producer of 30h in slot 0 (its input 6000h:01), node 33 consuming
+/// it with a 50 ms timeout into its output 6200:01; N = 10 slots of 1 ms, a sync every 100 ms,
+/// each SCL stating 270 µs of buffering (the longest 8-byte frame at 500 kbit/s); configured
+/// by SDO through the loop, started, and run until node 33's output pins are on.
+fn simplecan_started() -> SimpleCanLoopNetwork {
+    let config = |potential_master, entry| ScConfig {
+        slots: 10,
+        sync_every: 10,
+        buffering_us: 270,
+        potential_master,
+        entries: vec![entry],
+    };
+    let producer = ScEntry {
+        sc_id: ESTOP,
+        role: ROLE_PRODUCE,
+        slot: 0,
+        timeout_ms: 0,
+        mapped: INPUT,
+    };
+    let consumer = ScEntry {
+        sc_id: ESTOP,
+        role: ROLE_CONSUME,
+        slot: 0,
+        timeout_ms: 50,
+        mapped: OUTPUT_1,
+    };
+    let mut net = SimpleCanLoopNetwork::new(500_000, &[1, 33], Filtering::Banks);
+    net.configure_simplecan_and_start(&[
+        (1, config(true, producer)),
+        (33, config(false, consumer)),
+    ])
+    .expect("configured");
+    for _ in 0..1500 {
+        if net.node(33).drivers.iter().all(|driver| driver.output) {
+            break;
+        }
+        net.run_for(Duration::from_millis(1));
+    }
+    assert!(
+        net.node(33).drivers.iter().all(|driver| driver.output),
+        "node 33's output pins on: {:?}",
+        faults(&net)
+    );
+    net
+}
+
+/// The instant of the last packet of 30h on the bus (the end of its frame).
+fn last_packet(net: &SimpleCanLoopNetwork) -> shared::Instant {
+    net.trace
+        .iter()
+        .rev()
+        .find(|(_, frame, _)| frame.id().raw() == u16::from(ESTOP))
+        .map(|(at, _, _)| *at)
+        .expect("a packet of 30h")
+}
+
+/// When node 33's output (its two channels' pins in series) was last switched off.
+fn output_off_since(net: &SimpleCanLoopNetwork, since: shared::Instant) -> Option<shared::Instant> {
+    net.node(33)
+        .drivers
+        .iter()
+        .filter_map(|driver| {
+            driver
+                .output_changes
+                .iter()
+                .find(|(at, level)| *at >= since && !level)
+                .map(|(at, _)| *at)
+        })
+        .min()
+}
+
+/// SC_REQ_05, SC_REQ_18, SC_REQ_24: two dual-channel SimpleCAN nodes whose channels run the
+/// boards' loop: the loop adds the sync and the node's SC-IDs to the controller's filters,
+/// hands the controller's confirmations to the runtime (no packet of 30h withdrawn over 2 s,
+/// 200 of them on the bus), and drives node 33's output pins from the consumed value through
+/// the device description's pin table (6200h:01, mapped by the SDD entry), in both channels,
+/// without a fault.
+#[test]
+fn sc_req_24_the_loop_drives_a_simplecan_output_pin_from_the_consumed_value() {
+    let mut net = simplecan_started();
+    for node in &net.nodes {
+        let list = node.loops[0].filters().expect("filters applied");
+        let ids: Vec<u16> = list.ids().iter().map(|id| id.raw()).collect();
+        assert!(ids.contains(&0x02F) && ids.contains(&0x030), "{ids:?}");
+    }
+    let since = net.trace.len();
+    let start = net.now;
+    net.run_for(Duration::from_millis(2000));
+    let packets = net.trace[since..]
+        .iter()
+        .filter(|(_, frame, _)| frame.id().raw() == 0x030)
+        .count();
+    assert_eq!(packets, 200, "one per 10 ms cycle");
+    for node in &net.nodes {
+        for driver in &node.drivers {
+            assert_eq!(driver.aborts, [], "node {}: nothing withdrawn", node.id);
+        }
+    }
+    assert_eq!(output_off_since(&net, start), None);
+    assert_eq!(faults(&net), []);
+}
+
+/// SC_REQ_05, SC_REQ_20: node 1's emergency stop pressed (both contacts, 5 ms after a packet
+/// of 30h, so that both channels sample it before the next slot): node 33's output pins are
+/// low within one cycle and one slot (11 ms: the next packet, its frame and the loop's
+/// wake-up); released, they are on again within two cycles; no fault on either node.
+#[test]
+fn sc_req_05_a_simplecan_emergency_stop_switches_the_output_pins_off_and_on_through_the_loop() {
+    let mut net = simplecan_started();
+    net.run_for(Duration::from_millis(200));
+    let pressed = last_packet(&net) + Duration::from_millis(5);
+    net.run_until(pressed);
+    net.press(1, false);
+    net.run_for(Duration::from_millis(30));
+    let off = output_off_since(&net, pressed).expect("output off");
+    let reaction = off.as_micros() - pressed.as_micros();
+    assert!(reaction <= 11_000, "{reaction} µs");
+    assert!(net.node(33).drivers.iter().all(|driver| !driver.output));
+    net.run_for(Duration::from_millis(100));
+    let released = last_packet(&net) + Duration::from_millis(5);
+    net.run_until(released);
+    net.press(1, true);
+    net.run_for(Duration::from_millis(30));
+    assert!(net.node(33).drivers.iter().all(|driver| driver.output));
+    assert_eq!(faults(&net), []);
+}
+
+/// SC_REQ_18, SC_REQ_23: a controller that confirms nothing (node 1's channel A): its core
+/// withdraws each packet of 30h at the end of its slot, and the loop hands the withdrawal to
+/// the controller (`Driver::abort`), 1 ms after the slot's start; the sync likewise 2 ms
+/// after it was handed out.
+#[test]
+fn sc_req_18_the_loop_hands_the_cores_withdrawal_of_an_unconfirmed_packet_to_the_controller() {
+    let mut net = simplecan_started();
+    net.node_mut(1).drivers[0].confirms = false;
+    let since = net.now;
+    net.run_for(Duration::from_millis(250));
+    let aborts: Vec<(shared::Instant, u16)> = net.node(1).drivers[0]
+        .aborts
+        .iter()
+        .filter(|(at, _)| *at >= since)
+        .copied()
+        .collect();
+    let packets: Vec<shared::Instant> = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at >= since && frame.id().raw() == u16::from(ESTOP))
+        .map(|(at, _, _)| *at)
+        .collect();
+    assert!(!packets.is_empty());
+    let withdrawn: Vec<&(shared::Instant, u16)> = aborts
+        .iter()
+        .filter(|(_, id)| *id == u16::from(ESTOP))
+        .collect();
+    assert!(
+        withdrawn.len() + 1 >= packets.len(),
+        "{} withdrawals of 30h for {} packets",
+        withdrawn.len(),
+        packets.len()
+    );
+    for (at, _) in &withdrawn {
+        // The packet's frame ended (270 us or less) after its slot's start; the withdrawal
+        // comes at the slot's end.
+        let packet = packets
+            .iter()
+            .rev()
+            .find(|end| *end <= at)
+            .expect("a packet before");
+        let after = at.as_micros() - packet.as_micros();
+        assert!(
+            (700..=1000).contains(&after),
+            "{after} us after the packet's end"
+        );
+    }
+    let sync_withdrawn = aborts
+        .iter()
+        .find(|(_, id)| *id == 0x02F)
+        .map(|(at, _)| *at)
+        .expect("the sync withdrawn too");
+    let sync_end = net
+        .trace
+        .iter()
+        .rev()
+        .find(|(at, frame, _)| *at <= sync_withdrawn && frame.id().raw() == 0x02F)
+        .map(|(at, _, _)| *at)
+        .expect("the sync on the bus");
+    let after = sync_withdrawn.as_micros() - sync_end.as_micros();
+    assert!(
+        (1700..=2000).contains(&after),
+        "sync withdrawn {after} us after its end"
+    );
+    assert!(
+        net.node(1).drivers[1].aborts.is_empty(),
+        "channel B sends nothing to withdraw"
     );
 }

@@ -29,6 +29,16 @@
 //! for [`CI_LOAD_SECONDS`].
 //!
 //! "refresh +" because a fault injected on the next frame waits for that frame.
+//!
+//! With `--protocol simplecan` the cases run on the SimpleCAN network instead
+//! ([`run_simplecan`], `scenarios/networks/simplecan.toml`), their bounds from the
+//! calculator (`safety_config::calc::simplecan::reactions`, as `safety-config sfrt` gives
+//! them for the file), plus the same margin:
+//!
+//! | case | the calculator's bound | bound here |
+//! |------|------------------------|------------|
+//! | emergency stop pressed | fault-free reaction (slot wait, packet, buffering, cross-check) | that + margin |
+//! | node 1 stopped (both channels muted) | one fault: the consumer's safety timeout (SC_REQ_20) and the steps around it | that + margin |
 
 use crate::network::{self, Network, output_33, working};
 use anyhow::{Result, bail};
@@ -164,7 +174,8 @@ pub fn nominal(network: &mut Network, when: &str) -> Result<()> {
     if flowing.is_none() {
         bail!(
             "{when}: the network did not reach nominal operation (both nodes working, node 33 \
-             validating node 1's SRDOs) within 3 s:\n{}",
+             validating {}) within 3 s:\n{}",
+            network.protocol.stream(),
             network.table()
         );
     }
@@ -272,6 +283,82 @@ pub fn run_all(network: &mut Network, bus_load_seconds: Option<f64>) -> Result<V
         bound,
     )?;
     check("link of node 33 cut → node 33 safe", ms, bound)?;
+    Ok(results)
+}
+
+/// The calculator's bounds for the SimpleCAN network, milliseconds rounded up: node 33's
+/// fault-free reaction to node 1's input, and its one-fault reaction (the packet after the
+/// demand lost: the safety timeout).
+fn simplecan_bounds() -> Result<(u64, u64)> {
+    use safety_config::calc::sfrt::DeviceTiming;
+    let file = safety_config::network_file::parse(
+        network::SIMPLECAN_NETWORK_FILE,
+        "scenarios/networks/simplecan.toml",
+    )?;
+    let Some(simplecan) = file.simplecan else {
+        bail!("scenarios/networks/simplecan.toml has no [simplecan] section");
+    };
+    let reactions = safety_config::calc::simplecan::reactions(
+        &simplecan,
+        dual_channel::device::BIT_RATE,
+        &DeviceTiming::HARDWARE,
+    )?;
+    let Some(reaction) = reactions
+        .iter()
+        .find(|r| r.consumer == 33 && r.sc_id == network::ESTOP_SC_ID)
+    else {
+        bail!("the calculator gives no reaction of node 33 to SC-ID 30h");
+    };
+    Ok((
+        reaction.fault_free_us.div_ceil(1000),
+        reaction.one_fault_us.div_ceil(1000),
+    ))
+}
+
+/// The SimpleCAN cases on one network speaking SimpleCAN ([`network::Protocol::Simplecan`]):
+/// the emergency stop twice (SC_REQ_05: node 33's output 0 within the calculator's
+/// fault-free reaction plus [`MARGIN_MS`], on again after the release), then node 1 stopped
+/// (both channels muted: the master and the producer gone), node 33 in its safe state with
+/// its value's timeout, 6Ah (SC_REQ_20, SC_REQ_40), within the one-fault reaction plus the
+/// margin. Times are the hub's (its virtual time), as in [`run_all`].
+pub fn run_simplecan(network: &mut Network) -> Result<Vec<Measured>> {
+    let (reaction_ms, timeout_ms) = simplecan_bounds()?;
+    let mut results = Vec::new();
+    let mut check = |case: &'static str, ms: f64, bound_ms: u64| -> Result<()> {
+        println!("   {case}: {ms:.1} ms (bound {bound_ms} ms)");
+        if ms > bound_ms as f64 {
+            bail!("{case}: {ms:.1} ms exceeds its bound of {bound_ms} ms");
+        }
+        results.push(Measured { case, ms, bound_ms });
+        Ok(())
+    };
+    nominal(network, "at the start")?;
+    println!(
+        "   nominal: both nodes Operational, node 33 confirms {}, output on",
+        network.protocol.stream()
+    );
+    let bound = reaction_ms + MARGIN_MS;
+    let latency = press(network)?;
+    check(
+        "SimpleCAN emergency stop → node 33 output 0",
+        latency,
+        bound,
+    )?;
+    release(network)?;
+    let latency = press(network)?;
+    check("SimpleCAN emergency stop again", latency, bound)?;
+    release(network)?;
+    nominal(network, "after the release")?;
+
+    let at = network.command("mute node1a")?;
+    network.command("mute node1b")?;
+    let bound = timeout_ms + MARGIN_MS;
+    let ms = node_33_safe(network, at, &[Cause::SimpleCanTimeout], bound)?;
+    check(
+        "node 1 (the master) stopped → node 33 safe (6Ah, timeout)",
+        ms,
+        bound,
+    )?;
     Ok(results)
 }
 
@@ -541,9 +628,22 @@ pub fn load_trace(log: &str) -> LoadTrace {
 /// case (`cargo xtask e2e --bus-load`, [`LOAD_SECONDS`]) took 11 to 19 minutes of host time
 /// on the shared machine; CI runs [`CI_LOAD_SECONDS`].
 pub fn task(root: &std::path::Path, bus_load_seconds: Option<f64>) -> Result<()> {
-    let mut network = Network::start(root)?;
-    println!("\n## End-to-end tests on the emulated network");
-    let outcome = run_all(&mut network, bus_load_seconds);
+    task_for(root, bus_load_seconds, network::Protocol::CanopenSafety)
+}
+
+/// [`task`] on a network speaking `protocol`: with SimpleCAN, [`run_simplecan`] (no bus-load
+/// case).
+pub fn task_for(
+    root: &std::path::Path,
+    bus_load_seconds: Option<f64>,
+    protocol: network::Protocol,
+) -> Result<()> {
+    let mut network = Network::start_for(root, protocol)?;
+    println!("\n## End-to-end tests on the emulated network ({protocol:?})");
+    let outcome = match protocol {
+        network::Protocol::CanopenSafety => run_all(&mut network, bus_load_seconds),
+        network::Protocol::Simplecan => run_simplecan(&mut network),
+    };
     let stall = network.worst(|s| s.longest_stall_ms);
     let link_gap = network.worst(|s| s.longest_link_gap_ms);
     let busy = network.worst(|s| s.longest_busy_ms);

@@ -317,7 +317,12 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
         "Measured by `cargo xtask footprint` ({}, `firmware` profile).\n",
         rustc.trim()
     )?;
-    for layer in [Layer::Hw, Layer::Qemu] {
+    for layer in [
+        Layer::Hw,
+        Layer::Qemu,
+        Layer::HwSimpleCan,
+        Layer::QemuSimpleCan,
+    ] {
         images::build_layer(root, cross, layer)?;
         let mut measured = Vec::new();
         for (name, channel) in [("channel-a", "a"), ("channel-b", "b")] {

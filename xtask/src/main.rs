@@ -72,6 +72,10 @@ enum Task {
         /// (CI runs it at `e2e::CI_LOAD_SECONDS`).
         #[arg(long, value_name = "SECONDS", conflicts_with = "bus_load", value_parser = load_seconds)]
         bus_load_seconds: Option<f64>,
+        /// The cases of this protocol: `canopen-safety` (the default, the cases above) or
+        /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped).
+        #[arg(long, value_enum, default_value_t)]
+        protocol: network::Protocol,
     },
     /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
     Qemu {
@@ -105,6 +109,10 @@ enum Task {
         /// cut-link, gfc, reset; repeatable; before the end of a `--for` run).
         #[arg(long, value_parser = run::parse_at)]
         at: Vec<(std::time::Duration, run::Action)>,
+        /// The safety protocol between node 1 and node 33: `canopen-safety` (SRDO 1, the
+        /// default) or `simplecan` (the SimpleCAN images, SC-ID 30h, node 1 the master).
+        #[arg(long, value_enum, default_value_t)]
+        protocol: network::Protocol,
     },
     /// The host demo: two nodes on a simulated bus under simulated time (no QEMU), with an
     /// emergency stop and injected faults, every step checked.
@@ -279,9 +287,11 @@ fn task() -> Result<()> {
         Task::E2e {
             bus_load,
             bus_load_seconds,
-        } => e2e::task(
+            protocol,
+        } => e2e::task_for(
             &root,
             bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS)),
+            protocol,
         ),
         Task::Qemu {
             channel,
@@ -298,7 +308,11 @@ fn task() -> Result<()> {
                 .args(["run", "--chip", images::CHIP])
                 .arg(image))
         }
-        Task::Run { duration, at } => run::task(&root, duration, at),
+        Task::Run {
+            duration,
+            at,
+            protocol,
+        } => run::task(&root, duration, at, protocol),
         Task::Demo { args } => {
             let mut command = cargo();
             command.args([
@@ -417,7 +431,11 @@ fn test(root: &Path) -> Result<()> {
         .args(["build", "--release", "-p", "shared", "--features", "defmt"])
         .finish())?;
     step("clippy (firmware crates for thumbv7em-none-eabihf, both board layers)");
-    for layer in [images::Layer::Hw, images::Layer::Qemu] {
+    for layer in [
+        images::Layer::Hw,
+        images::Layer::Qemu,
+        images::Layer::QemuSimpleCan,
+    ] {
         run(images::cargo(&cross, root, "clippy", layer).args(["--", "-D", "warnings"]))?;
     }
     step("firmware images");

@@ -6,12 +6,16 @@
 //! file [`network_file`] (written to `target/emulate/network.toml`, so that `safety-config
 //! verify target/emulate/network.toml` can check a running network).
 //!
+//! With [`Protocol::Simplecan`] (`cargo xtask run --protocol simplecan`) the same four MCUs run
+//! the SimpleCAN images (`images::Layer::QemuSimpleCan`) and are configured from
+//! `scenarios/networks/simplecan.toml`: node 1 the master and producer of SC-ID 30h, node 33
+//! its consumer.
+//!
 //! Every child process is killed when the [`Network`] is dropped, whichever way the task
 //! ends (error, panic, Ctrl-C: see [`crate::interrupt`]).
 
 use crate::child::Guarded;
 use crate::images::{self, Layer};
-use crate::qemu;
 use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, anyhow, bail};
 use can_hub::tool::Control;
@@ -51,6 +55,50 @@ pub const SCT_MS: u64 = 500;
 pub const SRVT_MS: u64 = 100;
 /// The QEMU layer's link heartbeat period; a link is timed out after two.
 pub const LINK_PERIOD_MS: u64 = 100;
+
+/// The safety protocol the emulated network speaks between node 1 and node 33.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Protocol {
+    /// CANopen Safety: node 1's SRDO 1 on 101h/102h ([`network_file`]).
+    #[default]
+    CanopenSafety,
+    /// SimpleCAN: node 1 the master and producer of SC-ID 30h, node 33 its consumer
+    /// ([`SIMPLECAN_NETWORK_FILE`]), on the SimpleCAN images.
+    Simplecan,
+}
+
+impl Protocol {
+    /// The images this protocol runs on.
+    pub fn layer(self) -> Layer {
+        match self {
+            Protocol::CanopenSafety => Layer::Qemu,
+            Protocol::Simplecan => Layer::QemuSimpleCan,
+        }
+    }
+
+    /// The network file the tool configures the nodes from.
+    pub fn network_file(self) -> String {
+        match self {
+            Protocol::CanopenSafety => network_file(),
+            Protocol::Simplecan => SIMPLECAN_NETWORK_FILE.to_owned(),
+        }
+    }
+
+    /// What node 33 receives from node 1, in words.
+    pub fn stream(self) -> &'static str {
+        match self {
+            Protocol::CanopenSafety => "node 1's SRDO 1 (101h/102h)",
+            Protocol::Simplecan => "node 1's SimpleCAN SC-ID 30h (slot 0, master node 1)",
+        }
+    }
+}
+
+/// The SimpleCAN network file of the emulated network, as the repository holds it.
+pub const SIMPLECAN_NETWORK_FILE: &str = include_str!("../../scenarios/networks/simplecan.toml");
+
+/// The SC-ID node 1 produces (and, as the potential master, names in its syncs) and node 33
+/// consumes in [`SIMPLECAN_NETWORK_FILE`].
+pub const ESTOP_SC_ID: u8 = 0x30;
 
 /// The hub's socketcand port (bus `can0`) when `CAN_HUB_PORT` does not name another.
 const DEFAULT_HUB_PORT: u16 = 29536;
@@ -183,6 +231,8 @@ pub struct Network {
     dir: PathBuf,
     cross: Cross,
     root: PathBuf,
+    /// What the nodes speak.
+    pub protocol: Protocol,
 }
 
 impl Drop for Network {
@@ -288,13 +338,22 @@ impl Network {
         Network::start_with_monitors(root, &[])
     }
 
+    /// As [`Network::start`], the nodes speaking `protocol`.
+    pub fn start_for(root: &Path, protocol: Protocol) -> Result<Network> {
+        Network::start_speaking(root, &[], protocol)
+    }
+
     /// As [`Network::start`], with QEMU's monitor of each channel named in `monitored` (as
     /// in [`CHANNELS`]) on the Unix socket [`Network::monitor`].
     pub fn start_with_monitors(root: &Path, monitored: &[&str]) -> Result<Network> {
+        Network::start_speaking(root, monitored, Protocol::CanopenSafety)
+    }
+
+    fn start_speaking(root: &Path, monitored: &[&str], protocol: Protocol) -> Result<Network> {
         let cross = toolchain::ensure()?;
         toolchain::ensure_qemu()?;
         toolchain::ensure_defmt_print()?;
-        qemu::build(root, &cross)?;
+        images::build_layer(root, &cross, protocol.layer())?;
         crate::run(crate::cargo().args(["build", "--quiet", "-p", "can-hub"]))?;
         let dir = root.join("target/emulate");
         let _ = std::fs::remove_dir_all(&dir);
@@ -359,9 +418,10 @@ impl Network {
             dir,
             cross,
             root: root.to_path_buf(),
+            protocol,
         };
         for (name, node, channel) in CHANNELS {
-            let image = qemu::image(&network.cross, root, channel);
+            let image = images::image(&network.cross, root, protocol.layer(), channel);
             let log = network.dir.join(format!("{name}.defmt"));
             let monitor = monitored.contains(&name).then(|| network.monitor(name));
             let child = qemu_instance(&image, node, &socket(name), &log, monitor.as_deref())?;
@@ -489,10 +549,11 @@ impl Network {
             );
         }
         eprintln!(
-            "xtask: configuring from {}: node 33 consumes node 1's SRDO 1 ({PLAIN:X}h/{INVERTED:X}h)",
-            self.dir.join("network.toml").display()
+            "xtask: configuring from {}: node 33 consumes {}",
+            self.dir.join("network.toml").display(),
+            self.protocol.stream()
         );
-        let text = network_file();
+        let text = self.protocol.network_file();
         std::fs::write(self.dir.join("network.toml"), &text)?;
         let file = safety_config::network_file::parse(&text, "network.toml")?;
         let report = procedure::configure(self.tool()?, &file, false, &mut Narrator)?;
@@ -658,7 +719,7 @@ impl Network {
         }
         let mut faults = Vec::new();
         for (name, _, channel) in CHANNELS {
-            let image = images::image(&self.cross, &self.root, Layer::Qemu, channel);
+            let image = images::image(&self.cross, &self.root, self.protocol.layer(), channel);
             let raw = std::fs::read(self.dir.join(format!("{name}.defmt")))?;
             let decoded = decode(&image, &raw)?;
             std::fs::write(self.dir.join(format!("{name}.log")), &decoded)?;
@@ -734,4 +795,33 @@ fn decode(image: &Path, raw: &[u8]) -> Result<String> {
         stdin.write_all(raw)?;
     }
     Ok(String::from_utf8_lossy(&child.wait_with_output()?.stdout).into_owned())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The SimpleCAN network file of `cargo xtask run --protocol simplecan` parses, takes
+    /// xtask's SDO time-out, and has node 1 as the only potential master, producing 30h,
+    /// and node 33 consuming it (what the run's ending checks).
+    #[test]
+    fn the_simplecan_network_file_is_node_1_mastering_and_producing_30h_for_node_33() {
+        let file =
+            safety_config::network_file::parse(SIMPLECAN_NETWORK_FILE, "simplecan.toml").unwrap();
+        assert_eq!(file.sdo_timeout, SDO_TIMEOUT);
+        let simplecan = file.simplecan.expect("a SimpleCAN part");
+        let node_1 = &simplecan.nodes[&1];
+        assert!(node_1.potential_master);
+        assert_eq!(node_1.lowest_produced(), Some(ESTOP_SC_ID));
+        let node_33 = &simplecan.nodes[&33];
+        assert!(!node_33.potential_master);
+        assert_eq!(
+            node_33
+                .consumed
+                .iter()
+                .map(|consumed| consumed.sc_id)
+                .collect::<Vec<_>>(),
+            [ESTOP_SC_ID]
+        );
+    }
 }

@@ -13,6 +13,15 @@
 //! bus; on a terminal stdin without a terminal stdout, the keys are typed with Enter.
 //! Unattended: `--for 30s` ends the run and `--at 5s:press` (and `release`, `drop`,
 //! `corrupt`, `stop`, `b-differs`, `cut-link`, `gfc`, `reset`) schedules the same actions.
+//!
+//! `--protocol simplecan`: the same network on the SimpleCAN images, configured from
+//! `scenarios/networks/simplecan.toml` (node 1 the master and producer of SC-ID 30h, node 33
+//! its consumer, [`network::Protocol`]). The actions act on the same channels: `press`,
+//! `release`, `stop`, `b-differs`, `cut-link`, `gfc` and `reset` as for CANopen Safety;
+//! `drop` drops node 1's next packet of 30h and `corrupt` flips a bit of it (its CRC then
+//! fails at node 33, and node 1's channel B finds it differs from its own: 78h). The run
+//! passes when every channel ends Operational and working, node 33's channels confirmed
+//! values of 30h, and node 1 was the only master the monitor saw.
 
 use crate::e2e;
 use crate::network::{self, Network};
@@ -247,6 +256,16 @@ fn apply(
             seen.pressed = false;
             "emergency stop released".to_owned()
         }
+        Action::Drop if network.protocol == network::Protocol::Simplecan => {
+            network.command(&format!("drop 0x{:03X}", network::ESTOP_SC_ID))?;
+            "the hub drops node 1's next packet of 30h".to_owned()
+        }
+        Action::Corrupt if network.protocol == network::Protocol::Simplecan => {
+            network.command(&format!("corrupt 0x{:03X} 0 0x01", network::ESTOP_SC_ID))?;
+            "the hub corrupts byte 0 of node 1's next packet of 30h (its CRC fails at node 33; \
+             node 1's channel B finds it differs from its own)"
+                .to_owned()
+        }
         Action::Drop => {
             network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
             "the hub drops node 1's next inverted frame".to_owned()
@@ -403,6 +422,29 @@ fn ending(
     valid_pairs: u64,
     faults: &[(Duration, Action)],
 ) -> Ending {
+    ending_for(
+        network::Protocol::CanopenSafety,
+        latest,
+        valid_pairs,
+        faults,
+        None,
+    )
+}
+
+/// [`ending`] for a network speaking `protocol`: with SimpleCAN, `valid_pairs` counts the
+/// monitor's packets of 30h and `masters` names the SC-IDs the monitor saw sync (the run
+/// passes only with node 1's alone).
+fn ending_for(
+    protocol: network::Protocol,
+    latest: &HashMap<String, (f64, Status)>,
+    valid_pairs: u64,
+    faults: &[(Duration, Action)],
+    masters: Option<&[u8]>,
+) -> Ending {
+    let (received, on_bus) = match protocol {
+        network::Protocol::CanopenSafety => ("SRDO pairs", "valid pairs"),
+        network::Protocol::Simplecan => ("SimpleCAN values of 30h", "packets of 30h"),
+    };
     let mut unwell = Vec::new();
     for (name, _, _) in network::CHANNELS {
         match latest.get(name) {
@@ -428,19 +470,28 @@ fn ending(
         .iter()
         .map(|(at, action)| format!("{} at {:.1} s", action.name(), at.as_secs_f64()))
         .collect();
+    if let Some(masters) = masters {
+        if masters != [network::ESTOP_SC_ID] {
+            unwell.push(format!(
+                "the monitor saw syncs of {masters:02X?}, not of node 1's {:02X}h alone",
+                network::ESTOP_SC_ID
+            ));
+        }
+    }
     if unwell.is_empty() && validated > 0 {
         return Ending {
             sentence: format!(
                 "every channel ended Operational and working; node 33's channels validated {validated} \
-                 SRDO pairs or more each, and the monitor saw {valid_pairs} valid pairs on the bus"
+                 {received} or more each, and the monitor saw {valid_pairs} {on_bus} on the bus"
             ),
             passed: true,
         };
     }
     if unwell.is_empty() {
         return Ending {
-            sentence: "every channel ended Operational and working, but node 33 validated no SRDO"
-                .to_owned(),
+            sentence: format!(
+                "every channel ended Operational and working, but node 33 validated no {received}"
+            ),
             passed: false,
         };
     }
@@ -456,7 +507,7 @@ fn ending(
         Ending {
             sentence: format!(
                 "{what}: the safe state after the injected fault(s) ({}), as it should; the \
-                 monitor saw {valid_pairs} valid pairs on the bus",
+                 monitor saw {valid_pairs} {on_bus} on the bus",
                 injected.join(", ")
             ),
             passed: valid_pairs > 0,
@@ -469,6 +520,7 @@ pub fn task(
     root: &std::path::Path,
     duration: Option<Duration>,
     mut schedule: Vec<(Duration, Action)>,
+    protocol: network::Protocol,
 ) -> Result<()> {
     check_schedule(duration, &schedule).map_err(anyhow::Error::msg)?;
     let interrupted = Arc::new(AtomicBool::new(false));
@@ -483,10 +535,10 @@ pub fn task(
     if !live && !typed && duration.is_none() {
         bail!("not on a terminal: give `--for <duration>` to run unattended");
     }
-    let mut network = Network::start(root)?;
+    let mut network = Network::start_for(root, protocol)?;
     // The monitor's own socketcand connection to the hub, beside the configuration tool's.
     let mut bus = SocketcandClient::connect(&network::hub_tcp(), "can0")?;
-    let file = network::network_file();
+    let file = protocol.network_file();
     let mut model = Monitor::for_network(&safety_config::network_file::parse(
         &file,
         "target/emulate/network.toml",
@@ -636,6 +688,7 @@ pub fn task(
 }
 
 fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<()>) -> Result<()> {
+    let protocol = network.protocol;
     let latest = network.control.latest.clone();
     let stall = network.worst(|s| s.longest_stall_ms);
     let pace = network.pace_summary();
@@ -671,10 +724,29 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
         dir.display()
     );
     outcome?;
-    let valid = model.srdos.get(&network::PLAIN).map_or(0, |srdo| {
-        srdo.count(safety_config::monitor::model::PairVerdict::Valid)
-    });
-    let ending = ending(&latest, valid, &seen.faults);
+    let ending = match protocol {
+        network::Protocol::CanopenSafety => {
+            let valid = model.srdos.get(&network::PLAIN).map_or(0, |srdo| {
+                srdo.count(safety_config::monitor::model::PairVerdict::Valid)
+            });
+            ending(&latest, valid, &seen.faults)
+        }
+        network::Protocol::Simplecan => {
+            let packets = model
+                .simplecan
+                .sc_ids
+                .get(&network::ESTOP_SC_ID)
+                .map_or(0, |view| view.packets);
+            let masters: Vec<u8> = model
+                .simplecan
+                .masters
+                .iter()
+                .filter(|(_, master)| master.syncs > 0)
+                .map(|(sc_id, _)| *sc_id)
+                .collect();
+            ending_for(protocol, &latest, packets, &seen.faults, Some(&masters))
+        }
+    };
     println!("\nHow the run ended: {}", ending.sentence);
     if ending.passed {
         Ok(())
@@ -746,6 +818,37 @@ mod tests {
                 ((*name).to_owned(), (10.0, status))
             })
             .collect()
+    }
+
+    /// SC_REQ_26: a SimpleCAN run passes only when node 1 (30h) was the only master the
+    /// monitor saw sync; another master's syncs fail it with a sentence naming them, and a
+    /// run whose node 33 confirmed no value fails in SimpleCAN's words.
+    #[test]
+    fn sc_req_26_a_simplecan_run_passes_only_with_node_1_the_only_master() {
+        let simplecan = network::Protocol::Simplecan;
+        let alone = ending_for(simplecan, &statuses(&[]), 90, &[], Some(&[0x30]));
+        assert!(alone.passed, "{alone:?}");
+        assert!(
+            alone.sentence.contains("SimpleCAN values of 30h"),
+            "{alone:?}"
+        );
+        let two = ending_for(simplecan, &statuses(&[]), 90, &[], Some(&[0x30, 0x38]));
+        assert!(!two.passed, "{two:?}");
+        assert!(two.sentence.contains("[30, 38]"), "{two:?}");
+        let none = ending_for(simplecan, &statuses(&[]), 90, &[], Some(&[]));
+        assert!(!none.passed, "{none:?}");
+        let mut silent = statuses(&[]);
+        for (_, status) in silent.values_mut() {
+            status.validated = 0;
+        }
+        let unconfirmed = ending_for(simplecan, &silent, 0, &[], Some(&[0x30]));
+        assert!(!unconfirmed.passed);
+        assert!(
+            unconfirmed
+                .sentence
+                .ends_with("node 33 validated no SimpleCAN values of 30h"),
+            "{unconfirmed:?}"
+        );
     }
 
     /// The summary says how the run ended from what was observed: all working passes; a
