@@ -464,8 +464,11 @@ fn advice(code: u8) -> Option<&'static str> {
         0x74..=0x77 => Some(
             "The two channels judged a consumed SimpleCAN packet differently or not in time. Recurring: a fault inside the device (replace it), or a bus so loaded that the channels receive packets far apart (check the load and the cycle).",
         ),
-        0x78 | 0x79 => Some(
-            "The SimpleCAN packet channel A sent differed from the one channel B computed for the same slot, or did not go out within its slot: the channels disagree about what the node sends (values, cycle, time), or the bus was too busy for the slot. Check the bus load against the cycle; otherwise a fault inside the device: replace it.",
+        0x78 => Some(
+            "The SimpleCAN packet channel A sent differed from the one channel B computed for the same slot: the channels disagree about what the node sends (a value outside B's samples of the last 5 ms, the cycle, or the time: channel A's clock running fast). Check the input wiring (the two contacts of an input must move within 5 ms of each other); otherwise a fault inside the device: replace it.",
+        ),
+        0x79 => Some(
+            "A SimpleCAN packet channel B computed did not go out within its slot (a sync within 2 ms): the bus was too busy for the slot, or channel A's clock runs slow. Check the bus load against the cycle; otherwise a fault inside the device: replace it.",
         ),
         0xF0..=0xFF => Some(
             "The configuration in use no longer matches what was validated (a memory fault). Reset the node; if it recurs, replace the device.",
