@@ -115,6 +115,49 @@ impl ChannelClock {
     }
 }
 
+/// `frame` as channel `side`'s controller receives it at `now`, after the receive faults
+/// injected into that channel's path (`faults`, each counted as it applies): `None` when a
+/// fault takes it away, a delayed frame put into `held_back` for later. One place for every
+/// dual-channel network of this crate (SRDOs here, SimpleCAN in `crate::simplecan_dual`).
+pub(crate) fn through_receive_faults(
+    faults: &mut [(Side, Injection)],
+    held_back: &mut Vec<(Instant, Side, CanFrame)>,
+    side: Side,
+    frame: CanFrame,
+    now: Instant,
+) -> Option<CanFrame> {
+    let mut frame = frame;
+    for (fault_side, injection) in faults.iter_mut() {
+        let matches = *fault_side == side
+            && now >= injection.when.after
+            && injection.when.id.is_none_or(|id| id == frame.id().raw())
+            && injection
+                .when
+                .count
+                .is_none_or(|count| injection.applied < count);
+        if !matches {
+            continue;
+        }
+        injection.applied += 1;
+        match injection.fault {
+            Fault::Drop | Fault::Mute => return None,
+            Fault::Corrupt { byte, mask } => {
+                let mut data = *frame.raw_data();
+                if let Some(target) = data.get_mut(byte) {
+                    *target ^= mask;
+                }
+                frame = CanFrame::from_parts(frame.id(), frame.dlc(), data).ok()?;
+            }
+            Fault::Delay(delay) => {
+                held_back.push((now + delay, side, frame));
+                return None;
+            }
+            Fault::Repeat | Fault::Reorder => {}
+        }
+    }
+    Some(frame)
+}
+
 /// Which channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Side {
@@ -412,36 +455,14 @@ impl DualNetwork {
         frame: CanFrame,
         now: Instant,
     ) -> Option<CanFrame> {
-        let mut frame = frame;
-        for (fault_side, injection) in self.nodes[index].receive_faults.iter_mut() {
-            let matches = *fault_side == side
-                && now >= injection.when.after
-                && injection.when.id.is_none_or(|id| id == frame.id().raw())
-                && injection
-                    .when
-                    .count
-                    .is_none_or(|count| injection.applied < count);
-            if !matches {
-                continue;
-            }
-            injection.applied += 1;
-            match injection.fault {
-                Fault::Drop | Fault::Mute => return None,
-                Fault::Corrupt { byte, mask } => {
-                    let mut data = *frame.raw_data();
-                    if let Some(target) = data.get_mut(byte) {
-                        *target ^= mask;
-                    }
-                    frame = CanFrame::from_parts(frame.id(), frame.dlc(), data).ok()?;
-                }
-                Fault::Delay(delay) => {
-                    self.nodes[index].held_back.push((now + delay, side, frame));
-                    return None;
-                }
-                Fault::Repeat | Fault::Reorder => {}
-            }
-        }
-        Some(frame)
+        let node = &mut self.nodes[index];
+        through_receive_faults(
+            &mut node.receive_faults,
+            &mut node.held_back,
+            side,
+            frame,
+            now,
+        )
     }
 
     /// Delivers the link bytes due at `now` to channel `side` of node `index`.

@@ -11,7 +11,7 @@
 //! bus ([`Fault::Drop`], [`Fault::Corrupt`], [`Fault::Delay`]), as in [`crate::dual`].
 
 use crate::bus::{Bus, Delivery, Fault, Injection, Match, ORDERED_BY_IDENTIFIER};
-use crate::dual::{LINK_BYTE_TIME, LINK_PERIOD, Side};
+use crate::dual::{ChannelClock, LINK_BYTE_TIME, LINK_PERIOD, Side, through_receive_faults};
 use crate::simplecan_net::{ScConfig, configure, device_config};
 use crate::tool_bus::Simulation;
 use channel_a::role::ChannelA;
@@ -87,54 +87,12 @@ pub struct ScDualNode {
     held_back: Vec<(Instant, Side, CanFrame)>,
     /// How fast each channel's clock runs against the network's time (channel A, channel B;
     /// exact unless [`ScDualNetwork::set_clock`] says otherwise). Each channel is handed its
-    /// own time, `Clock::local`.
-    clocks: [Clock; 2],
-}
-
-/// One channel's time base: the network's time, running `ppm` parts per million fast (or
-/// slow) from `from` on (SC_REQ_31: a crystal within 50 ppm).
-#[derive(Clone, Copy, Default)]
-struct Clock {
-    ppm: i64,
-    from: Instant,
-}
-
-impl Clock {
-    /// The channel's own time at the network's time `real`.
-    fn local(&self, real: Instant) -> Instant {
-        if self.ppm == 0 || real == Instant::NEVER || real <= self.from {
-            return real;
-        }
-        let micros = i128::from(real.as_micros());
-        let since = i128::from(real.as_micros() - self.from.as_micros());
-        let local = micros + since * i128::from(self.ppm) / 1_000_000;
-        Instant::from_micros(u64::try_from(local.max(0)).unwrap_or(u64::MAX))
-    }
-
-    /// The first network time at which the channel's own time has reached `local`.
-    fn real(&self, local: Instant) -> Instant {
-        if self.ppm == 0 || local == Instant::NEVER {
-            return local;
-        }
-        if local <= self.from {
-            return local;
-        }
-        let from = i128::from(self.from.as_micros());
-        let since = i128::from(local.as_micros()) - from;
-        let guess = from + since * 1_000_000 / (1_000_000 + i128::from(self.ppm));
-        let mut real = u64::try_from(guess.max(0)).unwrap_or(u64::MAX);
-        while real > 0 && self.local(Instant::from_micros(real - 1)) >= local {
-            real -= 1;
-        }
-        while self.local(Instant::from_micros(real)) < local {
-            real += 1;
-        }
-        Instant::from_micros(real)
-    }
+    /// own time, `ChannelClock::local`.
+    clocks: [ChannelClock; 2],
 }
 
 impl ScDualNode {
-    fn clock(&self, side: Side) -> Clock {
+    fn clock(&self, side: Side) -> ChannelClock {
         self.clocks[side as usize]
     }
 }
@@ -193,7 +151,7 @@ impl ScDualNetwork {
                 deadlines: [Instant::ZERO; 2],
                 receive_faults: Vec::new(),
                 held_back: Vec::new(),
-                clocks: [Clock::default(); 2],
+                clocks: [ChannelClock::default(); 2],
             })
             .collect();
         let mut bus = Bus::new(bit_rate, 1 + 2 * nodes.len());
@@ -350,36 +308,14 @@ impl ScDualNetwork {
         frame: CanFrame,
         now: Instant,
     ) -> Option<CanFrame> {
-        let mut frame = frame;
-        for (fault_side, injection) in self.nodes[index].receive_faults.iter_mut() {
-            let matches = *fault_side == side
-                && now >= injection.when.after
-                && injection.when.id.is_none_or(|id| id == frame.id().raw())
-                && injection
-                    .when
-                    .count
-                    .is_none_or(|count| injection.applied < count);
-            if !matches {
-                continue;
-            }
-            injection.applied += 1;
-            match injection.fault {
-                Fault::Drop | Fault::Mute => return None,
-                Fault::Corrupt { byte, mask } => {
-                    let mut data = *frame.raw_data();
-                    if let Some(target) = data.get_mut(byte) {
-                        *target ^= mask;
-                    }
-                    frame = CanFrame::from_parts(frame.id(), frame.dlc(), data).ok()?;
-                }
-                Fault::Delay(delay) => {
-                    self.nodes[index].held_back.push((now + delay, side, frame));
-                    return None;
-                }
-                Fault::Repeat | Fault::Reorder => {}
-            }
-        }
-        Some(frame)
+        let node = &mut self.nodes[index];
+        through_receive_faults(
+            &mut node.receive_faults,
+            &mut node.held_back,
+            side,
+            frame,
+            now,
+        )
     }
 
     /// Delivers the link bytes due at `now` to channel `side` of node `index`.
@@ -428,7 +364,7 @@ impl ScDualNetwork {
                 node.b.poll(local, &mut out)
             }
         };
-        node.deadlines[side as usize] = clock.real(deadline);
+        node.deadlines[side as usize] = clock.global(deadline);
         let id = node.id;
         if !out.link.is_empty() {
             let wire = match side {
@@ -478,10 +414,9 @@ impl ScDualNetwork {
     /// (negative: slow) against the network's time, from an exact one.
     pub fn set_clock(&mut self, id: u8, side: Side, ppm: i64) {
         let index = self.index(id);
-        self.nodes[index].clocks[side as usize] = Clock {
-            ppm,
-            from: self.now,
-        };
+        let mut clock = ChannelClock::default();
+        clock.set_rate(self.now, ppm);
+        self.nodes[index].clocks[side as usize] = clock;
     }
 
     /// Channel `side` of node `id` alone samples its contact of 6000h:01 as `value` (the
