@@ -68,6 +68,9 @@ pub struct ChannelB {
     /// reception).
     last_plain: Option<(CanFrame, Instant)>,
     window: Duration,
+    /// Model A's time bounds for channel A's SimpleCAN packets (the standard's by default).
+    #[cfg(feature = "simplecan")]
+    simplecan_bounds: dual_channel::simplecan::Bounds,
 }
 
 impl ChannelB {
@@ -85,6 +88,8 @@ impl ChannelB {
             announced: FrameSlots::default(),
             last_plain: None,
             window: DEFAULT_WINDOW,
+            #[cfg(feature = "simplecan")]
+            simplecan_bounds: dual_channel::simplecan::Bounds::STANDARD,
         })
     }
 
@@ -96,6 +101,14 @@ impl ChannelB {
     /// Sets the discrepancy window (keep it well below the smallest SRVT).
     pub fn set_window(&mut self, window: Duration) {
         self.window = window;
+    }
+
+    /// Sets Model A's time bounds for channel A's SimpleCAN packets (docs/simplecan.md
+    /// section 13): only where frames take longer to reach channel B than on a board (the
+    /// QEMU image); a board keeps the standard's.
+    #[cfg(feature = "simplecan")]
+    pub fn set_simplecan_bounds(&mut self, bounds: dual_channel::simplecan::Bounds) {
+        self.simplecan_bounds = bounds;
     }
 
     /// The inverted frame for `frame` if it matches `inputs`.
@@ -279,6 +292,11 @@ impl<const N: usize> Role<N> for ChannelB {
 
     fn window(&self) -> Duration {
         self.window
+    }
+
+    #[cfg(feature = "simplecan")]
+    fn simplecan_bounds(&self) -> dual_channel::simplecan::Bounds {
+        self.simplecan_bounds
     }
 
     /// Channel B's verdict on a SimpleCAN frame is its own decoder's

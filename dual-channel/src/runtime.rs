@@ -215,6 +215,14 @@ pub trait Role<const N: usize> {
         SAMPLE_WINDOW
     }
 
+    /// Model A's time bounds for the node's SimpleCAN packets (channel B's check of A's):
+    /// the standard's, unless an image's frames take longer to reach the channel than a
+    /// board's (channel B's QEMU image, `channel_b::role`).
+    #[cfg(feature = "simplecan")]
+    fn simplecan_bounds(&self) -> crate::simplecan::Bounds {
+        crate::simplecan::Bounds::STANDARD
+    }
+
     /// This channel's own decoding of a SimpleCAN frame with the node hashes `hash_of`
     /// (SC_REQ_10: each channel validates every packet). The default is the frame's fields
     /// as they stand, unchecked: a channel without a decoder of its own (channel A) has its
@@ -507,7 +515,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let timeout = Duration::from_micros(2 * link_period.as_micros());
         let protocol = P::build(&config).ok_or(NodeError::SrdoCount)?;
         #[cfg(feature = "simplecan")]
-        let window = role.window();
+        let (window, bounds) = (role.window(), role.simplecan_bounds());
         Ok(Runtime {
             node: Device::with_protocol(config, flash, protocol)?,
             role,
@@ -530,7 +538,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             early: heapless::Vec::new(),
             handed_on: FrameSlots::default(),
             #[cfg(feature = "simplecan")]
-            simplecan: crate::simplecan::Checks::new(window, timeout),
+            simplecan: crate::simplecan::Checks::new(window, timeout, bounds),
         })
     }
 

@@ -32,7 +32,7 @@ use shared::{Duration, Instant};
 
 pub mod transmit;
 
-pub use transmit::{SYNC_OFFSET_TOLERANCE, TransmitCheck};
+pub use transmit::{Bounds, SYNC_OFFSET_TOLERANCE, TransmitCheck};
 
 /// How many frames may wait for their other copy; more is a fault (`Overrun`). A SimpleCAN
 /// frame takes at least 111 bit times on the bus (8 bytes, base identifier, no stuff bits,
@@ -521,12 +521,15 @@ pub struct Checks {
 
 impl Checks {
     /// Checks that wait `window` for channel A's copy of a frame and `timeout` for the
-    /// other channel's verdict.
-    pub fn new(window: Duration, timeout: Duration) -> Self {
+    /// other channel's verdict, with Model A's time `bounds` ([`Bounds::STANDARD`] on a
+    /// board).
+    pub fn new(window: Duration, timeout: Duration, bounds: Bounds) -> Self {
+        let mut transmit = TransmitCheck::new(window);
+        transmit.set_bounds(bounds);
         Checks {
             forward: ForwardCheck::new(window),
             verdicts: VerdictCheck::new(timeout),
-            transmit: TransmitCheck::new(window),
+            transmit,
             outputs: [Output::default(); ENTRIES],
         }
     }

@@ -84,6 +84,21 @@ impl Protocol {
         }
     }
 
+    /// The tolerances only the QEMU images apply beyond the hardware's, in words (reported
+    /// by the run): channel B's discrepancy window for both protocols, and for SimpleCAN
+    /// channel B's Model A bounds (`channel_b`'s QEMU main; the hardware and the host keep
+    /// the standard's).
+    pub fn qemu_tolerances(self) -> &'static str {
+        match self {
+            Protocol::CanopenSafety => "channel B's window 60 ms (hardware 5 ms)",
+            Protocol::Simplecan => {
+                "channel B's window 60 ms (hardware 5 ms); Model A: A's data packet within \
+                 60 ms of B's (hardware: its 1 ms slot), A's sync within 60 ms (2 ms) and not \
+                 ahead of B's time by more than 60 ms (200 µs)"
+            }
+        }
+    }
+
     /// What node 33 receives from node 1, in words.
     pub fn stream(self) -> &'static str {
         match self {
@@ -525,6 +540,10 @@ impl Network {
     }
 
     fn configure(&mut self) -> Result<()> {
+        eprintln!(
+            "xtask: QEMU-only tolerances: {}",
+            self.protocol.qemu_tolerances()
+        );
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
         let mut booted = [false; 2];
         receive_until(self.tool()?, Duration::from_secs(20), |frame| {

@@ -708,6 +708,7 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     }
     println!("longest stall of an emulated MCU (host time it did not run): {stall} ms");
     println!("{pace}");
+    println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());
     for (name, lines) in &faults {
         let reports = safe_state_reports(lines);
         if let Some(last) = reports.last() {

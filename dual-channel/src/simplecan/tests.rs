@@ -161,7 +161,7 @@ impl Io for Driven {
 #[test]
 fn sc_req_10_a_consumed_value_leaves_the_safe_state_only_when_both_channels_confirmed_it() {
     let entry = ConsumedEntry::from_number(1).unwrap();
-    let mut checks = Checks::new(BOUND, BOUND);
+    let mut checks = Checks::new(BOUND, BOUND, Bounds::STANDARD);
     let mut io = Driven::default();
     checks.accepted(entry, 0x30, 1, 1, &mut io);
     assert_eq!(checks.output(0x30), 0, "not before the confirmation");

@@ -64,6 +64,36 @@ pub const DATA_WITHIN: Duration = Duration::from_millis(1);
 /// How long a sync of the node may take to appear on the bus (SC_REQ_23).
 pub const SYNC_WITHIN: Duration = Duration::from_millis(2);
 
+/// Model A's time bounds in channel B: how long A's packet may take to appear after B computed
+/// its own, and how far A's sync may be ahead of B's time. [`Bounds::STANDARD`] is the
+/// hardware's and the host's (the slot, SC_REQ_23's 2 ms, [`SYNC_OFFSET_TOLERANCE`]); an image
+/// sets other bounds only where its frames take longer to reach channel B than a board's
+/// (`channel_b`'s QEMU main, `ChannelB::set_simplecan_bounds`), and says what that costs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Bounds {
+    /// A data packet of the node: [`DATA_WITHIN`].
+    pub data_within: Duration,
+    /// A sync of the node: [`SYNC_WITHIN`].
+    pub sync_within: Duration,
+    /// A's sync ahead of B's own time: [`SYNC_OFFSET_TOLERANCE`].
+    pub sync_ahead: Duration,
+}
+
+impl Bounds {
+    /// The standard's bounds, as on a board.
+    pub const STANDARD: Bounds = Bounds {
+        data_within: DATA_WITHIN,
+        sync_within: SYNC_WITHIN,
+        sync_ahead: SYNC_OFFSET_TOLERANCE,
+    };
+}
+
+impl Default for Bounds {
+    fn default() -> Self {
+        Bounds::STANDARD
+    }
+}
+
 /// How many of the node's packets may wait for channel A's: a data packet per produced
 /// SC-ID and a sync (each waits at most 2 ms, and no two data packets share a slot).
 const WAITING: usize = super::ENTRIES + 1;
@@ -105,6 +135,7 @@ struct Disputed {
 #[derive(Clone, Debug)]
 pub struct TransmitCheck {
     window: Duration,
+    bounds: Bounds,
     waiting: heapless::Vec<(RawFrame, Instant), WAITING>,
     previous: heapless::Vec<Previous, PRODUCED>,
     disputed: heapless::Vec<Disputed, PRODUCED>,
@@ -112,14 +143,20 @@ pub struct TransmitCheck {
 
 impl TransmitCheck {
     /// Nothing waiting; A's value is accepted when it is one of B's samples within `window`
-    /// (the channels' sample window).
+    /// (the channels' sample window); the standard's time bounds.
     pub fn new(window: Duration) -> Self {
         TransmitCheck {
             window,
+            bounds: Bounds::STANDARD,
             waiting: heapless::Vec::new(),
             previous: heapless::Vec::new(),
             disputed: heapless::Vec::new(),
         }
+    }
+
+    /// The time bounds the check applies from now on.
+    pub fn set_bounds(&mut self, bounds: Bounds) {
+        self.bounds = bounds;
     }
 
     /// Channel B's own sample of the value it produces on identifier `id` changed at `now`
@@ -149,14 +186,20 @@ impl TransmitCheck {
     }
 
     /// B's core handed out `own` at `now`: channel A's must appear by its deadline. A packet
-    /// still waiting on the same identifier is replaced (its deadline has passed, or the
-    /// poll reports it first).
+    /// still waiting on the same identifier is missing: A's did not come before B computed
+    /// the next one (with the standard's bounds its deadline, the slot, has passed by then
+    /// and the poll reports it first; a bound as long as the cycle, as under QEMU, would
+    /// otherwise let the newer packet hide it).
     pub fn computed(&mut self, now: Instant, own: RawFrame) -> Result<(), TransmitFault> {
         let sync = own.id == shared::simplecan::frame::SYNC_IDENTIFIER.raw();
-        let deadline = now + if sync { SYNC_WITHIN } else { DATA_WITHIN };
-        if let Some(slot) = self.waiting.iter_mut().find(|(kept, _)| kept.id == own.id) {
-            *slot = (own, deadline);
-            return Ok(());
+        let deadline = now
+            + if sync {
+                self.bounds.sync_within
+            } else {
+                self.bounds.data_within
+            };
+        if self.waiting.iter().any(|(kept, _)| kept.id == own.id) {
+            return Err(TransmitFault::Missing { id: own.id });
         }
         self.waiting
             .push((own, deadline))
@@ -184,10 +227,11 @@ impl TransmitCheck {
             .ok_or(mismatch)?;
         let (own, deadline) = self.waiting.swap_remove(index);
         if let Decoded::Sync { .. } = Decoded::fields(&own) {
-            // B computed its own sync SYNC_WITHIN before the deadline.
-            let computed = Instant::from_micros(deadline.as_micros() - SYNC_WITHIN.as_micros());
+            // B computed its own sync `sync_within` before the deadline.
+            let within = self.bounds.sync_within.as_micros();
+            let computed = Instant::from_micros(deadline.as_micros().saturating_sub(within));
             let since = now.saturating_since(computed);
-            return sync_agrees(&own, decoded, since, buffering)
+            return sync_agrees(&own, decoded, since, buffering, self.bounds.sync_ahead)
                 .then_some(Some(heard))
                 .ok_or(mismatch);
         }
@@ -278,10 +322,16 @@ fn other_value(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> Option<u32
 
 /// A's sync (`decoded` by B's own decoder, heard `since` B computed `own`) stands for B's
 /// `own`: the same master and cycle, and the global time it gives with `buffering` not ahead
-/// of B's own global time by more than [`SYNC_OFFSET_TOLERANCE`]. B's global time at the
-/// hearing is its own sync's plus `since`; both syncs' cycles are the same, so the offsets
-/// say it.
-fn sync_agrees(own: &RawFrame, decoded: Decoded, since: Duration, buffering: Duration) -> bool {
+/// of B's own global time by more than `ahead` ([`SYNC_OFFSET_TOLERANCE`] on a board). B's
+/// global time at the hearing is its own sync's plus `since`; both syncs' cycles are the
+/// same, so the offsets say it.
+fn sync_agrees(
+    own: &RawFrame,
+    decoded: Decoded,
+    since: Duration,
+    buffering: Duration,
+    ahead: Duration,
+) -> bool {
     let (
         Decoded::Sync {
             master,
@@ -299,9 +349,7 @@ fn sync_agrees(own: &RawFrame, decoded: Decoded, since: Duration, buffering: Dur
     };
     let own_time = u64::from(offset_micros) + since.as_micros();
     let given = u64::from(heard_offset) + buffering.as_micros();
-    master == heard_master
-        && cycle == heard_cycle
-        && given <= own_time + SYNC_OFFSET_TOLERANCE.as_micros()
+    master == heard_master && cycle == heard_cycle && given <= own_time + ahead.as_micros()
 }
 
 #[cfg(test)]
@@ -469,6 +517,56 @@ mod tests {
         assert_eq!(check.poll(at(5_999)), Ok(()));
         assert_eq!(
             check.poll(at(6_000)),
+            Err(TransmitFault::Missing { id: 0x030 })
+        );
+    }
+
+    /// Wider bounds (an image whose frames take longer to reach B, `set_bounds`): a data
+    /// packet heard 30 ms after B computed it is missing with the standard's slot, confirmed
+    /// with 60 ms; a sync heard 30 ms late likewise against SC_REQ_23's 2 ms.
+    #[test]
+    fn sc_req_10_the_bounds_set_replace_the_standard_s() {
+        let wide = Bounds {
+            data_within: Duration::from_millis(60),
+            sync_within: Duration::from_millis(60),
+            sync_ahead: Duration::from_millis(60),
+        };
+        for (frame, slot) in [(DATA, 1_000), (SYNC, 2_000)] {
+            let mut check = TransmitCheck::new(WINDOW);
+            check.computed(at(0), frame).unwrap();
+            assert_eq!(check.deadline(), at(slot), "the standard's");
+            assert_eq!(
+                check.poll(at(30_000)),
+                Err(TransmitFault::Missing { id: frame.id })
+            );
+            let mut check = TransmitCheck::new(WINDOW);
+            check.set_bounds(wide);
+            check.computed(at(0), frame).unwrap();
+            assert_eq!(check.deadline(), at(60_000));
+            assert_eq!(check.poll(at(30_000)), Ok(()));
+            assert_eq!(
+                check.heard(at(30_000), frame, Decoded::fields(&frame), Duration::ZERO),
+                Ok(Some(frame))
+            );
+        }
+        assert_eq!(Bounds::default(), Bounds::STANDARD);
+    }
+
+    /// B computing the node's next packet while the previous one on the same identifier
+    /// still waits for A's: the previous one is missing, even within a bound as long as the
+    /// cycle (10 ms here, a 60 ms bound), instead of being replaced by the newer one.
+    #[test]
+    fn sc_req_10_a_packet_still_waiting_when_channel_b_computes_the_next_is_missing() {
+        let mut check = TransmitCheck::new(WINDOW);
+        check.set_bounds(Bounds {
+            data_within: Duration::from_millis(60),
+            ..Bounds::STANDARD
+        });
+        check.computed(at(0), DATA).unwrap();
+        let mut next = DATA;
+        next.data[4] = 6;
+        assert_eq!(
+            check.computed(at(10_000), next),
             Err(TransmitFault::Missing { id: 0x030 })
         );
     }
