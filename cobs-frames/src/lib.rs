@@ -5,6 +5,9 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
+#[cfg(test)]
+extern crate std;
+
 /// A frame in the making: bytes up to the next 0x00 delimiter.
 #[derive(Clone, Debug, Default)]
 pub struct Reassembler<const N: usize> {
@@ -50,5 +53,94 @@ impl<const N: usize> Reassembler<N> {
         Some(decoded.map_or(Completed::Broken, |report| {
             Completed::Frame(report.frame_size())
         }))
+    }
+
+    /// Feeds `bytes` up to the first delimiter that completes a frame (an empty frame is
+    /// nothing, as for [`Reassembler::push`]); returns how many of them it took and what the
+    /// last one completed. The same as pushing those bytes one at a time, without a call per
+    /// byte: the bytes between delimiters are copied as one run.
+    pub fn push_slice(&mut self, bytes: &[u8], out: &mut [u8; N]) -> (usize, Option<Completed>) {
+        let mut taken = 0;
+        while let Some(rest) = bytes.get(taken..) {
+            let Some(delimiter) = rest.iter().position(|&byte| byte == 0) else {
+                self.collect(rest);
+                return (bytes.len(), None);
+            };
+            self.collect(rest.get(..delimiter).unwrap_or_default());
+            taken += delimiter + 1;
+            if let Some(completed) = self.push(0, out) {
+                return (taken, Some(completed));
+            }
+        }
+        (taken, None)
+    }
+
+    /// Appends non-delimiter bytes; what does not fit marks the frame as overflowed, as a
+    /// byte [`Reassembler::push`] cannot keep does.
+    fn collect(&mut self, bytes: &[u8]) {
+        let room = N - self.buffer.len();
+        let (kept, dropped) = bytes.split_at(bytes.len().min(room));
+        // `kept` fits the room left by construction.
+        let _ = self.buffer.extend_from_slice(kept);
+        if !dropped.is_empty() {
+            self.overflowed = true;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every way of cutting a stream into slices gives what pushing it byte by byte gives:
+    /// frames, broken frames (bad COBS, overflow) and skipped empty frames alike.
+    #[test]
+    fn a_slice_completes_what_its_bytes_complete_one_at_a_time() {
+        let mut stream = std::vec::Vec::new();
+        let mut frame = [0u8; 16];
+        for payload in [&[1u8, 0, 2][..], &[], &[0, 0, 0], &[5; 9]] {
+            let len = cobs::try_encode(payload, &mut frame).unwrap();
+            stream.extend_from_slice(&frame[..len]);
+            stream.push(0);
+        }
+        stream.extend_from_slice(&[0, 3, 0, 0, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 0, 7]);
+        let mut expected = std::vec::Vec::new();
+        let mut one = Reassembler::<12>::new();
+        let mut out = [0u8; 12];
+        for (at, &byte) in stream.iter().enumerate() {
+            if let Some(completed) = one.push(byte, &mut out) {
+                let frame = match completed {
+                    Completed::Frame(len) => Some(out[..len].to_vec()),
+                    Completed::Broken => None,
+                };
+                expected.push((at + 1, frame));
+            }
+        }
+        assert!(
+            expected.len() >= 6,
+            "the stream exercises frames and faults"
+        );
+        for cut in 1..=stream.len() {
+            let mut sliced = Reassembler::<12>::new();
+            let mut got = std::vec::Vec::new();
+            let mut offset = 0;
+            for chunk in stream.chunks(cut) {
+                let mut rest = chunk;
+                while !rest.is_empty() {
+                    let (taken, completed) = sliced.push_slice(rest, &mut out);
+                    assert!(taken > 0 && taken <= rest.len());
+                    offset += taken;
+                    rest = &rest[taken..];
+                    if let Some(completed) = completed {
+                        let frame = match completed {
+                            Completed::Frame(len) => Some(out[..len].to_vec()),
+                            Completed::Broken => None,
+                        };
+                        got.push((offset, frame));
+                    }
+                }
+            }
+            assert_eq!(got, expected, "slices of {cut}");
+        }
     }
 }

@@ -613,19 +613,32 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     /// A byte from the link.
     pub fn on_link_byte(&mut self, now: Instant, byte: u8, io: &mut impl Io) {
-        match self.receiver.receive(now, byte) {
-            None => {}
-            Some(Err(fault)) => self.latch(ChannelFault::Link(fault), io),
-            Some(Ok(message)) => {
-                if !self.link_up {
-                    // The silent channel's core boots as soon as it hears the other; the
-                    // channel that speaks for the node waits until the other's core has
-                    // booted, so that its boot-up message means both channels follow the bus.
-                    let peer_booted = matches!(message, Message::Heartbeat { nmt, .. }
-                        if nmt != NmtState::Initialising.heartbeat_code());
-                    self.link_up = !self.role.speaks_for_the_node() || peer_booted;
+        self.on_link_bytes(now, &[byte], io);
+    }
+
+    /// Bytes from the link, all received by `now` (what the UART buffered since the last
+    /// call): each message or fault they complete is handled at `now`, in order, as
+    /// [`Runtime::on_link_byte`] handles it for one byte at a time.
+    pub fn on_link_bytes(&mut self, now: Instant, bytes: &[u8], io: &mut impl Io) {
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let (taken, completed) = self.receiver.receive_bytes(now, rest);
+            rest = rest.get(taken..).unwrap_or_default();
+            match completed {
+                None => {}
+                Some(Err(fault)) => self.latch(ChannelFault::Link(fault), io),
+                Some(Ok(message)) => {
+                    if !self.link_up {
+                        // The silent channel's core boots as soon as it hears the other; the
+                        // channel that speaks for the node waits until the other's core has
+                        // booted, so that its boot-up message means both channels follow
+                        // the bus.
+                        let peer_booted = matches!(message, Message::Heartbeat { nmt, .. }
+                            if nmt != NmtState::Initialising.heartbeat_code());
+                        self.link_up = !self.role.speaks_for_the_node() || peer_booted;
+                    }
+                    self.on_message(now, message, io);
                 }
-                self.on_message(now, message, io);
             }
         }
     }

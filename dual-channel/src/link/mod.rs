@@ -248,18 +248,40 @@ impl Receiver {
 
     /// Feeds one received byte; returns a message or a fault when it completes a frame.
     pub fn receive(&mut self, now: Instant, byte: u8) -> Option<Result<Message, LinkFault>> {
-        let mut raw = [0u8; MAX_WIRE];
-        let result = match self.frames.push(byte, &mut raw)? {
-            Completed::Broken => Err(LinkFault::Malformed),
-            Completed::Frame(len) => self.check(now, raw.get(..len).unwrap_or_default()),
-        };
-        if self.expected.is_none() && result.is_err() {
-            // Before the first valid message the line may carry the tail of a frame the other
-            // channel sent before this one listened: not a fault, the start-up deadline
-            // still applies.
-            return None;
+        self.receive_bytes(now, &[byte]).1
+    }
+
+    /// Feeds received bytes up to the first one that completes a message or a fault; returns
+    /// how many it took and what they completed (`None` when it took them all and nothing
+    /// was complete). The same as feeding those bytes one at a time to
+    /// [`Receiver::receive`], without a call per byte: a board hands over what its UART
+    /// buffered, and calls again with the rest.
+    pub fn receive_bytes(
+        &mut self,
+        now: Instant,
+        bytes: &[u8],
+    ) -> (usize, Option<Result<Message, LinkFault>>) {
+        let mut taken = 0;
+        while taken < bytes.len() {
+            let mut raw = [0u8; MAX_WIRE];
+            let (count, completed) = self
+                .frames
+                .push_slice(bytes.get(taken..).unwrap_or_default(), &mut raw);
+            taken += count;
+            let result = match completed {
+                None => break,
+                Some(Completed::Broken) => Err(LinkFault::Malformed),
+                Some(Completed::Frame(len)) => self.check(now, raw.get(..len).unwrap_or_default()),
+            };
+            if self.expected.is_none() && result.is_err() {
+                // Before the first valid message the line may carry the tail of a frame the
+                // other channel sent before this one listened: not a fault, the start-up
+                // deadline still applies.
+                continue;
+            }
+            return (taken, Some(result));
         }
-        Some(result)
+        (taken, None)
     }
 
     /// Checks a decoded frame: length, CRC, message (in its one encoding), sequence.
