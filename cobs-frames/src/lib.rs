@@ -46,13 +46,9 @@ impl<const N: usize> Reassembler<N> {
         if self.buffer.is_empty() && !overflowed {
             return None;
         }
-        let decoded = (!overflowed)
-            .then(|| cobs::decode(&self.buffer, out).ok())
-            .flatten();
+        let decoded = (!overflowed).then(|| decode(&self.buffer, out)).flatten();
         self.buffer.clear();
-        Some(decoded.map_or(Completed::Broken, |report| {
-            Completed::Frame(report.frame_size())
-        }))
+        Some(decoded.map_or(Completed::Broken, Completed::Frame))
     }
 
     /// Feeds `bytes` up to the first delimiter that completes a frame (an empty frame is
@@ -88,9 +84,61 @@ impl<const N: usize> Reassembler<N> {
     }
 }
 
+/// Decodes one COBS frame without its delimiter (`source` holds no 00h: the reassembler
+/// keeps none) into `out`; its length, or `None` when it does not decode. Each code byte `c`
+/// is followed by `c − 1` data bytes, and stands for a 00h after them unless it is FFh or the
+/// frame ends there; a block running past the end of the frame is a broken frame. What
+/// `cobs::decode` of the `cobs` crate accepts, with the same result (a test compares them on
+/// any input), a block at a time instead of a state machine per byte.
+fn decode(source: &[u8], out: &mut [u8]) -> Option<usize> {
+    let mut read = 0;
+    let mut written = 0;
+    let mut zero_before = false;
+    while let Some(&code) = source.get(read) {
+        if zero_before {
+            *out.get_mut(written)? = 0;
+            written += 1;
+        }
+        let data = usize::from(code).checked_sub(1)?;
+        let block = source.get(read + 1..read + 1 + data)?;
+        out.get_mut(written..written + data)?.copy_from_slice(block);
+        written += data;
+        read += 1 + data;
+        zero_before = code != 0xFF;
+    }
+    (read > 0).then_some(written)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// The block decoder accepts what the `cobs` crate's decoder accepts, with the same
+        /// bytes: on any frame without 00h (what the reassembler hands it), valid or not, and
+        /// on the encoding of any payload.
+        #[test]
+        fn the_block_decoder_decodes_as_the_cobs_crate_does(
+            raw in proptest::collection::vec(1u8..=255, 0..600),
+            payload in proptest::collection::vec(proptest::num::u8::ANY, 0..600),
+        ) {
+            let mut encoded = [0u8; 700];
+            let len = cobs::try_encode(&payload, &mut encoded).unwrap();
+            for source in [&raw[..], &encoded[..len]] {
+                let mut ours = [0u8; 700];
+                let mut theirs = [0u8; 700];
+                let expected = cobs::decode(source, &mut theirs).ok().map(|r| r.frame_size());
+                let got = decode(source, &mut ours);
+                proptest::prop_assert_eq!(got, expected);
+                if let Some(len) = got {
+                    proptest::prop_assert_eq!(&ours[..len], &theirs[..len]);
+                }
+            }
+            let mut small = [0u8; 8];
+            let expected = cobs::decode(&encoded[..len], &mut small).ok().map(|r| r.frame_size());
+            proptest::prop_assert_eq!(decode(&encoded[..len], &mut small), expected);
+        }
+    }
 
     /// Every way of cutting a stream into slices gives what pushing it byte by byte gives:
     /// frames, broken frames (bad COBS, overflow) and skipped empty frames alike.
