@@ -613,7 +613,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     /// A byte from the link.
     pub fn on_link_byte(&mut self, now: Instant, byte: u8, io: &mut impl Io) {
-        self.on_link_bytes(now, &[byte], io);
+        if let Some(completed) = self.receiver.receive(now, byte) {
+            self.on_link_completed(now, completed, io);
+        }
     }
 
     /// Bytes from the link, all received by `now` (what the UART buffered since the last
@@ -624,21 +626,31 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         while !rest.is_empty() {
             let (taken, completed) = self.receiver.receive_bytes(now, rest);
             rest = rest.get(taken..).unwrap_or_default();
-            match completed {
-                None => {}
-                Some(Err(fault)) => self.latch(ChannelFault::Link(fault), io),
-                Some(Ok(message)) => {
-                    if !self.link_up {
-                        // The silent channel's core boots as soon as it hears the other; the
-                        // channel that speaks for the node waits until the other's core has
-                        // booted, so that its boot-up message means both channels follow
-                        // the bus.
-                        let peer_booted = matches!(message, Message::Heartbeat { nmt, .. }
-                            if nmt != NmtState::Initialising.heartbeat_code());
-                        self.link_up = !self.role.speaks_for_the_node() || peer_booted;
-                    }
-                    self.on_message(now, message, io);
+            if let Some(completed) = completed {
+                self.on_link_completed(now, completed, io);
+            }
+        }
+    }
+
+    /// A message or a fault from the link.
+    fn on_link_completed(
+        &mut self,
+        now: Instant,
+        completed: Result<Message, LinkFault>,
+        io: &mut impl Io,
+    ) {
+        match completed {
+            Err(fault) => self.latch(ChannelFault::Link(fault), io),
+            Ok(message) => {
+                if !self.link_up {
+                    // The silent channel's core boots as soon as it hears the other; the
+                    // channel that speaks for the node waits until the other's core has
+                    // booted, so that its boot-up message means both channels follow the bus.
+                    let peer_booted = matches!(message, Message::Heartbeat { nmt, .. }
+                        if nmt != NmtState::Initialising.heartbeat_code());
+                    self.link_up = !self.role.speaks_for_the_node() || peer_booted;
                 }
+                self.on_message(now, message, io);
             }
         }
     }

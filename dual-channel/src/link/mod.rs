@@ -248,7 +248,9 @@ impl Receiver {
 
     /// Feeds one received byte; returns a message or a fault when it completes a frame.
     pub fn receive(&mut self, now: Instant, byte: u8) -> Option<Result<Message, LinkFault>> {
-        self.receive_bytes(now, &[byte]).1
+        let mut raw = [0u8; MAX_WIRE];
+        let completed = self.frames.push(byte, &mut raw)?;
+        self.completed(now, completed, &raw)
     }
 
     /// Feeds received bytes up to the first one that completes a message or a fault; returns
@@ -268,20 +270,34 @@ impl Receiver {
                 .frames
                 .push_slice(bytes.get(taken..).unwrap_or_default(), &mut raw);
             taken += count;
-            let result = match completed {
-                None => break,
-                Some(Completed::Broken) => Err(LinkFault::Malformed),
-                Some(Completed::Frame(len)) => self.check(now, raw.get(..len).unwrap_or_default()),
+            let Some(completed) = completed else {
+                break;
             };
-            if self.expected.is_none() && result.is_err() {
-                // Before the first valid message the line may carry the tail of a frame the
-                // other channel sent before this one listened: not a fault, the start-up
-                // deadline still applies.
-                continue;
+            if let Some(result) = self.completed(now, completed, &raw) {
+                return (taken, Some(result));
             }
-            return (taken, Some(result));
         }
         (taken, None)
+    }
+
+    /// What a completed frame (decoded into `raw`) is: a message, a fault, or nothing.
+    fn completed(
+        &mut self,
+        now: Instant,
+        completed: Completed,
+        raw: &[u8; MAX_WIRE],
+    ) -> Option<Result<Message, LinkFault>> {
+        let result = match completed {
+            Completed::Broken => Err(LinkFault::Malformed),
+            Completed::Frame(len) => self.check(now, raw.get(..len).unwrap_or_default()),
+        };
+        if self.expected.is_none() && result.is_err() {
+            // Before the first valid message the line may carry the tail of a frame the other
+            // channel sent before this one listened: not a fault, the start-up deadline
+            // still applies.
+            return None;
+        }
+        Some(result)
     }
 
     /// Checks a decoded frame: length, CRC, message (in its one encoding), sequence.
