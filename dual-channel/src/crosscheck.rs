@@ -123,6 +123,10 @@ enum Side {
 pub struct VerdictCheck<const N: usize, S: Stream = SrdoNumber> {
     timeout: Duration,
     slots: [Slot; N],
+    /// How many verdicts wait in all slots: [`VerdictCheck::poll`] and
+    /// [`VerdictCheck::deadline`] look at no slot while none does, which is most of the time
+    /// (the two channels' verdicts on a pair come within a link message of each other).
+    waiting: usize,
     stream: core::marker::PhantomData<S>,
 }
 
@@ -132,6 +136,7 @@ impl<const N: usize, S: Stream> VerdictCheck<N, S> {
         VerdictCheck {
             timeout,
             slots: core::array::from_fn(|_| Slot::default()),
+            waiting: 0,
             stream: core::marker::PhantomData,
         }
     }
@@ -181,25 +186,31 @@ impl<const N: usize, S: Stream> VerdictCheck<N, S> {
             Side::Local => (&mut slot.local, &mut slot.remote),
             Side::Remote => (&mut slot.remote, &mut slot.local),
         };
-        match theirs.pop_front() {
-            None => {
-                if mine.push_back((verdict, now)).is_err() {
-                    // More verdicts waiting than the other channel can be behind by: it lost
-                    // some, or is not validating at all.
-                    *slot = Slot::default();
-                    return Err(CrossFault::QueueFull { srdo });
-                }
-                Ok(None)
+        let Some((other, _)) = theirs.pop_front() else {
+            if mine.push_back((verdict, now)).is_err() {
+                // More verdicts waiting than the other channel can be behind by: it lost
+                // some, or is not validating at all.
+                self.waiting -= mine.len() + theirs.len();
+                *slot = Slot::default();
+                return Err(CrossFault::QueueFull { srdo });
             }
+            self.waiting += 1;
+            return Ok(None);
+        };
+        self.waiting -= 1;
+        match other {
             // Agreement: the data when the pair was valid; nothing to drive when both found
             // the same fault (each channel is then in its safe state already).
-            Some((other, _)) if other == verdict => Ok(verdict.valid.then_some(verdict)),
-            Some(_) => Err(CrossFault::Disagreement { srdo }),
+            other if other == verdict => Ok(verdict.valid.then_some(verdict)),
+            _ => Err(CrossFault::Disagreement { srdo }),
         }
     }
 
     /// [`CrossFault::Unconfirmed`] for a verdict older than the timeout (at the deadline itself).
     pub fn poll(&self, now: Instant) -> Result<(), CrossFault<S>> {
+        if self.waiting == 0 {
+            return Ok(());
+        }
         for (index, slot) in self.slots.iter().enumerate() {
             if slot
                 .oldest()
@@ -218,6 +229,9 @@ impl<const N: usize, S: Stream> VerdictCheck<N, S> {
 
     /// When [`VerdictCheck::poll`] next has something to report ([`Instant::NEVER`]: nothing).
     pub fn deadline(&self) -> Instant {
+        if self.waiting == 0 {
+            return Instant::NEVER;
+        }
         self.slots
             .iter()
             .filter_map(Slot::oldest)
@@ -229,6 +243,7 @@ impl<const N: usize, S: Stream> VerdictCheck<N, S> {
     /// Forgets every pending verdict (NMT reset).
     pub fn reset(&mut self) {
         self.slots = core::array::from_fn(|_| Slot::default());
+        self.waiting = 0;
     }
 }
 
@@ -385,6 +400,48 @@ mod tests {
                 check.remote(Instant::ZERO, srdo, valid(1, 1)),
                 Err(CrossFault::UnknownSrdo { srdo })
             );
+        }
+    }
+
+    proptest::proptest! {
+        /// EN 50325-5 Annex A.4: the count of waiting verdicts that lets `poll` and
+        /// `deadline` skip the slots is the number of verdicts in them, after any sequence of
+        /// agreements, disagreements, full queues and resets; so the timeout is watched
+        /// exactly as a look at every slot watches it.
+        #[test]
+        fn annex_a4_the_waiting_count_is_what_the_slots_hold(
+            steps in proptest::collection::vec((0u8..4, 1u8..=2, 0u32..3), 0..60),
+        ) {
+            let mut check = VerdictCheck::<2>::new(TIMEOUT);
+            for (at, (kind, srdo, pair)) in steps.into_iter().enumerate() {
+                let now = Instant::from_millis(at as u64);
+                let _ = match kind {
+                    0 => check.local(now, number(srdo), valid(pair, 1)),
+                    1 | 2 => check.remote(now, srdo, valid(pair, 1)),
+                    _ => {
+                        if pair == 0 {
+                            check.reset();
+                        }
+                        Ok(None)
+                    }
+                };
+                let held: usize = check
+                    .slots
+                    .iter()
+                    .map(|slot| slot.local.len() + slot.remote.len())
+                    .sum();
+                proptest::prop_assert_eq!(check.waiting, held);
+                let scanned = check
+                    .slots
+                    .iter()
+                    .filter_map(Slot::oldest)
+                    .map(|since| since + TIMEOUT)
+                    .min()
+                    .unwrap_or(Instant::NEVER);
+                proptest::prop_assert_eq!(check.deadline(), scanned);
+                let later = now + TIMEOUT;
+                proptest::prop_assert_eq!(check.poll(later).is_err(), scanned <= later);
+            }
         }
     }
 }

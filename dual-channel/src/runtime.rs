@@ -621,10 +621,35 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     /// A byte from the link.
     pub fn on_link_byte(&mut self, now: Instant, byte: u8, io: &mut impl Io) {
-        match self.receiver.receive(now, byte) {
-            None => {}
-            Some(Err(fault)) => self.latch(ChannelFault::Link(fault), io),
-            Some(Ok(message)) => {
+        if let Some(completed) = self.receiver.receive(now, byte) {
+            self.on_link_completed(now, completed, io);
+        }
+    }
+
+    /// Bytes from the link, all received by `now` (what the UART buffered since the last
+    /// call): each message or fault they complete is handled at `now`, in order, as
+    /// [`Runtime::on_link_byte`] handles it for one byte at a time.
+    pub fn on_link_bytes(&mut self, now: Instant, bytes: &[u8], io: &mut impl Io) {
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let (taken, completed) = self.receiver.receive_bytes(now, rest);
+            rest = rest.get(taken..).unwrap_or_default();
+            if let Some(completed) = completed {
+                self.on_link_completed(now, completed, io);
+            }
+        }
+    }
+
+    /// A message or a fault from the link.
+    fn on_link_completed(
+        &mut self,
+        now: Instant,
+        completed: Result<Message, LinkFault>,
+        io: &mut impl Io,
+    ) {
+        match completed {
+            Err(fault) => self.latch(ChannelFault::Link(fault), io),
+            Ok(message) => {
                 if !self.link_up {
                     // The silent channel's core boots as soon as it hears the other; the
                     // channel that speaks for the node waits until the other's core has

@@ -622,7 +622,7 @@ fn render(
                 "`Role::signature_digest`: every SRDO's signature by the `crc` crate's \
                  table, folded by CRC-32"
             } else {
-                "`Role::signature_digest`: channel B's own CRC, 4 bits a step, folded by \
+                "`Role::signature_digest`: channel B's own CRC, 8 bits a step, folded by \
                  CRC-32"
             },
             spread: spread(channels, name, "digest", |c| &c.digest)?,

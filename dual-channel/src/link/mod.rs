@@ -263,7 +263,45 @@ impl Receiver {
     /// Feeds one received byte; returns a message or a fault when it completes a frame.
     pub fn receive(&mut self, now: Instant, byte: u8) -> Option<Result<Message, LinkFault>> {
         let mut raw = [0u8; MAX_WIRE];
-        let result = match self.frames.push(byte, &mut raw)? {
+        let completed = self.frames.push(byte, &mut raw)?;
+        self.completed(now, completed, &raw)
+    }
+
+    /// Feeds received bytes up to the first one that completes a message or a fault; returns
+    /// how many it took and what they completed (`None` when it took them all and nothing
+    /// was complete). The same as feeding those bytes one at a time to
+    /// [`Receiver::receive`], without a call per byte: a board hands over what its UART
+    /// buffered, and calls again with the rest.
+    pub fn receive_bytes(
+        &mut self,
+        now: Instant,
+        bytes: &[u8],
+    ) -> (usize, Option<Result<Message, LinkFault>>) {
+        let mut taken = 0;
+        while taken < bytes.len() {
+            let mut raw = [0u8; MAX_WIRE];
+            let (count, completed) = self
+                .frames
+                .push_slice(bytes.get(taken..).unwrap_or_default(), &mut raw);
+            taken += count;
+            let Some(completed) = completed else {
+                break;
+            };
+            if let Some(result) = self.completed(now, completed, &raw) {
+                return (taken, Some(result));
+            }
+        }
+        (taken, None)
+    }
+
+    /// What a completed frame (decoded into `raw`) is: a message, a fault, or nothing.
+    fn completed(
+        &mut self,
+        now: Instant,
+        completed: Completed,
+        raw: &[u8; MAX_WIRE],
+    ) -> Option<Result<Message, LinkFault>> {
+        let result = match completed {
             Completed::Broken => Err(LinkFault::Malformed),
             Completed::Frame(len) => self.check(now, raw.get(..len).unwrap_or_default()),
         };

@@ -236,6 +236,57 @@ proptest! {
         }
     }
 
+    /// EN 50325-5 Annex A.4: a stream of messages, noise, corrupted, dropped and repeated
+    /// frames, handed over in slices of any sizes, gives the messages and faults it gives
+    /// byte by byte, in order (and with them the same deadline).
+    #[test]
+    fn annex_a4_slices_of_any_size_complete_what_single_bytes_complete(
+        parts in proptest::collection::vec((0u8..5, any::<u8>()), 0..40),
+        cuts in proptest::collection::vec(1usize..70, 1..20),
+    ) {
+        let mut sender = Sender::new();
+        let mut stream = Vec::new();
+        let mut last = Vec::new();
+        for (i, &(kind, value)) in parts.iter().enumerate() {
+            let message = messages()[i % messages().len()];
+            match kind {
+                0 | 1 => {
+                    last = sender.encode(&message).unwrap().to_vec();
+                    stream.extend_from_slice(&last);
+                }
+                2 => {
+                    let mut wire = sender.encode(&message).unwrap().to_vec();
+                    let at = usize::from(value) % wire.len();
+                    wire[at] ^= 1 << (value % 8);
+                    stream.extend_from_slice(&wire);
+                }
+                3 => stream.extend_from_slice(&last),
+                _ => stream.extend_from_slice(&[value, value.wrapping_mul(7), 0]),
+            }
+        }
+        let now = Instant::from_millis(1);
+        let mut one = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+        let expected = feed(&mut one, now, &stream);
+        let mut sliced = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+        let mut got = Vec::new();
+        let mut rest = &stream[..];
+        for &cut in cuts.iter().cycle() {
+            if rest.is_empty() {
+                break;
+            }
+            let (mut chunk, after) = rest.split_at(cut.min(rest.len()));
+            rest = after;
+            while !chunk.is_empty() {
+                let (taken, completed) = sliced.receive_bytes(now, chunk);
+                prop_assert!(taken > 0 && taken <= chunk.len());
+                chunk = &chunk[taken..];
+                got.extend(completed);
+            }
+        }
+        prop_assert_eq!(got, expected);
+        prop_assert_eq!(sliced.deadline(), one.deadline());
+    }
+
     /// Any message sequence with random losses: every delivered message is the one sent with
     /// that sequence number, and each loss is reported.
     #[test]
