@@ -7,7 +7,8 @@
 //! - an embassy-time driver on the emulated network's shared virtual time (argument `paced`,
 //!   which `cargo xtask run` and `e2e` give): the clock is the last time the hub granted
 //!   ([`Wire::Time`]) plus the host time since, but never more than
-//!   [`can_serial::LOOKAHEAD`] past that grant; each grant is acknowledged once everything the
+//!   [`LOOKAHEAD`] past that grant (the SimpleCAN images' is
+//!   [`can_serial::SIMPLECAN_LOOKAHEAD`]); each grant is acknowledged once everything the
 //!   hub sent before it has been handed to the runtime. So a channel whose serial line lags
 //!   or that the host does not schedule sees its time stand still instead of frames arriving
 //!   late, and the hub holds the time of the whole network for it (`can_hub::pace`,
@@ -49,6 +50,25 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
 use emulation_wire::{self as can_serial, LinkBytes, Wire};
+
+/// The lookahead this image's clock runs with past the hub's last grant: the CANopen Safety
+/// run's [`can_serial::LOOKAHEAD`], or with the feature `simplecan` the SimpleCAN run's
+/// [`can_serial::SIMPLECAN_LOOKAHEAD`] (the hub is given the same by xtask).
+pub const LOOKAHEAD: shared::Duration = if cfg!(feature = "simplecan") {
+    can_serial::SIMPLECAN_LOOKAHEAD
+} else {
+    can_serial::LOOKAHEAD
+};
+
+/// The grant period the hub runs this image's network with (xtask gives it): the CANopen
+/// Safety run's [`can_serial::GRANT_PERIOD`] or the SimpleCAN run's
+/// [`can_serial::SIMPLECAN_GRANT_PERIOD`]. The image does not use it itself; channel B's
+/// SimpleCAN bounds do (a loop wakes on every grant).
+pub const GRANT_PERIOD: shared::Duration = if cfg!(feature = "simplecan") {
+    can_serial::SIMPLECAN_GRANT_PERIOD
+} else {
+    can_serial::GRANT_PERIOD
+};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
 use shared::{CanFrame, Duration, Instant};
 use static_cell::ConstStaticCell;
@@ -134,13 +154,9 @@ impl VirtualClockDriver {
     fn micros_at(&self, cs: critical_section::CriticalSection<'_>, host: u64) -> u64 {
         let last = self.last.borrow(cs);
         let now = match self.grant.borrow(cs).get() {
-            Some((granted, at)) => crate::paced_clock(
-                last.get(),
-                granted,
-                at,
-                host,
-                can_serial::LOOKAHEAD.as_micros(),
-            ),
+            Some((granted, at)) => {
+                crate::paced_clock(last.get(), granted, at, host, LOOKAHEAD.as_micros())
+            }
             None => host.max(last.get()),
         };
         last.set(now);

@@ -53,22 +53,17 @@ mod firmware {
         role.set_window(shared::Duration::from_millis(60));
         // SimpleCAN's Model A (docs/simplecan.md section 13): channel B computes each packet of
         // the node and must hear channel A's on the bus within the packet's slot (1 ms), a sync
-        // within 2 ms, not ahead of B's time by more than 200 µs. Under QEMU A's frame reaches
-        // the hub within the lookahead (20 ms) and B's line within another, through the
-        // emulated USART at 0.1-1 ms a byte, and the two channels' loops are not in lockstep
-        // (docs/emulation.md): those bounds are below the emulation's own jitter. Under QEMU
-        // they are the window (60 ms), which is what it costs there: A's packet missing is
-        // found 60 ms after B computed it instead of at the end of its slot, and A's clock
-        // running ahead only beyond 60 ms over a sync interval. It is not enough: the emulated
-        // channels' clocks lie within 20 ms of the hub's, and node 1's packets were measured
-        // -13.4..+21.5 ms off their slots (docs/simplecan.md section 12). The hardware image
-        // keeps the standard's bounds.
+        // within 2 ms, not ahead of B's time by more than 200 µs. Under QEMU the SimpleCAN
+        // images pace their clocks with a lookahead of 500 µs and a grant every 250 µs
+        // (`board::qemu::LOOKAHEAD`, `GRANT_PERIOD`): A's packet can appear by B's clock up to
+        // 2L + G + a frame time after B's own, 1,520 µs, and A's sync be ahead by 2L, 1 ms
+        // (`Bounds::paced`, derived in docs/emulation.md). The hardware image keeps the
+        // standard's bounds.
         #[cfg(all(feature = "qemu", not(feature = "hw"), feature = "simplecan"))]
-        role.set_simplecan_bounds(dual_channel::simplecan::Bounds {
-            data_within: shared::Duration::from_millis(60),
-            sync_within: shared::Duration::from_millis(60),
-            sync_ahead: shared::Duration::from_millis(60),
-        });
+        role.set_simplecan_bounds(dual_channel::simplecan::Bounds::paced(
+            board::qemu::LOOKAHEAD,
+            board::qemu::GRANT_PERIOD,
+        ));
         run::<_, { device::SRDO_COUNT }>(spawner, device, role).await
     }
 }

@@ -54,6 +54,17 @@ pub const LOOKAHEAD: shared::Duration = shared::Duration::from_millis(20);
 /// [`LOOKAHEAD`], so that a channel that keeps up is never held.
 pub const GRANT_PERIOD: shared::Duration = shared::Duration::from_millis(5);
 
+/// The lookahead of the SimpleCAN run (`cargo xtask run --protocol simplecan`): the QEMU
+/// images built with `board`'s feature `simplecan` pace their clocks with it, and xtask gives it
+/// to the hub (`--lookahead`). SimpleCAN's millisecond grid (a packet within its 1 ms slot, a
+/// receiver's ±2 ms, SC_REQ_30) needs the channels' clocks far closer to the hub's than
+/// [`LOOKAHEAD`] (`docs/emulation.md`, section "SimpleCAN on the emulated network").
+pub const SIMPLECAN_LOOKAHEAD: shared::Duration = shared::Duration::from_micros(500);
+
+/// The grant period of the SimpleCAN run, about half [`SIMPLECAN_LOOKAHEAD`] (xtask gives it to
+/// the hub, `--grant-period`).
+pub const SIMPLECAN_GRANT_PERIOD: shared::Duration = shared::Duration::from_micros(250);
+
 /// Most link bytes one [`Wire::Link`] message carries.
 pub const LINK_CHUNK: usize = 32;
 /// Most identifiers one [`Wire::Accept`] message carries.

@@ -72,6 +72,16 @@ struct Args {
     /// them and let it advance only as far as the slowest has acknowledged (`can_hub::pace`).
     #[arg(long)]
     paced: bool,
+    /// With `--paced`: the lookahead in microseconds, as far as a participant's clock may run
+    /// past its last grant and the hub's past the oldest acknowledgement (`can_hub::pace`).
+    /// It must be the one the images were built with (`emulation_wire::LOOKAHEAD`, or
+    /// `SIMPLECAN_LOOKAHEAD` for the SimpleCAN images, which xtask gives).
+    #[arg(long, default_value_t = pace::LOOKAHEAD.as_micros())]
+    lookahead: u64,
+    /// With `--paced`: how often (virtual time, microseconds) the hub grants time to each
+    /// participant; more than zero and less than `--lookahead`.
+    #[arg(long, default_value_t = pace::GRANT_PERIOD.as_micros())]
+    grant_period: u64,
     /// A TCP address to accept tools on (e.g. 127.0.0.1:29536).
     #[arg(long)]
     tcp: Option<String>,
@@ -273,6 +283,12 @@ fn start(args: &Args) -> Result<(), String> {
         return Err(format!(
             "--bit-rate {} is not one of {BIT_RATES:?}",
             args.bit_rate
+        ));
+    }
+    if args.grant_period == 0 || args.grant_period >= args.lookahead {
+        return Err(format!(
+            "--grant-period {} µs must be more than 0 and less than --lookahead {} µs",
+            args.grant_period, args.lookahead
         ));
     }
     let mut hub = Hub::new(args.bit_rate);
@@ -652,7 +668,10 @@ fn run(
     let host = || Instant::from_micros(start.elapsed().as_micros() as u64);
     // The bus, the traces and the control port run on the virtual time: the host's clock,
     // held back while a paced participant lags (`can_hub::pace`); unpaced, they are the same.
-    let mut pacer = Pacer::new(pace::LOOKAHEAD, pace::GRANT_PERIOD);
+    let mut pacer = Pacer::new(
+        shared::Duration::from_micros(args.lookahead),
+        shared::Duration::from_micros(args.grant_period),
+    );
     let paced = |id: usize| args.paced && id < names.len();
     let seconds = |at: Instant| at.as_micros() as f64 / 1e6;
     let mut hosts = Hosts {

@@ -84,17 +84,47 @@ impl Protocol {
         }
     }
 
+    /// The pacing's lookahead and grant period for this protocol's images (`board::qemu`'s
+    /// `LOOKAHEAD`): the SimpleCAN images run with a smaller lookahead (`docs/emulation.md`).
+    pub fn pacing(self) -> (shared::Duration, shared::Duration) {
+        match self {
+            Protocol::CanopenSafety => (emulation_wire::LOOKAHEAD, emulation_wire::GRANT_PERIOD),
+            Protocol::Simplecan => (
+                emulation_wire::SIMPLECAN_LOOKAHEAD,
+                emulation_wire::SIMPLECAN_GRANT_PERIOD,
+            ),
+        }
+    }
+
     /// The tolerances only the QEMU images apply beyond the hardware's, in words (reported
     /// by the run): channel B's discrepancy window for both protocols, and for SimpleCAN
-    /// channel B's Model A bounds (`channel_b`'s QEMU main; the hardware and the host keep
-    /// the standard's).
-    pub fn qemu_tolerances(self) -> &'static str {
+    /// channel B's Model A bounds (`channel_b`'s QEMU main, `Bounds::paced`; the hardware
+    /// and the host keep the standard's), and the pacing's lookahead and grant period.
+    pub fn qemu_tolerances(self) -> String {
+        let (lookahead, grant_period) = self.pacing();
+        let pacing = format!(
+            "lookahead {} µs, grants every {} µs",
+            lookahead.as_micros(),
+            grant_period.as_micros()
+        );
         match self {
-            Protocol::CanopenSafety => "channel B's window 60 ms (hardware 5 ms)",
+            Protocol::CanopenSafety => {
+                format!("channel B's window 60 ms (hardware 5 ms); {pacing}")
+            }
             Protocol::Simplecan => {
-                "channel B's window 60 ms (hardware 5 ms); Model A: A's data packet within \
-                 60 ms of B's (hardware: its 1 ms slot), A's sync within 60 ms (2 ms) and not \
-                 ahead of B's time by more than 60 ms (200 µs)"
+                use dual_channel::simplecan::Bounds;
+                let (paced, standard) = (Bounds::paced(lookahead, grant_period), Bounds::STANDARD);
+                format!(
+                    "channel B's window 60 ms (hardware 5 ms); Model A (hardware in brackets): \
+                     A's data packet within {} µs of B's ({} µs), A's sync within {} µs ({} µs) \
+                     and not ahead of B's time by more than {} µs ({} µs); {pacing}",
+                    paced.data_within.as_micros(),
+                    standard.data_within.as_micros(),
+                    paced.sync_within.as_micros(),
+                    standard.sync_within.as_micros(),
+                    paced.sync_ahead.as_micros(),
+                    standard.sync_ahead.as_micros(),
+                )
             }
         }
     }
@@ -378,6 +408,11 @@ impl Network {
 
         let mut hub = Command::new(root.join("target/debug/can-hub"));
         hub.args(["--tcp", &hub_tcp(), "--control", &hub_control(), "--paced"]);
+        let (lookahead, grant_period) = protocol.pacing();
+        hub.arg("--lookahead")
+            .arg(lookahead.as_micros().to_string())
+            .arg("--grant-period")
+            .arg(grant_period.as_micros().to_string());
         for (name, _, _) in CHANNELS {
             hub.arg("--socket")
                 .arg(format!("{name}={}", socket(name).display()));
