@@ -50,11 +50,17 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
 use emulation_wire::{self as can_serial, LinkBytes, Wire};
+use shared::canopen::storage::{Flash as _, RamFlash, Slot};
+use shared::{CanFrame, Duration, Instant};
+use static_cell::ConstStaticCell;
+use stm32_metapac::{Interrupt, RCC, USART2, interrupt};
+
+use crate::Device;
 
 /// The lookahead this image's clock runs with past the hub's last grant: the CANopen Safety
 /// run's [`can_serial::LOOKAHEAD`], or with the feature `simplecan` the SimpleCAN run's
 /// [`can_serial::SIMPLECAN_LOOKAHEAD`] (the hub is given the same by xtask).
-pub const LOOKAHEAD: shared::Duration = if cfg!(feature = "simplecan") {
+pub const LOOKAHEAD: Duration = if cfg!(feature = "simplecan") {
     can_serial::SIMPLECAN_LOOKAHEAD
 } else {
     can_serial::LOOKAHEAD
@@ -64,17 +70,11 @@ pub const LOOKAHEAD: shared::Duration = if cfg!(feature = "simplecan") {
 /// Safety run's [`can_serial::GRANT_PERIOD`] or the SimpleCAN run's
 /// [`can_serial::SIMPLECAN_GRANT_PERIOD`]. The image does not use it itself; channel B's
 /// SimpleCAN bounds do (a loop wakes on every grant).
-pub const GRANT_PERIOD: shared::Duration = if cfg!(feature = "simplecan") {
+pub const GRANT_PERIOD: Duration = if cfg!(feature = "simplecan") {
     can_serial::SIMPLECAN_GRANT_PERIOD
 } else {
     can_serial::GRANT_PERIOD
 };
-use shared::canopen::storage::{Flash as _, RamFlash, Slot};
-use shared::{CanFrame, Duration, Instant};
-use static_cell::ConstStaticCell;
-use stm32_metapac::{Interrupt, RCC, USART2, interrupt};
-
-use crate::Device;
 
 /// The core clock QEMU's netduinoplus2 runs SysTick from.
 const CPU_HZ: u32 = 168_000_000;
