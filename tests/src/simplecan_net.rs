@@ -57,6 +57,30 @@ pub struct ScEntry {
     pub mapped: u32,
 }
 
+/// The emergency stop of the two-node examples (node 1 → node 33): SC-ID 30h.
+pub const ESTOP: u8 = 0x30;
+
+impl ScEntry {
+    /// Node 1's entry of the emergency stop: it produces [`ESTOP`] in slot 0 from [`INPUT`].
+    pub const ESTOP_PRODUCER: ScEntry = ScEntry {
+        sc_id: ESTOP,
+        role: ROLE_PRODUCE,
+        slot: 0,
+        timeout_ms: 0,
+        mapped: INPUT,
+    };
+
+    /// Node 33's entry of the emergency stop: it consumes [`ESTOP`] into [`OUTPUT_1`] with a
+    /// 50 ms safety timeout (SC_REQ_20).
+    pub const ESTOP_CONSUMER: ScEntry = ScEntry {
+        sc_id: ESTOP,
+        role: ROLE_CONSUME,
+        slot: 0,
+        timeout_ms: 50,
+        mapped: OUTPUT_1,
+    };
+}
+
 /// A device's SimpleCAN configuration.
 #[derive(Clone, Debug)]
 pub struct ScConfig {

@@ -7,7 +7,7 @@ use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use shared::canopen::nmt::NmtState;
 use shared::{CanFrame, CanId, Duration};
 use system_tests::loop_net::{Filtering, LoopNetwork, SimpleCanLoopNetwork};
-use system_tests::simplecan_net::{INPUT, OUTPUT_1, ROLE_CONSUME, ROLE_PRODUCE, ScConfig, ScEntry};
+use system_tests::simplecan_net::{ESTOP, ScConfig, ScEntry};
 
 fn started(filtering: Filtering) -> LoopNetwork {
     let mut net = LoopNetwork::new(500_000, &[1, 33], filtering);
@@ -153,9 +153,6 @@ fn en50325_5_7_1_2_a_bus_off_controller_is_the_safe_state_with_its_own_cause() {
     );
 }
 
-/// The emergency stop's SC-ID in the SimpleCAN loop network.
-const ESTOP: u8 = 0x30;
-
 /// Node 1 the master and producer of 30h in slot 0 (its input 6000h:01), node 33 consuming
 /// it with a 50 ms timeout into its output 6200:01; N = 10 slots of 1 ms, a sync every 100 ms,
 /// each SCL stating 270 µs of buffering (the longest 8-byte frame at 500 kbit/s); configured
@@ -168,20 +165,8 @@ fn simplecan_started() -> SimpleCanLoopNetwork {
         potential_master,
         entries: vec![entry],
     };
-    let producer = ScEntry {
-        sc_id: ESTOP,
-        role: ROLE_PRODUCE,
-        slot: 0,
-        timeout_ms: 0,
-        mapped: INPUT,
-    };
-    let consumer = ScEntry {
-        sc_id: ESTOP,
-        role: ROLE_CONSUME,
-        slot: 0,
-        timeout_ms: 50,
-        mapped: OUTPUT_1,
-    };
+    let producer = ScEntry::ESTOP_PRODUCER;
+    let consumer = ScEntry::ESTOP_CONSUMER;
     let mut net = SimpleCanLoopNetwork::new(500_000, &[1, 33], Filtering::Banks);
     net.configure_simplecan_and_start(&[
         (1, config(true, producer)),

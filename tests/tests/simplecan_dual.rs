@@ -12,9 +12,8 @@ use shared::{CanFrame, Duration, Instant};
 use system_tests::bus::{Fault, Match};
 use system_tests::dual::Side;
 use system_tests::simplecan_dual::ScDualNetwork;
-use system_tests::simplecan_net::{INPUT, OUTPUT_1, ROLE_CONSUME, ROLE_PRODUCE, ScConfig, ScEntry};
+use system_tests::simplecan_net::{ESTOP, ScConfig, ScEntry};
 
-const ESTOP: u8 = 0x30;
 /// The longest 8-byte frame at 500 kbit/s, each SCL's stated buffering time (SC_REQ_33).
 const FRAME_US: u16 = 270;
 /// One cycle: N = 10 slots of 1 ms.
@@ -44,20 +43,8 @@ fn running_with_clocks(clocks: &[(u8, Side, i64)]) -> ScDualNetwork {
     for &(id, side, ppm) in clocks {
         net.set_clock(id, side, ppm);
     }
-    let producer = ScEntry {
-        sc_id: ESTOP,
-        role: ROLE_PRODUCE,
-        slot: 0,
-        timeout_ms: 0,
-        mapped: INPUT,
-    };
-    let consumer = ScEntry {
-        sc_id: ESTOP,
-        role: ROLE_CONSUME,
-        slot: 0,
-        timeout_ms: 50,
-        mapped: OUTPUT_1,
-    };
+    let producer = ScEntry::ESTOP_PRODUCER;
+    let consumer = ScEntry::ESTOP_CONSUMER;
     net.configure_and_start(&[(1, config(true, producer)), (33, config(false, consumer))])
         .expect("configured");
     let until = net.now + Duration::from_millis(1500);
