@@ -32,7 +32,7 @@ use shared::{Duration, Instant};
 
 pub mod transmit;
 
-pub use transmit::{Bounds, SYNC_OFFSET_TOLERANCE, TransmitCheck};
+pub use transmit::{Bounds, OnBus, SYNC_OFFSET_TOLERANCE, TransmitCheck};
 
 /// How many frames may wait for their other copy; more is a fault (`Overrun`). A SimpleCAN
 /// frame takes at least 111 bit times on the bus (8 bytes, base identifier, no stuff bits,

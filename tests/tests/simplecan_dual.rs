@@ -21,11 +21,13 @@ const CYCLE: Duration = Duration::from_millis(10);
 /// Long enough for the next packet and every check it starts.
 const TWO_CYCLES: Duration = Duration::from_millis(20);
 
-fn config(potential_master: bool, entry: ScEntry) -> ScConfig {
+/// N = 10 slots, a sync every 10 cycles, `buffering_us` of stated buffering time
+/// (SC_REQ_33).
+fn config_buffering(potential_master: bool, entry: ScEntry, buffering_us: u16) -> ScConfig {
     ScConfig {
         slots: 10,
         sync_every: 10,
-        buffering_us: FRAME_US,
+        buffering_us,
         potential_master,
         entries: vec![entry],
     }
@@ -39,13 +41,18 @@ fn running() -> ScDualNetwork {
 
 /// [`running`], with the clocks of `clocks` (node-ID, channel, ppm) off from power-on.
 fn running_with_clocks(clocks: &[(u8, Side, i64)]) -> ScDualNetwork {
-    let mut net = ScDualNetwork::new(500_000, &[1, 33]);
+    running_at(500_000, FRAME_US, clocks)
+}
+
+/// [`running_with_clocks`] at `bitrate`, each SCL stating `buffering_us` (SC_REQ_33).
+fn running_at(bitrate: u32, buffering_us: u16, clocks: &[(u8, Side, i64)]) -> ScDualNetwork {
+    let mut net = ScDualNetwork::new(bitrate, &[1, 33]);
     for &(id, side, ppm) in clocks {
         net.set_clock(id, side, ppm);
     }
-    let producer = ScEntry::ESTOP_PRODUCER;
-    let consumer = ScEntry::ESTOP_CONSUMER;
-    net.configure_and_start(&[(1, config(true, producer)), (33, config(false, consumer))])
+    let producer = config_buffering(true, ScEntry::ESTOP_PRODUCER, buffering_us);
+    let consumer = config_buffering(false, ScEntry::ESTOP_CONSUMER, buffering_us);
+    net.configure_and_start(&[(1, producer), (33, consumer)])
         .expect("configured");
     let until = net.now + Duration::from_millis(1500);
     while net.output(33, ESTOP) != 1 && net.now < until {
@@ -469,6 +476,33 @@ fn sc_req_31_channel_clocks_50_ppm_off_either_way_run_without_a_fault() {
         assert!((999..=1001).contains(&packets), "{packets} packets in 10 s");
         assert_eq!(net.output(33, ESTOP), 1);
     }
+}
+
+/// SC_REQ_31 and SC_REQ_10 (Model A): at 1 Mbit/s an 8-byte frame takes about 135 µs, less
+/// than the 200 µs by which channel A's time may lead B's (`SYNC_OFFSET_TOLERANCE`). Channel
+/// A's clock 1,800 ppm fast (from Operational on; from power-on it would lead by more than the
+/// tolerance at the first sync) leads B's by up to 180 µs before each sync (every 100 ms), so
+/// A's data packets come off the bus before B's timer reaches their slot; each waits for
+/// B's own (`Bounds::heard_ahead`) and is confirmed: no fault in 10 s, a packet of 30h every
+/// cycle. A's syncs come early too, and B takes A's time as of when A's sync was heard, not
+/// when B computed its own (`Device::on_partner_transmitted`'s `heard`; without it B fell
+/// behind by the earliness at every sync, 78h on 02Fh within 1.5 s at 1,400 ppm). Before
+/// both, B took A's early packet for one it had not computed: 78h on 030h.
+#[test]
+fn sc_req_31_channel_a_s_clock_leading_within_the_tolerance_at_1_mbit_runs_without_a_fault() {
+    let mut net = running_at(1_000_000, 135, &[]);
+    net.set_clock(1, Side::A, 1_800);
+    let start = net.now;
+    net.run_for(Duration::from_millis(10_000));
+    assert_eq!(net.faults(1), [None, None]);
+    assert_eq!(net.faults(33), [None, None]);
+    let packets = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at >= start && frame.id().raw() == 0x030)
+        .count();
+    assert!((999..=1001).contains(&packets), "{packets} packets in 10 s");
+    assert_eq!(net.output(33, ESTOP), 1);
 }
 
 /// SC_REQ_10 (Model A) for syncs: channel A's clock running 2500 ppm fast puts its sync 250

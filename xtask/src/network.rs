@@ -117,13 +117,16 @@ impl Protocol {
                 format!(
                     "channel B's window 60 ms (hardware 5 ms); Model A (hardware in brackets): \
                      A's data packet within {} µs of B's ({} µs), A's sync within {} µs ({} µs) \
-                     and not ahead of B's time by more than {} µs ({} µs); {pacing}",
+                     and not ahead of B's time by more than {} µs ({} µs), A's packet heard at \
+                     most {} µs before B computed its own ({} µs); {pacing}",
                     paced.data_within.as_micros(),
                     standard.data_within.as_micros(),
                     paced.sync_within.as_micros(),
                     standard.sync_within.as_micros(),
                     paced.sync_ahead.as_micros(),
                     standard.sync_ahead.as_micros(),
+                    paced.heard_ahead.as_micros(),
+                    standard.heard_ahead.as_micros(),
                 )
             }
         }

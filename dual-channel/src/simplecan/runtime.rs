@@ -26,7 +26,7 @@ use super::{ChannelFault, ChannelProtocol, Collect, Io, Role, Runtime};
 use crate::crosscheck::Stream;
 use crate::link::{LinkFault, Message};
 use crate::simplecan::transmit::TransmitFault;
-use crate::simplecan::{Checks, Decoded, RawFrame, SimpleCanFault, verdict};
+use crate::simplecan::{Checks, Decoded, OnBus, RawFrame, SimpleCanFault, verdict};
 use shared::canopen::storage::Flash;
 use shared::{CanFrame, Instant};
 
@@ -64,10 +64,14 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         self.after_core(now, &collect, io);
     }
 
-    /// Channel B: channel A's packet `on_bus` stands for one of B's own, which B's core
-    /// learns of as sent (Model A); a sync's time B's master takes from A's
-    /// (`Device::on_partner_transmitted`).
-    fn own_sent(&mut self, now: Instant, on_bus: RawFrame, io: &mut impl Io) {
+    /// Channel B: channel A's packet on the bus stands for one of B's own, which B's core
+    /// learns of as sent (Model A); a sync's time B's master takes from A's, as of when A's
+    /// came off the bus (`Device::on_partner_transmitted`).
+    fn own_sent(&mut self, now: Instant, on_bus: OnBus, io: &mut impl Io) {
+        let OnBus {
+            frame: on_bus,
+            heard,
+        } = on_bus;
         if !self.link_up {
             return;
         }
@@ -76,7 +80,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             && let Ok(frame) = CanFrame::from_parts(id, on_bus.len, on_bus.data)
         {
             let mut collect = Collect::new();
-            self.node.on_partner_transmitted(now, &frame, &mut collect);
+            self.node
+                .on_partner_transmitted(now, heard, &frame, &mut collect);
             self.after_core(now, &collect, io);
         }
     }
@@ -340,12 +345,16 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if self.role.speaks_for_the_node() || self.fault.is_some() {
             return;
         }
-        if let Some(own) = RawFrame::of(frame)
-            && let Err(fault) = self.simplecan.transmit.computed(now, own)
-        {
-            // More packets waiting than the node can have: B's core is not doing what A's
-            // can be doing.
-            self.simplecan_fault(fault, io);
+        let Some(own) = RawFrame::of(frame) else {
+            return;
+        };
+        match self.simplecan.transmit.computed(now, own) {
+            // A's was heard ahead of B's own and stands for it.
+            Ok(Some(own)) => self.own_sent(now, own, io),
+            Ok(None) => {}
+            // The previous packet on its identifier still waits for A's, or more packets wait
+            // than the node can have: B's core is not doing what A's can be doing.
+            Err(fault) => self.simplecan_fault(fault, io),
         }
     }
 

@@ -25,8 +25,16 @@
 //!   (50 µs at 500 ms), while a clock of A's running ahead of B's by more than the tolerance
 //!   over one sync interval (2000 ppm at 100 ms, 400 ppm at 500 ms) is a mismatch. Behind,
 //!   A's sync cannot be told from one that waited for the bus; 2 ms is the bound there.
+//! - **Heard before B computed its own.** The channels' clocks are two (SC_REQ_31): A's time
+//!   may run ahead of B's by up to [`SYNC_OFFSET_TOLERANCE`] (the sync check above holds it
+//!   there), so A's slot starts first and its packet can come off the bus before B's timer
+//!   reaches the same slot, once A's lead exceeds the frame time (an 8-byte frame at
+//!   1 Mbit/s takes about 130 µs). Such a packet waits, at most `heard_ahead`
+//!   ([`Bounds::heard_ahead`], the same 200 µs on a board), for B to compute its own, and is
+//!   then judged exactly as one heard after it.
 //! - A packet of the node (an SC-ID it produces, a sync naming its master SC-ID) that B did
-//!   not compute is a mismatch too: A's core is not doing what B's does.
+//!   not compute within that time, or a second one before B computed any, is a mismatch:
+//!   A's core is not doing what B's does.
 //! - **The sample window.** Each channel's core reads the produced value from its own sample
 //!   (its own contact of an emergency stop) at the start of the slot, and two contacts never
 //!   move at exactly the same moment: across a slot start A's packet may carry the value
@@ -77,6 +85,10 @@ pub struct Bounds {
     pub sync_within: Duration,
     /// A's sync ahead of B's own time: [`SYNC_OFFSET_TOLERANCE`].
     pub sync_ahead: Duration,
+    /// A packet of the node (data or sync) heard before B computed its own: how long it may
+    /// wait for B's. On a board [`SYNC_OFFSET_TOLERANCE`]: A's time leads B's by at most
+    /// that, and A's frame comes off the bus a frame time after A's slot starts.
+    pub heard_ahead: Duration,
 }
 
 impl Bounds {
@@ -85,6 +97,7 @@ impl Bounds {
         data_within: DATA_WITHIN,
         sync_within: SYNC_WITHIN,
         sync_ahead: SYNC_OFFSET_TOLERANCE,
+        heard_ahead: SYNC_OFFSET_TOLERANCE,
     };
 }
 
@@ -99,14 +112,20 @@ impl Bounds {
     /// grant), its frame ends on the bus at most L past A's clock plus a frame time F
     /// ([`PACED_FRAME_TIME`]), and B handles it at most L past that: A's packet or sync
     /// appears by B's clock within 2L + G + F of B's own, and A's sync is ahead of B's time
-    /// by at most 2L. Each bound is the standard's where that is larger.
+    /// by at most 2L. The other way round, B can handle A's packet before it computed its
+    /// own by up to 4L + G: A's global time may lead B's by 2L (the sync's bound), B's clock
+    /// may be up to 2L behind A's when the frame reaches it (each clock is within L of the
+    /// hub's), and B's loop wakes for its own slot up to G late. Each bound is the standard's
+    /// where that is larger.
     pub const fn paced(lookahead: Duration, grant_period: Duration) -> Bounds {
         let l = lookahead.as_micros();
-        let within = 2 * l + grant_period.as_micros() + PACED_FRAME_TIME.as_micros();
+        let g = grant_period.as_micros();
+        let within = 2 * l + g + PACED_FRAME_TIME.as_micros();
         Bounds {
             data_within: at_least(DATA_WITHIN, within),
             sync_within: at_least(SYNC_WITHIN, within),
             sync_ahead: at_least(SYNC_OFFSET_TOLERANCE, 2 * l),
+            heard_ahead: at_least(SYNC_OFFSET_TOLERANCE, 4 * l + g),
         }
     }
 }
@@ -153,21 +172,46 @@ struct Previous {
     replaced: Instant,
 }
 
-/// Channel A's data packet on the bus whose value is not B's, waiting until `until` for B's
-/// next sample to take that value.
+/// Channel A's packet on the bus standing for one of channel B's: the `frame` to confirm to
+/// B's core as sent (B's own for a data packet, A's for a sync, whose time B's master takes),
+/// and when A's came off the bus (`heard`: before B computed its own when heard ahead).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OnBus {
+    /// The frame to confirm.
+    pub frame: RawFrame,
+    /// When channel A's packet was heard on the bus.
+    pub heard: Instant,
+}
+
+/// Channel A's data packet on the bus, heard at `heard`, whose value is not B's, waiting
+/// until `until` for B's next sample to take that value.
 #[derive(Clone, Copy, Debug)]
 struct Disputed {
     own: RawFrame,
     value: u32,
+    heard: Instant,
     until: Instant,
 }
 
-/// Channel B's packets of the node that wait for channel A's on the bus.
+/// Channel A's packet heard at `at`, before channel B computed its own, waiting until
+/// `until` for B's; `buffering` is the node's stated buffering time when it was heard.
+#[derive(Clone, Copy, Debug)]
+struct Early {
+    heard: RawFrame,
+    decoded: Decoded,
+    at: Instant,
+    until: Instant,
+    buffering: Duration,
+}
+
+/// Channel B's packets of the node that wait for channel A's on the bus, and A's that wait
+/// for B's.
 #[derive(Clone, Debug)]
 pub struct TransmitCheck {
     window: Duration,
     bounds: Bounds,
     waiting: heapless::Vec<(RawFrame, Instant), WAITING>,
+    early: heapless::Vec<Early, WAITING>,
     previous: heapless::Vec<Previous, PRODUCED>,
     disputed: heapless::Vec<Disputed, PRODUCED>,
 }
@@ -180,6 +224,7 @@ impl TransmitCheck {
             window,
             bounds: Bounds::STANDARD,
             waiting: heapless::Vec::new(),
+            early: heapless::Vec::new(),
             previous: heapless::Vec::new(),
             disputed: heapless::Vec::new(),
         }
@@ -193,7 +238,7 @@ impl TransmitCheck {
     /// Channel B's own sample of the value it produces on identifier `id` changed at `now`
     /// from `before` to `after`. A packet of A's waiting for that value stands for B's now:
     /// B's own packet, to confirm to B's core as sent.
-    pub fn sampled(&mut self, now: Instant, id: u16, before: u32, after: u32) -> Option<RawFrame> {
+    pub fn sampled(&mut self, now: Instant, id: u16, before: u32, after: u32) -> Option<OnBus> {
         if before != after {
             let previous = Previous {
                 id,
@@ -213,15 +258,42 @@ impl TransmitCheck {
             .disputed
             .iter()
             .position(|disputed| disputed.own.id == id && disputed.value == after)?;
-        Some(self.disputed.swap_remove(index).own)
+        let disputed = self.disputed.swap_remove(index);
+        Some(OnBus {
+            frame: disputed.own,
+            heard: disputed.heard,
+        })
     }
 
-    /// B's core handed out `own` at `now`: channel A's must appear by its deadline. A packet
-    /// still waiting on the same identifier is missing: A's did not come before B computed
-    /// the next one (with the standard's bounds its deadline, the slot, has passed by then
-    /// and the poll reports it first; a bound as long as the cycle, as under QEMU, would
-    /// otherwise let the newer packet hide it).
-    pub fn computed(&mut self, now: Instant, own: RawFrame) -> Result<(), TransmitFault> {
+    /// B's core handed out `own` at `now`: channel A's must appear by its deadline.
+    ///
+    /// `Ok(Some(on_bus))` when A's packet was heard already (within [`Bounds::heard_ahead`]) and
+    /// stands for `own`, to confirm to B's core as sent; `Ok(None)` when it waits for A's, or
+    /// A's early one waits for B's next sample (the window). A packet still waiting on the
+    /// same identifier is missing: A's did not come before B computed the next one (with the
+    /// standard's bounds its deadline, the slot, has passed by then and the poll reports it
+    /// first; a bound as long as the cycle, as under QEMU, would otherwise let the newer
+    /// packet hide it).
+    pub fn computed(
+        &mut self,
+        now: Instant,
+        own: RawFrame,
+    ) -> Result<Option<OnBus>, TransmitFault> {
+        if self.waiting.iter().any(|(kept, _)| kept.id == own.id) {
+            return Err(TransmitFault::Missing { id: own.id });
+        }
+        if let Some(index) = self.early.iter().position(|early| early.heard.id == own.id) {
+            let early = self.early.swap_remove(index);
+            let since = micros_from(now, early.at);
+            return self.judge(
+                own,
+                early.heard,
+                early.decoded,
+                early.at,
+                since,
+                early.buffering,
+            );
+        }
         let sync = own.id == shared::simplecan::frame::SYNC_IDENTIFIER.raw();
         let deadline = now
             + if sync {
@@ -229,17 +301,17 @@ impl TransmitCheck {
             } else {
                 self.bounds.data_within
             };
-        if self.waiting.iter().any(|(kept, _)| kept.id == own.id) {
-            return Err(TransmitFault::Missing { id: own.id });
-        }
         self.waiting
             .push((own, deadline))
+            .map(|()| None)
             .map_err(|_| TransmitFault::Mismatch { id: own.id })
     }
 
     /// A packet of the node was heard on the bus at `now` (`decoded` by B's own decoder):
-    /// `Ok(Some(own))`, B's own packet it stands for, to confirm to B's core as sent;
-    /// `Ok(None)`, a data packet whose value waits for B's next sample (the window).
+    /// `Ok(Some(on_bus))`, the packet to confirm to B's core as sent;
+    /// `Ok(None)`, a packet that waits: for B to compute its own (heard ahead of it, at most
+    /// [`Bounds::heard_ahead`]), or a data packet whose value waits for B's next sample (the
+    /// window).
     ///
     /// A sync that agrees is answered with `heard`, A's own: B's core takes its time from it.
     /// `buffering` is the node's stated buffering time (5E00h:03, SC_REQ_33).
@@ -249,25 +321,64 @@ impl TransmitCheck {
         heard: RawFrame,
         decoded: Decoded,
         buffering: Duration,
-    ) -> Result<Option<RawFrame>, TransmitFault> {
+    ) -> Result<Option<OnBus>, TransmitFault> {
         let mismatch = TransmitFault::Mismatch { id: heard.id };
-        let index = self
-            .waiting
-            .iter()
-            .position(|(own, _)| own.id == heard.id)
-            .ok_or(mismatch)?;
+        let Some(index) = self.waiting.iter().position(|(own, _)| own.id == heard.id) else {
+            // Ahead of B's own: it waits for it, one per identifier (a second is not a
+            // packet B can still compute: A's core is ahead by a whole cycle).
+            if self.early.iter().any(|early| early.heard.id == heard.id) {
+                return Err(mismatch);
+            }
+            let early = Early {
+                heard,
+                decoded,
+                at: now,
+                until: now + self.bounds.heard_ahead,
+                buffering,
+            };
+            return self.early.push(early).map(|()| None).map_err(|_| mismatch);
+        };
         let (own, deadline) = self.waiting.swap_remove(index);
+        // B computed its own `sync_within` or `data_within` before the deadline.
+        let within = if heard.id == shared::simplecan::frame::SYNC_IDENTIFIER.raw() {
+            self.bounds.sync_within
+        } else {
+            self.bounds.data_within
+        };
+        let computed =
+            Instant::from_micros(deadline.as_micros().saturating_sub(within.as_micros()));
+        let since = micros_from(computed, now);
+        self.judge(own, heard, decoded, now, since, buffering)
+    }
+
+    /// Whether A's packet `heard` (`decoded` by B's decoder, heard at `at`, `since` µs after
+    /// B computed `own`: negative when heard ahead) stands for B's `own`: `Ok(Some(_))` it
+    /// does, `Ok(None)` its value waits for B's next sample, `Err(_)` it does not.
+    fn judge(
+        &mut self,
+        own: RawFrame,
+        heard: RawFrame,
+        decoded: Decoded,
+        at: Instant,
+        since: i64,
+        buffering: Duration,
+    ) -> Result<Option<OnBus>, TransmitFault> {
+        let mismatch = TransmitFault::Mismatch { id: heard.id };
         if let Decoded::Sync { .. } = Decoded::fields(&own) {
-            // B computed its own sync `sync_within` before the deadline.
-            let within = self.bounds.sync_within.as_micros();
-            let computed = Instant::from_micros(deadline.as_micros().saturating_sub(within));
-            let since = now.saturating_since(computed);
+            let on_bus = OnBus {
+                frame: heard,
+                heard: at,
+            };
             return sync_agrees(&own, decoded, since, buffering, self.bounds.sync_ahead)
-                .then_some(Some(heard))
+                .then_some(Some(on_bus))
                 .ok_or(mismatch);
         }
+        let on_bus = OnBus {
+            frame: own,
+            heard: at,
+        };
         if own == heard {
-            return Ok(Some(own));
+            return Ok(Some(on_bus));
         }
         let Some(value) = other_value(&own, &heard, decoded) else {
             return Err(mismatch);
@@ -275,15 +386,16 @@ impl TransmitCheck {
         let recent = self.previous.iter().any(|previous| {
             previous.id == own.id
                 && previous.value == value
-                && !expired(previous.replaced + self.window, now)
+                && !expired(previous.replaced + self.window, at)
         });
         if recent {
-            return Ok(Some(own));
+            return Ok(Some(on_bus));
         }
         let disputed = Disputed {
             own,
             value,
-            until: now + self.window,
+            heard: at,
+            until: at + self.window,
         };
         // At most one of B's packets per produced SC-ID waits, so at most one dispute.
         self.disputed
@@ -292,11 +404,15 @@ impl TransmitCheck {
             .map_err(|_| mismatch)
     }
 
-    /// The fault of a packet of B's whose deadline has passed at `now`, if any: not on the
-    /// bus in time, or on the bus with a value B's next sample did not take in time.
+    /// The fault of a packet whose deadline has passed at `now`, if any: B's not on the bus
+    /// in time, A's heard ahead of a packet B did not compute in time, or A's with a value
+    /// B's next sample did not take in time.
     pub fn poll(&self, now: Instant) -> Result<(), TransmitFault> {
         if let Some((own, _)) = self.waiting.iter().find(|(_, at)| expired(*at, now)) {
             return Err(TransmitFault::Missing { id: own.id });
+        }
+        if let Some(early) = self.early.iter().find(|early| expired(early.until, now)) {
+            return Err(TransmitFault::Mismatch { id: early.heard.id });
         }
         match self
             .disputed
@@ -313,14 +429,20 @@ impl TransmitCheck {
     /// When [`poll`](Self::poll) must run next ([`Instant::NEVER`]: nothing waits).
     pub fn deadline(&self) -> Instant {
         let waiting = self.waiting.iter().map(|(_, at)| *at);
+        let early = self.early.iter().map(|early| early.until);
         let disputed = self.disputed.iter().map(|disputed| disputed.until);
-        waiting.chain(disputed).min().unwrap_or(Instant::NEVER)
+        waiting
+            .chain(early)
+            .chain(disputed)
+            .min()
+            .unwrap_or(Instant::NEVER)
     }
 
     /// Forgets every waiting packet (leaving Operational, NMT reset); B's sample history
     /// stays, it is the inputs', not the layer's.
     pub fn reset(&mut self) {
         self.waiting.clear();
+        self.early.clear();
         self.disputed.clear();
     }
 }
@@ -351,15 +473,25 @@ fn other_value(own: &RawFrame, heard: &RawFrame, decoded: Decoded) -> Option<u32
     }
 }
 
-/// A's sync (`decoded` by B's own decoder, heard `since` B computed `own`) stands for B's
-/// `own`: the same master and cycle, and the global time it gives with `buffering` not ahead
-/// of B's own global time by more than `ahead` ([`SYNC_OFFSET_TOLERANCE`] on a board). B's
-/// global time at the hearing is its own sync's plus `since`; both syncs' cycles are the
-/// same, so the offsets say it.
+/// Microseconds from `from` to `to`, negative when `to` is earlier (saturating).
+fn micros_from(from: Instant, to: Instant) -> i64 {
+    let magnitude = |duration: Duration| i64::try_from(duration.as_micros()).unwrap_or(i64::MAX);
+    if to >= from {
+        magnitude(to.saturating_since(from))
+    } else {
+        -magnitude(from.saturating_since(to))
+    }
+}
+
+/// A's sync (`decoded` by B's own decoder, heard `since` µs after B computed `own`, negative
+/// when heard ahead of it) stands for B's `own`: the same master and cycle, and the global
+/// time it gives with `buffering` not ahead of B's own global time by more than `ahead`
+/// ([`SYNC_OFFSET_TOLERANCE`] on a board). B's global time at the hearing is its own sync's
+/// plus `since`; both syncs' cycles are the same, so the offsets say it.
 fn sync_agrees(
     own: &RawFrame,
     decoded: Decoded,
-    since: Duration,
+    since: i64,
     buffering: Duration,
     ahead: Duration,
 ) -> bool {
@@ -378,9 +510,13 @@ fn sync_agrees(
     else {
         return false;
     };
-    let own_time = u64::from(offset_micros) + since.as_micros();
-    let given = u64::from(heard_offset) + buffering.as_micros();
-    master == heard_master && cycle == heard_cycle && given <= own_time + ahead.as_micros()
+    // Signed: B's time at the hearing is before its own sync's when A's was heard ahead.
+    let micros = |duration: Duration| i64::try_from(duration.as_micros()).unwrap_or(i64::MAX);
+    let own_time = i64::from(offset_micros).saturating_add(since);
+    let given = i64::from(heard_offset).saturating_add(micros(buffering));
+    master == heard_master
+        && cycle == heard_cycle
+        && given <= own_time.saturating_add(micros(ahead))
 }
 
 #[cfg(test)]
@@ -411,16 +547,27 @@ mod tests {
         assert_eq!(paced.data_within, Duration::from_micros(1_520));
         assert_eq!(paced.sync_within, SYNC_WITHIN);
         assert_eq!(paced.sync_ahead, Duration::from_millis(1));
-        let tight = Bounds::paced(Duration::from_micros(100), Duration::from_micros(50));
+        assert_eq!(paced.heard_ahead, Duration::from_micros(2_250));
+        let tight = Bounds::paced(Duration::from_micros(40), Duration::from_micros(20));
         assert_eq!(tight.data_within, DATA_WITHIN);
         assert_eq!(tight.sync_within, SYNC_WITHIN);
         assert_eq!(tight.sync_ahead, SYNC_OFFSET_TOLERANCE);
+        assert_eq!(tight.heard_ahead, SYNC_OFFSET_TOLERANCE);
         let wide = Bounds::paced(Duration::from_millis(20), Duration::from_millis(5));
         assert_eq!(wide.sync_within, Duration::from_micros(45_270));
+        assert_eq!(wide.heard_ahead, Duration::from_millis(85));
     }
 
     fn at(micros: u64) -> Instant {
         Instant::from_micros(micros)
+    }
+
+    /// `frame` to confirm, A's heard at `micros`.
+    fn on_bus(frame: RawFrame, micros: u64) -> OnBus {
+        OnBus {
+            frame,
+            heard: at(micros),
+        }
     }
 
     #[test]
@@ -430,7 +577,7 @@ mod tests {
         assert_eq!(check.deadline(), at(2_000));
         assert_eq!(
             check.heard(at(1_500), DATA, Decoded::fields(&DATA), Duration::ZERO),
-            Ok(Some(DATA))
+            Ok(Some(on_bus(DATA, 1_500)))
         );
         assert_eq!(check.deadline(), Instant::NEVER);
         assert_eq!(check.poll(at(10_000)), Ok(()));
@@ -477,7 +624,7 @@ mod tests {
             check.computed(at(3_000), DATA).unwrap();
             let result = check.heard(at(heard_at), heard, decoded, Duration::ZERO);
             assert_eq!(
-                result == Ok(Some(DATA)),
+                result == Ok(Some(on_bus(DATA, heard_at))),
                 accepted,
                 "heard at {heard_at}: {result:?}"
             );
@@ -501,7 +648,10 @@ mod tests {
             None,
             "another value"
         );
-        assert_eq!(check.sampled(at(15_100), 0x030, 1, 0), Some(DATA));
+        assert_eq!(
+            check.sampled(at(15_100), 0x030, 1, 0),
+            Some(on_bus(DATA, 10_270))
+        );
         assert_eq!(check.deadline(), Instant::NEVER);
         assert_eq!(check.poll(at(20_000)), Ok(()));
 
@@ -547,13 +697,110 @@ mod tests {
         }
     }
 
+    /// A's packet heard with none of B's waiting waits `heard_ahead` (200 µs on a board) for
+    /// B to compute it; B computing none by then is a mismatch, at that moment.
     #[test]
     fn sc_req_10_a_packet_of_the_node_channel_b_did_not_compute_is_a_mismatch() {
         let mut check = TransmitCheck::new(WINDOW);
         assert_eq!(
-            check.heard(at(0), DATA, Decoded::fields(&DATA), Duration::ZERO),
+            check.heard(at(1_000), DATA, Decoded::fields(&DATA), Duration::ZERO),
+            Ok(None)
+        );
+        assert_eq!(check.deadline(), at(1_200));
+        assert_eq!(check.poll(at(1_199)), Ok(()));
+        assert_eq!(
+            check.poll(at(1_200)),
             Err(TransmitFault::Mismatch { id: 0x030 })
         );
+    }
+
+    /// SC_REQ_31: A's time may lead B's by up to the sync tolerance, so A's packet can come
+    /// off the bus before B's timer reaches the slot (at 1 Mbit/s once the lead exceeds
+    /// about 130 µs). Heard 199 µs ahead, it stands for B's packet when B computes it: the
+    /// same bit for bit, or only B's previous sample's value within the window; anything
+    /// else is a mismatch at once, as when heard after B's.
+    #[test]
+    fn sc_req_31_a_packet_heard_ahead_of_channel_b_s_own_within_the_tolerance_is_judged_as_one_after()
+     {
+        let mut check = TransmitCheck::new(WINDOW);
+        assert_eq!(
+            check.heard(at(10_000), DATA, Decoded::fields(&DATA), Duration::ZERO),
+            Ok(None)
+        );
+        assert_eq!(
+            check.computed(at(10_199), DATA),
+            Ok(Some(on_bus(DATA, 10_000)))
+        );
+        assert_eq!(check.deadline(), Instant::NEVER);
+        assert_eq!(check.poll(at(20_000)), Ok(()));
+
+        // B's contact moved 0 to 1 at 8 ms; A's packet still carries 0.
+        let (old_value, decoded) = with_value_0();
+        let mut check = TransmitCheck::new(WINDOW);
+        assert_eq!(check.sampled(at(8_000), 0x030, 0, 1), None);
+        assert_eq!(
+            check.heard(at(10_000), old_value, decoded, Duration::ZERO),
+            Ok(None)
+        );
+        assert_eq!(
+            check.computed(at(10_150), DATA),
+            Ok(Some(on_bus(DATA, 10_000)))
+        );
+
+        // Another cycle stamp: A's core is a cycle off B's.
+        let mut other_stamp = DATA;
+        other_stamp.data[4] = 6;
+        let mut check = TransmitCheck::new(WINDOW);
+        let _ = check.heard(at(10_000), other_stamp, Decoded::Invalid, Duration::ZERO);
+        assert_eq!(
+            check.computed(at(10_100), DATA),
+            Err(TransmitFault::Mismatch { id: 0x030 })
+        );
+    }
+
+    /// Two of A's packets on one identifier before B computed either: A's core is a packet
+    /// ahead of B's, a mismatch at the second.
+    #[test]
+    fn sc_req_10_a_second_packet_heard_ahead_of_channel_b_s_is_a_mismatch() {
+        let mut check = TransmitCheck::new(WINDOW);
+        let _ = check.heard(at(0), DATA, Decoded::fields(&DATA), Duration::ZERO);
+        assert_eq!(
+            check.heard(at(100), DATA, Decoded::fields(&DATA), Duration::ZERO),
+            Err(TransmitFault::Mismatch { id: 0x030 })
+        );
+    }
+
+    /// A sync heard 100 µs before B computed its own (offset 250 µs, 270 µs of stated
+    /// buffering): B's time at the hearing was 150 µs into the slot, so A's may give at most
+    /// 350 µs (offset 80).
+    #[test]
+    fn sc_req_10_a_sync_heard_ahead_agrees_only_within_the_offset_tolerance() {
+        let buffering = Duration::from_micros(270);
+        for (offset, agrees) in [(0u16, true), (80, true), (81, false)] {
+            let mut heard = SYNC;
+            heard.data[3..5].copy_from_slice(&offset.to_be_bytes());
+            let mut check = TransmitCheck::new(WINDOW);
+            assert_eq!(
+                check.heard(at(5_000), heard, Decoded::fields(&heard), buffering),
+                Ok(None)
+            );
+            let expected = if agrees {
+                Ok(Some(on_bus(heard, 5_000)))
+            } else {
+                Err(TransmitFault::Mismatch { id: 0x02F })
+            };
+            assert_eq!(check.computed(at(5_100), SYNC), expected, "offset {offset}");
+        }
+    }
+
+    /// Leaving Operational forgets A's packets heard ahead as well as B's.
+    #[test]
+    fn sc_req_10_reset_forgets_packets_heard_ahead() {
+        let mut check = TransmitCheck::new(WINDOW);
+        let _ = check.heard(at(0), DATA, Decoded::fields(&DATA), Duration::ZERO);
+        check.reset();
+        assert_eq!(check.deadline(), Instant::NEVER);
+        assert_eq!(check.poll(at(1_000)), Ok(()));
     }
 
     /// At the end of the slot itself, as every deadline of the node.
@@ -577,6 +824,7 @@ mod tests {
             data_within: Duration::from_millis(60),
             sync_within: Duration::from_millis(60),
             sync_ahead: Duration::from_millis(60),
+            heard_ahead: Duration::from_millis(60),
         };
         for (frame, slot) in [(DATA, 1_000), (SYNC, 2_000)] {
             let mut check = TransmitCheck::new(WINDOW);
@@ -593,7 +841,7 @@ mod tests {
             assert_eq!(check.poll(at(30_000)), Ok(()));
             assert_eq!(
                 check.heard(at(30_000), frame, Decoded::fields(&frame), Duration::ZERO),
-                Ok(Some(frame))
+                Ok(Some(on_bus(frame, 30_000)))
             );
         }
         assert_eq!(Bounds::default(), Bounds::STANDARD);
@@ -638,7 +886,7 @@ mod tests {
             assert_eq!(check.deadline(), at(2_000), "SC_REQ_23: 2 ms");
             let result = check.heard(at(300), heard, decoded(&heard), buffering);
             let expected = if agrees {
-                Ok(Some(heard))
+                Ok(Some(on_bus(heard, 300)))
             } else {
                 Err(TransmitFault::Mismatch { id: 0x02F })
             };

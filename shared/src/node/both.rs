@@ -252,9 +252,11 @@ impl<const N: usize, const E: usize> SafetyProtocol for SrdoAndSimpleCan<N, E> {
     fn on_partner_transmitted<S: Sink>(
         &mut self,
         now: Instant,
+        heard: Instant,
         frame: &CanFrame,
         slot: &mut Slot<'_, S>,
     ) {
-        self.simplecan.on_partner_transmitted(now, frame, slot);
+        self.simplecan
+            .on_partner_transmitted(now, heard, frame, slot);
     }
 }

@@ -490,18 +490,26 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         protocol.on_transmitted(now, frame, &mut Slot { shell, image, sink });
     }
 
-    /// The other channel of a dual-channel device put `frame` on the bus at `now`, standing
-    /// for a frame this device handed to the sink (Model A, SC_REQ_10: this channel computes
-    /// the node's packets, the other transmits them): a confirmation as
-    /// [`Device::on_transmitted`]'s, and SimpleCAN's master takes the time of a sync from it.
-    pub fn on_partner_transmitted(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
+    /// The other channel of a dual-channel device put `frame` on the bus, heard at `heard` (at
+    /// or before `now`: the other channel's frame can come off the bus before this channel
+    /// computed its own), standing for a frame this device handed to the sink (Model A,
+    /// SC_REQ_10: this channel computes the node's packets, the other transmits them): a
+    /// confirmation as [`Device::on_transmitted`]'s at `now`, and SimpleCAN's master takes
+    /// the time of a sync from it.
+    pub fn on_partner_transmitted(
+        &mut self,
+        now: Instant,
+        heard: Instant,
+        frame: &CanFrame,
+        sink: &mut impl Sink,
+    ) {
         let Core {
             shell,
             protocol,
             image,
             ..
         } = &mut self.core;
-        protocol.on_partner_transmitted(now, frame, &mut Slot { shell, image, sink });
+        protocol.on_partner_transmitted(now, heard, frame, &mut Slot { shell, image, sink });
     }
 
     /// Runs every timer due at `now` and returns the instant of the next poll.

@@ -1133,13 +1133,15 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
 
     /// The other channel's sync (or data packet) on the bus stands for this one's (Model A):
     /// confirmed as [`SafetyProtocol::on_transmitted`] confirms, and for a sync of this master
-    /// its time base moves to the other channel's: the global time at `now` is that sync's
+    /// its time base moves to the other channel's: the global time at `heard` is that sync's
     /// (its cycle, the offset it carries) plus the buffering time this SCL states (5E00h:03),
-    /// as a receiver takes a sync's time (SC_REQ_33). The caller has checked the sync against
-    /// this channel's own (`dual_channel::simplecan::transmit`).
+    /// as a receiver takes a sync's time (SC_REQ_33), and at `now` that plus the time since.
+    /// The caller has checked the sync against this channel's own
+    /// (`dual_channel::simplecan::transmit`).
     fn on_partner_transmitted<S: Sink>(
         &mut self,
         now: Instant,
+        heard: Instant,
         frame: &CanFrame,
         slot: &mut Slot<'_, S>,
     ) {
@@ -1154,7 +1156,8 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
             let data = frame.raw_data();
             let offset = u64::from(u16::from_be_bytes([data[3], data[4]]));
             let start = schedule.slot_start(cycle, schedule.sync_slot());
-            Some(start + offset + buffering)
+            let since_heard = now.saturating_since(heard).as_micros();
+            Some(start + offset + buffering + since_heard)
         });
         self.on_transmitted(now, frame, slot);
         if let (Some(global), Some(running)) = (aligned, &mut self.running)

@@ -188,16 +188,19 @@ pub trait SafetyProtocol {
         let _ = (now, frame, slot);
     }
 
-    /// The other channel of a dual-channel device put `frame` on the bus at `now` for a frame
-    /// this protocol handed out (Model A: this channel computes, the other transmits;
-    /// [`super::Device::on_partner_transmitted`]). The default is the confirmation of
-    /// [`SafetyProtocol::on_transmitted`]; SimpleCAN also takes the time of a sync from it.
+    /// The other channel of a dual-channel device put `frame` on the bus, heard at `heard`
+    /// (at or before `now`), for a frame this protocol handed out (Model A: this channel
+    /// computes, the other transmits; [`super::Device::on_partner_transmitted`]). The default
+    /// is the confirmation of [`SafetyProtocol::on_transmitted`] at `now`; SimpleCAN also
+    /// takes the time of a sync from it.
     fn on_partner_transmitted<S: Sink>(
         &mut self,
         now: Instant,
+        heard: Instant,
         frame: &CanFrame,
         slot: &mut Slot<'_, S>,
     ) {
+        let _ = heard;
         self.on_transmitted(now, frame, slot);
     }
 }
