@@ -418,8 +418,9 @@ fn contacts_across_a_slot_start(
 /// SC_REQ_10 with the channels' sample window (as an SRDO frame has it, `SAMPLE_WINDOW`):
 /// the contacts of channels A and B moving less than the window apart across the start of
 /// the produced value's slot give no fault, whichever moves first, on a press and on a
-/// release; channel B accepts channel A's value as one of its own samples within the window.
-/// Further apart, A's packet carries a value B did not sample within the window: 78h.
+/// release; channel B accepts channel A's value as one of its own samples within the window
+/// (also B's current one, changed between B's slot start and A's packet on the bus). Further
+/// apart, A's packet carries a value B did not sample within the window: 78h.
 #[test]
 fn sc_req_10_contacts_moving_within_the_sample_window_across_a_slot_start_are_no_fault() {
     use dual_channel::runtime::SAMPLE_WINDOW;
@@ -432,6 +433,9 @@ fn sc_req_10_contacts_moving_within_the_sample_window_across_a_slot_start_are_no
             (Side::B, window - margin - 300, 300),
             (Side::A, 2_000, 2_000),
             (Side::B, 2_000, 2_000),
+            // B's contact after B's core read it for the slot, before A's packet is heard
+            // (a frame time, 270 µs, after the start): A's value is B's current sample.
+            (Side::A, 300, 100),
         ] {
             assert_eq!(
                 contacts_across_a_slot_start(first, before, after, from, to),

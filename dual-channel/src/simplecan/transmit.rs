@@ -42,8 +42,10 @@
 //!   differs from B's only in its value, with a CRC B's own decoder accepts and B's cycle
 //!   stamp, stands for B's when its value is one of B's samples within the window (as for
 //!   an SRDO frame, `channel_b::role`): B's previous sample, replaced less than the window
-//!   before the packet was heard, or B's next sample, taken within the window after it (the
-//!   packet waits for it, [`TransmitCheck::sampled`]). Otherwise, and at once for any other
+//!   before the packet was heard; B's current sample when the packet is heard (B's sample
+//!   changed after B's core read it for its own packet, between B's slot start and A's
+//!   packet on the bus); or B's next sample, taken within the window after it (the packet
+//!   waits for it, [`TransmitCheck::sampled`]). Otherwise, and at once for any other
 //!   difference, it is a mismatch. A SimpleCAN packet cannot wait for the channels' samples
 //!   to agree as a changed SRDO frame does: it must go in its slot (section 5).
 //!
@@ -163,13 +165,14 @@ pub enum TransmitFault {
     },
 }
 
-/// Channel B's previous sample of a produced value: the value before its latest change, and
-/// when it changed.
+/// Channel B's samples of a produced value since its latest change: the value before it
+/// (`value`), when it changed (`replaced`) and the value since (`current`).
 #[derive(Clone, Copy, Debug)]
 struct Previous {
     id: u16,
     value: u32,
     replaced: Instant,
+    current: u32,
 }
 
 /// Channel A's packet on the bus standing for one of channel B's: the `frame` to confirm to
@@ -244,6 +247,7 @@ impl TransmitCheck {
                 id,
                 value: before,
                 replaced: now,
+                current: after,
             };
             match self.previous.iter_mut().find(|kept| kept.id == id) {
                 Some(kept) => *kept = previous,
@@ -383,10 +387,12 @@ impl TransmitCheck {
         let Some(value) = other_value(&own, &heard, decoded) else {
             return Err(mismatch);
         };
+        // B's previous sample within the window, or B's current one: B's sample changed
+        // after B's core read it for `own` (between B's slot start and A's packet).
         let recent = self.previous.iter().any(|previous| {
             previous.id == own.id
-                && previous.value == value
-                && !expired(previous.replaced + self.window, at)
+                && (previous.current == value
+                    || (previous.value == value && !expired(previous.replaced + self.window, at)))
         });
         if recent {
             return Ok(Some(on_bus));
@@ -662,6 +668,35 @@ mod tests {
             Ok(None)
         );
         assert_eq!(check.poll(at(15_269)), Ok(()));
+        assert_eq!(
+            check.poll(at(15_270)),
+            Err(TransmitFault::Mismatch { id: 0x030 })
+        );
+    }
+
+    /// B's contact moved (1 to 0) after B's core read it for its packet and before A's
+    /// packet came off the bus: A's value 0 is B's current sample, it stands for B's at once
+    /// (before, it waited for a next sample of 0 that never came: 78h after the window).
+    #[test]
+    fn sc_req_10_a_value_channel_b_sampled_after_computing_its_own_is_accepted() {
+        let (heard, decoded) = with_value_0();
+        let mut check = TransmitCheck::new(WINDOW);
+        assert_eq!(check.computed(at(10_000), DATA), Ok(None));
+        assert_eq!(check.sampled(at(10_100), 0x030, 1, 0), None);
+        assert_eq!(
+            check.heard(at(10_270), heard, decoded, Duration::ZERO),
+            Ok(Some(on_bus(DATA, 10_270)))
+        );
+        assert_eq!(check.deadline(), Instant::NEVER);
+        // A value B's sample took and left again more than the window ago is not accepted.
+        let mut check = TransmitCheck::new(WINDOW);
+        let _ = check.sampled(at(0), 0x030, 1, 0);
+        let _ = check.sampled(at(1_000), 0x030, 0, 1);
+        check.computed(at(10_000), DATA).unwrap();
+        assert_eq!(
+            check.heard(at(10_270), heard, decoded, Duration::ZERO),
+            Ok(None)
+        );
         assert_eq!(
             check.poll(at(15_270)),
             Err(TransmitFault::Mismatch { id: 0x030 })
