@@ -12,7 +12,7 @@
 
 use crate::bus::{Bus, Delivery, Fault, Injection, Match, ORDERED_BY_IDENTIFIER};
 use crate::dual::{ChannelClock, LINK_BYTE_TIME, LINK_PERIOD, Side, through_receive_faults};
-use crate::simplecan_net::{ScConfig, configure, device_config};
+use crate::simplecan_net::{ESTOP, ScConfig, ScEntry, configure, device_config};
 use crate::tool_bus::Simulation;
 use channel_a::role::ChannelA;
 use channel_b::role::ChannelB;
@@ -527,6 +527,46 @@ impl ScDualNetwork {
             }
             self.run_for(Duration::from_millis(1));
         }
+    }
+
+    /// The emergency-stop network: nodes 1 and 33 at `bit_rate`, each SCL stating
+    /// `buffering_us` (SC_REQ_33), the clocks of `clocks` (node-ID, channel, ppm) off from
+    /// power-on; node 1 the potential master producing [`ScEntry::ESTOP_PRODUCER`] (30h in
+    /// slot 0 from its input), node 33 consuming it ([`ScEntry::ESTOP_CONSUMER`], 50 ms);
+    /// N = 10 slots of 1 ms, a sync every 10 cycles. Configured, started and run until node
+    /// 33's output is on (both channels confirmed a value of 1), at most 1.5 s; `Err` says
+    /// what did not happen.
+    pub fn estop_running(
+        bit_rate: u32,
+        buffering_us: u16,
+        clocks: &[(u8, Side, i64)],
+    ) -> Result<ScDualNetwork, String> {
+        let mut net = ScDualNetwork::new(bit_rate, &[1, 33]);
+        for &(id, side, ppm) in clocks {
+            net.set_clock(id, side, ppm);
+        }
+        let config = |potential_master, entry| ScConfig {
+            slots: 10,
+            sync_every: 10,
+            buffering_us,
+            potential_master,
+            entries: vec![entry],
+        };
+        let producer = config(true, ScEntry::ESTOP_PRODUCER);
+        let consumer = config(false, ScEntry::ESTOP_CONSUMER);
+        net.configure_and_start(&[(1, producer), (33, consumer)])?;
+        let until = net.now + Duration::from_millis(1500);
+        while net.output(33, ESTOP) != 1 && net.now < until {
+            net.run_for(Duration::from_millis(1));
+        }
+        if net.output(33, ESTOP) != 1 {
+            return Err(format!(
+                "node 33's output of 30h not on within 1.5 s; faults: node 1 {:?}, node 33 {:?}",
+                net.faults(1),
+                net.faults(33)
+            ));
+        }
+        Ok(net)
     }
 
     /// The fault each channel of node `id` latched, if any (channel A, channel B).

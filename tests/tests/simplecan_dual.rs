@@ -12,7 +12,7 @@ use shared::{CanFrame, Duration, Instant};
 use system_tests::bus::{Fault, Match};
 use system_tests::dual::Side;
 use system_tests::simplecan_dual::ScDualNetwork;
-use system_tests::simplecan_net::{ESTOP, ScConfig, ScEntry};
+use system_tests::simplecan_net::{ESTOP, ScEntry};
 
 /// The longest 8-byte frame at 500 kbit/s, each SCL's stated buffering time (SC_REQ_33).
 const FRAME_US: u16 = 270;
@@ -20,18 +20,6 @@ const FRAME_US: u16 = 270;
 const CYCLE: Duration = Duration::from_millis(10);
 /// Long enough for the next packet and every check it starts.
 const TWO_CYCLES: Duration = Duration::from_millis(20);
-
-/// N = 10 slots, a sync every 10 cycles, `buffering_us` of stated buffering time
-/// (SC_REQ_33).
-fn config_buffering(potential_master: bool, entry: ScEntry, buffering_us: u16) -> ScConfig {
-    ScConfig {
-        slots: 10,
-        sync_every: 10,
-        buffering_us,
-        potential_master,
-        entries: vec![entry],
-    }
-}
 
 /// Both nodes configured and started, run until the consumer's output is on (both channels
 /// confirmed a value of 1).
@@ -44,28 +32,10 @@ fn running_with_clocks(clocks: &[(u8, Side, i64)]) -> ScDualNetwork {
     running_at(500_000, FRAME_US, clocks)
 }
 
-/// [`running_with_clocks`] at `bitrate`, each SCL stating `buffering_us` (SC_REQ_33).
-fn running_at(bitrate: u32, buffering_us: u16, clocks: &[(u8, Side, i64)]) -> ScDualNetwork {
-    let mut net = ScDualNetwork::new(bitrate, &[1, 33]);
-    for &(id, side, ppm) in clocks {
-        net.set_clock(id, side, ppm);
-    }
-    let producer = config_buffering(true, ScEntry::ESTOP_PRODUCER, buffering_us);
-    let consumer = config_buffering(false, ScEntry::ESTOP_CONSUMER, buffering_us);
-    net.configure_and_start(&[(1, producer), (33, consumer)])
-        .expect("configured");
-    let until = net.now + Duration::from_millis(1500);
-    while net.output(33, ESTOP) != 1 && net.now < until {
-        net.run_for(Duration::from_millis(1));
-    }
-    assert_eq!(
-        net.output(33, ESTOP),
-        1,
-        "faults: {:?} {:?}",
-        net.faults(1),
-        net.faults(33)
-    );
-    net
+/// [`running_with_clocks`] at `bit_rate`, each SCL stating `buffering_us` (SC_REQ_33).
+fn running_at(bit_rate: u32, buffering_us: u16, clocks: &[(u8, Side, i64)]) -> ScDualNetwork {
+    ScDualNetwork::estop_running(bit_rate, buffering_us, clocks)
+        .unwrap_or_else(|error| panic!("{error}"))
 }
 
 /// Both channels of `id` are in the safe state: one of them with `cause`, the other with

@@ -24,6 +24,7 @@ pub mod oracle;
 pub mod recorded;
 pub mod report;
 pub mod simplecan;
+pub mod simplecan_dual;
 pub mod simplecan_oracle;
 
 use crate::bus::{Delivery, Fault, Match, frame_bits, frame_time};

@@ -85,6 +85,17 @@ pub enum ScClass {
     /// Packets of 30h with a bad CRC, evenly spaced 2 to 40 ms apart, 3 fewer to 3 more
     /// than the leaky counter needs to reach 1000 (SC_REQ_42).
     LeakyCounter,
+    /// Dual-channel nodes: the producer's two contacts move less than the sample window
+    /// apart across a slot start (SC_REQ_10; [`super::simplecan_dual`]): no safe state.
+    DualSkew,
+    /// The contacts further apart than the window and a cycle: the producer's safe state.
+    DualSkewBeyond,
+    /// One of the producer's channel clocks off within the envelope the Model A sync check
+    /// keeps (SC_REQ_31): no safe state.
+    DualClock,
+    /// One of the producer's channel clocks 2,500 to 5,000 ppm off: the producer's safe
+    /// state.
+    DualClockBeyond,
 }
 
 impl ScClass {
@@ -97,7 +108,7 @@ impl ScClass {
     }
 
     /// Every class.
-    pub const ALL: [ScClass; 10] = [
+    pub const ALL: [ScClass; 14] = [
         ScClass::BadCrc,
         ScClass::Replay,
         ScClass::Masquerade,
@@ -108,6 +119,10 @@ impl ScClass {
         ScClass::TwoMasters,
         ScClass::MasterGone,
         ScClass::LeakyCounter,
+        ScClass::DualSkew,
+        ScClass::DualSkewBeyond,
+        ScClass::DualClock,
+        ScClass::DualClockBeyond,
     ];
 
     /// The name on the command line and in the report.
@@ -123,6 +138,10 @@ impl ScClass {
             ScClass::TwoMasters => "simplecan-two-masters",
             ScClass::MasterGone => "simplecan-master-gone",
             ScClass::LeakyCounter => "simplecan-leaky-counter",
+            ScClass::DualSkew => "simplecan-dual-skew",
+            ScClass::DualSkewBeyond => "simplecan-dual-skew-beyond",
+            ScClass::DualClock => "simplecan-dual-clock",
+            ScClass::DualClockBeyond => "simplecan-dual-clock-beyond",
         }
     }
 
@@ -136,6 +155,8 @@ impl ScClass {
             ScClass::SyncLoss => "SC_REQ_32",
             ScClass::TwoMasters => "SC_REQ_26",
             ScClass::MasterGone => "SC_REQ_25, SC_REQ_27",
+            ScClass::DualSkew | ScClass::DualSkewBeyond | ScClass::DualClockBeyond => "SC_REQ_10",
+            ScClass::DualClock => "SC_REQ_31, SC_REQ_10",
         }
     }
 
@@ -146,6 +167,10 @@ impl ScClass {
             ScClass::TwoMasters => "the end of the sync that showed two masters",
             ScClass::LeakyCounter => "the end of the packet that took the counter to 1000",
             ScClass::MasterGone => "the old master's last sync (to the new master's first)",
+            ScClass::DualSkew => "the first contact's press (to node 33's output at 0)",
+            ScClass::DualSkewBeyond => "the first contact's change (to node 1's safe state)",
+            ScClass::DualClock => "– (no safe state may follow)",
+            ScClass::DualClockBeyond => "the clock's change (to node 1's safe state)",
             _ => "the slot of the last valid packet of 1",
         }
     }
@@ -160,12 +185,26 @@ impl ScClass {
         match self {
             ScClass::SyncLoss => plus(oracle::SYNC_LOSS, timeout),
             ScClass::TwoMasters | ScClass::LeakyCounter => REACTION,
+            ScClass::DualSkew => super::simplecan_dual::PRESS_BOUND,
+            ScClass::DualSkewBeyond => super::simplecan_dual::APART_BOUND,
+            ScClass::DualClock | ScClass::DualClockBeyond => super::simplecan_dual::CLOCK_BOUND,
             ScClass::MasterGone => {
                 let slots = Duration::from_millis(u64::from(SLOTS) + 1);
                 plus(plus(oracle::SYNC_LOSS, t_wait(SECOND)), slots)
             }
             _ => timeout,
         }
+    }
+
+    /// Whether the class runs on dual-channel nodes ([`super::simplecan_dual`]).
+    pub fn dual_channel(self) -> bool {
+        matches!(
+            self,
+            ScClass::DualSkew
+                | ScClass::DualSkewBeyond
+                | ScClass::DualClock
+                | ScClass::DualClockBeyond
+        )
     }
 
     /// Whether the oracle predicts this class's outcome exactly, so that a safe state it did
@@ -343,6 +382,9 @@ fn delay(rng: &mut ChaCha8Rng) -> Duration {
 
 /// Runs the scenario `seed` of `class`.
 pub fn run(class: ScClass, seed: u64) -> ScResult {
+    if class.dual_channel() {
+        return super::simplecan_dual::run(class, seed);
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((class as u64) << 56));
     let mut net = started();
     let released = produced(&net);
@@ -383,6 +425,10 @@ pub fn run(class: ScClass, seed: u64) -> ScResult {
             let count = leaky_count(spacing, rng.random_range(-3..=3));
             bad_crcs(&mut net, count, spacing, &mut rng)
         }
+        ScClass::DualSkew
+        | ScClass::DualSkewBeyond
+        | ScClass::DualClock
+        | ScClass::DualClockBeyond => unreachable!("run on dual-channel nodes, above"),
     };
     ScResult {
         class,
@@ -820,7 +866,22 @@ pub fn section(
          gone: 1). *Spurious*: a safe state while a valid packet still backed the value and \
          no rule required it, counted only for babbling, sync loss, two masters and the leaky \
          counter, whose outcome the oracle predicts exactly (must be 0). *Late*: a detection \
-         beyond the bound (must be 0).\n",
+         beyond the bound (must be 0).\n\n\
+         The `simplecan-dual-…` classes run on dual-channel nodes (both channel runtimes, \
+         their link, Model A; `tests/src/campaign/simplecan_dual.rs`): node 1 produces 30h \
+         and is the master, node 33 consumes it (50 ms), at 500 or 1000 kbit/s (seeded). \
+         *Skew*: node 1's two contacts move on a press or a release 0..4.6 ms apart (the \
+         5 ms sample window less a frame time), the first within 3 ms of a slot-0 start; no \
+         safe state may follow, and a press must reach node 33's output (detected) within \
+         the window, a cycle and a slot. *Skew beyond*: 17..150 ms apart; node 1 must be \
+         safe within two windows, a cycle and a slot. *Clock*: from Operational on, channel \
+         A's clock 400 ppm slow to 1,600 ppm fast relative to B's (either channel's clock \
+         changed), 1 s, no safe state. *Clock beyond*: 2,500..5,000 ppm either way; node 1 \
+         must be safe within 600 ms (the oracle allows node 33's timeout the master clock's \
+         rate times a sync interval and a timeout more, 750 µs at 5,000 ppm). Run on the code \
+         before two Model A fixes, 2,000 per class: 21 spurious in skew (a value that was \
+         channel B's current sample but not its previous or next one) and 122 in clock (a \
+         packet of A's heard before B computed its own); none after.\n",
     );
     text.push_str(SECTION_END);
     text.push('\n');
