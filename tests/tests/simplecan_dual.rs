@@ -12,7 +12,7 @@ use shared::{CanFrame, Duration, Instant};
 use system_tests::bus::{Fault, Match};
 use system_tests::dual::Side;
 use system_tests::simplecan_dual::ScDualNetwork;
-use system_tests::simplecan_net::{ESTOP, ScEntry};
+use system_tests::simplecan_net::ESTOP;
 
 /// The longest 8-byte frame at 500 kbit/s, each SCL's stated buffering time (SC_REQ_33).
 const FRAME_US: u16 = 270;
