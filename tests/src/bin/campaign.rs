@@ -124,6 +124,11 @@ fn simplecan_run(args: &Args, names: &[&String]) -> Result<(), String> {
         std::fs::create_dir_all(dir).map_err(|error| format!("{}: {error}", dir.display()))?;
         std::fs::write(&path, simplecan::with_section(&report, &section))
             .map_err(|error| format!("{}: {error}", path.display()))?;
+        let plots = dir.join("campaigns");
+        std::fs::create_dir_all(&plots).map_err(|error| format!("{}: {error}", plots.display()))?;
+        for (class, summary) in &rows {
+            simplecan::plot(&plots, *class, summary)?;
+        }
         println!("campaign: SimpleCAN section in {}", path.display());
     }
     let failed: u64 = rows

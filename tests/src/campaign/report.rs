@@ -93,26 +93,45 @@ pub fn bounds(results: &[Row]) -> String {
 /// Writes `dir/<class>-<kbit/s>k.svg`: the latency histogram (1 ms bins) with the bound
 /// marked.
 pub fn plot(dir: &Path, class: Class, bit_rate: u32, summary: &Summary) -> Result<(), String> {
-    let path = dir.join(plot_name(class, bit_rate));
     let (bound, _) = class.bound(bit_rate);
-    let bound_ms = bound.as_micros().div_ceil(1000) as u32;
-    let top = bound_ms + 5;
+    let title = format!("{} at {} kbit/s", class.name(), bit_rate / 1000);
+    let counts = (summary.detected, summary.injected);
+    histogram(
+        &dir.join(plot_name(class, bit_rate)),
+        &title,
+        bound.as_micros(),
+        &summary.latencies,
+        counts,
+    )
+}
+
+/// Writes the SVG at `path`: a histogram of `latencies` (µs) with `bound_us` marked, titled
+/// `title` with `counts` (detected, injected). The bins are 1 ms wide, wider where the bound
+/// is beyond 100 ms (at most about 100 bins); a latency beyond the plot's end counts in its
+/// last bin.
+pub fn histogram(
+    path: &Path,
+    title: &str,
+    bound_us: u64,
+    latencies: &[u64],
+    (detected, injected): (u64, u64),
+) -> Result<(), String> {
+    let bin_ms = bound_us.div_ceil(100_000).max(1);
+    let bin_us = bin_ms * 1000;
+    let bound_bin = bound_us.div_ceil(bin_us) as u32;
+    let top = bound_bin + 5;
     let mut bins = vec![0u32; top as usize + 1];
-    for latency in &summary.latencies {
-        let bin = (*latency / 1000).min(u64::from(top)) as usize;
+    for latency in latencies {
+        let bin = (*latency / bin_us).min(u64::from(top)) as usize;
         bins[bin] += 1;
     }
     let highest = bins.iter().copied().max().unwrap_or(0).max(1);
-    let root = SVGBackend::new(&path, (720, 360)).into_drawing_area();
+    let root = SVGBackend::new(path, (720, 360)).into_drawing_area();
     let draw = |error: DrawingAreaErrorKind<_>| format!("{}: {error}", path.display());
     root.fill(&WHITE).map_err(draw)?;
     let caption = format!(
-        "{} at {} kbit/s: {} detected of {} injected, latency (ms) against the bound {} ms",
-        class.name(),
-        bit_rate / 1000,
-        summary.detected,
-        summary.injected,
-        ms(bound.as_micros())
+        "{title}: {detected} detected of {injected} injected, latency (ms) against the bound {} ms",
+        ms(bound_us)
     );
     let mut chart = ChartBuilder::on(&root)
         .caption(caption, ("sans-serif", 16))
@@ -123,7 +142,8 @@ pub fn plot(dir: &Path, class: Class, bit_rate: u32, summary: &Summary) -> Resul
         .map_err(draw)?;
     chart
         .configure_mesh()
-        .x_desc("detection latency (ms, 1 ms bins)")
+        .x_label_formatter(&|bin| (u64::from(*bin) * bin_ms).to_string())
+        .x_desc(format!("detection latency (ms, {bin_ms} ms bins)"))
         .y_desc("scenarios")
         .draw()
         .map_err(draw)?;
@@ -138,7 +158,7 @@ pub fn plot(dir: &Path, class: Class, bit_rate: u32, summary: &Summary) -> Resul
         .map_err(draw)?;
     chart
         .draw_series(std::iter::once(PathElement::new(
-            vec![(bound_ms, 0), (bound_ms, highest + highest / 10 + 1)],
+            vec![(bound_bin, 0), (bound_bin, highest + highest / 10 + 1)],
             RED.stroke_width(2),
         )))
         .map_err(draw)?

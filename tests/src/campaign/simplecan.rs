@@ -724,6 +724,8 @@ pub struct ScSummary {
     pub late: u64,
     /// The worst latency of a detection.
     pub max_latency: Option<Duration>,
+    /// Every detection latency, in µs (the plot's data).
+    pub latencies: Vec<u64>,
     /// The seeds of the unsafe, spurious and late scenarios, to replay them.
     pub failed_seeds: Vec<u64>,
 }
@@ -741,6 +743,7 @@ impl ScSummary {
                     self.failed_seeds.push(result.seed);
                 }
                 self.max_latency = Some(self.max_latency.map_or(latency, |m| m.max(latency)));
+                self.latencies.push(latency.as_micros());
             }
             ScOutcome::Harmless => self.harmless += 1,
             ScOutcome::Spurious(_) => {
@@ -780,6 +783,22 @@ fn max_latency(summary: &ScSummary) -> String {
     summary
         .max_latency
         .map_or("–".to_string(), |latency| latency.as_micros().to_string())
+}
+
+/// The plot's file name for `class` (`docs/campaigns/<class>.svg`).
+pub fn plot_name(class: ScClass) -> String {
+    format!("{}.svg", class.name())
+}
+
+/// Writes `dir/<class>.svg`: the latency histogram of `summary` with the class's bound.
+pub fn plot(dir: &std::path::Path, class: ScClass, summary: &ScSummary) -> Result<(), String> {
+    super::report::histogram(
+        &dir.join(plot_name(class)),
+        class.name(),
+        class.bound().as_micros(),
+        &summary.latencies,
+        (summary.detected, summary.injected),
+    )
 }
 
 /// One line of the console output for `summary` of `class`.
@@ -867,6 +886,7 @@ pub fn section(
          no rule required it, counted only for babbling, sync loss, two masters and the leaky \
          counter, whose outcome the oracle predicts exactly (must be 0). *Late*: a detection \
          beyond the bound (must be 0).\n\n\
+         Each class's latencies against its bound: `docs/campaigns/<class>.svg`. \
          The `simplecan-dual-…` classes run on dual-channel nodes (both channel runtimes, \
          their link, Model A; `tests/src/campaign/simplecan_dual.rs`): node 1 produces 30h \
          and is the master, node 33 consumes it (50 ms), at 500 or 1000 kbit/s (seeded). \
