@@ -438,18 +438,27 @@ fn sc_req_10_contacts_moving_within_the_sample_window_across_a_slot_start_are_no
 fn sc_req_31_channel_clocks_50_ppm_off_either_way_run_without_a_fault() {
     for ppm in [50, -50] {
         let mut net = running_with_clocks(&[(1, Side::A, ppm), (1, Side::B, -ppm)]);
-        let start = net.now;
-        net.run_for(Duration::from_millis(10_000));
-        assert_eq!(net.faults(1), [None, None], "A {ppm} ppm, B {} ppm", -ppm);
-        assert_eq!(net.faults(33), [None, None], "A {ppm} ppm, B {} ppm", -ppm);
-        let packets = net
-            .trace
-            .iter()
-            .filter(|(at, frame, _)| *at >= start && frame.id().raw() == 0x030)
-            .count();
-        assert!((999..=1001).contains(&packets), "{packets} packets in 10 s");
-        assert_eq!(net.output(33, ESTOP), 1);
+        runs_ten_seconds_without_a_fault(&mut net, &format!("A {ppm} ppm, B {} ppm", -ppm));
     }
+}
+
+/// Runs `net` for 10 s: no fault on either node, a packet of 30h every cycle, node 33's
+/// output on at the end.
+fn runs_ten_seconds_without_a_fault(net: &mut ScDualNetwork, case: &str) {
+    let start = net.now;
+    net.run_for(Duration::from_millis(10_000));
+    assert_eq!(net.faults(1), [None, None], "{case}");
+    assert_eq!(net.faults(33), [None, None], "{case}");
+    let packets = net
+        .trace
+        .iter()
+        .filter(|(at, frame, _)| *at >= start && frame.id().raw() == 0x030)
+        .count();
+    assert!(
+        (999..=1001).contains(&packets),
+        "{case}: {packets} packets in 10 s"
+    );
+    assert_eq!(net.output(33, ESTOP), 1, "{case}");
 }
 
 /// SC_REQ_31 and SC_REQ_10 (Model A): at 1 Mbit/s an 8-byte frame takes about 135 µs, less
@@ -466,17 +475,7 @@ fn sc_req_31_channel_clocks_50_ppm_off_either_way_run_without_a_fault() {
 fn sc_req_31_channel_a_s_clock_leading_within_the_tolerance_at_1_mbit_runs_without_a_fault() {
     let mut net = running_at(1_000_000, 135, &[]);
     net.set_clock(1, Side::A, 1_800);
-    let start = net.now;
-    net.run_for(Duration::from_millis(10_000));
-    assert_eq!(net.faults(1), [None, None]);
-    assert_eq!(net.faults(33), [None, None]);
-    let packets = net
-        .trace
-        .iter()
-        .filter(|(at, frame, _)| *at >= start && frame.id().raw() == 0x030)
-        .count();
-    assert!((999..=1001).contains(&packets), "{packets} packets in 10 s");
-    assert_eq!(net.output(33, ESTOP), 1);
+    runs_ten_seconds_without_a_fault(&mut net, "A 1,800 ppm fast at 1 Mbit/s");
 }
 
 /// SC_REQ_10 (Model A) for syncs: channel A's clock running 2500 ppm fast puts its sync 250

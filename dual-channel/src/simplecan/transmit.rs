@@ -298,13 +298,7 @@ impl TransmitCheck {
                 early.buffering,
             );
         }
-        let sync = own.id == shared::simplecan::frame::SYNC_IDENTIFIER.raw();
-        let deadline = now
-            + if sync {
-                self.bounds.sync_within
-            } else {
-                self.bounds.data_within
-            };
+        let deadline = now + self.within(own.id);
         self.waiting
             .push((own, deadline))
             .map(|()| None)
@@ -343,16 +337,22 @@ impl TransmitCheck {
             return self.early.push(early).map(|()| None).map_err(|_| mismatch);
         };
         let (own, deadline) = self.waiting.swap_remove(index);
-        // B computed its own `sync_within` or `data_within` before the deadline.
-        let within = if heard.id == shared::simplecan::frame::SYNC_IDENTIFIER.raw() {
-            self.bounds.sync_within
-        } else {
-            self.bounds.data_within
-        };
+        // B computed its own `within` before the deadline.
+        let within = self.within(heard.id);
         let computed =
             Instant::from_micros(deadline.as_micros().saturating_sub(within.as_micros()));
         let since = micros_from(computed, now);
         self.judge(own, heard, decoded, now, since, buffering)
+    }
+
+    /// How long after B computed its packet on `id` A's may appear: a sync's bound or a data
+    /// packet's.
+    fn within(&self, id: u16) -> Duration {
+        if id == shared::simplecan::frame::SYNC_IDENTIFIER.raw() {
+            self.bounds.sync_within
+        } else {
+            self.bounds.data_within
+        }
     }
 
     /// Whether A's packet `heard` (`decoded` by B's decoder, heard at `at`, `since` µs after
