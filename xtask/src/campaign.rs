@@ -3,7 +3,9 @@
 //! Every class runs at 125, 250, 500 and 1000 kbit/s unless `--bit-rate` picks some; the
 //! SimpleCAN classes (`--protocol simplecan`, names `simplecan-…`: bad CRC, replay,
 //! masquerade, lost, delay, babbling, sync loss, two masters, master gone, leaky counter) run
-//! on their own network at 500 kbit/s (`tests/src/campaign/simplecan.rs`), one class per
+//! on their own network at 500 kbit/s (`tests/src/campaign/simplecan.rs`), and the dual-channel
+//! ones (`simplecan-dual-…`: the contacts apart, one channel's clock off) on two dual-channel
+//! nodes at 500 or 1000 kbit/s (`tests/src/campaign/simplecan_dual.rs`), one class per
 //! thread. Without `--protocol`, both run.
 //! The full size (10,000 scenarios per class and rate, the default) writes `docs/campaigns.md` and
 //! the plots in `docs/campaigns/`; a smaller run writes its report to `target/campaign/`,
