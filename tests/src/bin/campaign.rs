@@ -173,7 +173,14 @@ fn main() -> ExitCode {
         use system_tests::campaign::simplecan::{self, ScClass};
         for name in &simplecan_names {
             for class in ScClass::matching(name) {
-                println!("{seed}: {:?}", simplecan::run(class, seed));
+                if class.dual_channel() {
+                    print!(
+                        "{}",
+                        system_tests::campaign::simplecan_dual::timeline(class, seed)
+                    );
+                } else {
+                    println!("{seed}: {:?}", simplecan::run(class, seed));
+                }
             }
         }
     }

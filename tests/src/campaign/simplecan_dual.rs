@@ -97,21 +97,75 @@ fn longest_frame_us(bit_rate: u32) -> u16 {
 
 /// Runs the scenario `seed` of `class`, one of the dual-channel classes.
 pub fn run(class: ScClass, seed: u64) -> ScResult {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((class as u64) << 56));
-    let bit_rate = BIT_RATES[rng.random_range(0..BIT_RATES.len())];
-    let buffering_us = longest_frame_us(bit_rate);
-    let result = |outcome| ScResult {
+    let (outcome, _) = scenario(class, seed);
+    ScResult {
         class,
         seed,
         injected: 1,
         outcome,
+    }
+}
+
+/// The scenario `seed` of `class` again, in words: what was injected, the outcome, and the
+/// timeline from 20 ms before the fault's onset (SimpleCAN frames and EMCYs on the bus, node
+/// 33's output, every channel's safe state), at most 120 lines.
+pub fn timeline(class: ScClass, seed: u64) -> String {
+    let (outcome, run) = scenario(class, seed);
+    let mut text = format!("{} seed {seed}: {outcome:?}\n", class.name());
+    let Some(Run { net, what, from }) = run else {
+        text.push_str("the network did not come up\n");
+        return text;
     };
+    text.push_str(&format!("{what}, from {} µs\n", from.as_micros()));
+    let since = Instant::from_micros(from.as_micros().saturating_sub(20_000));
+    let mut lines: Vec<(Instant, String)> = Vec::new();
+    for &(at, frame, sender) in &net.trace {
+        let id = frame.id().raw();
+        if at >= since && ((0x02F..=0x07F).contains(&id) || (0x081..=0x0FF).contains(&id)) {
+            let data = frame.raw_data();
+            lines.push((
+                at,
+                format!("bus {id:03X} {data:02X?} from participant {sender}"),
+            ));
+        }
+    }
+    for (at, node, side, event) in &net.log {
+        if *at >= since
+            && let ChannelEvent::Fault(fault) = event
+        {
+            lines.push((*at, format!("node {node} channel {side:?} safe: {fault:?}")));
+        }
+    }
+    for (at, value) in consumer_output(&net) {
+        if at >= since {
+            lines.push((at, format!("node 33 output of 30h {value}")));
+        }
+    }
+    lines.sort_by_key(|(at, _)| *at);
+    for (at, line) in lines.into_iter().take(120) {
+        text.push_str(&format!("{:>10} µs  {line}\n", at.as_micros()));
+    }
+    text
+}
+
+/// A scenario's network after the run, what was injected in words, and from when.
+struct Run {
+    net: ScDualNetwork,
+    what: String,
+    from: Instant,
+}
+
+/// Runs the scenario: its outcome, and the run (none when the network did not come up).
+fn scenario(class: ScClass, seed: u64) -> (ScOutcome, Option<Run>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((class as u64) << 56));
+    let bit_rate = BIT_RATES[rng.random_range(0..BIT_RATES.len())];
+    let buffering_us = longest_frame_us(bit_rate);
     let mut net = match ScDualNetwork::estop_running(bit_rate, buffering_us, &[]) {
         Ok(net) => net,
         // Nothing injected yet: a network that does not come up is a failure of its own.
-        Err(_) => return result(ScOutcome::Spurious(Instant::ZERO)),
+        Err(_) => return (ScOutcome::Spurious(Instant::ZERO), None),
     };
-    let verdict = match class {
+    let (outcome, what, from) = match class {
         ScClass::DualSkew | ScClass::DualSkewBeyond => {
             let beyond = class == ScClass::DualSkewBeyond;
             let frame = Duration::from_micros(u64::from(buffering_us));
@@ -128,14 +182,14 @@ pub fn run(class: ScClass, seed: u64) -> ScResult {
                 Side::B
             };
             let phase = rng.random_range(-3_000i64..=3_000);
-            contacts_apart(
-                &mut net,
-                press,
-                first,
-                phase,
-                Duration::from_micros(skew),
-                beyond,
-            )
+            let what = format!(
+                "{bit_rate} bit/s, {}, channel {first:?}'s contact first, {phase} µs from a \
+                 slot-0 start, the other's {skew} µs later",
+                if press { "press" } else { "release" }
+            );
+            let skew = Duration::from_micros(skew);
+            let (outcome, from) = contacts_apart(&mut net, press, first, phase, skew, beyond);
+            (outcome, what, from)
         }
         ScClass::DualClock | ScClass::DualClockBeyond => {
             let beyond = class == ScClass::DualClockBeyond;
@@ -154,16 +208,21 @@ pub fn run(class: ScClass, seed: u64) -> ScResult {
             } else {
                 Side::B
             };
-            clock_off(&mut net, side, relative, beyond)
+            let what = format!(
+                "{bit_rate} bit/s, channel {side:?}'s clock off: A {relative} ppm against B"
+            );
+            let from = net.now;
+            (clock_off(&mut net, side, relative, beyond), what, from)
         }
         _ => unreachable!("{class:?} is not a dual-channel class"),
     };
-    result(verdict)
+    (outcome, Some(Run { net, what, from }))
 }
 
 /// Node 1's contacts move to the `press`ed (0) or released (1) value: `first`'s at `phase` µs
 /// from a slot-0 start, the other's `skew` later; then 200 ms more (the consumer's timeout
 /// four times over).
+/// Returns the outcome and the first contact's instant.
 fn contacts_apart(
     net: &mut ScDualNetwork,
     press: bool,
@@ -171,7 +230,7 @@ fn contacts_apart(
     phase: i64,
     skew: Duration,
     beyond: bool,
-) -> ScOutcome {
+) -> (ScOutcome, Instant) {
     let (from, to) = if press { (1, 0) } else { (0, 1) };
     if from == 0 {
         net.set_inputs(PRODUCER, 0);
@@ -189,7 +248,8 @@ fn contacts_apart(
     net.set_input_of(PRODUCER, second, to);
     net.run_for(Duration::from_millis(200));
     let bound = if beyond { APART_BOUND } else { PRESS_BOUND };
-    judge(net, at, beyond, bound, press && !beyond, Duration::ZERO)
+    let outcome = judge(net, at, beyond, bound, press && !beyond, Duration::ZERO);
+    (outcome, at)
 }
 
 /// One of node 1's channels runs `relative` ppm off the other from now on (`side` A: A's
@@ -324,6 +384,15 @@ mod tests {
     fn the_stated_buffering_is_the_longest_frame() {
         assert_eq!(longest_frame_us(500_000), 270);
         assert_eq!(longest_frame_us(1_000_000), 135);
+    }
+
+    /// A replay says what was injected and shows the safe state it led to on the timeline.
+    #[test]
+    fn a_replay_shows_the_timeline_of_the_fault() {
+        let text = timeline(ScClass::DualSkewBeyond, 0);
+        assert!(text.contains("contact first"), "{text}");
+        assert!(text.contains("node 1 channel B safe: SimpleCan(TransmitMismatch"), "{text}");
+        assert!(text.contains("bus 030"), "{text}");
     }
 
     /// Each class's first seeds come out as the class requires: the envelope harmless (or
