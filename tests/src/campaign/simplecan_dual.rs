@@ -391,7 +391,10 @@ mod tests {
     fn a_replay_shows_the_timeline_of_the_fault() {
         let text = timeline(ScClass::DualSkewBeyond, 0);
         assert!(text.contains("contact first"), "{text}");
-        assert!(text.contains("node 1 channel B safe: SimpleCan(TransmitMismatch"), "{text}");
+        assert!(
+            text.contains("node 1 channel B safe: SimpleCan(TransmitMismatch"),
+            "{text}"
+        );
         assert!(text.contains("bus 030"), "{text}");
     }
 
