@@ -1,8 +1,7 @@
 //! What the hardware layer's `bxcan` 0.8 adapter decides without the hardware, host-tested:
 //! the acceptance filter banks from [`dual_channel::filters::bank_layout`] put into bxcan's
-//! filter API, the bit timing register, the controller's error state read from CAN_ESR, and
-//! which frame a transmit mailbox holds (so a frame bxcan takes back out of a mailbox goes
-//! back into the transmit queue in its place). The adapter itself (`board::hw`, feature
+//! filter API, the bit timing register and the controller's error state read from CAN_ESR
+//! (the transmit path both drivers share is [`crate::transmit_queue`]). The adapter itself (`board::hw`, feature
 //! `can-bxcan`) only moves these between the registers and the channel loop
 //! (`docs/can-driver.md`).
 //!
@@ -10,7 +9,7 @@
 //! through this module too.
 
 use bxcan::filter::{BankConfig, ListEntry16, Mask16, MasterFilters};
-use bxcan::{FilterOwner, Mailbox, StandardId};
+use bxcan::{FilterOwner, StandardId};
 use dual_channel::filters::{self, Bank, BankLayout};
 
 /// Why the filter banks were not programmed. Either leaves the banks as they were.
@@ -186,46 +185,13 @@ pub fn receive_errors(esr: u32) -> u8 {
     (esr >> 24) as u8
 }
 
-/// What each transmit mailbox holds, as the transmit queue numbered it. bxcan's `transmit`
-/// takes the lowest-priority frame back out of a mailbox when all three are pending and a
-/// higher-priority one comes (and says so, `TransmitStatus::dequeued_frame`); the record of
-/// that mailbox is then the frame to queue again, with its own place among frames of its
-/// identifier, so that it still leaves before every later one.
-#[derive(Debug)]
-pub struct Mailboxes<T> {
-    held: [Option<T>; 3],
-}
-
-impl<T> Default for Mailboxes<T> {
-    fn default() -> Self {
-        Mailboxes {
-            held: [None, None, None],
-        }
-    }
-}
-
-impl<T> Mailboxes<T> {
-    /// `item` placed in `mailbox`; what was recorded there before: the frame bxcan took out
-    /// when it reports one, else a frame that has left (to forget).
-    pub fn placed(&mut self, mailbox: Mailbox, item: T) -> Option<T> {
-        let slot = match mailbox {
-            Mailbox::Mailbox0 => &mut self.held[0],
-            Mailbox::Mailbox1 => &mut self.held[1],
-            Mailbox::Mailbox2 => &mut self.held[2],
-        };
-        slot.replace(item)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     extern crate std;
 
     use super::*;
-    use crate::transmit_queue::{Queued, Sequencer};
     use core::cell::UnsafeCell;
     use dual_channel::filters::{AcceptanceList, CAN1_BANKS, bank_layout};
-    use heapless::binary_heap::{BinaryHeap, Min};
     use shared::canopen::NodeId;
     use shared::safety::config::{SafetyConfig, SrdoRecord};
     use shared::{CanFrame, CanId};
@@ -517,39 +483,6 @@ mod tests {
             assert!(!state.loses_frames(), "{state:?}");
         }
         assert!(ErrorState::BusOff.loses_frames());
-    }
-
-    fn frame(id: u16, data: u8) -> CanFrame {
-        CanFrame::new(CanId::new(id).unwrap(), &[data]).unwrap()
-    }
-
-    /// A frame bxcan takes back out of a mailbox (three pending, a higher-priority one
-    /// comes) goes back into the queue with its own number, so it still leaves before a
-    /// frame of its identifier queued after it, and none is lost.
-    #[test]
-    fn a_frame_taken_out_of_a_mailbox_keeps_its_place_in_the_queue() {
-        let mut sequencer = Sequencer::new();
-        let mut queue: BinaryHeap<Queued, Min, 8> = BinaryHeap::new();
-        let mut mailboxes = Mailboxes::default();
-        // Three pending frames, the heartbeat the lowest priority.
-        for (mailbox, queued) in [
-            (Mailbox::Mailbox0, sequencer.queue(frame(0x101, 1))),
-            (Mailbox::Mailbox1, sequencer.queue(frame(0x102, 1))),
-            (Mailbox::Mailbox2, sequencer.queue(frame(0x721, 5))),
-        ] {
-            assert!(mailboxes.placed(mailbox, queued).is_none());
-        }
-        // A second heartbeat waits in the queue; the GFC takes mailbox 2, bxcan hands the
-        // first heartbeat back.
-        queue.push(sequencer.queue(frame(0x721, 6))).unwrap();
-        let gfc = sequencer.queue(frame(0x001, 0));
-        let displaced = mailboxes.placed(Mailbox::Mailbox2, gfc).unwrap();
-        assert_eq!(displaced.frame, frame(0x721, 5));
-        queue.push(displaced).unwrap();
-        let order: std::vec::Vec<u8> = core::iter::from_fn(|| queue.pop())
-            .map(|queued| queued.frame.data()[0])
-            .collect();
-        assert_eq!(order, [5, 6], "the first heartbeat still first");
     }
 
     /// What decides `docs/can-driver.md`: bxcan 0.8 puts a frame into a second or third

@@ -16,9 +16,11 @@
 //! link transmit pipe into the USART. The independent watchdog is fed by the channel loop only.
 //!
 //! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
-//! (`embassy_can`, the default; a task moves frames from a priority queue into the transmit
-//! mailboxes) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`; the loop's task
-//! fills the mailboxes itself). Each gives [`HwDriver`] the same `CanPort`.
+//! (`embassy_can`, the default) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
+//! In both the loop's task fills the transmit mailboxes from its queue through
+//! [`crate::transmit_queue::Transmitter`], which also tells which frames went out and takes
+//! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
+//! gives [`HwDriver`] the same `CanPort`.
 
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
@@ -303,6 +305,23 @@ impl Driver for HwDriver<'_> {
     fn event(&mut self, event: &ChannelEvent) {
         defmt::info!("{}", event);
     }
+
+    #[cfg(feature = "simplecan")]
+    fn transmitted(&mut self) -> Option<CanFrame> {
+        self.can.transmitted()
+    }
+
+    #[cfg(feature = "simplecan")]
+    fn abort(&mut self, id: shared::CanId) {
+        self.can.abort(id);
+    }
+}
+
+/// Which transmit mailboxes are empty (CAN_TSR.TME0..2, RM0090 32.9.3): read, never written,
+/// so that neither driver's own use of the register is disturbed.
+fn empty_mailboxes() -> [bool; 3] {
+    let tsr = embassy_stm32::pac::CAN1.tsr().read();
+    [tsr.tme(0), tsr.tme(1), tsr.tme(2)]
 }
 
 #[embassy_executor::task]

@@ -27,12 +27,11 @@ use embassy_stm32::interrupt::typelevel::{self, Binding, Handler, Interrupt as _
 use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_sync::waitqueue::AtomicWaker;
-use heapless::binary_heap::{BinaryHeap, Min};
 use shared::{CanFrame, Instant};
 
 use super::{embassy_instant, halt_safe, now};
-use crate::bxcan_adapter::{self, BitTiming, Mailboxes};
-use crate::transmit_queue::{Queued, Sequencer};
+use crate::bxcan_adapter::{self, BitTiming};
+use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 
 embassy_stm32::bind_interrupts!(struct Irqs {
     CAN1_RX0 => WakeOnReceive;
@@ -49,9 +48,10 @@ pub struct Can1 {
 
 // SAFETY: `Can1` holds embassy-stm32's one CAN1 token, so no other driver reaches the
 // controller, and `REGISTERS` is CAN1's register block (stm32-metapac's address, RM0090
-// Table 1), valid for the whole run. Outside bxcan only the hardware layer's read of CAN_ESR
-// (`board::hw`, a status register whose read changes nothing) touches it, from the task that
-// owns the `Can`, never during a bxcan call; the interrupt handlers below touch only the NVIC.
+// Table 1), valid for the whole run. Outside bxcan only the hardware layer's reads of CAN_ESR
+// (`board::hw`) and of CAN_TSR's mailbox-empty bits ([`Controller::empty`] below), status
+// registers whose reads change nothing, touch it, from the task that owns the `Can`, never
+// during a bxcan call; the interrupt handlers below touch only the NVIC.
 unsafe impl bxcan::Instance for Can1 {
     const REGISTERS: *mut bxcan::RegisterBlock = embassy_stm32::pac::CAN1.as_ptr().cast();
 }
@@ -150,9 +150,50 @@ const TRANSMIT_QUEUE: usize = 16;
 /// CAN1 as the channel loop uses it, all on the loop's task.
 pub struct CanPort {
     can: Can<Can1>,
-    queue: BinaryHeap<Queued, Min, TRANSMIT_QUEUE>,
-    sequencer: Sequencer,
-    mailboxes: Mailboxes<Queued>,
+    transmitter: Transmitter<TRANSMIT_QUEUE>,
+}
+
+/// bxcan's mailboxes for the transmit path ([`crate::transmit_queue`]).
+impl Controller for Can<Can1> {
+    /// bxcan refuses a frame when a pending one has the same or a higher priority (so
+    /// frames of one identifier leave in queue order), and when all three are pending with
+    /// lower priority it takes the lowest back out.
+    fn place(&mut self, frame: &CanFrame) -> Result<Placement, Refusal> {
+        let Some(frame) = to_bxcan(frame) else {
+            // Not a frame bxcan can carry (a `CanFrame` never is one): dropped, logged.
+            defmt::warn!("CAN frame not sendable, dropped");
+            return Err(Refusal::Unsendable);
+        };
+        let status = self.transmit(&frame).map_err(|_| Refusal::Busy)?;
+        Ok(Placement {
+            mailbox: mailbox_of(status.mailbox()),
+            displaced: status.dequeued_frame().is_some(),
+        })
+    }
+
+    fn abort(&mut self, mailbox: Mailbox) -> bool {
+        Can::abort(self, bxcan_mailbox(mailbox))
+    }
+
+    fn empty(&self) -> [bool; 3] {
+        super::empty_mailboxes()
+    }
+}
+
+fn mailbox_of(mailbox: bxcan::Mailbox) -> Mailbox {
+    match mailbox {
+        bxcan::Mailbox::Mailbox0 => Mailbox::ALL[0],
+        bxcan::Mailbox::Mailbox1 => Mailbox::ALL[1],
+        bxcan::Mailbox::Mailbox2 => Mailbox::ALL[2],
+    }
+}
+
+fn bxcan_mailbox(mailbox: Mailbox) -> bxcan::Mailbox {
+    match mailbox.index() {
+        0 => bxcan::Mailbox::Mailbox0,
+        1 => bxcan::Mailbox::Mailbox1,
+        _ => bxcan::Mailbox::Mailbox2,
+    }
 }
 
 impl CanPort {
@@ -213,48 +254,25 @@ impl CanPort {
         joined(&mut can).await;
         CanPort {
             can,
-            queue: BinaryHeap::new(),
-            sequencer: Sequencer::new(),
-            mailboxes: Mailboxes::default(),
+            transmitter: Transmitter::new(),
         }
     }
 
     /// Queues `frame` and fills the mailboxes from the queue.
     pub fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
-        self.queue
-            .push(self.sequencer.queue(*frame))
-            .map_err(|_| QueueFull)?;
-        self.fill_mailboxes();
-        Ok(())
+        self.transmitter.transmit(frame, &mut self.can)
     }
 
-    /// Moves frames, lowest identifier first, into the mailboxes while bxcan takes them: it
-    /// refuses a frame when a pending one has the same or a higher priority (so frames of
-    /// one identifier leave in queue order), and when all three are pending with lower
-    /// priority it takes the lowest back out, which goes back into the queue with its own
-    /// number (there is room: its place was just freed).
-    fn fill_mailboxes(&mut self) {
-        while let Some(next) = self.queue.peek() {
-            let Some(frame) = to_bxcan(&next.frame) else {
-                // Not a frame bxcan can carry (CanFrame never is one): dropped, logged.
-                defmt::warn!("CAN frame not sendable, dropped");
-                let _ = self.queue.pop();
-                continue;
-            };
-            let Ok(status) = self.can.transmit(&frame) else {
-                // Every mailbox holds a frame of the same or a higher priority.
-                return;
-            };
-            let Some(placed) = self.queue.pop() else {
-                return;
-            };
-            let previous = self.mailboxes.placed(status.mailbox(), placed);
-            if let (Some(_), Some(displaced)) = (status.dequeued_frame(), previous) {
-                if self.queue.push(displaced).is_err() {
-                    defmt::warn!("CAN transmit queue full: a frame taken out of a mailbox is lost");
-                }
-            }
-        }
+    /// The oldest frame confirmed as sent since the last call (SC_REQ_18, SC_REQ_23).
+    #[cfg(feature = "simplecan")]
+    pub fn transmitted(&mut self) -> Option<CanFrame> {
+        self.transmitter.transmitted(&self.can)
+    }
+
+    /// Withdraws the frames on `id` not yet sent (SC_REQ_18, SC_REQ_23).
+    #[cfg(feature = "simplecan")]
+    pub fn abort(&mut self, id: shared::CanId) {
+        self.transmitter.withdraw(id, &mut self.can);
     }
 
     /// The next frame of the FIFOs (FIFO 0, the SRDOs, first), or an overrun, which bxcan
@@ -282,13 +300,21 @@ impl CanPort {
         }
     }
 
-    /// Waits for a received frame, or for a free mailbox while frames wait for one.
+    /// Waits for a received frame, or for a free mailbox while frames wait for one (with
+    /// SimpleCAN also while a sent frame is still to be confirmed).
     pub async fn wait(&mut self) {
         // Completion flags cleared before the mailboxes are filled: a mailbox that frees
-        // after this raises the transmit line again.
+        // after this raises the transmit line again. Which frames went out is read from the
+        // mailboxes' empty bits, not from these flags.
         self.can.clear_tx_interrupt();
-        self.fill_mailboxes();
-        if self.queue.is_empty() {
+        self.transmitter.fill(&mut self.can);
+        if cfg!(feature = "simplecan") && self.transmitter.has_sent(&self.can) {
+            // A frame went out since the loop last asked: its confirmation is due now.
+            return;
+        }
+        let completion_awaited = self.transmitter.is_waiting()
+            || (cfg!(feature = "simplecan") && self.transmitter.is_pending());
+        if !completion_awaited {
             RECEIVED.wait(unmask_receive).await;
         } else {
             embassy_futures::select::select(

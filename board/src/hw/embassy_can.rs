@@ -1,29 +1,35 @@
 //! CAN1 through embassy-stm32's own bxCAN driver: the shipped default (`docs/can-driver.md`).
 //!
 //! The channel loop reads the receive FIFOs itself ([`CanPort::receive`]); a FIFO overrun is
-//! read from CAN_RFxR.FOVR, which the driver does not report. A task moves frames from the
-//! priority queue [`CAN_TX`] into the transmit mailboxes.
+//! read from CAN_RFxR.FOVR, which the driver does not report. The loop also fills the transmit
+//! mailboxes from its queue, as the `bxcan` adapter does: both go through
+//! [`crate::transmit_queue::Transmitter`], which also tells which frames went out (SimpleCAN:
+//! SC_REQ_18, SC_REQ_23). Until the SimpleCAN images needed to know what went out, a task of
+//! its own moved frames from an embassy-sync priority channel into the mailboxes; the loop
+//! could not see the mailboxes' records there, nor take a frame back out of that channel.
 
+use core::future::{Future, poll_fn};
+use core::pin::pin;
+use core::task::Poll;
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, QueueFull};
 use dual_channel::filters::{self, Bank, BankLayout};
 use embassy_executor::Spawner;
+use embassy_futures::select::{Either, select};
 use embassy_stm32::Peri;
 use embassy_stm32::bind_interrupts;
 use embassy_stm32::can::enums::TryReadError;
 use embassy_stm32::can::filter::{ListEntry16, ListEntry32, Mask16};
 use embassy_stm32::can::{
-    Can, CanRx, CanTx, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, SceInterruptHandler,
-    StandardId, TxInterruptHandler,
+    Can, CanRx, CanTx, Fifo, Frame, Mailbox as EmbassyMailbox, Rx0InterruptHandler,
+    Rx1InterruptHandler, SceInterruptHandler, StandardId, TxInterruptHandler,
 };
 use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::priority_channel::{Min, PriorityChannel};
 use shared::{CanFrame, Instant};
 
 use super::{embassy_instant, halt_safe, now};
-use crate::transmit_queue::{Queued, Sequencer};
+use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 
 bind_interrupts!(struct Irqs {
     CAN1_RX0 => Rx0InterruptHandler<CAN1>;
@@ -32,28 +38,71 @@ bind_interrupts!(struct Irqs {
     CAN1_TX => TxInterruptHandler<CAN1>;
 });
 
-/// Frames to send, from the runtime task: by identifier, not first in first out
+/// Frames waiting for a transmit mailbox: by identifier, not first in first out
 /// ([`crate::transmit_queue`]), so the node's own heartbeat or EMCY never holds back its SRDO
 /// or GFC.
-static CAN_TX: PriorityChannel<CriticalSectionRawMutex, Queued, Min, 16> = PriorityChannel::new();
+const TRANSMIT_QUEUE: usize = 16;
 
-/// CAN1 as the channel loop uses it: the receive FIFOs and filters, the transmit queue.
+/// CAN1 as the channel loop uses it: the receive FIFOs and filters, the transmit path.
 pub struct CanPort {
     /// Kept, never used again: its drop would reset the controller under the halves.
     _controller: Can<'static>,
     rx: CanRx<'static>,
-    /// Numbers the frames handed to [`CAN_TX`], for their order within one identifier.
-    sequencer: Sequencer,
+    tx: CanTx<'static>,
+    transmitter: Transmitter<TRANSMIT_QUEUE>,
     /// A frame the wait took from a FIFO, for the next [`CanPort::receive`].
     frame: Option<CanFrame>,
 }
 
+/// embassy-stm32's mailboxes for the transmit path ([`crate::transmit_queue`]).
+impl Controller for CanTx<'_> {
+    /// embassy-stm32 0.6 refuses a frame while a pending one has the same identifier (FIFO
+    /// scheduling stays off outside the loop-back test), so up to three frames of different
+    /// identifiers are pending at once; when all three are pending with lower priority it
+    /// takes the lowest back out.
+    fn place(&mut self, frame: &CanFrame) -> Result<Placement, Refusal> {
+        let Some(frame) = to_bxcan(frame) else {
+            // Not a frame the driver can carry (a `CanFrame` never is one): dropped, logged.
+            defmt::warn!("CAN frame not sendable, dropped");
+            return Err(Refusal::Unsendable);
+        };
+        let status = self.try_write(&frame).map_err(|_| Refusal::Busy)?;
+        Ok(Placement {
+            mailbox: mailbox_of(status.mailbox()),
+            displaced: status.dequeued_frame().is_some(),
+        })
+    }
+
+    fn abort(&mut self, mailbox: Mailbox) -> bool {
+        CanTx::abort(self, embassy_mailbox(mailbox))
+    }
+
+    fn empty(&self) -> [bool; 3] {
+        super::empty_mailboxes()
+    }
+}
+
+fn mailbox_of(mailbox: EmbassyMailbox) -> Mailbox {
+    match mailbox {
+        EmbassyMailbox::Mailbox0 => Mailbox::ALL[0],
+        EmbassyMailbox::Mailbox1 => Mailbox::ALL[1],
+        EmbassyMailbox::Mailbox2 => Mailbox::ALL[2],
+    }
+}
+
+fn embassy_mailbox(mailbox: Mailbox) -> EmbassyMailbox {
+    match mailbox.index() {
+        0 => EmbassyMailbox::Mailbox0,
+        1 => EmbassyMailbox::Mailbox1,
+        _ => EmbassyMailbox::Mailbox2,
+    }
+}
+
 impl CanPort {
     /// Brings CAN1 up at `timing`: the CiA 304 9.5 loop-back test, then on the bus with no
-    /// filter bank enabled (the channel loop programs the node's before the core boots), and
-    /// the transmit task spawned.
+    /// filter bank enabled (the channel loop programs the node's before the core boots).
     pub async fn start(
-        spawner: Spawner,
+        _spawner: Spawner,
         can: Peri<'static, CAN1>,
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
@@ -80,20 +129,30 @@ impl CanPort {
         can.modify_filters().clear();
         can.enable().await;
         let (can_tx, can_rx) = can.split();
-        spawner.spawn(can_tx_task(can_tx).unwrap_or_else(|_| halt_safe("CAN task")));
         CanPort {
             _controller: can,
             rx: can_rx,
-            sequencer: Sequencer::new(),
+            tx: can_tx,
+            transmitter: Transmitter::new(),
             frame: None,
         }
     }
 
-    /// Queues `frame` for the transmit task.
+    /// Queues `frame` and fills the mailboxes from the queue.
     pub fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
-        CAN_TX
-            .try_send(self.sequencer.queue(*frame))
-            .map_err(|_| QueueFull)
+        self.transmitter.transmit(frame, &mut self.tx)
+    }
+
+    /// The oldest frame confirmed as sent since the last call (SC_REQ_18, SC_REQ_23).
+    #[cfg(feature = "simplecan")]
+    pub fn transmitted(&mut self) -> Option<CanFrame> {
+        self.transmitter.transmitted(&self.tx)
+    }
+
+    /// Withdraws the frames on `id` not yet sent (SC_REQ_18, SC_REQ_23).
+    #[cfg(feature = "simplecan")]
+    pub fn abort(&mut self, id: shared::CanId) {
+        self.transmitter.withdraw(id, &mut self.tx);
     }
 
     /// The next frame of the FIFOs, or their overrun (CAN_RFxR.FOVR: bxCAN keeps three
@@ -166,13 +225,50 @@ impl CanPort {
         // Dropping the proxy leaves filter initialisation mode.
     }
 
-    /// Waits for a received frame (kept for the next [`CanPort::receive`]).
+    /// Waits for a received frame (kept for the next [`CanPort::receive`]), or for a pending
+    /// mailbox to complete while frames wait for one (with SimpleCAN also while a sent frame
+    /// is still to be confirmed).
     pub async fn wait(&mut self) {
-        match self.rx.read().await {
+        self.transmitter.fill(&mut self.tx);
+        if cfg!(feature = "simplecan") && self.transmitter.has_sent(&self.tx) {
+            // A frame went out since the loop last asked: its confirmation is due now.
+            return;
+        }
+        let completion_awaited = self.transmitter.is_waiting()
+            || (cfg!(feature = "simplecan") && self.transmitter.is_pending());
+        let received = if completion_awaited {
+            match select(self.rx.read(), completion(&self.tx)).await {
+                Either::First(received) => received,
+                Either::Second(()) => return,
+            }
+        } else {
+            self.rx.read().await
+        };
+        match received {
             Ok(envelope) => self.frame = from_bxcan(&envelope.frame),
             Err(error) => defmt::warn!("CAN bus error {}", error),
         }
     }
+}
+
+/// Returns once a mailbox that is pending now has emptied (its frame went out, or was taken
+/// back): embassy-stm32's `flush` of each, which its transmit interrupt wakes. A mailbox
+/// empty at the call is left out (its flush would return at once).
+async fn completion(tx: &CanTx<'_>) {
+    let pending = super::empty_mailboxes().map(|empty| !empty);
+    let mut first = pin!(tx.flush(EmbassyMailbox::Mailbox0));
+    let mut second = pin!(tx.flush(EmbassyMailbox::Mailbox1));
+    let mut third = pin!(tx.flush(EmbassyMailbox::Mailbox2));
+    poll_fn(|cx| {
+        let flushes = [first.as_mut(), second.as_mut(), third.as_mut()];
+        for (flush, pending) in flushes.into_iter().zip(pending) {
+            if pending && flush.poll(cx).is_ready() {
+                return Poll::Ready(());
+            }
+        }
+        Poll::Pending
+    })
+    .await;
 }
 
 /// The bxCAN in silent loop-back mode, for [`dual_channel::can_loopback::run`].
@@ -244,36 +340,6 @@ fn raw_id(frame: &Frame) -> u16 {
     match frame.id() {
         embassy_stm32::can::Id::Standard(id) => id.as_raw(),
         embassy_stm32::can::Id::Extended(id) => id.as_raw() as u16,
-    }
-}
-
-/// Moves frames from [`CAN_TX`], lowest identifier first, into the transmit mailboxes. A
-/// frame the driver takes back out of a mailbox for a higher-priority one (all three pending,
-/// `TransmitStatus::dequeued_frame`) goes back into the queue with its own number, so still
-/// ahead of later frames of its identifier; the driver handed it back, where it used to be
-/// dropped. When the runtime filled the queue while this task waited for a mailbox, it is
-/// lost as a frame the queue refuses is (a consumer's SRVT or SCT, and channel A's transmit
-/// check, catch a lost SRDO frame), and logged.
-#[embassy_executor::task]
-async fn can_tx_task(mut tx: CanTx<'static>) {
-    let mut mailboxes = crate::bxcan_adapter::Mailboxes::default();
-    loop {
-        let queued = CAN_TX.receive().await;
-        let Some(frame) = to_bxcan(&queued.frame) else {
-            continue;
-        };
-        let status = tx.write(&frame).await;
-        let mailbox = match status.mailbox() {
-            embassy_stm32::can::Mailbox::Mailbox0 => bxcan::Mailbox::Mailbox0,
-            embassy_stm32::can::Mailbox::Mailbox1 => bxcan::Mailbox::Mailbox1,
-            embassy_stm32::can::Mailbox::Mailbox2 => bxcan::Mailbox::Mailbox2,
-        };
-        let previous = mailboxes.placed(mailbox, queued);
-        if let (Some(_), Some(displaced)) = (status.dequeued_frame(), previous) {
-            if CAN_TX.try_send(displaced).is_err() {
-                defmt::warn!("CAN transmit queue full: a frame taken out of a mailbox is lost");
-            }
-        }
     }
 }
 
