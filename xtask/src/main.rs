@@ -430,9 +430,12 @@ fn test(root: &Path) -> Result<()> {
         .cargo(root)
         .args(["build", "--release", "-p", "shared", "--features", "defmt"])
         .finish())?;
-    step("clippy (firmware crates for thumbv7em-none-eabihf, both board layers)");
+    step(
+        "clippy (firmware crates for thumbv7em-none-eabihf, both board layers, with and without SimpleCAN)",
+    );
     for layer in [
         images::Layer::Hw,
+        images::Layer::HwSimpleCan,
         images::Layer::Qemu,
         images::Layer::QemuSimpleCan,
     ] {
