@@ -10,7 +10,13 @@
 //!    tool's server session: `tests/src/bin/socketcand_sim.rs`), then
 //! 3. python-canopen on the emulated network (four QEMU instances, as `cargo xtask run`
 //!    starts and configures them); both times it loads the node's EDS (`eds/safety-node.eds`) with
-//!    `canopen.import_od`, reads node 33's identity and whole SRDO configuration and agrees
+//!    `canopen.import_od`, first sweeps every entry of it on node 33 in Pre-operational
+//!    (`xtask/interop/python_canopen_sweep.py`: each readable entry uploads as many bytes as
+//!    its type has, read-only entries refuse a download with 0601 0002h and write-only ones an
+//!    upload with 0601 0001h, writable 2- and 4-byte entries refuse a wrong length with a
+//!    length abort, the sub-index past each record's last with 0609 0011h, an object the EDS
+//!    does not list with 0602 0000h, and 13FEh reads A5h before and after), starts it again,
+//!    then reads node 33's identity and whole SRDO configuration and agrees
 //!    with the tool's reading; its write to a safety object in Operational is aborted with
 //!    0800 0022h (EN 50325-5 8.2.2); in Pre-operational an SCT of 0 is aborted with
 //!    0609 0032h and a valid write is accepted and resets 0x13FE (EN 50325-5 6.4.1.6).
@@ -287,6 +293,14 @@ fn canopen_checks(
             .args([&NODE.to_string(), phase]);
         command
     };
+    sweep(python, &eds, host, port, NODE, part)?;
+    let heartbeat = 0x700 + u16::from(NODE);
+    let operational = network::receive_until(tool, Duration::from_secs(5), |frame| {
+        frame.id().raw() == heartbeat && frame.data() == [0x05]
+    })?;
+    if !operational {
+        bail!("node {NODE} did not announce Operational within 5 s of the sweep's NMT start");
+    }
     let theirs = script_json(&mut script("operational"))?;
     let ours = tool_reading(tool, NODE)?;
     for key in ["identity", "srdos", "configuration_valid"] {
@@ -313,7 +327,6 @@ fn canopen_checks(
     );
 
     tool.nmt(NmtCommand::EnterPreOperational, NODE)?;
-    let heartbeat = 0x700 + u16::from(NODE);
     let announced = network::receive_until(tool, Duration::from_secs(5), |frame| {
         frame.id().raw() == heartbeat && frame.data() == [0x7F]
     })?;
@@ -340,6 +353,43 @@ fn canopen_checks(
     }
     println!(
         "xtask: {part}: in Pre-operational an SCT of 0 is aborted with 0609 0032h; a valid write is accepted and 0x13FE reads 0 (python-canopen and the tool)"
+    );
+    Ok(())
+}
+
+/// python-canopen's sweep of every entry of `eds` on `node` (`xtask/interop/python_canopen_sweep.py`:
+/// sizes, access types and abort codes as the EDS and CiA 301 give them, 13FEh unchanged by
+/// the refused writes); fails on any deviation, naming each.
+fn sweep(python: &Path, eds: &Path, host: &str, port: &str, node: u8, part: &str) -> Result<()> {
+    let root = eds
+        .parent()
+        .and_then(Path::parent)
+        .context("the EDS's repository")?;
+    let result = script_json(
+        Command::new(python)
+            .arg(root.join("xtask/interop/python_canopen_sweep.py"))
+            .args([host, port])
+            .arg(eds)
+            .arg(node.to_string()),
+    )?;
+    let deviations: Vec<&str> = result["deviations"]
+        .as_array()
+        .context("the sweep's deviations")?
+        .iter()
+        .filter_map(serde_json::Value::as_str)
+        .collect();
+    if !deviations.is_empty() {
+        bail!(
+            "python-canopen's sweep of node {node} against {}: {} deviations:\n  {}",
+            eds.display(),
+            deviations.len(),
+            deviations.join("\n  ")
+        );
+    }
+    println!(
+        "xtask: {part}: python-canopen's sweep of node {node} against eds/safety-node.eds: {} entries, each answered as the EDS and CiA 301 say (sizes, read-only and write-only refusals, length aborts, missing sub-indices and objects); 13FEh {}h before and after",
+        result["checked"],
+        result["valid"].as_str().unwrap_or("?").to_uppercase()
     );
     Ok(())
 }
