@@ -59,7 +59,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if !self.link_up {
             return;
         }
-        let mut collect = Collect::new();
+        collect!(collect);
         self.node.on_transmitted(now, frame, &mut collect);
         self.after_core(now, &collect, io);
     }
@@ -79,7 +79,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if let Ok(id) = shared::CanId::new(on_bus.id)
             && let Ok(frame) = CanFrame::from_parts(id, on_bus.len, on_bus.data)
         {
-            let mut collect = Collect::new();
+            collect!(collect);
             self.node
                 .on_partner_transmitted(now, heard, &frame, &mut collect);
             self.after_core(now, &collect, io);
@@ -200,7 +200,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             self.simplecan_fault(SimpleCanFault::Forward(fault), io);
             return true;
         }
-        let mut collect = Collect::new();
+        collect!(collect);
         self.node.handle_frame(now, frame, &mut collect);
         self.after_core(now, &collect, io);
         self.simplecan_verdict(now, raw, layer.accepted, io);
