@@ -372,6 +372,12 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// Runs the SimpleCAN checks' time-outs at `now`; returns their next deadline.
     pub(super) fn simplecan_poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
         let checks: &Checks = &self.simplecan;
+        if checks.forward.is_idle() && checks.transmit.is_idle() && checks.verdicts.is_idle() {
+            // Nothing waits for a copy, a packet or a verdict: no time-out to run, no
+            // deadline (what the checks below find then, without looking at each queue; on
+            // a node without SimpleCAN traffic, every poll).
+            return Instant::NEVER;
+        }
         let fault = checks
             .forward
             .poll(now)
