@@ -1002,7 +1002,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             }
         }
         #[cfg(feature = "simplecan")]
-        self.simplecan_aborts(&collect.aborts, io);
+        self.simplecan_aborts(collect.aborts, io);
         if collect.overflow {
             self.latch(ChannelFault::CoreOutputFull, io);
         }
