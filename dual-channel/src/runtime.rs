@@ -395,7 +395,7 @@ pub trait Io {
 }
 
 /// Collects what the core hands out during one call, into lists on the caller's stack
-/// (declared by [`collect!`]). The lists are separate locals, not fields of one value built
+/// (declared by `collect!`). The lists are separate locals, not fields of one value built
 /// at once: built as one value, the empty lists were zeroed whole (a `memset`) at every core
 /// call, 2 % of the full-network simulation's instructions (callgrind).
 struct Collect<'a> {
