@@ -1,6 +1,6 @@
-//! Reassembling COBS-encoded, zero-delimited frames from a byte stream: what the inter-channel
-//! link (`dual-channel`) and the emulation's CAN-over-serial line (`emulation-wire`) share, in a
-//! crate of its own so that neither depends on the other.
+//! COBS-encoded, zero-delimited frames: encoding one, and reassembling them from a byte
+//! stream. What the inter-channel link (`dual-channel`) and the emulation's CAN-over-serial
+//! line (`emulation-wire`) share, in a crate of its own so that neither depends on the other.
 
 #![no_std]
 #![forbid(unsafe_code)]
@@ -84,6 +84,46 @@ impl<const N: usize> Reassembler<N> {
     }
 }
 
+/// The encoded frame would not fit the caller's buffer (a buffer of
+/// `cobs::max_encoding_length(source.len()) + 1` bytes always holds it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BufferFull;
+
+/// Appends the COBS encoding of `source` and its 00h delimiter to `out`, a block at a time
+/// (a code byte, then a copy of the data bytes it covers), straight into the caller's buffer:
+/// no intermediate buffer to zero and copy. The bytes are those of `cobs::try_encode` of the
+/// `cobs` crate followed by the delimiter (a test compares them on any input): each block is
+/// a code byte `c` and the `c − 1` bytes before the next 00h of `source`, at most 254 of them
+/// (`c` = FFh: a full block, no 00h after it); a full block that ends `source` has no empty
+/// block after it. On [`BufferFull`], `out` holds what fitted, no frame: the caller drops it.
+pub fn encode_into<const N: usize>(
+    source: &[u8],
+    out: &mut heapless::Vec<u8, N>,
+) -> Result<(), BufferFull> {
+    /// The most data bytes one code byte covers.
+    const FULL: usize = 254;
+    let mut rest = source;
+    loop {
+        let window = rest.get(..FULL).unwrap_or(rest);
+        let zero = window.iter().position(|&byte| byte == 0);
+        let data = zero.unwrap_or(window.len());
+        // `data` <= 254, so the code byte `data + 1` fits an octet.
+        out.push(data as u8 + 1).map_err(|_| BufferFull)?;
+        out.extend_from_slice(rest.get(..data).unwrap_or_default())
+            .map_err(|_| BufferFull)?;
+        match zero {
+            // The 00h is the code byte's own: the next block starts after it (an empty
+            // block when `source` ends with 00h).
+            Some(at) => rest = rest.get(at + 1..).unwrap_or_default(),
+            None if data == FULL && rest.len() > FULL => {
+                rest = rest.get(FULL..).unwrap_or_default()
+            }
+            None => break,
+        }
+    }
+    out.push(0).map_err(|_| BufferFull)
+}
+
 /// Decodes one COBS frame without its delimiter (`source` holds no 00h: the reassembler
 /// keeps none) into `out`; its length, or `None` when it does not decode. Each code byte `c`
 /// is followed by `c − 1` data bytes, and stands for a 00h after them unless it is FFh or the
@@ -138,6 +178,54 @@ mod tests {
             let expected = cobs::decode(&encoded[..len], &mut small).ok().map(|r| r.frame_size());
             proptest::prop_assert_eq!(decode(&encoded[..len], &mut small), expected);
         }
+    }
+
+    proptest::proptest! {
+        /// `encode_into` gives the bytes of the `cobs` crate's encoder and the delimiter, on
+        /// any payload (00h runs and blocks of 254 and more non-zero bytes included), and
+        /// reports a buffer too small for them.
+        #[test]
+        fn encode_into_gives_the_cobs_crate_encoding_and_the_delimiter(
+            payload in proptest::collection::vec(
+                proptest::prop_oneof![proptest::num::u8::ANY, 1u8..=255, 1u8..=255, 1u8..=255],
+                0..800,
+            ),
+        ) {
+            let mut expected = [0u8; 820];
+            let len = cobs::try_encode(&payload, &mut expected).unwrap();
+            let mut out = heapless::Vec::<u8, 820>::new();
+            proptest::prop_assert_eq!(encode_into(&payload, &mut out), Ok(()));
+            proptest::prop_assert_eq!(&out[..len], &expected[..len]);
+            proptest::prop_assert_eq!(out.len(), len + 1);
+            proptest::prop_assert_eq!(out[len], 0);
+            let mut short = heapless::Vec::<u8, 820>::new();
+            let _ = short.extend_from_slice(&[0; 820][..820 - len]);
+            proptest::prop_assert_eq!(encode_into(&payload, &mut short), Err(BufferFull));
+        }
+    }
+
+    /// The edges of the block rule, spelled out: empty, 00h alone, a full block ending the
+    /// payload (no empty block after it) and one followed by more bytes.
+    #[test]
+    fn encode_into_handles_empty_and_full_blocks() {
+        let encoded = |payload: &[u8]| {
+            let mut out = heapless::Vec::<u8, 600>::new();
+            encode_into(payload, &mut out).unwrap();
+            out.to_vec()
+        };
+        assert_eq!(encoded(&[]), [1, 0]);
+        assert_eq!(encoded(&[0]), [1, 1, 0]);
+        assert_eq!(encoded(&[5, 0, 6]), [2, 5, 2, 6, 0]);
+        let full = [7u8; 254];
+        let mut expected = std::vec![0xFF];
+        expected.extend_from_slice(&full);
+        expected.push(0);
+        assert_eq!(encoded(&full), expected);
+        let mut longer = full.to_vec();
+        longer.push(8);
+        expected.pop();
+        expected.extend_from_slice(&[2, 8, 0]);
+        assert_eq!(encoded(&longer), expected);
     }
 
     /// Every way of cutting a stream into slices gives what pushing it byte by byte gives:

@@ -206,6 +206,12 @@ impl<const N: usize, S: Stream> VerdictCheck<N, S> {
         }
     }
 
+    /// `true` when no verdict waits for the other channel's: [`poll`](Self::poll) finds no
+    /// fault and [`deadline`](Self::deadline) is [`Instant::NEVER`].
+    pub fn is_idle(&self) -> bool {
+        self.waiting == 0
+    }
+
     /// [`CrossFault::Unconfirmed`] for a verdict older than the timeout (at the deadline itself).
     pub fn poll(&self, now: Instant) -> Result<(), CrossFault<S>> {
         if self.waiting == 0 {
@@ -431,6 +437,7 @@ mod tests {
                     .map(|slot| slot.local.len() + slot.remote.len())
                     .sum();
                 proptest::prop_assert_eq!(check.waiting, held);
+                proptest::prop_assert_eq!(check.is_idle(), held == 0);
                 let scanned = check
                     .slots
                     .iter()

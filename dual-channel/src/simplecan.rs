@@ -185,6 +185,12 @@ impl ForwardCheck {
         Ok(())
     }
 
+    /// `true` when no copy waits for its other one: [`poll`](Self::poll) finds no fault and
+    /// [`deadline`](Self::deadline) is `None`.
+    pub fn is_idle(&self) -> bool {
+        self.heard.is_empty() && self.forwarded.is_empty()
+    }
+
     /// When [`poll`](Self::poll) must run next, if a copy waits.
     pub fn deadline(&self) -> Option<Instant> {
         let heard = self.heard.front().map(|(_, at)| *at);

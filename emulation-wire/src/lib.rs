@@ -357,17 +357,12 @@ pub fn encode_wire(message: &Wire) -> heapless::Vec<u8, MAX_WIRE> {
     };
     let crc = CRC.checksum(&raw[..end]);
     raw[end..end + 2].copy_from_slice(&crc.to_le_bytes());
-    let mut wire = [0u8; MAX_WIRE];
     let mut out = heapless::Vec::new();
-    // `wire` holds the longest encoding of `MAX_RAW` bytes, so this cannot fail (were it to,
-    // nothing would be sent, and the receivers' timers would act); the checked form keeps
-    // `cobs::encode`'s `unwrap` (and its `Debug` formatting) out of the images.
-    let Ok(len) = cobs::try_encode(&raw[..end + 2], &mut wire) else {
-        return out;
-    };
-    // Cannot fail: `len` + 1 <= MAX_WIRE.
-    let _ = out.extend_from_slice(&wire[..len]);
-    let _ = out.push(0);
+    // `MAX_WIRE` holds the longest encoding of `MAX_RAW` bytes and the delimiter, so this
+    // cannot fail (were it to, nothing would be sent, and the receivers' timers would act).
+    if cobs_frames::encode_into(&raw[..end + 2], &mut out).is_err() {
+        out.clear();
+    }
     out
 }
 

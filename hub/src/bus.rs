@@ -66,6 +66,74 @@ pub fn frame_bits(frame: &CanFrame) -> u32 {
     end as u32 + stuffed + 3 + 7 + 3
 }
 
+/// Entries of a [`FrameBitsMemo`] (a power of two).
+const MEMO_ENTRIES: usize = 4096;
+
+/// [`frame_bits`] remembered per frame: the simulations put the same frames on the bus again
+/// and again (heartbeats, SRDO pairs whose data changes only with the inputs), and a frame's
+/// bit count (its CRC and stuff bits) costs a walk over up to 98 bits. Direct-mapped: a
+/// frame's entry is chosen by a hash of its identifier, data length code, RTR bit and data
+/// bytes, and holds the last frame that fell on it with its count, so a hit is a comparison
+/// and a miss one [`frame_bits`]. The key is the whole frame, so the count returned is
+/// always [`frame_bits`] of the frame asked about (a test compares them over many frames).
+#[derive(Clone)]
+pub struct FrameBitsMemo {
+    /// Per entry: the frame's [`header`](FrameBitsMemo::header) (0: empty; a header is never
+    /// 0), its eight data bytes (little-endian) and its bit count.
+    entries: Box<[(u32, u64, u32)]>,
+}
+
+impl FrameBitsMemo {
+    /// An empty memo.
+    pub fn new() -> Self {
+        FrameBitsMemo {
+            entries: vec![(0, 0, 0); MEMO_ENTRIES].into_boxed_slice(),
+        }
+    }
+
+    /// Identifier, RTR bit and data length code in one number, with a bit set so that no
+    /// frame's header is 0, an empty entry's.
+    fn header(frame: &CanFrame) -> u32 {
+        u32::from(frame.id().raw())
+            | u32::from(frame.is_remote()) << 11
+            | u32::from(frame.dlc()) << 12
+            | 1 << 16
+    }
+
+    /// [`frame_bits`] of `frame`.
+    pub fn bits(&mut self, frame: &CanFrame) -> u32 {
+        let header = Self::header(frame);
+        let data = u64::from_le_bytes(*frame.raw_data());
+        // Fibonacci hashing: the top bits of the product pick the entry.
+        let hash = (data ^ u64::from(header).rotate_left(40)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let index = (hash >> (64 - MEMO_ENTRIES.trailing_zeros())) as usize;
+        let Some(entry) = self.entries.get_mut(index) else {
+            return frame_bits(frame);
+        };
+        if entry.0 == header && entry.1 == data {
+            return entry.2;
+        }
+        let bits = frame_bits(frame);
+        *entry = (header, data, bits);
+        bits
+    }
+}
+
+impl Default for FrameBitsMemo {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl std::fmt::Debug for FrameBitsMemo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let used = self.entries.iter().filter(|entry| entry.0 != 0).count();
+        f.debug_struct("FrameBitsMemo")
+            .field("used", &used)
+            .finish()
+    }
+}
+
 /// The CAN CRC-15 (polynomial 0x4599) over a bit stream (ISO 11898-1 10.4.2.6).
 fn crc15(bits: &[bool]) -> u16 {
     let mut crc: u16 = 0;
@@ -242,6 +310,8 @@ pub struct Bus {
     injections: Vec<Injection>,
     /// A frame held by [`Fault::Reorder`] until the next one has been delivered.
     held: Option<Delivery>,
+    /// Each frame's bit count, remembered.
+    bits: FrameBitsMemo,
     /// Frames sent, for statistics: (sent, bits on the bus).
     pub frames_sent: u64,
     /// Bits the frames occupied.
@@ -260,6 +330,7 @@ impl Bus {
             free_at: Instant::ZERO,
             injections: Vec::new(),
             held: None,
+            bits: FrameBitsMemo::new(),
             frames_sent: 0,
             bits_sent: 0,
         }
@@ -433,7 +504,7 @@ impl Bus {
                 Fault::Reorder => reorder = true,
             }
         }
-        let bits = frame_bits(&frame);
+        let bits = self.bits.bits(&frame);
         let duration = bits_time(bits, self.bit_rate);
         self.free_at = now + duration;
         self.frames_sent += 1;
@@ -529,6 +600,43 @@ mod tests {
             frame_time(&srdo, 500_000).as_micros(),
             u64::from(frame_bits(&srdo)) * 2
         );
+    }
+
+    /// The memo gives [`frame_bits`] of every frame asked about: over many frames (data and
+    /// remote, every length, random data), far more than it has entries, each asked about
+    /// several times, so that frames evict one another and come back; few identifiers, so
+    /// that frames differing in their data alone meet in one entry.
+    #[test]
+    fn the_memo_gives_the_bit_count_of_every_frame() {
+        let mut memo = FrameBitsMemo::new();
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            // xorshift64: a fixed, reproducible sequence.
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let frames: Vec<CanFrame> = (0..3 * MEMO_ENTRIES)
+            .map(|_| {
+                let random = next();
+                let id = CanId::new([0x000, 0x101, 0x555, 0x7FF][(random & 3) as usize]).unwrap();
+                let dlc = (random >> 11) as u8 % 9;
+                // A few values only in the data, so that frames differ in a byte or two.
+                let data = (next() & 0x0101_0101_0303_0F0F).to_le_bytes();
+                if random >> 20 & 7 == 0 {
+                    CanFrame::remote(id, dlc).unwrap()
+                } else {
+                    CanFrame::from_parts(id, dlc, data).unwrap()
+                }
+            })
+            .collect();
+        for round in 0..4 {
+            for at in 0..frames.len() {
+                let frame = &frames[(at * (2 * round + 1)) % frames.len()];
+                assert_eq!(memo.bits(frame), frame_bits(frame), "{frame:?}");
+            }
+        }
     }
 
     #[test]

@@ -10,9 +10,9 @@
 //! COBS( sequence: u16 LE | postcard(Message) | CRC-32 LE over the preceding bytes ) 0x00
 //! ```
 //!
-//! COBS (the `cobs` crate) makes 0x00 a reliable frame delimiter, so a receiver that starts
-//! mid-stream or loses bytes resynchronises at the next delimiter. postcard serialises the
-//! message; the CRC-32 (ISO-HDLC, the `crc` crate) detects corruption; the sequence number
+//! COBS (`cobs_frames`, the encoding of the `cobs` crate) makes 0x00 a reliable frame
+//! delimiter, so a receiver that starts mid-stream or loses bytes resynchronises at the next
+//! delimiter. postcard serialises the message; the CRC-32 (ISO-HDLC, the `crc` crate) detects corruption; the sequence number
 //! detects lost, repeated and reordered messages.
 //!
 //! # Faults
@@ -207,15 +207,10 @@ impl Sender {
         let end = 2 + body;
         let crc = CRC.checksum(&raw[..end]);
         raw[end..end + 4].copy_from_slice(&crc.to_le_bytes());
-        let mut wire = [0u8; MAX_WIRE];
-        // `wire` holds the longest encoding of `MAX_RAW` bytes, so this cannot fail; the
-        // checked form keeps `cobs::encode`'s `unwrap` (and its `Debug` formatting) out of the
-        // images.
-        let len = cobs::try_encode(&raw[..end + 4], &mut wire).map_err(|_| EncodeError)?;
+        // `MAX_WIRE` holds the longest encoding of `MAX_RAW` bytes and the delimiter, so
+        // this cannot fail.
         let mut out = heapless::Vec::new();
-        out.extend_from_slice(&wire[..len])
-            .map_err(|_| EncodeError)?;
-        out.push(0).map_err(|_| EncodeError)?;
+        cobs_frames::encode_into(&raw[..end + 4], &mut out).map_err(|_| EncodeError)?;
         self.sequence = self.sequence.wrapping_add(1);
         Ok(out)
     }

@@ -59,7 +59,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if !self.link_up {
             return;
         }
-        let mut collect = Collect::new();
+        collect!(collect);
         self.node.on_transmitted(now, frame, &mut collect);
         self.after_core(now, &collect, io);
     }
@@ -79,7 +79,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if let Ok(id) = shared::CanId::new(on_bus.id)
             && let Ok(frame) = CanFrame::from_parts(id, on_bus.len, on_bus.data)
         {
-            let mut collect = Collect::new();
+            collect!(collect);
             self.node
                 .on_partner_transmitted(now, heard, &frame, &mut collect);
             self.after_core(now, &collect, io);
@@ -200,7 +200,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             self.simplecan_fault(SimpleCanFault::Forward(fault), io);
             return true;
         }
-        let mut collect = Collect::new();
+        collect!(collect);
         self.node.handle_frame(now, frame, &mut collect);
         self.after_core(now, &collect, io);
         self.simplecan_verdict(now, raw, layer.accepted, io);
@@ -372,6 +372,12 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// Runs the SimpleCAN checks' time-outs at `now`; returns their next deadline.
     pub(super) fn simplecan_poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
         let checks: &Checks = &self.simplecan;
+        if checks.forward.is_idle() && checks.transmit.is_idle() && checks.verdicts.is_idle() {
+            // Nothing waits for a copy, a packet or a verdict: no time-out to run, no
+            // deadline (what the checks below find then, without looking at each queue; on
+            // a node without SimpleCAN traffic, every poll).
+            return Instant::NEVER;
+        }
         let fault = checks
             .forward
             .poll(now)

@@ -19,12 +19,17 @@ fn at(micros: u64) -> Instant {
 #[test]
 fn sc_req_24_a_frame_heard_and_forwarded_alike_is_handed_on_in_either_order() {
     let mut check = ForwardCheck::new(BOUND);
+    assert!(check.is_idle());
     assert_eq!(check.heard(at(0), VECTOR), Ok(None));
     assert_eq!(check.deadline(), Some(at(2_000)));
+    assert!(!check.is_idle(), "a copy waits");
     assert_eq!(check.forwarded(at(300), VECTOR), Ok(Some(VECTOR)));
+    assert!(check.is_idle());
     assert_eq!(check.forwarded(at(400), VECTOR), Ok(None));
+    assert!(!check.is_idle(), "a copy waits");
     assert_eq!(check.heard(at(500), VECTOR), Ok(Some(VECTOR)));
     assert_eq!(check.deadline(), None);
+    assert!(check.is_idle());
     assert_eq!(check.poll(at(10_000)), Ok(()));
 }
 

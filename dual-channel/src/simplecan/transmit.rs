@@ -410,6 +410,13 @@ impl TransmitCheck {
             .map_err(|_| mismatch)
     }
 
+    /// `true` when no packet waits (B's for A's, A's heard early, a dispute):
+    /// [`poll`](Self::poll) finds no fault and [`deadline`](Self::deadline) is
+    /// [`Instant::NEVER`].
+    pub fn is_idle(&self) -> bool {
+        self.waiting.is_empty() && self.early.is_empty() && self.disputed.is_empty()
+    }
+
     /// The fault of a packet whose deadline has passed at `now`, if any: B's not on the bus
     /// in time, A's heard ahead of a packet B did not compute in time, or A's with a value
     /// B's next sample did not take in time.
@@ -579,13 +586,16 @@ mod tests {
     #[test]
     fn sc_req_10_a_data_packet_equal_to_channel_b_s_within_its_slot_is_confirmed() {
         let mut check = TransmitCheck::new(WINDOW);
+        assert!(check.is_idle());
         check.computed(at(1_000), DATA).unwrap();
         assert_eq!(check.deadline(), at(2_000));
+        assert!(!check.is_idle(), "B's packet waits");
         assert_eq!(
             check.heard(at(1_500), DATA, Decoded::fields(&DATA), Duration::ZERO),
             Ok(Some(on_bus(DATA, 1_500)))
         );
         assert_eq!(check.deadline(), Instant::NEVER);
+        assert!(check.is_idle());
         assert_eq!(check.poll(at(10_000)), Ok(()));
     }
 

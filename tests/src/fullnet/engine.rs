@@ -39,6 +39,47 @@ use std::collections::{BinaryHeap, VecDeque};
 /// The number of CAN identifiers (11 bits).
 const IDENTIFIERS: usize = 2048;
 
+/// Bits of an [`EventHeap`] key below the instant: the number's.
+const NUMBER_BITS: u32 = 16;
+
+/// Events (an instant and a number: a channel or a sender), earliest first and, at one
+/// instant, the lowest number first: the order of the tuple `(instant, number)`. Each entry
+/// is one `u64`, the instant's microseconds above the number's 16 bits, so that the heap
+/// compares one integer, not a tuple (with tuples, the full network ran 3.7 % more
+/// instructions: callgrind, `fullnet network --minutes 0.05`). Numbers are below 2¹⁶ (channels 0..254, senders 0..16); instants below
+/// 2⁴⁸ µs (8.9 years of simulated time), and a later one is kept as that last instant.
+#[derive(Debug, Default)]
+struct EventHeap(BinaryHeap<Reverse<u64>>);
+
+impl EventHeap {
+    /// The key of `number` at `at`: ordered as `(at, number)` is (see [`EventHeap`]).
+    fn key(at: Instant, number: u32) -> u64 {
+        debug_assert!(number < 1 << NUMBER_BITS, "a channel or sender number");
+        let micros = at.as_micros().min((1 << (64 - NUMBER_BITS)) - 1);
+        micros << NUMBER_BITS | u64::from(number & ((1 << NUMBER_BITS) - 1))
+    }
+
+    /// The instant and the number of `key`.
+    fn unpack(key: u64) -> (Instant, u32) {
+        // The low 16 bits: the number, which fits a `u32`.
+        let number = (key & ((1 << NUMBER_BITS) - 1)) as u32;
+        (Instant::from_micros(key >> NUMBER_BITS), number)
+    }
+
+    fn push(&mut self, at: Instant, number: u32) {
+        self.0.push(Reverse(Self::key(at, number)));
+    }
+
+    /// The earliest entry.
+    fn peek(&self) -> Option<(Instant, u32)> {
+        self.0.peek().map(|&Reverse(key)| Self::unpack(key))
+    }
+
+    fn pop(&mut self) {
+        self.0.pop();
+    }
+}
+
 /// What the simulation tells whoever watches it. Every method has a default that does
 /// nothing, so an observer implements only what it measures.
 pub trait Observer {
@@ -259,11 +300,11 @@ pub struct Engine<O: Observer> {
     in_flight: Vec<Delivery>,
     /// Channel deadlines as (instant, channel); an entry that no longer equals the channel's
     /// deadline is stale and skipped.
-    timers: BinaryHeap<Reverse<(Instant, u32)>>,
+    timers: EventHeap,
     /// Link frame delimiters arriving: (instant, receiving channel).
-    link_ends: BinaryHeap<Reverse<(Instant, u32)>>,
+    link_ends: EventHeap,
     senders: Vec<Sender>,
-    sender_due: BinaryHeap<Reverse<(Instant, u32)>>,
+    sender_due: EventHeap,
     /// Operational channels per identifier, in channel order.
     subscribers: Vec<Vec<u32>>,
     /// Channels not in Operational (they get every frame), in channel order.
@@ -352,9 +393,9 @@ impl<O: Observer> Engine<O> {
             })
             .collect();
         let channels = 2 * nodes.len() as u32;
-        let mut timers = BinaryHeap::new();
+        let mut timers = EventHeap::default();
         for c in 0..channels {
-            timers.push(Reverse((Instant::ZERO, c)));
+            timers.push(Instant::ZERO, c);
         }
         Engine {
             now: Instant::ZERO,
@@ -372,9 +413,9 @@ impl<O: Observer> Engine<O> {
             trace: None,
             in_flight: Vec::new(),
             timers,
-            link_ends: BinaryHeap::new(),
+            link_ends: EventHeap::default(),
             senders: Vec::new(),
-            sender_due: BinaryHeap::new(),
+            sender_due: EventHeap::default(),
             subscribers: vec![Vec::new(); IDENTIFIERS],
             open: (0..channels).collect(),
             scratch: Some(Box::default()),
@@ -420,7 +461,7 @@ impl<O: Observer> Engine<O> {
             next: periodic.first,
             count: 0,
         });
-        self.sender_due.push(Reverse((periodic.first, index)));
+        self.sender_due.push(periodic.first, index);
         participant
     }
 
@@ -448,7 +489,7 @@ impl<O: Observer> Engine<O> {
     }
 
     fn prune_timers(&mut self) {
-        while let Some(&Reverse((at, c))) = self.timers.peek() {
+        while let Some((at, c)) = self.timers.peek() {
             let (node, side) = split(c);
             if self.nodes[node].deadlines[side as usize] == at {
                 return;
@@ -464,7 +505,7 @@ impl<O: Observer> Engine<O> {
             next = next.min(delivery.at);
         }
         for heap in [&self.timers, &self.link_ends, &self.sender_due] {
-            if let Some(&Reverse((at, _))) = heap.peek() {
+            if let Some((at, _)) = heap.peek() {
                 next = next.min(at);
             }
         }
@@ -476,7 +517,7 @@ impl<O: Observer> Engine<O> {
 
     /// Takes every channel whose deadline is due at `now` off the timer heap into `due`.
     fn take_due_timers(&mut self, now: Instant) {
-        while let Some(&Reverse((at, c))) = self.timers.peek() {
+        while let Some((at, c)) = self.timers.peek() {
             if at > now {
                 break;
             }
@@ -510,7 +551,7 @@ impl<O: Observer> Engine<O> {
         // Link messages ending now.
         let mut due = std::mem::take(&mut self.due);
         due.clear();
-        while let Some(&Reverse((at, c))) = self.link_ends.peek() {
+        while let Some((at, c)) = self.link_ends.peek() {
             if at > now {
                 break;
             }
@@ -531,7 +572,7 @@ impl<O: Observer> Engine<O> {
         due.clear();
         self.due = due;
         // Background senders.
-        while let Some(&Reverse((at, index))) = self.sender_due.peek() {
+        while let Some((at, index)) = self.sender_due.peek() {
             if at > now {
                 break;
             }
@@ -545,7 +586,7 @@ impl<O: Observer> Engine<O> {
             sender.count += 1;
             sender.next = sender.next + sender.periodic.period;
             let (participant, next) = (sender.participant, sender.next);
-            self.sender_due.push(Reverse((next, index)));
+            self.sender_due.push(next, index);
             self.bus.send(participant, frame);
         }
         if self.bus.next_start(now) == Some(now) {
@@ -593,7 +634,7 @@ impl<O: Observer> Engine<O> {
                 let (node, side) = split(c);
                 let deadline = self.nodes[node].deadlines[side as usize];
                 if deadline <= now {
-                    self.timers.push(Reverse((deadline, c)));
+                    self.timers.push(deadline, c);
                 }
                 continue;
             }
@@ -636,11 +677,11 @@ impl<O: Observer> Engine<O> {
         let c = out.channel;
         let (index, side) = split(c);
         if let Some(deadline) = out.timer {
-            self.timers.push(Reverse((deadline, c)));
+            self.timers.push(deadline, c);
         }
         let other = channel(index, side) ^ 1;
         for &at in &out.link_ends {
-            self.link_ends.push(Reverse((at, other)));
+            self.link_ends.push(at, other);
         }
         let participant = c as usize + 1;
         for &frame in &out.frames {
@@ -958,5 +999,38 @@ mod tests {
                 .collect();
             assert_eq!(delimiters, ends);
         }
+    }
+
+    /// The heap hands out its entries in the order of the tuples `(instant, number)`, as the
+    /// heap of tuples it replaces did: earliest first, the lower number first at one instant
+    /// (equal instants are the common case: every channel's link heartbeat falls on one
+    /// tick), each entry unpacked to what was pushed.
+    #[test]
+    fn the_event_heap_orders_as_the_tuples_do() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut heap = EventHeap::default();
+        let mut tuples = BinaryHeap::new();
+        for _ in 0..5_000 {
+            // Few instants, so that many entries share one; some near the 2⁴⁸ µs limit.
+            let micros = match rng.random_range(0..4) {
+                0 => (1 << 48) - 1 - rng.random_range(0..3),
+                _ => rng.random_range(0..200) * 10_000,
+            };
+            let at = Instant::from_micros(micros);
+            let number = rng.random_range(0..300);
+            heap.push(at, number);
+            tuples.push(Reverse((at, number)));
+            if rng.random_range(0..3) == 0 {
+                let Reverse(expected) = tuples.pop().expect("pushed");
+                assert_eq!(heap.peek(), Some(expected));
+                heap.pop();
+            }
+        }
+        while let Some(Reverse(expected)) = tuples.pop() {
+            assert_eq!(heap.peek(), Some(expected));
+            heap.pop();
+        }
+        assert_eq!(heap.peek(), None);
     }
 }
