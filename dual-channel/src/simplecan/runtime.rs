@@ -12,7 +12,7 @@
 //!   The verdicts cross the link (`Message::SimpleCanVerdict`) and are compared as SRDO
 //!   verdicts are ([`VerdictCheck`](crate::crosscheck::VerdictCheck)).
 //! - **Outputs.** A consumed value moves its output towards 0 as soon as this channel
-//!   accepts it, and away from 0 only once both channels confirmed it ([`Checks`]).
+//!   accepts it, and away from 0 only once both channels confirmed it ([`Checks`](crate::simplecan::Checks)).
 //! - **Model A.** Channel A transmits the node's packets; channel B keeps its core's and
 //!   checks A's on the bus against them ([`TransmitCheck`](crate::simplecan::TransmitCheck));
 //!   a packet that agrees is confirmed to B's core as sent, as A's controller confirms A's.
