@@ -441,13 +441,20 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     );
     let config = (device.describe)(node_id);
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime
-    // (3,584 bytes) through this task's stack frame (`docs/footprint.md`).
-    let mut built =
-        Runtime::<_, _, N, crate::Protocol<N>>::new(config, parameters, role, now(), LINK_PERIOD);
+    // (3,584 bytes) through this task's stack frame; the parameters restored where it is
+    // kept, for the same reason (`docs/footprint.md`).
+    let mut built = Runtime::<_, _, N, crate::Protocol<N>>::around(
+        config,
+        parameters,
+        role,
+        now(),
+        LINK_PERIOD,
+    );
     let runtime = match &mut built {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };
+    runtime.restore_parameters();
     let mut channel = ChannelLoop::new(device.pins);
     let mut driver = HwDriver {
         can,

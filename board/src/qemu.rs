@@ -584,8 +584,9 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
     }
     driver.diagnostics.input(driver.input);
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime through
-    // this task's stack frame (`docs/footprint.md`).
-    let mut built = Runtime::<_, _, N, crate::Protocol<N>>::new(
+    // this task's stack frame; the parameters restored where it is kept, for the same reason
+    // (`docs/footprint.md`).
+    let mut built = Runtime::<_, _, N, crate::Protocol<N>>::around(
         (device.describe)(id),
         parameters,
         role,
@@ -596,6 +597,7 @@ pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, 
         defmt::error!("device description refused");
         exit(false);
     };
+    runtime.restore_parameters();
     let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
     let mut stack_mark = crate::stack::Sampled::new();

@@ -530,12 +530,10 @@ impl Checks {
     /// other channel's verdict, with Model A's time `bounds` ([`Bounds::STANDARD`] on a
     /// board).
     pub fn new(window: Duration, timeout: Duration, bounds: Bounds) -> Self {
-        let mut transmit = TransmitCheck::new(window);
-        transmit.set_bounds(bounds);
         Checks {
             forward: ForwardCheck::new(window),
             verdicts: VerdictCheck::new(timeout),
-            transmit,
+            transmit: TransmitCheck::with_bounds(window, bounds),
             outputs: [Output::default(); ENTRIES],
         }
     }

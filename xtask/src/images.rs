@@ -9,9 +9,10 @@ use std::process::Command;
 
 /// Flash budget per image, bytes.
 ///
-/// 64 KiB: channel B's hardware image measures 64,604 bytes and channel A's 64,560, a margin of
-/// 932 bytes (1.4 %) for the larger (2026-12-02; 64,744 and 64,476 before the channel loop
-/// became generic over the protocol, with other changes between the two measurements). The
+/// 64 KiB: channel B's hardware image measures 64,444 bytes and channel A's 64,364, a margin of
+/// 1,092 bytes (1.7 %) for the larger (2026-12-02, `cargo xtask footprint`, after the runtime
+/// was built where it is kept: 64,612 and 64,536 before; 64,744 and 64,476 before the channel
+/// loop became generic over the protocol, with other changes between the measurements). The
 /// SimpleCAN variant (`Layer::HwSimpleCan`) is over it, and over [`RAM_BUDGET`]
 /// (docs/footprint.md); `cargo xtask build` does not build it. It was 67 KiB (channel B 68,016 bytes) until the second
 /// footprint steps of `docs/footprint.md`: LLVM's inlining threshold raised from opt-level
@@ -51,9 +52,21 @@ pub const RAM_BUDGET: u64 = 21 * 1024;
 /// channel B's QEMU image run alone (start-up with the parameters restored, then the link
 /// time-out to the safe state): 13,676 bytes deepest before, 9,092 to 9,136 after (channel
 /// A 8,528), at least 3,152 bytes (26 %) below the reserve. The whole end-to-end run measured 15,436 to 15,608 bytes before, its
-/// deepest path on top of the same 10 KiB frame; `cargo xtask e2e` holds it to this reserve.
+/// deepest path on top of the same 10 KiB frame; `cargo xtask e2e` holds it to this reserve,
+/// and measured 5,476 bytes deepest (channel B, 4,828 on A) once the runtime was built where
+/// it is kept (`Runtime::around`, below).
+///
+/// The SimpleCAN QEMU images (`Layer::QemuSimpleCan`) are held to the same reserve by `cargo
+/// xtask e2e --protocol simplecan`: 8,704 to 8,848 bytes deepest in three runs (channel B;
+/// channel A 7,824 to 7,968), at least 3,440 bytes (28 %) below it (2026-12-02). They used
+/// 24,868 bytes until the safety data dictionary held the layer's capacity instead of 80
+/// entries (15,508 after that step alone) and the runtime was built in place: `Runtime::around`
+/// and `Device::prepare` build it into the board's `Result`, the parameters restored there
+/// afterwards (`Runtime::restore_parameters`), instead of `Runtime::new` returning it by value
+/// with the restore under its frame (`docs/footprint.md`, the SimpleCAN variants).
 /// The hardware layer runs the same channel code but its own drivers; its figure comes from
-/// its log once it runs on a board.
+/// its log once it runs on a board (a static estimate of the hardware images' deepest call
+/// chain, `docs/footprint.md`: 6,588 bytes for channel B's, 9,772 with SimpleCAN).
 pub const STACK_RESERVE: u64 = 12 * 1024;
 
 /// The chip, as probe-rs names it.

@@ -94,7 +94,8 @@ enum Task {
         seconds: u64,
     },
     /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared`, the images,
-    /// QEMU self-tests and the end-to-end tests on the emulated network.
+    /// QEMU self-tests and the end-to-end tests on the emulated network, CANopen Safety's and
+    /// SimpleCAN's.
     Test,
     /// The main job: the emulated safety network (two nodes, four QEMU instances, the bus
     /// hub), configured and started, shown live through the tool's monitor; single keys
@@ -484,6 +485,8 @@ fn test(root: &Path) -> Result<()> {
     }
     step("end-to-end tests on the emulated network, the bus-load case at its CI size");
     e2e::task(root, Some(e2e::CI_LOAD_SECONDS))?;
+    step("end-to-end tests on the emulated SimpleCAN network");
+    e2e::task_for(root, None, network::Protocol::Simplecan)?;
     step("scenarios on the emulated network (a small set)");
     let set: Vec<std::path::PathBuf> = scenario::CI_SET
         .iter()

@@ -233,6 +233,15 @@ impl TransmitCheck {
         }
     }
 
+    /// [`TransmitCheck::new`] with the time bounds `bounds` instead of the standard's (the
+    /// QEMU layer's tolerances), built where it is kept rather than built and then changed.
+    pub fn with_bounds(window: Duration, bounds: Bounds) -> Self {
+        TransmitCheck {
+            bounds,
+            ..Self::new(window)
+        }
+    }
+
     /// The time bounds the check applies from now on.
     pub fn set_bounds(&mut self, bounds: Bounds) {
         self.bounds = bounds;
@@ -860,7 +869,7 @@ mod tests {
         );
     }
 
-    /// Wider bounds (an image whose frames take longer to reach B, `set_bounds`): a data
+    /// Wider bounds (an image whose frames take longer to reach B, `with_bounds`): a data
     /// packet heard 30 ms after B computed it is missing with the standard's slot, confirmed
     /// with 60 ms; a sync heard 30 ms late likewise against SC_REQ_23's 2 ms.
     #[test]
@@ -879,8 +888,7 @@ mod tests {
                 check.poll(at(30_000)),
                 Err(TransmitFault::Missing { id: frame.id })
             );
-            let mut check = TransmitCheck::new(WINDOW);
-            check.set_bounds(wide);
+            let mut check = TransmitCheck::with_bounds(WINDOW, wide);
             check.computed(at(0), frame).unwrap();
             assert_eq!(check.deadline(), at(60_000));
             assert_eq!(check.poll(at(30_000)), Ok(()));

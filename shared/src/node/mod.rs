@@ -416,6 +416,21 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     /// `flash` (or the defaults). The first [`Device::poll`] sends the boot-up message and
     /// enters Pre-operational.
     pub fn with_protocol(config: NodeConfig, flash: F, protocol: P) -> Result<Self, NodeError> {
+        let mut device = Self::prepare(config, flash, protocol)?;
+        device.restore_parameters();
+        Ok(device)
+    }
+
+    /// The first step of [`Device::with_protocol`]: the device checked and built, in NMT
+    /// Initialising, with the protocol's defaults in force and nothing read from `flash`
+    /// yet; [`Device::restore_parameters`] is the second step.
+    ///
+    /// Two steps so that a caller that keeps a large device where it is built (a firmware
+    /// image's task state) restores it there through `&mut`, instead of taking it out of a
+    /// function that did both: every such move is a copy of the device on the stack
+    /// (`docs/footprint.md`). A device polled without the second step boots with the
+    /// defaults, which are not validated, so it stays out of Operational (EN 50325-5 8.3.1).
+    pub fn prepare(config: NodeConfig, flash: F, protocol: P) -> Result<Self, NodeError> {
         let image = ProcessImage::new(config.app_objects).map_err(NodeError::Table)?;
         if let Some(index) = config
             .app_objects
@@ -425,30 +440,39 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         {
             return Err(NodeError::ReservedIndex(index));
         }
-        let mut core = Core {
-            shell: Shell {
-                config,
-                state: NmtState::Initialising,
-                next_deadline: Instant::ZERO,
-                fault: None,
-                gfc_requested: false,
-                error_register: 0,
-                application_data: [0; 3],
-            },
-            protocol,
-            image,
-            heartbeat: Heartbeat::new(0, Instant::ZERO),
-            gfc_parameter: gfc::GFC_NOT_VALID,
-            deferred_event: None,
-            access: access::AccessControl::new(P::NO_SIGNATURES),
-            now: Instant::ZERO,
-            flash,
-        };
-        core.restore_parameters(Instant::ZERO);
         Ok(Device {
             sdo: SdoServer::new(config.sdo_timeout),
-            core,
+            core: Core {
+                shell: Shell {
+                    config,
+                    state: NmtState::Initialising,
+                    next_deadline: Instant::ZERO,
+                    fault: None,
+                    gfc_requested: false,
+                    error_register: 0,
+                    application_data: [0; 3],
+                },
+                protocol,
+                image,
+                heartbeat: Heartbeat::new(0, Instant::ZERO),
+                gfc_parameter: gfc::GFC_NOT_VALID,
+                deferred_event: None,
+                access: access::AccessControl::new(P::NO_SIGNATURES),
+                now: Instant::ZERO,
+                flash,
+            },
         })
+    }
+
+    /// The second step of [`Device::with_protocol`]: the stored parameters loaded into a
+    /// prepared device, in place (or the defaults when none are stored or they are
+    /// unusable); the same path as an NMT reset's. Only before the first [`Device::poll`]
+    /// (in NMT Initialising): later it does nothing, as the device's parameters change only
+    /// by SDO and NMT reset.
+    pub fn restore_parameters(&mut self) {
+        if self.core.shell.state == NmtState::Initialising {
+            self.core.restore_parameters(Instant::ZERO);
+        }
     }
 
     /// Handles one frame received at `now`: the protocol's own, or NMT, GFC or SDO.

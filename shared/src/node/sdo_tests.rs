@@ -257,6 +257,38 @@ fn en50325_5_8_2_2_safety_objects_are_read_only_in_operational_over_the_bus() {
     );
 }
 
+/// CiA 301 7.5.2.13: a device built in two steps ([`Device::prepare`], then
+/// [`Device::restore_parameters`] where it is kept) restores the stored configuration as
+/// [`Device::with_protocol`] does; prepared, it holds the defaults, and once it has booted
+/// the second step changes nothing.
+#[test]
+fn cia301_7_5_2_13_a_prepared_device_restores_the_stored_configuration_in_place() {
+    let (mut node, mut sink) = fresh(33);
+    configure_consumer(&mut node, &mut sink, 60);
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    let configured = node.safety_config().clone();
+    let flash = node.core.flash.clone();
+    let prepare = || {
+        let table = SrdoTable::new(&config(33)).unwrap();
+        BusNode::prepare(config(33), flash.clone(), table).unwrap()
+    };
+    let mut prepared = prepare();
+    assert_ne!(prepared.safety_config(), &configured, "nothing read yet");
+    prepared.restore_parameters();
+    assert_eq!(prepared.safety_config(), &configured);
+    let restored = BusNode::with_protocol(
+        config(33),
+        flash.clone(),
+        SrdoTable::new(&config(33)).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(restored.safety_config(), prepared.safety_config());
+    let mut booted = prepare();
+    booted.poll(T0, &mut sink);
+    booted.restore_parameters();
+    assert_ne!(booted.safety_config(), &configured, "restored after boot");
+}
+
 /// CiA 301 7.5.2.13: a stored configuration survives a reset and brings the node back to
 /// Operational with the same signatures.
 #[test]

@@ -222,7 +222,7 @@ impl Refusal {
 
 /// The configuration checked and turned into the blocks' values.
 struct Built<const E: usize> {
-    sdd: Sdd,
+    sdd: Sdd<E>,
     schedule: Schedule,
     streams: Vec<Stream, E>,
     /// The potential master's SC-ID (its lowest produced) and node hash.
@@ -275,7 +275,7 @@ pub struct SimpleCanCounters {
 
 /// The blocks in Operational.
 struct Running<const E: usize> {
-    sdd: Sdd,
+    sdd: Sdd<E>,
     schedule: Schedule,
     tracker: SyncTracker,
     master: Option<(Master, NodeHash)>,
@@ -437,7 +437,7 @@ impl<const E: usize> SimpleCan<E> {
                 sdd::SddError::DuplicateScId { sc_id } | sdd::SddError::Timeout { sc_id } => {
                     Some(sc_id)
                 }
-                sdd::SddError::TooManyEntries { .. } => None,
+                sdd::SddError::TooManyEntries { .. } | sdd::SddError::OverCapacity { .. } => None,
             };
             Refusal::inconsistent(entry_of(&entries, sc_id), AbortCode::ParameterIncompatible)
         })?;

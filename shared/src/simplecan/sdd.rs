@@ -5,6 +5,10 @@
 //! is consumed with. Built by [`Sdd::new`], which refuses a dictionary that breaks a rule, so
 //! a value of it is always consistent; the device checks it before normal operation and
 //! stays in the safe state when it is refused (SC_REQ_16).
+//!
+//! A dictionary holds as many entries as the device it is built for (`E`, 1..=80), not
+//! always 80: the SimpleCAN layer of a device with two entries keeps a dictionary of two, so
+//! neither its state nor the frames that build it carry 78 unused entries.
 
 use super::{HashLookup, NodeHash, ScId};
 use crate::time::Duration;
@@ -56,6 +60,13 @@ pub enum SddError {
         /// How many were given.
         count: usize,
     },
+    /// More entries than the device holds (its SDD capacity, at most 80, SC_REQ_12).
+    OverCapacity {
+        /// How many were given.
+        count: usize,
+        /// How many the device holds.
+        capacity: usize,
+    },
     /// One SC-ID in two entries.
     DuplicateScId {
         /// The SC-ID.
@@ -68,21 +79,33 @@ pub enum SddError {
     },
 }
 
-/// A checked safety data dictionary.
+/// A checked safety data dictionary of at most `E` entries (1..=80, SC_REQ_12).
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Sdd {
-    entries: Vec<Entry, MAX_ENTRIES>,
+pub struct Sdd<const E: usize> {
+    entries: Vec<Entry, E>,
 }
 
-impl Sdd {
-    /// The dictionary of `entries`, refused with the first rule it breaks.
+impl<const E: usize> Sdd<E> {
+    /// The dictionary of `entries`, refused with the first rule it breaks: more than 80
+    /// entries ([`SddError::TooManyEntries`]), more than `E` ([`SddError::OverCapacity`]),
+    /// an SC-ID twice, a consumed SC-ID's timeout of 0 or above [`MAX_TIMEOUT`].
     pub fn new(entries: &[Entry]) -> Result<Self, SddError> {
+        const {
+            assert!(E >= 1 && E <= MAX_ENTRIES, "1..=80 SDD entries (SC_REQ_12)");
+        }
+        let over_capacity = SddError::OverCapacity {
+            count: entries.len(),
+            capacity: E,
+        };
         if entries.len() > MAX_ENTRIES {
             return Err(SddError::TooManyEntries {
                 count: entries.len(),
             });
         }
-        let mut checked: Vec<Entry, MAX_ENTRIES> = Vec::new();
+        if entries.len() > E {
+            return Err(over_capacity);
+        }
+        let mut checked: Vec<Entry, E> = Vec::new();
         for entry in entries {
             if checked.iter().any(|held| held.sc_id == entry.sc_id) {
                 return Err(SddError::DuplicateScId { sc_id: entry.sc_id });
@@ -92,10 +115,8 @@ impl Sdd {
             {
                 return Err(SddError::Timeout { sc_id: entry.sc_id });
             }
-            // At most MAX_ENTRIES entries were given, so there is room.
-            checked.push(*entry).map_err(|_| SddError::TooManyEntries {
-                count: entries.len(),
-            })?;
+            // At most E entries were given, so there is room.
+            checked.push(*entry).map_err(|_| over_capacity)?;
         }
         Ok(Sdd { entries: checked })
     }
@@ -121,7 +142,7 @@ impl Sdd {
     }
 }
 
-impl HashLookup for Sdd {
+impl<const E: usize> HashLookup for Sdd<E> {
     fn node_hash(&self, sc_id: ScId) -> Option<NodeHash> {
         self.entry(sc_id).map(|entry| entry.hash)
     }
@@ -151,16 +172,19 @@ mod tests {
     #[test]
     fn sc_req_12_the_sdd_holds_80_entries_and_refuses_an_81st() {
         let all: std::vec::Vec<Entry> = (0x30..=0x7F).map(consume).collect();
-        let sdd = Sdd::new(&all).unwrap();
+        let sdd = Sdd::<80>::new(&all).unwrap();
         assert_eq!(sdd.entries().len(), 80);
         let mut more = all;
         more.push(consume(0x30));
-        assert_eq!(Sdd::new(&more), Err(SddError::TooManyEntries { count: 81 }));
+        assert_eq!(
+            Sdd::<80>::new(&more),
+            Err(SddError::TooManyEntries { count: 81 })
+        );
         // 80 entries with one SC-ID twice: the duplicate is named.
         let mut twice: std::vec::Vec<Entry> = (0x30..0x7F).map(consume).collect();
         twice.push(consume(0x31));
         assert_eq!(
-            Sdd::new(&twice),
+            Sdd::<80>::new(&twice),
             Err(SddError::DuplicateScId {
                 sc_id: ScId::new(0x31).unwrap()
             })
@@ -170,7 +194,7 @@ mod tests {
     #[test]
     fn sc_req_16_a_timeout_of_0_or_over_a_minute_is_refused() {
         for bad in [0, 60_001] {
-            let sdd = Sdd::new(&[entry(
+            let sdd = Sdd::<1>::new(&[entry(
                 0x40,
                 Role::Consume {
                     timeout: Duration::from_millis(bad),
@@ -187,7 +211,7 @@ mod tests {
 
     #[test]
     fn sc_req_15_the_sdd_gives_the_node_hash_of_each_sc_id() {
-        let sdd = Sdd::new(&[
+        let sdd = Sdd::<4>::new(&[
             entry(0x41, Role::Produce { slot: 2 }),
             entry(0x35, Role::Produce { slot: 0 }),
             entry(0x30, Role::Master),
@@ -200,5 +224,29 @@ mod tests {
         );
         assert_eq!(sdd.node_hash(ScId::new(0x51).unwrap()), None);
         assert_eq!(sdd.lowest_produced(), ScId::new(0x35));
+    }
+
+    /// A dictionary holds no more than the device's capacity: a third entry for a device of
+    /// two is refused with both figures, two are accepted.
+    #[test]
+    fn sc_req_12_the_sdd_refuses_more_entries_than_the_device_holds() {
+        let three = [consume(0x30), consume(0x31), consume(0x32)];
+        assert_eq!(
+            Sdd::<2>::new(&three),
+            Err(SddError::OverCapacity {
+                count: 3,
+                capacity: 2
+            })
+        );
+        assert_eq!(
+            Sdd::<2>::new(&three[..2]).map(|sdd| sdd.entries().len()),
+            Ok(2)
+        );
+        // Over 80 is SC_REQ_12's own limit, whatever the capacity.
+        let all: std::vec::Vec<Entry> = (0x30..=0x7F).map(consume).chain([consume(0x30)]).collect();
+        assert_eq!(
+            Sdd::<2>::new(&all),
+            Err(SddError::TooManyEntries { count: 81 })
+        );
     }
 }
