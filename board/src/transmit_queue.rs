@@ -380,9 +380,16 @@ mod tests {
                 return Err(Refusal::Unsendable);
             }
             let pending: Vec<usize> = (0..3).filter(|&b| self.boxes[b].is_some()).collect();
+            let blocks = |pending_id: u16| {
+                if self.embassy {
+                    pending_id == id
+                } else {
+                    pending_id <= id
+                }
+            };
             if pending
                 .iter()
-                .any(|&b| self.boxes[b].unwrap().id().raw() <= id)
+                .any(|&b| blocks(self.boxes[b].unwrap().id().raw()))
             {
                 return Err(Refusal::Busy);
             }
