@@ -136,9 +136,11 @@ pub trait Controller {
     fn empty(&self) -> [bool; 3];
 }
 
-/// Frames confirmed as sent and not yet asked for: at most one per mailbox refilled before
-/// [`Transmitter::transmitted`] was asked (the other confirmations are read from the mailboxes
-/// when asked).
+/// Sent frames kept for [`Transmitter::transmitted`] because their mailbox was refilled
+/// before it was asked (the other confirmations are read from the mailboxes when asked): one
+/// per mailbox. More pile up only when the loop does not ask (images without SimpleCAN), and
+/// then the oldest gives way; a SimpleCAN core whose confirmation was lost so treats its
+/// packet as not sent and withdraws it, which finds the mailbox empty and takes nothing back.
 const STASHED: usize = 3;
 
 /// The transmit path of one channel: up to `Q` frames waiting in arbitration order, the frame
