@@ -10,7 +10,8 @@
 //!    tool's server session: `tests/src/bin/socketcand_sim.rs`), then
 //! 3. python-canopen on the emulated network (four QEMU instances, as `cargo xtask run`
 //!    starts and configures them); both times it loads the node's EDS (`eds/safety-node.eds`) with
-//!    `canopen.import_od`, first sweeps every entry of it on node 33 in Pre-operational
+//!    `canopen.import_od`, first sweeps every entry of it on node 33 in Pre-operational (and
+//!    at the end on node 1, the producer)
 //!    (`xtask/interop/python_canopen_sweep.py`: each readable entry uploads as many bytes as
 //!    its type has, read-only entries refuse a download with 0601 0002h and write-only ones an
 //!    upload with 0601 0001h, writable 2- and 4-byte entries refuse a wrong length with a
@@ -354,7 +355,9 @@ fn canopen_checks(
     println!(
         "xtask: {part}: in Pre-operational an SCT of 0 is aborted with 0609 0032h; a valid write is accepted and 0x13FE reads 0 (python-canopen and the tool)"
     );
-    Ok(())
+    // The producer too (its SRDO 1 transmits by the pre-defined connection set): last, since
+    // its Pre-operational stops the SRDO node 33 consumed, and node 33 is done.
+    sweep(python, &eds, host, port, 1, part)
 }
 
 /// python-canopen's sweep of every entry of `eds` on `node` (`xtask/interop/python_canopen_sweep.py`:
