@@ -8,7 +8,7 @@
 //! polynomial, tested against the bit-by-bit definition of the CRC for every
 //! register value and octet): another algorithm and another code path than A's, and no table
 //! at all. The two are cross-checked over the link
-//! ([`dual_channel::link::Message::Configuration`]) before Operational and with every link
+//! (in [`dual_channel::link::Message::Heartbeat`]) before Operational and with every link
 //! heartbeat after.
 //!
 //! Both channels recompute every signature for each heartbeat, so that a bit flipped in one

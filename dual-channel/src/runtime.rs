@@ -943,24 +943,16 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     }
 
     fn heartbeat(&mut self, io: &mut impl Io) {
-        let nmt = self.node.nmt_state().heartbeat_code();
         let config = self.node.safety_config();
-        let configuration = Message::Configuration {
-            nmt,
-            valid: config.configuration_valid,
-            signatures: self.role.signature_digest(config),
-        };
         let heartbeat = Message::Heartbeat {
-            nmt,
+            nmt: self.node.nmt_state().heartbeat_code(),
             working: self.is_working(),
             epoch: self.nmt.epoch(),
-        };
-        let inputs = Message::Inputs {
-            sample: self.input_digest(),
+            valid: config.configuration_valid,
+            signatures: self.role.signature_digest(config),
+            inputs: self.input_digest(),
         };
         self.send(&heartbeat, io);
-        self.send(&configuration, io);
-        self.send(&inputs, io);
     }
 
     fn send(&mut self, message: &Message, io: &mut impl Io) {
@@ -1104,13 +1096,18 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     fn on_message(&mut self, now: Instant, message: Message, io: &mut impl Io) {
         #[cfg(feature = "defmt")]
-        if !matches!(
-            message,
-            Message::Heartbeat { .. } | Message::Configuration { .. }
-        ) {
+        if !matches!(message, Message::Heartbeat { .. }) {
             defmt::debug!("link: {}", message);
         }
-        if let Message::Heartbeat { nmt, epoch, .. } = message {
+        if let Message::Heartbeat {
+            nmt,
+            epoch,
+            valid,
+            signatures,
+            inputs,
+            ..
+        } = message
+        {
             if self.peer_clock.heartbeat(now, nmt, epoch).is_err() {
                 self.latch(ChannelFault::ClockDrift, io);
             }
@@ -1118,6 +1115,12 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             self.nmt.peer(now, nmt, epoch, self.node.nmt_state());
             if before.is_some_and(|before| before != epoch) {
                 self.role.peer_reset();
+            }
+            if self.nmt.same_epoch() {
+                // The digests as of the sender's heartbeat, in the order the checks took them
+                // when they came as messages of their own: configuration, then inputs.
+                self.peer_configuration(nmt, valid, signatures, io);
+                self.peer_inputs(now, inputs, io);
             }
             return;
         }
@@ -1136,17 +1139,20 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         match message {
             Message::Heartbeat { .. } => {}
-            Message::Inputs { sample } => {
-                let own = self.input_digest();
-                self.input_check.peer(now, sample, own);
-                self.release_waiting(now, io);
-            }
+            Message::Inputs { sample } => self.peer_inputs(now, sample, io),
             Message::Verdict {
                 srdo,
                 pair,
                 data,
                 valid,
             } => {
+                if self.node.nmt_state() != NmtState::Operational {
+                    // Sent before the other channel left Operational too, and still on the
+                    // link when this one left and cleared its verdicts: about a pair that
+                    // neither channel acts on any more (outputs are 0 outside Operational), so
+                    // it waits for no local verdict (CiA 304 9.5).
+                    return;
+                }
                 if let Some(newest) = usize::from(srdo)
                     .checked_sub(1)
                     .and_then(|index| self.peer_pairs.get_mut(index))
@@ -1190,23 +1196,6 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 }
             }
             Message::ForeignFrame { id } => self.foreign_frame(now, id, io),
-            Message::Configuration {
-                nmt,
-                valid,
-                signatures,
-            } => {
-                let own = self.node.safety_config();
-                let differs = valid != own.configuration_valid
-                    || signatures != self.role.signature_digest(own);
-                let checked = self.configuration.peer(
-                    nmt == NmtState::Operational.heartbeat_code(),
-                    self.node.nmt_state() == NmtState::Operational,
-                    differs,
-                );
-                if let Err(fault) = checked {
-                    self.latch(fault, io);
-                }
-            }
             #[cfg(feature = "simplecan")]
             message @ (Message::SimpleCanPacket { .. }
             | Message::SimpleCanVerdict { .. }
@@ -1221,6 +1210,29 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 }
             }
         }
+    }
+
+    /// The other channel's configuration digest (CiA 304 9.5: both channels hold the same
+    /// configuration), compared where neither can change it: in Operational.
+    fn peer_configuration(&mut self, nmt: u8, valid: u8, signatures: u32, io: &mut impl Io) {
+        let own = self.node.safety_config();
+        let differs =
+            valid != own.configuration_valid || signatures != self.role.signature_digest(own);
+        let checked = self.configuration.peer(
+            nmt == NmtState::Operational.heartbeat_code(),
+            self.node.nmt_state() == NmtState::Operational,
+            differs,
+        );
+        if let Err(fault) = checked {
+            self.latch(fault, io);
+        }
+    }
+
+    /// The other channel's input digest, for the input cross-check.
+    fn peer_inputs(&mut self, now: Instant, sample: u32, io: &mut impl Io) {
+        let own = self.input_digest();
+        self.input_check.peer(now, sample, own);
+        self.release_waiting(now, io);
     }
 
     /// Writes a sample and its inverted copy to the core's objects.

@@ -361,3 +361,40 @@ fn en50325_5_7_1_2_dual_channel_consumer_started_at_any_instant_works() {
         "the grid reached the instants between a plain and its inverted frame"
     );
 }
+
+/// CiA 304 9.5 with dual-channel nodes: node 33 leaves Operational (NMT Enter
+/// Pre-operational) at a grid of instants every 20 µs around the end of node 1's inverted
+/// frame, so that the other channel's verdict on that pair is still on the link when a channel
+/// has left Operational and cleared its verdicts. The late verdict is about a pair neither
+/// channel acts on any more: no fault, both channels stay out of the safe state, and node 33
+/// works again after NMT Start.
+#[test]
+fn cia304_9_5_a_verdict_still_on_the_link_when_the_consumer_leaves_operational_is_no_fault() {
+    let reference = dual_running();
+    let inverted_end = reference
+        .trace
+        .iter()
+        .rev()
+        .find(|(_, frame, _)| frame.id().raw() == 0x102)
+        .map(|(end, _, _)| end.as_micros())
+        .expect("node 1 produces");
+    let around = inverted_end + 2 * PERIOD;
+    for queued_at in (around - 400..around + 800).step_by(20).map(us) {
+        let mut net = dual_running();
+        net.run_until(queued_at);
+        let since = net.log.len();
+        net.bus
+            .send(0, nmt::command_frame(NmtCommand::EnterPreOperational, 33));
+        net.run_for(Duration::from_millis(100));
+        assert!(
+            channel_faults(&net, since).is_empty(),
+            "{queued_at:?}: {:?}",
+            channel_faults(&net, since)
+        );
+        net.bus.send(0, nmt::command_frame(NmtCommand::Start, 33));
+        net.run_for(Duration::from_millis(300));
+        assert!(channel_faults(&net, since).is_empty(), "{queued_at:?}");
+        assert_all_working(&net, &format!("{queued_at:?}"));
+        assert_eq!(net.output(33), 1, "{queued_at:?}");
+    }
+}

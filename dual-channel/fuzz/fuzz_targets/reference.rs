@@ -1,7 +1,9 @@
 //! Reference encoders for the link and the CAN-over-serial line, written from the framing the
-//! modules document, not from their code: bitwise CRCs, a plain COBS encoder. The targets build
-//! frames with these (at any sequence number, with any body) and check the product's encoders
-//! against them.
+//! modules document, not from their code: bitwise CRCs, a plain COBS encoder, the link
+//! messages' layout from its table. The targets build frames with these (at any sequence
+//! number, with any body) and check the product's encoders against them.
+
+use dual_channel::link::Message;
 
 /// CRC-32/ISO-HDLC, bit by bit (reflected polynomial 0xEDB88320, initial value and final XOR
 /// 0xFFFFFFFF).
@@ -85,4 +87,128 @@ pub fn serial_raw(word_and_body: &[u8]) -> Vec<u8> {
     let crc = crc16(&raw);
     raw.extend_from_slice(&crc.to_le_bytes());
     raw
+}
+
+/// The field widths (octets) of each link message tag, from the table in
+/// `dual_channel::link::layout`. The SimpleCAN tags (08h..0Ah) are unknown here: the fuzz
+/// crate builds `dual-channel` without its feature `simplecan`, as the shipped images are.
+fn widths(tag: u8) -> Option<&'static [usize]> {
+    Some(match tag {
+        0x01 => &[1, 1, 1, 1, 4, 4],
+        0x02 => &[4],
+        0x03 => &[1, 4, 8, 1],
+        0x04 | 0x05 => &[1],
+        0x06 => &[2, 1, 8],
+        0x07 => &[2],
+        _ => return None,
+    })
+}
+
+/// The fields of `body` (tag first) as little-endian numbers, when its length is its tag's.
+fn fields(body: &[u8]) -> Option<(u8, Vec<u64>)> {
+    let (&tag, mut rest) = body.split_first()?;
+    let widths = widths(tag)?;
+    if rest.len() != widths.iter().sum::<usize>() {
+        return None;
+    }
+    let mut values = Vec::new();
+    for &width in widths {
+        let (field, tail) = rest.split_at(width);
+        values.push(
+            field
+                .iter()
+                .rev()
+                .fold(0u64, |value, &byte| value << 8 | u64::from(byte)),
+        );
+        rest = tail;
+    }
+    Some((tag, values))
+}
+
+/// The link message whose body is exactly `body`: `None` for an unknown tag, a wrong length,
+/// or a flag other than 0 or 1.
+pub fn link_message(body: &[u8]) -> Option<Message> {
+    let (tag, f) = fields(body)?;
+    let flag = |value: u64| match value {
+        0 => Some(false),
+        1 => Some(true),
+        _ => None,
+    };
+    // Each field was read at its width, so the narrowing casts keep every bit.
+    Some(match tag {
+        0x01 => Message::Heartbeat {
+            nmt: f[0] as u8,
+            working: flag(f[1])?,
+            epoch: f[2] as u8,
+            valid: f[3] as u8,
+            signatures: f[4] as u32,
+            inputs: f[5] as u32,
+        },
+        0x02 => Message::Inputs { sample: f[0] as u32 },
+        0x03 => Message::Verdict {
+            srdo: f[0] as u8,
+            pair: f[1] as u32,
+            data: f[2],
+            valid: flag(f[3])?,
+        },
+        0x04 => Message::TransmitMismatch { srdo: f[0] as u8 },
+        0x05 => Message::SafeState { cause: f[0] as u8 },
+        0x06 => Message::PlainFrame {
+            id: f[0] as u16,
+            len: f[1] as u8,
+            data: f[2],
+        },
+        0x07 => Message::ForeignFrame { id: f[0] as u16 },
+        _ => return None,
+    })
+}
+
+/// A body of a known tag made from any bytes: the tag from the first (01h..07h), the fields
+/// from the rest, cut or padded with zeros to the tag's length.
+pub fn link_body_from(bytes: &[u8]) -> Vec<u8> {
+    let tag = 1 + bytes.first().copied().unwrap_or(0) % 7;
+    let len = widths(tag).map_or(0, |widths| widths.iter().sum());
+    let mut body = vec![tag];
+    body.extend(bytes.iter().skip(1).copied().chain(core::iter::repeat(0)).take(len));
+    body
+}
+
+/// The body of `message` by the table: its tag, then each field at its width, little-endian.
+pub fn link_body(message: &Message) -> Vec<u8> {
+    let (tag, values): (u8, Vec<u64>) = match *message {
+        Message::Heartbeat {
+            nmt,
+            working,
+            epoch,
+            valid,
+            signatures,
+            inputs,
+        } => (
+            0x01,
+            vec![
+                nmt.into(),
+                working.into(),
+                epoch.into(),
+                valid.into(),
+                signatures.into(),
+                inputs.into(),
+            ],
+        ),
+        Message::Inputs { sample } => (0x02, vec![sample.into()]),
+        Message::Verdict {
+            srdo,
+            pair,
+            data,
+            valid,
+        } => (0x03, vec![srdo.into(), pair.into(), data, valid.into()]),
+        Message::TransmitMismatch { srdo } => (0x04, vec![srdo.into()]),
+        Message::SafeState { cause } => (0x05, vec![cause.into()]),
+        Message::PlainFrame { id, len, data } => (0x06, vec![id.into(), len.into(), data]),
+        Message::ForeignFrame { id } => (0x07, vec![id.into()]),
+    };
+    let mut body = vec![tag];
+    for (&width, value) in widths(tag).unwrap_or_default().iter().zip(values) {
+        body.extend_from_slice(&value.to_le_bytes()[..width]);
+    }
+    body
 }

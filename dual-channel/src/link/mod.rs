@@ -7,13 +7,14 @@
 //! # Framing
 //!
 //! ```text
-//! COBS( sequence: u16 LE | postcard(Message) | CRC-32 LE over the preceding bytes ) 0x00
+//! COBS( sequence: u16 LE | message (tag, fields) | CRC-32 LE over the preceding bytes ) 0x00
 //! ```
 //!
 //! COBS (`cobs_frames`, the encoding of the `cobs` crate) makes 0x00 a reliable frame
 //! delimiter, so a receiver that starts mid-stream or loses bytes resynchronises at the next
-//! delimiter. postcard serialises the message; the CRC-32 (ISO-HDLC, the `crc` crate) detects corruption; the sequence number
-//! detects lost, repeated and reordered messages.
+//! delimiter. The message has a fixed layout per variant ([`layout`]: a tag, then its fields
+//! at full width); the CRC-32 (ISO-HDLC, the `crc` crate) detects corruption; the sequence
+//! number detects lost, repeated and reordered messages.
 //!
 //! # Faults
 //!
@@ -24,23 +25,26 @@
 
 use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};
-use serde::{Deserialize, Serialize};
 use shared::{Duration, Instant};
+
+pub mod layout;
 
 /// CRC-32 of every link frame.
 const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
-/// Largest unencoded frame: sequence (2) + the largest message (postcard, at most 24) + CRC (4).
-const MAX_RAW: usize = 32;
+/// Largest unencoded frame: sequence (2) + the largest message ([`layout::MAX_BODY`]) + CRC (4).
+const MAX_RAW: usize = 2 + layout::MAX_BODY + 4;
 /// Largest frame on the wire: COBS adds at most one byte per 254, plus the delimiter.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
 
 /// What one channel tells the other. Small, fixed-size values only.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Message {
     /// Sent at least every heartbeat period (four times per smallest SCT or more): the
-    /// sender's NMT state (heartbeat code) and whether it is in its working state.
+    /// sender's NMT state (heartbeat code), whether it is in its working state, its
+    /// configuration digest and its input digest, so that one message a period carries
+    /// everything the periodic cross-checks compare.
     Heartbeat {
         /// NMT state, as in the heartbeat message (CiA 301 7.2.8.3.2).
         nmt: u8,
@@ -51,8 +55,17 @@ pub enum Message {
         /// counts agree; a message sent before a reset that arrives after it is recognised by
         /// the count in the heartbeat that preceded it, and ignored.
         epoch: u8,
+        /// 0x13FE as the sender holds it.
+        valid: u8,
+        /// CRC-32 over all SRDO signatures (0x13FF sub 1..N, little-endian), computed by the
+        /// sender's own implementation. Compared in Operational, where the configuration
+        /// cannot change (`nmt` says whether the sender is there).
+        signatures: u32,
+        /// The sender's input digest, as [`Message::Inputs`] carries it.
+        inputs: u32,
     },
-    /// The sender's own sample of its safety inputs, for the input cross-check.
+    /// The sender's own sample of its safety inputs, for the input cross-check: sent when
+    /// they change (and with every heartbeat, in [`Message::Heartbeat`]).
     Inputs {
         /// Input bits, channel-specific layout agreed by both.
         sample: u32,
@@ -73,17 +86,6 @@ pub enum Message {
     TransmitMismatch {
         /// SRDO number.
         srdo: u8,
-    },
-    /// The sender's configuration digest, sent with every heartbeat.
-    Configuration {
-        /// The sender's NMT state (heartbeat code): digests are compared in Operational,
-        /// where the configuration cannot change.
-        nmt: u8,
-        /// 0x13FE as the sender holds it.
-        valid: u8,
-        /// CRC-32 over all SRDO signatures (0x13FF sub 1..N, little-endian), computed by the
-        /// sender's own implementation.
-        signatures: u32,
     },
     /// The sender went to the safe state; the receiver follows (each channel can force it).
     SafeState {
@@ -108,8 +110,8 @@ pub enum Message {
     },
     /// Channel A received this SimpleCAN frame (data or sync) and forwards it to channel B
     /// as it came off the bus, not unpacked (SC_REQ_24): B decodes and checks it with its
-    /// own code. Last variant, so postcard's encoding of the ones above is unchanged, and
-    /// behind the `simplecan` feature, which no firmware image enables yet.
+    /// own code. Behind the `simplecan` feature, which no shipped image enables; its tag
+    /// ([`layout`]) is its own, so the other variants' encodings do not depend on the feature.
     #[cfg(feature = "simplecan")]
     SimpleCanPacket {
         /// CAN identifier (02Fh or an SC-ID).
@@ -138,8 +140,7 @@ pub enum Message {
     /// Channel B found a SimpleCAN fault of the pair of channels (sent before its
     /// [`Message::SafeState`]): channel A, which speaks for the node, latches the same fault,
     /// so that its EMCY FF02h carries the cause and names the identifier, as for
-    /// [`Message::TransmitMismatch`]. After [`Message::SimpleCanVerdict`], behind the same
-    /// feature.
+    /// [`Message::TransmitMismatch`]. Behind the same feature.
     #[cfg(feature = "simplecan")]
     SimpleCanFault {
         /// The cause code, 70h..79h (`crate::simplecan::SimpleCanFault::cause`).
@@ -200,17 +201,21 @@ impl Sender {
         message: &Message,
     ) -> Result<heapless::Vec<u8, MAX_WIRE>, EncodeError> {
         let mut raw = [0u8; MAX_RAW];
-        raw[..2].copy_from_slice(&self.sequence.to_le_bytes());
-        let body = postcard::to_slice(message, &mut raw[2..MAX_RAW - 4])
-            .map_err(|_| EncodeError)?
-            .len();
-        let end = 2 + body;
-        let crc = CRC.checksum(&raw[..end]);
-        raw[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+        let (sequence, rest) = raw.split_first_chunk_mut::<2>().ok_or(EncodeError)?;
+        *sequence = self.sequence.to_le_bytes();
+        let (body, _) = rest
+            .split_first_chunk_mut::<{ layout::MAX_BODY }>()
+            .ok_or(EncodeError)?;
+        let end = 2 + message.write(body).ok_or(EncodeError)?;
+        let crc = CRC.checksum(raw.get(..end).ok_or(EncodeError)?);
+        raw.get_mut(end..end + 4)
+            .ok_or(EncodeError)?
+            .copy_from_slice(&crc.to_le_bytes());
         // `MAX_WIRE` holds the longest encoding of `MAX_RAW` bytes and the delimiter, so
         // this cannot fail.
         let mut out = heapless::Vec::new();
-        cobs_frames::encode_into(&raw[..end + 4], &mut out).map_err(|_| EncodeError)?;
+        cobs_frames::encode_into(raw.get(..end + 4).ok_or(EncodeError)?, &mut out)
+            .map_err(|_| EncodeError)?;
         self.sequence = self.sequence.wrapping_add(1);
         Ok(out)
     }
@@ -320,19 +325,9 @@ impl Receiver {
             return Err(LinkFault::Corrupt);
         }
         let sequence = u16::from_le_bytes([payload[0], payload[1]]);
-        let (message, rest) = postcard::take_from_bytes::<Message>(&payload[2..])
-            .map_err(|_| LinkFault::Malformed)?;
-        if !rest.is_empty() {
-            return Err(LinkFault::Malformed);
-        }
-        // One message, one encoding: postcard also reads over-long varints, so the body must
-        // be exactly what the sender's encoder writes for the message it decoded to.
-        let mut canonical = [0u8; MAX_RAW];
-        let body =
-            postcard::to_slice(&message, &mut canonical).map_err(|_| LinkFault::Malformed)?;
-        if *body != payload[2..] {
-            return Err(LinkFault::Malformed);
-        }
+        // One message, one encoding: the layout reads a body of exactly its tag's length,
+        // with every field in range, so what the CRC protects is what an encoder wrote.
+        let message = Message::read(&payload[2..]).ok_or(LinkFault::Malformed)?;
         let expected = self.expected.unwrap_or(sequence);
         // Resynchronise on the sequence received, whatever the verdict, so that one lost
         // message is one fault, not a fault for every message after it.

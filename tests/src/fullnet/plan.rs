@@ -108,9 +108,9 @@ impl Timing {
     ///
     /// - refresh: the shortest whole ms with worst-case utilisation ≤ [`UTILISATION_LIMIT`];
     /// - SRVT: a bound on the gap between a plain and its inverted frame: channel A's
-    ///   announcement to channel B over the link (at most four link messages ahead of it, a
-    ///   heartbeat's three and the announcement, [`dual_channel::link::MAX_WIRE`] bytes each
-    ///   at 10 µs), one frame of blocking (8 bytes), and every other SRDO frame once (each
+    ///   announcement to channel B over the link (at most
+    ///   [`safety_config::calc::sfrt::LINK_MESSAGES_AHEAD`] link messages with the
+    ///   announcement, [`dual_channel::link::MAX_WIRE`] bytes each at 10 µs), one frame of blocking (8 bytes), and every other SRDO frame once (each
     ///   producer sends at most one pair per refresh time, and the bound stays below it);
     /// - SCT: covers both a refresh interval stretched by a whole refresh time of jitter
     ///   (2 × refresh) and the CiA 304 9.5 start-up stagger of the last producer (0.5 ms ×
@@ -153,7 +153,8 @@ impl Timing {
             }
             refresh_ms += 1;
         };
-        let link_bytes = 4 * dual_channel::link::MAX_WIRE as u64;
+        let link_bytes =
+            safety_config::calc::sfrt::LINK_MESSAGES_AHEAD * dual_channel::link::MAX_WIRE as u64;
         let srvt_bound_us = link_bytes * crate::dual::LINK_BYTE_TIME.as_micros()
             + worst_case_micros(8, bit_rate)
             + u64::from(pair_frames) * worst_case_micros(1, bit_rate);
