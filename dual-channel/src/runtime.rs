@@ -470,6 +470,14 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N> =
     verdicts: VerdictCheck<N>,
     link_period: Duration,
     next_heartbeat: Instant,
+    /// The configuration digest this channel sent in its last heartbeat, which the other
+    /// channel's digest is compared with: each channel computes its own once per link period
+    /// (and on every NMT state change, when it sends a heartbeat at once), not again for each
+    /// digest it receives. In Operational, where the digests are compared, the configuration
+    /// cannot change, and every entry to it sends a heartbeat; a bit flipped in this
+    /// channel's copy changes the digest of its next heartbeat, which the other channel
+    /// compares within the period. `None` before the first heartbeat.
+    own_digest: Option<u32>,
     /// The NMT cross-check, with this channel's epoch (NMT resets since power-on) and the
     /// other's: messages sent in another epoch than ours are ignored.
     nmt: NmtCheck,
@@ -557,6 +565,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             verdicts: VerdictCheck::new(timeout),
             link_period,
             next_heartbeat: now,
+            own_digest: None,
             nmt: NmtCheck::new(timeout),
             fault: None,
             link_up: false,
@@ -581,6 +590,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     #[inline(never)]
     pub fn restore_parameters(&mut self) {
         self.node.restore_parameters();
+        // The configuration changed under any digest computed before.
+        self.own_digest = None;
     }
 
     /// The channel's core.
@@ -944,12 +955,14 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     fn heartbeat(&mut self, io: &mut impl Io) {
         let config = self.node.safety_config();
+        let signatures = self.role.signature_digest(config);
+        self.own_digest = Some(signatures);
         let heartbeat = Message::Heartbeat {
             nmt: self.node.nmt_state().heartbeat_code(),
             working: self.is_working(),
             epoch: self.nmt.epoch(),
             valid: config.configuration_valid,
-            signatures: self.role.signature_digest(config),
+            signatures,
             inputs: self.input_digest(),
         };
         self.send(&heartbeat, io);
@@ -1216,8 +1229,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// configuration), compared where neither can change it: in Operational.
     fn peer_configuration(&mut self, nmt: u8, valid: u8, signatures: u32, io: &mut impl Io) {
         let own = self.node.safety_config();
-        let differs =
-            valid != own.configuration_valid || signatures != self.role.signature_digest(own);
+        let own_digest = match self.own_digest {
+            Some(digest) => digest,
+            None => self.role.signature_digest(own),
+        };
+        let differs = valid != own.configuration_valid || signatures != own_digest;
         let checked = self.configuration.peer(
             nmt == NmtState::Operational.heartbeat_code(),
             self.node.nmt_state() == NmtState::Operational,
