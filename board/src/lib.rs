@@ -1,8 +1,8 @@
 //! Board layers of the firmware images: everything that touches hardware, and nothing else.
 //!
-//! - [`hw`] (feature `hw`): embassy-stm32 on the STM32F405RG: bxCAN, the link USART, the
+//! - `hw` (feature `hw`): embassy-stm32 on the STM32F405RG: bxCAN, the link USART, the
 //!   safety input and output pins and the independent watchdog.
-//! - [`qemu`] (feature `qemu`): QEMU's `netduinoplus2`: a SysTick time driver, register-level
+//! - `qemu` (feature `qemu`): QEMU's `netduinoplus2`: a SysTick time driver, register-level
 //!   USARTs (CAN frames over serial, and the link), semihosting.
 //!
 //! Both are adapters of the one channel loop

@@ -4,7 +4,7 @@
 //! Channel A uses the byte-table CRC-16/XMODEM of the `crc` crate over the record's fields.
 //! Channel B feeds the raw values of its own object dictionary copy, least significant octet
 //! of each field first as Table 9's formula (2) orders them, eight bits at a time through a
-//! table-free step of its own ([`shift_byte`]: shifts and additions derived from the
+//! table-free step of its own (`shift_byte`: shifts and additions derived from the
 //! polynomial, tested against the bit-by-bit definition of the CRC for every
 //! register value and octet): another algorithm and another code path than A's, and no table
 //! at all. The two are cross-checked over the link

@@ -426,6 +426,10 @@ fn test(root: &Path) -> Result<()> {
     }
     step("doc tests (nextest does not run them)");
     run(cargo().args(["test", "--workspace", "--doc"]))?;
+    step("API documentation (every crate; a broken link or other rustdoc warning fails)");
+    run(cargo()
+        .args(["doc", "--workspace", "--no-deps"])
+        .env("RUSTDOCFLAGS", "-D warnings"))?;
     step("shared for thumbv7em-none-eabihf (no_std, no heap)");
     run(&mut cross
         .cargo(root)

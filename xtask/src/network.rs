@@ -12,7 +12,7 @@
 //! its consumer.
 //!
 //! Every child process is killed when the [`Network`] is dropped, whichever way the task
-//! ends (error, panic, Ctrl-C: see [`crate::interrupt`]).
+//! ends (error, panic, Ctrl-C: see [`crate::child`]).
 
 use crate::child::Guarded;
 use crate::images::{self, Layer};

@@ -627,8 +627,8 @@ impl<const E: usize> Running<E> {
     }
 }
 
-/// The stored image of a SimpleCAN layer of `E` entries: `E` times [`IMAGE_PER_ENTRY`]
-/// bytes.
+/// The stored image of a SimpleCAN layer of `E` entries: `E` times the bytes one entry needs
+/// (the entry and, counted once per entry, the shell's fixed part with this section's own).
 pub type SimpleCanImage<const E: usize> = RowImage<IMAGE_PER_ENTRY, E>;
 
 /// Bytes of the stored image per entry: the entry itself and the shell's fixed part with

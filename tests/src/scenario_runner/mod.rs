@@ -1,4 +1,4 @@
-//! The scenario runner: a scenario file ([`file`]) names a network (a network file of the
+//! The scenario runner: a scenario file ([`file`](mod@file)) names a network (a network file of the
 //! configuration tool), a timeline of stimuli and faults and the outcomes expected, with
 //! bounds; [`run`] plays it on the dual-channel host simulation ([`crate::dual`]: both
 //! channel runtimes of every node, their link, the simulated bus) and checks each expected
