@@ -49,8 +49,8 @@ const TRACE_FOR: Duration = Duration::from_millis(1500);
 const STARTS: u32 = 3;
 /// How long the traced network may take for it in host time.
 const TRACE_HOST_LIMIT: Duration = Duration::from_secs(1200);
-/// The hardware layer's link heartbeat period (`board::hw`): each channel sends its digest
-/// once per period and computes it again for the other channel's digest it receives.
+/// The hardware layer's link heartbeat period (`board::hw`): each channel computes its digest
+/// once per period, for its heartbeat, and compares the other channel's with it.
 const LINK_PERIOD_MS: u64 = 10;
 /// The loop runs at least every input sample period (`dual_channel::channel_loop`).
 const SAMPLE_PERIOD_MS: u64 = 1;
@@ -631,7 +631,7 @@ fn render(
         rows.push(Row {
             operation: "link heartbeat",
             image: name.to_owned(),
-            what: "`Runtime::heartbeat`: the digest, three link messages encoded and queued",
+            what: "`Runtime::heartbeat`: the digest, the heartbeat message encoded and queued",
             spread: spread(channels, name, "heartbeat", |c| &c.heartbeat)?,
             host: None,
         });
@@ -670,7 +670,7 @@ fn render(
         let periods = LOAD_REFRESH_MS / LINK_PERIOD_MS;
         let idle = per(name, |c| &c.idle)?;
         overhead.push(
-            periods * (2 * scale * digest + heartbeat.saturating_sub(digest))
+            periods * (scale * digest + heartbeat.saturating_sub(digest))
                 + LOAD_REFRESH_MS / SAMPLE_PERIOD_MS * idle,
         );
     }
@@ -730,9 +730,9 @@ fn render(
         "\n**CPU load at {} MHz, a node with {LOAD_SRDOS} SRDOs at a {LOAD_REFRESH_MS} ms \
          refresh**, its busier channel, per {LOAD_REFRESH_MS} ms: {LOAD_SRDOS} times the most \
          a pair took on that channel, the configuration digest scaled to {LOAD_SRDOS} SRDOs \
-         ({scale}×, one signature per record) computed twice per {LINK_PERIOD_MS} ms link \
-         period (for its own heartbeat and for the other channel's digest) with the rest of \
-         the heartbeat, and an idle iteration every {SAMPLE_PERIOD_MS} ms. At one instruction \
+         ({scale}×, one signature per record) computed once per {LINK_PERIOD_MS} ms link \
+         period (for its own heartbeat, which the other channel's digest is compared with) \
+         with the rest of the heartbeat, and an idle iteration every {SAMPLE_PERIOD_MS} ms. At one instruction \
          per cycle (a lower bound) and at the {} cycles per instruction the processing step \
          assumes (`safety_config::calc::target::CPI_BOUND`):\n",
         cost::CLOCK_HZ / 1_000_000,
