@@ -9,10 +9,11 @@ use std::process::Command;
 
 /// Flash budget per image, bytes.
 ///
-/// 64 KiB: channel B's hardware image measures 64,376 bytes and channel A's 64,140, a margin of
-/// 1,160 bytes (1.8 %) for the larger (2026-12-02, `cargo xtask footprint`, after the runtime
-/// was built where it is kept, the transmit path shared by both CAN drivers and the full
-/// network's second speed round: 64,612 and 64,536 before; 64,744 and 64,476 before the channel
+/// 64 KiB: channel B's hardware image measures 63,076 bytes and channel A's 62,912, a margin of
+/// 2,460 bytes (3.8 %) for the larger (2026-12-02, `cargo xtask footprint`, after the link's
+/// messages took a fixed layout of their own instead of postcard: 64,376 and 64,140 before;
+/// 64,612 and 64,536 before the runtime was built where it is kept, the transmit path shared
+/// by both CAN drivers and the full network's second speed round; 64,744 and 64,476 before the channel
 /// loop became generic over the protocol, with other changes between the measurements). The
 /// SimpleCAN variant (`Layer::HwSimpleCan`) is over it, and over [`RAM_BUDGET`]
 /// (docs/footprint.md); `cargo xtask build` does not build it. It was 67 KiB (channel B 68,016 bytes) until the second
