@@ -149,6 +149,9 @@ struct Channel {
     hand_inverted: Vec<u64>,
     digest: Vec<u64>,
     heartbeat: Vec<u64>,
+    /// The longest iteration (markers subtracted) and the tracked calls made inside it, for
+    /// the log: what the iteration that sets the processing step spent its instructions on.
+    longest: Option<(u64, Vec<(usize, u64)>)>,
     /// Lines of the trace.
     lines: u64,
 }
@@ -169,6 +172,39 @@ impl Channel {
             }
         }
         channel
+    }
+
+    /// The longest iteration and the tracked calls inside it, by function (count and
+    /// instructions; calls nested in one another are each counted whole).
+    fn longest(&self) -> String {
+        let Some((most, nested)) = &self.longest else {
+            return "no loop iteration".to_owned();
+        };
+        let mut parts = Vec::new();
+        for (index, name) in TRACKED.iter().enumerate() {
+            let calls: Vec<u64> = nested
+                .iter()
+                .filter(|(function, _)| *function == index)
+                .map(|(_, count)| *count)
+                .collect();
+            if !calls.is_empty() {
+                let short = name.rsplit("::").next().unwrap_or(name);
+                parts.push(format!(
+                    "{short} {}× {}",
+                    calls.len(),
+                    calls.iter().sum::<u64>()
+                ));
+            }
+        }
+        format!(
+            "longest loop iteration {most} instructions (markers subtracted); tracked calls \
+             inside it: {}",
+            if parts.is_empty() {
+                "none".to_owned()
+            } else {
+                parts.join(", ")
+            }
+        )
     }
 
     /// How many of each were seen.
@@ -194,6 +230,9 @@ impl Channel {
     fn iteration(&mut self, call: &Call, pair: &mut Option<Pair>) {
         let own = call.without(&MARKERS);
         self.all.push(own);
+        if self.longest.as_ref().is_none_or(|(most, _)| own > *most) {
+            self.longest = Some((own, call.nested.clone()));
+        }
         let plain = call.made(RX_PLAIN);
         let inverted = call.made(RX_INVERTED);
         if plain {
@@ -352,6 +391,7 @@ pub fn run(root: &Path) -> Result<()> {
         let _ = std::fs::remove_file(trace);
         let channel = Channel::of(counted);
         eprintln!("xtask: {name}: {}", channel.summary());
+        eprintln!("xtask: {name}: {}", channel.longest());
         channels.push((name, channel));
     }
     let traced = traced.into_iter().fold(f64::INFINITY, f64::min);
