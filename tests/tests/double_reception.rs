@@ -224,6 +224,16 @@ fn dual_running() -> DualNetwork {
     net
 }
 
+/// The last frame on `id` in the dual network's bus trace: when it started and ended (µs).
+fn last_on_bus(net: &DualNetwork, id: u16) -> (u64, u64) {
+    net.trace
+        .iter()
+        .rev()
+        .find(|(_, frame, _)| frame.id().raw() == id)
+        .map(|(end, frame, _)| (end.as_micros() - bus_time(frame), end.as_micros()))
+        .expect("node 1 produces")
+}
+
 fn channel_faults(net: &DualNetwork, since: usize) -> Vec<String> {
     net.log[since..]
         .iter()
@@ -317,14 +327,7 @@ fn iso11898_1_dual_channel_nodes_agree_on_duplicated_frames() {
 /// state, confirm pairs and agree.
 #[test]
 fn en50325_5_7_1_2_dual_channel_consumer_started_at_any_instant_works() {
-    let reference = dual_running();
-    let plain_start = reference
-        .trace
-        .iter()
-        .rev()
-        .find(|(_, frame, _)| frame.id().raw() == 0x101)
-        .map(|(end, frame, _)| end.as_micros() - bus_time(frame))
-        .expect("node 1 produces");
+    let (plain_start, _) = last_on_bus(&dual_running(), 0x101);
     let first = plain_start + 2 * PERIOD;
     let instants: Vec<Instant> = (0..PERIOD)
         .step_by(2_500)
@@ -370,14 +373,7 @@ fn en50325_5_7_1_2_dual_channel_consumer_started_at_any_instant_works() {
 /// works again after NMT Start.
 #[test]
 fn cia304_9_5_a_verdict_still_on_the_link_when_the_consumer_leaves_operational_is_no_fault() {
-    let reference = dual_running();
-    let inverted_end = reference
-        .trace
-        .iter()
-        .rev()
-        .find(|(_, frame, _)| frame.id().raw() == 0x102)
-        .map(|(end, _, _)| end.as_micros())
-        .expect("node 1 produces");
+    let (_, inverted_end) = last_on_bus(&dual_running(), 0x102);
     let around = inverted_end + 2 * PERIOD;
     for queued_at in (around - 400..around + 800).step_by(20).map(us) {
         let mut net = dual_running();
