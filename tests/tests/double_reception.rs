@@ -231,7 +231,7 @@ fn last_on_bus(net: &DualNetwork, id: u16) -> (u64, u64) {
         .rev()
         .find(|(_, frame, _)| frame.id().raw() == id)
         .map(|(end, frame, _)| (end.as_micros() - bus_time(frame), end.as_micros()))
-        .expect("node 1 produces")
+        .unwrap_or_else(|| panic!("no frame on {id:03X}h in the dual network's trace"))
 }
 
 fn channel_faults(net: &DualNetwork, since: usize) -> Vec<String> {
