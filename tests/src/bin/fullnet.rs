@@ -25,8 +25,8 @@ enum Part {
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Threads for the large batches of calls at one instant: 1 or 2 (the report is the
-        /// same but for its times). 1 by default: on this shared machine, loaded, two were
-        /// not faster (docs/network-performance.md).
+        /// same but for its times). 1 by default: on this machine two were not faster,
+        /// idle or loaded (docs/network-performance.md).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
         threads: u8,
     },

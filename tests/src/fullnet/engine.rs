@@ -21,6 +21,7 @@
 //!   delimiter arrives, so a link message costs one step instead of one per byte.
 //! - **No allocation per frame.** Scratch buffers are reused; nothing is logged unless asked.
 
+use super::handoff::Handoff;
 use crate::bus::{Bus, Delivery, ORDERED_BY_IDENTIFIER};
 use crate::dual::{B_INPUTS, ChannelARuntime, ChannelBRuntime, LINK_BYTE_TIME, Side};
 use crate::network::device_config;
@@ -288,8 +289,9 @@ pub struct Engine<O: Observer> {
     pub now: Instant,
     /// The bus.
     pub bus: Bus,
-    /// The nodes.
-    pub nodes: Vec<SimNode>,
+    /// The nodes, each boxed so that a batch can move half of them to the second thread
+    /// and back as pointers (a node is about 23 KiB).
+    pub nodes: Vec<Box<SimNode>>,
     /// Who watches.
     pub observer: O,
     /// Deliver every frame to every channel (as `DualNetwork` does) instead of filtering:
@@ -322,6 +324,62 @@ pub struct Engine<O: Observer> {
     /// How many calls at one instant make a batch worth two threads.
     pub batch_threshold: usize,
     batch_scratch: Vec<Scratch>,
+    /// The second thread, started by the first batch that uses it.
+    second: Option<Handoff<Half>>,
+    /// The last half handed to it, kept for its allocations.
+    spare: Option<Half>,
+}
+
+/// The upper half of a batch, for the second thread: its nodes (moved out of the engine and
+/// back), its calls and what each handed out.
+struct Half {
+    nodes: Vec<Box<SimNode>>,
+    /// Index of the first node in `nodes`.
+    offset: usize,
+    calls: Vec<u32>,
+    outs: Vec<Scratch>,
+    now: Instant,
+    action: Action,
+    deadline_only: bool,
+}
+
+impl Half {
+    fn run(mut self) -> Self {
+        let count = self.calls.len();
+        run_calls(
+            &mut self.nodes,
+            self.offset,
+            &self.calls,
+            &mut self.outs[..count],
+            self.now,
+            self.action,
+            self.deadline_only,
+        );
+        self
+    }
+}
+
+/// The calls `calls` (channels, in order) on `nodes` (node `offset` first), each with
+/// `action` at `now` (a deadline call only if the channel's deadline is still due), what
+/// each handed out into `outs`.
+fn run_calls(
+    nodes: &mut [Box<SimNode>],
+    offset: usize,
+    calls: &[u32],
+    outs: &mut [Scratch],
+    now: Instant,
+    action: Action,
+    deadline_only: bool,
+) {
+    for (&c, out) in calls.iter().zip(outs.iter_mut()) {
+        let (index, side) = split(c);
+        let node = &mut nodes[index - offset];
+        if deadline_only && node.deadlines[side as usize] > now {
+            out.clear();
+            continue;
+        }
+        run_call(node, index, side, now, action, out);
+    }
 }
 
 /// Channel number `c`: node `c / 2`, side A for even, B for odd; participant `c + 1`.
@@ -361,11 +419,11 @@ impl<O: Observer> Engine<O> {
         link_period: Duration,
         observer: O,
     ) -> Self {
-        let nodes: Vec<SimNode> = nodes
+        let nodes: Vec<Box<SimNode>> = nodes
             .into_iter()
             .map(|(id, image)| {
                 let image = image.unwrap_or_default();
-                SimNode {
+                Box::new(SimNode {
                     id,
                     a: Runtime::new(
                         device_config(id, "dual node, channel A"),
@@ -389,7 +447,7 @@ impl<O: Observer> Engine<O> {
                     watched: None,
                     outputs: [0; 2],
                     output: 0,
-                }
+                })
             })
             .collect();
         let channels = 2 * nodes.len() as u32;
@@ -427,6 +485,8 @@ impl<O: Observer> Engine<O> {
             threads: 1,
             batch_threshold: 16,
             batch_scratch: Vec::new(),
+            second: None,
+            spare: None,
         }
     }
 
@@ -719,35 +779,50 @@ impl<O: Observer> Engine<O> {
             }
             return;
         }
-        // Split at a node boundary: both channels of a node on one thread, in order.
+        // Split at a node boundary: both channels of a node on one thread, in order. The
+        // upper half's nodes move to the second thread (as pointers) and come back.
         let middle = split(due[due.len() / 2]).0;
         let cut = due.partition_point(|&c| split(c).0 < middle);
         let (first, second) = due.split_at(cut);
-        let mut pool = std::mem::take(&mut self.batch_scratch);
-        while pool.len() < due.len() {
-            pool.push(Scratch::default());
+        let mut half = self.spare.take().unwrap_or_else(|| Half {
+            nodes: Vec::new(),
+            offset: 0,
+            calls: Vec::new(),
+            outs: Vec::new(),
+            now,
+            action,
+            deadline_only,
+        });
+        half.nodes.extend(self.nodes.drain(middle..));
+        half.offset = middle;
+        half.calls.clear();
+        half.calls.extend_from_slice(second);
+        if half.outs.len() < second.len() {
+            half.outs.resize_with(second.len(), Scratch::default);
         }
-        let (first_out, second_out) = pool[..due.len()].split_at_mut(cut);
-        let (low, high) = self.nodes.split_at_mut(middle);
-        let run = |nodes: &mut [SimNode], offset: usize, calls: &[u32], outs: &mut [Scratch]| {
-            for (&c, out) in calls.iter().zip(outs.iter_mut()) {
-                let (index, side) = split(c);
-                let node = &mut nodes[index - offset];
-                if deadline_only && node.deadlines[side as usize] > now {
-                    out.clear();
-                    continue;
-                }
-                run_call(node, index, side, now, action, out);
-            }
-        };
-        rayon::join(
-            || run(low, 0, first, first_out),
-            || run(high, middle, second, second_out),
+        (half.now, half.action, half.deadline_only) = (now, action, deadline_only);
+        let worker = self.second.get_or_insert_with(|| Handoff::new(Half::run));
+        worker.submit(half);
+        let mut pool = std::mem::take(&mut self.batch_scratch);
+        if pool.len() < first.len() {
+            pool.resize_with(first.len(), Scratch::default);
+        }
+        run_calls(
+            &mut self.nodes,
+            0,
+            first,
+            &mut pool[..first.len()],
+            now,
+            action,
+            deadline_only,
         );
-        for out in &pool[..due.len()] {
+        let mut half = worker.wait();
+        self.nodes.append(&mut half.nodes);
+        for out in pool[..first.len()].iter().chain(&half.outs[..second.len()]) {
             self.apply(out);
         }
         self.batch_scratch = pool;
+        self.spare = Some(half);
     }
 
     /// Moves a channel between "every frame" and its identifiers when it entered or left

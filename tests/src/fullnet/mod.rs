@@ -6,6 +6,7 @@
 //! - [`configure`]: storage images of configured nodes, by the configuration tool's own
 //!   procedure against each core alone.
 //! - [`engine`]: the event-driven simulation, checked against `DualNetwork` frame for frame.
+//! - [`handoff`]: the second thread that takes half of a large batch of calls.
 //! - [`network`]: the full network run and its monitor (bus load, SCT and SRVT margins,
 //!   reaction times).
 //! - [`reaction`]: reaction times of the demo's pair by event-driven SRDO, GFC and SCT expiry.
@@ -13,6 +14,7 @@
 
 pub mod configure;
 pub mod engine;
+pub mod handoff;
 pub mod network;
 pub mod plan;
 pub mod reaction;
