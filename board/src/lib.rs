@@ -12,7 +12,8 @@
 //! logic it drives are host-tested in `dual-channel`, `channel-a`, `channel-b` and `tests`. On the host this crate holds
 //! the types both layers share and what the hardware layer needs that is not hardware:
 //! [`parameter_flash`] (the parameter slots on word-programmed flash), [`diagnostics`] (the
-//! status a channel reports on the emulated board's line), the node-ID switches' decoding and
+//! status a channel reports on the emulated board's line), [`stack`]'s search for the stack's
+//! high-water mark, the node-ID switches' decoding and
 //! the emulated run's arguments, all host-tested.
 #![no_std]
 
@@ -32,7 +33,6 @@ pub mod parameter_flash;
 pub mod qemu;
 #[cfg(target_os = "none")]
 pub mod ram;
-#[cfg(target_os = "none")]
 pub mod stack;
 pub mod transmit_queue;
 
