@@ -114,6 +114,21 @@ pub fn paced_clock(last: u64, granted: u64, host_at_grant: u64, host: u64, looka
     last.max(granted.saturating_add(since))
 }
 
+/// Host ticks (semihosting `SYS_ELAPSED`, `hz` of them a second: `SYS_TICKFREQ`) as whole
+/// microseconds, rounded down, saturating. The QEMU layer's clock reads it on every call of
+/// `now()`, many times a loop round: at a whole number of ticks per microsecond (QEMU counts
+/// nanoseconds) one 64-bit division; otherwise the exact 128-bit product and quotient, whose
+/// software division cost the emulated core most of the longest loop round traced (41,082
+/// of 73,580 instructions, `cargo xtask bench --target-cost`, 2026-12-03).
+pub fn micros_from_host_ticks(ticks: u64, hz: u32) -> u64 {
+    let hz = hz.max(1);
+    if hz % 1_000_000 == 0 {
+        ticks / u64::from(hz / 1_000_000)
+    } else {
+        u64::try_from(u128::from(ticks) * 1_000_000 / u128::from(hz)).unwrap_or(u64::MAX)
+    }
+}
+
 /// Why the node-ID switches were not accepted: the node stays in the safe state, silent on
 /// the bus, and says why in its log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -200,6 +215,40 @@ pub fn parse_arguments(line: &[u8]) -> Arguments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The exact quotient floor(ticks × 10⁶ / hz), computed without overflow.
+    fn exact(ticks: u64, hz: u32) -> u64 {
+        u64::try_from(u128::from(ticks) * 1_000_000 / u128::from(hz.max(1))).unwrap_or(u64::MAX)
+    }
+
+    /// Host ticks become the exact microseconds, rounded down, by either path: whole ticks per
+    /// microsecond (QEMU's nanoseconds, 1 MHz, 24 MHz) and the rest (32,768 Hz, 1 Hz, a tick
+    /// frequency of 0 taken as 1), at the edges (0, one below a whole microsecond, u64::MAX)
+    /// and at values spread over the range.
+    #[test]
+    fn host_ticks_become_exact_microseconds_rounded_down() {
+        let frequencies = [1_000_000_000, 1_000_000, 24_000_000, 32_768, 1, 0, u32::MAX];
+        let edges = [0, 1, 999, 1_000, 1_001, 999_999, u64::MAX, u64::MAX - 1];
+        // A multiplicative walk over the range (no generator needed).
+        let walk = (0..500u64).scan(1u64, |value, _| {
+            *value = value
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            Some([*value, *value >> 20])
+        });
+        let ticks: heapless::Vec<u64, 1100> = edges.into_iter().chain(walk.flatten()).collect();
+        for hz in frequencies {
+            for &t in &ticks {
+                assert_eq!(
+                    micros_from_host_ticks(t, hz),
+                    exact(t, hz),
+                    "{t} ticks at {hz} Hz"
+                );
+            }
+        }
+        assert_eq!(micros_from_host_ticks(1_999, 1_000_000_000), 1);
+        assert_eq!(micros_from_host_ticks(2_000, 1_000_000_000), 2);
+    }
 
     /// CiA 301 7.2.2 / ISO 11898-1: every length code a controller can report, for data and
     /// remote frames; none panics, and only 0 to 8 make a frame.

@@ -139,10 +139,8 @@ fn host_ticks() -> Option<u64> {
 
 /// Host microseconds since QEMU started.
 fn host_micros() -> u64 {
-    let hz = u64::from(HOST_TICK_HZ.load(Ordering::Relaxed)).max(1);
-    host_ticks().map_or(0, |ticks| {
-        (u128::from(ticks) * 1_000_000 / u128::from(hz)) as u64
-    })
+    let hz = HOST_TICK_HZ.load(Ordering::Relaxed);
+    host_ticks().map_or(0, |ticks| crate::micros_from_host_ticks(ticks, hz))
 }
 
 impl VirtualClockDriver {

@@ -153,8 +153,8 @@ mod tests {
         let mut sweep = Sweep::new(words);
         assert_eq!(sweep_until_found(&mut sweep, &stack, 100).0, None);
         // Used from the top down to word 2000, with a gap of untouched words in a frame.
-        for word in 2000..words {
-            stack[word] = word % 7 == 0 || word > 2100;
+        for (word, painted) in stack.iter_mut().enumerate().skip(2000) {
+            *painted = word % 7 == 0 || word > 2100;
         }
         stack[2000] = false;
         let mut sweep = Sweep::new(words);

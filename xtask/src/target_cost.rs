@@ -21,7 +21,10 @@
 //! (`board::qemu::marker`: a plain or inverted SRDO frame received or sent, link bytes),
 //! whose own instructions are subtracted, and by the tracked functions it
 //! called (`hand`, one received frame; `Device::poll`, the core polled; `VerdictCheck::arrive`,
-//! a verdict of the cross-check).
+//! a verdict of the cross-check). For each channel's longest iteration the log also gives its
+//! instructions by the function QEMU names for each (the image's function holding the
+//! address, code inlined into it included): that is how the QEMU layer's clock, a 128-bit
+//! software division on every `now()`, was found to be most of the longest iterations.
 
 pub(crate) mod count;
 
@@ -77,6 +80,14 @@ const TRACKED: [&str; 14] = [
     "dual_channel::runtime::Runtime<F,R,_,P>::heartbeat",
     "dual_channel::runtime::Runtime<F,R,_,P>::confirmed",
 ];
+/// How many functions the log names for the longest iteration.
+const SYMBOLS_SHOWN: usize = 8;
+
+/// A symbol as QEMU names it (mangled), demangled without its hash.
+fn demangled(name: &str) -> String {
+    format!("{:#}", rustc_demangle::demangle(name))
+}
+
 const SERVICE: usize = 0;
 const HAND: usize = 1;
 const CORE_POLL: usize = 2;
@@ -151,7 +162,7 @@ struct Channel {
     heartbeat: Vec<u64>,
     /// The longest iteration (markers subtracted) and the tracked calls made inside it, for
     /// the log: what the iteration that sets the processing step spent its instructions on.
-    longest: Option<(u64, Vec<(usize, u64)>)>,
+    longest: Option<(u64, Call)>,
     /// Lines of the trace.
     lines: u64,
 }
@@ -177,9 +188,10 @@ impl Channel {
     /// The longest iteration and the tracked calls inside it, by function (count and
     /// instructions; calls nested in one another are each counted whole).
     fn longest(&self) -> String {
-        let Some((most, nested)) = &self.longest else {
+        let Some((most, call)) = &self.longest else {
             return "no loop iteration".to_owned();
         };
+        let (nested, symbols) = (&call.nested, &call.symbols);
         let mut parts = Vec::new();
         for (index, name) in TRACKED.iter().enumerate() {
             let calls: Vec<u64> = nested
@@ -196,14 +208,22 @@ impl Channel {
                 ));
             }
         }
+        // Where its instructions are, by the image's function that holds each (inlined code
+        // counts as the function it was inlined into); the markers included.
+        let by_symbol: Vec<String> = symbols
+            .iter()
+            .take(SYMBOLS_SHOWN)
+            .map(|(name, count)| format!("{} {count}", demangled(name)))
+            .collect();
         format!(
             "longest loop iteration {most} instructions (markers subtracted); tracked calls \
-             inside it: {}",
+             inside it: {}; by function, the {SYMBOLS_SHOWN} largest: {}",
             if parts.is_empty() {
                 "none".to_owned()
             } else {
                 parts.join(", ")
-            }
+            },
+            by_symbol.join(", ")
         )
     }
 
@@ -231,7 +251,7 @@ impl Channel {
         let own = call.without(&MARKERS);
         self.all.push(own);
         if self.longest.as_ref().is_none_or(|(most, _)| own > *most) {
-            self.longest = Some((own, call.nested.clone()));
+            self.longest = Some((own, call.clone()));
         }
         let plain = call.made(RX_PLAIN);
         let inverted = call.made(RX_INVERTED);
@@ -838,6 +858,7 @@ mod tests {
             function: SERVICE,
             instructions,
             nested,
+            symbols: Vec::new(),
         };
         let counted = Counted {
             calls: vec![
@@ -868,6 +889,7 @@ mod tests {
             function: SERVICE,
             instructions,
             nested,
+            symbols: Vec::new(),
         };
         let counted = Counted {
             calls: vec![

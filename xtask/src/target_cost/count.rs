@@ -19,6 +19,10 @@ pub struct Call {
     /// The tracked calls made inside it, in the order they returned: (function, their
     /// instructions). Only for the functions asked for ([`count_calls`]'s `nesting`).
     pub nested: Vec<(usize, u64)>,
+    /// Its instructions by the symbol QEMU names for each (the function of the image that
+    /// holds the address, so code inlined into a function counts as that function's), the
+    /// most first. Only for the functions asked for, as `nested`.
+    pub symbols: Vec<(String, u64)>,
 }
 
 impl Call {
@@ -60,6 +64,16 @@ pub fn exec_pc(line: &[u8]) -> Option<(u32, bool)> {
     Some((pc as u32, flags & 1 == 1))
 }
 
+/// The symbol at the end of a `-d exec` line (after the closing bracket), without the line
+/// end; empty when QEMU names none.
+pub fn exec_symbol(line: &[u8]) -> &[u8] {
+    let after = line
+        .iter()
+        .rposition(|&b| b == b']')
+        .map_or(&line[line.len()..], |at| &line[at + 1..]);
+    after.trim_ascii()
+}
+
 /// A hexadecimal field (at most 16 digits).
 fn hex(digits: &[u8]) -> Option<u64> {
     if digits.is_empty() || digits.len() > 16 {
@@ -99,6 +113,8 @@ struct Open {
     back: u32,
     instructions: u64,
     nested: Vec<(usize, u64)>,
+    /// Instructions by symbol, for the functions in `nesting`.
+    symbols: std::collections::HashMap<Vec<u8>, u64>,
 }
 
 /// The calls in progress and those done, line by line.
@@ -132,25 +148,46 @@ impl Counter {
                     outer.nested.push((call.function, call.instructions));
                 }
             }
+            let mut symbols: Vec<(String, u64)> = call
+                .symbols
+                .into_iter()
+                .map(|(name, count)| (String::from_utf8_lossy(&name).into_owned(), count))
+                .collect();
+            symbols.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
             self.counted.calls.push(Call {
                 function: call.function,
                 instructions: call.instructions,
                 nested: call.nested,
+                symbols,
             });
         }
+        let symbol = exec_symbol(line);
         for call in self.open.iter_mut() {
             call.instructions += 1;
+            if nesting.contains(&call.function) {
+                match call.symbols.get_mut(symbol) {
+                    Some(count) => *count += 1,
+                    None => {
+                        call.symbols.insert(symbol.to_vec(), 1);
+                    }
+                }
+            }
         }
         // One entered otherwise than by `bl` (a tail call) never sees its return address.
         self.open.retain(|call| call.instructions < ABANDON_AFTER);
         if let (Some(function), Some(from)) =
             (entries.iter().position(|&at| at == pc), self.previous)
         {
+            let mut symbols = std::collections::HashMap::new();
+            if nesting.contains(&function) {
+                symbols.insert(exec_symbol(line).to_vec(), 1);
+            }
             self.open.push(Open {
                 function,
                 back: from + 4,
                 instructions: 1,
                 nested: Vec::new(),
+                symbols,
             });
         }
         self.previous = Some(pc);
@@ -166,7 +203,11 @@ mod tests {
     use super::*;
 
     fn line(pc: u32) -> String {
-        format!("Trace 0: 0x7f00 [00800408/{pc:016x}/00000110/ff020201] f")
+        // The symbol QEMU would name: the "function" of the address's 256-byte page.
+        format!(
+            "Trace 0: 0x7f00 [00800408/{pc:016x}/00000110/ff020201] f{:x}",
+            pc >> 8
+        )
     }
 
     fn handler(pc: u32) -> String {
@@ -201,12 +242,14 @@ mod tests {
                 Call {
                     function: 1,
                     instructions: 1,
-                    nested: vec![]
+                    nested: vec![],
+                    symbols: vec![],
                 },
                 Call {
                     function: 0,
                     instructions: 4,
-                    nested: vec![(1, 1)]
+                    nested: vec![(1, 1)],
+                    symbols: vec![("f2".to_owned(), 3), ("f3".to_owned(), 1)],
                 },
             ]
         );
