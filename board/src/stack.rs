@@ -6,7 +6,7 @@
 //! fails when an emulated channel used more than the reserve.
 //!
 //! The search for that word is spread over the loop's iterations ([`Sweep`], host-tested
-//! here; [`Sampled`] on the target reads the stack with it), a bounded number of words per
+//! here; `Sampled` on the target reads the stack with it), a bounded number of words per
 //! iteration, so that no iteration pays for the whole stack: the loop's longest iteration is
 //! the processing step the safety manual's response time is built on.
 
