@@ -267,11 +267,9 @@ impl TransmitCheck {
                 }
             }
         }
-        let index = self
-            .disputed
-            .iter()
-            .position(|disputed| disputed.own.id == id && disputed.value == after)?;
-        let disputed = self.disputed.swap_remove(index);
+        let disputed = take_first(&mut self.disputed, |disputed| {
+            disputed.own.id == id && disputed.value == after
+        })?;
         Some(OnBus {
             frame: disputed.own,
             heard: disputed.heard,
@@ -295,8 +293,7 @@ impl TransmitCheck {
         if self.waiting.iter().any(|(kept, _)| kept.id == own.id) {
             return Err(TransmitFault::Missing { id: own.id });
         }
-        if let Some(index) = self.early.iter().position(|early| early.heard.id == own.id) {
-            let early = self.early.swap_remove(index);
+        if let Some(early) = take_first(&mut self.early, |early| early.heard.id == own.id) {
             let since = micros_from(now, early.at);
             return self.judge(
                 own,
@@ -330,7 +327,8 @@ impl TransmitCheck {
         buffering: Duration,
     ) -> Result<Option<OnBus>, TransmitFault> {
         let mismatch = TransmitFault::Mismatch { id: heard.id };
-        let Some(index) = self.waiting.iter().position(|(own, _)| own.id == heard.id) else {
+        let Some((own, deadline)) = take_first(&mut self.waiting, |(own, _)| own.id == heard.id)
+        else {
             // Ahead of B's own: it waits for it, one per identifier (a second is not a
             // packet B can still compute: A's core is ahead by a whole cycle).
             if self.early.iter().any(|early| early.heard.id == heard.id) {
@@ -345,7 +343,6 @@ impl TransmitCheck {
             };
             return self.early.push(early).map(|()| None).map_err(|_| mismatch);
         };
-        let (own, deadline) = self.waiting.swap_remove(index);
         // B computed its own `within` before the deadline.
         let within = self.within(heard.id);
         let computed =
@@ -541,6 +538,25 @@ fn sync_agrees(
         && given <= own_time.saturating_add(micros(ahead))
 }
 
+/// Takes the first element of `list` that `matches` out of it, the last element taking its
+/// place: what `list.iter().position(..)` and `heapless::Vec::swap_remove` do together, but
+/// through a swap of two elements that are disjoint by construction (`split_at_mut`) and a
+/// `pop`. `swap_remove`'s `core::ptr::copy`, and the same move through `core::mem::replace`,
+/// compile to a call of compiler-builtins' `memmove` (1.5 KiB of the images,
+/// docs/footprint.md).
+fn take_first<T, const N: usize>(
+    list: &mut heapless::Vec<T, N>,
+    matches: impl Fn(&T) -> bool,
+) -> Option<T> {
+    let index = list.iter().position(matches)?;
+    let last = list.len().checked_sub(1)?;
+    let (head, tail) = list.split_at_mut(last);
+    if let (Some(found), Some(last)) = (head.get_mut(index), tail.first_mut()) {
+        core::mem::swap(found, last);
+    }
+    list.pop()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -560,6 +576,30 @@ mod tests {
     };
 
     const WINDOW: Duration = Duration::from_millis(5);
+
+    /// `take_first` leaves a list as `position` and heapless' own `swap_remove` leave it, for
+    /// every length up to the capacity, every element searched for (duplicates included:
+    /// the first is taken) and one that is not there.
+    #[test]
+    fn take_first_is_position_and_swap_remove() {
+        for len in 0..=4usize {
+            let list: heapless::Vec<u8, 4> = (0..len as u8).map(|k| k % 3).collect();
+            for wanted in 0..4u8 {
+                let mut ours = list.clone();
+                let mut theirs = list.clone();
+                let expected = theirs
+                    .iter()
+                    .position(|&value| value == wanted)
+                    .map(|index| theirs.swap_remove(index));
+                assert_eq!(
+                    take_first(&mut ours, |&value| value == wanted),
+                    expected,
+                    "{list:?}, {wanted}"
+                );
+                assert_eq!(ours, theirs, "{list:?}, {wanted}");
+            }
+        }
+    }
 
     /// Model A's bounds under pacing (SC_REQ_23, SC_REQ_30): 2L + G + a frame time where
     /// that exceeds the standard's, the standard's otherwise.
