@@ -578,21 +578,22 @@ mod tests {
     const WINDOW: Duration = Duration::from_millis(5);
 
     /// `take_first` leaves a list as `position` and heapless' own `swap_remove` leave it, for
-    /// every length up to the capacity, every element searched for (duplicates included:
-    /// the first is taken) and one that is not there.
+    /// every length up to the capacity, every key searched for (keys repeat, so the first of
+    /// them is taken; each element also carries its place, so every move shows) and one that
+    /// is not there.
     #[test]
     fn take_first_is_position_and_swap_remove() {
-        for len in 0..=4usize {
-            let list: heapless::Vec<u8, 4> = (0..len as u8).map(|k| k % 3).collect();
+        for len in 0..=4u8 {
+            let list: heapless::Vec<(u8, u8), 4> = (0..len).map(|k| (k % 3, k)).collect();
             for wanted in 0..4u8 {
                 let mut ours = list.clone();
                 let mut theirs = list.clone();
                 let expected = theirs
                     .iter()
-                    .position(|&value| value == wanted)
+                    .position(|&(key, _)| key == wanted)
                     .map(|index| theirs.swap_remove(index));
                 assert_eq!(
-                    take_first(&mut ours, |&value| value == wanted),
+                    take_first(&mut ours, |&(key, _)| key == wanted),
                     expected,
                     "{list:?}, {wanted}"
                 );
