@@ -40,10 +40,11 @@ pub const WAKE_INSTRUCTIONS: u64 = 2000;
 /// analysis of the images' code (instructions): `board::hw::run` feeds the watchdog and
 /// searches 256 words of the stack for its high-water mark (`board::stack::WORDS_PER_STEP`),
 /// at 7 Thumb instructions a word in both hardware images (address, load, compare with the
-/// paint, branch, index: the loop as compiled), 1,792 for the words; 2,000 are allowed. A
-/// frame that arrives during it waits for it, and the measurement does not count it: it
-/// counts the iteration (`ChannelLoop::service`).
-pub const BETWEEN_ITERATIONS: u64 = 2000;
+/// paint, branch, index: the loop as compiled), 1,792 for the words and about 20 around
+/// them, and logs a new mark when it finds one (one defmt line, a few hundred); 2,500 are
+/// allowed. A frame that arrives during it waits for it, and the measurement does not count
+/// it: it counts the iteration (`ChannelLoop::service`).
+pub const BETWEEN_ITERATIONS: u64 = 2500;
 
 /// The core clock of the product's STM32F405 (`board::hw`).
 pub const CLOCK_HZ: u64 = 168_000_000;
@@ -92,22 +93,22 @@ mod tests {
     use super::*;
 
     /// The step is the whole path at the bounded cycles per instruction, doubled, rounded up
-    /// to 10 µs: the wake-up and the board's work between iterations (2,000 each), 2,000 and
-    /// 1,000 instructions of iterations, 7,000 in all, are 84,000 cycles, 500.0 µs exactly;
-    /// one instruction more rounds up to 510 µs.
+    /// to 10 µs: the wake-up and the board's work between iterations (2,000 and 2,500), 2,000
+    /// and 1,060 instructions of iterations, 7,560 in all, are 90,720 cycles, 540.0 µs
+    /// exactly; one instruction more rounds up to 550 µs.
     #[test]
     fn en50325_5_9_3_1_the_processing_step_is_the_path_at_the_bounded_cycles() {
-        assert_eq!((WAKE_INSTRUCTIONS, BETWEEN_ITERATIONS), (2000, 2000));
+        assert_eq!((WAKE_INSTRUCTIONS, BETWEEN_ITERATIONS), (2000, 2500));
         let cost = TargetCost {
             longest_iteration: 2000,
-            longest_srdo_iteration: 1000,
+            longest_srdo_iteration: 1060,
         };
-        assert_eq!(cost.path_instructions(), 7000);
-        assert_eq!(cost.processing_us(), 500);
+        assert_eq!(cost.path_instructions(), 7560);
+        assert_eq!(cost.processing_us(), 540);
         let one_more = TargetCost {
-            longest_srdo_iteration: 1001,
+            longest_srdo_iteration: 1061,
             ..cost
         };
-        assert_eq!(one_more.processing_us(), 510);
+        assert_eq!(one_more.processing_us(), 550);
     }
 }
