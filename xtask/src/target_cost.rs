@@ -728,19 +728,27 @@ fn render(
         let digest = per(side, |c| &c.digest)?;
         let heartbeat = per(side, |c| &c.heartbeat)?;
         let periods = LOAD_REFRESH_MS / LINK_PERIOD_MS;
+        let idle_rounds = LOAD_REFRESH_MS / SAMPLE_PERIOD_MS;
         let idle = per(name, |c| &c.idle)?;
+        // The board layer's work after every round (the heartbeat's and the idle ones here;
+        // the pairs' below), which the iterations' counts leave out.
         overhead.push(
             periods * (scale * digest + heartbeat.saturating_sub(digest))
-                + LOAD_REFRESH_MS / SAMPLE_PERIOD_MS * idle,
+                + idle_rounds * idle
+                + (periods + idle_rounds) * cost::BETWEEN_ITERATIONS,
         );
     }
+    // Loop rounds per pair: the consumer's plain frame, inverted frame and the other
+    // channel's verdict; producer channel A's plain frame sent and its node's inverted frame
+    // seen; channel B's plain frame taken and its inverted frame sent.
+    let rounds = |per_pair: u64| LOAD_SRDOS * per_pair * cost::BETWEEN_ITERATIONS;
     let consumer = [
-        LOAD_SRDOS * per("node33a", |c| &c.pairs)? + overhead[2],
-        LOAD_SRDOS * per("node33b", |c| &c.pairs)? + overhead[3],
+        LOAD_SRDOS * per("node33a", |c| &c.pairs)? + rounds(3) + overhead[2],
+        LOAD_SRDOS * per("node33b", |c| &c.pairs)? + rounds(3) + overhead[3],
     ];
     let producer = [
-        LOAD_SRDOS * (plain_sent.most + own_inverted.most) + overhead[0],
-        LOAD_SRDOS * inverted_sent.most + overhead[1],
+        LOAD_SRDOS * (plain_sent.most + own_inverted.most) + rounds(2) + overhead[0],
+        LOAD_SRDOS * inverted_sent.most + rounds(1) + overhead[1],
     ];
     let budget = cost::CLOCK_HZ / 1000 * LOAD_REFRESH_MS;
     let load = |instructions: u64, cpi: u64| instructions * cpi * 100 / budget;
@@ -792,10 +800,14 @@ fn render(
          a pair took on that channel, the configuration digest scaled to {LOAD_SRDOS} SRDOs \
          ({scale}×, one signature per record) computed once per {LINK_PERIOD_MS} ms link \
          period (for its own heartbeat, which the other channel's digest is compared with) \
-         with the rest of the heartbeat, and an idle iteration every {SAMPLE_PERIOD_MS} ms. At one instruction \
-         per cycle (a lower bound) and at the {} cycles per instruction the processing step \
-         assumes (`safety_config::calc::target::CPI_BOUND`):\n",
+         with the rest of the heartbeat, an idle iteration every {SAMPLE_PERIOD_MS} ms, and \
+         after every one of these rounds the board layer's work the iterations leave out \
+         ({} instructions, `safety_config::calc::target::BETWEEN_ITERATIONS`: the stack's \
+         search). At one instruction per cycle (a lower bound) and at the {} cycles per \
+         instruction the processing step assumes \
+         (`safety_config::calc::target::CPI_BOUND`):\n",
         cost::CLOCK_HZ / 1_000_000,
+        cost::BETWEEN_ITERATIONS,
         cost::CPI_BOUND
     );
     let _ = writeln!(
