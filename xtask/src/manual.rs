@@ -749,7 +749,7 @@ fn processing_part(bench: &str) -> Result<String> {
          |---|---:|---|\n\
          | wake-up: the interrupt to the loop's entry | {} | allowed by argument |\n\
          | the loop iteration a frame may wait behind (the longest of any kind) | {} | measured (most seen) |\n\
-         | the board's work after it: the watchdog fed, 256 words of the stack's search, a new mark's log line | {} | allowed by analysis of the images' code |\n\
+         | the board's work after it: the watchdog fed, the stack's search (`board::stack::WORDS_PER_STEP` words), a new mark's log line | {} | allowed by analysis of the images' code |\n\
          | the loop iteration that handles the SRDO frame or verdict (the longest) | {} | measured (most seen) |\n\
          | **path** | **{}** | |\n",
         target::WAKE_INSTRUCTIONS,

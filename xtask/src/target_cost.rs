@@ -842,8 +842,9 @@ fn render(
          the wake-up allowed by argument ({} instructions; the emulated loop never halted while \
          traced, the hub's time grants keep its line busy), the longest loop iteration of any \
          kind, which a frame may wait behind ({}), the board's work after it, allowed by \
-         analysis of the images' code ({}: the watchdog fed, 256 words of the stack's search \
-         and a new mark's log line, not counted here), and the longest iteration that handled \
+         analysis of the images' code ({}: the watchdog fed, the stack's search of \
+         `board::stack::WORDS_PER_STEP` words and a new mark's log line, not counted here), \
+         and the longest iteration that handled \
          an SRDO frame or a verdict ({}): {} instructions, at {} cycles per instruction on {} \
          MHz and doubled for interrupts, rounded up to 10 µs: **{} µs**. Observed in \
          Operational with the pair flowing; iterations that handle SDO requests, NMT commands \

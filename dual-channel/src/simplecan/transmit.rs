@@ -549,8 +549,8 @@ fn take_first<T, const N: usize>(
     matches: impl Fn(&T) -> bool,
 ) -> Option<T> {
     let index = list.iter().position(matches)?;
-    let last = list.len().checked_sub(1)?;
-    let (head, tail) = list.split_at_mut(last);
+    let last_index = list.len().checked_sub(1)?;
+    let (head, tail) = list.split_at_mut(last_index);
     if let (Some(found), Some(last)) = (head.get_mut(index), tail.first_mut()) {
         core::mem::swap(found, last);
     }
