@@ -64,8 +64,17 @@ fn crate_of(path: &str) -> String {
             .map_or(directory, |(name, _)| name)
             .to_string();
     }
+    // The standard library: `library/<crate>/…` cut, `/rustc/<hash>/library/…` uncut, and
+    // `…/lib/rustlib/src/rust/library/…` where the toolchain has its `rust-src` component
+    // (rustc then names the sources it has instead of the remapped ones).
     let relative = match relative.split_once("library/") {
-        Some((before, rest)) if before.is_empty() || before.starts_with("rustc/") => rest,
+        Some((before, rest))
+            if before.is_empty()
+                || before.starts_with("rustc/")
+                || before.ends_with("lib/rustlib/src/rust/") =>
+        {
+            rest
+        }
         _ => &relative,
     };
     match relative.split('/').next() {
@@ -389,6 +398,12 @@ mod tests {
     fn a_standard_library_path_names_its_library() {
         assert_eq!(
             crate_of("/rustc/59807616e1ee4a59b3d5e8f2d0bd0f4a3c2a4fe5/library/core/src/fmt/mod.rs"),
+            "core"
+        );
+        assert_eq!(
+            crate_of(
+                "/root/.rustup/toolchains/1.95.0-x86_64-unknown-linux-gnu/lib/rustlib/src/rust/library/core/src/ptr/mod.rs"
+            ),
             "core"
         );
     }
