@@ -186,6 +186,26 @@ impl ProcessImage {
         self.bytes.get(start.min(end)..end).unwrap_or(&[])
     }
 
+    /// The 8 bytes from the start of `span`, zero past the end of the image: a fixed-size
+    /// window the transmit hot path copies whole (one load and store) instead of a copy call
+    /// of the span's length. Its first bytes are [`ProcessImage::get`]'s. Out of line in the
+    /// firmware images (two call sites, each with the copy past the image's end).
+    #[cfg_attr(target_os = "none", inline(never))]
+    #[cfg_attr(not(target_os = "none"), inline)]
+    pub fn window(&self, span: Span) -> [u8; 8] {
+        let start = usize::from(span.offset);
+        let mut window = [0u8; 8];
+        match self.bytes.get(start..start + 8) {
+            Some(bytes) => window.copy_from_slice(bytes),
+            None => {
+                let tail = self.bytes.get(start..).unwrap_or_default();
+                let count = tail.len().min(8);
+                window[..count].copy_from_slice(&tail[..count]);
+            }
+        }
+        window
+    }
+
     /// Copies `data` into `span` (as much as both hold).
     #[inline]
     pub fn set(&mut self, span: Span, data: &[u8]) {
@@ -300,6 +320,34 @@ mod tests {
                 by_word.put_le(span, value);
                 by_byte.set(span, &value.to_le_bytes()[..usize::from(len)]);
                 assert_eq!(by_word.bytes, by_byte.bytes, "offset {offset} len {len}");
+            }
+        }
+    }
+
+    /// The transmit path's window starts with exactly the bytes `get` gives and is zero past
+    /// the image's end, at every offset (past the end included) and every length.
+    #[test]
+    fn a_window_starts_with_the_bytes_of_its_span() {
+        let mut image = ProcessImage::new(&TABLE).unwrap();
+        for (at, byte) in image.bytes.iter_mut().enumerate() {
+            *byte = (at as u8).wrapping_mul(37) | 1;
+        }
+        for offset in 0..=u8::MAX {
+            for len in 0..=12u8 {
+                let span = Span { offset, len };
+                let window = image.window(span);
+                let bytes = image.get(span);
+                let count = bytes.len().min(8);
+                assert_eq!(
+                    &window[..count],
+                    &bytes[..count],
+                    "offset {offset} len {len}"
+                );
+                let inside = PROCESS_IMAGE_LEN.saturating_sub(usize::from(offset)).min(8);
+                assert!(
+                    window[inside..].iter().all(|&byte| byte == 0),
+                    "offset {offset}: zero past the image"
+                );
             }
         }
     }

@@ -352,23 +352,37 @@ pub fn gather(
     image: &ProcessImage,
     mapping: &ResolvedMapping,
 ) -> Result<(u64, u64), SrdoFaultCause> {
-    let mut plain = [0u8; 8];
-    let mut inverted = [0u8; 8];
+    // Eight bytes of room past the payload: an object is copied as the whole 8-byte window
+    // that starts with it (the bytes past its end, or past the image's, are overwritten by
+    // the next object or masked off below), a load and a store instead of a copy call of its
+    // length.
+    let mut plain = [0u8; 16];
+    let mut inverted = [0u8; 16];
     let mut at = 0usize;
     for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
-        let source = image.get(mapping.plain[pair]);
-        let mirror = image.get(mapping.inverted[pair]);
+        let (plain_span, inverted_span) = (mapping.plain[pair], mapping.inverted[pair]);
+        let source = image.get(plain_span);
+        let mirror = image.get(inverted_span);
         let end = (at + source.len()).min(8);
         // Validation guarantees equal lengths and a total of at most 8 bytes; `min` keeps a
         // damaged mapping from panicking, and the inverse check below then fails it.
         if mirror.len() != source.len() {
             return Err(SrdoFaultCause::TransmitHalvesNotInverted);
         }
-        plain[at..end].copy_from_slice(&source[..end - at]);
-        inverted[at..end].copy_from_slice(&mirror[..end - at]);
+        if end > at {
+            plain[at..at + 8].copy_from_slice(&image.window(plain_span));
+            inverted[at..at + 8].copy_from_slice(&image.window(inverted_span));
+        }
         at = end;
     }
-    let (plain, inverted) = (u64::from_le_bytes(plain), u64::from_le_bytes(inverted));
+    // Only the `at` bytes copied count; what a window brought past them goes.
+    let mask = payload_mask(at as u8);
+    let word = |bytes: &[u8; 16]| {
+        let mut low = [0u8; 8];
+        low.copy_from_slice(&bytes[..8]);
+        u64::from_le_bytes(low) & mask
+    };
+    let (plain, inverted) = (word(&plain), word(&inverted));
     if is_inverse(plain, inverted, mapping.len) {
         Ok((plain, inverted))
     } else {
@@ -404,6 +418,7 @@ pub fn clear(image: &mut ProcessImage, mapping: &ResolvedMapping) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::process_image::Span;
 
     const SCT: Duration = Duration::from_millis(50);
     const SRVT: Duration = Duration::from_millis(20);
@@ -412,6 +427,83 @@ mod tests {
     }
     fn bytes(value: u64) -> [u8; 8] {
         value.to_le_bytes()
+    }
+
+    /// What `gather` did before it copied whole windows: each object's bytes alone, into
+    /// zeroed payloads. The reference the window copy is held to.
+    fn gather_by_bytes(
+        image: &ProcessImage,
+        mapping: &ResolvedMapping,
+    ) -> Result<(u64, u64), SrdoFaultCause> {
+        let mut plain = [0u8; 8];
+        let mut inverted = [0u8; 8];
+        let mut at = 0usize;
+        for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
+            let source = image.get(mapping.plain[pair]);
+            let mirror = image.get(mapping.inverted[pair]);
+            let end = (at + source.len()).min(8);
+            if mirror.len() != source.len() {
+                return Err(SrdoFaultCause::TransmitHalvesNotInverted);
+            }
+            plain[at..end].copy_from_slice(&source[..end - at]);
+            inverted[at..end].copy_from_slice(&mirror[..end - at]);
+            at = end;
+        }
+        let (plain, inverted) = (u64::from_le_bytes(plain), u64::from_le_bytes(inverted));
+        if is_inverse(plain, inverted, mapping.len) {
+            Ok((plain, inverted))
+        } else {
+            Err(SrdoFaultCause::TransmitHalvesNotInverted)
+        }
+    }
+
+    static ONE_OBJECT: [crate::process_image::AppObject; 1] = [crate::process_image::AppObject {
+        address: crate::canopen::od::Address::new(0x6000, 1),
+        len: 1,
+        access: crate::process_image::Access::ReadOnly,
+        mappable: crate::process_image::Mappable::Transmit,
+    }];
+
+    proptest::proptest! {
+        /// EN 50325-5 7.1.1: the transmit path's window copy gathers what the byte copy of
+        /// each object gathers, valid pair or fault, on any mapping: valid ones (the inverted
+        /// objects 32 bytes on, holding the complement), objects at the end of the image
+        /// (no whole window there), past it, longer than 8 bytes or than the payload, halves
+        /// of unequal length, and a pair count beyond the spans.
+        #[test]
+        fn gather_gives_what_the_byte_copy_of_each_object_gives(
+            low in proptest::collection::vec(proptest::num::u8::ANY, 32),
+            flipped in 0usize..40,
+            spans in proptest::collection::vec(
+                (0u8..70, 0u8..11, proptest::bool::weighted(0.8), 0u8..70, 0u8..11),
+                8,
+            ),
+            pairs in 0u8..10,
+            len in 0u8..10,
+        ) {
+            let mut image = ProcessImage::new(&ONE_OBJECT).unwrap();
+            let mut bytes = [0u8; crate::process_image::PROCESS_IMAGE_LEN];
+            for (at, &byte) in low.iter().enumerate() {
+                bytes[at] = byte;
+                bytes[at + 32] = !byte;
+            }
+            if let Some(byte) = bytes.get_mut(flipped) {
+                *byte ^= 0x10;
+            }
+            image.set(Span { offset: 0, len: 64 }, &bytes);
+            let mut mapping = ResolvedMapping::EMPTY;
+            for (pair, &(offset, span_len, valid, other, other_len)) in spans.iter().enumerate() {
+                mapping.plain[pair] = Span { offset, len: span_len };
+                mapping.inverted[pair] = if valid {
+                    Span { offset: offset.saturating_add(32), len: span_len }
+                } else {
+                    Span { offset: other, len: other_len }
+                };
+            }
+            mapping.pairs = pairs;
+            mapping.len = len;
+            proptest::prop_assert_eq!(gather(&image, &mapping), gather_by_bytes(&image, &mapping));
+        }
     }
 
     #[test]
