@@ -471,7 +471,7 @@ mod tests {
         /// (no whole window there), past it, longer than 8 bytes or than the payload, halves
         /// of unequal length, and a pair count beyond the spans.
         #[test]
-        fn gather_gives_what_the_byte_copy_of_each_object_gives(
+        fn en50325_5_7_1_1_gather_gives_what_the_byte_copy_of_each_object_gives(
             low in proptest::collection::vec(proptest::num::u8::ANY, 32),
             flipped in 0usize..40,
             spans in proptest::collection::vec(
