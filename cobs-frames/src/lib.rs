@@ -36,10 +36,7 @@ impl<const N: usize> Reassembler<N> {
     /// Feeds one byte. At a delimiter, decodes the frame into `out` and says how long it is;
     /// an empty frame (two delimiters in a row: idle line or resynchronisation) is nothing.
     pub fn push(&mut self, byte: u8, out: &mut [u8; N]) -> Option<Completed> {
-        if byte != 0 {
-            if self.buffer.push(byte).is_err() {
-                self.overflowed = true;
-            }
+        if self.keep(byte) {
             return None;
         }
         let overflowed = core::mem::replace(&mut self.overflowed, false);
@@ -49,6 +46,21 @@ impl<const N: usize> Reassembler<N> {
         let decoded = (!overflowed).then(|| decode(&self.buffer, out)).flatten();
         self.buffer.clear();
         Some(decoded.map_or(Completed::Broken, Completed::Frame))
+    }
+
+    /// Keeps `byte` when it is not the delimiter (`true`: what [`Reassembler::push`] does
+    /// with it, and nothing completes); a delimiter is left for `push` (`false`). A receiver
+    /// fed a byte at a time calls this first and makes the buffer a frame is decoded into
+    /// only at a delimiter, not for every byte (zeroing it for every byte was the largest
+    /// part of the emulated board's serial line under QEMU).
+    pub fn keep(&mut self, byte: u8) -> bool {
+        if byte == 0 {
+            return false;
+        }
+        if self.buffer.push(byte).is_err() {
+            self.overflowed = true;
+        }
+        true
     }
 
     /// Feeds `bytes` up to the first delimiter that completes a frame (an empty frame is

@@ -382,6 +382,10 @@ impl Decoder {
 
     /// Feeds one byte; returns a message (or why not) when the byte ends one.
     pub fn push(&mut self, byte: u8) -> Option<Result<Wire, SerialError>> {
+        // Only a delimiter completes a frame: the buffer it decodes into is made only then.
+        if self.frames.keep(byte) {
+            return None;
+        }
         let mut raw = [0u8; MAX_WIRE];
         Some(match self.frames.push(byte, &mut raw)? {
             Completed::Broken => Err(SerialError::Malformed),

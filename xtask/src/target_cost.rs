@@ -213,7 +213,14 @@ impl Channel {
         let by_symbol: Vec<String> = symbols
             .iter()
             .take(SYMBOLS_SHOWN)
-            .map(|(name, count)| format!("{} {count}", demangled(name)))
+            .map(|(name, count)| {
+                let name = name
+                    .split(count::CALLED_FROM)
+                    .map(demangled)
+                    .collect::<Vec<_>>()
+                    .join(count::CALLED_FROM);
+                format!("{name} {count}")
+            })
             .collect();
         format!(
             "longest loop iteration {most} instructions (markers subtracted); tracked calls \

@@ -262,6 +262,10 @@ impl Receiver {
 
     /// Feeds one received byte; returns a message or a fault when it completes a frame.
     pub fn receive(&mut self, now: Instant, byte: u8) -> Option<Result<Message, LinkFault>> {
+        // Only a delimiter completes a frame: the buffer it decodes into is made only then.
+        if self.frames.keep(byte) {
+            return None;
+        }
         let mut raw = [0u8; MAX_WIRE];
         let completed = self.frames.push(byte, &mut raw)?;
         self.completed(now, completed, &raw)

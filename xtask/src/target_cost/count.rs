@@ -21,7 +21,8 @@ pub struct Call {
     pub nested: Vec<(usize, u64)>,
     /// Its instructions by the symbol QEMU names for each (the function of the image that
     /// holds the address, so code inlined into a function counts as that function's), the
-    /// most first. Only for the functions asked for, as `nested`.
+    /// most first; a memory routine's ([`is_memory_routine`]) as `routine <- caller`, the
+    /// function it was last entered from. Only for the functions asked for, as `nested`.
     pub symbols: Vec<(String, u64)>,
 }
 
@@ -74,6 +75,18 @@ pub fn exec_symbol(line: &[u8]) -> &[u8] {
     after.trim_ascii()
 }
 
+/// What [`Call::symbols`] puts between a memory routine and the function that called it.
+pub const CALLED_FROM: &str = " <- ";
+
+/// `memcpy`, `memset`, `memclr`, `memmove`, `memcmp` in any of their names (the AEABI
+/// entries, compiler-builtins' and libc's): shared by every caller, so the breakdown names
+/// who called them.
+pub fn is_memory_routine(symbol: &[u8]) -> bool {
+    [&b"memcpy"[..], b"memset", b"memclr", b"memmove", b"memcmp"]
+        .iter()
+        .any(|name| symbol.windows(name.len()).any(|window| window == *name))
+}
+
 /// A hexadecimal field (at most 16 digits).
 fn hex(digits: &[u8]) -> Option<u64> {
     if digits.is_empty() || digits.len() > 16 {
@@ -123,6 +136,8 @@ struct Counter {
     counted: Counted,
     open: Vec<Open>,
     previous: Option<u32>,
+    /// The last symbol that was not a memory routine: who called the one running now.
+    caller: Vec<u8>,
 }
 
 impl Counter {
@@ -161,7 +176,14 @@ impl Counter {
                 symbols,
             });
         }
-        let symbol = exec_symbol(line);
+        let mut symbol = exec_symbol(line).to_vec();
+        if is_memory_routine(&symbol) {
+            symbol.extend_from_slice(CALLED_FROM.as_bytes());
+            symbol.extend_from_slice(&self.caller);
+        } else {
+            self.caller.clone_from(&symbol);
+        }
+        let symbol = &symbol[..];
         for call in self.open.iter_mut() {
             call.instructions += 1;
             if nesting.contains(&call.function) {
@@ -255,5 +277,38 @@ mod tests {
         );
         assert_eq!(counted.lines, 12);
         assert_eq!(counted.calls[1].without(&[1]), 3);
+    }
+
+    /// A memory routine's instructions are named with the function it was entered from, so
+    /// that clears and copies shared by every caller can be told apart.
+    #[test]
+    fn a_memory_routine_is_named_with_its_caller() {
+        let named = |pc: u32, symbol: &str| {
+            format!("Trace 0: 0x7f00 [00800408/{pc:016x}/00000110/ff020201] {symbol}")
+        };
+        // f calls g (bl at 0x102); g calls __aeabi_memclr4 twice (two instructions, then
+        // one), f calls it once (one instruction); g returns to 0x106.
+        let text = [
+            named(0x100, "f"),
+            named(0x102, "f"),
+            named(0x200, "g"),
+            named(0x900, "__aeabi_memclr4"),
+            named(0x902, "__aeabi_memclr4"),
+            named(0x204, "g"),
+            named(0x900, "__aeabi_memclr4"),
+            named(0x208, "g"),
+            named(0x106, "f"),
+            named(0x900, "__aeabi_memclr4"),
+            named(0x108, "f"),
+        ];
+        let counted = count(&text, &[0x200], &[0]);
+        assert_eq!(
+            counted.calls[0].symbols,
+            vec![("__aeabi_memclr4 <- g".to_owned(), 3), ("g".to_owned(), 3),]
+        );
+        assert!(is_memory_routine(
+            b"_ZN17compiler_builtins3mem6memcpy17h0123456789abcdefE"
+        ));
+        assert!(!is_memory_routine(b"dual_channel::channel_loop::hand"));
     }
 }
