@@ -34,6 +34,11 @@ impl std::fmt::Display for QueueFull {
     }
 }
 
+/// The fewest bits a frame occupies ([`frame_bits`]): a frame without data whose header and
+/// CRC need no stuff bit, 34 bits from start of frame to the CRC, 13 of delimiters,
+/// acknowledgement, end of frame and intermission.
+pub const SHORTEST_FRAME_BITS: u32 = 47;
+
 /// Bits one standard (11-bit) frame occupies on the bus: SOF to the end of the CRC with its
 /// stuff bits, then CRC delimiter, ACK slot and delimiter, end of frame and the 3-bit
 /// intermission (ISO 11898-1 10.4, 10.5).
@@ -291,7 +296,7 @@ pub struct Delivery {
 pub const ORDERED_BY_IDENTIFIER: usize = usize::MAX;
 
 /// The bus: one transmit queue per participant, arbitration, timing and faults.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct Bus {
     bit_rate: u32,
     queues: Vec<std::collections::VecDeque<CanFrame>>,
@@ -444,6 +449,18 @@ impl Bus {
         self.injections.retain(keep);
     }
 
+    /// When the bus is free again: the end of the frame on it (or of its repetition), or
+    /// an instant already past.
+    pub fn free_at(&self) -> Instant {
+        self.free_at
+    }
+
+    /// The least time any frame occupies the bus at this bit rate ([`SHORTEST_FRAME_BITS`]):
+    /// nothing that is arbitrated at an instant reaches the receivers sooner after it.
+    pub fn shortest_frame(&self) -> Duration {
+        bits_time(SHORTEST_FRAME_BITS, self.bit_rate)
+    }
+
     /// When the next arbitration can start, if anything is waiting.
     pub fn next_start(&self, now: Instant) -> Option<Instant> {
         (!self.heads.is_empty()).then(|| self.free_at.max(now))
@@ -572,6 +589,35 @@ mod tests {
         assert_eq!(order.len(), 2, "{order:?}");
         assert_eq!((order[0].0, order[1].0), (0x102, 0x101), "{order:?}");
         assert!(order[1].1 > order[0].1);
+    }
+
+    /// No frame occupies the bus for fewer than [`SHORTEST_FRAME_BITS`] bits (the full
+    /// network's engine takes it as the least time between an arbitration and its
+    /// delivery), and some frame does occupy exactly that many: every identifier, data and
+    /// remote, without data and with every length of data drawn from a fixed sequence.
+    #[test]
+    fn no_frame_is_shorter_than_the_shortest_frame() {
+        let mut shortest = u32::MAX;
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        for id in 0..2048u16 {
+            let id = CanId::new(id).unwrap();
+            let mut frames = vec![CanFrame::new(id, &[]).unwrap()];
+            frames.extend((0..=8).map(|dlc| CanFrame::remote(id, dlc).unwrap()));
+            for len in 1..=8 {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                frames.push(CanFrame::new(id, &state.to_le_bytes()[..len]).unwrap());
+            }
+            for frame in &frames {
+                shortest = shortest.min(frame_bits(frame));
+            }
+        }
+        assert_eq!(shortest, SHORTEST_FRAME_BITS);
+        let bus = Bus::new(1_000_000, 1);
+        assert_eq!(bus.shortest_frame(), Duration::from_micros(47));
+        let bus = Bus::new(125_000, 1);
+        assert_eq!(bus.shortest_frame(), Duration::from_micros(376));
     }
 
     /// ISO 11898-1: an all-dominant header gives a stuff bit after every fifth bit.

@@ -136,8 +136,7 @@ fn reference() -> DualNetwork {
     net
 }
 
-/// The fast engine on the reference's nodes; with `threads` 2 every batch of two calls or
-/// more at one instant is split between two threads.
+/// The fast engine on the reference's nodes, on `threads` threads.
 fn engine(unfiltered: bool, threads: usize) -> Engine<Events> {
     let nodes = images()
         .into_iter()
@@ -145,8 +144,7 @@ fn engine(unfiltered: bool, threads: usize) -> Engine<Events> {
         .collect();
     let mut engine = Engine::new(500_000, nodes, LINK_PERIOD, Events::default());
     engine.unfiltered = unfiltered;
-    engine.threads = threads;
-    engine.batch_threshold = 2;
+    engine.set_threads(threads);
     engine.trace = Some(Vec::new());
     engine
 }
@@ -166,7 +164,7 @@ fn per_channel(
 /// makes the same calls as `DualNetwork`: on a script with every path the full network uses
 /// and several faults, the same frames at the same microseconds from the same senders, and
 /// every channel reports the same events at the same instants. Filtering or not changes
-/// nothing either, nor does stepping the calls of one instant on two threads.
+/// nothing either, nor does running the channels on two threads.
 #[test]
 fn fast_engine_gives_the_dual_network_trace_frame_for_frame() {
     let mut reference = reference();
@@ -242,18 +240,25 @@ fn stored_image_equals_the_one_configured_over_the_bus() {
             },
         )
         .expect("configured over the bus");
-        let node = &client.transport.nodes[0];
+        let engine = &client.transport;
         assert!(
-            node.a.node().flash() == &alone,
+            engine.channel_a(0).node().flash() == &alone,
             "node {} channel A",
             spec.id
         );
         assert!(
-            node.b.node().flash() == &alone,
+            engine.channel_b(0).node().flash() == &alone,
             "node {} channel B",
             spec.id
         );
-        assert_eq!(node.a.node().safety_config().configuration_valid, 0xA5);
+        assert_eq!(
+            engine
+                .channel_a(0)
+                .node()
+                .safety_config()
+                .configuration_valid,
+            0xA5
+        );
     }
 }
 
@@ -282,9 +287,10 @@ fn en50325_5_7_1_2_full_network_without_faults_has_no_sct_or_srvt_event() {
     assert!(monitor.to_safe.max_us < srvt + u64::from(report.timing.refresh_ms) * 1000);
 }
 
-/// The full network on two threads (the calls of one instant, 254 at every link heartbeat,
-/// split between them) gives the report of one thread: every frame at the same microsecond
-/// from the same sender, and every line of the report but the wall time.
+/// The full network on two threads (channel A of every node on one, channel B on the other,
+/// each thread with its own copy of the bus, meeting once per window of simulated time)
+/// gives the report of one thread: every frame at the same microsecond from the same
+/// sender, and every line of the report but the wall time.
 #[test]
 fn full_network_on_two_threads_gives_the_one_thread_report() {
     let runs: Vec<_> = [1, 2]

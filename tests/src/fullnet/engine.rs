@@ -20,6 +20,9 @@
 //!   (00h); the bytes before it are handed over, each with its own arrival time, when the
 //!   delimiter arrives, so a link message costs one step instead of one per byte.
 //! - **No allocation per frame.** Scratch buffers are reused; nothing is logged unless asked.
+//! - **Two threads** ([`Engine::set_threads`]): channel A of a node on one, channel B on the
+//!   other, in windows of simulated time that end before anything sent in them can reach
+//!   anyone ([`Engine`]); the threads meet once per window.
 
 use super::handoff::Handoff;
 use crate::bus::{Bus, Delivery, ORDERED_BY_IDENTIFIER};
@@ -36,6 +39,8 @@ use shared::safety::types::SrdoNumber;
 use shared::{CanFrame, Duration, Instant};
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// The number of CAN identifiers (11 bits).
 const IDENTIFIERS: usize = 2048;
@@ -49,7 +54,7 @@ const NUMBER_BITS: u32 = 16;
 /// compares one integer, not a tuple (with tuples, the full network ran 3.7 % more
 /// instructions: callgrind, `fullnet network --minutes 0.05`). Numbers are below 2¹⁶ (channels 0..254, senders 0..16); instants below
 /// 2⁴⁸ µs (8.9 years of simulated time), and a later one is kept as that last instant.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 struct EventHeap(BinaryHeap<Reverse<u64>>);
 
 impl EventHeap {
@@ -106,14 +111,8 @@ struct Scratch {
     link: Vec<u8>,
     events: Vec<ChannelEvent>,
     outputs: usize,
-    /// The channel (engine numbering) the call was on.
-    channel: u32,
-    /// Whether the call ran (a deadline call is skipped when the deadline moved).
-    ran: bool,
     /// Its new deadline, when it changed and is not [`Instant::NEVER`]: a timer entry.
     timer: Option<Instant>,
-    /// Arrivals of the frame delimiters it put on the wire to the other channel.
-    link_ends: Vec<Instant>,
     /// This channel's output of the node's watched receive SRDO after the call.
     own_output: u64,
 }
@@ -124,9 +123,7 @@ impl Scratch {
         self.link.clear();
         self.events.clear();
         self.outputs = 0;
-        self.ran = false;
         self.timer = None;
-        self.link_ends.clear();
     }
 }
 
@@ -145,9 +142,34 @@ impl Io for Scratch {
     }
 }
 
-/// One direction of a link: bytes in flight, and when they arrive. Bytes sent back to back
-/// arrive [`LINK_BYTE_TIME`] apart, so a run of them is its first byte's arrival and its
-/// length, not an entry per byte.
+/// The writing end of one direction of a link: when the bytes it writes arrive. Bytes
+/// written while earlier ones are in flight queue behind them, each [`LINK_BYTE_TIME`] after
+/// the one before.
+#[derive(Default)]
+struct WireOut {
+    busy_until: Instant,
+}
+
+impl WireOut {
+    /// `bytes`, written at `now`: returns the first one's arrival, and calls `delimiter` with
+    /// the arrival of every frame delimiter (00h) among them.
+    fn write(&mut self, now: Instant, bytes: &[u8], mut delimiter: impl FnMut(Instant)) -> Instant {
+        let start = self.busy_until.max(now);
+        let mut at = start;
+        for &byte in bytes {
+            at = at + LINK_BYTE_TIME;
+            if byte == 0 {
+                delimiter(at);
+            }
+        }
+        self.busy_until = at;
+        start + LINK_BYTE_TIME
+    }
+}
+
+/// The receiving end of one direction of a link: bytes in flight, and when they arrive.
+/// Bytes sent back to back arrive [`LINK_BYTE_TIME`] apart, so a run of them is its first
+/// byte's arrival and its length, not an entry per byte.
 #[derive(Default)]
 struct Wire {
     /// Bytes in flight from `head` on, oldest first.
@@ -155,18 +177,17 @@ struct Wire {
     head: usize,
     /// Runs of bytes sent back to back: (the first byte's arrival, how many), oldest first.
     runs: VecDeque<(Instant, usize)>,
-    busy_until: Instant,
 }
 
 impl Wire {
-    /// Queues `bytes`, written at `now`, behind what is in flight; calls `delimiter` with the
-    /// arrival of every frame delimiter (00h).
-    fn send(&mut self, now: Instant, bytes: &[u8], mut delimiter: impl FnMut(Instant)) {
-        let start = self.busy_until.max(now);
-        let first = start + LINK_BYTE_TIME;
+    /// Bytes whose first arrives at `first` ([`WireOut::write`]), behind what is in flight.
+    fn push_run(&mut self, first: Instant, bytes: &[u8]) {
+        let step = LINK_BYTE_TIME.as_micros();
         match self.runs.back_mut() {
-            // Right behind the last run (it ends at `busy_until`): the same run goes on.
-            Some((_, len)) if start == self.busy_until => *len += bytes.len(),
+            // Right behind the last run: the same run goes on.
+            Some((start, len)) if *start + Duration::from_micros(*len as u64 * step) == first => {
+                *len += bytes.len();
+            }
             _ => self.runs.push_back((first, bytes.len())),
         }
         if self.head == self.bytes.len() {
@@ -178,14 +199,6 @@ impl Wire {
             self.head = 0;
         }
         self.bytes.extend_from_slice(bytes);
-        let mut at = start;
-        for &byte in bytes {
-            at = at + LINK_BYTE_TIME;
-            if byte == 0 {
-                delimiter(at);
-            }
-        }
-        self.busy_until = at;
     }
 
     /// Hands every byte that arrived by `until` to `receive`, in order, as slices: each
@@ -224,30 +237,50 @@ impl Wire {
     }
 }
 
-/// One dual-channel node of the simulation.
-pub struct SimNode {
-    /// Node-ID.
-    pub id: u8,
+/// One channel of a dual-channel node: its runtime (channel A's or channel B's).
+pub enum ChannelRuntime {
     /// Channel A.
-    pub a: ChannelARuntime,
+    A(ChannelARuntime),
     /// Channel B.
-    pub b: ChannelBRuntime,
-    /// Towards channel A (from B) and towards channel B (from A).
-    wires: [Wire; 2],
-    deadlines: [Instant; 2],
-    /// Whether each channel was Operational after its last call (filtered delivery).
-    operational: [bool; 2],
-    /// The receive SRDO whose effective output is reported to the observer.
-    watched: Option<SrdoNumber>,
-    /// Each channel's output of it as last applied, and their AND as last reported.
-    outputs: [u64; 2],
-    output: u64,
+    B(ChannelBRuntime),
 }
 
-impl SimNode {
-    /// The effective output of receive SRDO `srdo`: both channels' outputs in series (AND).
-    pub fn output(&self, srdo: SrdoNumber) -> u64 {
-        self.a.output(srdo) & self.b.output(srdo)
+/// One channel of a dual-channel node in the simulation, with what only it touches.
+struct SimChannel {
+    runtime: ChannelRuntime,
+    /// The node's index and node-ID, and the channel's side.
+    index: usize,
+    id: u8,
+    side: Side,
+    /// The link bytes from the other channel, and the timing of those to it.
+    incoming: Wire,
+    outgoing: WireOut,
+    deadline: Instant,
+    /// Whether it was Operational after its last call (filtered delivery).
+    operational: bool,
+    /// The node's receive SRDO whose effective output is reported to the observer.
+    watched: Option<SrdoNumber>,
+    /// Its output of it after its last call.
+    own_output: u64,
+}
+
+impl SimChannel {
+    fn state(&self) -> (NmtState, &shared::safety::config::SafetyConfig<4>) {
+        match &self.runtime {
+            ChannelRuntime::A(runtime) => {
+                (runtime.node().nmt_state(), runtime.node().safety_config())
+            }
+            ChannelRuntime::B(runtime) => {
+                (runtime.node().nmt_state(), runtime.node().safety_config())
+            }
+        }
+    }
+
+    fn output(&self, srdo: SrdoNumber) -> u64 {
+        match &self.runtime {
+            ChannelRuntime::A(runtime) => runtime.output(srdo),
+            ChannelRuntime::B(runtime) => runtime.output(srdo),
+        }
     }
 }
 
@@ -275,6 +308,7 @@ pub struct Periodic {
     pub first: Instant,
 }
 
+#[derive(Clone)]
 struct Sender {
     periodic: Periodic,
     participant: usize,
@@ -282,297 +316,161 @@ struct Sender {
     count: u64,
 }
 
-/// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
-/// channel B `2i + 2` (as in `DualNetwork`); background senders follow the nodes.
-pub struct Engine<O: Observer> {
-    /// Simulated time.
-    pub now: Instant,
-    /// The bus.
-    pub bus: Bus,
-    /// The nodes, each boxed so that a batch can move half of them to the second thread
-    /// and back as pointers (a node is about 23 KiB).
-    pub nodes: Vec<Box<SimNode>>,
-    /// Who watches.
-    pub observer: O,
-    /// Deliver every frame to every channel (as `DualNetwork` does) instead of filtering:
-    /// for the test that shows filtering changes nothing.
-    pub unfiltered: bool,
-    /// Every frame as delivered, when `Some` (tests only: an hour would not fit).
-    pub trace: Option<Vec<(Instant, CanFrame, usize)>>,
-    in_flight: Vec<Delivery>,
+/// Where a call stands in the order in which one thread stepping from instant to instant
+/// makes the calls of the whole network: the instant; then the phase (the deliveries at that
+/// instant in the order the bus made them, then the link messages, then the deadlines); then
+/// the channel, numbered as by [`channel`] plus one (0 is the delivery itself, reported
+/// before the calls it causes). What one call reports shares its key and keeps its order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct Order {
+    at: Instant,
+    phase: u32,
+    channel: u32,
+}
+
+/// The phase of the link messages at an instant: after every delivery.
+const LINK_PHASE: u32 = u32::MAX - 1;
+/// The phase of the deadlines at an instant: last.
+const DEADLINE_PHASE: u32 = u32::MAX;
+
+/// What a group reports for the observer (and the tool), kept with its [`Order`] until the
+/// window is over, then told in the one-thread order.
+#[derive(Clone, Copy)]
+enum Note {
+    Delivered(Delivery),
+    Event(usize, Side, ChannelEvent),
+    /// A channel's output of its node's watched SRDO after a call (node, side, value), and
+    /// whether the call set outputs (then the node's effective output is compared).
+    Output(usize, Side, u64, bool),
+}
+
+/// The shortest time from a channel's writing a link message to the arrival of its frame
+/// delimiter at the other channel: the shortest frame of the link (`dual_channel::link`:
+/// sequence, tag and the shortest body, CRC-32, one COBS code byte, the delimiter: 10 bytes)
+/// at [`LINK_BYTE_TIME`]. A window is never longer ([`Engine::run_until`]), so what one
+/// channel writes in a window reaches the other after it, whichever group that one is in.
+const LINK_LATENCY: Duration = Duration::from_micros(10 * LINK_BYTE_TIME.as_micros());
+
+/// Link bytes on their way between groups: runs of bytes (the receiving channel, the first
+/// byte's arrival, the bytes in `bytes`) and the arrivals of their frame delimiters.
+#[derive(Default)]
+struct Links {
+    runs: Vec<(u32, Instant, std::ops::Range<usize>)>,
+    bytes: Vec<u8>,
+    ends: Vec<(Instant, u32)>,
+}
+
+impl Links {
+    fn clear(&mut self) {
+        self.runs.clear();
+        self.bytes.clear();
+        self.ends.clear();
+    }
+}
+
+/// A share of the channels, with everything that concerns them alone: their deadlines,
+/// their link bytes arriving, their acceptance filters. A group runs a window of simulated
+/// time on its own (on the second thread, for one of two) and hands back what it put on the
+/// bus, what it wrote on the links, and what the observer is to hear.
+struct Group {
+    channels: Vec<SimChannel>,
+    /// Its place in `channels` of each channel of the network (of its own only).
+    local: Vec<usize>,
+    unfiltered: bool,
+    /// The instant of the calls being made.
+    now: Instant,
     /// Channel deadlines as (instant, channel); an entry that no longer equals the channel's
     /// deadline is stale and skipped.
     timers: EventHeap,
     /// Link frame delimiters arriving: (instant, receiving channel).
     link_ends: EventHeap,
-    senders: Vec<Sender>,
-    sender_due: EventHeap,
-    /// Operational channels per identifier, in channel order.
+    /// Its Operational channels per identifier, in channel order.
     subscribers: Vec<Vec<u32>>,
-    /// Channels not in Operational (they get every frame), in channel order.
+    /// Its channels not in Operational (they get every frame), in channel order.
     open: Vec<u32>,
-    /// Boxed, so that taking it out for a call moves a pointer, not the whole value (that
-    /// move, twice per call, was 2.5 % of the simulation's instructions in `memcpy`).
-    scratch: Option<Box<Scratch>>,
+    scratch: Scratch,
     recipients: Vec<u32>,
     due: Vec<u32>,
-    arrivals: Vec<Delivery>,
-    tool_inbox: VecDeque<CanFrame>,
-    link_period: Duration,
-    /// Threads for large batches of calls at one instant (1: none but the caller's).
-    pub threads: usize,
-    /// How many calls at one instant make a batch worth two threads.
-    pub batch_threshold: usize,
-    batch_scratch: Vec<Scratch>,
-    /// The second thread, started by the first batch that uses it.
-    second: Option<Handoff<Half>>,
-    /// The last half handed to it, kept for its allocations.
-    spare: Option<Half>,
+    /// The window: the deliveries at instants before `until`, earliest first (at one instant
+    /// in the order the bus made them).
+    deliveries: Vec<Delivery>,
+    until: Instant,
+    /// Its next event ([`Group::next_event`]) after its last window or call, so that the
+    /// engine does not reach into a group the other thread ran.
+    next: Instant,
+    /// What its calls put on the bus, with their instants, in the order they were made.
+    sends: Vec<(Instant, usize, CanFrame)>,
+    /// What its calls wrote on the links, and what the other channels wrote to its own,
+    /// not yet on their wires (they are put there when it runs next).
+    outbox: Links,
+    inbox: Links,
+    /// The first frame delimiter's arrival in `inbox`.
+    inbox_first: Instant,
+    notes: Vec<(Order, Note)>,
 }
 
-/// The upper half of a batch, for the second thread: its nodes (moved out of the engine and
-/// back), its calls and what each handed out.
-struct Half {
-    nodes: Vec<Box<SimNode>>,
-    /// Index of the first node in `nodes`.
-    offset: usize,
-    calls: Vec<u32>,
-    outs: Vec<Scratch>,
-    now: Instant,
-    action: Action,
-    deadline_only: bool,
-}
-
-impl Half {
-    fn run(mut self) -> Self {
-        let count = self.calls.len();
-        run_calls(
-            &mut self.nodes,
-            self.offset,
-            &self.calls,
-            &mut self.outs[..count],
-            self.now,
-            self.action,
-            self.deadline_only,
-        );
-        self
-    }
-}
-
-/// The calls `calls` (channels, in order) on `nodes` (node `offset` first), each with
-/// `action` at `now` (a deadline call only if the channel's deadline is still due), what
-/// each handed out into `outs`.
-fn run_calls(
-    nodes: &mut [Box<SimNode>],
-    offset: usize,
-    calls: &[u32],
-    outs: &mut [Scratch],
-    now: Instant,
-    action: Action,
-    deadline_only: bool,
-) {
-    for (&c, out) in calls.iter().zip(outs.iter_mut()) {
-        let (index, side) = split(c);
-        let node = &mut nodes[index - offset];
-        if deadline_only && node.deadlines[side as usize] > now {
-            out.clear();
-            continue;
-        }
-        run_call(node, index, side, now, action, out);
-    }
-}
-
-/// Channel number `c`: node `c / 2`, side A for even, B for odd; participant `c + 1`.
-fn channel(node: usize, side: Side) -> u32 {
-    (2 * node + side as usize) as u32
-}
-
-fn split(channel: u32) -> (usize, Side) {
-    let channel = channel as usize;
-    let side = if channel % 2 == 0 { Side::A } else { Side::B };
-    (channel / 2, side)
-}
-
-/// The identifiers a channel in Operational handles (see the module documentation).
-fn accepted(node_id: u8, config: &shared::safety::config::SafetyConfig<4>) -> Vec<u16> {
-    let mut ids = vec![nmt::NMT_ID.raw(), shared::safety::gfc::GFC_ID.raw()];
-    ids.push(0x600 + u16::from(node_id));
-    for record in &config.srdos {
-        if record.direction != 0 {
-            for cob_id in [record.cob_id_1, record.cob_id_2] {
-                ids.push((cob_id & 0x7FF) as u16);
-            }
-        }
-    }
-    ids.sort_unstable();
-    ids.dedup();
-    ids
-}
-
-impl<O: Observer> Engine<O> {
-    /// Dual-channel nodes `(node-ID, stored parameters)` on a bus at `bit_rate`, powered on
-    /// at t = 0, with a link heartbeat every `link_period`. A node with `None` starts on its
-    /// defaults.
-    pub fn new(
-        bit_rate: u32,
-        nodes: Vec<(u8, Option<RamFlash<8192>>)>,
-        link_period: Duration,
-        observer: O,
-    ) -> Self {
-        let nodes: Vec<Box<SimNode>> = nodes
-            .into_iter()
-            .map(|(id, image)| {
-                let image = image.unwrap_or_default();
-                Box::new(SimNode {
-                    id,
-                    a: Runtime::new(
-                        device_config(id, "dual node, channel A"),
-                        image.clone(),
-                        ChannelA::default(),
-                        Instant::ZERO,
-                        link_period,
-                    )
-                    .expect("valid device"),
-                    b: Runtime::new(
-                        device_config(id, "dual node, channel B"),
-                        image,
-                        ChannelB::new(&B_INPUTS).expect("valid inputs"),
-                        Instant::ZERO,
-                        link_period,
-                    )
-                    .expect("valid device"),
-                    wires: Default::default(),
-                    deadlines: [Instant::ZERO; 2],
-                    operational: [false; 2],
-                    watched: None,
-                    outputs: [0; 2],
-                    output: 0,
-                })
-            })
-            .collect();
-        let channels = 2 * nodes.len() as u32;
+impl Group {
+    /// The channels `channels` of a network of `count` channels, as at power-on: every
+    /// channel due at once and open to every frame.
+    fn new(channels: Vec<SimChannel>, count: usize) -> Self {
+        let mut local = vec![usize::MAX; count];
         let mut timers = EventHeap::default();
-        for c in 0..channels {
+        let mut open = Vec::new();
+        for (k, sim) in channels.iter().enumerate() {
+            let c = channel(sim.index, sim.side);
+            local[c as usize] = k;
             timers.push(Instant::ZERO, c);
+            open.push(c);
         }
-        Engine {
-            now: Instant::ZERO,
-            bus: {
-                let mut bus = Bus::new(bit_rate, 1 + channels as usize);
-                // Each channel's whole transmit queue by identifier, as the board layer keeps
-                // it (`board::transmit_queue`) and `DualNetwork` and the hub model it: a
-                // node's own heartbeat or EMCY never holds back its SRDO or its GFC.
-                bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
-                bus
-            },
-            nodes,
-            observer,
+        Group {
+            channels,
+            local,
             unfiltered: false,
-            trace: None,
-            in_flight: Vec::new(),
+            now: Instant::ZERO,
             timers,
             link_ends: EventHeap::default(),
-            senders: Vec::new(),
-            sender_due: EventHeap::default(),
             subscribers: vec![Vec::new(); IDENTIFIERS],
-            open: (0..channels).collect(),
-            scratch: Some(Box::default()),
+            open,
+            scratch: Scratch::default(),
             recipients: Vec::new(),
             due: Vec::new(),
-            arrivals: Vec::new(),
-            tool_inbox: VecDeque::new(),
-            link_period,
-            threads: 1,
-            batch_threshold: 16,
-            batch_scratch: Vec::new(),
-            second: None,
-            spare: None,
+            deliveries: Vec::new(),
+            until: Instant::ZERO,
+            next: Instant::ZERO,
+            sends: Vec::new(),
+            outbox: Links::default(),
+            inbox: Links::default(),
+            inbox_first: Instant::NEVER,
+            notes: Vec::new(),
         }
     }
 
-    /// The link heartbeat period.
-    pub fn link_period(&self) -> Duration {
-        self.link_period
+    fn channel(&self, c: u32) -> &SimChannel {
+        &self.channels[self.local[c as usize]]
     }
 
-    /// The index of the node with node-ID `id`.
-    pub fn index(&self, id: u8) -> usize {
-        self.nodes
-            .iter()
-            .position(|node| node.id == id)
-            .expect("a node with this node-ID")
-    }
-
-    /// Reports the effective output of receive SRDO `srdo` of node `index` to the observer.
-    pub fn watch(&mut self, index: usize, srdo: SrdoNumber) {
-        let node = &mut self.nodes[index];
-        node.watched = Some(srdo);
-        node.outputs = [node.a.output(srdo), node.b.output(srdo)];
-        node.output = node.output(srdo);
-    }
-
-    /// Adds a background sender; returns its participant number.
-    pub fn add_sender(&mut self, periodic: Periodic) -> usize {
-        let participant = 1 + 2 * self.nodes.len() + self.senders.len();
-        let index = self.senders.len() as u32;
-        self.senders.push(Sender {
-            periodic,
-            participant,
-            next: periodic.first,
-            count: 0,
-        });
-        self.sender_due.push(periodic.first, index);
-        participant
-    }
-
-    /// The bus participant of channel `side` of node `index`.
-    pub fn participant(index: usize, side: Side) -> usize {
-        channel(index, side) as usize + 1
-    }
-
-    /// Runs until `end`.
-    pub fn run_until(&mut self, end: Instant) {
-        loop {
-            let next = self.next_activity();
-            if next > end {
-                self.now = self.now.max(end);
-                return;
-            }
-            self.now = self.now.max(next);
-            self.step();
-        }
-    }
-
-    /// Runs for `duration`.
-    pub fn run_for(&mut self, duration: Duration) {
-        self.run_until(self.now + duration);
+    fn channel_mut(&mut self, c: u32) -> &mut SimChannel {
+        let k = self.local[c as usize];
+        &mut self.channels[k]
     }
 
     fn prune_timers(&mut self) {
         while let Some((at, c)) = self.timers.peek() {
-            let (node, side) = split(c);
-            if self.nodes[node].deadlines[side as usize] == at {
+            if self.channel(c).deadline == at {
                 return;
             }
             self.timers.pop();
         }
     }
 
-    fn next_activity(&mut self) -> Instant {
+    /// The instant of its next deadline or link message.
+    fn next_event(&mut self) -> Instant {
         self.prune_timers();
-        let mut next = Instant::NEVER;
-        for delivery in &self.in_flight {
-            next = next.min(delivery.at);
-        }
-        for heap in [&self.timers, &self.link_ends, &self.sender_due] {
-            if let Some((at, _)) = heap.peek() {
-                next = next.min(at);
-            }
-        }
-        if let Some(start) = self.bus.next_start(self.now) {
-            next = next.min(start);
-        }
-        next
+        [&self.timers, &self.link_ends]
+            .into_iter()
+            .filter_map(|heap| heap.peek().map(|(at, _)| at))
+            .min()
+            .unwrap_or(Instant::NEVER)
     }
 
     /// Takes every channel whose deadline is due at `now` off the timer heap into `due`.
@@ -582,264 +480,248 @@ impl<O: Observer> Engine<O> {
                 break;
             }
             self.timers.pop();
-            let (node, side) = split(c);
-            if self.nodes[node].deadlines[side as usize] == at {
+            if self.channel(c).deadline == at {
                 self.due.push(c);
             }
         }
     }
 
-    /// Everything due at `self.now`, in `DualNetwork`'s order: deliveries, link bytes,
-    /// deadlines, then background senders and the next arbitration.
-    fn step(&mut self) {
-        let now = self.now;
-        // Deliveries, in the order the bus produced them.
-        let mut arrivals = std::mem::take(&mut self.arrivals);
-        arrivals.clear();
-        let mut index = 0;
-        while index < self.in_flight.len() {
-            if self.in_flight[index].at <= now {
-                arrivals.push(self.in_flight.remove(index));
-            } else {
-                index += 1;
-            }
+    /// Puts what the other channels wrote to its own on their wires, and their frame
+    /// delimiters among its events.
+    fn apply_inbox(&mut self) {
+        let mut inbox = std::mem::take(&mut self.inbox);
+        for (c, first, range) in inbox.runs.drain(..) {
+            self.channel_mut(c)
+                .incoming
+                .push_run(first, &inbox.bytes[range]);
         }
-        for delivery in &arrivals {
-            self.deliver(delivery);
+        for &(at, c) in &inbox.ends {
+            self.link_ends.push(at, c);
         }
-        self.arrivals = arrivals;
-        // Link messages ending now.
-        let mut due = std::mem::take(&mut self.due);
-        due.clear();
-        while let Some((at, c)) = self.link_ends.peek() {
-            if at > now {
-                break;
-            }
-            self.link_ends.pop();
-            due.push(c);
+        inbox.clear();
+        self.inbox = inbox;
+        self.inbox_first = Instant::NEVER;
+    }
+
+    /// Takes what `links` holds for its channels (all of it: the other group's channels
+    /// write only to this one's) into its inbox.
+    fn receive_links(&mut self, links: &Links) {
+        for &(c, first, ref range) in &links.runs {
+            debug_assert!(
+                self.local[c as usize] != usize::MAX,
+                "a link to another group"
+            );
+            let start = self.inbox.bytes.len();
+            self.inbox
+                .bytes
+                .extend_from_slice(&links.bytes[range.clone()]);
+            let end = self.inbox.bytes.len();
+            self.inbox.runs.push((c, first, start..end));
         }
-        due.sort_unstable();
-        due.dedup();
-        self.call_batch(&due, Action::Link(now), false);
-        // Deadlines.
-        due.clear();
-        self.due = due;
-        self.take_due_timers(now);
-        let mut due = std::mem::take(&mut self.due);
-        due.sort_unstable();
-        due.dedup();
-        self.call_batch(&due, Action::Poll, true);
-        due.clear();
-        self.due = due;
-        // Background senders.
-        while let Some((at, index)) = self.sender_due.peek() {
-            if at > now {
-                break;
-            }
-            self.sender_due.pop();
-            let sender = &mut self.senders[index as usize];
-            let mut data = [0u8; 8];
-            data.copy_from_slice(&sender.count.to_le_bytes());
-            let id = shared::CanId::new(sender.periodic.id).expect("an 11-bit identifier");
-            let frame = CanFrame::new(id, &data[..usize::from(sender.periodic.len)])
-                .expect("at most 8 bytes");
-            sender.count += 1;
-            sender.next = sender.next + sender.periodic.period;
-            let (participant, next) = (sender.participant, sender.next);
-            self.sender_due.push(next, index);
-            self.bus.send(participant, frame);
-        }
-        if self.bus.next_start(now) == Some(now) {
-            self.bus.arbitrate_into(now, &mut self.in_flight);
+        for &(at, c) in &links.ends {
+            self.inbox.ends.push((at, c));
+            self.inbox_first = self.inbox_first.min(at);
         }
     }
 
-    /// One frame reaches every channel that handles it (and the tool).
-    fn deliver(&mut self, delivery: &Delivery) {
-        let now = self.now;
-        self.observer
-            .delivered(delivery.at, &delivery.frame, delivery.from, delivery.bits);
-        if let Some(trace) = &mut self.trace {
-            trace.push((delivery.at, delivery.frame, delivery.from));
-        }
-        if delivery.from != 0 {
-            self.tool_inbox.push_back(delivery.frame);
-            if self.tool_inbox.len() > 64 {
-                self.tool_inbox.pop_front();
+    /// Takes what `links` holds for the channels of group `me` (by `place`) into its inbox.
+    fn receive_links_for(&mut self, links: &Links, place: &[usize], me: usize) {
+        for &(c, first, ref range) in &links.runs {
+            if place[c as usize] == me {
+                let start = self.inbox.bytes.len();
+                self.inbox
+                    .bytes
+                    .extend_from_slice(&links.bytes[range.clone()]);
+                let end = self.inbox.bytes.len();
+                self.inbox.runs.push((c, first, start..end));
             }
         }
+        for &(at, c) in &links.ends {
+            if place[c as usize] == me {
+                self.inbox.ends.push((at, c));
+                self.inbox_first = self.inbox_first.min(at);
+            }
+        }
+    }
+
+    /// The instant it has something to do next, link bytes in its inbox included.
+    fn pending(&self) -> Instant {
+        self.next.min(self.inbox_first)
+    }
+
+    /// Whether it has anything to do before `until` with the deliveries `window`: its own
+    /// events, or a delivery that one of its channels handles. (A delivery that none
+    /// handles polls only channels that are due then: its own events.)
+    fn has_work(&self, window: &[Delivery], until: Instant) -> bool {
+        self.pending() < until
+            || (!window.is_empty() && (self.unfiltered || !self.open.is_empty()))
+            || window.iter().any(|delivery| {
+                !self.subscribers[usize::from(delivery.frame.id().raw())].is_empty()
+            })
+    }
+
+    /// Every instant before `until` at which it has something to do, as one thread does it
+    /// for the whole network: at each instant the deliveries, the link messages ending, then
+    /// the deadlines due. Nothing from the rest of the network reaches it before `until` but
+    /// the deliveries it was given.
+    fn run_window(&mut self) {
+        self.apply_inbox();
+        let deliveries = std::mem::take(&mut self.deliveries);
+        let mut next = 0;
+        loop {
+            let mut at = self.next_event();
+            if let Some(delivery) = deliveries.get(next) {
+                at = at.min(delivery.at);
+            }
+            if at >= self.until {
+                break;
+            }
+            self.now = at;
+            let mut phase = 0;
+            while let Some(delivery) = deliveries.get(next).filter(|d| d.at <= at) {
+                self.deliver(delivery, phase);
+                next += 1;
+                phase += 1;
+            }
+            self.due.clear();
+            while let Some((end, c)) = self.link_ends.peek() {
+                if end > at {
+                    break;
+                }
+                self.link_ends.pop();
+                self.due.push(c);
+            }
+            self.call_due(Action::Link(at), LINK_PHASE, false);
+            self.take_due_timers(at);
+            self.call_due(Action::Poll, DEADLINE_PHASE, true);
+        }
+        self.deliveries = deliveries;
+        self.next = self.next_event();
+    }
+
+    /// The calls on the channels in `due` (in channel order, each once), each with `action`
+    /// (a deadline call only if the channel's deadline is still due).
+    fn call_due(&mut self, action: Action, phase: u32, deadline_only: bool) {
+        let mut due = std::mem::take(&mut self.due);
+        due.sort_unstable();
+        due.dedup();
+        for &c in &due {
+            if !deadline_only || self.channel(c).deadline <= self.now {
+                self.call(c, action, phase);
+            }
+        }
+        due.clear();
+        self.due = due;
+    }
+
+    /// One frame reaches every channel of the group that handles it.
+    fn deliver(&mut self, delivery: &Delivery, phase: u32) {
+        let now = self.now;
         let mut recipients = std::mem::take(&mut self.recipients);
         recipients.clear();
         let sender = delivery.from.wrapping_sub(1) as u32;
+        let id = usize::from(delivery.frame.id().raw());
         if self.unfiltered {
-            recipients.extend(0..2 * self.nodes.len() as u32);
+            recipients.extend(self.channels.iter().map(|sim| channel(sim.index, sim.side)));
+            recipients.sort_unstable();
         } else {
-            let id = usize::from(delivery.frame.id().raw());
             recipients.extend_from_slice(&self.subscribers[id]);
             recipients.extend_from_slice(&self.open);
             // Those not addressed but due are polled, as every delivery polls every channel
             // in `DualNetwork`.
-            let mut due = std::mem::take(&mut self.due);
-            due.clear();
-            self.due = due;
+            self.due.clear();
             self.take_due_timers(now);
             recipients.extend_from_slice(&self.due);
             recipients.sort_unstable();
             recipients.dedup();
         }
-        let id = delivery.frame.id().raw();
         for &c in &recipients {
+            let deadline = self.channel(c).deadline;
             if c == sender {
                 // Not delivered back to its sender; if it was due, the deadline phase polls it.
-                let (node, side) = split(c);
-                let deadline = self.nodes[node].deadlines[side as usize];
                 if deadline <= now {
                     self.timers.push(deadline, c);
                 }
                 continue;
             }
-            let (node, side) = split(c);
             let handles = self.unfiltered
-                || !self.nodes[node].operational[side as usize]
-                || self.subscribers[usize::from(id)].binary_search(&c).is_ok();
+                || !self.channel(c).operational
+                || self.subscribers[id].binary_search(&c).is_ok();
             if handles {
-                self.call(node, side, Action::Frame(delivery.frame));
-            } else if self.nodes[node].deadlines[side as usize] <= now {
-                self.call(node, side, Action::Poll);
+                self.call(c, Action::Frame(delivery.frame), phase);
+            } else if deadline <= now {
+                self.call(c, Action::Poll, phase);
             }
         }
         self.due.clear();
         self.recipients = recipients;
     }
 
-    /// Runs `action` on one channel, polls it, and applies what it handed out.
-    fn call(&mut self, index: usize, side: Side, action: Action) {
-        let mut out = self.scratch.take().unwrap_or_default();
-        run_call(
-            &mut self.nodes[index],
-            index,
-            side,
-            self.now,
-            action,
-            &mut out,
-        );
-        self.apply(&out);
-        self.scratch = Some(out);
-    }
-
-    /// Applies what one channel's call handed out to everything outside its node: timer and
-    /// link heaps, the bus, the observer, the acceptance filters.
-    fn apply(&mut self, out: &Scratch) {
-        if !out.ran {
-            return;
-        }
+    /// Runs `action` on channel `c`, polls it, and keeps what it handed out: its timer here,
+    /// its frames, link bytes and what the observer is to hear for the engine.
+    fn call(&mut self, c: u32, action: Action, phase: u32) {
         let now = self.now;
-        let c = out.channel;
-        let (index, side) = split(c);
+        let mut out = std::mem::take(&mut self.scratch);
+        let k = self.local[c as usize];
+        let sim = &mut self.channels[k];
+        run_call(sim, now, action, &mut out);
+        let (index, side) = (sim.index, sim.side);
+        let old_output = std::mem::replace(&mut sim.own_output, out.own_output);
+        if !out.link.is_empty() {
+            // The other channel's wire: its frame delimiters arrive after this window
+            // ([`LINK_LATENCY`]), whichever group the other channel is in.
+            let (to, until) = (c ^ 1, self.until);
+            let ends = &mut self.outbox.ends;
+            let first = sim.outgoing.write(now, &out.link, |end| {
+                assert!(
+                    end >= until,
+                    "a link frame written at {now:?} arrives at {end:?}, inside the window \
+                     that wrote it (up to {until:?}): the window is longer than the link's \
+                     latency"
+                );
+                ends.push((end, to));
+            });
+            let start = self.outbox.bytes.len();
+            self.outbox.bytes.extend_from_slice(&out.link);
+            let end = self.outbox.bytes.len();
+            self.outbox.runs.push((to, first, start..end));
+        }
         if let Some(deadline) = out.timer {
             self.timers.push(deadline, c);
         }
-        let other = channel(index, side) ^ 1;
-        for &at in &out.link_ends {
-            self.link_ends.push(at, other);
-        }
         let participant = c as usize + 1;
         for &frame in &out.frames {
-            self.bus.send(participant, frame);
+            self.sends.push((now, participant, frame));
         }
+        let order = Order {
+            at: now,
+            phase,
+            channel: c + 1,
+        };
         for event in &out.events {
-            self.observer.event(now, index, side, event);
+            self.notes.push((order, Note::Event(index, side, *event)));
         }
-        let node = &mut self.nodes[index];
-        node.outputs[side as usize] = out.own_output;
-        if out.outputs > 0 && node.watched.is_some() {
-            let value = node.outputs[0] & node.outputs[1];
-            if value != node.output {
-                node.output = value;
-                self.observer.output(now, index, value);
-            }
+        if out.own_output != old_output || out.outputs > 0 {
+            let reported = out.outputs > 0;
+            let note = Note::Output(index, side, out.own_output, reported);
+            self.notes.push((order, note));
         }
-        self.update_filter(index, side);
-    }
-
-    /// The calls `due` (channels, in order) all make at `self.now`, each with `action` (a
-    /// deadline call only if the channel's deadline is still due). Large batches run on two
-    /// threads when [`Engine::threads`] says so: the nodes are independent within one
-    /// instant (a call changes its own node only; bytes it puts on the link arrive later),
-    /// and what each call handed out is applied afterwards in channel order, as one call
-    /// after the other would have applied it, so the result is the same.
-    fn call_batch(&mut self, due: &[u32], action: Action, deadline_only: bool) {
-        let now = self.now;
-        if self.threads < 2 || due.len() < self.batch_threshold {
-            for &c in due {
-                let (node, side) = split(c);
-                if !deadline_only || self.nodes[node].deadlines[side as usize] <= now {
-                    self.call(node, side, action);
-                }
-            }
-            return;
-        }
-        // Split at a node boundary: both channels of a node on one thread, in order. The
-        // upper half's nodes move to the second thread (as pointers) and come back.
-        let middle = split(due[due.len() / 2]).0;
-        let cut = due.partition_point(|&c| split(c).0 < middle);
-        let (first, second) = due.split_at(cut);
-        let mut half = self.spare.take().unwrap_or_else(|| Half {
-            nodes: Vec::new(),
-            offset: 0,
-            calls: Vec::new(),
-            outs: Vec::new(),
-            now,
-            action,
-            deadline_only,
-        });
-        half.nodes.extend(self.nodes.drain(middle..));
-        half.offset = middle;
-        half.calls.clear();
-        half.calls.extend_from_slice(second);
-        if half.outs.len() < second.len() {
-            half.outs.resize_with(second.len(), Scratch::default);
-        }
-        (half.now, half.action, half.deadline_only) = (now, action, deadline_only);
-        let worker = self.second.get_or_insert_with(|| Handoff::new(Half::run));
-        worker.submit(half);
-        let mut pool = std::mem::take(&mut self.batch_scratch);
-        if pool.len() < first.len() {
-            pool.resize_with(first.len(), Scratch::default);
-        }
-        run_calls(
-            &mut self.nodes,
-            0,
-            first,
-            &mut pool[..first.len()],
-            now,
-            action,
-            deadline_only,
-        );
-        let mut half = worker.wait();
-        self.nodes.append(&mut half.nodes);
-        for out in pool[..first.len()].iter().chain(&half.outs[..second.len()]) {
-            self.apply(out);
-        }
-        self.batch_scratch = pool;
-        self.spare = Some(half);
+        self.scratch = out;
+        self.update_filter(c);
+        self.next = self.next_event();
     }
 
     /// Moves a channel between "every frame" and its identifiers when it entered or left
     /// Operational.
-    fn update_filter(&mut self, index: usize, side: Side) {
-        let node = &self.nodes[index];
-        let (state, config) = match side {
-            Side::A => (node.a.node().nmt_state(), node.a.node().safety_config()),
-            Side::B => (node.b.node().nmt_state(), node.b.node().safety_config()),
-        };
+    fn update_filter(&mut self, c: u32) {
+        let sim = self.channel(c);
+        let (state, config) = sim.state();
         let operational = state == NmtState::Operational;
-        if operational == node.operational[side as usize] {
+        if operational == sim.operational {
             return;
         }
-        let c = channel(index, side);
-        let ids = accepted(node.id, config);
-        self.nodes[index].operational[side as usize] = operational;
+        let ids = accepted(sim.id, config);
+        self.channel_mut(c).operational = operational;
         if operational {
             for id in ids {
                 let list = &mut self.subscribers[usize::from(id)];
@@ -860,6 +742,787 @@ impl<O: Observer> Engine<O> {
                 self.open.insert(at, c);
             }
         }
+    }
+}
+
+/// The network: participant 0 is the tool; node `i`'s channel A is participant `2i + 1`,
+/// channel B `2i + 2` (as in `DualNetwork`); background senders follow the nodes.
+///
+/// **Windows.** The channels are split into groups ([`Engine::set_threads`]: one, or two
+/// that run on two threads; with two, each node has one channel in each, so that the work a
+/// frame causes, which both channels of its receivers do alike, falls to both threads). The
+/// groups touch nothing of each other's but the bus and the links. The engine advances all
+/// groups through a window of simulated time at once, then puts what they sent on the bus in
+/// the order of its instants, and what they wrote on the links on the wires. A window ends
+/// where a frame not yet arbitrated could first reach a receiver (the end of the frame on
+/// the bus, or the window's start if the bus is free, plus the shortest frame's time,
+/// [`Bus::shortest_frame`]), and at the latest after the link's latency ([`LINK_LATENCY`]).
+/// Every delivery and link message before its end is known when it starts, so within it the
+/// groups are independent; the frames they send in it compete in arbitrations whose frames
+/// arrive after it. The calls are the same, at the same instants, in the same order per
+/// channel, as one thread stepping from instant to instant makes them, and the observer hears
+/// everything in that one-thread order ([`Order`]), so the result does not depend on the
+/// number of groups (`tests/tests/fullnet.rs` compares traces, events and reports).
+///
+/// **Two threads** ([`Lane`]): each thread runs one group and its own copy of the bus and
+/// its traffic, which stay alike because both put the same frames on them in the same order;
+/// the threads meet once per window to hand each other what their group sent and wrote
+/// ([`Exchange`]). Nothing waits for a thread that runs the bus alone.
+pub struct Engine<O: Observer> {
+    /// Simulated time.
+    pub now: Instant,
+    /// The bus.
+    pub bus: Bus,
+    /// Who watches.
+    pub observer: O,
+    /// Deliver every frame to every channel (as `DualNetwork` does) instead of filtering:
+    /// for the test that shows filtering changes nothing.
+    pub unfiltered: bool,
+    /// Every frame as delivered, when `Some` (tests only: an hour would not fit).
+    pub trace: Option<Vec<(Instant, CanFrame, usize)>>,
+    /// The groups.
+    groups: Vec<Group>,
+    /// The group of each channel.
+    place: Vec<usize>,
+    node_count: usize,
+    /// Per node whose output is watched: the watched SRDO's output of each channel as last
+    /// applied, and their AND as last reported.
+    outputs: Vec<Option<([u64; 2], u64)>>,
+    /// Whether any window or call has run (the groups are set before).
+    started: bool,
+    traffic: Traffic,
+    tool_inbox: VecDeque<CanFrame>,
+    link_period: Duration,
+    /// The second thread and where the two meet, from the first run on two threads.
+    second: Option<(Handoff<Box<WorkerRun>>, Arc<Exchange>)>,
+    /// The windows run so far on two threads (both count them alike).
+    epoch: u64,
+    /// A window's deliveries, the groups' frames and notes merged: reused.
+    window: Vec<Delivery>,
+    sends: Vec<(Instant, usize, CanFrame)>,
+    notes: Vec<(Order, Note)>,
+}
+
+/// Channel number `c`: node `c / 2`, side A for even, B for odd; participant `c + 1`.
+fn channel(node: usize, side: Side) -> u32 {
+    (2 * node + side as usize) as u32
+}
+
+/// The identifiers a channel in Operational handles (see the module documentation).
+fn accepted(node_id: u8, config: &shared::safety::config::SafetyConfig<4>) -> Vec<u16> {
+    let mut ids = vec![nmt::NMT_ID.raw(), shared::safety::gfc::GFC_ID.raw()];
+    ids.push(0x600 + u16::from(node_id));
+    for record in &config.srdos {
+        if record.direction != 0 {
+            for cob_id in [record.cob_id_1, record.cob_id_2] {
+                ids.push((cob_id & 0x7FF) as u16);
+            }
+        }
+    }
+    ids.sort_unstable();
+    ids.dedup();
+    ids
+}
+
+/// What happens on the bus besides the groups' calls: frames on their way to the receivers
+/// and the background senders. On two threads each keeps a copy (with one of the bus).
+#[derive(Clone, Default)]
+struct Traffic {
+    in_flight: Vec<Delivery>,
+    senders: Vec<Sender>,
+    sender_due: EventHeap,
+}
+
+impl Traffic {
+    /// The next delivery, background frame or arbitration after the instant `now`.
+    fn next(&self, bus: &Bus, now: Instant) -> Instant {
+        let mut next = Instant::NEVER;
+        for delivery in &self.in_flight {
+            next = next.min(delivery.at);
+        }
+        if let Some((at, _)) = self.sender_due.peek() {
+            next = next.min(at);
+        }
+        if let Some(start) = bus.next_start(now) {
+            next = next.min(start);
+        }
+        next
+    }
+
+    /// The end (exclusive) of the window that starts at `start`, in a run up to `end`: the
+    /// frame on the bus (or the first one arbitrated from `start` on) reaches the receivers
+    /// at its end, the next one a shortest frame later at the earliest; a link message
+    /// written from `start` on arrives a link latency later.
+    fn window_end(bus: &Bus, start: Instant, end: Instant) -> Instant {
+        let reach = bus.free_at().max(start) + bus.shortest_frame();
+        reach
+            .min(start + LINK_LATENCY)
+            .min(end + Duration::from_micros(1))
+    }
+
+    /// Takes the deliveries before `until` into `window`, earliest first (at one instant in
+    /// the order the bus made them).
+    fn take_window(&mut self, until: Instant, window: &mut Vec<Delivery>) {
+        window.clear();
+        let mut index = 0;
+        while index < self.in_flight.len() {
+            if self.in_flight[index].at < until {
+                window.push(self.in_flight.remove(index));
+            } else {
+                index += 1;
+            }
+        }
+        // Stable: deliveries at one instant keep the order the bus made them in.
+        window.sort_by_key(|delivery| delivery.at);
+    }
+
+    /// The instants from the one after `now` up to (not including) `until`: what the groups
+    /// sent at each (`sends`, by instant), the background senders, the arbitration.
+    fn replay(
+        &mut self,
+        bus: &mut Bus,
+        sends: &[(Instant, usize, CanFrame)],
+        now: Instant,
+        until: Instant,
+    ) {
+        let mut next = 0;
+        let mut now = now;
+        loop {
+            let mut at = sends.get(next).map_or(Instant::NEVER, |(at, ..)| *at);
+            if let Some((due, _)) = self.sender_due.peek() {
+                at = at.min(due);
+            }
+            if let Some(start) = bus.next_start(now) {
+                at = at.min(start);
+            }
+            if at >= until {
+                break;
+            }
+            now = at;
+            while let Some(&(_, from, frame)) = sends.get(next).filter(|(sent, ..)| *sent <= at) {
+                bus.send(from, frame);
+                next += 1;
+            }
+            self.background(bus, at);
+            if bus.next_start(at) == Some(at) {
+                bus.arbitrate_into(at, &mut self.in_flight);
+            }
+        }
+    }
+
+    /// The background senders due at `now` queue their frames.
+    fn background(&mut self, bus: &mut Bus, now: Instant) {
+        while let Some((at, index)) = self.sender_due.peek() {
+            if at > now {
+                break;
+            }
+            self.sender_due.pop();
+            let sender = &mut self.senders[index as usize];
+            let mut data = [0u8; 8];
+            data.copy_from_slice(&sender.count.to_le_bytes());
+            let id = shared::CanId::new(sender.periodic.id).expect("an 11-bit identifier");
+            let frame = CanFrame::new(id, &data[..usize::from(sender.periodic.len)])
+                .expect("at most 8 bytes");
+            sender.count += 1;
+            sender.next = sender.next + sender.periodic.period;
+            let (participant, next) = (sender.participant, sender.next);
+            self.sender_due.push(next, index);
+            bus.send(participant, frame);
+        }
+    }
+}
+
+/// The notes of a window's deliveries, each before the calls it causes.
+fn delivery_notes(window: &[Delivery], notes: &mut Vec<(Order, Note)>) {
+    let mut phase = 0;
+    for (k, delivery) in window.iter().enumerate() {
+        phase = match k.checked_sub(1).map(|before| window[before].at) {
+            Some(at) if at == delivery.at => phase + 1,
+            _ => 0,
+        };
+        let order = Order {
+            at: delivery.at,
+            phase,
+            channel: 0,
+        };
+        notes.push((order, Note::Delivered(*delivery)));
+    }
+}
+
+/// What one thread of a two-thread run published for the other after a window.
+struct Published {
+    /// Its group's frames for the bus.
+    sends: Vec<(Instant, usize, CanFrame)>,
+    /// What its group's channels wrote on the links (all for the other group's channels).
+    links: Links,
+    /// Its group's notes (the second thread's, for the engine's thread to tell).
+    notes: Vec<(Order, Note)>,
+    /// Its group's next event, before the other group's link bytes of this window.
+    pending: Instant,
+}
+
+impl Default for Published {
+    fn default() -> Self {
+        Published {
+            sends: Vec::new(),
+            links: Links::default(),
+            notes: Vec::new(),
+            pending: Instant::NEVER,
+        }
+    }
+}
+
+/// Where the two threads of a run meet once per window: what each published, in two slots
+/// each, by the window's parity (a thread that has gone on to the next window cannot
+/// overwrite what the other has yet to read: it publishes that window in the other slot, and
+/// the one after only when the other has published, after reading), and the last window
+/// each published.
+#[derive(Default)]
+struct Exchange {
+    slots: [[Mutex<Published>; 2]; 2],
+    published: [AtomicU64; 2],
+    /// Set when the engine's thread stopped in the middle of a run (it panicked): the
+    /// second thread stops waiting for it.
+    abandoned: AtomicBool,
+}
+
+/// Locks `slot`; a panic while it was held (there is none: the lock only moves vectors)
+/// leaves it as it was.
+fn lock(slot: &Mutex<Published>) -> std::sync::MutexGuard<'_, Published> {
+    slot.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// One thread's part of a run on two threads.
+struct Lane {
+    /// 0: the engine's thread (which tells the observer), 1: the second thread.
+    side: usize,
+    exchange: Arc<Exchange>,
+    /// The windows run so far (both threads count alike).
+    epoch: u64,
+    /// The other group's next event.
+    peer: Instant,
+    window: Vec<Delivery>,
+    sends: Vec<(Instant, usize, CanFrame)>,
+    /// The second thread's notes of the window (on the engine's thread).
+    notes: Vec<(Order, Note)>,
+}
+
+impl Lane {
+    /// Runs `group` up to `end`, window by window in step with the other thread, with its
+    /// own `bus` and `traffic` from the instant `now`; `tell` hears every window's notes,
+    /// both groups', in the one-thread order (on the engine's thread; the second thread
+    /// publishes its notes instead). `alive` says whether the other thread still runs.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &mut self,
+        group: &mut Group,
+        bus: &mut Bus,
+        traffic: &mut Traffic,
+        now: &mut Instant,
+        end: Instant,
+        alive: impl Fn() -> bool,
+        mut tell: impl FnMut(&mut Vec<(Order, Note)>),
+    ) {
+        let other = 1 - self.side;
+        loop {
+            let start = group.pending().min(self.peer).min(traffic.next(bus, *now));
+            if start > end {
+                return;
+            }
+            let until = Traffic::window_end(bus, start, end);
+            traffic.take_window(until, &mut self.window);
+            if group.has_work(&self.window, until) {
+                group.until = until;
+                group.deliveries.clone_from(&self.window);
+                group.run_window();
+            }
+            self.epoch += 1;
+            let slot = (self.epoch % 2) as usize;
+            let outbox_first = group.outbox.ends.iter().map(|&(at, _)| at).min();
+            {
+                let mut published = lock(&self.exchange.slots[self.side][slot]);
+                published.sends.clear();
+                published.sends.extend_from_slice(&group.sends);
+                std::mem::swap(&mut published.links, &mut group.outbox);
+                published.notes.clear();
+                if self.side == 1 {
+                    std::mem::swap(&mut published.notes, &mut group.notes);
+                }
+                published.pending = group.pending();
+            }
+            group.outbox.clear();
+            self.exchange.published[self.side].store(self.epoch, Ordering::Release);
+            let mut spins = 0u32;
+            while self.exchange.published[other].load(Ordering::Acquire) < self.epoch {
+                std::hint::spin_loop();
+                spins = spins.wrapping_add(1);
+                if spins % (1 << 12) == 0 {
+                    assert!(
+                        alive() && !self.exchange.abandoned.load(Ordering::Acquire),
+                        "the full network's other thread stopped during a run (it panicked)"
+                    );
+                }
+            }
+            self.sends.clear();
+            let peer_pending = {
+                let published = lock(&self.exchange.slots[other][slot]);
+                // Group 0's frames, then group 1's, on both threads: the buses stay alike.
+                if self.side == 0 {
+                    self.sends.extend_from_slice(&group.sends);
+                    self.sends.extend_from_slice(&published.sends);
+                    self.notes.extend_from_slice(&published.notes);
+                } else {
+                    self.sends.extend_from_slice(&published.sends);
+                    self.sends.extend_from_slice(&group.sends);
+                }
+                group.receive_links(&published.links);
+                published.pending
+            };
+            group.sends.clear();
+            self.peer = outbox_first.map_or(peer_pending, |first| peer_pending.min(first));
+            self.sends.sort_by_key(|(at, ..)| *at);
+            traffic.replay(bus, &self.sends, *now, until);
+            *now = (*now).max(Instant::from_micros(until.as_micros() - 1));
+            if self.side == 0 {
+                let mut notes = std::mem::take(&mut self.notes);
+                delivery_notes(&self.window, &mut notes);
+                notes.append(&mut group.notes);
+                // Stable: what one call reports keeps its order.
+                notes.sort_by_key(|(order, _)| *order);
+                tell(&mut notes);
+                notes.clear();
+                self.notes = notes;
+            }
+        }
+    }
+}
+
+/// A run of the second thread: its lane, its group, its copy of the bus and the traffic.
+struct WorkerRun {
+    lane: Lane,
+    group: Group,
+    bus: Bus,
+    traffic: Traffic,
+    now: Instant,
+    end: Instant,
+}
+
+/// Tells the observer (and the trace, and the tool) one note; `outputs` keeps each watched
+/// node's outputs (see [`Engine`]).
+fn hear<O: Observer>(
+    observer: &mut O,
+    trace: &mut Option<Vec<(Instant, CanFrame, usize)>>,
+    tool_inbox: &mut VecDeque<CanFrame>,
+    outputs: &mut [Option<([u64; 2], u64)>],
+    at: Instant,
+    note: Note,
+) {
+    match note {
+        Note::Delivered(delivery) => {
+            observer.delivered(delivery.at, &delivery.frame, delivery.from, delivery.bits);
+            if let Some(trace) = trace {
+                trace.push((delivery.at, delivery.frame, delivery.from));
+            }
+            if delivery.from != 0 {
+                tool_inbox.push_back(delivery.frame);
+                if tool_inbox.len() > 64 {
+                    tool_inbox.pop_front();
+                }
+            }
+        }
+        Note::Event(index, side, event) => observer.event(at, index, side, &event),
+        Note::Output(index, side, own, reported) => {
+            let Some((outputs, output)) = &mut outputs[index] else {
+                return;
+            };
+            outputs[side as usize] = own;
+            if reported {
+                let value = outputs[0] & outputs[1];
+                if value != *output {
+                    *output = value;
+                    observer.output(at, index, value);
+                }
+            }
+        }
+    }
+}
+
+impl<O: Observer> Engine<O> {
+    /// Dual-channel nodes `(node-ID, stored parameters)` on a bus at `bit_rate`, powered on
+    /// at t = 0, with a link heartbeat every `link_period`. A node with `None` starts on its
+    /// defaults.
+    pub fn new(
+        bit_rate: u32,
+        nodes: Vec<(u8, Option<RamFlash<8192>>)>,
+        link_period: Duration,
+        observer: O,
+    ) -> Self {
+        let node_count = nodes.len();
+        let mut channels = Vec::with_capacity(2 * node_count);
+        for (index, (id, image)) in nodes.into_iter().enumerate() {
+            let image = image.unwrap_or_default();
+            let a = Runtime::new(
+                device_config(id, "dual node, channel A"),
+                image.clone(),
+                ChannelA::default(),
+                Instant::ZERO,
+                link_period,
+            )
+            .expect("valid device");
+            let b = Runtime::new(
+                device_config(id, "dual node, channel B"),
+                image,
+                ChannelB::new(&B_INPUTS).expect("valid inputs"),
+                Instant::ZERO,
+                link_period,
+            )
+            .expect("valid device");
+            for (side, runtime) in [
+                (Side::A, ChannelRuntime::A(a)),
+                (Side::B, ChannelRuntime::B(b)),
+            ] {
+                channels.push(SimChannel {
+                    runtime,
+                    index,
+                    id,
+                    side,
+                    incoming: Wire::default(),
+                    outgoing: WireOut::default(),
+                    deadline: Instant::ZERO,
+                    operational: false,
+                    watched: None,
+                    own_output: 0,
+                });
+            }
+        }
+        let mut bus = Bus::new(bit_rate, 1 + 2 * node_count);
+        // Each channel's whole transmit queue by identifier, as the board layer keeps it
+        // (`board::transmit_queue`) and `DualNetwork` and the hub model it: a node's own
+        // heartbeat or EMCY never holds back its SRDO or its GFC.
+        bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
+        Engine {
+            now: Instant::ZERO,
+            bus,
+            observer,
+            unfiltered: false,
+            trace: None,
+            groups: vec![Group::new(channels, 2 * node_count)],
+            place: vec![0; 2 * node_count],
+            node_count,
+            outputs: vec![None; node_count],
+            started: false,
+            traffic: Traffic::default(),
+            tool_inbox: VecDeque::new(),
+            link_period,
+            second: None,
+            epoch: 0,
+            window: Vec::new(),
+            sends: Vec::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Runs the network on `threads` threads (1 or 2): its channels split into as many
+    /// groups, with two each node's channel A in one and its channel B in the other (A in
+    /// the first for even nodes, in the second for odd ones, as channel B's code differs).
+    /// The result is the same either way. Before anything runs.
+    ///
+    /// # Panics
+    /// When the network has run already, or `threads` is neither 1 nor 2.
+    pub fn set_threads(&mut self, threads: usize) {
+        assert!(!self.started, "the threads are set before the network runs");
+        assert!(
+            matches!(threads, 1 | 2),
+            "the full network runs on one or two threads, not {threads}"
+        );
+        let count = 2 * self.node_count;
+        let mut channels: Vec<Option<SimChannel>> = Vec::with_capacity(count);
+        channels.resize_with(count, || None);
+        for group in self.groups.drain(..) {
+            for sim in group.channels {
+                let c = channel(sim.index, sim.side) as usize;
+                channels[c] = Some(sim);
+            }
+        }
+        // Channel c is node c / 2's side c % 2: with two groups, (c + c / 2) % 2 puts A and B
+        // of each node apart and alternates which one the first group takes.
+        self.place = (0..count)
+            .map(|c| if threads == 1 { 0 } else { (c + c / 2) % 2 })
+            .collect();
+        let mut shares: Vec<Vec<SimChannel>> = (0..threads).map(|_| Vec::new()).collect();
+        for (c, sim) in channels.into_iter().enumerate() {
+            shares[self.place[c]].push(sim.expect("every channel in one group"));
+        }
+        self.groups = shares
+            .into_iter()
+            .map(|share| Group::new(share, count))
+            .collect();
+    }
+
+    /// The number of threads the network runs on ([`Engine::set_threads`]).
+    pub fn threads(&self) -> usize {
+        self.groups.len()
+    }
+
+    /// The link heartbeat period.
+    pub fn link_period(&self) -> Duration {
+        self.link_period
+    }
+
+    fn sim(&self, index: usize, side: Side) -> &SimChannel {
+        let c = channel(index, side);
+        self.groups[self.place[c as usize]].channel(c)
+    }
+
+    /// Channel `side` of node `index`.
+    pub fn runtime(&self, index: usize, side: Side) -> &ChannelRuntime {
+        &self.sim(index, side).runtime
+    }
+
+    /// Channel A of node `index`.
+    pub fn channel_a(&self, index: usize) -> &ChannelARuntime {
+        match self.runtime(index, Side::A) {
+            ChannelRuntime::A(runtime) => runtime,
+            ChannelRuntime::B(_) => unreachable!("side A holds channel A"),
+        }
+    }
+
+    /// Channel B of node `index`.
+    pub fn channel_b(&self, index: usize) -> &ChannelBRuntime {
+        match self.runtime(index, Side::B) {
+            ChannelRuntime::B(runtime) => runtime,
+            ChannelRuntime::A(_) => unreachable!("side B holds channel B"),
+        }
+    }
+
+    /// The index of the node with node-ID `id`.
+    pub fn index(&self, id: u8) -> usize {
+        (0..self.node_count)
+            .find(|&index| self.sim(index, Side::A).id == id)
+            .expect("a node with this node-ID")
+    }
+
+    /// Reports the effective output of receive SRDO `srdo` of node `index` to the observer:
+    /// both channels' outputs in series (AND).
+    pub fn watch(&mut self, index: usize, srdo: SrdoNumber) {
+        let mut own = [0; 2];
+        for side in [Side::A, Side::B] {
+            let c = channel(index, side);
+            let sim = self.groups[self.place[c as usize]].channel_mut(c);
+            sim.watched = Some(srdo);
+            sim.own_output = sim.output(srdo);
+            own[side as usize] = sim.own_output;
+        }
+        self.outputs[index] = Some((own, own[0] & own[1]));
+    }
+
+    /// Adds a background sender; returns its participant number.
+    pub fn add_sender(&mut self, periodic: Periodic) -> usize {
+        let participant = 1 + 2 * self.node_count + self.traffic.senders.len();
+        let index = self.traffic.senders.len() as u32;
+        self.traffic.senders.push(Sender {
+            periodic,
+            participant,
+            next: periodic.first,
+            count: 0,
+        });
+        self.traffic.sender_due.push(periodic.first, index);
+        participant
+    }
+
+    /// The bus participant of channel `side` of node `index`.
+    pub fn participant(index: usize, side: Side) -> usize {
+        channel(index, side) as usize + 1
+    }
+
+    /// Runs until `end`.
+    pub fn run_until(&mut self, end: Instant) {
+        self.started = true;
+        if self.groups.len() == 2 {
+            self.run_two(end);
+        } else {
+            self.run_one(end);
+        }
+        self.now = self.now.max(end);
+    }
+
+    /// Runs for `duration`.
+    pub fn run_for(&mut self, duration: Duration) {
+        self.run_until(self.now + duration);
+    }
+
+    /// [`Engine::run_until`] on this thread, window by window.
+    fn run_one(&mut self, end: Instant) {
+        loop {
+            let start = self.groups[0]
+                .pending()
+                .min(self.traffic.next(&self.bus, self.now));
+            if start > end {
+                return;
+            }
+            let until = Traffic::window_end(&self.bus, start, end);
+            let mut window = std::mem::take(&mut self.window);
+            self.traffic.take_window(until, &mut window);
+            let group = &mut self.groups[0];
+            group.unfiltered = self.unfiltered;
+            if group.has_work(&window, until) {
+                group.until = until;
+                group.deliveries.clone_from(&window);
+                group.run_window();
+            }
+            let mut notes = std::mem::take(&mut self.notes);
+            delivery_notes(&window, &mut notes);
+            notes.append(&mut group.notes);
+            // Stable: what one call reports keeps its order.
+            notes.sort_by_key(|(order, _)| *order);
+            for (order, note) in notes.drain(..) {
+                hear(
+                    &mut self.observer,
+                    &mut self.trace,
+                    &mut self.tool_inbox,
+                    &mut self.outputs,
+                    order.at,
+                    note,
+                );
+            }
+            self.notes = notes;
+            self.pass_link_bytes();
+            let mut sends = std::mem::take(&mut self.sends);
+            sends.append(&mut self.groups[0].sends);
+            sends.sort_by_key(|(at, ..)| *at);
+            self.traffic.replay(&mut self.bus, &sends, self.now, until);
+            sends.clear();
+            self.sends = sends;
+            self.window = window;
+            self.now = self.now.max(Instant::from_micros(until.as_micros() - 1));
+        }
+    }
+
+    /// [`Engine::run_until`] on two threads: the second takes group 1 with copies of the bus
+    /// and the traffic, this one runs group 0 and tells the observer; both give the same
+    /// bus, and this thread's copy stays the engine's.
+    fn run_two(&mut self, end: Instant) {
+        let (handoff, exchange) = self.second.get_or_insert_with(|| {
+            let worker = Handoff::new(|mut run: Box<WorkerRun>| {
+                let WorkerRun {
+                    lane,
+                    group,
+                    bus,
+                    traffic,
+                    now,
+                    end,
+                } = &mut *run;
+                lane.run(group, bus, traffic, now, *end, || true, |_| {});
+                run
+            });
+            (worker, Arc::new(Exchange::default()))
+        });
+        let unfiltered = self.unfiltered;
+        for group in &mut self.groups {
+            group.unfiltered = unfiltered;
+        }
+        let second = self.groups.pop().expect("two groups");
+        let lane = |side: usize, peer: Instant| Lane {
+            side,
+            exchange: Arc::clone(exchange),
+            epoch: self.epoch,
+            peer,
+            window: Vec::new(),
+            sends: Vec::new(),
+            notes: Vec::new(),
+        };
+        let mut own = lane(0, second.pending());
+        let run = Box::new(WorkerRun {
+            lane: lane(1, self.groups[0].pending()),
+            group: second,
+            bus: self.bus.clone(),
+            traffic: self.traffic.clone(),
+            now: self.now,
+            end,
+        });
+        handoff.submit(run);
+        // Should this thread panic during the run, the second one stops waiting for it.
+        struct Abandon<'a>(&'a Exchange);
+        impl Drop for Abandon<'_> {
+            fn drop(&mut self) {
+                if std::thread::panicking() {
+                    self.0.abandoned.store(true, Ordering::Release);
+                }
+            }
+        }
+        let exchange = Arc::clone(exchange);
+        let _guard = Abandon(&exchange);
+        let (observer, trace, tool_inbox, outputs) = (
+            &mut self.observer,
+            &mut self.trace,
+            &mut self.tool_inbox,
+            &mut self.outputs,
+        );
+        let (handoff, _) = self.second.as_ref().expect("started above");
+        own.run(
+            &mut self.groups[0],
+            &mut self.bus,
+            &mut self.traffic,
+            &mut self.now,
+            end,
+            || !handoff.stopped(),
+            |notes| {
+                for (order, note) in notes.drain(..) {
+                    hear(observer, trace, tool_inbox, outputs, order.at, note);
+                }
+            },
+        );
+        let (handoff, _) = self.second.as_mut().expect("started above");
+        let run = handoff.wait();
+        self.epoch = own.epoch;
+        debug_assert_eq!(
+            run.lane.epoch, own.epoch,
+            "both threads ran the same windows"
+        );
+        self.groups.push(run.group);
+    }
+
+    /// What each group wrote on the links goes to the inbox of the group of the channel it
+    /// is for (one group: its own).
+    fn pass_link_bytes(&mut self) {
+        for g in 0..self.groups.len() {
+            let outbox = std::mem::take(&mut self.groups[g].outbox);
+            for to in 0..self.groups.len() {
+                self.groups[to].receive_links_for(&outbox, &self.place, to);
+            }
+            let mut outbox = outbox;
+            outbox.clear();
+            self.groups[g].outbox = outbox;
+        }
+    }
+
+    /// Runs `action` on one channel now, polls it, and applies what it handed out at once.
+    fn call(&mut self, index: usize, side: Side, action: Action) {
+        self.started = true;
+        let now = self.now;
+        let c = channel(index, side);
+        let g = self.place[c as usize];
+        let group = &mut self.groups[g];
+        group.apply_inbox();
+        group.now = now;
+        group.until = now + Duration::from_micros(1);
+        group.call(c, action, DEADLINE_PHASE);
+        let mut notes = std::mem::take(&mut group.notes);
+        for (_, from, frame) in group.sends.drain(..) {
+            self.bus.send(from, frame);
+        }
+        for (order, note) in notes.drain(..) {
+            hear(
+                &mut self.observer,
+                &mut self.trace,
+                &mut self.tool_inbox,
+                &mut self.outputs,
+                order.at,
+                note,
+            );
+        }
+        self.groups[g].notes = notes;
+        self.pass_link_bytes();
     }
 
     /// Both channels of node `index` sample their safety input: A reads `a`, B reads `b`.
@@ -883,10 +1546,8 @@ impl<O: Observer> Engine<O> {
     pub fn wait_for_boot(&mut self, limit: Duration) -> bool {
         let give_up = self.now + limit;
         while self.now < give_up {
-            if self
-                .nodes
-                .iter()
-                .all(|node| node.a.node().nmt_state() == NmtState::PreOperational)
+            if (0..self.node_count)
+                .all(|index| self.sim(index, Side::A).state().0 == NmtState::PreOperational)
             {
                 return true;
             }
@@ -927,44 +1588,22 @@ impl<O: Observer> Transport for Engine<O> {
     }
 }
 
-/// One call on channel `side` of `node` (index `index`) at `now`: the action, the poll, the
-/// new deadline and the bytes for the other channel's wire; everything outside the node goes
-/// into `out`, for [`Engine::apply`].
-fn run_call(
-    node: &mut SimNode,
-    index: usize,
-    side: Side,
-    now: Instant,
-    action: Action,
-    out: &mut Scratch,
-) {
+/// One call on channel `sim` at `now`: the action, the poll, the new deadline; everything
+/// outside the channel goes into `out`, for [`Group::call`].
+fn run_call(sim: &mut SimChannel, now: Instant, action: Action, out: &mut Scratch) {
     out.clear();
-    out.ran = true;
-    out.channel = channel(index, side);
-    let incoming = &mut node.wires[side as usize];
-    let deadline = match side {
-        Side::A => act(&mut node.a, incoming, now, action, out),
-        Side::B => act(&mut node.b, incoming, now, action, out),
+    let incoming = &mut sim.incoming;
+    let deadline = match &mut sim.runtime {
+        ChannelRuntime::A(runtime) => act(runtime, incoming, now, action, out),
+        ChannelRuntime::B(runtime) => act(runtime, incoming, now, action, out),
     };
-    if node.deadlines[side as usize] != deadline {
-        node.deadlines[side as usize] = deadline;
+    if sim.deadline != deadline {
+        sim.deadline = deadline;
         if deadline != Instant::NEVER {
             out.timer = Some(deadline);
         }
     }
-    if !out.link.is_empty() {
-        // The other channel receives: the wire towards it.
-        let other = match side {
-            Side::A => Side::B,
-            Side::B => Side::A,
-        };
-        let link_ends = &mut out.link_ends;
-        node.wires[other as usize].send(now, &out.link, |at| link_ends.push(at));
-    }
-    out.own_output = node.watched.map_or(0, |srdo| match side {
-        Side::A => node.a.output(srdo),
-        Side::B => node.b.output(srdo),
-    });
+    out.own_output = sim.watched.map_or(0, |srdo| sim.output(srdo));
 }
 
 /// One call on a channel (either role: their runtimes differ in type only), then its poll;
@@ -1032,7 +1671,7 @@ mod tests {
         for reads in [vec![10_000], vec![125, 131, 149, 530, 549, 10_000], {
             (0..700).collect::<Vec<u64>>()
         }] {
-            let mut wire = Wire::default();
+            let (mut out, mut wire) = (WireOut::default(), Wire::default());
             let mut delimiters = Vec::new();
             let mut received = Vec::new();
             let mut pending = writes.iter().peekable();
@@ -1041,7 +1680,9 @@ mod tests {
                     if now > until {
                         break;
                     }
-                    wire.send(Instant::from_micros(now), bytes, |at| delimiters.push(at));
+                    let first =
+                        out.write(Instant::from_micros(now), bytes, |at| delimiters.push(at));
+                    wire.push_run(first, bytes);
                     pending.next();
                 }
                 wire.receive(Instant::from_micros(until), |last, bytes| {

@@ -1,18 +1,19 @@
 //! A second thread that runs one job at a time for the caller, ready within a fraction of a
 //! microsecond: it waits for work by spinning, not by sleeping.
 //!
-//! The full network's large batches (every channel's link heartbeat falls on one instant,
-//! 254 calls of about 0.4 µs each) are split between the caller and this thread. Handing a
-//! batch to a sleeping thread costs a wake-up: through `rayon::join` on this machine that
-//! took the simulation of one minute from 3.4 s to 10.0 s of wall time (idle machine,
-//! `fullnet network --minutes 1`; 16,117 batches, about 0.4 ms lost on each), more than the
-//! batch itself. This thread therefore spins while the simulation runs and only parks after
+//! The full network on two threads hands it the second group of channels for every run of
+//! the engine (`Engine::run_until`: one per input change, about 30 a simulated second), and
+//! within a run the two threads meet once per window of simulated time, spinning on their
+//! own exchange. Handing work to a sleeping thread costs a wake-up: through `rayon::join`
+//! on this machine that took the simulation of one minute from 3.4 s to 10.0 s of wall time
+//! (idle machine, `fullnet network --minutes 1`; 16,117 batches of an earlier design, about
+//! 0.4 ms lost on each). This thread therefore spins between jobs and only parks after
 //! [`PARK_AFTER`] without work (the simulation waiting for its caller, or finished), and the
 //! caller spins while it waits for the result. It costs a whole core while it spins: worth it
 //! on a machine with a core to spare, which is what `--threads 2` asks for.
 //!
-//! Safe Rust only: the job (its nodes included) moves into the thread through a mutex and
-//! comes back the same way; the atomic state only says whose turn it is.
+//! Safe Rust only: the job (its channels included) moves into the thread through a mutex
+//! and comes back the same way; the atomic state only says whose turn it is.
 
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -20,8 +21,9 @@ use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
 
 /// How long the thread spins without work before it parks (the next job then waits for a
-/// wake-up once). Longer than the gaps between the simulation's batches while it runs (a
-/// link period, 10 ms), so that a running simulation never waits for a wake-up.
+/// wake-up once). Far longer than the gaps between the engine's runs while a simulation
+/// goes on (the caller's input change between two runs takes microseconds), so that a
+/// running simulation never waits for a wake-up.
 pub const PARK_AFTER: Duration = Duration::from_millis(50);
 
 /// Nothing submitted; the caller may submit.
@@ -73,7 +75,10 @@ impl<J: Send + 'static> Handoff<J> {
         let thread = thread::Builder::new()
             .name("fullnet-second".into())
             .spawn(move || {
-                let mut idle_since = Instant::now();
+                // Since when it has been without work: read off the clock at its first look
+                // after a job, not at the end of every job (a clock read costs about as
+                // much as a small job's hand-over).
+                let mut idle_since: Option<Instant> = None;
                 let mut spins = 0u32;
                 loop {
                     match theirs.state.load(Ordering::Acquire) {
@@ -81,13 +86,16 @@ impl<J: Send + 'static> Handoff<J> {
                             let job = theirs.take().expect("a submitted job is in the slot");
                             theirs.put(work(job));
                             theirs.state.store(DONE, Ordering::Release);
-                            idle_since = Instant::now();
+                            idle_since = None;
                         }
                         QUIT => return,
                         _ => {
                             std::hint::spin_loop();
                             spins = spins.wrapping_add(1);
-                            if spins % SPINS_PER_LOOK == 0 && idle_since.elapsed() > PARK_AFTER {
+                            if spins % SPINS_PER_LOOK == 0
+                                && idle_since.get_or_insert_with(Instant::now).elapsed()
+                                    > PARK_AFTER
+                            {
                                 // `submit` unparks after it has set the state: a job that
                                 // came after the load above is not missed (the park returns
                                 // at once), and the time-out bounds any other surprise.
@@ -117,6 +125,11 @@ impl<J: Send + 'static> Handoff<J> {
             // Costs a system call only when the thread is parked.
             thread.thread().unpark();
         }
+    }
+
+    /// Whether the thread has stopped (it panicked: it runs until its owner is dropped).
+    pub fn stopped(&self) -> bool {
+        self.thread.as_ref().is_none_or(JoinHandle::is_finished)
     }
 
     /// The job submitted last, done (spinning until it is).

@@ -299,7 +299,7 @@ pub fn specs(roles: &[Role], timing: &Timing) -> Vec<safety_config::network_file
 }
 
 /// Runs the full network for `bus_time` after the NMT start, inputs changing at moments
-/// drawn from `seed`, large batches of calls on `threads` threads (1 or 2; the report is the
+/// drawn from `seed`, on `threads` threads (1 or 2; the report is the
 /// same either way but for its times); keeps the trace when `keep_trace` (for tests: short
 /// runs only).
 pub fn run(
@@ -329,7 +329,7 @@ pub fn run(
     if keep_trace {
         engine.trace = Some(Vec::new());
     }
-    engine.threads = threads;
+    engine.set_threads(threads);
     for stream in 0..plan::PDO_STREAMS {
         let first = Instant::from_micros(rng.random_range(0..plan::PDO_PERIOD.as_micros()));
         engine.add_sender(Periodic {

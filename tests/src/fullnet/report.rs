@@ -212,12 +212,20 @@ pub fn full_network(report: &Report) -> String {
     let cpu = report.simulation_cpu.map_or_else(
         || "CPU time not available".to_string(),
         |cpu| {
-            format!(
-                "{:.1} s of CPU time in all ({:.1} s per simulated minute), user and system, \
-                 the rest of the wall time waiting for a core",
-                cpu.as_secs_f64(),
-                cpu.as_secs_f64() * 60.0 / simulated_s.max(1e-9)
-            )
+            let per_minute = cpu.as_secs_f64() * 60.0 / simulated_s.max(1e-9);
+            if report.threads > 1 {
+                format!(
+                    "{:.1} s of CPU time in all threads ({per_minute:.1} s per simulated \
+                     minute), user and system, a thread's waits for the other included",
+                    cpu.as_secs_f64(),
+                )
+            } else {
+                format!(
+                    "{:.1} s of CPU time in all ({per_minute:.1} s per simulated minute), user \
+                     and system, the rest of the wall time waiting for a core",
+                    cpu.as_secs_f64(),
+                )
+            }
         },
     );
     let _ = writeln!(
@@ -227,7 +235,7 @@ pub fn full_network(report: &Report) -> String {
          core alone); simulation {:.1} s for {:.1} s simulated ({cpu}).",
         if report.threads > 1 {
             format!(
-                "batches of calls at one instant on {} threads",
+                "{} threads, channel A of each node on one and channel B on the other",
                 report.threads
             )
         } else {
