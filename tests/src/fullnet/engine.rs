@@ -708,7 +708,6 @@ impl Group {
         }
         self.scratch = out;
         self.update_filter(c);
-        self.next = self.next_event();
     }
 
     /// Moves a channel between "every frame" and its identifiers when it entered or left
@@ -979,11 +978,25 @@ impl Default for Published {
 /// each published.
 #[derive(Default)]
 struct Exchange {
-    slots: [[Mutex<Published>; 2]; 2],
-    published: [AtomicU64; 2],
+    slots: [[Padded<Mutex<Published>>; 2]; 2],
+    published: [Padded<AtomicU64>; 2],
     /// Set when the engine's thread stopped in the middle of a run (it panicked): the
     /// second thread stops waiting for it.
     abandoned: AtomicBool,
+}
+
+/// A value alone in its cache lines (128 bytes: two lines, as adjacent-line prefetching
+/// fetches pairs), so that what one thread writes does not take from the other thread a line
+/// it reads for something else.
+#[derive(Default)]
+#[repr(align(128))]
+struct Padded<T>(T);
+
+impl<T> std::ops::Deref for Padded<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.0
+    }
 }
 
 /// Locks `slot`; a panic while it was held (there is none: the lock only moves vectors)
@@ -1507,6 +1520,7 @@ impl<O: Observer> Engine<O> {
         group.now = now;
         group.until = now + Duration::from_micros(1);
         group.call(c, action, DEADLINE_PHASE);
+        group.next = group.next_event();
         let mut notes = std::mem::take(&mut group.notes);
         for (_, from, frame) in group.sends.drain(..) {
             self.bus.send(from, frame);
