@@ -195,8 +195,13 @@ fn fast_engine_gives_the_dual_network_trace_frame_for_frame() {
             >= 4,
         "{expected_events:?}"
     );
-    for (unfiltered, threads) in [(false, 1), (true, 1), (false, 2)] {
+    // With two threads, once with every window's frames and link bytes through the
+    // threads' board and once through the exchange's slots (a board of two words).
+    for (unfiltered, threads, board) in
+        [(false, 1, 32), (true, 1, 32), (false, 2, 32), (false, 2, 2)]
+    {
         let mut fast = engine(unfiltered, threads);
+        fast.limit_board(board);
         script(&mut fast);
         let trace = fast.trace.take().unwrap();
         let first_difference = expected
