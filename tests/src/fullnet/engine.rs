@@ -755,18 +755,18 @@ impl Group {
 /// the order of its instants, and what they wrote on the links on the wires. A window ends
 /// where a frame not yet arbitrated could first reach a receiver (the end of the frame on
 /// the bus, or the window's start if the bus is free, plus the shortest frame's time,
-/// [`Bus::shortest_frame`]), and at the latest after the link's latency ([`LINK_LATENCY`]).
+/// [`Bus::shortest_frame`]), and at the latest after the link's latency (`LINK_LATENCY`).
 /// Every delivery and link message before its end is known when it starts, so within it the
 /// groups are independent; the frames they send in it compete in arbitrations whose frames
 /// arrive after it. The calls are the same, at the same instants, in the same order per
 /// channel, as one thread stepping from instant to instant makes them, and the observer hears
-/// everything in that one-thread order ([`Order`]), so the result does not depend on the
+/// everything in that one-thread order (`Order`), so the result does not depend on the
 /// number of groups (`tests/tests/fullnet.rs` compares traces, events and reports).
 ///
-/// **Two threads** ([`Lane`]): each thread runs one group and its own copy of the bus and
+/// **Two threads** (`Lane`): each thread runs one group and its own copy of the bus and
 /// its traffic, which stay alike because both put the same frames on them in the same order;
 /// the threads meet once per window to hand each other what their group sent and wrote
-/// ([`Exchange`]). Nothing waits for a thread that runs the bus alone.
+/// (`Exchange`). Nothing waits for a thread that runs the bus alone.
 pub struct Engine<O: Observer> {
     /// Simulated time.
     pub now: Instant,
