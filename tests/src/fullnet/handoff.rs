@@ -145,7 +145,7 @@ impl<J: Send + 'static> Handoff<J> {
             if spins % SPINS_PER_LOOK == 0
                 && self.thread.as_ref().is_none_or(JoinHandle::is_finished)
             {
-                panic!("the full network's second thread stopped during a batch (it panicked)");
+                panic!("the full network's second thread stopped during a job (it panicked)");
             }
         }
         let job = self.shared.take().expect("a done job is in the slot");

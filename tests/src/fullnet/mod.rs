@@ -6,7 +6,8 @@
 //! - [`configure`]: storage images of configured nodes, by the configuration tool's own
 //!   procedure against each core alone.
 //! - [`engine`]: the event-driven simulation, checked against `DualNetwork` frame for frame.
-//! - [`handoff`]: the second thread that takes half of a large batch of calls.
+//! - [`handoff`]: the second thread, which runs one group of channels for every run of the
+//!   engine on two threads.
 //! - [`network`]: the full network run and its monitor (bus load, SCT and SRVT margins,
 //!   reaction times).
 //! - [`reaction`]: reaction times of the demo's pair by event-driven SRDO, GFC and SCT expiry.

@@ -252,7 +252,7 @@ pub struct Report {
     /// CPU time the process got meanwhile, all its threads, where the system says
     /// ([`process_cpu_time`]): on a shared machine the wall time includes waiting for a core.
     pub simulation_cpu: Option<std::time::Duration>,
-    /// Threads the batches of calls ran on.
+    /// Threads the network ran on.
     pub threads: usize,
     /// The monitor.
     pub monitor: Monitor,
