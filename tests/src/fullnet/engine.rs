@@ -5,8 +5,9 @@
 //!
 //! What makes it fast, without touching the protocol core or the channel code:
 //!
-//! - **Steps to the next deadline.** Channel deadlines, link frame ends and background senders
-//!   are kept in binary heaps; a step handles only what is due, not every node.
+//! - **Steps to the next deadline.** Channel deadlines are kept in a tournament tree per
+//!   group, link frame ends and background senders in binary heaps; a step handles only what
+//!   is due, not every node.
 //! - **Acceptance filtering.** A channel in Operational gets only the frames its core and role
 //!   look at: NMT (000h), GFC (001h), its SDO request identifier (600h + node-ID) and the two
 //!   identifiers of each SRDO it has configured, transmit or receive. Every other frame is
