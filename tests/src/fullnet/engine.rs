@@ -552,14 +552,11 @@ impl Group {
         self.inbox_first = Instant::NEVER;
     }
 
-    /// Takes what `links` holds for its channels (all of it: the other group's channels
-    /// write only to this one's) into its inbox.
+    /// Takes what `links` holds for its own channels into its inbox (on two threads all of
+    /// it: the other group's channels write only to this one's).
     fn receive_links(&mut self, links: &Links) {
-        for &(c, first, ref range) in &links.runs {
-            debug_assert!(
-                self.local[c as usize] != usize::MAX,
-                "a link to another group"
-            );
+        let own = |c: u32| self.local[c as usize] != usize::MAX;
+        for &(c, first, ref range) in links.runs.iter().filter(|(c, ..)| own(*c)) {
             let start = self.inbox.bytes.len();
             self.inbox
                 .bytes
@@ -567,29 +564,9 @@ impl Group {
             let end = self.inbox.bytes.len();
             self.inbox.runs.push((c, first, start..end));
         }
-        for &(at, c) in &links.ends {
+        for &(at, c) in links.ends.iter().filter(|(_, c)| own(*c)) {
             self.inbox.ends.push((at, c));
             self.inbox_first = self.inbox_first.min(at);
-        }
-    }
-
-    /// Takes what `links` holds for the channels of group `me` (by `place`) into its inbox.
-    fn receive_links_for(&mut self, links: &Links, place: &[usize], me: usize) {
-        for &(c, first, ref range) in &links.runs {
-            if place[c as usize] == me {
-                let start = self.inbox.bytes.len();
-                self.inbox
-                    .bytes
-                    .extend_from_slice(&links.bytes[range.clone()]);
-                let end = self.inbox.bytes.len();
-                self.inbox.runs.push((c, first, start..end));
-            }
-        }
-        for &(at, c) in &links.ends {
-            if place[c as usize] == me {
-                self.inbox.ends.push((at, c));
-                self.inbox_first = self.inbox_first.min(at);
-            }
         }
     }
 
@@ -1726,8 +1703,8 @@ impl<O: Observer> Engine<O> {
     fn pass_link_bytes(&mut self) {
         for g in 0..self.groups.len() {
             let outbox = std::mem::take(&mut self.groups[g].outbox);
-            for to in 0..self.groups.len() {
-                self.groups[to].receive_links_for(&outbox, &self.place, to);
+            for group in &mut self.groups {
+                group.receive_links(&outbox);
             }
             let mut outbox = outbox;
             outbox.clear();
