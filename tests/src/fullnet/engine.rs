@@ -1473,11 +1473,6 @@ impl<O: Observer> Engine<O> {
         self.board_limit = words;
     }
 
-    /// The number of threads the network runs on ([`Engine::set_threads`]).
-    pub fn threads(&self) -> usize {
-        self.groups.len()
-    }
-
     /// The link heartbeat period.
     pub fn link_period(&self) -> Duration {
         self.link_period
@@ -1589,16 +1584,7 @@ impl<O: Observer> Engine<O> {
             notes.append(&mut group.notes);
             // Stable: what one call reports keeps its order.
             notes.sort_by_key(|(order, _)| *order);
-            for (order, note) in notes.drain(..) {
-                hear(
-                    &mut self.observer,
-                    &mut self.trace,
-                    &mut self.tool_inbox,
-                    &mut self.outputs,
-                    order.at,
-                    note,
-                );
-            }
+            self.tell(&mut notes);
             self.notes = notes;
             self.pass_link_bytes();
             let mut sends = std::mem::take(&mut self.sends);
@@ -1712,6 +1698,21 @@ impl<O: Observer> Engine<O> {
         }
     }
 
+    /// Tells the observer (and the trace and the tool) `notes`, in their order, and empties
+    /// them.
+    fn tell(&mut self, notes: &mut Vec<(Order, Note)>) {
+        for (order, note) in notes.drain(..) {
+            hear(
+                &mut self.observer,
+                &mut self.trace,
+                &mut self.tool_inbox,
+                &mut self.outputs,
+                order.at,
+                note,
+            );
+        }
+    }
+
     /// Runs `action` on one channel now, polls it, and applies what it handed out at once.
     fn call(&mut self, index: usize, side: Side, action: Action) {
         self.started = true;
@@ -1728,16 +1729,7 @@ impl<O: Observer> Engine<O> {
         for (_, from, frame) in group.sends.drain(..) {
             self.bus.send(from, frame);
         }
-        for (order, note) in notes.drain(..) {
-            hear(
-                &mut self.observer,
-                &mut self.trace,
-                &mut self.tool_inbox,
-                &mut self.outputs,
-                order.at,
-                note,
-            );
-        }
+        self.tell(&mut notes);
         self.groups[g].notes = notes;
         self.pass_link_bytes();
     }
