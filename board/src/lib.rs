@@ -13,7 +13,8 @@
 //! the types both layers share and what the hardware layer needs that is not hardware:
 //! [`parameter_flash`] (the parameter slots on word-programmed flash), [`diagnostics`] (the
 //! status a channel reports on the emulated board's line), [`stack`]'s search for the stack's
-//! high-water mark, the node-ID switches' decoding and
+//! high-water mark, [`frame_trail`]'s walk of the frame records a panic is logged by, the
+//! node-ID switches' decoding and
 //! the emulated run's arguments, all host-tested.
 #![no_std]
 
@@ -24,6 +25,7 @@ use shared::{CanFrame, CanId};
 
 pub mod bxcan_adapter;
 pub mod diagnostics;
+pub mod frame_trail;
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;
 #[cfg(target_os = "none")]

@@ -11,6 +11,7 @@ mod footprint;
 mod fullnet;
 mod images;
 mod interop;
+mod locate;
 mod manual;
 mod network;
 mod qemu;
@@ -20,7 +21,7 @@ mod target_cost;
 mod toolchain;
 mod trace;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -76,6 +77,20 @@ enum Task {
         /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped).
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
+    },
+    /// Where addresses of a firmware image are in the source: the functions (with what was
+    /// inlined there), files and lines. For the return addresses a panic logs (`panicked;
+    /// return addresses [...]`), looked up in the image that logged them.
+    Where {
+        /// Which channel's image: `a` or `b`.
+        #[arg(value_parser = ["a", "b"])]
+        channel: String,
+        /// The QEMU image (`cargo xtask qemu` builds it) instead of the hardware one.
+        #[arg(long)]
+        qemu: bool,
+        /// The addresses, hexadecimal (`0x08001234` or `08001234`).
+        #[arg(required = true)]
+        addresses: Vec<String>,
     },
     /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
     Qemu {
@@ -300,6 +315,23 @@ fn task() -> Result<()> {
             count,
             seconds,
         } => qemu::task(&root, &channel, selftest, count, seconds),
+        Task::Where {
+            channel,
+            qemu,
+            addresses,
+        } => {
+            let cross = toolchain::ensure()?;
+            let layer = if qemu {
+                images::Layer::Qemu
+            } else {
+                images::Layer::Hw
+            };
+            locate::task(
+                &root,
+                &images::image(&cross, &root, layer, &channel),
+                &addresses,
+            )
+        }
         Task::Flash { channel } => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;
@@ -404,6 +436,26 @@ fn task() -> Result<()> {
 }
 
 /// `cargo test`, clippy, rustfmt, and the cross builds, in the order a failure is cheapest.
+/// The frame of the deliberate crash (`board/src/qemu.rs`, argument `crash`) among those at
+/// the return addresses `log`'s panic line gives, looked up in `image`; an error when the
+/// line is missing or none of its addresses leads to that `panic!`.
+fn panic_site(root: &Path, image: &Path, log: &str) -> Result<locate::Frame> {
+    let source = root.join("board/src/qemu.rs");
+    let line = locate::line_of(&source, "panic!(\"deliberate crash")?;
+    let addresses =
+        locate::panic_addresses(log).context("no line with the panic's return addresses")?;
+    let frames = locate::return_addresses(image, &addresses)?;
+    frames
+        .into_iter()
+        .flatten()
+        .find(|frame| frame.file.ends_with("board/src/qemu.rs") && frame.line == line)
+        .with_context(|| {
+            format!(
+                "none of the return addresses {addresses:#010x?} leads to board/src/qemu.rs:{line}"
+            )
+        })
+}
+
 fn test(root: &Path) -> Result<()> {
     let cross = toolchain::ensure()?;
     step("rustfmt");
@@ -460,12 +512,15 @@ fn test(root: &Path) -> Result<()> {
         if code != 0 || !log.contains("self-test verdict: true") {
             anyhow::bail!("channel {channel}: self-test under QEMU failed");
         }
-        // A panic must end the run with failure, promptly, not hang until the time limit.
+        // A panic must end the run with failure, promptly, not hang until the time limit,
+        // and its log line must lead back to the `panic!` that raised it.
         let (code, log) = qemu::run_alone(&image, &["crash"], limit)?;
-        if code == 0 || code == 124 || !log.contains("deliberate crash") {
+        if code == 0 || code == 124 {
             anyhow::bail!("channel {channel}: a panic under QEMU ended with {code}:\n{log}");
         }
-        println!("xtask: channel {channel}: a panic exits QEMU with code {code}");
+        let site = panic_site(root, &image, &log)
+            .with_context(|| format!("channel {channel}: the panic's log line:\n{log}"))?;
+        println!("xtask: channel {channel}: a panic exits QEMU with code {code}, logged at {site}");
         // An image that is not sealed, or whose flash differs from its seal, stays in the
         // safe state: its self-test fails and the run ends with failure.
         let dir = root.join("target/qemu-tampered");
