@@ -9,28 +9,31 @@ use std::process::Command;
 
 /// Flash budget per image, bytes.
 ///
-/// 64 KiB: channel B's hardware image measures 63,076 bytes and channel A's 62,912, a margin of
-/// 2,460 bytes (3.8 %) for the larger (2026-12-02, `cargo xtask footprint`, after the link's
-/// messages took a fixed layout of their own instead of postcard: 64,376 and 64,140 before;
-/// 64,612 and 64,536 before the runtime was built where it is kept, the transmit path shared
-/// by both CAN drivers and the full network's second speed round; 64,744 and 64,476 before the channel
-/// loop became generic over the protocol, with other changes between the measurements). The
-/// SimpleCAN variant (`Layer::HwSimpleCan`) is over it, and over [`RAM_BUDGET`]
-/// (docs/footprint.md); `cargo xtask build` does not build it. It was 67 KiB (channel B 68,016 bytes) until the second
-/// footprint steps of `docs/footprint.md`: LLVM's inlining threshold raised from opt-level
-/// `z`'s 5 to 45 (−2,492 bytes on channel B), three functions inlined several times kept out
-/// of line, EXTI left out of embassy-stm32. The threshold's effect is not smooth (neighbouring
-/// thresholds differ by up to 700 bytes), so a change may move the image by more than its own
-/// code: re-scan before raising this. 68 KiB (channel B 68,444 bytes) until the first
-/// footprint steps: identical code folded at link time, the runtime built out of line and kept
-/// where it is built. Before that: 64 KiB until the protection
-/// against unauthorised configuration (SC_REQ_43, `shared::node::access`, +3,604 bytes on
-/// channel B) landed, since a safety requirement is not left open for a size target; 72 KiB
-/// before the first footprint step (`opt-level = "z"`, no `core::fmt` rendering in the panic
-/// handler, checked calls for the `unwrap`s that linked `Debug` formatting, panic locations'
-/// source paths cut). The target is 48 KiB; what stands between is in
-/// `docs/footprint.md`. The device has 768 KiB for code (`memory.x`).
-pub const FLASH_BUDGET: u64 = 64 * 1024;
+/// 58 KiB: channel A's hardware image measures 56,764 bytes and channel B's 56,728, a margin of
+/// 2,628 bytes (4.4 %) for the larger (2026-12-04, `cargo xtask footprint`), since the panic
+/// handler reads nothing of the panic (no location, no message: every panic site's location
+/// record and `core::fmt` left the images, −5,796 bytes on channel B) and embassy's crates are
+/// built without their `defmt` feature (−788). It was 64 KiB before that step (channel B
+/// 63,036 bytes): 64,376 and 64,140 before the link's messages took a fixed layout of their own
+/// instead of postcard; 64,612 and 64,536 before the runtime was built where it is kept, the
+/// transmit path shared by both CAN drivers and the full network's second speed round; 64,744
+/// and 64,476 before the channel loop became generic over the protocol, with other changes
+/// between the measurements. The SimpleCAN variant (`Layer::HwSimpleCan`) is over it, and over
+/// [`RAM_BUDGET`] (docs/footprint.md); `cargo xtask build` does not build it. It was 67 KiB
+/// (channel B 68,016 bytes) until the second footprint steps of `docs/footprint.md`: LLVM's
+/// inlining threshold raised from opt-level `z`'s 5 to 45 (−2,492 bytes on channel B), three
+/// functions inlined several times kept out of line, EXTI left out of embassy-stm32. The
+/// threshold's effect is not smooth (neighbouring thresholds differ by up to 700 bytes), so a
+/// change may move the image by more than its own code: re-scan before raising this. 68 KiB
+/// (channel B 68,444 bytes) until the first footprint steps: identical code folded at link
+/// time, the runtime built out of line and kept where it is built. Before that: 64 KiB until
+/// the protection against unauthorised configuration (SC_REQ_43, `shared::node::access`,
+/// +3,604 bytes on channel B) landed, since a safety requirement is not left open for a size
+/// target; 72 KiB before the first footprint step (`opt-level = "z"`, no `core::fmt`
+/// rendering in the panic handler, checked calls for the `unwrap`s that linked `Debug`
+/// formatting, panic locations' source paths cut). The target is 48 KiB; what stands between
+/// is in `docs/footprint.md`. The device has 768 KiB for code (`memory.x`).
+pub const FLASH_BUDGET: u64 = 58 * 1024;
 /// RAM budget per image, bytes, including the stack reserve below.
 ///
 /// 21 KiB: channel A's hardware image measures 21,148 bytes (8,860 of static data, the rest
