@@ -13,7 +13,7 @@ use std::process::Command;
 /// 2,628 bytes (4.4 %) for the larger (2026-12-04, `cargo xtask footprint`), since the panic
 /// handler reads nothing of the panic (no location, no message: every panic site's location
 /// record and `core::fmt` left the images, −5,796 bytes on channel B) and embassy's crates are
-/// built without their `defmt` feature (−788). It was 64 KiB before that step (channel B
+/// built without their `defmt` feature (−512). It was 64 KiB before that step (channel B
 /// 63,036 bytes): 64,376 and 64,140 before the link's messages took a fixed layout of their own
 /// instead of postcard; 64,612 and 64,536 before the runtime was built where it is kept, the
 /// transmit path shared by both CAN drivers and the full network's second speed round; 64,744

@@ -369,9 +369,9 @@ fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
     }
 }
 
-/// embassy-stm32's [`BusError`] for the log, named by our own type: embassy-stm32 is built
-/// without its `defmt` feature, whose log and panic sites inside the driver took 788 bytes of
-/// channel B's flash (`docs/footprint.md`).
+/// embassy-stm32's [`BusError`] for the log, named by our own type: embassy's crates are
+/// built without their `defmt` feature, whose log and panic sites took 512 bytes of channel
+/// B's flash (`docs/footprint.md`).
 #[derive(defmt::Format)]
 enum LastError {
     Stuff,
