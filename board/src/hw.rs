@@ -12,8 +12,9 @@
 //! itself, behind the acceptance filters it derives from the configuration (SRDO identifiers
 //! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun or a bus-off is the safe
 //! state, each with its own cause ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`],
-//! [`dual_channel::runtime::ChannelFault::BusOff`]). A small task drains the
-//! link transmit pipe into the USART. The independent watchdog is fed by the channel loop only.
+//! [`dual_channel::runtime::ChannelFault::BusOff`]). Link messages go whole into the buffered
+//! USART's transmit ring, which its interrupt empties. The independent watchdog is fed by the
+//! channel loop only.
 //!
 //! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
 //! (`embassy_can`, the default) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
@@ -22,10 +23,10 @@
 //! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
 //! gives [`HwDriver`] the same `CanPort`.
 
+use core::task::Poll;
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
-use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::USART3;
@@ -33,8 +34,6 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::pipe::Pipe;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use shared::canopen::storage::StorageError;
@@ -64,11 +63,12 @@ pub const BIT_RATE: u32 = dual_channel::device::BIT_RATE;
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
 /// Link USART baud rate.
 pub const LINK_BAUD: u32 = 1_000_000;
+/// The link's transmit queue, bytes: the buffered USART's ring, which its interrupt empties.
+/// As much as the 256-byte pipe and the 256-byte ring held together when a task moved the
+/// bytes from one to the other; 5.1 ms of the line at [`LINK_BAUD`].
+const LINK_TX_BYTES: usize = 512;
 /// The watchdog bites when the runtime loop has not run for this long.
 pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
-
-/// Link bytes to send.
-static LINK_TX: Pipe<CriticalSectionRawMutex, 256> = Pipe::new();
 
 fn now() -> Instant {
     Instant::from_micros(embassy_time::Instant::now().as_micros())
@@ -201,6 +201,9 @@ struct HwDriver<'d> {
     /// The controller's error state when last read, for reporting changes once.
     error_state: ErrorState,
     link: BufferedUartRx<'static>,
+    /// The link's transmit half: its ring ([`LINK_TX_BYTES`]) is the link's transmit queue,
+    /// emptied by the USART interrupt.
+    link_tx: BufferedUartTx<'static>,
     input: Input<'d>,
     output: Output<'d>,
     /// Link bytes the wait read, for the loop's next [`Driver::link_read`] (which takes them
@@ -267,11 +270,21 @@ impl Driver for HwDriver<'_> {
 
     fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {
         // All or nothing: a message cut short would reach the other channel corrupt.
-        if LINK_TX.free_capacity() < bytes.len() {
-            defmt::warn!("link transmit pipe full");
-            return Err(QueueFull);
+        // embassy-stm32's buffered transmit (0.6) takes a write whole when its ring has the
+        // room and none of it otherwise; polled once, so the loop never waits for room.
+        match embassy_futures::poll_once(self.link_tx.write(bytes)) {
+            Poll::Ready(Ok(written)) if written == bytes.len() => Ok(()),
+            Poll::Ready(Ok(_)) => {
+                // Not this version's behaviour; the part sent fails the other channel's
+                // frame check, so the message is lost, as it is when refused.
+                defmt::error!("link transmit took part of a message");
+                Err(QueueFull)
+            }
+            Poll::Ready(Err(_)) | Poll::Pending => {
+                defmt::warn!("link transmit buffer full");
+                Err(QueueFull)
+            }
         }
-        LINK_TX.try_write(bytes).map(|_| ()).map_err(|_| QueueFull)
     }
 
     fn link_read(&mut self, buf: &mut [u8]) -> usize {
@@ -324,17 +337,6 @@ fn empty_mailboxes() -> [bool; 3] {
     [tsr.tme(0), tsr.tme(1), tsr.tme(2)]
 }
 
-#[embassy_executor::task]
-async fn link_tx_task(mut tx: BufferedUartTx<'static>) {
-    let mut buf = [0u8; 64];
-    loop {
-        let n = LINK_TX.read(&mut buf).await;
-        if tx.write_all(&buf[..n]).await.is_err() {
-            defmt::warn!("link write failed");
-        }
-    }
-}
-
 /// The hardware's start-up: the board's self-tests, then the independent watchdog of
 /// [`WATCHDOG_TIMEOUT_US`], which only [`dual_channel::selftest::start_up`] arms.
 struct HwStartUp {
@@ -355,9 +357,9 @@ impl dual_channel::selftest::StartUp for HwStartUp {
     }
 }
 
-/// Initialises the board, runs the start-up self-tests, arms the watchdog, spawns the
-/// peripheral tasks and runs the channel until reset.
-pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, role: R) -> ! {
+/// Initialises the board, runs the start-up self-tests, arms the watchdog and runs the
+/// channel until reset, in the task that calls it.
+pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let p = embassy_stm32::init(clocks());
     // The self-tests first, then the watchdog (`dual_channel::selftest::start_up` says why).
     let mut watchdog = match dual_channel::selftest::start_up(HwStartUp { iwdg: p.IWDG }) {
@@ -409,8 +411,8 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     let Ok(timing) = embassy_stm32::can::util::calc_can_timings(clock, BIT_RATE) else {
         halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock");
     };
-    let can = CanPort::start(spawner, p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
-    static LINK_TX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
+    let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
+    static LINK_TX_BUF: StaticCell<[u8; LINK_TX_BYTES]> = StaticCell::new();
     static LINK_RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     let mut link_config = usart::Config::default();
     link_config.baudrate = LINK_BAUD;
@@ -418,7 +420,7 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         p.USART3,
         p.PB11,
         p.PB10,
-        LINK_TX_BUF.init([0; 256]),
+        LINK_TX_BUF.init([0; LINK_TX_BYTES]),
         LINK_RX_BUF.init([0; 256]),
         Irqs,
         link_config,
@@ -431,7 +433,6 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
     static LINK: StaticCell<BufferedUart<'static>> = StaticCell::new();
     let (link_tx, link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) =
         LINK.init(uart).split_ref();
-    spawner.spawn(link_tx_task(link_tx).unwrap_or_else(|_| halt_safe("link task")));
 
     let parameters = SectorSlots::new(
         Stm32Sectors {
@@ -460,6 +461,7 @@ pub async fn run<R: Role<N>, const N: usize>(spawner: Spawner, device: Device, r
         can,
         error_state: ErrorState::Active,
         link: link_rx,
+        link_tx,
         input,
         output,
         link_bytes: [0; 64],

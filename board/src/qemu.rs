@@ -45,7 +45,6 @@ use critical_section::Mutex;
 use dual_channel::channel_loop::{ChannelLoop, Driver, QueueFull, Received};
 use dual_channel::filters::AcceptanceList;
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
-use embassy_executor::Spawner;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
@@ -502,7 +501,7 @@ impl dual_channel::selftest::StartUp for QemuStartUp {
 }
 
 /// Starts the board (SysTick, USARTs), runs the self-tests and then the channel.
-pub async fn run<R: Role<N>, const N: usize>(_spawner: Spawner, device: Device, role: R) -> ! {
+pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let Some(mut core) = cortex_m::Peripherals::take() else {
         exit(false);
     };

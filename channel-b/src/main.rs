@@ -1,8 +1,8 @@
 //! Firmware image of channel B (STM32F405RG): initialises the board and runs the channel.
 //!
 //! `main` builds the channel's role and hands it to the board layer's `run`, which
-//! initialises the board, spawns the peripheral tasks (CAN, link), runs the self-tests and then
-//! runs the channel loop in the main task itself. A separate channel task was tried and
+//! initialises the board, runs the self-tests and then runs the channel loop in the main task
+//! itself, the image's only task (interrupts fill and empty the link USART's rings). A separate channel task was tried and
 //! measured: its future was moved through the stack once more, and the deepest stack grew
 //! from 14,940 to 21,596 bytes, past the 16 KiB reserve.
 //!
@@ -28,7 +28,7 @@ mod firmware {
     use embassy_executor::Spawner;
 
     #[embassy_executor::main]
-    async fn main(spawner: Spawner) {
+    async fn main(_spawner: Spawner) {
         defmt::info!("channel {=char}", channel_b::CHANNEL);
         let Ok(device) = Device::built(|id| device::config(id, device::CHANNEL_B_NAME)) else {
             panic!("SAFETY_NODE_ID must be 1..=127");
@@ -64,7 +64,7 @@ mod firmware {
             board::qemu::LOOKAHEAD,
             board::qemu::GRANT_PERIOD,
         ));
-        run::<_, { device::SRDO_COUNT }>(spawner, device, role).await
+        run::<_, { device::SRDO_COUNT }>(device, role).await
     }
 }
 

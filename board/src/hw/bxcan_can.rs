@@ -19,7 +19,6 @@ use bxcan::{Can, Data, Frame, Id, Interrupts, StandardId};
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, QueueFull};
 use dual_channel::filters::BankLayout;
-use embassy_executor::Spawner;
 use embassy_stm32::Peri;
 use embassy_stm32::can::{RxPin, TxPin};
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
@@ -201,7 +200,6 @@ impl CanPort {
     /// the bus with no filter bank enabled (the channel loop programs the node's before the
     /// core boots).
     pub async fn start(
-        _spawner: Spawner,
         can: Peri<'static, CAN1>,
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,

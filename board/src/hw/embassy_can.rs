@@ -14,7 +14,6 @@ use core::task::Poll;
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, QueueFull};
 use dual_channel::filters::{self, Bank, BankLayout};
-use embassy_executor::Spawner;
 use embassy_futures::select::{Either, select};
 use embassy_stm32::Peri;
 use embassy_stm32::bind_interrupts;
@@ -102,7 +101,6 @@ impl CanPort {
     /// Brings CAN1 up at `timing`: the CiA 304 9.5 loop-back test, then on the bus with no
     /// filter bank enabled (the channel loop programs the node's before the core boots).
     pub async fn start(
-        _spawner: Spawner,
         can: Peri<'static, CAN1>,
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
