@@ -91,6 +91,37 @@ fn strip_version(name: &str) -> &str {
     }
 }
 
+/// The image's functions, size and demangled name without its hash, the largest first.
+fn functions(file: &object::File<'_>) -> Vec<(u64, String)> {
+    let mut functions: Vec<(u64, String)> = file
+        .symbols()
+        .filter(|symbol| symbol.kind() == SymbolKind::Text && symbol.size() > 0)
+        .filter_map(|symbol| {
+            let name = symbol.name().ok()?;
+            Some((
+                symbol.size(),
+                format!("{:#}", rustc_demangle::demangle(name)),
+            ))
+        })
+        .collect();
+    functions.sort_by(|a, b| b.cmp(a));
+    functions.dedup();
+    functions
+}
+
+/// The formatting machinery (`core::fmt`, `Debug` and `Display` implementations) linked into
+/// the image `elf`, by name, the largest first: none in an image that logs with defmt and
+/// whose panic handler reads nothing of the panic (`board::panic`).
+pub fn formatting_functions(elf: &Path) -> Result<Vec<String>> {
+    let bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let file = object::File::parse(&*bytes).context("parsing the ELF image")?;
+    Ok(functions(&file)
+        .into_iter()
+        .filter(|(_, name)| is_formatting(name))
+        .map(|(_, name)| name)
+        .collect())
+}
+
 /// Whether a demangled function name is formatting machinery.
 fn is_formatting(name: &str) -> bool {
     name.contains("core::fmt")
@@ -187,19 +218,7 @@ pub fn measure(elf: &Path) -> Result<Footprint> {
         }
     }
 
-    let mut functions: Vec<(u64, String)> = file
-        .symbols()
-        .filter(|symbol| symbol.kind() == SymbolKind::Text && symbol.size() > 0)
-        .filter_map(|symbol| {
-            let name = symbol.name().ok()?;
-            Some((
-                symbol.size(),
-                format!("{:#}", rustc_demangle::demangle(name)),
-            ))
-        })
-        .collect();
-    functions.sort_by(|a, b| b.cmp(a));
-    functions.dedup();
+    let functions = functions(&file);
     let formatting = functions
         .iter()
         .filter(|(_, name)| is_formatting(name))

@@ -358,7 +358,8 @@ pub fn build_layer(root: &Path, cross: &Cross, layer: Layer) -> Result<()> {
     Ok(())
 }
 
-/// Builds both hardware images, prints their sizes and fails when one exceeds a budget.
+/// Builds both hardware images, prints their sizes and fails when one exceeds a budget or
+/// links `core::fmt`.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
     build_layer(root, cross, Layer::Hw)?;
     println!(
@@ -380,14 +381,31 @@ pub fn build(root: &Path, cross: &Cross) -> Result<()> {
             RAM_BUDGET
         );
         if sizes.flash() > FLASH_BUDGET {
-            over.push(format!("{image}: flash {} > {FLASH_BUDGET}", sizes.flash()));
+            over.push(format!(
+                "{image}: flash {} > budget {FLASH_BUDGET}",
+                sizes.flash()
+            ));
         }
         if sizes.ram() > RAM_BUDGET {
-            over.push(format!("{image}: RAM {} > {RAM_BUDGET}", sizes.ram()));
+            over.push(format!(
+                "{image}: RAM {} > budget {RAM_BUDGET}",
+                sizes.ram()
+            ));
+        }
+        let formatting =
+            crate::footprint::formatting_functions(&self::image(cross, root, Layer::Hw, channel))?;
+        if !formatting.is_empty() {
+            over.push(format!(
+                "{image}: links `core::fmt` ({}): the images log with defmt, and the panic \
+                 handler reads nothing of the panic (docs/footprint.md); a `Debug` or \
+                 `Display` in a log site or panic, or a read of the panic's message or \
+                 location, brings it back",
+                formatting.join(", ")
+            ));
         }
     }
     if !over.is_empty() {
-        bail!("over budget: {}", over.join("; "));
+        bail!("the firmware images are refused: {}", over.join("; "));
     }
     Ok(())
 }
