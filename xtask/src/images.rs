@@ -148,6 +148,10 @@ pub enum Layer {
     /// The hardware images with SimpleCAN beside the SRDOs: measured by `cargo xtask
     /// footprint` against the budgets, never flashed (docs/footprint.md says why).
     HwSimpleCan,
+    /// The hardware images with the bxCAN driven by the `bxcan` crate (`board`'s feature
+    /// `can-bxcan`): checked by clippy in `cargo xtask test`, so that the driver compared in
+    /// docs/can-driver.md keeps building; never shipped.
+    HwBxcan,
 }
 
 impl Layer {
@@ -158,6 +162,7 @@ impl Layer {
             Layer::Qemu => cross.target_dir(root).join("qemu"),
             Layer::QemuSimpleCan => cross.target_dir(root).join("qemu-simplecan"),
             Layer::HwSimpleCan => cross.target_dir(root).join("hw-simplecan"),
+            Layer::HwBxcan => cross.target_dir(root).join("hw-bxcan"),
         }
     }
 
@@ -180,6 +185,7 @@ pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
         Layer::HwSimpleCan => {
             "channel-a/defmt,channel-a/simplecan,channel-b/defmt,channel-b/simplecan"
         }
+        Layer::HwBxcan => "channel-a/defmt,channel-b/defmt,board/can-bxcan",
     };
     let mut command = cross.cargo(root).args([
         verb,

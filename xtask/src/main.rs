@@ -495,6 +495,7 @@ fn test(root: &Path) -> Result<()> {
         images::Layer::HwSimpleCan,
         images::Layer::Qemu,
         images::Layer::QemuSimpleCan,
+        images::Layer::HwBxcan,
     ] {
         run(images::cargo(&cross, root, "clippy", layer).args(["--", "-D", "warnings"]))?;
     }
