@@ -55,13 +55,6 @@ fn panic(_info: &PanicInfo) -> ! {
     cortex_m::asm::udf()
 }
 
-unsafe extern "C" {
-    /// The lowest address of the stack (cortex-m-rt's link.x: the end of `.uninit`).
-    static _stack_end: u32;
-    /// The initial stack pointer, the top of the stack.
-    static _stack_start: u32;
-}
-
 /// The return addresses of the frames above the handler's, read from the stack.
 #[inline(always)]
 fn trail() -> FrameTrail<TRAIL_DEPTH> {
@@ -70,13 +63,11 @@ fn trail() -> FrameTrail<TRAIL_DEPTH> {
     unsafe {
         core::arch::asm!("mov {}, r7", out(reg) frame, options(nomem, nostack, preserves_flags));
     }
-    // Only the addresses of the linker's symbols are taken, never their contents.
-    let stack =
-        core::ptr::addr_of!(_stack_end) as usize..core::ptr::addr_of!(_stack_start) as usize;
-    FrameTrail::walk(frame, stack, |address| {
-        // SAFETY: `FrameTrail::walk` reads only word-aligned addresses inside `stack`, which
-        // is mapped RAM (the linker's stack region); interrupts are off and the frames read
-        // are below this one's callers, which do not run again.
+    FrameTrail::walk(frame, crate::stack::region(), |address| {
+        // SAFETY: `FrameTrail::walk` reads only word-aligned addresses inside the stack's
+        // region, which is mapped RAM; the records it reads belong to the handler's callers,
+        // suspended under it for good, and interrupts are off, so nothing writes them
+        // meanwhile.
         unsafe { (address as *const u32).read_volatile() }
     })
 }

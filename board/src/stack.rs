@@ -64,7 +64,7 @@ impl Sweep {
 }
 
 #[cfg(target_os = "none")]
-pub use target::Sampled;
+pub use target::{Sampled, region};
 
 #[cfg(target_os = "none")]
 mod target {
@@ -92,14 +92,20 @@ mod target {
         }
     }
 
+    /// The stack's region, from its lowest address to its top (the initial stack pointer):
+    /// mapped RAM, word-aligned at both ends.
+    pub fn region() -> core::ops::Range<usize> {
+        // Only the addresses of the linker's symbols are taken, never their contents.
+        addr_of!(_stack_end) as usize..addr_of!(_stack_start) as usize
+    }
+
     impl Sampled {
         /// A search over the whole stack region, nothing found yet.
         pub fn new() -> Self {
-            // Only the addresses of the linker's symbols are taken, never their contents.
-            let (bottom, top) = (
-                addr_of!(_stack_end) as usize,
-                addr_of!(_stack_start) as usize,
-            );
+            let core::ops::Range {
+                start: bottom,
+                end: top,
+            } = region();
             Sampled {
                 bottom,
                 sweep: Sweep::new(top.saturating_sub(bottom) / 4),
