@@ -91,6 +91,21 @@ fn strip_version(name: &str) -> &str {
     }
 }
 
+/// The debug information of an image, its sections borrowed from `file` (a section the image
+/// lacks reads as empty).
+pub fn dwarf_of<'a>(
+    file: &object::File<'a>,
+) -> Result<gimli::Dwarf<gimli::EndianSlice<'a, gimli::LittleEndian>>> {
+    let load = |id: gimli::SectionId| -> Result<gimli::EndianSlice<'a, gimli::LittleEndian>> {
+        let data = match file.section_by_name(id.name()) {
+            Some(section) => section.data()?,
+            None => &[],
+        };
+        Ok(gimli::EndianSlice::new(data, gimli::LittleEndian))
+    };
+    gimli::Dwarf::load(load)
+}
+
 /// The image's functions, size and demangled name without its hash, the largest first.
 fn functions(file: &object::File<'_>) -> Vec<(u64, String)> {
     let mut functions: Vec<(u64, String)> = file
@@ -154,14 +169,7 @@ pub fn measure(elf: &Path) -> Result<Footprint> {
         }
     };
 
-    let load = |id: gimli::SectionId| -> Result<gimli::EndianSlice<'_, gimli::LittleEndian>> {
-        let data = match file.section_by_name(id.name()) {
-            Some(section) => section.data()?,
-            None => &[],
-        };
-        Ok(gimli::EndianSlice::new(data, gimli::LittleEndian))
-    };
-    let dwarf = gimli::Dwarf::load(load)?;
+    let dwarf = dwarf_of(&file)?;
     let mut headers = dwarf.units();
     while let Some(header) = headers.next()? {
         let unit = dwarf.unit(header)?;

@@ -12,9 +12,10 @@ use std::process::Command;
 /// 58 KiB: channel A's hardware image measures 55,356 bytes and channel B's 55,168, a margin of
 /// 4,036 bytes (6.8 %) for the larger (2026-12-04, `cargo xtask footprint`), since the panic
 /// handler reads nothing of the panic (no location, no message: every panic site's location
-/// record and `core::fmt` left the images, −5,796 bytes on channel B), embassy's crates are
-/// built without their `defmt` feature (−512) and the link's messages go straight into the
-/// USART's ring (−1,560). It was 64 KiB before these steps (channel B
+/// record and `core::fmt` left the images, −5,796 bytes on channel B; +148 for the trail of
+/// return addresses it logs instead), embassy's crates are built without their `defmt`
+/// feature (−788; +128 to name the CAN bus error ourselves) and the link's messages go
+/// straight into the USART's ring (−1,560). It was 64 KiB before these steps (channel B
 /// 63,036 bytes): 64,376 and 64,140 before the link's messages took a fixed layout of their own
 /// instead of postcard; 64,612 and 64,536 before the runtime was built where it is kept, the
 /// transmit path shared by both CAN drivers and the full network's second speed round; 64,744

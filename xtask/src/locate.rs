@@ -8,7 +8,6 @@
 //! function, and every function inlined at that point, with file and line.
 
 use anyhow::{Context, Result, bail};
-use object::{Object, ObjectSection};
 use std::fmt;
 use std::path::Path;
 
@@ -36,14 +35,7 @@ pub fn return_addresses(elf: &Path, return_addresses: &[u64]) -> Result<Vec<Vec<
     let bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
     let file = object::File::parse(&*bytes)
         .with_context(|| format!("{}: not an ELF image", elf.display()))?;
-    let load = |id: gimli::SectionId| -> Result<gimli::EndianSlice<'_, gimli::LittleEndian>> {
-        let data = match file.section_by_name(id.name()) {
-            Some(section) => section.data()?,
-            None => &[],
-        };
-        Ok(gimli::EndianSlice::new(data, gimli::LittleEndian))
-    };
-    let dwarf = gimli::Dwarf::load(load)?;
+    let dwarf = crate::footprint::dwarf_of(&file)?;
     let context = addr2line::Context::from_dwarf(dwarf)
         .with_context(|| format!("{}: reading its debug information", elf.display()))?;
     return_addresses
