@@ -373,9 +373,10 @@ pub fn build(root: &Path, cross: &Cross) -> Result<()> {
         "{:<10} {:>8} {:>8} {:>8} {:>16} {:>16}",
         "image", "text", "data", "bss", "flash/budget", "ram+stack/budget"
     );
-    let mut over = Vec::new();
+    let mut refused = Vec::new();
     for channel in ["a", "b"] {
-        let sizes = measure(&image(cross, root, Layer::Hw, channel))?;
+        let elf = image(cross, root, Layer::Hw, channel);
+        let sizes = measure(&elf)?;
         let image = format!("channel-{channel}");
         println!(
             "{image:<10} {:>8} {:>8} {:>8} {:>7}/{:<8} {:>7}/{:<8}",
@@ -388,21 +389,20 @@ pub fn build(root: &Path, cross: &Cross) -> Result<()> {
             RAM_BUDGET
         );
         if sizes.flash() > FLASH_BUDGET {
-            over.push(format!(
+            refused.push(format!(
                 "{image}: flash {} > budget {FLASH_BUDGET}",
                 sizes.flash()
             ));
         }
         if sizes.ram() > RAM_BUDGET {
-            over.push(format!(
+            refused.push(format!(
                 "{image}: RAM {} > budget {RAM_BUDGET}",
                 sizes.ram()
             ));
         }
-        let formatting =
-            crate::footprint::formatting_functions(&self::image(cross, root, Layer::Hw, channel))?;
+        let formatting = crate::footprint::formatting_functions(&elf)?;
         if !formatting.is_empty() {
-            over.push(format!(
+            refused.push(format!(
                 "{image}: links `core::fmt` ({}): the images log with defmt, and the panic \
                  handler reads nothing of the panic (docs/footprint.md); a `Debug` or \
                  `Display` in a log site or panic, or a read of the panic's message or \
@@ -411,8 +411,8 @@ pub fn build(root: &Path, cross: &Cross) -> Result<()> {
             ));
         }
     }
-    if !over.is_empty() {
-        bail!("the firmware images are refused: {}", over.join("; "));
+    if !refused.is_empty() {
+        bail!("the firmware images are refused: {}", refused.join("; "));
     }
     Ok(())
 }
