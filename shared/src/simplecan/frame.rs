@@ -33,7 +33,9 @@ pub const CRC_ALGORITHM: crc::Algorithm<u32> = crc::Algorithm {
     residue: 0,
 };
 
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&CRC_ALGORITHM);
+/// Bit by bit, without the crate's 1 KiB table: a packet feeds 11 octets, and the table cost
+/// more flash than the protocol's whole frame code (docs/footprint.md).
+const CRC: crc::Crc<u32, crc::NoTable> = crc::Crc::<u32, crc::NoTable>::new(&CRC_ALGORITHM);
 
 /// The largest sync offset: the last slot lasts 1 ms (section 3).
 pub const MAX_OFFSET_MICROS: u16 = 999;
