@@ -93,9 +93,87 @@ pub const fn expired(deadline: Instant, now: Instant) -> bool {
     now.0 >= deadline.0
 }
 
+/// `dividend / divisor` and `dividend % divisor`, for a divisor that fits 16 bits.
+///
+/// The MCU divides 32 bits by 32 in hardware (UDIV) and has no 64-bit division: a `/` or `%` on
+/// `u64` links compiler-builtins' general routine (`u64_div_rem`, 864 bytes of flash, and its
+/// 68 bytes of wrappers). Every 64-bit division of microseconds the protocol core needs is by
+/// a factor of at most 16 bits, taken one after the other (1000 µs per slot, then N slots per
+/// cycle; 1000 µs per millisecond, then 3600 ms per leak of the bad-CRC counter), so it is
+/// done here as schoolbook long division in base 2¹⁶: four 32-bit divisions, each of the
+/// remainder so far (below the divisor, so it fits 16 bits) followed by the next 16-bit digit
+/// of the dividend. `floor(floor(a / b) / c) = floor(a / (b × c))` for positive integers, so
+/// the steps give what one division by the product would. Tested against the compiler's own
+/// 64-bit division (`tests::div_rem_u16_is_the_64_bit_division`).
+#[inline(never)]
+pub const fn div_rem_u16(dividend: u64, divisor: core::num::NonZeroU16) -> (u64, u16) {
+    let divisor = divisor.get() as u32;
+    let mut quotient = 0u64;
+    let mut remainder = 0u32;
+    let mut shift = 64;
+    while shift > 0 {
+        shift -= 16;
+        // remainder < divisor ≤ 0xFFFF, so this is below divisor × 2¹⁶ and fits 32 bits; its
+        // quotient is one 16-bit digit.
+        let part = (remainder << 16) | ((dividend >> shift) as u32 & 0xFFFF);
+        quotient |= ((part / divisor) as u64) << shift;
+        remainder = part % divisor;
+    }
+    // remainder < divisor ≤ 0xFFFF.
+    (quotient, remainder as u16)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use core::num::NonZeroU16;
+    use proptest::prelude::*;
+
+    #[test]
+    fn div_rem_u16_is_the_64_bit_division_at_the_edges() {
+        let dividends = [
+            0,
+            1,
+            999,
+            1000,
+            1001,
+            0xFFFF,
+            0x1_0000,
+            u64::from(u32::MAX),
+            1 << 32,
+            (1 << 48) - 1,
+            1 << 48,
+            u64::MAX - 1,
+            u64::MAX,
+        ];
+        for divisor in [1, 2, 3, 999, 1000, 3600, 0x7FFF, 0x8000, 0xFFFE, 0xFFFF] {
+            let d = NonZeroU16::new(divisor).unwrap();
+            for dividend in dividends {
+                let expected = (
+                    dividend / u64::from(divisor),
+                    (dividend % u64::from(divisor)) as u16,
+                );
+                assert_eq!(div_rem_u16(dividend, d), expected, "{dividend} / {divisor}");
+            }
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn div_rem_u16_is_the_64_bit_division(dividend in any::<u64>(), divisor in 1u16..) {
+            let expected = (dividend / u64::from(divisor), (dividend % u64::from(divisor)) as u16);
+            prop_assert_eq!(div_rem_u16(dividend, NonZeroU16::new(divisor).unwrap()), expected);
+        }
+
+        #[test]
+        fn two_divisions_are_the_division_by_the_product(
+            dividend in any::<u64>(), first in 1u16.., second in 1u16..,
+        ) {
+            let (once, _) = div_rem_u16(dividend, NonZeroU16::new(first).unwrap());
+            let (twice, _) = div_rem_u16(once, NonZeroU16::new(second).unwrap());
+            prop_assert_eq!(twice, dividend / (u64::from(first) * u64::from(second)));
+        }
+    }
 
     #[test]
     fn adding_saturates_instead_of_wrapping() {

@@ -885,7 +885,7 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
             master,
         } = built;
         let buffering = Duration::from_micros(u64::from(self.objects.buffering_us));
-        let tracker = SyncTracker::new(schedule.cycle().slots(), buffering);
+        let tracker = SyncTracker::new(schedule.cycle(), buffering);
         let master = master.map(|(id, hash)| (Master::new(id, &schedule, now), hash));
         self.running = Some(Running {
             sdd,

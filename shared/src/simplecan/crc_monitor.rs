@@ -15,13 +15,27 @@
 //! the leaks owed since the last update are computed by one division, so a poll after any
 //! gap, however long, costs the same and cannot overflow.
 
-use crate::time::{Duration, Instant, expired};
+use crate::time::{Duration, Instant, div_rem_u16, expired};
+use core::num::NonZeroU16;
 
 /// How many bad packets trip the counter (SC_REQ_42).
 pub const THRESHOLD: u16 = 1000;
 
 /// How often the counter leaks by one: 3600 s / 1000 (SC_REQ_42's note).
 pub const LEAK_PERIOD: Duration = Duration::from_millis(3600);
+
+/// [`LEAK_PERIOD`] in milliseconds, and a millisecond in microseconds, as divisors
+/// ([`div_rem_u16`]).
+const LEAK_PERIOD_MS: NonZeroU16 = match NonZeroU16::new(3600) {
+    Some(ms) => ms,
+    None => panic!("the leak period is 3600 ms"),
+};
+const MICROS_PER_MILLI: NonZeroU16 = match NonZeroU16::new(1000) {
+    Some(micros) => micros,
+    None => panic!("a millisecond is 1000 µs"),
+};
+const _: () =
+    assert!(LEAK_PERIOD.as_micros() == LEAK_PERIOD_MS.get() as u64 * MICROS_PER_MILLI.get() as u64);
 
 /// The leaky counter of bad-CRC packets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -68,9 +82,12 @@ impl BadCrcCounter {
         if !expired(self.next_leak, now) {
             return;
         }
-        // Ticks due: the one at `next_leak` and one per whole period after it. At most
-        // u64::MAX / 3 600 000 µs, well within u64.
-        let ticks = 1 + now.saturating_since(self.next_leak).as_micros() / LEAK_PERIOD.as_micros();
+        // Ticks due: the one at `next_leak` and one per whole period after it, the elapsed
+        // microseconds divided by 1000 and then by 3600 (LEAK_PERIOD_MS), which is dividing
+        // by 3 600 000 without a 64-bit division on the MCU. At most u64::MAX / 3 600 000 + 1.
+        let elapsed = now.saturating_since(self.next_leak).as_micros();
+        let (elapsed_ms, _) = div_rem_u16(elapsed, MICROS_PER_MILLI);
+        let ticks = 1 + div_rem_u16(elapsed_ms, LEAK_PERIOD_MS).0;
         self.next_leak = self.next_leak.saturating_add(Duration::from_micros(
             ticks.saturating_mul(LEAK_PERIOD.as_micros()),
         ));

@@ -141,7 +141,7 @@ mod tests {
         }])
         .unwrap();
         let mut master = Master::new(id, &schedule, Instant::ZERO);
-        let mut tracker = SyncTracker::new(10, Duration::ZERO);
+        let mut tracker = SyncTracker::new(schedule.cycle(), Duration::ZERO);
         let mut monitor = MasterMonitor::new();
         let receiver_start = Instant::from_micros(500_001);
         let mut synced_at = None;

@@ -7,7 +7,16 @@
 
 use super::residual::MAX_PACKETS_PER_SECOND;
 use super::{MAX_SYNC_INTERVAL, MIN_SYNC_INTERVAL, SLOT, SYNC_TOLERANCE, ScId};
+use crate::time::div_rem_u16;
+use core::num::NonZeroU16;
 use heapless::Vec;
+
+/// A slot in microseconds, as a divisor ([`div_rem_u16`]).
+const SLOT_MICROS: NonZeroU16 = match NonZeroU16::new(SLOT.as_micros() as u16) {
+    Some(micros) => micros,
+    None => panic!("a slot lasts 1 ms"),
+};
+const _: () = assert!(SLOT.as_micros() == SLOT_MICROS.get() as u64);
 
 /// The fewest slots in a cycle: one producer slot and the two empty ones (SC_REQ_21).
 pub const MIN_SLOTS: u16 = 3;
@@ -61,39 +70,38 @@ pub enum ScheduleError {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Cycle {
-    slots: u16,
+    slots: NonZeroU16,
 }
 
 impl Cycle {
     /// N, the slots per cycle.
     pub const fn slots(&self) -> u16 {
-        self.slots
+        self.slots.get()
     }
 
     /// The length of a cycle in microseconds.
     pub const fn micros(&self) -> u64 {
-        self.slots as u64 * SLOT.as_micros()
+        self.slots.get() as u64 * SLOT.as_micros()
     }
 
     /// The slot a sync goes in: the last (SC_REQ_21).
     pub const fn sync_slot(&self) -> u16 {
-        self.slots - 1
+        self.slots.get() - 1
     }
 
     /// The global time at which slot `slot` of cycle `cycle` starts (saturating).
     pub const fn slot_start(&self, cycle: u64, slot: u16) -> u64 {
         cycle
-            .saturating_mul(self.slots as u64)
+            .saturating_mul(self.slots.get() as u64)
             .saturating_add(slot as u64)
             .saturating_mul(SLOT.as_micros())
     }
 
-    /// The cycle and slot that global time `global` falls in.
+    /// The cycle and slot that global time `global` falls in: the slot number since global
+    /// time 0, divided by N (without a 64-bit division, [`div_rem_u16`]).
     pub const fn position(&self, global: u64) -> (u64, u16) {
-        let slot_number = global / SLOT.as_micros();
-        let n = self.slots as u64;
-        // The remainder is below N ≤ 1000, so it fits in a u16.
-        (slot_number / n, (slot_number % n) as u16)
+        let (slot_number, _) = div_rem_u16(global, SLOT_MICROS);
+        div_rem_u16(slot_number, self.slots)
     }
 
     /// The start of the first slot `slot` at or after global time `global`, and its cycle:
@@ -113,7 +121,7 @@ impl Cycle {
 /// slot. Built only by [`Schedule::new`], so every value of it meets section 5 and SC_REQ_04.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Schedule {
-    slots: u16,
+    slots: NonZeroU16,
     sync_every_cycles: u16,
     producers: Vec<(ScId, u16), { ScId::COUNT }>,
 }
@@ -140,9 +148,10 @@ impl Schedule {
         sync_every_cycles: u16,
         producers: &[(ScId, u16)],
     ) -> Result<Self, ScheduleError> {
-        if !(MIN_SLOTS..=MAX_SLOTS).contains(&slots) {
-            return Err(ScheduleError::SlotCount { slots });
-        }
+        let nonzero = match NonZeroU16::new(slots) {
+            Some(nonzero) if (MIN_SLOTS..=MAX_SLOTS).contains(&slots) => nonzero,
+            _ => return Err(ScheduleError::SlotCount { slots }),
+        };
         let interval_ms = u32::from(sync_every_cycles) * u32::from(slots);
         let interval_us = u64::from(interval_ms) * 1000;
         if interval_us < MIN_SYNC_INTERVAL.as_micros()
@@ -171,21 +180,20 @@ impl Schedule {
                 .map_err(|_| ScheduleError::ScIdTwice { sc_id })?;
         }
         // ν = 1000 × P / N + 1000 / (k × N) packets per second ≤ 665, in whole numbers:
-        // 1000 × (P × k + 1) ≤ 665 × k × N. At most 1000 × (80 × 500 + 1) and
-        // 665 × 500 × 1000: no overflow in u64.
-        let producers_per_cycle = checked.len() as u64;
-        let k = u64::from(sync_every_cycles);
-        let n = u64::from(slots);
+        // 1000 × (P × k + 1) ≤ 665 × k × N. The sync interval k × N is 100..=500 ms (checked
+        // above) and P at most 80, so the terms are at most 1000 × (80 × 500 + 1) and
+        // 665 × 500: 32-bit arithmetic (no 64-bit division on the MCU).
+        let producers_per_cycle = checked.len() as u32;
+        let k = u32::from(sync_every_cycles);
         let packets_per_k_cycles = 1000 * (producers_per_cycle * k + 1);
-        if packets_per_k_cycles > u64::from(MAX_PACKETS_PER_SECOND) * k * n {
+        if packets_per_k_cycles > MAX_PACKETS_PER_SECOND * interval_ms {
             // Rounded up: the bound was exceeded, the figure says by how much.
-            let per_second = packets_per_k_cycles.div_ceil(k * n);
             return Err(ScheduleError::ResidualErrorRate {
-                packets_per_second: u32::try_from(per_second).unwrap_or(u32::MAX),
+                packets_per_second: packets_per_k_cycles.div_ceil(interval_ms),
             });
         }
         Ok(Schedule {
-            slots,
+            slots: nonzero,
             sync_every_cycles,
             producers: checked,
         })

@@ -12,7 +12,8 @@
 //! unsynced.
 
 use super::frame::SyncPacket;
-use super::{SLOT, SYNC_LOSS_TIMEOUT, SYNC_TOLERANCE, ScId};
+use super::schedule::Cycle;
+use super::{SYNC_LOSS_TIMEOUT, SYNC_TOLERANCE, ScId};
 use crate::time::{Duration, Instant, expired};
 
 /// A global time and the local instant it belongs to.
@@ -70,17 +71,17 @@ pub enum Change {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SyncTracker {
-    slots: u16,
+    cycle: Cycle,
     max_buffering: Duration,
     state: State,
 }
 
 impl SyncTracker {
-    /// An unsynced tracker for cycles of `slots` slots, on a receiver that states it buffers a
+    /// An unsynced tracker for the network's `cycle`, on a receiver that states it buffers a
     /// packet for at most `max_buffering` (SC_REQ_33).
-    pub const fn new(slots: u16, max_buffering: Duration) -> Self {
+    pub const fn new(cycle: Cycle, max_buffering: Duration) -> Self {
         SyncTracker {
-            slots,
+            cycle,
             max_buffering,
             state: State::Unsynced { candidate: None },
         }
@@ -126,21 +127,17 @@ impl SyncTracker {
     /// The sync's global time at `now`, the instant it is handed in: the cycle number unwrapped
     /// to the cycle nearest `reference`'s estimate, plus the maximum buffering time.
     fn sample(&self, now: Instant, sync: &SyncPacket, reference: Option<&Sample>) -> Sample {
-        let cycle_micros = u64::from(self.slots) * SLOT.as_micros();
         let cycle = match reference {
             // Serial-number arithmetic: the wire's 16 bits name the cycle within ±32768 of the
             // one expected.
             Some(reference) => {
-                let expected = reference.global_at(now) / cycle_micros;
+                let (expected, _) = self.cycle.position(reference.global_at(now));
                 let distance = i64::from(sync.cycle().wrapping_sub(expected as u16) as i16);
                 expected.saturating_add_signed(distance)
             }
             None => u64::from(sync.cycle()),
         };
-        let last_slot = cycle
-            .saturating_mul(u64::from(self.slots))
-            .saturating_add(u64::from(self.slots) - 1)
-            .saturating_mul(SLOT.as_micros());
+        let last_slot = self.cycle.slot_start(cycle, self.cycle.sync_slot());
         Sample {
             master: sync.master(),
             local: now,
@@ -227,6 +224,13 @@ mod tests {
 
     const N: u16 = 10;
 
+    /// The cycle of `slots` slots, as a schedule with a sync every 500 ms builds it.
+    fn cycle(slots: u16) -> Cycle {
+        crate::simplecan::schedule::Schedule::new(slots, 500 / slots, &[])
+            .unwrap()
+            .cycle()
+    }
+
     fn master(raw: u8) -> ScId {
         ScId::new(raw).unwrap()
     }
@@ -242,7 +246,7 @@ mod tests {
 
     /// A tracker that received cycle 0's and cycle 10's syncs of master 30h 100 ms apart.
     fn synced(max_buffering: Duration) -> SyncTracker {
-        let mut tracker = SyncTracker::new(N, max_buffering);
+        let mut tracker = SyncTracker::new(cycle(N), max_buffering);
         let _ = tracker.on_sync(at_us(1_000_000), &sync(0x30, 0, 0));
         let change = tracker.on_sync(at_us(1_100_000), &sync(0x30, 10, 0));
         assert_eq!(
@@ -256,7 +260,7 @@ mod tests {
 
     #[test]
     fn sc_req_29_an_scl_starts_unsynced_without_a_global_time() {
-        let mut tracker = SyncTracker::new(N, Duration::ZERO);
+        let mut tracker = SyncTracker::new(cycle(N), Duration::ZERO);
         assert!(!tracker.is_synced());
         assert_eq!(tracker.global_time(at_us(0)), None);
         assert_eq!(tracker.local_instant(0), None);
@@ -278,7 +282,7 @@ mod tests {
             (102_000, true),
             (102_001, false),
         ] {
-            let mut tracker = SyncTracker::new(N, Duration::ZERO);
+            let mut tracker = SyncTracker::new(cycle(N), Duration::ZERO);
             let _ = tracker.on_sync(at_us(1_000_000), &sync(0x30, 0, 0));
             let _ = tracker.on_sync(at_us(1_000_000 + gap), &sync(0x30, 10, 0));
             assert_eq!(tracker.is_synced(), synced, "gap {gap} µs");
@@ -287,7 +291,7 @@ mod tests {
 
     #[test]
     fn sc_req_30_two_syncs_from_different_masters_do_not_sync() {
-        let mut tracker = SyncTracker::new(N, Duration::ZERO);
+        let mut tracker = SyncTracker::new(cycle(N), Duration::ZERO);
         let _ = tracker.on_sync(at_us(0), &sync(0x30, 0, 0));
         let _ = tracker.on_sync(at_us(100_000), &sync(0x31, 10, 0));
         assert!(!tracker.is_synced());
@@ -348,7 +352,7 @@ mod tests {
         let mut tracker = synced(Duration::ZERO);
         assert_eq!(tracker.on_sync(at_us(1_150_000), &sync(0x40, 15, 0)), None);
         assert_eq!(tracker.master(), Some(master(0x30)));
-        let mut tracker = SyncTracker::new(N, Duration::ZERO);
+        let mut tracker = SyncTracker::new(cycle(N), Duration::ZERO);
         let _ = tracker.on_sync(at_us(0), &sync(0x40, 0, 0));
         let _ = tracker.on_sync(at_us(100_000), &sync(0x40, 10, 0));
         assert_eq!(
@@ -363,7 +367,7 @@ mod tests {
     /// The 16-bit cycle number wraps; the tracker's time does not.
     #[test]
     fn the_cycle_number_is_unwrapped_across_its_wrap() {
-        let mut tracker = SyncTracker::new(N, Duration::ZERO);
+        let mut tracker = SyncTracker::new(cycle(N), Duration::ZERO);
         let _ = tracker.on_sync(at_us(0), &sync(0x30, 65_530, 0));
         let _ = tracker.on_sync(at_us(100_000), &sync(0x30, 4, 0));
         assert!(tracker.is_synced());
@@ -379,7 +383,7 @@ mod tests {
     #[test]
     fn sc_req_31_a_clock_50_ppm_off_stays_synced() {
         let local = |global_us: u64| at_us(global_us + global_us / 20_000);
-        let mut tracker = SyncTracker::new(N, Duration::ZERO);
+        let mut tracker = SyncTracker::new(cycle(N), Duration::ZERO);
         for n in 0..7200u64 {
             let cycle = n * 50;
             let global = (cycle * 10 + 9) * 1000;
@@ -390,7 +394,7 @@ mod tests {
             }
         }
         for (ppm, synced) in [(1000, true), (1001, false)] {
-            let mut tracker = SyncTracker::new(200, Duration::ZERO);
+            let mut tracker = SyncTracker::new(cycle(200), Duration::ZERO);
             let _ = tracker.on_sync(at_us(0), &sync(0x30, 0, 0));
             // 10 cycles of 200 ms = 2000 ms by the master, 2000 ms × (1 + ppm) locally.
             let _ = tracker.on_sync(at_us(2_000_000 + 2 * ppm), &sync(0x30, 10, 0));
