@@ -226,7 +226,7 @@ impl Refusal {
 /// The configuration checked and turned into the blocks' values.
 struct Built<const E: usize> {
     sdd: Sdd<E>,
-    schedule: Schedule,
+    schedule: Schedule<E>,
     streams: Vec<Stream, E>,
     /// The potential master's SC-ID (its lowest produced) and node hash.
     master: Option<(ScId, NodeHash)>,
@@ -279,7 +279,7 @@ pub struct SimpleCanCounters {
 /// The blocks in Operational.
 struct Running<const E: usize> {
     sdd: Sdd<E>,
-    schedule: Schedule,
+    schedule: Schedule<E>,
     tracker: SyncTracker,
     master: Option<(Master, NodeHash)>,
     monitor: MasterMonitor,
@@ -448,7 +448,9 @@ impl<const E: usize> SimpleCan<E> {
             Schedule::new(objects.slots, objects.sync_every, &slots).map_err(|error| {
                 use crate::simplecan::schedule::ScheduleError::*;
                 let sc_id = match error {
-                    SlotNotForProducers { sc_id, .. } | ScIdTwice { sc_id } => Some(sc_id),
+                    SlotNotForProducers { sc_id, .. }
+                    | ScIdTwice { sc_id }
+                    | TooManyProducers { sc_id, .. } => Some(sc_id),
                     SlotTaken { second, .. } => Some(second),
                     SlotCount { .. } | SyncInterval { .. } | ResidualErrorRate { .. } => None,
                 };

@@ -96,7 +96,7 @@ pub struct Master {
 impl Master {
     /// A potential master whose lowest transmitted SC-ID is `id`, on `schedule`'s network,
     /// starting at `now`: it listens for 500 ms and then `t_wait` before its first sync.
-    pub fn new(id: ScId, schedule: &Schedule, now: Instant) -> Self {
+    pub fn new<const P: usize>(id: ScId, schedule: &Schedule<P>, now: Instant) -> Self {
         Master {
             id,
             cycle: schedule.cycle(),
@@ -377,7 +377,7 @@ mod tests {
     }
 
     fn schedule() -> Schedule {
-        Schedule::new(N, K, &[]).unwrap()
+        <Schedule>::new(N, K, &[]).unwrap()
     }
 
     fn at_us(micros: u64) -> Instant {
@@ -487,7 +487,7 @@ mod tests {
             assert_eq!(sync.offset_micros(), 0);
         }
         // The slowest schedule allowed: every 50 cycles of 10 ms.
-        let slow = Schedule::new(N, 50, &[]).unwrap();
+        let slow = <Schedule>::new(N, 50, &[]).unwrap();
         let mut master = Master::new(sc(0x30), &slow, at(0));
         let sent = run(&mut master, at(10_500));
         for pair in sent.windows(2) {

@@ -133,7 +133,7 @@ mod tests {
 
         let id = ScId::new(0x30).unwrap();
         let hash = NodeHash(0x5EED_0030);
-        let schedule = Schedule::new(10, 10, &[]).unwrap();
+        let schedule = <Schedule>::new(10, 10, &[]).unwrap();
         let receiver_sdd = Sdd::<1>::new(&[Entry {
             sc_id: id,
             hash,

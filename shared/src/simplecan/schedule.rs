@@ -54,6 +54,14 @@ pub enum ScheduleError {
         /// The SC-ID.
         sc_id: ScId,
     },
+    /// More producers than the schedule holds (a device's holds its own SDD's entries, a
+    /// network's every SC-ID).
+    TooManyProducers {
+        /// The producer that did not fit.
+        sc_id: ScId,
+        /// How many the schedule holds.
+        capacity: u8,
+    },
     /// A sync interval (every k cycles) outside 100..=500 ms (SC_REQ_22).
     SyncInterval {
         /// k × N, in milliseconds.
@@ -117,13 +125,15 @@ impl Cycle {
     }
 }
 
-/// A network's cycle: its length, how often the master sends a sync, and every producer's
-/// slot. Built only by [`Schedule::new`], so every value of it meets section 5 and SC_REQ_04.
+/// A network's cycle: its length, how often the master sends a sync, and the slots of up to
+/// `P` producers (a device's schedule holds the SC-IDs of its own SDD, the configuration
+/// tool's every SC-ID of the network). Built only by [`Schedule::new`], so every value of it
+/// meets section 5 and SC_REQ_04.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Schedule {
+pub struct Schedule<const P: usize = { ScId::COUNT }> {
     slots: NonZeroU16,
     sync_every_cycles: u16,
-    producers: Vec<(ScId, u16), { ScId::COUNT }>,
+    producers: Vec<(ScId, u16), P>,
 }
 
 /// Why a data packet is not timely (section 5).
@@ -140,7 +150,7 @@ pub enum Untimely {
     },
 }
 
-impl Schedule {
+impl<const P: usize> Schedule<P> {
     /// A cycle of `slots` slots, a sync every `sync_every_cycles` cycles, and the producers'
     /// slots; refused with the first rule it breaks.
     pub fn new(
@@ -159,7 +169,7 @@ impl Schedule {
         {
             return Err(ScheduleError::SyncInterval { interval_ms });
         }
-        let mut checked: Vec<(ScId, u16), { ScId::COUNT }> = Vec::new();
+        let mut checked: Vec<(ScId, u16), P> = Vec::new();
         for &(sc_id, slot) in producers {
             if slot >= slots - 2 {
                 return Err(ScheduleError::SlotNotForProducers { sc_id, slot });
@@ -174,10 +184,13 @@ impl Schedule {
             if checked.iter().any(|(other, _)| *other == sc_id) {
                 return Err(ScheduleError::ScIdTwice { sc_id });
             }
-            // Distinct SC-IDs are at most ScId::COUNT, the capacity, so this cannot fail.
             checked
                 .push((sc_id, slot))
-                .map_err(|_| ScheduleError::ScIdTwice { sc_id })?;
+                .map_err(|_| ScheduleError::TooManyProducers {
+                    sc_id,
+                    // A capacity is at most ScId::COUNT (80) where one is reached.
+                    capacity: u8::try_from(P).unwrap_or(u8::MAX),
+                })?;
         }
         // ν = 1000 × P / N + 1000 / (k × N) packets per second ≤ 665, in whole numbers:
         // 1000 × (P × k + 1) ≤ 665 × k × N. The sync interval k × N is 100..=500 ms (checked
@@ -258,7 +271,7 @@ mod tests {
 
     /// N = 10, a sync every 10 cycles (100 ms), producers 30h in slot 0 and 41h in slot 7.
     fn schedule() -> Schedule {
-        Schedule::new(10, 10, &[(sc(0x30), 0), (sc(0x41), 7)]).unwrap()
+        <Schedule>::new(10, 10, &[(sc(0x30), 0), (sc(0x41), 7)]).unwrap()
     }
 
     #[test]
@@ -272,18 +285,31 @@ mod tests {
     }
 
     #[test]
+    fn sc_req_18_a_schedule_refuses_more_producers_than_it_holds() {
+        let producers = [(sc(0x30), 0), (sc(0x31), 1), (sc(0x32), 2)];
+        assert!(Schedule::<3>::new(10, 10, &producers).is_ok());
+        assert_eq!(
+            Schedule::<2>::new(10, 10, &producers),
+            Err(ScheduleError::TooManyProducers {
+                sc_id: sc(0x32),
+                capacity: 2
+            })
+        );
+    }
+
+    #[test]
     fn sc_req_21_the_last_two_slots_are_not_for_producers() {
         assert_eq!(
-            Schedule::new(10, 10, &[(sc(0x30), 8)]),
+            <Schedule>::new(10, 10, &[(sc(0x30), 8)]),
             Err(ScheduleError::SlotNotForProducers {
                 sc_id: sc(0x30),
                 slot: 8
             })
         );
-        assert!(Schedule::new(10, 10, &[(sc(0x30), 9)]).is_err());
-        assert!(Schedule::new(10, 10, &[(sc(0x30), 7)]).is_ok());
+        assert!(<Schedule>::new(10, 10, &[(sc(0x30), 9)]).is_err());
+        assert!(<Schedule>::new(10, 10, &[(sc(0x30), 7)]).is_ok());
         assert_eq!(
-            Schedule::new(2, 50, &[]),
+            <Schedule>::new(2, 50, &[]),
             Err(ScheduleError::SlotCount { slots: 2 })
         );
     }
@@ -301,7 +327,7 @@ mod tests {
     #[test]
     fn sc_req_18_two_producers_never_share_a_slot() {
         assert_eq!(
-            Schedule::new(10, 10, &[(sc(0x30), 3), (sc(0x31), 3)]),
+            <Schedule>::new(10, 10, &[(sc(0x30), 3), (sc(0x31), 3)]),
             Err(ScheduleError::SlotTaken {
                 slot: 3,
                 first: sc(0x30),
@@ -309,21 +335,21 @@ mod tests {
             })
         );
         assert_eq!(
-            Schedule::new(10, 10, &[(sc(0x30), 3), (sc(0x30), 4)]),
+            <Schedule>::new(10, 10, &[(sc(0x30), 3), (sc(0x30), 4)]),
             Err(ScheduleError::ScIdTwice { sc_id: sc(0x30) })
         );
     }
 
     #[test]
     fn sc_req_22_the_sync_interval_is_between_100_and_500_ms() {
-        assert!(Schedule::new(10, 10, &[]).is_ok());
-        assert!(Schedule::new(10, 50, &[]).is_ok());
+        assert!(<Schedule>::new(10, 10, &[]).is_ok());
+        assert!(<Schedule>::new(10, 50, &[]).is_ok());
         assert_eq!(
-            Schedule::new(10, 9, &[]),
+            <Schedule>::new(10, 9, &[]),
             Err(ScheduleError::SyncInterval { interval_ms: 90 })
         );
         assert_eq!(
-            Schedule::new(10, 51, &[]),
+            <Schedule>::new(10, 51, &[]),
             Err(ScheduleError::SyncInterval { interval_ms: 510 })
         );
     }
@@ -332,16 +358,16 @@ mod tests {
     #[test]
     fn sc_req_04_the_schedule_refuses_more_than_665_packets_per_second() {
         let six: std::vec::Vec<(ScId, u16)> = (0..6).map(|s| (sc(0x30 + s as u8), s)).collect();
-        assert!(Schedule::new(10, 10, &six).is_ok());
+        assert!(<Schedule>::new(10, 10, &six).is_ok());
         let seven: std::vec::Vec<(ScId, u16)> = (0..7).map(|s| (sc(0x30 + s as u8), s)).collect();
         assert_eq!(
-            Schedule::new(10, 10, &seven),
+            <Schedule>::new(10, 10, &seven),
             Err(ScheduleError::ResidualErrorRate {
                 packets_per_second: 710
             })
         );
         // The shortest cycle with its one producer slot: 343 packets per second.
-        assert!(Schedule::new(3, 34, &[(sc(0x30), 0)]).is_ok());
+        assert!(<Schedule>::new(3, 34, &[(sc(0x30), 0)]).is_ok());
     }
 
     #[test]

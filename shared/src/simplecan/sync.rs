@@ -226,7 +226,7 @@ mod tests {
 
     /// The cycle of `slots` slots, as a schedule with a sync every 500 ms builds it.
     fn cycle(slots: u16) -> Cycle {
-        crate::simplecan::schedule::Schedule::new(slots, 500 / slots, &[])
+        <crate::simplecan::schedule::Schedule>::new(slots, 500 / slots, &[])
             .unwrap()
             .cycle()
     }

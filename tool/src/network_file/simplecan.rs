@@ -298,7 +298,7 @@ pub(super) fn parse(
         .flat_map(|node| &node.produced)
         .filter_map(|produced| ScId::new(produced.sc_id).map(|sc_id| (sc_id, produced.slot)))
         .collect();
-    if let Err(error) = Schedule::new(slots_per_cycle, cycles_between_syncs, &schedule) {
+    if let Err(error) = <Schedule>::new(slots_per_cycle, cycles_between_syncs, &schedule) {
         return Err(parser.error(raw.slots_per_cycle.span(), schedule_sentence(error)));
     }
 
@@ -377,5 +377,9 @@ fn schedule_sentence(error: ScheduleError) -> String {
         ScheduleError::SyncInterval { interval_ms } => {
             format!("the sync interval of {interval_ms} ms is outside 100 to 500 ms (SC_REQ_22)")
         }
+        ScheduleError::TooManyProducers { sc_id, capacity } => format!(
+            "SC-ID {:02X}h is one producer more than the {capacity} a schedule holds (SC_REQ_12)",
+            sc_id.raw()
+        ),
     }
 }

@@ -132,7 +132,7 @@ impl SimpleCanView {
                 watch.timeout = Some(watch.timeout.map_or(timeout, |t| t.min(timeout)));
             }
         }
-        view.schedule = Schedule::new(
+        view.schedule = <Schedule>::new(
             network.slots_per_cycle,
             network.cycles_between_syncs,
             &producers,
