@@ -109,11 +109,12 @@ fn sc_req_20_the_computed_reaction_bounds_the_simulated_emergency_stop() {
     );
 }
 
-/// On the hardware's timing the path adds the input sample, three steps and the link: the
-/// parts add up to the total, and the one-fault path is the timeout's.
+/// On the hardware's timing with SimpleCAN's measured step the path adds the input sample,
+/// three steps and the link: the parts add up to the total, and the one-fault path is the
+/// timeout's.
 #[test]
 fn sc_req_20_the_hardware_reaction_is_its_parts() {
-    let reaction = estop(&DeviceTiming::HARDWARE);
+    let reaction = estop(&DeviceTiming::HARDWARE_SIMPLECAN);
     let sum: u64 = reaction.parts.iter().map(|part| part.micros).sum();
     assert_eq!(sum, reaction.fault_free_us);
     assert!(reaction.one_fault_us > u64::from(TIMEOUT_MS) * 1000);

@@ -118,7 +118,7 @@ fn sc_req_45_the_computed_reaction_bounds_the_measured_one_and_the_timeout_cover
         "the output went off {timed_out} µs after the demand, before the timeout could expire"
     );
 
-    let hardware = bound(&DeviceTiming::HARDWARE);
+    let hardware = bound(&DeviceTiming::HARDWARE_SIMPLECAN);
     let chain: Vec<&str> = hardware.parts.iter().map(|part| part.what).collect();
     for part in [
         "input sample",

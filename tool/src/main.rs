@@ -197,10 +197,12 @@ enum Command {
         /// window (5000).
         #[arg(long, default_value_t = DeviceTiming::HARDWARE.contact_skew_us)]
         contact_skew_us: u64,
-        /// One step of a channel (µs); the default is the step measured on the target under
-        /// QEMU at a bounded cycles per instruction (`safety_config::calc::target`).
-        #[arg(long, default_value_t = DeviceTiming::HARDWARE.processing_us)]
-        processing_us: u64,
+        /// One step of a channel (µs), for every safety function of the file; the default is
+        /// the step measured on the target under QEMU at a bounded cycles per instruction
+        /// (`safety_config::calc::target`): the images' own for SRDOs, the images' with
+        /// SimpleCAN for SimpleCAN's.
+        #[arg(long)]
+        processing_us: Option<u64>,
         /// The output stage after the pin (µs).
         #[arg(long, default_value_t = DeviceTiming::HARDWARE.output_us)]
         output_us: u64,
@@ -510,9 +512,13 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         let timing = DeviceTiming {
             input_sample_us: *input_sample_us,
             contact_skew_us: *contact_skew_us,
-            processing_us: *processing_us,
+            processing_us: processing_us.unwrap_or(DeviceTiming::HARDWARE.processing_us),
             output_us: *output_us,
             ..DeviceTiming::HARDWARE
+        };
+        let simplecan_timing = DeviceTiming {
+            processing_us: processing_us.unwrap_or(DeviceTiming::HARDWARE_SIMPLECAN.processing_us),
+            ..timing
         };
         let streams = sfrt::planned_streams(
             &network,
@@ -521,8 +527,10 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         );
         let reactions = sfrt::reactions(&network, &streams, plan.bit_rate, &timing)?;
         let simplecan = match &network.simplecan {
-            Some(simplecan) => calc_simplecan::reactions(simplecan, plan.bit_rate, &timing)
-                .map_err(|error| ToolError::Usage(format!("{file}: {error}")))?,
+            Some(simplecan) => {
+                calc_simplecan::reactions(simplecan, plan.bit_rate, &simplecan_timing)
+                    .map_err(|error| ToolError::Usage(format!("{file}: {error}")))?
+            }
             None => Vec::new(),
         };
         if cli.json {
@@ -530,17 +538,22 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             struct Reactions<'a, T, R, S> {
                 timing: &'a T,
                 reactions: &'a R,
+                simplecan_timing: &'a T,
                 simplecan: &'a S,
             }
             let report = Reactions {
                 timing: &timing,
                 reactions: &reactions,
+                simplecan_timing: &simplecan_timing,
                 simplecan: &simplecan,
             };
             println!("{}", json(&report)?);
         } else {
             print!("{}", report::reactions(&reactions, plan.bit_rate, &timing));
-            print!("{}", report::simplecan_reactions(&simplecan, plan.bit_rate));
+            print!(
+                "{}",
+                report::simplecan_reactions(&simplecan, plan.bit_rate, &simplecan_timing)
+            );
         }
         return Ok(true);
     }

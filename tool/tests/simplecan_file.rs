@@ -451,7 +451,8 @@ fn sc_req_04_the_program_prints_simplecan_reactions_and_residual_rate() {
     let path = file.to_str().unwrap();
     let network = parse(GOOD, "net.toml").unwrap();
     let simplecan = network.simplecan.as_ref().unwrap();
-    let timing = safety_config::calc::sfrt::DeviceTiming::HARDWARE;
+    // SimpleCAN's own measured step, not the SRDO images' (`DeviceTiming::HARDWARE`).
+    let timing = safety_config::calc::sfrt::DeviceTiming::HARDWARE_SIMPLECAN;
     let reactions = safety_config::calc::simplecan::reactions(simplecan, 500_000, &timing).unwrap();
     let (ok, sfrt) = run(&["sfrt", path]);
     assert!(ok, "{sfrt}");

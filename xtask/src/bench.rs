@@ -122,7 +122,11 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
     if let Some(section) = crate::interop::kept_section(&previous) {
         report = crate::interop::with_section(&report, section);
     }
-    for name in [crate::fullnet::TIMING_MARKER, crate::target_cost::MARKER] {
+    for name in [
+        crate::fullnet::TIMING_MARKER,
+        crate::target_cost::MARKER,
+        crate::target_cost::SIMPLECAN_MARKER,
+    ] {
         if let Some(kept) = generated_block(&previous, name) {
             report.push('\n');
             report.push_str(&kept);

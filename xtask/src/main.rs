@@ -162,6 +162,10 @@ enum Task {
         /// docs/performance.md.
         #[arg(long)]
         target_cost: bool,
+        /// With `--target-cost`: the images and network of this protocol, `canopen-safety`
+        /// (the default) or `simplecan` (SimpleCAN's processing step, its own block).
+        #[arg(long, value_enum, default_value_t, requires = "target_cost")]
+        protocol: network::Protocol,
     },
     /// The full network by simulation: 64 producers and 64 consumers (127 dual-channel nodes)
     /// at 1 Mbit/s with background traffic; bus load, SCT and SRVT margins per SRDO, reaction
@@ -361,9 +365,13 @@ fn task() -> Result<()> {
             command.args(args);
             run(&mut command)
         }
-        Task::Bench { check, target_cost } => {
+        Task::Bench {
+            check,
+            target_cost,
+            protocol,
+        } => {
             if target_cost {
-                target_cost::run(&root)
+                target_cost::run(&root, protocol)
             } else {
                 bench::run(&root, check)
             }

@@ -634,7 +634,22 @@ fn simplecan_part(root: &Path) -> Result<String> {
         bail!("{SIMPLECAN_EXAMPLE} has no [simplecan] section");
     };
     let bit_rate = dual_channel::device::BIT_RATE;
-    let hardware = calc::reactions(simplecan, bit_rate, &DeviceTiming::HARDWARE)?;
+    // SimpleCAN's processing step, measured in the images with SimpleCAN, as
+    // `docs/performance.md`'s block of the same run states it.
+    let step = target::MEASURED_SIMPLECAN.processing_us();
+    let bench = std::fs::read_to_string(root.join("docs/performance.md"))
+        .context("reading docs/performance.md")?;
+    if !block(&bench, crate::target_cost::SIMPLECAN_MARKER)?.contains(&format!("**{step} µs**"))
+        || DeviceTiming::HARDWARE_SIMPLECAN.processing_us != step
+    {
+        bail!(
+            "docs/performance.md's {} block does not give SimpleCAN's processing step of \
+             safety_config::calc::target::MEASURED_SIMPLECAN ({step} µs): run `cargo xtask \
+             bench --target-cost --protocol simplecan`, which writes both",
+            crate::target_cost::SIMPLECAN_MARKER
+        );
+    }
+    let hardware = calc::reactions(simplecan, bit_rate, &DeviceTiming::HARDWARE_SIMPLECAN)?;
     let host = calc::reactions(simplecan, bit_rate, &calculator_timing())?;
     let (Some(hw), Some(sim)) = (hardware.first(), host.first()) else {
         bail!("{SIMPLECAN_EXAMPLE} has no consumed SC-ID");
@@ -682,9 +697,13 @@ fn simplecan_part(root: &Path) -> Result<String> {
     ));
     let _ = writeln!(
         out,
-        "The example network file (`safety-config sfrt simplecan-network.toml --bit-rate {bit_rate}`):\n\n```toml\n{text}```\n\nIts output, with the hardware's timing (`DeviceTiming::HARDWARE`):\n"
+        "The example network file (`safety-config sfrt simplecan-network.toml --bit-rate {bit_rate}`):\n\n```toml\n{text}```\n\nIts output, with the hardware's timing and SimpleCAN's processing step measured in the images with SimpleCAN (`DeviceTiming::HARDWARE_SIMPLECAN`, {step} µs):\n"
     );
-    out.push_str(&report::simplecan_reactions(&hardware, bit_rate));
+    out.push_str(&report::simplecan_reactions(
+        &hardware,
+        bit_rate,
+        &DeviceTiming::HARDWARE_SIMPLECAN,
+    ));
     if hw.fault_free_us <= u64::from(timeout_ms) * 1000 {
         let _ = writeln!(
             out,
@@ -755,7 +774,7 @@ fn processing_part(bench: &str) -> Result<String> {
         target::WAKE_INSTRUCTIONS,
         measured.longest_iteration,
         target::BETWEEN_ITERATIONS,
-        measured.longest_srdo_iteration,
+        measured.longest_protocol_iteration,
         measured.path_instructions()
     );
     let cycles = measured.path_instructions() * target::CPI_BOUND;

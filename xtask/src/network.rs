@@ -383,7 +383,7 @@ impl Network {
     /// the bus and starts them; returns once both nodes are Operational and node 33's output
     /// follows node 1's input.
     pub fn start(root: &Path) -> Result<Network> {
-        Network::start_with_monitors(root, &[])
+        Network::start_speaking(root, &[], Protocol::CanopenSafety)
     }
 
     /// As [`Network::start`], the nodes speaking `protocol`.
@@ -391,10 +391,14 @@ impl Network {
         Network::start_speaking(root, &[], protocol)
     }
 
-    /// As [`Network::start`], with QEMU's monitor of each channel named in `monitored` (as
-    /// in [`CHANNELS`]) on the Unix socket [`Network::monitor`].
-    pub fn start_with_monitors(root: &Path, monitored: &[&str]) -> Result<Network> {
-        Network::start_speaking(root, monitored, Protocol::CanopenSafety)
+    /// As [`Network::start_for`], with QEMU's monitor of each channel named in `monitored`
+    /// (as in [`CHANNELS`]) on the Unix socket [`Network::monitor`].
+    pub fn start_with_monitors(
+        root: &Path,
+        monitored: &[&str],
+        protocol: Protocol,
+    ) -> Result<Network> {
+        Network::start_speaking(root, monitored, protocol)
     }
 
     fn start_speaking(root: &Path, monitored: &[&str], protocol: Protocol) -> Result<Network> {

@@ -27,9 +27,10 @@
 //! software division on every `now()`, was found to be most of the longest iterations.
 
 pub(crate) mod count;
+mod simplecan;
 
 use crate::images::{self, Layer};
-use crate::network::{CHANNELS, Network};
+use crate::network::{CHANNELS, Network, Protocol};
 use crate::toolchain;
 use anyhow::{Context, Result, bail};
 use count::{Call, Counted};
@@ -44,6 +45,8 @@ use std::time::Duration;
 const DOCUMENT: &str = "docs/performance.md";
 /// The block's marker name.
 pub(crate) const MARKER: &str = "target-cost";
+/// The SimpleCAN images' block's marker name.
+pub(crate) use simplecan::MARKER as SIMPLECAN_MARKER;
 /// The generated constants the tool's processing step comes from.
 const MEASURED_RS: &str = "tool/src/calc/target_measured.rs";
 /// How long each image's trace runs, in the network's virtual time: 15 of node 1's pairs.
@@ -361,10 +364,21 @@ fn host_figure(document: &str, row: &str) -> Option<u64> {
         .ok()
 }
 
-/// `cargo xtask bench --target-cost`.
-pub fn run(root: &Path) -> Result<()> {
+/// `cargo xtask bench --target-cost [--protocol simplecan]`.
+pub fn run(root: &Path, protocol: Protocol) -> Result<()> {
     let cross = toolchain::ensure()?;
-    let mut network = start(root)?;
+    let (traces, traced) = trace(root, protocol)?;
+    match protocol {
+        Protocol::CanopenSafety => canopen_safety(root, &cross, &traces, traced),
+        Protocol::Simplecan => simplecan::run(root, &cross, &traces, traced),
+    }
+}
+
+/// The emulated network speaking `protocol`, each of its four images traced in turn for
+/// [`TRACE_FOR`] of the network's time with the emergency stop pressed and released: the
+/// traces' paths, in [`CHANNELS`]' order, and the shortest time an image was traced for.
+fn trace(root: &Path, protocol: Protocol) -> Result<([std::path::PathBuf; 4], f64)> {
+    let mut network = start(root, protocol)?;
     // One image traced at a time: the others run at full speed, so the network's time moves
     // at the traced image's pace. The traces are counted once the network has ended: while
     // counting, nothing would read the hub's control port, and the status reports piled up
@@ -406,9 +420,19 @@ pub fn run(root: &Path) -> Result<()> {
         traced.push(network.hub_time() - started);
     }
     drop(network);
+    Ok((traces, traced.into_iter().fold(f64::INFINITY, f64::min)))
+}
+
+/// The CANopen Safety images' counts: `docs/performance.md`'s block and the processing step.
+fn canopen_safety(
+    root: &Path,
+    cross: &toolchain::Cross,
+    traces: &[std::path::PathBuf; 4],
+    traced: f64,
+) -> Result<()> {
     let mut channels = Vec::new();
-    for ((name, _, side), trace) in CHANNELS.into_iter().zip(&traces) {
-        let image = images::image(&cross, root, Layer::Qemu, side);
+    for ((name, _, side), trace) in CHANNELS.into_iter().zip(traces) {
+        let image = images::image(cross, root, Layer::Qemu, side);
         let entries = TRACKED
             .iter()
             .map(|name| address(&image, name))
@@ -421,7 +445,6 @@ pub fn run(root: &Path) -> Result<()> {
         eprintln!("xtask: {name}: {}", channel.longest());
         channels.push((name, channel));
     }
-    let traced = traced.into_iter().fold(f64::INFINITY, f64::min);
     let path = root.join(DOCUMENT);
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("reading {DOCUMENT} (run `cargo xtask bench` first)"))?;
@@ -443,10 +466,10 @@ pub fn run(root: &Path) -> Result<()> {
 /// The network with every image's monitor. Counting instructions, the images answer SDO
 /// requests more slowly, and on a loaded machine the configuration's SDO time-out has been
 /// seen to expire (2 starts of 5): up to [`STARTS`] attempts.
-fn start(root: &Path) -> Result<Network> {
+fn start(root: &Path, protocol: Protocol) -> Result<Network> {
     let mut attempt = 1;
     loop {
-        match Network::start_with_monitors(root, &CHANNELS.map(|(name, _, _)| name)) {
+        match Network::start_with_monitors(root, &CHANNELS.map(|(name, _, _)| name), protocol) {
             Ok(network) => return Ok(network),
             Err(error) if attempt < STARTS => {
                 eprintln!("xtask: the traced network did not come up ({error:#}); again");
@@ -486,9 +509,9 @@ fn measured_rs(measured: &TargetCost) -> String {
          /// Counted by `cargo xtask bench --target-cost`.\n\
          pub const MEASURED: TargetCost = TargetCost {{\n    \
          longest_iteration: {},\n    \
-         longest_srdo_iteration: {},\n\
+         longest_protocol_iteration: {},\n\
          }};\n",
-        measured.longest_iteration, measured.longest_srdo_iteration
+        measured.longest_iteration, measured.longest_protocol_iteration
     )
 }
 
@@ -706,7 +729,7 @@ fn render(
 
     let measured = TargetCost {
         longest_iteration: most(channels, |c| &c.all),
-        longest_srdo_iteration: [
+        longest_protocol_iteration: [
             most(channels, |c| &c.plain_received),
             most(channels, |c| &c.inverted_received),
             most(channels, |c| &c.verdict),
@@ -859,7 +882,7 @@ fn render(
         cost::WAKE_INSTRUCTIONS,
         measured.longest_iteration,
         cost::BETWEEN_ITERATIONS,
-        measured.longest_srdo_iteration,
+        measured.longest_protocol_iteration,
         measured.path_instructions(),
         cost::CPI_BOUND,
         cost::CLOCK_HZ / 1_000_000,

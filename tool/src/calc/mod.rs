@@ -12,3 +12,4 @@ pub mod sfrt;
 pub mod simplecan;
 pub mod target;
 mod target_measured;
+mod target_measured_simplecan;

@@ -121,7 +121,11 @@ pub fn budget(budget: &Budget, sil: Sil) -> String {
 /// Every consumed SC-ID of a SimpleCAN network, for `safety-config sfrt` on a file with a
 /// `[simplecan]` section.
 #[must_use]
-pub fn simplecan_reactions(reactions: &[ScReaction], bit_rate: u32) -> String {
+pub fn simplecan_reactions(
+    reactions: &[ScReaction],
+    bit_rate: u32,
+    timing: &DeviceTiming,
+) -> String {
     let mut out = String::new();
     for reaction in reactions {
         let _ = writeln!(
@@ -140,6 +144,18 @@ pub fn simplecan_reactions(reactions: &[ScReaction], bit_rate: u32) -> String {
             reaction.worst_us,
         ));
         out.push('\n');
+    }
+    if !reactions.is_empty() {
+        let _ = writeln!(
+            out,
+            "SimpleCAN's channel step: {} ms{}.\n",
+            ms(timing.processing_us),
+            if timing.processing_us == super::target::MEASURED_SIMPLECAN.processing_us() {
+                " (instructions measured in the images with SimpleCAN under QEMU, cycles per instruction bounded by assumption: `safety_config::calc::target`)"
+            } else {
+                ""
+            }
+        );
     }
     out
 }

@@ -90,6 +90,15 @@ impl DeviceTiming {
         processing_us: super::target::MEASURED.processing_us(),
         output_us: 0,
     };
+
+    /// The hardware with SimpleCAN: [`DeviceTiming::HARDWARE`] but for the processing step,
+    /// measured in the images with SimpleCAN ([`super::target::MEASURED_SIMPLECAN`], `cargo
+    /// xtask bench --target-cost --protocol simplecan`), whose loop iterations carry
+    /// SimpleCAN's work beside the SRDO table's.
+    pub const HARDWARE_SIMPLECAN: DeviceTiming = DeviceTiming {
+        processing_us: super::target::MEASURED_SIMPLECAN.processing_us(),
+        ..DeviceTiming::HARDWARE
+    };
 }
 
 /// One part of a reaction time.

@@ -1,14 +1,17 @@
 //! The processing step of a channel on the target: the device's part of the safety function
 //! response time per step (EN 50325-5 9.3.1), from the instructions `cargo xtask bench
 //! --target-cost` counted in the real QEMU images ([`MEASURED`], which that command writes
-//! into `target_measured.rs`, so the figure cannot drift from the measurement).
+//! into `target_measured.rs`, so the figure cannot drift from the measurement), and for
+//! SimpleCAN `cargo xtask bench --target-cost --protocol simplecan` in the QEMU images with
+//! SimpleCAN ([`MEASURED_SIMPLECAN`], `target_measured_simplecan.rs`).
 //!
 //! **Measured** (QEMU's instruction trace of the emulated network, one instruction per
 //! translation block, both nodes Operational, the emergency stop pressed and released):
 //! the thread-mode instructions of the longest iteration of the channel loop
 //! (`ChannelLoop::service`) of any kind, which a frame may have to wait behind (the loop does
-//! not preempt itself); and of the longest iteration that handled an SRDO frame (a received
-//! plain or inverted frame, the other channel's verdict, a frame sent).
+//! not preempt itself); and of the longest iteration that handled the protocol's traffic (for
+//! CANopen Safety a received plain or inverted SRDO frame, the other channel's verdict, a
+//! frame sent; for SimpleCAN a frame received or sent).
 //!
 //! **Bounded by argument** (QEMU counts instructions, not cycles, and runs the QEMU board
 //! layer, not the hardware one):
@@ -26,8 +29,10 @@
 pub struct TargetCost {
     /// The longest loop iteration of any kind seen (a frame arriving during it waits).
     pub longest_iteration: u64,
-    /// The longest loop iteration that handled an SRDO frame or a verdict.
-    pub longest_srdo_iteration: u64,
+    /// The longest loop iteration that handled the safety protocol's traffic: an SRDO frame
+    /// or a verdict (CANopen Safety, [`MEASURED`]); a frame received or sent (SimpleCAN,
+    /// [`MEASURED_SIMPLECAN`]).
+    pub longest_protocol_iteration: u64,
 }
 
 /// The wake-up, an allowance by argument (instructions): on the hardware, the interrupt's
@@ -68,6 +73,7 @@ pub const CPI_BOUND: u64 = 6;
 pub const INTERRUPT_ALLOWANCE_FACTOR: u64 = 2;
 
 pub use super::target_measured::MEASURED;
+pub use super::target_measured_simplecan::MEASURED_SIMPLECAN;
 
 impl TargetCost {
     /// Instructions of the longest processing path: a wake-up, the iteration the loop was in
@@ -76,7 +82,7 @@ impl TargetCost {
         WAKE_INSTRUCTIONS
             + self.longest_iteration
             + BETWEEN_ITERATIONS
-            + self.longest_srdo_iteration
+            + self.longest_protocol_iteration
     }
 
     /// The processing step (µs): the path's instructions at [`CPI_BOUND`] on [`CLOCK_HZ`],
@@ -101,12 +107,12 @@ mod tests {
         assert_eq!((WAKE_INSTRUCTIONS, BETWEEN_ITERATIONS), (2000, 2500));
         let cost = TargetCost {
             longest_iteration: 2000,
-            longest_srdo_iteration: 1060,
+            longest_protocol_iteration: 1060,
         };
         assert_eq!(cost.path_instructions(), 7560);
         assert_eq!(cost.processing_us(), 540);
         let one_more = TargetCost {
-            longest_srdo_iteration: 1061,
+            longest_protocol_iteration: 1061,
             ..cost
         };
         assert_eq!(one_more.processing_us(), 550);

@@ -6,5 +6,5 @@ use super::target::TargetCost;
 /// Counted by `cargo xtask bench --target-cost`.
 pub const MEASURED: TargetCost = TargetCost {
     longest_iteration: 24237,
-    longest_srdo_iteration: 24237,
+    longest_protocol_iteration: 24237,
 };
