@@ -105,7 +105,7 @@ pub const fn expired(deadline: Instant, now: Instant) -> bool {
 /// of the dividend. `floor(floor(a / b) / c) = floor(a / (b × c))` for positive integers, so
 /// the steps give what one division by the product would. Tested against the compiler's own
 /// 64-bit division (`tests::div_rem_u16_is_the_64_bit_division`).
-#[inline(never)]
+#[cfg_attr(target_os = "none", inline(never))]
 pub const fn div_rem_u16(dividend: u64, divisor: core::num::NonZeroU16) -> (u64, u16) {
     let divisor = divisor.get() as u32;
     let mut quotient = 0u64;

@@ -46,6 +46,7 @@ struct Anchor {
 }
 
 impl Anchor {
+    #[cfg_attr(target_os = "none", inline(never))]
     fn global_at(&self, now: Instant) -> u64 {
         self.global
             .saturating_add(now.saturating_since(self.local).as_micros())

@@ -98,6 +98,7 @@ impl Cycle {
     }
 
     /// The global time at which slot `slot` of cycle `cycle` starts (saturating).
+    #[cfg_attr(target_os = "none", inline(never))]
     pub const fn slot_start(&self, cycle: u64, slot: u16) -> u64 {
         cycle
             .saturating_mul(self.slots.get() as u64)

@@ -27,6 +27,7 @@ struct Sample {
 
 impl Sample {
     /// The global time at local instant `now` by this sample's anchor.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn global_at(&self, now: Instant) -> u64 {
         self.global
             .saturating_add(now.saturating_since(self.local).as_micros())
