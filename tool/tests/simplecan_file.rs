@@ -463,6 +463,21 @@ fn sc_req_04_the_program_prints_simplecan_reactions_and_residual_rate() {
         let worst = safety_config::calc::report::ms(reaction.worst_us);
         assert!(sfrt.contains(&format!("**{worst}**")), "{worst} in {sfrt}");
     }
+    // A step given on the command line is every safety function's, SimpleCAN's included.
+    let given = safety_config::calc::sfrt::DeviceTiming {
+        processing_us: 1000,
+        ..timing
+    };
+    let (ok, sfrt) = run(&["sfrt", path, "--processing-us", "1000"]);
+    assert!(ok, "{sfrt}");
+    for reaction in safety_config::calc::simplecan::reactions(simplecan, 500_000, &given).unwrap() {
+        let worst = safety_config::calc::report::ms(reaction.worst_us);
+        assert!(sfrt.contains(&format!("**{worst}**")), "{worst} in {sfrt}");
+    }
+    assert!(
+        sfrt.contains("SimpleCAN's channel step: 1.000 ms."),
+        "{sfrt}"
+    );
     let (ok, budget) = run(&["budget", path]);
     assert!(ok, "{budget}");
     assert!(budget.contains("SimpleCAN residual error rate"), "{budget}");

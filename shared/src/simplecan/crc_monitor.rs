@@ -12,8 +12,9 @@
 //! they come and do not. That is the note's algorithm, and the tests pin both cases.
 //!
 //! The arithmetic: the counter is a `u16` held in `0..=1000` (it stops at 1000, latched);
-//! the leaks owed since the last update are computed by one division, so a poll after any
-//! gap, however long, costs the same and cannot overflow.
+//! the leaks owed since the last update are computed by dividing the time since (by 1000
+//! and then by 3600, `crate::time::div_rem_u16`), so a poll after any gap, however long,
+//! costs the same and cannot overflow.
 
 use crate::time::{Duration, Instant, div_rem_u16, expired};
 use core::num::NonZeroU16;
