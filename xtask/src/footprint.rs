@@ -336,6 +336,75 @@ fn report(layer: Layer, measured: &[(&str, Footprint)], out: &mut String) -> Res
     Ok(())
 }
 
+/// What the images of layer `with` hold beyond those of layer `base` (SimpleCAN beside the
+/// SRDO table): flash, RAM and the crates whose `.text` grew the most, per channel.
+fn added(
+    base: Layer,
+    base_measured: &[(&str, Footprint)],
+    with: Layer,
+    with_measured: &[(&str, Footprint)],
+    out: &mut String,
+) -> Result<()> {
+    let pairs: Vec<(&str, &Footprint, &Footprint)> = base_measured
+        .iter()
+        .zip(with_measured)
+        .map(|((name, base), (_, with))| (*name, base, with))
+        .collect();
+    writeln!(out, "### What the {with:?} images add to the {base:?} images
+")?;
+    writeln!(
+        out,
+        "| | {} |\n|---|{}",
+        pairs
+            .iter()
+            .map(|(name, _, _)| *name)
+            .collect::<Vec<_>>()
+            .join(" | "),
+        "---:|".repeat(pairs.len())
+    )?;
+    let signed = |from: u64, to: u64| {
+        let delta = i128::from(to) - i128::from(from);
+        if delta > 0 {
+            format!("+{delta}")
+        } else {
+            delta.to_string()
+        }
+    };
+    let row = |out: &mut String, label: &str, value: &dyn Fn(&Footprint) -> u64| {
+        let cells: Vec<String> = pairs
+            .iter()
+            .map(|(_, base, with)| signed(value(base), value(with)))
+            .collect();
+        writeln!(out, "| {label} | {} |", cells.join(" | "))
+    };
+    row(out, "flash (text + data)", &|f| f.sizes.flash())?;
+    row(out, "RAM (data + bss + stack reserve)", &|f| f.sizes.ram())?;
+    row(out, "`.rodata`", &|f| f.rodata)?;
+    let mut crates: Vec<String> = pairs
+        .iter()
+        .flat_map(|(_, base, with)| base.crates.keys().chain(with.crates.keys()).cloned())
+        .collect();
+    crates.sort();
+    crates.dedup();
+    let grown = |name: &str| -> i128 {
+        pairs
+            .iter()
+            .map(|(_, base, with)| {
+                i128::from(with.crates.get(name).copied().unwrap_or(0))
+                    - i128::from(base.crates.get(name).copied().unwrap_or(0))
+            })
+            .sum()
+    };
+    crates.sort_by_key(|name| std::cmp::Reverse(grown(name)));
+    for name in crates.iter().take(8) {
+        row(out, &format!("`.text` of {name}"), &|f| {
+            f.crates.get(name).copied().unwrap_or(0)
+        })?;
+    }
+    writeln!(out)?;
+    Ok(())
+}
+
 const BEGIN: &str = "<!-- cargo xtask footprint: begin -->";
 const END: &str = "<!-- cargo xtask footprint: end -->";
 
@@ -353,6 +422,7 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
         "Measured by `cargo xtask footprint` ({}, `firmware` profile).\n",
         rustc.trim()
     )?;
+    let mut layers = Vec::new();
     for layer in [
         Layer::Hw,
         Layer::Qemu,
@@ -365,6 +435,20 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
             measured.push((name, measure(&images::image(cross, root, layer, channel))?));
         }
         report(layer, &measured, &mut tables)?;
+        layers.push((layer, measured));
+    }
+    let of = |wanted: Layer| {
+        layers
+            .iter()
+            .find(|(layer, _)| *layer == wanted)
+            .map(|(_, measured)| measured.as_slice())
+            .unwrap_or_default()
+    };
+    for (base, with) in [
+        (Layer::Hw, Layer::HwSimpleCan),
+        (Layer::Qemu, Layer::QemuSimpleCan),
+    ] {
+        added(base, of(base), with, of(with), &mut tables)?;
     }
     let path = root.join("docs/footprint.md");
     let text =
