@@ -427,11 +427,13 @@ macro_rules! collect {
 }
 
 impl Sink for Collect<'_> {
+    #[cfg_attr(target_os = "none", inline(never))]
     fn transmit(&mut self, frame: CanFrame) {
         if self.frames.push(frame).is_err() {
             self.overflow = true;
         }
     }
+    #[cfg_attr(target_os = "none", inline(never))]
     fn event(&mut self, event: Event) {
         if self.events.push(event).is_err() {
             self.overflow = true;

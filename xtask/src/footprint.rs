@@ -350,8 +350,10 @@ fn added(
         .zip(with_measured)
         .map(|((name, base), (_, with))| (*name, base, with))
         .collect();
-    writeln!(out, "### What the {with:?} images add to the {base:?} images
-")?;
+    writeln!(
+        out,
+        "### What the {with:?} images add to the {base:?} images\n"
+    )?;
     writeln!(
         out,
         "| | {} |\n|---|{}",
