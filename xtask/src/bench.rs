@@ -122,16 +122,7 @@ pub fn run(root: &Path, check: bool) -> Result<()> {
     if let Some(section) = crate::interop::kept_section(&previous) {
         report = crate::interop::with_section(&report, section);
     }
-    for name in [
-        crate::fullnet::TIMING_MARKER,
-        crate::target_cost::MARKER,
-        crate::target_cost::SIMPLECAN_MARKER,
-    ] {
-        if let Some(kept) = generated_block(&previous, name) {
-            report.push('\n');
-            report.push_str(&kept);
-        }
-    }
+    keep_blocks(&mut report, &previous);
     std::fs::write(&path, &report)?;
     println!("{report}");
 
@@ -160,6 +151,23 @@ fn generated_block(text: &str, name: &str) -> Option<String> {
     let end_marker = format!("<!-- {name}:end -->");
     let end = start + text[start..].find(&end_marker)? + end_marker.len();
     Some(format!("{}\n", &text[start..end]))
+}
+
+/// Appends to `report` the blocks other commands wrote into `previous`, each after one blank
+/// line (the kept section before them may end in any number of them), so that rewriting the
+/// page again gives the same page.
+fn keep_blocks(report: &mut String, previous: &str) {
+    for name in [
+        crate::fullnet::TIMING_MARKER,
+        crate::target_cost::MARKER,
+        crate::target_cost::SIMPLECAN_MARKER,
+    ] {
+        if let Some(kept) = generated_block(previous, name) {
+            report.truncate(report.trim_end().len());
+            report.push_str("\n\n");
+            report.push_str(&kept);
+        }
+    }
 }
 
 /// The `totals:` (or `summary:`) line of a callgrind output file.
@@ -266,5 +274,29 @@ mod tests {
             )
         );
         assert_eq!(generated_block(page, "fullnet-timing"), None);
+    }
+
+    /// Each kept block follows one blank line, however many the text before it ended with,
+    /// so a page rewritten from itself is the same page.
+    #[test]
+    fn kept_blocks_are_kept_once_and_the_page_does_not_grow() {
+        let page = "# Performance\n\ntable\n\n\n\n\
+                    <!-- fullnet-timing:begin (generated, do not edit) -->\nspeed\n\
+                    <!-- fullnet-timing:end -->\n\n\
+                    <!-- target-cost:begin (generated, do not edit) -->\nfigures\n\
+                    <!-- target-cost:end -->\n";
+        let mut once = "# Performance\n\ntable\n\n\n".to_owned();
+        keep_blocks(&mut once, page);
+        assert_eq!(
+            once,
+            "# Performance\n\ntable\n\n\
+             <!-- fullnet-timing:begin (generated, do not edit) -->\nspeed\n\
+             <!-- fullnet-timing:end -->\n\n\
+             <!-- target-cost:begin (generated, do not edit) -->\nfigures\n\
+             <!-- target-cost:end -->\n"
+        );
+        let mut twice = "# Performance\n\ntable\n\n\n".to_owned();
+        keep_blocks(&mut twice, &once);
+        assert_eq!(twice, once);
     }
 }
