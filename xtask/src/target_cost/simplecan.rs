@@ -11,12 +11,12 @@
 //! handled SimpleCAN's traffic (on this network the packets of 30h, the syncs, the
 //! heartbeats), the markers' own instructions subtracted as for CANopen Safety.
 
-use super::count::{self, Counted};
-use super::{Spread, TargetCost, address, cost};
+use super::count::Counted;
+use super::{TargetCost, cost, counted, measured_rs, most, spread, step_sentence, write_results};
 use crate::images::{self, Layer};
 use crate::network::CHANNELS;
 use crate::toolchain::Cross;
-use anyhow::{Context, Result};
+use anyhow::Result;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -40,6 +40,9 @@ const TRANSMITTED: usize = 3;
 const LINK: usize = 4;
 /// The markers called by the loop: their instructions are not the loop's.
 const MARKERS: [usize; 3] = [RECEIVED, TRANSMITTED, LINK];
+
+/// Which of a channel's iterations a row of the block is about.
+type Pick = fn(&Channel) -> &Vec<u64>;
 
 /// One channel's loop iterations, markers subtracted.
 #[derive(Debug, Default)]
@@ -73,13 +76,7 @@ pub(super) fn run(root: &Path, cross: &Cross, traces: &[PathBuf; 4], traced: f64
     let mut channels = Vec::new();
     for ((name, _, side), trace) in CHANNELS.into_iter().zip(traces) {
         let image = images::image(cross, root, Layer::QemuSimpleCan, side);
-        let entries = TRACKED
-            .iter()
-            .map(|name| address(&image, name))
-            .collect::<Result<Vec<u32>>>()?;
-        let counted = count::count_calls(trace, &entries, &[SERVICE])?;
-        // Gigabytes; the counts are what was wanted.
-        let _ = std::fs::remove_file(trace);
+        let counted = counted(&image, &TRACKED, trace, &[SERVICE])?;
         let channel = Channel::of(&counted);
         eprintln!(
             "xtask: {name}: {} loop iterations, {} with a frame received or sent, {} idle ({} \
@@ -92,15 +89,7 @@ pub(super) fn run(root: &Path, cross: &Cross, traces: &[PathBuf; 4], traced: f64
         channels.push((name, channel));
     }
     let (block, measured) = render(&channels, traced)?;
-    println!("{block}");
-    let path = root.join(super::DOCUMENT);
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", super::DOCUMENT))?;
-    let updated = crate::fullnet::replace_block(&text, MARKER, &block)
-        .with_context(|| format!("{} has no {MARKER} block", super::DOCUMENT))?;
-    std::fs::write(&path, updated).with_context(|| format!("writing {}", super::DOCUMENT))?;
-    std::fs::write(root.join(MEASURED_RS), measured_rs(&measured))
-        .with_context(|| format!("writing {MEASURED_RS}"))?;
+    write_results(root, MARKER, &block, MEASURED_RS, &generated(&measured))?;
     eprintln!(
         "xtask: wrote the {MARKER} block of {} and {MEASURED_RS} (SimpleCAN's processing step \
          {} µs): run `cargo xtask manual` for the manual",
@@ -112,14 +101,6 @@ pub(super) fn run(root: &Path, cross: &Cross, traces: &[PathBuf; 4], traced: f64
 
 /// The block of `docs/performance.md` and the measured constants.
 fn render(channels: &[(&str, Channel)], traced: f64) -> Result<(String, TargetCost)> {
-    let spread = |name: &str, what: &str, values: &Vec<u64>| {
-        Spread::of(values.clone()).with_context(|| {
-            format!(
-                "the trace of {name} holds no {what} (the network ran too briefly, or a tracked \
-                 function is no longer called by `bl`)"
-            )
-        })
-    };
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -138,13 +119,14 @@ fn render(channels: &[(&str, Channel)], traced: f64) -> Result<(String, TargetCo
         md,
         "| image | iterations | fewest | median | most | seen |\n|---|---|---:|---:|---:|---:|"
     );
-    for (name, channel) in channels {
-        for (what, values) in [
-            ("every iteration", &channel.all),
-            ("a frame received or sent", &channel.frames),
-            ("idle: no frame, no link bytes", &channel.idle),
-        ] {
-            let s = spread(name, what, values)?;
+    let rows: [(&str, Pick); 3] = [
+        ("every iteration", |c| &c.all),
+        ("a frame received or sent", |c| &c.frames),
+        ("idle: no frame, no link bytes", |c| &c.idle),
+    ];
+    for (name, _) in channels {
+        for (what, pick) in rows {
+            let s = spread(channels, name, what, pick)?;
             let _ = writeln!(
                 md,
                 "| {name} | {what} | {} | {} | {} | {} |",
@@ -152,16 +134,9 @@ fn render(channels: &[(&str, Channel)], traced: f64) -> Result<(String, TargetCo
             );
         }
     }
-    let most = |pick: fn(&Channel) -> &Vec<u64>| {
-        channels
-            .iter()
-            .flat_map(|(_, channel)| pick(channel).iter().copied())
-            .max()
-            .unwrap_or(0)
-    };
     let measured = TargetCost {
-        longest_iteration: most(|c| &c.all),
-        longest_protocol_iteration: most(|c| &c.frames),
+        longest_iteration: most(channels, |c| &c.all),
+        longest_protocol_iteration: most(channels, |c| &c.frames),
     };
     let _ = writeln!(
         md,
@@ -169,42 +144,33 @@ fn render(channels: &[(&str, Channel)], traced: f64) -> Result<(String, TargetCo
          the safety manual's SimpleCAN reaction times): the wake-up allowed by argument ({} \
          instructions), the longest loop iteration of any kind ({}), the board's work after it \
          allowed by analysis ({}), and the longest iteration that received or sent a frame \
-         ({}): {} instructions, at {} cycles per instruction on {} MHz and doubled for \
-         interrupts, rounded up to 10 µs: **{} µs**. Observed in Operational with the packets \
-         and syncs flowing; iterations that handle SDO requests, NMT commands or the parameter \
-         store were not traced.",
+         ({}): {}. Observed in Operational with the packets and syncs flowing; iterations \
+         that handle SDO requests, NMT commands or the parameter store were not traced.",
         cost::WAKE_INSTRUCTIONS,
         measured.longest_iteration,
         cost::BETWEEN_ITERATIONS,
         measured.longest_protocol_iteration,
-        measured.path_instructions(),
-        cost::CPI_BOUND,
-        cost::CLOCK_HZ / 1_000_000,
-        measured.processing_us()
+        step_sentence(&measured)
     );
     Ok((md, measured))
 }
 
 /// The generated constants of SimpleCAN's processing step.
-fn measured_rs(measured: &TargetCost) -> String {
-    format!(
+fn generated(measured: &TargetCost) -> String {
+    measured_rs(
         "//! Generated by `cargo xtask bench --target-cost --protocol simplecan` (do not edit): the\n\
          //! instructions it counted in the QEMU images with SimpleCAN, which [`super::target`] turns\n\
-         //! into SimpleCAN's processing step.\n\n\
-         use super::target::TargetCost;\n\n\
-         /// Counted by `cargo xtask bench --target-cost --protocol simplecan`.\n\
-         pub const MEASURED_SIMPLECAN: TargetCost = TargetCost {{\n    \
-         longest_iteration: {},\n    \
-         longest_protocol_iteration: {},\n\
-         }};\n",
-        measured.longest_iteration, measured.longest_protocol_iteration
+         //! into SimpleCAN's processing step.\n",
+        "cargo xtask bench --target-cost --protocol simplecan",
+        "MEASURED_SIMPLECAN",
+        measured,
     )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use count::Call;
+    use crate::target_cost::count::Call;
 
     /// An iteration that received or sent a frame is a frame iteration, markers subtracted;
     /// one with link bytes only is neither that nor idle; one that did nothing is idle.
@@ -231,15 +197,20 @@ mod tests {
         assert_eq!(channel.idle, [200]);
     }
 
-    /// The generated file is the constants it was given, as the tool reads them.
+    /// The generated file is the constants it was given, as the tool reads them; the file
+    /// the tool compiles is what this writer makes of the constants the tool holds.
     #[test]
     fn the_generated_constants_are_the_measurement() {
-        let text = measured_rs(&TargetCost {
+        let text = generated(&TargetCost {
             longest_iteration: 12345,
             longest_protocol_iteration: 678,
         });
         assert!(text.contains("pub const MEASURED_SIMPLECAN: TargetCost = TargetCost {"));
         assert!(text.contains("    longest_iteration: 12345,\n"));
         assert!(text.contains("    longest_protocol_iteration: 678,\n"));
+        assert_eq!(
+            generated(&cost::MEASURED_SIMPLECAN),
+            include_str!("../../../tool/src/calc/target_measured_simplecan.rs")
+        );
     }
 }
