@@ -44,13 +44,25 @@ pub mod transmit_queue;
 #[cfg(feature = "simplecan")]
 pub const SIMPLECAN_ENTRIES: usize = 2;
 
-/// The safety protocol in the image's channel core: the SRDO table.
+/// The SRDOs of the image's SRDO table: the device's
+/// ([`SRDO_COUNT`](dual_channel::device::SRDO_COUNT)).
+#[cfg(not(feature = "simplecan"))]
+pub const SRDOS: usize = dual_channel::device::SRDO_COUNT;
+/// The SRDOs of the image's SRDO table: none. An image with SimpleCAN speaks it instead of
+/// SRDOs: with the SRDO table's code beside SimpleCAN's, the images are 11 to 15 KiB over
+/// their flash budget (docs/footprint.md). The host simulations run both at once
+/// (`shared::node::SimpleCanNode`).
+#[cfg(feature = "simplecan")]
+pub const SRDOS: usize = 0;
+
+/// The safety protocol in the image's channel core: the SRDO table of [`SRDOS`] SRDOs.
 #[cfg(not(feature = "simplecan"))]
 pub type Protocol<const N: usize> = shared::node::SrdoTable<N>;
-/// The safety protocol in the image's channel core: the SRDO table and SimpleCAN beside it
-/// (feature `simplecan`), with [`SIMPLECAN_ENTRIES`] SDD entries.
+/// The safety protocol in the image's channel core (feature `simplecan`): SimpleCAN with
+/// [`SIMPLECAN_ENTRIES`] SDD entries, beside an SRDO table of [`SRDOS`] = 0 SRDOs (13FEh,
+/// 13FFh:00 = 0), whose stored image and signatures take one row (`R` = 1).
 #[cfg(feature = "simplecan")]
-pub type Protocol<const N: usize> = shared::node::SrdoAndSimpleCan<N, SIMPLECAN_ENTRIES>;
+pub type Protocol<const N: usize> = shared::node::SrdoAndSimpleCan<N, SIMPLECAN_ENTRIES, 1>;
 
 /// What a board layer needs to know about the device it runs.
 #[derive(Clone, Copy)]

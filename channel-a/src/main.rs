@@ -34,7 +34,7 @@ mod firmware {
             panic!("SAFETY_NODE_ID must be 1..=127");
         };
         let role = ChannelA::default();
-        run::<_, { device::SRDO_COUNT }>(device, role).await
+        run::<_, { board::SRDOS }>(device, role).await
     }
 }
 

@@ -64,7 +64,7 @@ mod firmware {
             board::qemu::LOOKAHEAD,
             board::qemu::GRANT_PERIOD,
         ));
-        run::<_, { device::SRDO_COUNT }>(device, role).await
+        run::<_, { board::SRDOS }>(device, role).await
     }
 }
 

@@ -202,10 +202,17 @@ impl ForwardCheck {
     }
 }
 
-/// How many SDD entries a channel cross-checks verdicts for: this device's (four, as
-/// `SimpleCanNode<_, 4, 4>` holds them). A layer with more entries does not build
+/// How many SDD entries a channel cross-checks verdicts for: the host simulations' devices'
+/// four (`SimpleCanNode<_, 4, 4>`). A layer with more entries does not build
 /// ([`ChannelProtocol::simplecan`] asserts it when compiled).
+#[cfg(not(target_os = "none"))]
 pub const ENTRIES: usize = 4;
+/// How many SDD entries a channel cross-checks verdicts for: the firmware images' two
+/// (`board::SIMPLECAN_ENTRIES`); the checks' RAM grows with it (docs/footprint.md). A layer
+/// with more entries does not build ([`ChannelProtocol::simplecan`] asserts it when
+/// compiled).
+#[cfg(target_os = "none")]
+pub const ENTRIES: usize = 2;
 
 /// A consumed SDD entry, by its number (1-based: 5E10h + entry − 1), as the verdict
 /// cross-check keeps verdicts apart.
@@ -269,7 +276,7 @@ impl Layer {
             .in_use()
             .iter()
             .position(|entry| entry.sc_id == sc_id && entry.role == ROLE_CONSUME)?;
-        // At most ENTRIES (4) entries.
+        // At most ENTRIES entries (4 on the host, 2 in the images): fits a u8.
         ConsumedEntry::from_number(index as u8 + 1)
     }
 
@@ -311,7 +318,9 @@ impl Layer {
     }
 }
 
-impl<const N: usize, const E: usize> ChannelProtocol<N> for SrdoAndSimpleCan<N, E> {
+impl<const N: usize, const E: usize, const R: usize> ChannelProtocol<N>
+    for SrdoAndSimpleCan<N, E, R>
+{
     fn build(config: &shared::node::NodeConfig) -> Option<Self> {
         SrdoAndSimpleCan::new(config)
     }

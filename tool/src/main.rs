@@ -740,16 +740,9 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
                 for result in &report.nodes {
                     match result {
                         NodeResult::Done(done) => println!(
-                            "node {}: configured and valid; signatures {}{}",
+                            "node {}: configured and valid; signatures {}",
                             done.node,
-                            done.signatures
-                                .iter()
-                                .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
-                                .collect::<Vec<_>>()
-                                .join(", "),
-                            done.simplecan_signature
-                                .map(|value| format!("; SimpleCAN {value:08X}h (0x5EFF)"))
-                                .unwrap_or_default()
+                            done.signatures_in_words()
                         ),
                         NodeResult::Failed { node, error } => {
                             println!("node {node}: NOT configured: {error}")

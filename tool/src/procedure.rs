@@ -227,6 +227,26 @@ pub struct Configured {
     pub sdo_requests: u64,
 }
 
+impl Configured {
+    /// The signatures written, in words: each SRDO's (or that the node has none), then
+    /// SimpleCAN's, if written.
+    pub fn signatures_in_words(&self) -> String {
+        let srdos = if self.signatures.is_empty() {
+            "no SRDOs".to_owned()
+        } else {
+            self.signatures
+                .iter()
+                .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        match self.simplecan_signature {
+            Some(value) => format!("{srdos}; SimpleCAN {value:08X}h (0x5EFF)"),
+            None => srdos,
+        }
+    }
+}
+
 /// The number of SRDOs `node` has (0x13FF sub-index 0).
 fn srdo_count<T: Transport>(client: &mut Client<T>, node: u8) -> Result<u8, ToolError> {
     Ok(client.read_unsigned(node, Address::new(0x13FF, 0), 1)? as u8)
@@ -320,9 +340,11 @@ fn write_and_check<T: Transport>(
             .find(|srdo| srdo.number == n)
             .map(|srdo| &srdo.settings)
     };
-    operator.note(&format!(
-        "node {node}: deleting SRDOs 1..={count} (direction 0)"
-    ));
+    operator.note(&if count == 0 {
+        format!("node {node}: has no SRDOs")
+    } else {
+        format!("node {node}: deleting SRDOs 1..={count} (direction 0)")
+    });
     for n in 1..=count {
         client.write(node, Address::new(0x1300 + u16::from(n), 1), &[0])?;
     }
@@ -362,7 +384,9 @@ fn write_and_check<T: Transport>(
         )?;
         client.write(node, Address::new(comm, 1), &[settings.direction])?;
     }
-    operator.note(&format!("node {node}: reading every record back"));
+    if count > 0 {
+        operator.note(&format!("node {node}: reading every record back"));
+    }
     let mut diff = Vec::new();
     let mut signed = Vec::new();
     for n in (1..=count).rev() {
@@ -966,4 +990,44 @@ pub fn read_dcf<T: Transport>(
         name,
         values: &values,
     })))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn configured(signatures: Vec<(u8, u16)>, simplecan_signature: Option<u32>) -> Configured {
+        Configured {
+            node: 1,
+            identity: NodeIdentity {
+                vendor: 0xABC,
+                product: 0x304,
+                revision: 1,
+                serial: 1,
+            },
+            signatures,
+            simplecan_signature,
+            sdo_requests: 0,
+        }
+    }
+
+    /// Each SRDO's signature by number; a node that speaks SimpleCAN instead of SRDOs is said
+    /// to have none, and its SimpleCAN signature follows.
+    #[test]
+    fn the_signatures_are_said_per_srdo_or_that_there_are_none() {
+        let both = configured(vec![(1, 0x1A2B), (2, 0x0003)], Some(0x7B6D_1DE5));
+        assert_eq!(
+            both.signatures_in_words(),
+            "SRDO 1 1A2Bh, SRDO 2 0003h; SimpleCAN 7B6D1DE5h (0x5EFF)"
+        );
+        let without_srdos = configured(Vec::new(), Some(0xEEEB_7FBE));
+        assert_eq!(
+            without_srdos.signatures_in_words(),
+            "no SRDOs; SimpleCAN EEEB7FBEh (0x5EFF)"
+        );
+        assert_eq!(
+            configured(vec![(4, 0xFFFF)], None).signatures_in_words(),
+            "SRDO 4 FFFFh"
+        );
+    }
 }

@@ -627,11 +627,7 @@ impl Network {
                         "xtask: node {}: {} SDO transfers, signatures {}",
                         done.node,
                         done.sdo_requests,
-                        done.signatures
-                            .iter()
-                            .map(|(n, s)| format!("SRDO {n} {s:04X}h"))
-                            .collect::<Vec<_>>()
-                            .join(", ")
+                        done.signatures_in_words()
                     );
                     None
                 }

@@ -16,8 +16,15 @@ use crate::frame::CanFrame;
 use crate::process_image::ProcessImage;
 use crate::time::Instant;
 
-/// The SRDO table of `N` SRDOs (`2..=32`) beside a SimpleCAN layer of `E` SDD entries.
-pub struct SrdoAndSimpleCan<const N: usize, const E: usize> {
+/// The SRDO table of `N` SRDOs (`0..=32`) beside a SimpleCAN layer of `E` SDD entries; `R`
+/// sizes the stored image and the signatures ([`BothImage`], [`BothSignatures`]).
+///
+/// `R` is `N` unless given, which holds both for `N ≥ 2`. A device that speaks SimpleCAN
+/// instead of SRDOs has a table of none (`N` = 0: 13FEh and 13FFh:00 = 0 only) and takes
+/// `R` = 1: the firmware images with SimpleCAN (`board::Protocol`), whose flash the SRDO
+/// table's code would otherwise take (docs/footprint.md). Stable Rust has no `N + 2`, so the
+/// row count is a parameter of its own, checked when the pair is built.
+pub struct SrdoAndSimpleCan<const N: usize, const E: usize, const R: usize = N> {
     /// CANopen Safety.
     pub srdo: SrdoTable<N>,
     /// SimpleCAN.
@@ -45,7 +52,7 @@ impl<const N: usize> WithSrdoTable for SrdoTable<N> {
     }
 }
 
-impl<const N: usize, const E: usize> WithSrdoTable for SrdoAndSimpleCan<N, E> {
+impl<const N: usize, const E: usize, const R: usize> WithSrdoTable for SrdoAndSimpleCan<N, E, R> {
     type Table = SrdoTable<N>;
     fn srdo_table(&self) -> &SrdoTable<N> {
         &self.srdo
@@ -56,48 +63,56 @@ impl<const N: usize, const E: usize> WithSrdoTable for SrdoAndSimpleCan<N, E> {
 }
 
 /// The signatures of both: the SRDO table's `N` (0x13FF), then SimpleCAN's CRC-32 (5EFFh) as
-/// two halves, the rest 0. `2 × N` in all, which holds `N + 2` for `N ≥ 2` (an array of
-/// arrays, as the stored images are: stable Rust has no `N + 2`).
+/// two halves, the rest 0. `2 × R` in all, which holds the `N + 2` (an array of arrays, as
+/// the stored images are: stable Rust has no `N + 2`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct BothSignatures<const N: usize>([[u16; N]; 2]);
+pub struct BothSignatures<const R: usize>([[u16; R]; 2]);
 
-impl<const N: usize> AsRef<[u16]> for BothSignatures<N> {
+impl<const R: usize> AsRef<[u16]> for BothSignatures<R> {
     fn as_ref(&self) -> &[u16] {
         self.0.as_flattened()
     }
 }
 
-impl<const N: usize> AsMut<[u16]> for BothSignatures<N> {
+impl<const R: usize> AsMut<[u16]> for BothSignatures<R> {
     fn as_mut(&mut self) -> &mut [u16] {
         self.0.as_flattened_mut()
     }
 }
 
-/// The stored image of both: twice the SRDO table's, which holds the SimpleCAN section too
-/// for the entry counts the build check (`persist`) accepts (for 4 SRDOs: up to 51 entries).
-pub type BothImage<const N: usize> = RowImage<{ 2 * IMAGE_PER_SRDO }, N>;
+/// The stored image of both: `R` rows of twice an SRDO's, which holds the SRDO table's section
+/// and SimpleCAN's for the counts the build check (`persist`) accepts (4 SRDOs: up to 51
+/// entries; no SRDOs and `R` = 1: up to 16).
+pub type BothImage<const R: usize> = RowImage<{ 2 * IMAGE_PER_SRDO }, R>;
 
-impl<const N: usize, const E: usize> SrdoAndSimpleCan<N, E> {
-    /// The SRDO table of the device described by `config` (`None` unless `2 ≤ N ≤ 32`) and a
-    /// SimpleCAN layer, disabled until configured.
+impl<const N: usize, const E: usize, const R: usize> SrdoAndSimpleCan<N, E, R> {
+    /// The SRDO table of the device described by `config` (`None` when `N` is more than 32)
+    /// and a SimpleCAN layer, disabled until configured. A pair whose `R` cannot hold the
+    /// `N + 2` signatures does not build.
     pub fn new(config: &NodeConfig) -> Option<Self> {
-        if !(2..=32).contains(&N) {
+        const {
+            assert!(
+                N + 2 <= 2 * R,
+                "R rows of signatures hold 2 R: the SRDOs' N and SimpleCAN's 2"
+            )
+        };
+        if N > 32 {
             return None;
         }
         Some(SrdoAndSimpleCan {
-            srdo: SrdoTable::new(config)?,
+            srdo: SrdoTable::beside(config)?,
             simplecan: SimpleCan::new(),
         })
     }
 }
 
-impl<const N: usize, const E: usize> SafetyProtocol for SrdoAndSimpleCan<N, E> {
+impl<const N: usize, const E: usize, const R: usize> SafetyProtocol for SrdoAndSimpleCan<N, E, R> {
     /// The SRDO table's section, with its length first, then SimpleCAN's.
     const MAX_PERSISTED: usize = 2 + SrdoTable::<N>::MAX_PERSISTED + SimpleCan::<E>::MAX_PERSISTED;
 
-    type Image = BothImage<N>;
+    type Image = BothImage<R>;
 
-    fn image() -> BothImage<N> {
+    fn image() -> BothImage<R> {
         RowImage::zeroed()
     }
 
@@ -147,25 +162,29 @@ impl<const N: usize, const E: usize> SafetyProtocol for SrdoAndSimpleCan<N, E> {
         SrdoTable::<N>::needs_unlock(index) || SimpleCan::<E>::needs_unlock(index)
     }
 
-    type Signatures = BothSignatures<N>;
+    type Signatures = BothSignatures<R>;
 
-    const NO_SIGNATURES: BothSignatures<N> = BothSignatures([[0; N]; 2]);
+    const NO_SIGNATURES: BothSignatures<R> = BothSignatures([[0; R]; 2]);
 
     /// Validated when every protocol in use is: the SRDO table always (its 13FEh gates the
     /// Operational entry), SimpleCAN when enabled. Disabled, its part reads 0.
-    fn validated_signatures(&self) -> Option<BothSignatures<N>> {
+    fn validated_signatures(&self) -> Option<BothSignatures<R>> {
         let srdo = self.srdo.validated_signatures()?;
         let simplecan = if self.simplecan.objects().enabled == 0 {
             [0; 2]
         } else {
             self.simplecan.validated_signatures()?
         };
-        let mut second = [0u16; N];
-        // N ≥ 2 is checked when the pair is built.
-        for (slot, half) in second.iter_mut().zip(simplecan) {
-            *slot = half;
+        let mut signatures = Self::NO_SIGNATURES;
+        // `N + 2 ≤ 2 R` is checked when the pair is built: nothing is left out.
+        for (slot, signature) in signatures
+            .as_mut()
+            .iter_mut()
+            .zip(srdo.into_iter().chain(simplecan))
+        {
+            *slot = signature;
         }
-        Some(BothSignatures([srdo, second]))
+        Some(signatures)
     }
 
     fn read(&mut self, address: Address, buf: &mut [u8]) -> Result<usize, AbortCode> {

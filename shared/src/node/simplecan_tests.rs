@@ -82,8 +82,10 @@ impl Wire {
     }
 }
 
-struct Bench {
-    node: ScNode,
+/// A node driven by SDO, NMT and frames as a network would: by default the device above,
+/// SimpleCAN alone in its slot.
+struct Bench<P: SafetyProtocol = SimpleCan<4>> {
+    node: Device<RamFlash<8192>, P>,
     wire: Wire,
     now: Instant,
     /// The frames `run_until` saw handed out, with the instant.
@@ -96,7 +98,17 @@ impl Bench {
     }
 
     fn with_flash(flash: RamFlash<8192>) -> Self {
-        let node = ScNode::with_protocol(config(NODE), flash, SimpleCan::new()).unwrap();
+        Bench::around(ScNode::with_protocol(config(NODE), flash, SimpleCan::new()).unwrap())
+    }
+
+    fn protocol(&self) -> &SimpleCan<4> {
+        self.node.protocol()
+    }
+}
+
+impl<P: SafetyProtocol> Bench<P> {
+    /// The bench around `node`, polled once (boot-up, Pre-operational).
+    fn around(node: Device<RamFlash<8192>, P>) -> Self {
         let mut bench = Bench {
             node,
             wire: Wire::default(),
@@ -217,10 +229,6 @@ impl Bench {
         self.poll();
     }
 
-    fn protocol(&self) -> &SimpleCan<4> {
-        self.node.protocol()
-    }
-
     fn consumed_object(&self) -> u8 {
         let mut byte = [0u8];
         self.node
@@ -255,7 +263,7 @@ fn bitwise_crc32(bytes: &[u8]) -> u32 {
 }
 
 /// Section 11's signature from the objects read back by SDO, fed as the text says.
-fn reference_signature(bench: &mut Bench) -> u32 {
+fn reference_signature<P: SafetyProtocol>(bench: &mut Bench<P>) -> u32 {
     let mut fed = StdVec::from([NODE]);
     for sub in 1..=5 {
         fed.extend(bench.read(CYCLE_INDEX, sub).unwrap());
@@ -912,4 +920,52 @@ fn sc_req_40_a_gfc_withdraws_the_packet_waiting_for_the_bus() {
     let before = bench.wire.simplecan().len();
     bench.run_until(slot_start(20, 0), |_| true);
     assert_eq!(bench.wire.simplecan().len(), before);
+}
+
+/// The firmware images' protocol: SimpleCAN instead of SRDOs (an SRDO table of none beside
+/// it, one row of image and signatures). Configured as a tool does it (SimpleCAN's objects,
+/// its signature and 5EFEh, then 13FEh, which still gates the Operational entry for the
+/// table of no SRDOs), it starts, stores and restores both sections, and its validated
+/// signatures are SimpleCAN's two halves, nothing left out (SC_REQ_16, SC_REQ_34).
+#[test]
+fn sc_req_16_simplecan_instead_of_srdos_is_configured_started_stored_and_restored() {
+    type Images = SrdoAndSimpleCan<0, 2, 1>;
+    let build = |flash| {
+        let protocol = Images::new(&config(NODE)).unwrap();
+        Bench::around(Device::with_protocol(config(NODE), flash, protocol).unwrap())
+    };
+    let mut bench = build(RamFlash::new());
+    assert_eq!(bench.read(0x13FF, 0), Ok(vec![0]));
+    assert_eq!(bench.read(0x1301, 1), Err(AbortCode::NoObject));
+    bench.write(CYCLE_INDEX, 1, &10u16.to_le_bytes()).unwrap();
+    bench.write(CYCLE_INDEX, 4, &[1]).unwrap();
+    bench.write(CYCLE_INDEX, 5, &[1]).unwrap();
+    bench.entry(1, OWN, ROLE_PRODUCE, OWN_SLOT, 0, 0x6000_0108);
+    bench.entry(2, MASTER, ROLE_MASTER, 0, 0, 0);
+    bench.write(COUNT_INDEX, 0, &[2]).unwrap();
+    let signature = reference_signature(&mut bench);
+    bench
+        .write(SIGNATURE_INDEX, 0, &signature.to_le_bytes())
+        .unwrap();
+    bench.write(VALID_INDEX, 0, &[CONFIGURATION_VALID]).unwrap();
+    // SimpleCAN is valid, the table of no SRDOs not yet: no Operational.
+    bench.nmt(NmtCommand::Start);
+    assert_ne!(bench.node.nmt_state(), NmtState::Operational);
+    bench.write(0x13FE, 0, &[CONFIGURATION_VALID]).unwrap();
+    let halves = [signature as u16, (signature >> 16) as u16];
+    let validated = bench.node.core.protocol.validated_signatures().unwrap();
+    assert_eq!(validated.as_ref(), &halves);
+    bench.write(0x1010, 1, b"save").unwrap();
+    bench.nmt(NmtCommand::Start);
+    assert_eq!(bench.node.nmt_state(), NmtState::Operational);
+    assert!(bench.node.core.protocol.simplecan.is_running());
+
+    let mut restored = build(bench.node.flash().clone());
+    assert_eq!(
+        restored.node.core.protocol.simplecan.objects(),
+        bench.node.core.protocol.simplecan.objects()
+    );
+    restored.nmt(NmtCommand::Start);
+    assert_eq!(restored.node.nmt_state(), NmtState::Operational);
+    assert!(restored.node.core.protocol.simplecan.is_running());
 }

@@ -131,9 +131,22 @@ pub struct SrdoTable<const N: usize> {
 
 impl<const N: usize> SrdoTable<N> {
     /// The table of the device `config` describes, stopped, with the pre-defined connection
-    /// set. `None` when `N` is 0 or more than [`MAX_SRDOS`].
+    /// set. `None` when `N` is 0 (a CANopen Safety device without an SRDO) or more than
+    /// [`MAX_SRDOS`].
     pub fn new(config: &NodeConfig) -> Option<Self> {
-        if N == 0 || N > MAX_SRDOS {
+        if N == 0 {
+            return None;
+        }
+        Self::beside(config)
+    }
+
+    /// The table beside another safety protocol, as [`SrdoTable::new`] builds it, except that
+    /// it may hold no SRDO (`N` = 0): it then serves 13FEh and 13FFh:00 = 0, validates and
+    /// starts like any other, and sends and accepts no SRDO. That is the table of a device
+    /// that speaks SimpleCAN instead of SRDOs ([`SrdoAndSimpleCan`](super::SrdoAndSimpleCan)).
+    /// `None` when `N` is more than [`MAX_SRDOS`].
+    pub fn beside(config: &NodeConfig) -> Option<Self> {
+        if N > MAX_SRDOS {
             return None;
         }
         Some(SrdoTable {
