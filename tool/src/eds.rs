@@ -144,8 +144,17 @@ fn description() -> shared::node::NodeConfig {
     dual_channel::device::config(NODE_1, dual_channel::device::CHANNEL_A_NAME)
 }
 
-/// The device's object dictionary, in index order.
+/// The CANopen Safety device's object dictionary (the shipped images: the device's
+/// [`SRDO_COUNT`](dual_channel::device::SRDO_COUNT) SRDOs), in index order.
 pub fn objects() -> Vec<Object> {
+    let srdos = dual_channel::device::SRDO_COUNT as u8;
+    let signatures = (1..=srdos).map(|n| format!("SRDO {n}")).collect();
+    srdo_device_objects(srdos, signatures)
+}
+
+/// The object dictionary of a device with `srdos` SRDOs whose audit records (5C12h, 5C13h)
+/// hold one signature per name of `audit_names` (the protocol's signatures, in its order).
+fn srdo_device_objects(srdos: u8, audit_names: Vec<String>) -> Vec<Object> {
     use dual_channel::device;
     let description = description();
     let hex32 = |value: u32| format!("0x{value:08X}");
@@ -194,7 +203,7 @@ pub fn objects() -> Vec<Object> {
     gfc.entries[0].default = Some("0".into());
     gfc.entries[0].limits = Some((0, 1));
     objects.push(gfc);
-    let count = device::SRDO_COUNT as u8;
+    let count = srdos;
     for n in 1..=count {
         let index = 0x1300 + u16::from(n);
         let first = n == 1;
@@ -335,25 +344,26 @@ pub fn objects() -> Vec<Object> {
         (SIGNATURES_BEFORE_INDEX, "before"),
         (SIGNATURES_AFTER_INDEX, "after"),
     ] {
-        let mut signatures = compound(
+        // At most 2 × 32 + 2 signatures (`shared::node::persist::MAX_SIGNATURES`): fits a u8.
+        let mut audit = compound(
             index,
             &format!("Signatures {when} the last validated change"),
             0x8,
-            count,
+            audit_names.len() as u8,
             "ro",
         );
-        for n in 1..=count {
-            signatures.entries.push(
+        for (sub, of) in (1u8..).zip(&audit_names) {
+            audit.entries.push(
                 Entry::new(
-                    Address::new(index, n),
-                    &format!("Signature of SRDO {n} {when} the last validated change"),
+                    Address::new(index, sub),
+                    &format!("Signature of {of} {when} the last validated change"),
                     UNSIGNED16,
                     "ro",
                 )
                 .default(0),
             );
         }
-        objects.push(signatures);
+        objects.push(audit);
     }
     let mut by_index: BTreeMap<u16, Vec<&shared::process_image::AppObject>> = BTreeMap::new();
     for object in device::OBJECTS.iter() {
@@ -443,33 +453,58 @@ pub struct Commissioning<'a> {
     pub values: &'a BTreeMap<Address, String>,
 }
 
-/// The EDS text (CiA 306 4.0 syntax), or with `commissioning` a DCF.
-pub fn render(commissioning: Option<&Commissioning<'_>>) -> String {
-    render_objects(&objects(), "safety-node.eds", commissioning)
+/// The DCF of a node whose dictionary is `objects` (`procedure::dictionary_of`).
+pub fn dcf(objects: &[Object], commissioning: &Commissioning<'_>) -> String {
+    render_objects(objects, "safety-node.eds", "eds", Some(commissioning))
 }
 
-/// The dictionary of a device that also serves SimpleCAN with `entries` SDD entries
-/// (`shared::node::SimpleCanNode`): [`objects`] and 5E00h..5EFFh (`docs/simplecan.md`
-/// section 11), in index order.
-pub fn simplecan_objects(entries: u8) -> Vec<Object> {
-    let mut all = objects();
+/// The dictionary of a device that serves SimpleCAN with `entries` SDD entries beside `srdos`
+/// SRDOs (`shared::node::SrdoAndSimpleCan`): the SRDO device's objects for `srdos` and
+/// 5E00h..5EFFh (`docs/simplecan.md` section 11), in index order. Its audit records hold
+/// `2 R` signatures: the SRDOs', SimpleCAN's CRC-32 as two halves, then unused ones (0),
+/// with `R` = `srdos` from 2 SRDOs on (`SimpleCanNode`) and 1 without SRDOs (the firmware
+/// images with SimpleCAN, `board::Protocol`). `None` for one SRDO: no such device is built.
+pub fn simplecan_objects(entries: u8, srdos: u8) -> Option<Vec<Object>> {
+    let rows = match srdos {
+        0 => 1,
+        1 => return None,
+        n => n,
+    };
+    let mut signatures: Vec<String> = (1..=srdos).map(|n| format!("SRDO {n}")).collect();
+    signatures.push("SimpleCAN (5EFFh bits 0..15)".into());
+    signatures.push("SimpleCAN (5EFFh bits 16..31)".into());
+    while signatures.len() < 2 * usize::from(rows) {
+        signatures.push(format!("unused {}", signatures.len() + 1));
+    }
+    let mut all = srdo_device_objects(srdos, signatures);
     all.extend(simplecan::objects(entries));
     all.sort_by_key(|object| object.index);
-    all
+    Some(all)
 }
 
-/// The EDS of a device that also serves SimpleCAN with `entries` SDD entries.
-pub fn simplecan_eds(entries: u8) -> String {
-    render_objects(
-        &simplecan_objects(entries),
+/// The EDS of a device that serves SimpleCAN with `entries` SDD entries beside `srdos` SRDOs
+/// ([`simplecan_objects`]; `None` for one SRDO). The firmware images with SimpleCAN are
+/// [`SIMPLECAN_IMAGES`]'s.
+pub fn simplecan_eds(entries: u8, srdos: u8) -> Option<String> {
+    Some(render_objects(
+        &simplecan_objects(entries, srdos)?,
         "safety-node-simplecan.eds",
+        &format!("eds --simplecan {entries} --srdos {srdos}"),
         None,
-    )
+    ))
 }
 
+/// The SDD entries and SRDOs of the firmware images with SimpleCAN (`board::SIMPLECAN_ENTRIES`,
+/// `board::SRDOS`): SimpleCAN instead of SRDOs. Their EDS is the committed
+/// `eds/safety-node-simplecan.eds`.
+pub const SIMPLECAN_IMAGES: (u8, u8) = (2, 0);
+
+/// The EDS (or with `commissioning` the DCF) of `objects`, named `eds_name`, which the
+/// tool's command `regenerate` prints.
 fn render_objects(
     objects: &[Object],
     eds_name: &str,
+    regenerate: &str,
     commissioning: Option<&Commissioning<'_>>,
 ) -> String {
     use dual_channel::device;
@@ -483,7 +518,7 @@ fn render_objects(
         text,
         "; Generated by safety-config from the device description (dual_channel::device) and\n\
          ; the protocol core's object dictionary (shared::node). Do not edit: regenerate with\n\
-         ; `cargo run -p safety-config -- eds > eds/safety-node.eds`.\n\n\
+         ; `cargo run -p safety-config -- {regenerate} > eds/{eds_name}`.\n\n\
          [FileInfo]\nFileName={file_name}\nFileVersion=1\nFileRevision=0\nEDSVersion=4.0\n\
          Description=Dual-channel CANopen Safety node (EN 50325-5, CiA 304 Model III)\n\
          CreatedBy=safety-config {}\n\n",
@@ -578,9 +613,9 @@ fn render_objects(
     text
 }
 
-/// The node's EDS.
+/// The CANopen Safety node's EDS (CiA 306 4.0 syntax).
 pub fn eds() -> String {
-    render(None)
+    render_objects(&objects(), "safety-node.eds", "eds", None)
 }
 
 /// The text a DCF gives a value of `entry` read as `bytes` (little-endian integers as

@@ -169,10 +169,15 @@ enum Command {
     /// Print the node's EDS (CiA 306, with the CANopen Safety keys of its Annex A), generated
     /// from the device description the firmware is built from.
     Eds {
-        /// The EDS of a node that speaks SimpleCAN beside CANopen Safety, with this many
-        /// safety data dictionary entries (5E10h.., 1 to 80).
+        /// The EDS of a node that speaks SimpleCAN, with this many safety data dictionary
+        /// entries (5E10h.., 1 to 80). The firmware images with SimpleCAN: `--simplecan 2
+        /// --srdos 0` (eds/safety-node-simplecan.eds).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=80))]
         simplecan: Option<u8>,
+        /// With `--simplecan`: the SRDOs beside SimpleCAN, 0 (SimpleCAN instead of SRDOs, as
+        /// the firmware images with SimpleCAN) or 2 to 4 (the host simulations' nodes have 4).
+        #[arg(long, requires = "simplecan", value_parser = clap::value_parser!(u8).range(0..=4))]
+        srdos: Option<u8>,
     },
     /// Read a node's whole object dictionary and print its DCF (CiA 306): the values it holds,
     /// signatures and 0x13FE included. `configure` and `verify` take a DCF as the file.
@@ -466,9 +471,18 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         return Ok(true);
     }
-    if let Command::Eds { simplecan } = &cli.command {
+    if let Command::Eds { simplecan, srdos } = &cli.command {
         match simplecan {
-            Some(entries) => print!("{}", safety_config::eds::simplecan_eds(*entries)),
+            Some(entries) => {
+                let srdos = srdos.unwrap_or(dual_channel::device::SRDO_COUNT as u8);
+                let Some(text) = safety_config::eds::simplecan_eds(*entries, srdos) else {
+                    return Err(ToolError::Usage(format!(
+                        "--srdos {srdos}: a node with SimpleCAN has no SRDOs or 2 to 4 \
+                         (shared::node::SrdoAndSimpleCan)"
+                    )));
+                };
+                print!("{text}");
+            }
             None => print!("{}", safety_config::eds::eds()),
         }
         return Ok(true);

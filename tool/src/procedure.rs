@@ -969,27 +969,74 @@ pub fn describe(address: Address) -> String {
     Object(address).to_string()
 }
 
-/// Reads every entry of the device's object dictionary ([`crate::eds::objects`]) from `node`
-/// and returns its DCF (CiA 306): the EDS with `[DeviceComissioning]` and each value read as
-/// `ParameterValue`, signatures and 0x13FE included. `name` names the node in it.
+/// The object dictionary `node` serves, as its EDS lists it: the CANopen Safety device's
+/// ([`crate::eds::objects`]), or, when it answers at 5E00h, the one of a device with
+/// SimpleCAN ([`crate::eds::simplecan_objects`]) for its SRDOs (13FFh:00) and its SDD
+/// entries (5E10h.. up to the first that is not there, 0602 0000h).
+pub fn dictionary_of<T: Transport>(
+    client: &mut Client<T>,
+    node: u8,
+) -> Result<Vec<crate::eds::Object>, ToolError> {
+    use shared::canopen::od::AbortCode;
+    use shared::canopen::sdo_client::ClientError;
+    use shared::node::simplecan::{CYCLE_INDEX, FIRST_ENTRY_INDEX};
+    use shared::simplecan::sdd::MAX_ENTRIES;
+    let absent = |result: Result<Vec<u8>, ToolError>| match result {
+        Ok(_) => Ok(false),
+        Err(error)
+            if error.sdo_client_error() == Some(ClientError::Aborted(AbortCode::NoObject)) =>
+        {
+            Ok(true)
+        }
+        Err(error) => Err(error),
+    };
+    if absent(client.read(node, Address::new(CYCLE_INDEX, 0)))? {
+        return Ok(crate::eds::objects());
+    }
+    let srdos = srdo_count(client, node)?;
+    let mut entries = 0u8;
+    while usize::from(entries) < MAX_ENTRIES
+        && !absent(client.read(
+            node,
+            Address::new(FIRST_ENTRY_INDEX + u16::from(entries), 0),
+        ))?
+    {
+        entries += 1;
+    }
+    crate::eds::simplecan_objects(entries, srdos).ok_or_else(|| {
+        ToolError::Usage(format!(
+            "node {node} serves SimpleCAN beside {srdos} SRDO(s): no device of this project \
+             has that dictionary (no SRDOs, or 2 or more)"
+        ))
+    })
+}
+
+/// Reads every entry of the object dictionary `node` serves ([`dictionary_of`]) and returns
+/// its DCF (CiA 306): the EDS with `[DeviceComissioning]` and each value read as
+/// `ParameterValue`, signatures and 0x13FE included (and SimpleCAN's objects, 5EFFh and
+/// 5EFEh, on a node that has them). `name` names the node in it.
 pub fn read_dcf<T: Transport>(
     client: &mut Client<T>,
     node: u8,
     name: Option<&str>,
 ) -> Result<String, ToolError> {
+    let objects = dictionary_of(client, node)?;
     let mut values = std::collections::BTreeMap::new();
-    for object in crate::eds::objects() {
+    for object in &objects {
         // Write-only entries (the secret's, SC_REQ_43) have no value to read.
         for entry in object.entries.iter().filter(|entry| entry.access != "wo") {
             let bytes = client.read(node, entry.address)?;
             values.insert(entry.address, crate::eds::format_value(entry, &bytes));
         }
     }
-    Ok(crate::eds::render(Some(&crate::eds::Commissioning {
-        node,
-        name,
-        values: &values,
-    })))
+    Ok(crate::eds::dcf(
+        &objects,
+        &crate::eds::Commissioning {
+            node,
+            name,
+            values: &values,
+        },
+    ))
 }
 
 #[cfg(test)]
