@@ -119,9 +119,10 @@ pub fn safe_state_code(cause: &SafeStateCause) -> u8 {
     }
 }
 
-/// The safety protocol in a channel's core: the SRDO table (`shared::node::Node`, every
-/// firmware image), or with the feature `simplecan` (host-side) the SRDO table beside
-/// SimpleCAN (`shared::node::SimpleCanNode`, `crate::simplecan`).
+/// The safety protocol in a channel's core: the SRDO table (`shared::node::Node`, the
+/// CANopen Safety images), or with the feature `simplecan` SimpleCAN beside an SRDO table
+/// (`shared::node::SrdoAndSimpleCan`, `crate::simplecan`): of none in the SimpleCAN images
+/// (`board::Protocol`), of four in the host simulations.
 pub trait ChannelProtocol<const N: usize>:
     SafetyProtocol + WithSrdoTable<Table = SrdoTable<N>> + Sized
 {

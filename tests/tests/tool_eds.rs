@@ -411,6 +411,14 @@ fn sc_req_16_the_simplecan_eds_lists_exactly_what_the_node_serves() {
         assert!(dcf.contains(section), "{section} in the DCF");
     }
     assert!(!dcf.contains("[5E14"));
+    // Taken as a file, it is refused at its first SimpleCAN object: `configure` would not
+    // carry SimpleCAN's configuration from it.
+    let error = network_file::parse_dcf(&dcf, "node-3.dcf").unwrap_err();
+    let first = dcf[..dcf.find("[5E00]").unwrap()].matches('\n').count() + 1;
+    assert!(
+        error.message.contains("SimpleCAN object") && error.line == first,
+        "{error} (5E00h at line {first})"
+    );
 }
 
 /// The committed EDS of the firmware images with SimpleCAN (`eds/safety-node-simplecan.eds`:

@@ -538,7 +538,9 @@ fn ini_span(text: &str, section: &str, key: &str) -> std::ops::Range<usize> {
 /// not 0, from the `ParameterValue`s. The SRDOs pass the checks of a network file (with
 /// positions in the DCF), and each one's signature in 13FFh must be the one its values give
 /// (the tool's own CRC): a DCF whose values and signatures disagree is not the record of
-/// one configuration, and is refused.
+/// one configuration, and is refused. So is the DCF of a node with SimpleCAN (sections
+/// 5E00h..5EFFh): its SimpleCAN configuration would not be taken, and a network file's
+/// `[simplecan]` section is where it comes from.
 pub fn parse_dcf(text: &str, origin: &str) -> Result<Network, FileError> {
     let parser = Parser { text, origin };
     let ini = ini::Ini::load_from_str(text).map_err(|error| FileError {
@@ -582,6 +584,20 @@ pub fn parse_dcf(text: &str, origin: &str) -> Result<Network, FileError> {
             })
     };
     let value = |section: String| number(&section, "ParameterValue");
+    if let Some(section) = ini
+        .sections()
+        .flatten()
+        .find(|name| name.len() >= 4 && name[..2].eq_ignore_ascii_case("5E"))
+    {
+        return Err(parser.error(
+            ini_span(text, section, "ParameterValue"),
+            format!(
+                "[{section}] is a SimpleCAN object: this is the DCF of a node with SimpleCAN, \
+                 whose configuration a DCF does not carry to `configure` or `verify`; \
+                 configure it from a network file's [simplecan] section"
+            ),
+        ));
+    }
     let id: u8 = parser.number(
         &number("DeviceComissioning", "NodeID")?,
         1..=127,

@@ -49,7 +49,8 @@ enum Task {
         #[arg(long)]
         fuzz: bool,
     },
-    /// Build both firmware images (release) and check their size against the budgets.
+    /// Build the firmware images of both protocols (release: CANopen Safety, and SimpleCAN
+    /// instead of SRDOs) and check their size against their budgets.
     Build,
     /// Where the bytes of the firmware images go: builds both layers' images and writes flash
     /// per crate (from the line tables) and the largest functions into docs/footprint.md.
@@ -61,6 +62,10 @@ enum Task {
         /// Which channel's image: `a` or `b`.
         #[arg(value_parser = ["a", "b"])]
         channel: String,
+        /// The image's safety protocol: `canopen-safety` (the default) or `simplecan`
+        /// (SimpleCAN instead of SRDOs).
+        #[arg(long, value_enum, default_value_t)]
+        protocol: network::Protocol,
     },
     /// The end-to-end tests on the emulated network: nominal, emergency stop, dropped and
     /// corrupted frames, a stopped node, a channel that reads otherwise, a cut link.
@@ -336,11 +341,11 @@ fn task() -> Result<()> {
                 &addresses,
             )
         }
-        Task::Flash { channel } => {
+        Task::Flash { channel, protocol } => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;
             toolchain::require("probe-rs", "run `cargo xtask setup --probe-rs`")?;
-            let image = images::image(&cross, &root, images::Layer::Hw, &channel);
+            let image = images::image(&cross, &root, protocol.hardware_layer(), &channel);
             run(Command::new("probe-rs")
                 .args(["run", "--chip", images::CHIP])
                 .arg(image))

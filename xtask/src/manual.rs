@@ -905,10 +905,13 @@ fn evidence_part(campaigns: &str, performance: &str) -> Result<String> {
     Ok(out)
 }
 
-/// The toolchain and the hardware images' CRCs, built now.
+/// The toolchain and the hardware images' CRCs (both protocols', `images::SHIPPED`), built
+/// now.
 fn build_part(root: &Path) -> Result<String> {
     let cross = toolchain::ensure()?;
-    images::build_layer(root, &cross, Layer::Hw)?;
+    for (layer, _) in images::SHIPPED {
+        images::build_layer(root, &cross, layer)?;
+    }
     let rustc = match cross {
         Cross::Rustup => "rustc".to_owned(),
         Cross::Debian { .. } => "/usr/bin/rustc".to_owned(),
@@ -945,17 +948,25 @@ fn build_part(root: &Path) -> Result<String> {
         toolchain::TARGET,
         version("mdbook", &["--version"]),
     );
-    out.push_str("| image | flash (bytes) | RAM with stack reserve (bytes) | image CRC (checked at every start) |\n|---|---:|---:|---:|\n");
-    for channel in ["a", "b"] {
-        let elf = images::image(&cross, root, Layer::Hw, channel);
-        let crc = images::seal(&elf)?;
-        let sizes = images::measure(&elf)?;
-        let _ = writeln!(
-            out,
-            "| channel-{channel} | {} | {} | {crc:08X}h |",
-            sizes.flash(),
-            sizes.ram()
-        );
+    out.push_str("| image | protocol | flash (bytes) | RAM with stack reserve (bytes) | image CRC (checked at every start) |\n|---|---|---:|---:|---:|\n");
+    for (layer, _) in images::SHIPPED {
+        let protocol = match layer {
+            Layer::HwSimpleCan | Layer::QemuSimpleCan => {
+                "SimpleCAN instead of SRDOs (`cargo xtask flash --protocol simplecan`)"
+            }
+            Layer::Hw | Layer::Qemu | Layer::HwBxcan => "CANopen Safety",
+        };
+        for channel in ["a", "b"] {
+            let elf = images::image(&cross, root, layer, channel);
+            let crc = images::seal(&elf)?;
+            let sizes = images::measure(&elf)?;
+            let _ = writeln!(
+                out,
+                "| channel-{channel} | {protocol} | {} | {} | {crc:08X}h |",
+                sizes.flash(),
+                sizes.ram()
+            );
+        }
     }
     Ok(out)
 }

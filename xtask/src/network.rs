@@ -76,6 +76,14 @@ impl Protocol {
         }
     }
 
+    /// The hardware images of this protocol (`cargo xtask flash`).
+    pub fn hardware_layer(self) -> Layer {
+        match self {
+            Protocol::CanopenSafety => Layer::Hw,
+            Protocol::Simplecan => Layer::HwSimpleCan,
+        }
+    }
+
     /// The network file the tool configures the nodes from.
     pub fn network_file(self) -> String {
         match self {
