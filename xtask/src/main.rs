@@ -145,7 +145,8 @@ enum Task {
     /// Third-party CANopen software on the emulated bus through the hub's socketcand port, in a
     /// virtual environment under target/interop (python-can, python-canopen): python-can's
     /// socketcand bus against the hub and the tool; python-canopen on the emulated network
-    /// (QEMU) with the node's EDS, agreeing with the tool and getting the specific aborts.
+    /// (QEMU) with the node's EDS, agreeing with the tool and getting the specific aborts, and
+    /// sweeping the SimpleCAN images' EDS on the emulated SimpleCAN network.
     Interop {
         /// Run one part only.
         #[arg(long, value_enum)]

@@ -17,7 +17,7 @@ use crate::process_image::ProcessImage;
 use crate::time::Instant;
 
 /// The SRDO table of `N` SRDOs (`0..=32`) beside a SimpleCAN layer of `E` SDD entries; `R`
-/// sizes the stored image and the signatures ([`BothImage`], [`BothSignatures`]).
+/// sizes the stored image and the signatures (`BothImage`, [`BothSignatures`]).
 ///
 /// `R` is `N` unless given, which holds both for `N ≥ 2`. A device that speaks SimpleCAN
 /// instead of SRDOs has a table of none (`N` = 0: 13FEh and 13FFh:00 = 0 only) and takes
@@ -82,7 +82,7 @@ impl<const R: usize> AsMut<[u16]> for BothSignatures<R> {
 
 /// The stored image of both: `R` rows of twice an SRDO's, which holds the SRDO table's section
 /// and SimpleCAN's for the counts the build check (`persist`) accepts (4 SRDOs: up to 51
-/// entries; no SRDOs and `R` = 1: up to 16).
+/// entries; no SRDOs and `R` = 1: up to 14).
 pub type BothImage<const R: usize> = RowImage<{ 2 * IMAGE_PER_SRDO }, R>;
 
 impl<const N: usize, const E: usize, const R: usize> SrdoAndSimpleCan<N, E, R> {
