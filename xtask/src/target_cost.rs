@@ -633,8 +633,9 @@ fn spread<C>(
         .with_context(|| format!("no trace of {name}"))?;
     Spread::of(pick(channel).clone()).with_context(|| {
         format!(
-            "the trace of {name} holds no {what} (the network ran too briefly, or a tracked \
-             function is no longer called by `bl`)"
+            "the trace of {name} holds no iteration counted as {what:?} (the network ran too \
+             briefly, the node left Operational, or a tracked function is no longer called by \
+             `bl`)"
         )
     })
 }
