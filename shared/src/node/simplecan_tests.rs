@@ -424,6 +424,23 @@ fn sc_req_16_the_entry_count_checks_every_entry() {
         bench.write(FIRST_ENTRY_INDEX, 1, &[0x41]),
         Err(AbortCode::UnsupportedAccess)
     );
+    // A value of the wrong length is a length abort whatever the state (CiA 301: as
+    // python-canopen's sweep of the EDS expects of every writable entry).
+    for (sub, length) in [(1u8, 1usize), (2, 1), (3, 2), (4, 2), (5, 4), (6, 4)] {
+        for (wrong, abort) in [
+            (length + 1, AbortCode::LengthTooHigh),
+            (length - 1, AbortCode::LengthTooLow),
+        ] {
+            if wrong == 0 {
+                continue; // an empty download is not an expedited SDO transfer
+            }
+            assert_eq!(
+                bench.write(FIRST_ENTRY_INDEX, sub, &vec![0; wrong]),
+                Err(abort),
+                "5E10h:{sub:02X}h, {wrong} bytes"
+            );
+        }
+    }
     bench.write(COUNT_INDEX, 0, &[0]).unwrap();
     // A consumer mapped onto an input (transmit-mappable): not mappable.
     bench
