@@ -928,12 +928,7 @@ mod tests {
     /// iteration is one that received, polled and sent nothing.
     #[test]
     fn a_pair_is_its_three_iterations_and_idle_is_nothing_done() {
-        let call = |instructions, nested: Vec<(usize, u64)>| Call {
-            function: SERVICE,
-            instructions,
-            nested,
-            symbols: Vec::new(),
-        };
+        let call = |instructions, nested| Call::traced(SERVICE, instructions, nested);
         let counted = Counted {
             calls: vec![
                 call(50, vec![]),
@@ -959,12 +954,7 @@ mod tests {
     /// not the pair's. A pair whose confirmation is not seen is not counted.
     #[test]
     fn a_pair_confirmed_by_its_inverted_frame_counts_the_verdict_received_before() {
-        let call = |instructions, nested: Vec<(usize, u64)>| Call {
-            function: SERVICE,
-            instructions,
-            nested,
-            symbols: Vec::new(),
-        };
+        let call = |instructions, nested| Call::traced(SERVICE, instructions, nested);
         let counted = Counted {
             calls: vec![
                 call(300, vec![(RX_PLAIN, 2), (RECEIVED, 10), (HAND, 200)]),

@@ -27,6 +27,18 @@ pub struct Call {
 }
 
 impl Call {
+    /// A call of `function` of `instructions` with the tracked calls `nested` inside it and
+    /// no symbols: what the tests of the counts build their traces from.
+    #[cfg(test)]
+    pub fn traced(function: usize, instructions: u64, nested: Vec<(usize, u64)>) -> Call {
+        Call {
+            function,
+            instructions,
+            nested,
+            symbols: Vec::new(),
+        }
+    }
+
     /// Whether a call of `function` was made inside this one.
     pub fn made(&self, function: usize) -> bool {
         self.nested.iter().any(|(f, _)| *f == function)

@@ -176,12 +176,7 @@ mod tests {
     /// one with link bytes only is neither that nor idle; one that did nothing is idle.
     #[test]
     fn iterations_are_sorted_by_what_they_handled_markers_subtracted() {
-        let call = |instructions, nested: Vec<(usize, u64)>| Call {
-            function: SERVICE,
-            instructions,
-            nested,
-            symbols: Vec::new(),
-        };
+        let call = |instructions, nested| Call::traced(SERVICE, instructions, nested);
         let counted = Counted {
             calls: vec![
                 call(1000, vec![(RECEIVED, 100), (HAND, 600)]),
