@@ -30,7 +30,7 @@
 
 use heapless::Vec;
 
-use super::dictionary::{exact, put};
+use super::dictionary::{exact, length, put};
 use super::persist::Reader;
 use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::{Event, NodeConfig, PersistError, SafeStateCause, Sink};
@@ -762,13 +762,16 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
         // The object and sub-index exist (and sub-index 0 of a record is read-only) before
         // the state is looked at, as for every other object.
         let mut scratch = [0u8; 4];
-        self.read(address, &mut scratch)?;
+        let held = self.read(address, &mut scratch)?;
         if sub == 0 && (index == CYCLE_INDEX || index >= FIRST_ENTRY_INDEX) && index < VALID_INDEX {
             return Err(AbortCode::ReadOnly);
         }
         if operational {
             return Err(AbortCode::DeviceState);
         }
+        // The object's length (as it reads) before its value, or whether it may change now:
+        // a value of the wrong length is the request's fault (CiA 301 7.2.4.3.17).
+        length(data, held)?;
         let objects = &mut self.objects;
         match (index, sub) {
             (CYCLE_INDEX, 1) => {
@@ -809,35 +812,29 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
                 return Ok(());
             }
             _ => {
-                // The length first, as for every object: a value of the wrong length is the
-                // request's fault in any state (0607 0012h / 0013h, CiA 301 7.2.4.3.17).
-                let value = match sub {
-                    1 | 2 => EntryValue::Byte(exact::<1>(data)?[0]),
-                    3 | 4 => EntryValue::Half(u16::from_le_bytes(exact(data)?)),
-                    _ => EntryValue::Word(u32::from_le_bytes(exact(data)?)),
-                };
                 if objects.count != 0 {
                     // As a PDO mapping: the entries change only while none is in use.
                     return Err(AbortCode::UnsupportedAccess);
                 }
                 let entry =
                     entry_objects_mut(&mut objects.entries, index).ok_or(AbortCode::NoObject)?;
-                match (sub, value) {
-                    (1, EntryValue::Byte(raw)) => {
+                match sub {
+                    1 => {
+                        let [raw] = exact(data)?;
                         entry.sc_id = within(raw, ScId::LOWEST.raw(), ScId::HIGHEST.raw())?;
                     }
-                    (2, EntryValue::Byte(raw)) => {
-                        entry.role = within(raw, ROLE_PRODUCE, ROLE_MASTER)?;
+                    2 => entry.role = within(exact::<1>(data)?[0], ROLE_PRODUCE, ROLE_MASTER)?,
+                    3 => {
+                        let slot = u16::from_le_bytes(exact(data)?);
+                        entry.slot = within(slot, 0, MAX_SLOTS - 3)?;
                     }
-                    (3, EntryValue::Half(slot)) => entry.slot = within(slot, 0, MAX_SLOTS - 3)?,
-                    (4, EntryValue::Half(timeout)) => {
+                    4 => {
+                        let timeout = u16::from_le_bytes(exact(data)?);
                         let most = sdd::MAX_TIMEOUT.as_micros() / 1000;
                         entry.timeout_ms = within(u64::from(timeout), 0, most)? as u16;
                     }
-                    (5, EntryValue::Word(hash)) => entry.hash = hash,
-                    (_, EntryValue::Word(mapped)) => entry.mapped = mapped,
-                    // Each sub-index has its one length above.
-                    _ => return Err(AbortCode::NoSubIndex),
+                    5 => entry.hash = u32::from_le_bytes(exact(data)?),
+                    _ => entry.mapped = u32::from_le_bytes(exact(data)?),
                 }
             }
         }
@@ -1182,18 +1179,6 @@ impl<const E: usize> SafetyProtocol for SimpleCan<E> {
 }
 
 /// `value` when it lies in `low..=high`; otherwise the abort code that says which side.
-/// A value written to an SDD entry's sub-index, read at the sub-index's length (1, 2 or 4
-/// bytes) before anything else is looked at.
-#[derive(Clone, Copy)]
-enum EntryValue {
-    /// SC-ID, role.
-    Byte(u8),
-    /// Slot, safety timeout.
-    Half(u16),
-    /// Node hash, mapped object.
-    Word(u32),
-}
-
 fn within<T: PartialOrd>(value: T, low: T, high: T) -> Result<T, AbortCode> {
     if value < low {
         Err(AbortCode::ValueTooLow)
