@@ -1,0 +1,14 @@
+//! An emulated STM32F405: the Cortex-M4 instruction set executed by `unicorn-engine`
+//! (Unicorn 2, QEMU's code generator), the Cortex-M4 system part Unicorn lacks (NVIC,
+//! exception entry and return, SysTick, SCB, WFI/WFE) modelled from the ARMv7-M Architecture
+//! Reference Manual, and the F405 peripherals the hardware layer touches modelled from
+//! RM0090, so that the sealed hardware images run unchanged.
+//!
+//! Layers:
+//! - [`peripherals`]: one small model per peripheral block, pure logic (no Unicorn), each
+//!   citing its RM0090 section and tested against the manual's statements;
+//! - the CPU side (Unicorn, the system part, the memory map that routes every access to the
+//!   model that claims it; an access no model claims stops the run with a sentence).
+
+pub mod peripherals;
+pub mod time;
