@@ -21,13 +21,30 @@
 //! The two channels sample their inputs independently, so around an input change channel A's
 //! frame may carry a sample channel B has just replaced, or one B has not taken yet. Channel
 //! B therefore accepts A's plain frame when it matches B's current inputs, or B's previous
-//! inputs if they changed less than [`ChannelB::window`] ago; otherwise it holds the frame for
-//! up to the window, waiting for its own next sample. Only a frame that matches none of these
-//! is a discrepancy. (Channel A, for its part, holds a frame with changed data until B's
+//! inputs if they were read less than [`ChannelB::window`] ago; otherwise it holds the frame
+//! for up to the window, waiting for its own next sample. Only a frame that matches none of
+//! these is a discrepancy. (Channel A, for its part, holds a frame with changed data until B's
 //! sample agrees, for up to the same window: `dual_channel::runtime`; so the window applies
 //! alike whichever contact moved first.) The window must stay well below the smallest SRVT of
 //! the consumers (the inverted frame may leave up to one window late) and above the link
-//! latency; the default is [`SAMPLE_WINDOW`], 5 ms.
+//! latency; the default is [`SAMPLE_WINDOW`].
+//!
+//! # The window bounds the age of what B co-signs
+//!
+//! The window is counted from B's own reading of its inputs, and holds at the instant the
+//! inverted frame is handed to the controller (CiA 304 9.5; the sample-window part of the
+//! SFRT):
+//!
+//! - B co-signs only a value its inputs read less than the window before: its current sample
+//!   counts from the last time the inputs were read ([`Role::sampled`] for a sample with no
+//!   change, [`Role::input`] for a change), its previous sample from the last reading before
+//!   the change, not from the reading that found the change (up to a sample period later);
+//! - a plain frame waits for B's sample, or for its announcement, at most the window counted
+//!   from its arrival on the bus, so the inverted frame follows the plain frame within the
+//!   window (the consumers' SRVT must allow it);
+//! - what falls due at an instant is settled before anything else that arrives at that instant
+//!   is handled: a sample or an announcement that comes just as a frame's wait ends does not
+//!   get the frame co-signed after its time.
 
 use crate::diverse::{DiverseError, InputTable, compare_and_invert};
 use crate::signature::{Parameters, signature};
@@ -55,7 +72,12 @@ struct Held {
 #[derive(Clone, Debug)]
 pub struct ChannelB {
     inputs: InputTable,
-    /// The inputs before the latest change, and when they were replaced.
+    /// When [`ChannelB::inputs`] were last read (`None`: never).
+    read_at: Option<Instant>,
+    /// When the inputs last changed: further changes at that instant belong to the same
+    /// sample.
+    changed_at: Option<Instant>,
+    /// The inputs before the latest change, and when they were last read.
     previous: Option<(InputTable, Instant)>,
     /// A plain frame announced by channel A, confirmed by B's sample, waiting for B's next
     /// sample.
@@ -82,6 +104,8 @@ impl ChannelB {
         }
         Ok(ChannelB {
             inputs: table,
+            read_at: None,
+            changed_at: None,
             previous: None,
             held: None,
             unannounced: None,
@@ -119,12 +143,40 @@ impl ChannelB {
         CanFrame::new(id, &inverted[..frame.data().len()]).ok()
     }
 
-    /// A plain frame both on the bus and announced by channel A: the inverted frame if B's
-    /// current sample, or its previous one within the window, agrees; otherwise it waits for
-    /// B's next sample.
+    /// `true` when a sample last read at `read` is younger than the window at `now`.
+    fn fresh(&self, read: Instant, now: Instant) -> bool {
+        !shared::time::expired(read + self.window, now)
+    }
+
+    /// The inverted frame for `frame` from B's current sample, or its previous one, whichever
+    /// agrees and was read within the window at `now`.
+    fn confirm_fresh(
+        &self,
+        now: Instant,
+        frame: &CanFrame,
+        record: &SrdoRecord,
+    ) -> Option<CanFrame> {
+        let current = self
+            .read_at
+            .filter(|read| self.fresh(*read, now))
+            .and_then(|_| Self::confirm(frame, record, &self.inputs));
+        current.or_else(|| {
+            let (previous, read) = self.previous.as_ref()?;
+            if self.fresh(*read, now) {
+                Self::confirm(frame, record, previous)
+            } else {
+                None
+            }
+        })
+    }
+
+    /// A plain frame both on the bus (since `seen`) and announced by channel A: the inverted
+    /// frame if B's current sample, or its previous one, read within the window agrees;
+    /// otherwise it waits for B's next sample, until the window counted from `seen` ends.
     fn co_sign(
         &mut self,
         now: Instant,
+        seen: Instant,
         frame: &CanFrame,
         srdo: SrdoNumber,
         record: &SrdoRecord,
@@ -134,25 +186,62 @@ impl ChannelB {
             // unconfirmed for good.
             return Err(ChannelFault::TransmitMismatch { srdo: held.srdo });
         }
-        if let Some(inverted) = Self::confirm(frame, record, &self.inputs) {
+        if let Some(inverted) = self.confirm_fresh(now, frame, record) {
             return Ok(Some(inverted));
-        }
-        let recent = self
-            .previous
-            .as_ref()
-            .filter(|(_, replaced)| now.saturating_since(*replaced) < self.window);
-        if let Some((previous, _)) = recent {
-            if let Some(inverted) = Self::confirm(frame, record, previous) {
-                return Ok(Some(inverted));
-            }
         }
         self.held = Some(Held {
             frame: *frame,
             srdo,
-            since: now,
+            since: seen,
             copy: false,
         });
         Ok(None)
+    }
+
+    /// Settles what is due at `now`: a plain frame never announced within the window is
+    /// foreign (its copy is dropped), one held past the window is a discrepancy. Every entry
+    /// point runs this first, so nothing that arrives at or after a wait's end acts on it.
+    fn expire(&mut self, now: Instant) -> Result<(), ChannelFault> {
+        if let Some(seen) = self
+            .unannounced
+            .filter(|seen| shared::time::expired(seen.since + self.window, now))
+        {
+            self.unannounced = None;
+            if !seen.copy {
+                return Err(ChannelFault::ForeignFrame {
+                    id: seen.frame.id().raw(),
+                });
+            }
+        }
+        match self.held {
+            Some(held) if shared::time::expired(held.since + self.window, now) => {
+                self.held = None;
+                Err(ChannelFault::TransmitMismatch { srdo: held.srdo })
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The held frame's inverted frame if B's current sample, read at `now`, agrees.
+    fn release_held<const N: usize>(
+        &mut self,
+        now: Instant,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        let Some(held) = self.held else {
+            return Ok(None);
+        };
+        let Some((_, record)) = transmit_srdo(config, held.frame.id().raw()) else {
+            self.held = None;
+            return Err(ChannelFault::TransmitMismatch { srdo: held.srdo });
+        };
+        match self.confirm_fresh(now, &held.frame, record) {
+            Some(inverted) => {
+                self.held = None;
+                Ok(Some(inverted))
+            }
+            None => Ok(None),
+        }
     }
 }
 
@@ -190,6 +279,17 @@ impl<const N: usize> Role<N> for ChannelB {
         frame: &CanFrame,
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, ChannelFault> {
+        self.observe_seen(now, now, frame, config)
+    }
+
+    fn observe_seen(
+        &mut self,
+        now: Instant,
+        seen: Instant,
+        frame: &CanFrame,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        self.expire(now)?;
         if frame.is_remote() {
             return Ok(None); // Remote frames on SRDO identifiers are ignored (EN 50325-5 6.2.1).
         }
@@ -203,9 +303,11 @@ impl<const N: usize> Role<N> for ChannelB {
         let copy = self
             .last_plain
             .is_some_and(|(last, at)| last == *frame && now.saturating_since(at) < self.window);
-        self.last_plain = Some((*frame, now));
+        self.last_plain = Some((*frame, seen));
         match (self.announced.take(frame.id()), self.unannounced) {
-            (Some(announced), _) if announced == *frame => self.co_sign(now, frame, srdo, record),
+            (Some(announced), _) if announced == *frame => {
+                self.co_sign(now, seen, frame, srdo, record)
+            }
             (Some(_), _) => Err(ChannelFault::ForeignFrame { id }),
             // The same frame twice before its announcement: received twice.
             (None, Some(seen)) if seen.frame == *frame => Ok(None),
@@ -217,7 +319,7 @@ impl<const N: usize> Role<N> for ChannelB {
                 self.unannounced = Some(Held {
                     frame: *frame,
                     srdo,
-                    since: now,
+                    since: seen,
                     copy,
                 });
                 Ok(None)
@@ -231,6 +333,7 @@ impl<const N: usize> Role<N> for ChannelB {
         frame: &CanFrame,
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, ChannelFault> {
+        self.expire(now)?;
         let id = frame.id().raw();
         let Some((srdo, record)) = transmit_srdo(config, id) else {
             // Channel A announces only plain frames of transmit SRDOs: its configuration is
@@ -240,7 +343,7 @@ impl<const N: usize> Role<N> for ChannelB {
         match self.unannounced.take() {
             Some(seen) if seen.frame.id() == frame.id() => {
                 if seen.frame == *frame {
-                    self.co_sign(now, frame, srdo, record)
+                    self.co_sign(now, seen.since, frame, srdo, record)
                 } else {
                     Err(ChannelFault::ForeignFrame { id })
                 }
@@ -263,6 +366,8 @@ impl<const N: usize> Role<N> for ChannelB {
         value: &[u8],
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, ChannelFault> {
+        // The sample is taken whatever fell due: the inputs are the pins.
+        let expired = self.expire(now);
         let mut bytes = [0u8; 8];
         let len = value.len().min(8);
         bytes[..len].copy_from_slice(&value[..len]);
@@ -271,23 +376,26 @@ impl<const N: usize> Role<N> for ChannelB {
         let _ = self
             .inputs
             .set(address.index, address.sub, u64::from_le_bytes(bytes));
-        if self.inputs != before {
-            self.previous = Some((before, now));
+        if self.inputs != before && self.changed_at != Some(now) {
+            // The first change of this sample: the inputs before it were last read at the
+            // previous reading (a second input changing in the same sample keeps that).
+            self.previous = self.read_at.map(|read| (before, read));
+            self.changed_at = Some(now);
         }
-        let Some(held) = self.held else {
-            return Ok(None);
-        };
-        let Some((_, record)) = transmit_srdo(config, held.frame.id().raw()) else {
-            self.held = None;
-            return Err(ChannelFault::TransmitMismatch { srdo: held.srdo });
-        };
-        match Self::confirm(&held.frame, record, &self.inputs) {
-            Some(inverted) => {
-                self.held = None;
-                Ok(Some(inverted))
-            }
-            None => Ok(None),
-        }
+        self.read_at = Some(now);
+        expired?;
+        self.release_held(now, config)
+    }
+
+    fn sampled(
+        &mut self,
+        now: Instant,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        let expired = self.expire(now);
+        self.read_at = Some(now);
+        expired?;
+        self.release_held(now, config)
     }
 
     fn window(&self) -> Duration {
@@ -358,24 +466,7 @@ impl<const N: usize> Role<N> for ChannelB {
     }
 
     fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {
-        if let Some(seen) = self
-            .unannounced
-            .filter(|seen| shared::time::expired(seen.since + self.window, now))
-        {
-            self.unannounced = None;
-            if !seen.copy {
-                return Err(ChannelFault::ForeignFrame {
-                    id: seen.frame.id().raw(),
-                });
-            }
-        }
-        match self.held {
-            Some(held) if shared::time::expired(held.since + self.window, now) => {
-                self.held = None;
-                Err(ChannelFault::TransmitMismatch { srdo: held.srdo })
-            }
-            _ => Ok(()),
-        }
+        self.expire(now)
     }
 
     fn deadline(&self) -> Instant {
@@ -414,21 +505,43 @@ mod tests {
         CanFrame::new(CanId::new(id).unwrap(), data).unwrap()
     }
 
+    /// Channel B whose input reads `value`, last read at [`T`].
     fn b_with(value: u8) -> ChannelB {
         let mut b = ChannelB::new(&[(0x6000, 1, 1)]).unwrap();
-        b.input(Instant::ZERO, Address::new(0x6000, 1), &[value], &config())
+        b.input(T, Address::new(0x6000, 1), &[value], &config())
             .unwrap();
         b
     }
 
     const T: Instant = Instant::from_millis(100);
 
-    /// Channel A announces `frame` over the link and puts it on the bus: what B answers.
+    /// `microseconds` after `at`.
+    fn after(at: Instant, microseconds: u64) -> Instant {
+        at + Duration::from_micros(microseconds)
+    }
+
+    /// B reads its input at `now` and finds it unchanged.
+    fn read(b: &mut ChannelB, now: Instant) -> Result<Option<CanFrame>, ChannelFault> {
+        Role::<1>::sampled(b, now, &config())
+    }
+
+    /// B reads its input at `now` as `value`.
+    fn read_as(
+        b: &mut ChannelB,
+        now: Instant,
+        value: u8,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        b.input(now, Address::new(0x6000, 1), &[value], &config())
+    }
+
+    /// B reads its input (unchanged) at `now`, then channel A announces `frame` over the
+    /// link and puts it on the bus: what B answers.
     fn sent(
         b: &mut ChannelB,
         now: Instant,
         frame: &CanFrame,
     ) -> Result<Option<CanFrame>, ChannelFault> {
+        assert_eq!(read(b, now), Ok(None));
         assert_eq!(b.announced(now, frame, &config()), Ok(None));
         b.observe(now, frame, &config())
     }
@@ -472,8 +585,7 @@ mod tests {
     #[test]
     fn a_frame_sampled_before_bs_change_is_confirmed_within_the_window() {
         let mut b = b_with(0x01);
-        b.input(T, Address::new(0x6000, 1), &[0x00], &config())
-            .unwrap();
+        read_as(&mut b, after(T, 500), 0x00).unwrap();
         let soon = T + Duration::from_millis(1);
         assert_eq!(
             sent(&mut b, soon, &frame(0x101, &[0x01])),
@@ -494,7 +606,7 @@ mod tests {
         assert_eq!(sent(&mut b, T, &frame(0x101, &[0x01])), Ok(None));
         let sampled = T + Duration::from_millis(2);
         assert_eq!(
-            b.input(sampled, Address::new(0x6000, 1), &[0x01], &config()),
+            read_as(&mut b, sampled, 0x01),
             Ok(Some(frame(0x102, &[0xFE])))
         );
         assert_eq!(Role::<1>::poll(&mut b, T + DEFAULT_WINDOW), Ok(()));
@@ -582,6 +694,110 @@ mod tests {
             b.announced(copy, &plain, &config()),
             Ok(Some(frame(0x102, &[0xFE])))
         );
+    }
+
+    /// CiA 304 9.5, the sample window: B co-signs only a value its input read less than the
+    /// window before the inverted frame leaves. A board that stops reading its pins gets
+    /// nothing co-signed once its last reading is a window old; a reading of the same value
+    /// releases the frame.
+    #[test]
+    fn cia304_9_5_b_co_signs_only_a_sample_read_within_the_window() {
+        let plain = frame(0x101, &[0x01]);
+        let inverted = Ok(Some(frame(0x102, &[0xFE])));
+        // Read at T, not since: still fresh a microsecond before the window ends.
+        let mut b = b_with(0x01);
+        let just_inside = after(T, DEFAULT_WINDOW.as_micros() - 1);
+        assert_eq!(b.announced(just_inside, &plain, &config()), Ok(None));
+        assert_eq!(b.observe(just_inside, &plain, &config()), inverted);
+        // At the window's end the same reading is too old: the frame waits for a new one.
+        let mut b = b_with(0x01);
+        let at_end = T + DEFAULT_WINDOW;
+        assert_eq!(b.announced(at_end, &plain, &config()), Ok(None));
+        assert_eq!(b.observe(at_end, &plain, &config()), Ok(None));
+        assert_eq!(read(&mut b, after(at_end, 300)), inverted);
+        // Never read again: a discrepancy a window after the frame.
+        let mut b = b_with(0x01);
+        assert_eq!(b.announced(at_end, &plain, &config()), Ok(None));
+        assert_eq!(b.observe(at_end, &plain, &config()), Ok(None));
+        assert_eq!(Role::<1>::poll(&mut b, at_end + DEFAULT_WINDOW), MISMATCH);
+    }
+
+    /// CiA 304 9.5, the sample window: B's previous sample ages from the last reading that
+    /// found it, not from the reading that found the change (up to a sample period later).
+    #[test]
+    fn cia304_9_5_the_previous_sample_ages_from_its_last_reading() {
+        let plain = frame(0x101, &[0x01]);
+        let window = DEFAULT_WINDOW.as_micros();
+        let mut b = b_with(0x01);
+        // Last read as 1 at T; the change to 0 found 900 µs later.
+        read_as(&mut b, after(T, 900), 0x00).unwrap();
+        // Within the window of the last reading of 1: co-signed.
+        let inside = after(T, window - 1);
+        assert_eq!(
+            sent(&mut b, inside, &plain),
+            Ok(Some(frame(0x102, &[0xFE])))
+        );
+        // Within the window of the change but not of the last reading of 1: held, and a
+        // discrepancy at the end of the window.
+        let mut b = b_with(0x01);
+        read_as(&mut b, after(T, 900), 0x00).unwrap();
+        let outside = after(T, window + 500);
+        assert_eq!(sent(&mut b, outside, &plain), Ok(None));
+        assert_eq!(Role::<1>::poll(&mut b, outside + DEFAULT_WINDOW), MISMATCH);
+    }
+
+    /// Two inputs changing in one sample: the previous sample is the one before the sample,
+    /// not the half-changed table between the two changes.
+    #[test]
+    fn cia304_9_5_changes_found_by_one_sample_make_one_previous_sample() {
+        let config = SafetyConfig::<1>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
+        let mut b = ChannelB::new(&[(0x6000, 1, 1), (0x6000, 2, 1)]).unwrap();
+        let first = Address::new(0x6000, 1);
+        let second = Address::new(0x6000, 2);
+        b.input(T, first, &[1], &config).unwrap();
+        b.input(T, second, &[1], &config).unwrap();
+        let sample = after(T, 1000);
+        b.input(sample, first, &[0], &config).unwrap();
+        b.input(sample, second, &[0], &config).unwrap();
+        let (previous, read) = b.previous.clone().expect("a previous sample");
+        assert_eq!(read, T);
+        let mut both_one = InputTable::new();
+        both_one.declare(0x6000, 1, 1).unwrap();
+        both_one.declare(0x6000, 2, 1).unwrap();
+        both_one.set(0x6000, 1, 1).unwrap();
+        both_one.set(0x6000, 2, 1).unwrap();
+        assert_eq!(previous, both_one);
+    }
+
+    /// CiA 304 9.5, EN 50325-5 7.1.1: a plain frame's wait, for B's sample or for channel
+    /// A's announcement, counts from its arrival on the bus, and ends before anything that
+    /// arrives at its end is handled: the inverted frame never follows the plain frame by
+    /// the window or more.
+    #[test]
+    fn cia304_9_5_a_frames_wait_counts_from_its_arrival_and_ends_first() {
+        let plain = frame(0x101, &[0x01]);
+        let foreign = Err(ChannelFault::ForeignFrame { id: 0x101 });
+        // Seen at T, announced exactly a window later: foreign, not co-signed.
+        let mut b = b_with(0x01);
+        assert_eq!(b.observe(T, &plain, &config()), Ok(None));
+        assert_eq!(b.announced(T + DEFAULT_WINDOW, &plain, &config()), foreign);
+        // Seen at T, announced 2 ms later while B's sample disagrees: held from T, so a
+        // sample that agrees at the window's end comes too late.
+        let mut b = b_with(0x00);
+        assert_eq!(b.observe(T, &plain, &config()), Ok(None));
+        let announced = after(T, 2000);
+        assert_eq!(read(&mut b, announced), Ok(None));
+        assert_eq!(b.announced(announced, &plain, &config()), Ok(None));
+        assert_eq!(Role::<1>::deadline(&b), T + DEFAULT_WINDOW);
+        assert_eq!(
+            read_as(&mut b, T + DEFAULT_WINDOW, 0x01),
+            MISMATCH.map(|()| None)
+        );
+        // The sample is still taken: a frame after it is checked against the new value.
+        let mut one = InputTable::new();
+        one.declare(0x6000, 1, 1).unwrap();
+        one.set(0x6000, 1, 1).unwrap();
+        assert_eq!(b.inputs, one);
     }
 
     /// Both channels fold the same signatures, each computed its own way.

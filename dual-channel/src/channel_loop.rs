@@ -15,7 +15,9 @@
 //!   passed is the safe state with its own cause ([`Received::Overrun`]), never a silent loss.
 //! - **Inputs, one policy for every board**: each input pin is read on every wake-up and at
 //!   least every [`SAMPLE_PERIOD`]; the first sample and every change go to the runtime, a
-//!   sample equal to the last does not. Sampling on a period bounds the input latency on a
+//!   sample equal to the last does not, but the runtime learns that the pins were read
+//!   ([`Runtime::inputs_sampled`]): channel B co-signs only a value read within the sample
+//!   window, counted from the reading. Sampling on a period bounds the input latency on a
 //!   board whose pins raise no event (GPIO without EXTI, as here); handing on changes only
 //!   keeps the link from carrying a digest per millisecond (each sample the runtime takes is
 //!   one `Inputs` message to the other channel). The emulated board's pin changes only when
@@ -166,6 +168,7 @@ pub struct Pins {
 /// runtime stays the board's ([`ChannelLoop::service`] borrows it): built where the board
 /// keeps it, it is not moved again (moved into the loop, it went through the stack once more:
 /// 22,280 bytes deepest under QEMU, over the 18 KiB reserve).
+#[derive(Clone)]
 pub struct ChannelLoop {
     pins: Pins,
     /// The acceptance list last handed to the driver (`None`: none yet).
@@ -257,6 +260,8 @@ impl ChannelLoop {
                 handed = true;
             }
         }
+        // Every pin was read now, changed or not: the samples' age counts from here.
+        runtime.inputs_sampled(now, &mut io);
         self.next_sample = now + SAMPLE_PERIOD;
         if handed || shared::time::expired(self.runtime_deadline, now) {
             self.runtime_deadline = runtime.poll(now, &mut io);

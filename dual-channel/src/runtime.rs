@@ -159,6 +159,20 @@ pub trait Role<const N: usize> {
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, ChannelFault>;
 
+    /// [`Role::observe`] for a frame that arrived on the bus at `seen`, before `now` (one kept
+    /// while this channel was not Operational yet): a role that bounds a frame's wait counts
+    /// it from `seen` (`channel_b::role`).
+    fn observe_seen(
+        &mut self,
+        now: Instant,
+        seen: Instant,
+        frame: &CanFrame,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        let _ = seen;
+        self.observe(now, frame, config)
+    }
+
     /// The other channel announced over the link at `now` that it puts `frame` (a plain
     /// frame) on the bus ([`Message::PlainFrame`]): channel B's inverted frame if the plain
     /// frame is already there and agrees.
@@ -180,6 +194,18 @@ pub trait Role<const N: usize> {
         value: &[u8],
         config: &SafetyConfig<N>,
     ) -> Result<Option<CanFrame>, ChannelFault>;
+
+    /// This channel read all its safety inputs at `now` and none changed since the last
+    /// [`Role::input`]: a sample's age counts from its last reading (channel B co-signs only
+    /// what its inputs read within the window). May release a frame that was waiting.
+    fn sampled(
+        &mut self,
+        now: Instant,
+        config: &SafetyConfig<N>,
+    ) -> Result<Option<CanFrame>, ChannelFault> {
+        let _ = (now, config);
+        Ok(None)
+    }
 
     /// Time-outs of the role's own (channel B: a plain frame it could not confirm in time, or
     /// one never announced).
@@ -465,6 +491,7 @@ impl InputSample {
 
 /// One channel: its core (with the safety protocol `P`, the SRDO table unless said
 /// otherwise), its role, the link and the cross-checks.
+#[derive(Clone)]
 pub struct Runtime<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N> = SrdoTable<N>> {
     node: Device<F, P>,
     role: R,
@@ -777,6 +804,16 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         Ok(())
     }
 
+    /// This channel read every safety input at `now` and none changed since the last
+    /// [`Runtime::set_input`] (which reports changes): the board calls it on every sample, so
+    /// that a sample's age counts from its last reading (channel B co-signs only a value its
+    /// inputs read within [`SAMPLE_WINDOW`]; a board that stops reading its pins gets nothing
+    /// co-signed after the window).
+    pub fn inputs_sampled(&mut self, now: Instant, io: &mut impl Io) {
+        let reply = self.role.sampled(now, self.node.safety_config());
+        self.role_reply(now, reply, io);
+    }
+
     /// Runs what is due at `now`; returns when to call again.
     pub fn poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
         let node_deadline = if self.link_up {
@@ -950,7 +987,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let early = core::mem::take(&mut self.early);
         for (at, frame) in early {
             if self.fault.is_none() && !shared::time::expired(at + window, now) {
-                let reply = self.role.observe(now, &frame, self.node.safety_config());
+                let reply = self
+                    .role
+                    .observe_seen(now, at, &frame, self.node.safety_config());
                 self.role_reply(now, reply, io);
             }
         }

@@ -512,6 +512,9 @@ impl DualNetwork {
                 node.a.poll(now, &mut out)
             }
             Side::B => {
+                // The simulated contacts are read continuously: channel B's sample is as old
+                // as the last change, never older than now.
+                node.b.inputs_sampled(now, &mut out);
                 action(now, None, Some(&mut node.b), &mut out);
                 node.b.poll(now, &mut out)
             }

@@ -48,6 +48,7 @@ pub enum Filtering {
 }
 
 /// A channel's board under simulation.
+#[derive(Clone)]
 pub struct SimDriver {
     now: Instant,
     filtering: Filtering,
@@ -79,6 +80,11 @@ pub struct SimDriver {
     pub lost: u64,
     /// Each output pin change: (time, level).
     pub output_changes: Vec<(Instant, bool)>,
+    /// The input pin as the loop read it: each run of equal readings as (first reading,
+    /// last reading, level).
+    pub readings: Vec<(Instant, Instant, bool)>,
+    /// Every frame the loop handed to the controller, and when.
+    pub handed: Vec<(Instant, CanFrame)>,
 }
 
 impl SimDriver {
@@ -102,6 +108,8 @@ impl SimDriver {
             rejected: 0,
             lost: 0,
             output_changes: Vec::new(),
+            readings: Vec::new(),
+            handed: Vec::new(),
         }
     }
 
@@ -144,6 +152,7 @@ impl Driver for SimDriver {
     }
     fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
         self.sent.push(*frame);
+        self.handed.push((self.now, *frame));
         Ok(())
     }
     fn receive(&mut self) -> Option<Received> {
@@ -174,6 +183,10 @@ impl Driver for SimDriver {
         count
     }
     fn input(&mut self, _pin: usize) -> bool {
+        match self.readings.last_mut() {
+            Some((_, last, level)) if *level == self.input => *last = self.now,
+            _ => self.readings.push((self.now, self.now, self.input)),
+        }
         self.input
     }
     fn set_output(&mut self, _pin: usize, level: bool) {
@@ -206,6 +219,7 @@ pub type SimpleCanProtocol = SrdoAndSimpleCan<4, 4>;
 pub type SimpleCanLoopNetwork = LoopNetwork<SimpleCanProtocol>;
 
 /// One node: both channels' runtimes, their loops and their boards.
+#[derive(Clone)]
 pub struct LoopNode<P: ChannelProtocol<4> = SrdoTable<4>> {
     /// Node-ID.
     pub id: u8,
@@ -223,6 +237,7 @@ pub struct LoopNode<P: ChannelProtocol<4> = SrdoTable<4>> {
 
 /// The network: participant 0 is the tool, node `i`'s channels are `2i + 1` and `2i + 2`,
 /// the babbler (if any) comes last.
+#[derive(Clone)]
 pub struct LoopNetwork<P: ChannelProtocol<4> = SrdoTable<4>> {
     /// Simulated time.
     pub now: Instant,

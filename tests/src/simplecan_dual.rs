@@ -360,6 +360,8 @@ impl ScDualNetwork {
                 node.a.poll(local, &mut out)
             }
             Side::B => {
+                // The simulated contacts are read continuously (`crate::dual`).
+                node.b.inputs_sampled(local, &mut out);
                 action(local, None, Some(&mut node.b), &mut out);
                 node.b.poll(local, &mut out)
             }

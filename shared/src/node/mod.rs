@@ -264,6 +264,7 @@ impl<F: Flash, const N: usize, const E: usize> SimpleCanNode<F, N, E> {
 /// One device: the shell (NMT, SDO server, heartbeat, EMCY, GFC, storage, safe-state latch)
 /// around a process image, with the safety protocol `P` in its slot ([`SafetyProtocol`]),
 /// storing its parameters in `F`.
+#[derive(Clone)]
 pub struct Device<F: Flash, P: SafetyProtocol> {
     sdo: SdoServer,
     core: Core<F, P>,
@@ -271,6 +272,7 @@ pub struct Device<F: Flash, P: SafetyProtocol> {
 
 /// Everything but the SDO server, so that the server can borrow the rest as its object
 /// dictionary.
+#[derive(Clone)]
 struct Core<F: Flash, P: SafetyProtocol> {
     shell: Shell,
     protocol: P,
@@ -286,6 +288,7 @@ struct Core<F: Flash, P: SafetyProtocol> {
 
 /// The part of the shell a protocol reaches through its [`Slot`]: NMT state, the latch and
 /// what it sends, the next deadline.
+#[derive(Clone)]
 struct Shell {
     config: NodeConfig,
     state: NmtState,

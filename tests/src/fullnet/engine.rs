@@ -1822,6 +1822,8 @@ fn act<R: Role<4>>(
     action: Action,
     out: &mut Scratch,
 ) -> Instant {
+    // The simulated contacts are read continuously: a sample is never older than now.
+    runtime.inputs_sampled(now, out);
     match action {
         Action::Poll => {}
         Action::Frame(frame) => runtime.on_frame(now, &frame, out),
