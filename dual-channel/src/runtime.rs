@@ -283,7 +283,8 @@ pub enum ChannelFault {
         srdo: SrdoNumber,
     },
     /// The inverted frame on the bus is not the exact inverse of channel A's plain frame
-    /// (CiA 304 9.5, EN 50325-5 7.1.1): found by channel A.
+    /// (CiA 304 9.5, EN 50325-5 7.1.1): found by channel A. Also sends a GFC: it may be a
+    /// foreign sender's that completed the pair at the consumers (EN 50325-5 7.2.1).
     InvertedMismatch {
         /// SRDO number.
         srdo: SrdoNumber,
@@ -880,6 +881,15 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 self.send(&Message::ForeignFrame { id }, io);
                 self.foreign_frame(now, id, io);
             }
+            Err(fault @ ChannelFault::InvertedMismatch { .. }) => {
+                // Channel A cannot tell channel B's faulty inverted frame from a foreign
+                // sender's, longer than the plain frame and carrying its inverse in its first
+                // bytes, which completes the pair at the consumers (CiA 304 compares the first
+                // n bytes): the GFC goes at once, as for any foreign frame (EN 50325-5 7.2.1).
+                if self.fault.is_none() {
+                    self.gfc_and_latch(now, fault, io);
+                }
+            }
             Err(fault) => {
                 if self.fault.is_none() {
                     if let ChannelFault::TransmitMismatch { srdo } = fault {
@@ -902,7 +912,13 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// idle (the transmit queue orders by identifier, but cannot pull back a frame already
     /// on the bus).
     fn foreign_frame(&mut self, now: Instant, id: u16, io: &mut impl Io) {
-        let held = self.latch_holding(ChannelFault::ForeignFrame { id }, io);
+        self.gfc_and_latch(now, ChannelFault::ForeignFrame { id }, io);
+    }
+
+    /// The safe state for `fault` and a GFC, the GFC handed out first
+    /// ([`Runtime::foreign_frame`]).
+    fn gfc_and_latch(&mut self, now: Instant, fault: ChannelFault, io: &mut impl Io) {
+        let held = self.latch_holding(fault, io);
         // Foreign frames are watched in Operational only, where the core accepts the request;
         // outside Operational no GFC may go out (CiA 301 Table 2) and the latch is the reaction.
         let _ = self.node.request_gfc();

@@ -574,6 +574,13 @@ impl DualNetwork {
         });
     }
 
+    /// The frames on the bus now (arbitrated, not yet delivered): (end, frame, sender).
+    pub fn on_the_bus(&self) -> impl Iterator<Item = (Instant, CanFrame, usize)> + '_ {
+        self.in_flight
+            .iter()
+            .map(|delivery| (delivery.at, delivery.frame, delivery.from))
+    }
+
     /// One channel of node `id` samples its safety input as `value` (the other keeps its
     /// sample): one contact changing alone.
     pub fn set_input(&mut self, id: u8, side: Side, value: u8) {

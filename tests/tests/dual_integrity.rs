@@ -582,3 +582,95 @@ fn cia304_9_5_an_announcement_that_overtakes_channel_bs_nmt_reset_is_kept() {
         );
     }
 }
+
+/// EN 50325-5 7.2.1, CiA 304 9.5; the manual's residual risks: a foreign frame on node 1's
+/// inverted identifier, queued while node 1's plain frame is on the bus and longer than it
+/// with its first byte the exact inverse (CiA 304 compares the first n bytes), completes that
+/// pair at the consumer before channel B's own inverted frame. The window is accepted, and
+/// bounded: the value the consumer can take is node 1's own plain data (channel A's frame,
+/// announced to channel B), and node 1's channel A sees at the foreign frame's end that it is
+/// not the inverse of its plain frame and sends the GFC at once, which takes node 33 safe
+/// within one frame of blocking and the GFC's own frame (processing takes no simulated time
+/// here; the manual adds the producer's and the consumer's steps).
+#[test]
+fn en50325_5_7_2_1_a_foreign_inverted_frame_completing_a_plain_frame_ends_within_the_gfc_bound() {
+    use safety_config::calc::bus::frame_micros;
+    let mut net = running();
+    net.set_inputs(1, 0, 0);
+    net.run_for(Duration::from_millis(60));
+    assert_eq!(net.output(33), 0);
+    net.set_inputs(1, 1, 1);
+    let plain = loop {
+        if let Some((_, plain, _)) = net
+            .on_the_bus()
+            .find(|(_, frame, sender)| frame.id().raw() == PLAIN && *sender != 0)
+        {
+            break plain;
+        }
+        net.run_for(us(5));
+    };
+    let mut data = [0x55u8; 8];
+    data[0] = !plain.data()[0];
+    net.send_foreign(frame(INVERTED, &data));
+    net.run_for(Duration::from_millis(20));
+    let (foreign_end, ..) = *net
+        .trace
+        .iter()
+        .find(|(_, frame, sender)| *sender == 0 && frame.id().raw() == INVERTED)
+        .expect("the foreign frame went on the bus");
+    // The foreign frame was the pair's second half: it followed the plain frame at once.
+    let (plain_end, ..) = *net
+        .trace
+        .iter()
+        .rev()
+        .find(|(at, frame, _)| *at < foreign_end && frame.id().raw() == PLAIN)
+        .expect("the plain frame before it");
+    let between = net
+        .trace
+        .iter()
+        .filter(|(at, ..)| *at > plain_end && *at < foreign_end)
+        .count();
+    assert_eq!(
+        between, 0,
+        "nothing between the plain frame and the foreign one"
+    );
+    // A frame that started meanwhile (CAN does not preempt), then the GFC itself.
+    let bound = us(frame_micros(8, 500_000) + frame_micros(0, 500_000));
+    let mut safe_at = Instant::ZERO;
+    for side in [Side::A, Side::B] {
+        let (at, ..) = net
+            .first_event(0, 33, |s, e| {
+                s == side && matches!(e, ChannelEvent::Node(Event::SafeState(_)))
+            })
+            .expect("node 33 went safe");
+        let after = at.saturating_since(foreign_end);
+        eprintln!(
+            "node 33 channel {side:?} safe {} µs after the foreign frame",
+            after.as_micros()
+        );
+        assert!(
+            after <= bound,
+            "channel {side:?} safe {after:?} after the foreign frame, over {bound:?}"
+        );
+        safe_at = safe_at.max(at);
+    }
+    // Until then node 33 drove nothing but 0 or node 1's own plain data.
+    for (at, _, side, _, value) in net
+        .outputs
+        .iter()
+        .filter(|(at, node, ..)| *node == 33 && *at >= foreign_end)
+    {
+        assert!(
+            *value == 0 || *value == u64::from(plain.data()[0]),
+            "channel {side:?} of node 33 drove {value:#x} at {at:?}, not node 1's data"
+        );
+    }
+    let gfc = net
+        .trace
+        .iter()
+        .find(|(at, frame, _)| *at >= foreign_end && frame.id().raw() == 0x001);
+    assert!(
+        gfc.is_some_and(|(at, ..)| *at <= safe_at),
+        "the GFC took node 33 safe"
+    );
+}
