@@ -186,6 +186,21 @@ enum Command {
         #[arg(long)]
         plain: bool,
     },
+    /// Print a Wireshark Lua dissector for the network file's safety frames: each SRDO's
+    /// pairs (plain on COB-ID 1, inverted on COB-ID 2) with the bit-by-bit inversion check,
+    /// the gap against SRVT and the period against SCT; the GFC (001h); SimpleCAN packets
+    /// with their CRC checked against the file's node hashes. Offline.
+    ///
+    ///   safety-config dissector network.toml > safety.lua
+    ///   wireshark -X lua_script:safety.lua bus.pcap
+    ///   tshark -X lua_script:safety.lua -r bus.pcap -Y cansafety
+    ///
+    /// A trace: `bus.pcap` of `cargo xtask run`, or `monitor --record trace.pcap`.
+    #[command(verbatim_doc_comment)]
+    Dissector {
+        /// The network file (TOML), or a node's DCF (`.dcf`).
+        file: String,
+    },
     /// Send the global fail-safe command (GFC, CAN-ID 001h): every safety node in
     /// Operational goes to its safe state.
     Gfc,
@@ -623,6 +638,10 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         return Ok(true);
     }
+    if let Command::Dissector { file } = &cli.command {
+        print!("{}", safety_config::dissector::lua(&load(file)?, file));
+        return Ok(true);
+    }
     if let Command::Eds { simplecan, srdos } = &cli.command {
         match simplecan {
             Some(entries) => {
@@ -779,6 +798,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
     let mut client = Client::new(open_bus(&bus(cli.bus.as_deref())?)?, timeout);
     match cli.command {
         Command::Sign { .. }
+        | Command::Dissector { .. }
         | Command::Eds { .. }
         | Command::Monitor { .. }
         | Command::Sfrt { .. }
