@@ -1137,6 +1137,206 @@ mod tests {
     use super::*;
     use std::collections::BTreeMap;
 
+    fn usage(result: Result<impl std::fmt::Debug, ToolError>) -> String {
+        match result {
+            Err(ToolError::Usage(sentence)) => sentence,
+            other => panic!("expected a usage error, got {other:?}"),
+        }
+    }
+
+    /// `read` and `write` take the object as one argument `INDEX:SUB` or as two, each
+    /// hexadecimal bare, with `0x` or with `h`; every form names the same object.
+    #[test]
+    fn an_object_is_index_and_sub_index_in_every_written_form() {
+        let vendor = Address::new(0x1018, 1);
+        for (object, sub) in [
+            ("1018:1", None),
+            ("1018", Some("1")),
+            ("0x1018:0x01", None),
+            ("0X1018", Some("0x1")),
+            ("1018h:01h", None),
+            ("1018H", Some("01H")),
+            ("01018:001", None),
+        ] {
+            assert_eq!(parse_object(object, sub).unwrap(), vendor, "{object} {sub:?}");
+        }
+        // Hexadecimal throughout: sub-index 10 is 10h.
+        assert_eq!(
+            parse_object("1301", Some("10")).unwrap(),
+            Address::new(0x1301, 0x10)
+        );
+        assert_eq!(
+            parse_object("FFFF:FF", None).unwrap(),
+            Address::new(0xFFFF, 0xFF)
+        );
+    }
+
+    /// A bad object is a sentence naming the part that is wrong, never a guess.
+    #[test]
+    fn a_bad_object_is_refused_with_a_sentence_naming_the_argument() {
+        assert_eq!(
+            usage(parse_object("10G8:1", None)),
+            "the index \"10G8\" is not hexadecimal (e.g. 1018, 0x1018 or 1018h)"
+        );
+        assert_eq!(
+            usage(parse_object("1018", Some("x"))),
+            "the sub-index \"x\" is not hexadecimal (e.g. 1, 0x01 or 01h)"
+        );
+        assert_eq!(
+            usage(parse_object("12345:0", None)),
+            "the index \"12345\" is larger than FFFFh, the largest index"
+        );
+        assert_eq!(
+            usage(parse_object("1018", Some("100"))),
+            "the sub-index \"100\" is larger than FFh, the largest sub-index"
+        );
+        assert_eq!(
+            usage(parse_object("1018", None)),
+            "the object \"1018\" needs a sub-index: 1018:0 or 1018 0 (hexadecimal)"
+        );
+        assert_eq!(
+            usage(parse_object("1018:1", Some("2"))),
+            "the object \"1018:1\" already has its sub-index; \"2\" after it is one argument too many"
+        );
+        for empty in [":1", "1018:", "0x:1", "h:1"] {
+            assert!(
+                usage(parse_object(empty, None)).contains("is not hexadecimal"),
+                "{empty}"
+            );
+        }
+    }
+
+    /// `write NODE OBJECT VALUE` with OBJECT `INDEX:SUB`, or `write NODE INDEX SUB VALUE`;
+    /// a value without a sub-index is refused rather than written to sub-index 0.
+    #[test]
+    fn write_takes_the_sub_index_after_a_colon_or_as_its_own_argument() {
+        let words = |list: &[&str]| list.iter().map(|w| w.to_string()).collect::<Vec<_>>();
+        let heartbeat = Address::new(0x1017, 0);
+        assert_eq!(
+            parse_write("1017:0", &words(&["500"])).unwrap(),
+            (heartbeat, "500".to_owned())
+        );
+        assert_eq!(
+            parse_write("1017h", &words(&["00h", "0x1F4"])).unwrap(),
+            (heartbeat, "0x1F4".to_owned())
+        );
+        assert!(usage(parse_write("1017", &words(&["500"]))).starts_with(
+            "the object \"1017\" needs a sub-index before the value \"500\""
+        ));
+        assert!(usage(parse_write("1017:0", &words(&["0", "500"]))).contains("already has"));
+        assert_eq!(parse_value("0x1F4", 2, false).unwrap(), vec![0xF4, 0x01]);
+        assert_eq!(parse_value("500", 4, false).unwrap(), vec![0xF4, 0x01, 0, 0]);
+        assert_eq!(parse_value("73 61 76 65", 4, true).unwrap(), b"save".to_vec());
+        assert_eq!(
+            usage(parse_value("70000", 2, false)),
+            "the value 70000 does not fit --len 2 byte(s)"
+        );
+        assert_eq!(usage(parse_value("5", 3, false)), "--len 3 is not 1, 2 or 4 bytes");
+        assert!(usage(parse_value("five", 1, false)).starts_with("the value \"five\" is not a number"));
+    }
+
+    /// The command line as a user types it: both forms of `read` parse to the same
+    /// arguments; a node-ID outside 1..=127 is refused by clap with its name.
+    #[test]
+    fn the_command_line_takes_read_in_both_forms_and_names_a_bad_node_id() {
+        for line in [
+            &["safety-config", "read", "5", "1018", "1"][..],
+            &["safety-config", "read", "5", "1018:1"][..],
+            &["safety-config", "read", "5", "1018h:01h"][..],
+        ] {
+            let Command::Read { node, object, sub } = Cli::try_parse_from(line).unwrap().command
+            else {
+                panic!("{line:?} is not read");
+            };
+            assert_eq!(node, 5);
+            assert_eq!(
+                parse_object(&object, sub.as_deref()).unwrap(),
+                Address::new(0x1018, 1)
+            );
+        }
+        let Command::Write { object, rest, .. } =
+            Cli::try_parse_from(["safety-config", "write", "5", "1017", "0", "500"])
+                .unwrap()
+                .command
+        else {
+            panic!("not write");
+        };
+        assert_eq!(
+            parse_write(&object, &rest).unwrap(),
+            (Address::new(0x1017, 0), "500".to_owned())
+        );
+        for bad in ["0", "128", "x"] {
+            let error = Cli::try_parse_from(["safety-config", "read", bad, "1018:1"])
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(
+                error.contains("'<NODE>'") && error.contains("is not a node-ID from 1 to 127"),
+                "{error}"
+            );
+        }
+        assert!(
+            Cli::try_parse_from(["safety-config", "write", "5", "1017", "0", "500", "1"]).is_err(),
+            "a fourth word after write's node-ID"
+        );
+    }
+
+    /// The default bus is the emulated bus at CAN_HUB_PORT, as `cargo xtask run` starts it;
+    /// --bus wins; a variable that is not a port is refused, naming it.
+    #[test]
+    fn the_default_bus_follows_can_hub_port_and_a_given_bus_wins() {
+        use safety_config::socketcand::hub_bus;
+        assert_eq!(hub_bus(None).unwrap(), "socketcand:127.0.0.1:29536/can0");
+        assert_eq!(
+            hub_bus(Some("30400")).unwrap(),
+            "socketcand:127.0.0.1:30400/can0"
+        );
+        for bad in ["", "abc", "0", "65535", "70000", "-1"] {
+            let sentence = hub_bus(Some(bad)).unwrap_err();
+            assert!(
+                sentence.starts_with(&format!("CAN_HUB_PORT={bad:?} is not a port from 1 to 65534")),
+                "{sentence}"
+            );
+        }
+        assert_eq!(bus(Some("slcan:/dev/ttyACM0")).unwrap(), "slcan:/dev/ttyACM0");
+        let cli = Cli::try_parse_from(["safety-config", "scan"]).unwrap();
+        assert_eq!(cli.bus, None, "no default on the command line: the variable decides");
+    }
+
+    /// `read` prints the value as the EDS types the object (CiA 306 DataType): unsigned
+    /// numbers in hexadecimal with every digit of the type and in decimal, a VISIBLE_STRING
+    /// as text; a length other than the type's, or an object of no EDS, as octets.
+    #[test]
+    fn cia306_read_prints_the_value_by_its_eds_data_type() {
+        assert_eq!(
+            read_line(Address::new(0x1018, 1), &[0x23, 0x01, 0, 0]),
+            "object 1018h:01h (identity: vendor-ID): UNSIGNED32 0x00000123 (291)"
+        );
+        assert_eq!(
+            read_line(Address::new(0x1017, 0), &[0xF4, 0x01]),
+            "object 1017h:00h: UNSIGNED16 0x01F4 (500)"
+        );
+        assert_eq!(
+            read_line(Address::new(0x13FE, 0), &[0xA5]),
+            "object 13FEh:00h (configuration valid): UNSIGNED8 0xA5 (165)"
+        );
+        assert_eq!(
+            read_line(Address::new(0x1008, 0), b"Safety node"),
+            "object 1008h:00h: VISIBLE_STRING \"Safety node\""
+        );
+        assert_eq!(
+            read_line(Address::new(0x1018, 1), &[0x23, 0x01]),
+            "object 1018h:01h (identity: vendor-ID): 2 byte(s) where UNSIGNED32 has 4: 23 01"
+        );
+        assert_eq!(
+            read_line(Address::new(0x2FFF, 7), &[1, 2, 3]),
+            "object 2FFFh:07h: 3 byte(s) 01 02 03 (not in the device's EDS: type unknown)"
+        );
+        // An object only a device with SimpleCAN has: typed from that device's EDS.
+        let line = read_line(Address::new(0x5EFF, 0), &[0xDA, 0x9D, 0x36, 0x59]);
+        assert!(line.ends_with(": UNSIGNED32 0x59369DDA (1496751578)"), "{line}");
+    }
+
     /// A value JSON cannot carry (a map keyed by pairs: JSON keys are strings) is an error
     /// that says so in a sentence, not an empty or partial report.
     #[test]
