@@ -313,15 +313,12 @@ fn the_monitor_program_prints_its_summary_on_ctrl_c_in_plain_mode() {
         .find("## Summary")
         .unwrap_or_else(|| panic!("no summary in\n{first}{rest}"));
     assert!(interrupted < summary, "{rest}");
-    let srdo = rest[summary..]
-        .lines()
-        .find(|line| line.starts_with("SRDO 101h/102h"))
-        .unwrap_or_else(|| panic!("no SRDO in the summary\n{rest}"));
-    let valid: u64 = srdo
-        .split(": ")
-        .nth(1)
-        .and_then(|counts| counts.split(' ').next())
-        .and_then(|count| count.parse().ok())
-        .unwrap_or_else(|| panic!("no count of valid pairs in {srdo:?}"));
-    assert!(valid < 6000, "the whole log was replayed: {srdo}");
+    assert!(
+        rest[summary..].contains("node 1: "),
+        "the summary names what was seen: {rest}"
+    );
+    assert!(
+        !rest.contains("6000 valid"),
+        "the whole log was replayed: {rest}"
+    );
 }
