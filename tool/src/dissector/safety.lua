@@ -99,10 +99,10 @@ end
 -- State of the first pass, and what it concluded on each frame. Times are whole
 -- nanoseconds since the second of the first frame, exact in a Lua number, so that a gap
 -- exactly at its limit is judged as the node judges it (at the limit is exceeded).
-local pending, last_pair, results, first_second
+local pending, missing, last_pair, results, first_second
 
 local function reset()
-  pending, last_pair, results, first_second = {}, {}, {}, nil
+  pending, missing, last_pair, results, first_second = {}, {}, {}, {}, nil
 end
 reset()
 
@@ -132,16 +132,18 @@ end
 -- waiting is judged here (its inverted frame missing, or a plain frame repeated).
 local function srdo_plain(srdo, number, at, data)
   local result = { kind = "SRDO plain", srdo = srdo }
+  if missing[srdo.plain] then
+    result.plain_frame = missing[srdo.plain]
+    result.verdict = VERDICT.inverted_missing
+    missing[srdo.plain] = nil
+  end
   local waiting = pending[srdo.plain]
   if waiting then
     if octets_equal(waiting.data, data) then
       result.note = "repeat of frame " .. waiting.number .. " (CAN double reception), discarded"
       return result
-    end
-    result.plain_frame = waiting.number
-    if srdo.srvt_ms and at - waiting.at >= srdo.srvt_ms * NS_PER_MS then
-      result.verdict = VERDICT.inverted_missing
     else
+      result.plain_frame = waiting.number
       result.verdict = VERDICT.plain_repeated
     end
   end
@@ -154,7 +156,14 @@ local function srdo_inverted(srdo, at, data)
   local result = { kind = "SRDO inverted", srdo = srdo }
   local plain = pending[srdo.plain]
   if not plain then
-    result.verdict = "no plain frame before it"
+    if missing[srdo.plain] then
+      result.plain_frame = missing[srdo.plain]
+      result.verdict = VERDICT.inverted_missing
+      result.note = "too late for plain frame " .. missing[srdo.plain]
+      missing[srdo.plain] = nil
+    else
+      result.verdict = "no plain frame before it"
+    end
     return result
   end
   pending[srdo.plain] = nil
@@ -249,11 +258,26 @@ local function simplecan(id, rtr, data)
   return result
 end
 
+-- Every plain frame whose SRVT ran out by `at` has its inverted frame missing, as the
+-- monitor's model judges it when time passes; the verdict shows on the SRDO's next frame.
+-- The inverted frame arriving now (`except`) is judged by its own gap instead.
+local function expire(at, except)
+  for _, srdo in ipairs(SRDOS) do
+    local waiting = pending[srdo.plain]
+    if srdo ~= except and waiting and srdo.srvt_ms
+        and at - waiting.at >= srdo.srvt_ms * NS_PER_MS then
+      pending[srdo.plain] = nil
+      missing[srdo.plain] = waiting.number
+    end
+  end
+end
+
 local function judge(pinfo, id, rtr, data)
   local time = frame_time().value
   first_second = first_second or time.secs
   local at = (time.secs - first_second) * 1000000000 + time.nsecs
   local role = by_cob_id[id]
+  expire(at, role and not role.plain and role.srdo)
   if role and not rtr then
     if role.plain then
       return srdo_plain(role.srdo, pinfo.number, at, data)
