@@ -199,10 +199,7 @@ mod tests {
     #[test]
     fn names_from_the_file_stay_inside_their_lua_string() {
         assert_eq!(lua_string("stop"), "\"stop\"");
-        assert_eq!(
-            lua_string("a\"b\\c\nd]]e"),
-            "\"a\\\"b\\\\c\\010d]]e\""
-        );
+        assert_eq!(lua_string("a\"b\\c\nd]]e"), "\"a\\\"b\\\\c\\010d]]e\"");
         assert_eq!(lua_string("ü"), "\"\\195\\188\"");
     }
 }

@@ -1158,7 +1158,11 @@ mod tests {
             ("1018H", Some("01H")),
             ("01018:001", None),
         ] {
-            assert_eq!(parse_object(object, sub).unwrap(), vendor, "{object} {sub:?}");
+            assert_eq!(
+                parse_object(object, sub).unwrap(),
+                vendor,
+                "{object} {sub:?}"
+            );
         }
         // Hexadecimal throughout: sub-index 10 is 10h.
         assert_eq!(
@@ -1220,19 +1224,31 @@ mod tests {
             parse_write("1017h", &words(&["00h", "0x1F4"])).unwrap(),
             (heartbeat, "0x1F4".to_owned())
         );
-        assert!(usage(parse_write("1017", &words(&["500"]))).starts_with(
-            "the object \"1017\" needs a sub-index before the value \"500\""
-        ));
+        assert!(
+            usage(parse_write("1017", &words(&["500"])))
+                .starts_with("the object \"1017\" needs a sub-index before the value \"500\"")
+        );
         assert!(usage(parse_write("1017:0", &words(&["0", "500"]))).contains("already has"));
         assert_eq!(parse_value("0x1F4", 2, false).unwrap(), vec![0xF4, 0x01]);
-        assert_eq!(parse_value("500", 4, false).unwrap(), vec![0xF4, 0x01, 0, 0]);
-        assert_eq!(parse_value("73 61 76 65", 4, true).unwrap(), b"save".to_vec());
+        assert_eq!(
+            parse_value("500", 4, false).unwrap(),
+            vec![0xF4, 0x01, 0, 0]
+        );
+        assert_eq!(
+            parse_value("73 61 76 65", 4, true).unwrap(),
+            b"save".to_vec()
+        );
         assert_eq!(
             usage(parse_value("70000", 2, false)),
             "the value 70000 does not fit --len 2 byte(s)"
         );
-        assert_eq!(usage(parse_value("5", 3, false)), "--len 3 is not 1, 2 or 4 bytes");
-        assert!(usage(parse_value("five", 1, false)).starts_with("the value \"five\" is not a number"));
+        assert_eq!(
+            usage(parse_value("5", 3, false)),
+            "--len 3 is not 1, 2 or 4 bytes"
+        );
+        assert!(
+            usage(parse_value("five", 1, false)).starts_with("the value \"five\" is not a number")
+        );
     }
 
     /// The command line as a user types it: both forms of `read` parse to the same
@@ -1294,13 +1310,21 @@ mod tests {
         for bad in ["", "abc", "0", "65535", "70000", "-1"] {
             let sentence = hub_bus(Some(bad)).unwrap_err();
             assert!(
-                sentence.starts_with(&format!("CAN_HUB_PORT={bad:?} is not a port from 1 to 65534")),
+                sentence.starts_with(&format!(
+                    "CAN_HUB_PORT={bad:?} is not a port from 1 to 65534"
+                )),
                 "{sentence}"
             );
         }
-        assert_eq!(bus(Some("slcan:/dev/ttyACM0")).unwrap(), "slcan:/dev/ttyACM0");
+        assert_eq!(
+            bus(Some("slcan:/dev/ttyACM0")).unwrap(),
+            "slcan:/dev/ttyACM0"
+        );
         let cli = Cli::try_parse_from(["safety-config", "scan"]).unwrap();
-        assert_eq!(cli.bus, None, "no default on the command line: the variable decides");
+        assert_eq!(
+            cli.bus, None,
+            "no default on the command line: the variable decides"
+        );
     }
 
     /// `read` prints the value as the EDS types the object (CiA 306 DataType): unsigned
@@ -1334,7 +1358,10 @@ mod tests {
         );
         // An object only a device with SimpleCAN has: typed from that device's EDS.
         let line = read_line(Address::new(0x5EFF, 0), &[0xDA, 0x9D, 0x36, 0x59]);
-        assert!(line.ends_with(": UNSIGNED32 0x59369DDA (1496751578)"), "{line}");
+        assert!(
+            line.ends_with(": UNSIGNED32 0x59369DDA (1496751578)"),
+            "{line}"
+        );
     }
 
     /// A value JSON cannot carry (a map keyed by pairs: JSON keys are strings) is an error

@@ -59,8 +59,7 @@ fn frame(id: u16, data: &[u8]) -> CanFrame {
 }
 
 fn directory() -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("safety-config-dissector-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("safety-config-dissector-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
@@ -319,7 +318,10 @@ fn en50325_5_7_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissecto
     assert_eq!(valid["cansafety.srdo.plain_frame"], "1");
     let not_inverted = &decoded[3];
     assert_eq!(flag(not_inverted, "cansafety.srdo.valid"), Some(false));
-    assert_eq!(flag(not_inverted, "cansafety.srdo.inverted_ok"), Some(false));
+    assert_eq!(
+        flag(not_inverted, "cansafety.srdo.inverted_ok"),
+        Some(false)
+    );
     assert_eq!(not_inverted["cansafety.srdo.mismatch"], "0080");
     assert_eq!(number(not_inverted, "cansafety.srdo.period_ms"), 100.0);
     let late = &decoded[5];
@@ -327,7 +329,10 @@ fn en50325_5_7_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissecto
     assert_eq!(number(late, "cansafety.srdo.gap_ms"), 30.0);
     assert_eq!(flag(late, "cansafety.srdo.srvt_exceeded"), Some(true));
     assert_eq!(number(&decoded[7], "cansafety.srdo.gap_ms"), 20.0);
-    assert_eq!(flag(&decoded[7], "cansafety.srdo.srvt_exceeded"), Some(true));
+    assert_eq!(
+        flag(&decoded[7], "cansafety.srdo.srvt_exceeded"),
+        Some(true)
+    );
     assert_eq!(
         number(&decoded[10], "cansafety.srdo.gap_ms"),
         3.0,
@@ -369,9 +374,14 @@ fn en50325_5_7_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissecto
         let expected = decode(packet, &hashes);
         match expected {
             Ok(_) => {
-                assert_eq!(flag(row, "cansafety.simplecan.crc_ok"), Some(true), "{row:?}");
+                assert_eq!(
+                    flag(row, "cansafety.simplecan.crc_ok"),
+                    Some(true),
+                    "{row:?}"
+                );
                 assert_eq!(row.get("cansafety.simplecan.problem"), None, "{row:?}");
-                let crc = u32::from_be_bytes([0, packet.data()[5], packet.data()[6], packet.data()[7]]);
+                let crc =
+                    u32::from_be_bytes([0, packet.data()[5], packet.data()[6], packet.data()[7]]);
                 assert_eq!(
                     row["cansafety.simplecan.crc_computed"],
                     format!("0x{crc:06x}"),
@@ -379,7 +389,11 @@ fn en50325_5_7_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissecto
                 );
             }
             Err(DecodeError::BadCrc { .. }) => {
-                assert_eq!(flag(row, "cansafety.simplecan.crc_ok"), Some(false), "{row:?}");
+                assert_eq!(
+                    flag(row, "cansafety.simplecan.crc_ok"),
+                    Some(false),
+                    "{row:?}"
+                );
                 assert_eq!(row["cansafety.simplecan.problem"], "bad CRC");
                 // The CRC the Lua code computed over the received content is the Rust
                 // encoder's over the same content.
@@ -409,7 +423,10 @@ fn en50325_5_7_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissecto
         }
     }
     assert_eq!(decoded[simplecan_at]["cansafety.frame"], "SimpleCAN data");
-    assert_eq!(decoded[simplecan_at + 1]["cansafety.frame"], "SimpleCAN sync");
+    assert_eq!(
+        decoded[simplecan_at + 1]["cansafety.frame"],
+        "SimpleCAN sync"
+    );
     let bad = decoded[simplecan_at..]
         .iter()
         .filter(|row| flag(row, "cansafety.simplecan.crc_ok") == Some(false))

@@ -268,7 +268,11 @@ fn the_monitor_program_prints_its_summary_on_ctrl_c_in_plain_mode() {
         let at = start + Duration::from_millis(100 * n + 10);
         lines.push(candump::line(at, "can0", &frame(0x701, &[0x05])));
         lines.push(candump::line(at + MS, "can0", &frame(0x101, &[0x01, 0x00])));
-        lines.push(candump::line(at + 2 * MS, "can0", &frame(0x102, &[0xFE, 0xFF])));
+        lines.push(candump::line(
+            at + 2 * MS,
+            "can0",
+            &frame(0x102, &[0xFE, 0xFF]),
+        ));
     }
     std::fs::write(&log, lines.join("\n")).unwrap();
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_safety-config"))
@@ -292,7 +296,10 @@ fn the_monitor_program_prints_its_summary_on_ctrl_c_in_plain_mode() {
     let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
     let mut first = String::new();
     stdout.read_line(&mut first).unwrap();
-    assert!(first.contains("node 1: boot-up, Pre-operational"), "{first}");
+    assert!(
+        first.contains("node 1: boot-up, Pre-operational"),
+        "{first}"
+    );
     let sent = std::process::Command::new("kill")
         .args(["-s", "INT", &pid])
         .status()

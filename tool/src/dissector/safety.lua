@@ -272,15 +272,25 @@ local function expire(at, except)
   end
 end
 
-local function judge(pinfo, id, rtr, data)
+-- The time of the frame being dissected, in nanoseconds since the first frame's second.
+local function now()
   local time = frame_time().value
   first_second = first_second or time.secs
-  local at = (time.secs - first_second) * 1000000000 + time.nsecs
+  return (time.secs - first_second) * 1000000000 + time.nsecs
+end
+
+-- Whether `id` is one this dissector decodes: an SRDO of the file, the GFC, SimpleCAN.
+local function ours(id)
+  return by_cob_id[id] ~= nil or id == CONSTANTS.gfc_id
+    or (SIMPLECAN ~= nil and (id == CONSTANTS.sync_id
+      or (id >= CONSTANTS.lowest_sc_id and id <= CONSTANTS.highest_sc_id)))
+end
+
+local function judge(number, at, id, rtr, data)
   local role = by_cob_id[id]
-  expire(at, role and not role.plain and role.srdo)
   if role and not rtr then
     if role.plain then
-      return srdo_plain(role.srdo, pinfo.number, at, data)
+      return srdo_plain(role.srdo, number, at, data)
     end
     return srdo_inverted(role.srdo, at, data)
   end
@@ -409,10 +419,18 @@ function proto.dissector(tvb, pinfo, tree)
   end
   local result = results[pinfo.number]
   if not pinfo.visited and result == nil then
+    local id = id_info.value
+    local role = by_cob_id[id]
+    -- Every frame tells that time passed; only those of the file are read further.
+    local at = now()
+    if next(pending) ~= nil then
+      expire(at, role and not role.plain and role.srdo)
+    end
     local rtr = can_rtr() and can_rtr().value or false
     local err = can_err() and can_err().value or false
     local xtd = can_xtd() and can_xtd().value or false
-    if err or xtd then
+    if err or xtd or not ours(id) then
+      results[pinfo.number] = false
       return
     end
     local length = can_len() and can_len().value or 0
@@ -424,7 +442,7 @@ function proto.dissector(tvb, pinfo, tree)
     for i = 0, length - 1 do
       data[#data + 1] = tvb(start + i, 1):uint()
     end
-    result = judge(pinfo, id_info.value, rtr, data) or false
+    result = judge(pinfo.number, at, id, rtr, data) or false
     results[pinfo.number] = result
   end
   if not result then

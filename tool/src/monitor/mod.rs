@@ -173,10 +173,13 @@ pub fn run(
     options: Options,
 ) -> Result<Monitor, MonitorError> {
     let mut recording = match &options.record {
-        Some(path) => Some((Recording::create(path).map_err(|source| MonitorError::WriteLog {
-            path: path.clone(),
-            source,
-        })?, path.clone())),
+        Some(path) => Some((
+            Recording::create(path).map_err(|source| MonitorError::WriteLog {
+                path: path.clone(),
+                source,
+            })?,
+            path.clone(),
+        )),
         None => None,
     };
     let mut terminal = if options.live {

@@ -77,7 +77,8 @@ mod tests {
     fn pcap_records_follow_the_socketcan_link_type() {
         let mut pcap = PcapWriter::new(Vec::new()).unwrap();
         let frame = CanFrame::new(CanId::new(0x142).unwrap(), &[0xFE]).unwrap();
-        pcap.write(Duration::from_micros(1_000_002), &frame).unwrap();
+        pcap.write(Duration::from_micros(1_000_002), &frame)
+            .unwrap();
         let remote = CanFrame::remote(CanId::new(0x701).unwrap(), 1).unwrap();
         pcap.write(Duration::from_secs(2), &remote).unwrap();
         let bytes = pcap.into_inner().unwrap();
