@@ -1307,7 +1307,7 @@ mod tests {
             hub_bus(Some("30400")).unwrap(),
             "socketcand:127.0.0.1:30400/can0"
         );
-        for bad in ["", "abc", "0", "65535", "70000", "-1"] {
+        for bad in ["", "abc", "0", "65535", "70000", "-1", " 30400"] {
             let sentence = hub_bus(Some(bad)).unwrap_err();
             assert!(
                 sentence.starts_with(&format!(

@@ -34,8 +34,8 @@ pub const DEFAULT_HUB_PORT: u16 = 29536;
 pub fn hub_bus(hub_port: Option<&str>) -> Result<String, String> {
     let port = match hub_port {
         None => DEFAULT_HUB_PORT,
+        // Read exactly as `cargo xtask run` reads it (`xtask/src/network.rs`), no trimming.
         Some(text) => text
-            .trim()
             .parse::<u16>()
             .ok()
             .filter(|port| (1..u16::MAX).contains(port))
