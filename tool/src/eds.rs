@@ -634,3 +634,87 @@ pub fn format_value(entry: &Entry, bytes: &[u8]) -> String {
         _ => format!("0x{value:08X}"),
     }
 }
+
+/// The CiA 301 name of a data type this EDS uses (7.4.7.1), `None` for another.
+pub fn type_name(data_type: u16) -> Option<&'static str> {
+    match data_type {
+        UNSIGNED8 => Some("UNSIGNED8"),
+        UNSIGNED16 => Some("UNSIGNED16"),
+        UNSIGNED32 => Some("UNSIGNED32"),
+        VISIBLE_STRING => Some("VISIBLE_STRING"),
+        OCTET_STRING => Some("OCTET_STRING"),
+        _ => None,
+    }
+}
+
+/// The octets of an unsigned data type, `None` for a type of another length or kind.
+fn unsigned_length(data_type: u16) -> Option<usize> {
+    match data_type {
+        UNSIGNED8 => Some(1),
+        UNSIGNED16 => Some(2),
+        UNSIGNED32 => Some(4),
+        _ => None,
+    }
+}
+
+/// The entry at `address` in the dictionary of a device this tool generates the EDS of: the
+/// CANopen Safety device's ([`objects`]), else the largest device with SimpleCAN
+/// ([`simplecan_objects`] with every SDD entry and SRDO it can have), whose objects are the
+/// same with 5E00h..5EFFh added. `None`: no device of this project has it.
+pub fn entry_at(address: Address) -> Option<Entry> {
+    let find = |objects: Vec<Object>| {
+        objects
+            .into_iter()
+            .flat_map(|object| object.entries)
+            .find(|entry| entry.address == address)
+    };
+    find(objects()).or_else(|| {
+        let most_entries = shared::simplecan::sdd::MAX_ENTRIES as u8;
+        find(simplecan_objects(most_entries, 4)?)
+    })
+}
+
+/// A value read from `entry` in words, by its EDS type: an unsigned number as the type, then
+/// hexadecimal with every digit of the type and decimal (`UNSIGNED32 0x00000123 (291)`);
+/// a VISIBLE_STRING as quoted text; an OCTET_STRING as its octets. A number of another
+/// length than its type's is shown as octets with the lengths named, never as a number.
+pub fn describe_value(entry: &Entry, bytes: &[u8]) -> String {
+    let octets = || {
+        bytes
+            .iter()
+            .map(|byte| format!("{byte:02X}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let name = type_name(entry.data_type).unwrap_or("an unknown type");
+    match entry.data_type {
+        VISIBLE_STRING => format!("{name} {:?}", String::from_utf8_lossy(bytes)),
+        OCTET_STRING => format!("{name} {} ({} bytes)", octets(), bytes.len()),
+        data_type => match unsigned_length(data_type) {
+            Some(length) if length == bytes.len() => {
+                let mut raw = [0u8; 4];
+                raw[..length].copy_from_slice(bytes);
+                let value = u32::from_le_bytes(raw);
+                format!("{name} 0x{value:0width$X} ({value})", width = 2 * length)
+            }
+            Some(length) => format!(
+                "{} byte(s) where {name} has {length}: {}",
+                bytes.len(),
+                octets()
+            ),
+            None => format!("{name} (data type {data_type:04X}h): {}", octets()),
+        },
+    }
+}
+
+/// A value read from `entry` for JSON: an unsigned number of its type's length as a number,
+/// a VISIBLE_STRING as text, anything else `None` (the octets say it).
+pub fn json_value(entry: &Entry, bytes: &[u8]) -> Option<serde_json::Value> {
+    if entry.data_type == VISIBLE_STRING {
+        return Some(String::from_utf8_lossy(bytes).into_owned().into());
+    }
+    let length = unsigned_length(entry.data_type).filter(|length| *length == bytes.len())?;
+    let mut raw = [0u8; 4];
+    raw[..length].copy_from_slice(bytes);
+    Some(u32::from_le_bytes(raw).into())
+}

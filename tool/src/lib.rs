@@ -16,6 +16,8 @@
 //!   signature (the tool's own), the configure/verify plan.
 //! - [`procedure`]: `configure` and `verify` (EN 50325-5 8.3.1), `scan`.
 //! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
+//! - [`dissector`]: a Wireshark Lua dissector of a network file's safety frames (SRDO pairs,
+//!   GFC, SimpleCAN packets with their CRC).
 //! - [`monitor`]: the live bus monitor: SRDO pairs and their verdicts, NMT, EMCY, SDO; candump
 //!   logs recorded and replayed.
 //! - [`error`]: every error as a sentence.
@@ -23,6 +25,7 @@
 pub mod access;
 pub mod calc;
 pub mod client;
+pub mod dissector;
 pub mod eds;
 pub mod error;
 pub mod monitor;

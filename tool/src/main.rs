@@ -25,12 +25,16 @@ use std::time::Duration;
 ///   socketcand:HOST:PORT[/BUS]   a socketcand server (e.g. socketcand:127.0.0.1:29536/can0)
 ///   slcan:DEVICE[@BITRATE]       an SLCAN serial adapter (e.g. slcan:/dev/ttyACM0@500000)
 ///   socketcan:INTERFACE          Linux SocketCAN (built with the `socketcan` feature)
+/// Without --bus: the emulated bus of `cargo xtask run`, socketcand:127.0.0.1:PORT/can0,
+/// where PORT is the environment variable CAN_HUB_PORT as `cargo xtask run` reads it
+/// (default 29536).
 #[derive(Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Cli {
-    /// The CAN interface (see above).
-    #[arg(long, global = true, default_value = "socketcand:127.0.0.1:29536/can0")]
-    bus: String,
+    /// The CAN interface (see above); without it socketcand:127.0.0.1:PORT/can0 with PORT
+    /// from CAN_HUB_PORT (default 29536), the bus `cargo xtask run` started.
+    #[arg(long, global = true)]
+    bus: Option<String>,
     /// How long one SDO request waits for its answer, in milliseconds (the network file's
     /// `sdo_timeout_ms` wins for configure and verify).
     #[arg(long, global = true, default_value_t = 500)]
@@ -57,22 +61,39 @@ enum Command {
         /// A node-ID (1..=127), or `all`.
         target: String,
     },
-    /// Read an object (SDO upload, expedited or segmented).
+    /// Read an object (SDO upload, expedited or segmented) and print its value as the
+    /// device's EDS types it (e.g. `UNSIGNED32 0x00000ABC (2748)`, a VISIBLE_STRING as text).
+    ///
+    /// The object is INDEX:SUB or INDEX SUB, both hexadecimal, each bare, with 0x or with h:
+    /// `read 1 1018:1`, `read 1 1018 1`, `read 1 0x1018:0x01`, `read 1 1018h:01h`.
+    #[command(verbatim_doc_comment)]
     Read {
-        /// The node-ID.
+        /// The node-ID (1..=127).
+        #[arg(value_parser = node_id)]
         node: u8,
-        /// The object, as INDEX:SUB (hexadecimal, e.g. 1018:4 or 0x1301:5).
+        /// The object's index, with its sub-index after a colon (1018:4) or as the next
+        /// argument.
         object: String,
+        /// The sub-index (hexadecimal), when OBJECT has none.
+        sub: Option<String>,
     },
     /// Write an object (SDO download, expedited or segmented).
+    ///
+    /// The object is INDEX:SUB or INDEX SUB, both hexadecimal, as for `read`:
+    /// `write 1 1017:0 500`, `write 1 1017 0 500`, `write 1 0x1017:0x00 0x1F4`.
+    #[command(verbatim_doc_comment)]
     Write {
-        /// The node-ID.
+        /// The node-ID (1..=127).
+        #[arg(value_parser = node_id)]
         node: u8,
-        /// The object, as INDEX:SUB (hexadecimal).
+        /// The object's index, with its sub-index after a colon (1017:0) or as the next
+        /// argument.
         object: String,
-        /// The value: a number (decimal or 0x-hexadecimal) written in --len bytes, or with
-        /// --bytes hexadecimal octets (e.g. "73 61 76 65").
-        value: String,
+        /// The sub-index (hexadecimal) when OBJECT has none, then the value: a number
+        /// (decimal or 0x-hexadecimal) written in --len bytes, or with --bytes hexadecimal
+        /// octets (e.g. "73 61 76 65").
+        #[arg(value_name = "[SUB] VALUE", num_args = 1..=2, required = true)]
+        rest: Vec<String>,
         /// Bytes of a numeric value (1, 2 or 4).
         #[arg(long, default_value_t = 4)]
         len: usize,
@@ -147,7 +168,9 @@ enum Command {
         /// A network file (TOML) or DCF: the SRDOs to judge against their SCT and SRVT and
         /// the nodes' names. Without one, SRDOs are learned from the bus (no limits known).
         file: Option<String>,
-        /// Record every frame into this candump log (`candump -l` format).
+        /// Record every frame into this candump log (`candump -l` format), or into a pcap
+        /// (SocketCAN link type, for Wireshark and tshark: see `dissector`) when its name
+        /// ends in `.pcap`.
         #[arg(long, value_name = "LOG")]
         record: Option<String>,
         /// Replay a candump log instead of listening to the bus, at the recorded pace.
@@ -162,6 +185,21 @@ enum Command {
         /// Print a line per happening instead of the live view.
         #[arg(long)]
         plain: bool,
+    },
+    /// Print a Wireshark Lua dissector for the network file's safety frames: each SRDO's
+    /// pairs (plain on COB-ID 1, inverted on COB-ID 2) with the bit-by-bit inversion check,
+    /// the gap against SRVT and the period against SCT; the GFC (001h); SimpleCAN packets
+    /// with their CRC checked against the file's node hashes. Offline.
+    ///
+    ///   safety-config dissector network.toml > safety.lua
+    ///   wireshark -X lua_script:safety.lua bus.pcap
+    ///   tshark -X lua_script:safety.lua -r bus.pcap -Y cansafety
+    ///
+    /// A trace: `bus.pcap` of `cargo xtask run`, or `monitor --record trace.pcap`.
+    #[command(verbatim_doc_comment)]
+    Dissector {
+        /// The network file (TOML), or a node's DCF (`.dcf`).
+        file: String,
     },
     /// Send the global fail-safe command (GFC, CAN-ID 001h): every safety node in
     /// Operational goes to its safe state.
@@ -318,6 +356,19 @@ impl Operator for Person {
     }
 }
 
+/// The interface to use: `--bus`, else the emulated bus at the port of CAN_HUB_PORT.
+fn bus(given: Option<&str>) -> Result<String, ToolError> {
+    use safety_config::socketcand::{HUB_PORT_VARIABLE, hub_bus};
+    match given {
+        Some(spec) => Ok(spec.to_owned()),
+        None => {
+            let port = std::env::var_os(HUB_PORT_VARIABLE);
+            hub_bus(port.as_ref().map(|port| port.to_string_lossy()).as_deref())
+                .map_err(ToolError::Usage)
+        }
+    }
+}
+
 fn open_bus(spec: &str) -> Result<Box<dyn Transport>, ToolError> {
     let usage = || {
         ToolError::Usage(format!(
@@ -351,21 +402,137 @@ fn open_bus(spec: &str) -> Result<Box<dyn Transport>, ToolError> {
     }
 }
 
-fn parse_object(text: &str) -> Result<Address, ToolError> {
-    let bad = || {
+/// A node-ID argument: 1..=127 (CiA 301 7.2.8.1), or a sentence naming what it is not.
+fn node_id(text: &str) -> Result<u8, String> {
+    text.trim()
+        .parse::<u8>()
+        .ok()
+        .filter(|id| (1..=127).contains(id))
+        .ok_or_else(|| format!("{text:?} is not a node-ID from 1 to 127"))
+}
+
+/// A hexadecimal number of an object argument: bare (`1018`), with `0x` (`0x1018`) or with
+/// `h` (`1018h`); `what` names the part ("index", "sub-index") in the error.
+fn hexadecimal(text: &str, what: &str, largest: u32) -> Result<u32, ToolError> {
+    let digits = text
+        .strip_prefix("0x")
+        .or_else(|| text.strip_prefix("0X"))
+        .or_else(|| text.strip_suffix('h'))
+        .or_else(|| text.strip_suffix('H'))
+        .unwrap_or(text);
+    if digits.is_empty() || !digits.chars().all(|c| c.is_ascii_hexdigit()) {
+        return Err(ToolError::Usage(format!(
+            "the {what} {text:?} is not hexadecimal (e.g. {})",
+            if what == "index" {
+                "1018, 0x1018 or 1018h"
+            } else {
+                "1, 0x01 or 01h"
+            }
+        )));
+    }
+    // Leading zeros are allowed (`0001`); a number of more than 32 bits is too large anyway.
+    let significant = digits.trim_start_matches('0');
+    let value = match significant.len() {
+        0 => Some(0),
+        1..=8 => u32::from_str_radix(significant, 16).ok(),
+        _ => None,
+    };
+    value.filter(|value| *value <= largest).ok_or_else(|| {
         ToolError::Usage(format!(
-            "{text:?} is not an object INDEX:SUB (hexadecimal, e.g. 1018:4)"
+            "the {what} {text:?} is larger than {largest:X}h, the largest {what}"
         ))
+    })
+}
+
+/// The object of a `read` or `write`: `INDEX:SUB` in one argument, or `INDEX` and `SUB` in
+/// two, each hexadecimal (bare, `0x` or `h`).
+fn parse_object(object: &str, sub: Option<&str>) -> Result<Address, ToolError> {
+    let (index, sub) = match (object.split_once(':'), sub) {
+        (Some((index, sub)), None) => (index, sub),
+        (None, Some(sub)) => (object, sub),
+        (Some(_), Some(extra)) => {
+            return Err(ToolError::Usage(format!(
+                "the object {object:?} already has its sub-index; {extra:?} after it is one \
+                 argument too many"
+            )));
+        }
+        (None, None) => {
+            return Err(ToolError::Usage(format!(
+                "the object {object:?} needs a sub-index: {object}:0 or {object} 0 (hexadecimal)"
+            )));
+        }
     };
-    let (index, sub) = text.split_once(':').ok_or_else(bad)?;
-    let hex = |part: &str| {
-        part.trim_start_matches("0x")
-            .trim_start_matches("0X")
-            .to_owned()
+    let index = hexadecimal(index.trim(), "index", u32::from(u16::MAX))?;
+    let sub = hexadecimal(sub.trim(), "sub-index", u32::from(u8::MAX))?;
+    // Both were checked against their type's largest value just above.
+    Ok(Address::new(index as u16, sub as u8))
+}
+
+/// The object and value of a `write`: `OBJECT VALUE` with OBJECT `INDEX:SUB`, or
+/// `INDEX SUB VALUE`.
+fn parse_write(object: &str, rest: &[String]) -> Result<(Address, String), ToolError> {
+    match rest {
+        [value] if object.contains(':') => Ok((parse_object(object, None)?, value.clone())),
+        [value] => Err(ToolError::Usage(format!(
+            "the object {object:?} needs a sub-index before the value {value:?}: \
+             write NODE {object}:SUB {value} or write NODE {object} SUB {value}"
+        ))),
+        [sub, value] => Ok((parse_object(object, Some(sub))?, value.clone())),
+        _ => Err(ToolError::Usage(format!(
+            "write takes the object {object:?}, then the sub-index (unless after a colon) and \
+             the value; {} argument(s) followed it",
+            rest.len()
+        ))),
+    }
+}
+
+/// The value of a `write` as octets: a number (decimal or `0x`-hexadecimal) in `len` bytes,
+/// or with `bytes` hexadecimal octets.
+fn parse_value(value: &str, len: usize, bytes: bool) -> Result<Vec<u8>, ToolError> {
+    if bytes {
+        let words: Vec<String> = value.split_whitespace().map(str::to_owned).collect();
+        return Ok(safety_config::socketcand::parse_hex_data(&words)?);
+    }
+    let number = match value
+        .strip_prefix("0x")
+        .or_else(|| value.strip_prefix("0X"))
+    {
+        Some(hex) => u64::from_str_radix(hex, 16),
+        None => value.parse(),
+    }
+    .map_err(|_| {
+        ToolError::Usage(format!(
+            "the value {value:?} is not a number (decimal or 0x-hexadecimal; octets with --bytes)"
+        ))
+    })?;
+    if !matches!(len, 1 | 2 | 4) {
+        return Err(ToolError::Usage(format!(
+            "--len {len} is not 1, 2 or 4 bytes"
+        )));
+    }
+    if number >> (8 * len) != 0 {
+        return Err(ToolError::Usage(format!(
+            "the value {value} does not fit --len {len} byte(s)"
+        )));
+    }
+    Ok(number.to_le_bytes()[..len].to_vec())
+}
+
+/// The line `read` prints: the object, then its value as the EDS types it, or its octets
+/// when no device of this project has the object.
+fn read_line(address: Address, value: &[u8]) -> String {
+    let described = match safety_config::eds::entry_at(address) {
+        Some(entry) => safety_config::eds::describe_value(&entry, value),
+        None => {
+            let hex: Vec<String> = value.iter().map(|b| format!("{b:02X}")).collect();
+            format!(
+                "{} byte(s) {} (not in the device's EDS: type unknown)",
+                value.len(),
+                hex.join(" ")
+            )
+        }
     };
-    let index = u16::from_str_radix(&hex(index), 16).map_err(|_| bad())?;
-    let sub = u8::from_str_radix(&hex(sub), 16).map_err(|_| bad())?;
-    Ok(Address::new(index, sub))
+    format!("{}: {described}", procedure::describe(address))
 }
 
 fn load(file: &str) -> Result<network_file::Network, ToolError> {
@@ -471,6 +638,10 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         return Ok(true);
     }
+    if let Command::Dissector { file } = &cli.command {
+        print!("{}", safety_config::dissector::lua(&load(file)?, file));
+        return Ok(true);
+    }
     if let Command::Eds { simplecan, srdos } = &cli.command {
         match simplecan {
             Some(entries) => {
@@ -504,7 +675,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             ));
         }
         return monitor(
-            &cli.bus,
+            cli.bus.as_deref(),
             file.as_deref(),
             record.as_deref(),
             replay.as_deref(),
@@ -606,9 +777,28 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         return Ok(budget.warnings.is_empty() && simplecan.is_none_or(|s| s.within()));
     }
-    let mut client = Client::new(open_bus(&cli.bus)?, timeout);
+    // The arguments are checked before the bus is opened: a mistyped object is named as
+    // such, not hidden behind a bus that is not there.
+    match &cli.command {
+        Command::Read { object, sub, .. } => {
+            parse_object(object, sub.as_deref())?;
+        }
+        Command::Write {
+            object,
+            rest,
+            len,
+            bytes,
+            ..
+        } => {
+            let (_, value) = parse_write(object, rest)?;
+            parse_value(&value, *len, *bytes)?;
+        }
+        _ => {}
+    }
+    let mut client = Client::new(open_bus(&bus(cli.bus.as_deref())?)?, timeout);
     match cli.command {
         Command::Sign { .. }
+        | Command::Dissector { .. }
         | Command::Eds { .. }
         | Command::Monitor { .. }
         | Command::Sfrt { .. }
@@ -669,54 +859,38 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             }
             Ok(true)
         }
-        Command::Read { node, object } => {
-            let address = parse_object(&object)?;
+        Command::Read { node, object, sub } => {
+            let address = parse_object(&object, sub.as_deref())?;
             let value = client.read(node, address)?;
             if cli.json {
+                let entry = safety_config::eds::entry_at(address);
+                let data_type = entry
+                    .as_ref()
+                    .and_then(|entry| safety_config::eds::type_name(entry.data_type));
+                let decoded = entry
+                    .as_ref()
+                    .and_then(|entry| safety_config::eds::json_value(entry, &value));
                 println!(
                     "{}",
                     json(
-                        &serde_json::json!({"node": node, "index": address.index, "sub": address.sub, "bytes": value})
+                        &serde_json::json!({"node": node, "index": address.index, "sub": address.sub, "bytes": value, "type": data_type, "value": decoded})
                     )?
                 );
             } else {
-                let hex: Vec<String> = value.iter().map(|b| format!("{b:02X}")).collect();
-                let mut line = format!("{}: {}", procedure::describe(address), hex.join(" "));
-                if (1..=4).contains(&value.len()) {
-                    let mut raw = [0u8; 4];
-                    raw[..value.len()].copy_from_slice(&value);
-                    let number = u32::from_le_bytes(raw);
-                    line.push_str(&format!(" = {number} ({number:X}h)"));
-                }
-                println!("{line}");
+                println!("{}", read_line(address, &value));
             }
             Ok(true)
         }
         Command::Write {
             node,
             object,
-            value,
+            rest,
             len,
             bytes,
             unlock,
         } => {
-            let address = parse_object(&object)?;
-            let data = if bytes {
-                let words: Vec<String> = value.split_whitespace().map(str::to_owned).collect();
-                safety_config::socketcand::parse_hex_data(&words)?
-            } else {
-                let number = match value.strip_prefix("0x") {
-                    Some(hex) => u64::from_str_radix(hex, 16),
-                    None => value.parse(),
-                }
-                .map_err(|_| ToolError::Usage(format!("{value:?} is not a number")))?;
-                if !matches!(len, 1 | 2 | 4) || number >> (8 * len) != 0 {
-                    return Err(ToolError::Usage(format!(
-                        "{value} does not fit {len} byte(s) (1, 2 or 4)"
-                    )));
-                }
-                number.to_le_bytes()[..len].to_vec()
-            };
+            let (address, value) = parse_write(&object, &rest)?;
+            let data = parse_value(&value, len, bytes)?;
             let mut person = Person {
                 accept_identity: false,
                 quiet: cli.json,
@@ -881,7 +1055,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
 
 /// `safety-config monitor`: the live view, or plain lines and a summary.
 fn monitor(
-    bus: &str,
+    bus: Option<&str>,
     file: Option<&str>,
     record: Option<&str>,
     replay: Option<&str>,
@@ -906,10 +1080,13 @@ fn monitor(
             Source::replay(std::path::Path::new(log), fast)?,
             format!("safety-config monitor: replay of {log}"),
         ),
-        None => (
-            Source::Bus(open_bus(bus)?),
-            format!("safety-config monitor: {bus}"),
-        ),
+        None => {
+            let bus = self::bus(bus)?;
+            (
+                Source::Bus(open_bus(&bus)?),
+                format!("safety-config monitor: {bus}"),
+            )
+        }
     };
     let live = !plain && std::io::stdout().is_terminal();
     let options = Options {
@@ -917,6 +1094,7 @@ fn monitor(
         record: record.map(Into::into),
         stop_after,
         live,
+        interrupt: Some(monitor::interrupt_on_ctrl_c()?),
     };
     let model = monitor::run(source, model, options)?;
     if !live {
@@ -958,6 +1136,233 @@ fn main() -> ExitCode {
 mod tests {
     use super::*;
     use std::collections::BTreeMap;
+
+    fn usage(result: Result<impl std::fmt::Debug, ToolError>) -> String {
+        match result {
+            Err(ToolError::Usage(sentence)) => sentence,
+            other => panic!("expected a usage error, got {other:?}"),
+        }
+    }
+
+    /// `read` and `write` take the object as one argument `INDEX:SUB` or as two, each
+    /// hexadecimal bare, with `0x` or with `h`; every form names the same object.
+    #[test]
+    fn an_object_is_index_and_sub_index_in_every_written_form() {
+        let vendor = Address::new(0x1018, 1);
+        for (object, sub) in [
+            ("1018:1", None),
+            ("1018", Some("1")),
+            ("0x1018:0x01", None),
+            ("0X1018", Some("0x1")),
+            ("1018h:01h", None),
+            ("1018H", Some("01H")),
+            ("01018:001", None),
+        ] {
+            assert_eq!(
+                parse_object(object, sub).unwrap(),
+                vendor,
+                "{object} {sub:?}"
+            );
+        }
+        // Hexadecimal throughout: sub-index 10 is 10h.
+        assert_eq!(
+            parse_object("1301", Some("10")).unwrap(),
+            Address::new(0x1301, 0x10)
+        );
+        assert_eq!(
+            parse_object("FFFF:FF", None).unwrap(),
+            Address::new(0xFFFF, 0xFF)
+        );
+    }
+
+    /// A bad object is a sentence naming the part that is wrong, never a guess.
+    #[test]
+    fn a_bad_object_is_refused_with_a_sentence_naming_the_argument() {
+        assert_eq!(
+            usage(parse_object("10G8:1", None)),
+            "the index \"10G8\" is not hexadecimal (e.g. 1018, 0x1018 or 1018h)"
+        );
+        assert_eq!(
+            usage(parse_object("1018", Some("x"))),
+            "the sub-index \"x\" is not hexadecimal (e.g. 1, 0x01 or 01h)"
+        );
+        assert_eq!(
+            usage(parse_object("12345:0", None)),
+            "the index \"12345\" is larger than FFFFh, the largest index"
+        );
+        assert_eq!(
+            usage(parse_object("1018", Some("100"))),
+            "the sub-index \"100\" is larger than FFh, the largest sub-index"
+        );
+        assert_eq!(
+            usage(parse_object("1018", None)),
+            "the object \"1018\" needs a sub-index: 1018:0 or 1018 0 (hexadecimal)"
+        );
+        assert_eq!(
+            usage(parse_object("1018:1", Some("2"))),
+            "the object \"1018:1\" already has its sub-index; \"2\" after it is one argument too many"
+        );
+        for empty in [":1", "1018:", "0x:1", "h:1"] {
+            assert!(
+                usage(parse_object(empty, None)).contains("is not hexadecimal"),
+                "{empty}"
+            );
+        }
+    }
+
+    /// `write NODE OBJECT VALUE` with OBJECT `INDEX:SUB`, or `write NODE INDEX SUB VALUE`;
+    /// a value without a sub-index is refused rather than written to sub-index 0.
+    #[test]
+    fn write_takes_the_sub_index_after_a_colon_or_as_its_own_argument() {
+        let words = |list: &[&str]| list.iter().map(|w| w.to_string()).collect::<Vec<_>>();
+        let heartbeat = Address::new(0x1017, 0);
+        assert_eq!(
+            parse_write("1017:0", &words(&["500"])).unwrap(),
+            (heartbeat, "500".to_owned())
+        );
+        assert_eq!(
+            parse_write("1017h", &words(&["00h", "0x1F4"])).unwrap(),
+            (heartbeat, "0x1F4".to_owned())
+        );
+        assert!(
+            usage(parse_write("1017", &words(&["500"])))
+                .starts_with("the object \"1017\" needs a sub-index before the value \"500\"")
+        );
+        assert!(usage(parse_write("1017:0", &words(&["0", "500"]))).contains("already has"));
+        assert_eq!(parse_value("0x1F4", 2, false).unwrap(), vec![0xF4, 0x01]);
+        assert_eq!(
+            parse_value("500", 4, false).unwrap(),
+            vec![0xF4, 0x01, 0, 0]
+        );
+        assert_eq!(
+            parse_value("73 61 76 65", 4, true).unwrap(),
+            b"save".to_vec()
+        );
+        assert_eq!(
+            usage(parse_value("70000", 2, false)),
+            "the value 70000 does not fit --len 2 byte(s)"
+        );
+        assert_eq!(
+            usage(parse_value("5", 3, false)),
+            "--len 3 is not 1, 2 or 4 bytes"
+        );
+        assert!(
+            usage(parse_value("five", 1, false)).starts_with("the value \"five\" is not a number")
+        );
+    }
+
+    /// The command line as a user types it: both forms of `read` parse to the same
+    /// arguments; a node-ID outside 1..=127 is refused by clap with its name.
+    #[test]
+    fn the_command_line_takes_read_in_both_forms_and_names_a_bad_node_id() {
+        for line in [
+            &["safety-config", "read", "5", "1018", "1"][..],
+            &["safety-config", "read", "5", "1018:1"][..],
+            &["safety-config", "read", "5", "1018h:01h"][..],
+        ] {
+            let Command::Read { node, object, sub } = Cli::try_parse_from(line).unwrap().command
+            else {
+                panic!("{line:?} is not read");
+            };
+            assert_eq!(node, 5);
+            assert_eq!(
+                parse_object(&object, sub.as_deref()).unwrap(),
+                Address::new(0x1018, 1)
+            );
+        }
+        let Command::Write { object, rest, .. } =
+            Cli::try_parse_from(["safety-config", "write", "5", "1017", "0", "500"])
+                .unwrap()
+                .command
+        else {
+            panic!("not write");
+        };
+        assert_eq!(
+            parse_write(&object, &rest).unwrap(),
+            (Address::new(0x1017, 0), "500".to_owned())
+        );
+        for bad in ["0", "128", "x"] {
+            let error = Cli::try_parse_from(["safety-config", "read", bad, "1018:1"])
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(
+                error.contains("'<NODE>'") && error.contains("is not a node-ID from 1 to 127"),
+                "{error}"
+            );
+        }
+        assert!(
+            Cli::try_parse_from(["safety-config", "write", "5", "1017", "0", "500", "1"]).is_err(),
+            "a fourth word after write's node-ID"
+        );
+    }
+
+    /// The default bus is the emulated bus at CAN_HUB_PORT, as `cargo xtask run` starts it;
+    /// --bus wins; a variable that is not a port is refused, naming it.
+    #[test]
+    fn the_default_bus_follows_can_hub_port_and_a_given_bus_wins() {
+        use safety_config::socketcand::hub_bus;
+        assert_eq!(hub_bus(None).unwrap(), "socketcand:127.0.0.1:29536/can0");
+        assert_eq!(
+            hub_bus(Some("30400")).unwrap(),
+            "socketcand:127.0.0.1:30400/can0"
+        );
+        for bad in ["", "abc", "0", "65535", "70000", "-1", " 30400"] {
+            let sentence = hub_bus(Some(bad)).unwrap_err();
+            assert!(
+                sentence.starts_with(&format!(
+                    "CAN_HUB_PORT={bad:?} is not a port from 1 to 65534"
+                )),
+                "{sentence}"
+            );
+        }
+        assert_eq!(
+            bus(Some("slcan:/dev/ttyACM0")).unwrap(),
+            "slcan:/dev/ttyACM0"
+        );
+        let cli = Cli::try_parse_from(["safety-config", "scan"]).unwrap();
+        assert_eq!(
+            cli.bus, None,
+            "no default on the command line: the variable decides"
+        );
+    }
+
+    /// `read` prints the value as the EDS types the object (CiA 306 DataType): unsigned
+    /// numbers in hexadecimal with every digit of the type and in decimal, a VISIBLE_STRING
+    /// as text; a length other than the type's, or an object of no EDS, as octets.
+    #[test]
+    fn cia306_read_prints_the_value_by_its_eds_data_type() {
+        assert_eq!(
+            read_line(Address::new(0x1018, 1), &[0x23, 0x01, 0, 0]),
+            "object 1018h:01h (identity: vendor-ID): UNSIGNED32 0x00000123 (291)"
+        );
+        assert_eq!(
+            read_line(Address::new(0x1017, 0), &[0xF4, 0x01]),
+            "object 1017h:00h: UNSIGNED16 0x01F4 (500)"
+        );
+        assert_eq!(
+            read_line(Address::new(0x13FE, 0), &[0xA5]),
+            "object 13FEh:00h (configuration valid): UNSIGNED8 0xA5 (165)"
+        );
+        assert_eq!(
+            read_line(Address::new(0x1008, 0), b"Safety node"),
+            "object 1008h:00h: VISIBLE_STRING \"Safety node\""
+        );
+        assert_eq!(
+            read_line(Address::new(0x1018, 1), &[0x23, 0x01]),
+            "object 1018h:01h (identity: vendor-ID): 2 byte(s) where UNSIGNED32 has 4: 23 01"
+        );
+        assert_eq!(
+            read_line(Address::new(0x2FFF, 7), &[1, 2, 3]),
+            "object 2FFFh:07h: 3 byte(s) 01 02 03 (not in the device's EDS: type unknown)"
+        );
+        // An object only a device with SimpleCAN has: typed from that device's EDS.
+        let line = read_line(Address::new(0x5EFF, 0), &[0xDA, 0x9D, 0x36, 0x59]);
+        assert!(
+            line.ends_with(": UNSIGNED32 0x59369DDA (1496751578)"),
+            "{line}"
+        );
+    }
 
     /// A value JSON cannot carry (a map keyed by pairs: JSON keys are strings) is an error
     /// that says so in a sentence, not an empty or partial report.

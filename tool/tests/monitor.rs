@@ -254,3 +254,78 @@ fn socketcand_frames_carry_the_servers_timestamp() {
     assert!(at >= before && at <= client.now(), "{at:?}");
     server.join().unwrap();
 }
+
+/// Ctrl-C (SIGINT) ends a plain run as the end of the log would: the line saying so, then the
+/// summary of what was seen up to then, and success. The log lasts ten minutes at the
+/// recorded pace, so only the signal can end the run before the watchdog does.
+#[test]
+fn the_monitor_program_prints_its_summary_on_ctrl_c_in_plain_mode() {
+    use std::io::BufRead;
+    let log = temporary("interrupted.log");
+    let start = Duration::from_secs(1_700_000_000);
+    let mut lines = vec![candump::line(start, "can0", &frame(0x701, &[0x00]))];
+    for n in 0..6000u64 {
+        let at = start + Duration::from_millis(100 * n + 10);
+        lines.push(candump::line(at, "can0", &frame(0x701, &[0x05])));
+        lines.push(candump::line(at + MS, "can0", &frame(0x101, &[0x01, 0x00])));
+        lines.push(candump::line(
+            at + 2 * MS,
+            "can0",
+            &frame(0x102, &[0xFE, 0xFF]),
+        ));
+    }
+    std::fs::write(&log, lines.join("\n")).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_safety-config"))
+        .args(["monitor", "--plain", "--replay"])
+        .arg(&log)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id().to_string();
+    // The watchdog: a run that ignores the signal is killed, and the test fails below.
+    let watchdog_pid = pid.clone();
+    let (done, finished) = std::sync::mpsc::channel::<()>();
+    let watchdog = std::thread::spawn(move || {
+        if finished.recv_timeout(Duration::from_secs(120)).is_err() {
+            let _ = std::process::Command::new("kill")
+                .args(["-s", "KILL", &watchdog_pid])
+                .status();
+        }
+    });
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    assert!(
+        first.contains("node 1: boot-up, Pre-operational"),
+        "{first}"
+    );
+    let sent = std::process::Command::new("kill")
+        .args(["-s", "INT", &pid])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    let _ = done.send(());
+    watchdog.join().unwrap();
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    assert!(status.success(), "{status}: {first}{rest}\n{stderr}");
+    let interrupted = rest
+        .find("stopped by Ctrl-C (SIGINT)")
+        .unwrap_or_else(|| panic!("no Ctrl-C line in\n{first}{rest}"));
+    let summary = rest
+        .find("## Summary")
+        .unwrap_or_else(|| panic!("no summary in\n{first}{rest}"));
+    assert!(interrupted < summary, "{rest}");
+    assert!(
+        rest[summary..].contains("node 1: "),
+        "the summary names what was seen: {rest}"
+    );
+    assert!(
+        !rest.contains("6000 valid"),
+        "the whole log was replayed: {rest}"
+    );
+}

@@ -538,11 +538,14 @@ pub fn task(
     let mut network = Network::start_for(root, protocol)?;
     // The monitor's own socketcand connection to the hub, beside the configuration tool's.
     let mut bus = SocketcandClient::connect(&network::hub_tcp(), "can0")?;
-    let file = protocol.network_file();
-    let mut model = Monitor::for_network(&safety_config::network_file::parse(
-        &file,
-        "target/emulate/network.toml",
-    )?);
+    let origin = "target/emulate/network.toml";
+    let file = safety_config::network_file::parse(&protocol.network_file(), origin)?;
+    let mut model = Monitor::for_network(&file);
+    // Wireshark's dissector of this network's safety frames, beside bus.pcap.
+    std::fs::write(
+        network.dir().join("safety.lua"),
+        safety_config::dissector::lua(&file, origin),
+    )?;
     let started = Instant::now();
     schedule.sort_by_key(|(at, _)| *at);
     let mut schedule = schedule.into_iter().peekable();
@@ -722,6 +725,10 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     println!(
         "traces: {}/bus.log (candump), bus.pcap; decoded logs: {}/node*.log",
         dir.display(),
+        dir.display()
+    );
+    println!(
+        "safety frames in Wireshark: wireshark -X lua_script:{0}/safety.lua {0}/bus.pcap (SRDO pairs, GFC, SimpleCAN CRCs; tshark: -X lua_script:{0}/safety.lua -r {0}/bus.pcap -Y cansafety)",
         dir.display()
     );
     outcome?;

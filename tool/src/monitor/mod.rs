@@ -5,12 +5,14 @@
 //!   EMCY in words, SDO traffic), sans-I/O: fed `(now, frame)`, polled with `now`.
 //! - [`view`]: the terminal drawing of the model (ratatui), and the same as plain lines.
 //! - [`candump`]: the candump log format the monitor records and replays.
+//! - [`pcap`]: pcap files (SocketCAN link type) the monitor records for Wireshark.
 //!
 //! This module is the I/O around them: the bus or the log, the keyboard, the terminal, the
 //! recording.
 
 pub mod candump;
 pub mod model;
+pub mod pcap;
 pub mod view;
 
 use crate::transport::{Transport, TransportError};
@@ -19,6 +21,8 @@ use model::Monitor;
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
 use std::io::Write;
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime};
 use view::Screen;
 
@@ -50,6 +54,9 @@ pub enum MonitorError {
     /// The terminal could not be drawn on or read from.
     #[error("the terminal failed: {0}")]
     Terminal(std::io::Error),
+    /// Ctrl-C (SIGINT) could not be caught.
+    #[error("the monitor cannot catch Ctrl-C to end with its summary: {0}")]
+    Interrupt(#[from] ctrlc::Error),
 }
 
 /// Where the frames come from.
@@ -82,12 +89,31 @@ impl Source {
 pub struct Options {
     /// The title line (what is monitored).
     pub title: String,
-    /// Record every frame into this candump log.
+    /// Record every frame into this file: a pcap ([`pcap`]) when its name ends in `.pcap`,
+    /// else a candump log.
     pub record: Option<PathBuf>,
     /// End after this long (wall-clock time); `None`: until `q`, or the end of a replay.
     pub stop_after: Option<Duration>,
     /// Draw the live view (a terminal); `false` prints a line per happening instead.
     pub live: bool,
+    /// Ends the monitor, as `q` does, once it is `true` ([`interrupt_on_ctrl_c`]).
+    pub interrupt: Option<Arc<AtomicBool>>,
+}
+
+/// A flag that Ctrl-C (SIGINT) sets, for [`Options::interrupt`]: the monitor then ends as
+/// with `q`, and a plain run prints its summary. A second Ctrl-C before the monitor has ended
+/// ends the process at once (exit status 130, as a shell reports SIGINT). In the live view
+/// the terminal is in raw mode, where Ctrl-C is a key, not a signal; a SIGINT sent by
+/// another process ends it the same way.
+pub fn interrupt_on_ctrl_c() -> Result<Arc<AtomicBool>, MonitorError> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let set = Arc::clone(&flag);
+    ctrlc::set_handler(move || {
+        if set.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    })?;
+    Ok(flag)
 }
 
 /// The keys the monitor takes, for the bottom line and the help.
@@ -148,12 +174,10 @@ pub fn run(
 ) -> Result<Monitor, MonitorError> {
     let mut recording = match &options.record {
         Some(path) => Some((
-            std::io::BufWriter::new(std::fs::File::create(path).map_err(|source| {
-                MonitorError::WriteLog {
-                    path: path.clone(),
-                    source,
-                }
-            })?),
+            Recording::create(path).map_err(|source| MonitorError::WriteLog {
+                path: path.clone(),
+                source,
+            })?,
             path.clone(),
         )),
         None => None,
@@ -236,12 +260,11 @@ pub fn run(
                         }) + *now
                     }
                 };
-                writeln!(file, "{}", candump::line(at, "can0", frame)).map_err(|source| {
-                    MonitorError::WriteLog {
+                file.write(at, frame)
+                    .map_err(|source| MonitorError::WriteLog {
                         path: path.clone(),
                         source,
-                    }
-                })?;
+                    })?;
             }
         }
         if bus_closed && !noted_close {
@@ -249,11 +272,21 @@ pub fn run(
             let line = "the CAN interface closed the connection".to_owned();
             monitor.note(monitor.now, line);
         }
+        let interrupted = options
+            .interrupt
+            .as_ref()
+            .is_some_and(|flag| flag.load(Ordering::SeqCst));
+        if interrupted {
+            monitor.note(monitor.now, "stopped by Ctrl-C (SIGINT)".to_owned());
+        }
         if terminal.is_none() {
             for (at, line) in monitor.happenings_since(printed) {
                 println!("{:>9.3} s  {line}", at.as_secs_f64());
             }
             printed = monitor.happened;
+        }
+        if interrupted {
+            break;
         }
         if options
             .stop_after
@@ -311,6 +344,45 @@ pub fn run(
             .map_err(|source| MonitorError::WriteLog { path, source })?;
     }
     Ok(monitor)
+}
+
+/// A recording of the bus: a candump log, or a pcap.
+enum Recording {
+    /// `candump -l` lines on the interface `can0`.
+    Candump(std::io::BufWriter<std::fs::File>),
+    /// pcap records with the SocketCAN link type.
+    Pcap(pcap::PcapWriter<std::io::BufWriter<std::fs::File>>),
+}
+
+impl Recording {
+    /// A new recording at `path`: a pcap when the name ends in `.pcap`, else a candump log.
+    fn create(path: &std::path::Path) -> std::io::Result<Recording> {
+        let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+        let is_pcap = path
+            .extension()
+            .is_some_and(|extension| extension.eq_ignore_ascii_case("pcap"));
+        Ok(if is_pcap {
+            Recording::Pcap(pcap::PcapWriter::new(file)?)
+        } else {
+            Recording::Candump(file)
+        })
+    }
+
+    /// Records `frame` at `at` (time since the Unix epoch, or since a replayed log's zero).
+    fn write(&mut self, at: Duration, frame: &shared::CanFrame) -> std::io::Result<()> {
+        match self {
+            Recording::Candump(file) => writeln!(file, "{}", candump::line(at, "can0", frame)),
+            Recording::Pcap(pcap) => pcap.write(at, frame),
+        }
+    }
+
+    /// Writes out what is buffered.
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Recording::Candump(file) => file.flush(),
+            Recording::Pcap(pcap) => pcap.flush(),
+        }
+    }
 }
 
 /// The terminal in raw mode on the alternate screen, given back as it was when dropped (on

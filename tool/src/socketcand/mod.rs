@@ -20,6 +20,36 @@ use std::time::Duration;
 /// How long the handshake may take before the server counts as not answering.
 const HANDSHAKE_PATIENCE: Duration = Duration::from_secs(5);
 
+/// The environment variable that moves the emulated bus's socketcand port (`cargo xtask run`
+/// starts its hub there, bus `can0`), which the tool's default `--bus` follows.
+pub const HUB_PORT_VARIABLE: &str = "CAN_HUB_PORT";
+
+/// The emulated bus's socketcand port when [`HUB_PORT_VARIABLE`] is not set.
+pub const DEFAULT_HUB_PORT: u16 = 29536;
+
+/// The interface of the emulated bus, as `--bus` names it, for the value of
+/// [`HUB_PORT_VARIABLE`] (`None`: not set): `socketcand:127.0.0.1:PORT/can0`. A value that
+/// is not a port from 1 to 65534 (the hub's control port is the next one) is refused with a
+/// sentence naming the variable, never replaced by the default in silence.
+pub fn hub_bus(hub_port: Option<&str>) -> Result<String, String> {
+    let port = match hub_port {
+        None => DEFAULT_HUB_PORT,
+        // Read exactly as `cargo xtask run` reads it (`xtask/src/network.rs`), no trimming.
+        Some(text) => text
+            .parse::<u16>()
+            .ok()
+            .filter(|port| (1..u16::MAX).contains(port))
+            .ok_or_else(|| {
+                format!(
+                    "{HUB_PORT_VARIABLE}={text:?} is not a port from 1 to 65534: set it to the \
+                     port of `cargo xtask run`'s hub, unset it for {DEFAULT_HUB_PORT}, or name \
+                     the interface with --bus"
+                )
+            })?,
+    };
+    Ok(format!("socketcand:127.0.0.1:{port}/can0"))
+}
+
 /// Splits every complete `< ... >` message off the front of `buffer` and returns their words.
 /// Text outside a message (whitespace between messages) is skipped; an unfinished message
 /// stays in the buffer.
