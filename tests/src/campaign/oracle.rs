@@ -183,7 +183,7 @@ impl Monitor {
     }
 
     /// The deadlines that elapse up to and including `now` (a deadline at exactly `now` has
-    /// elapsed: EN 50325-5 7.1.2 as the device reads it, README "timers fire at the deadline
+    /// elapsed: EN 50325-5 7.1.2 as the device reads it, docs/overview.md "timers fire at the deadline
     /// itself"), in time order.
     fn elapse(&mut self, now: u64) {
         loop {
