@@ -34,6 +34,7 @@
 
 use crate::filters::AcceptanceList;
 use crate::runtime::{ChannelEvent, ChannelProtocol, Io, Role, Runtime};
+use shared::canopen::nmt::NmtState;
 use shared::canopen::od::Address;
 use shared::canopen::storage::Flash;
 use shared::safety::config::SrdoRecord;
@@ -173,6 +174,9 @@ pub struct ChannelLoop {
     pins: Pins,
     /// The acceptance list last handed to the driver (`None`: none yet).
     filters: Option<AcceptanceList>,
+    /// The list was built in the current Operational period: it stands until the node
+    /// leaves Operational.
+    filters_in_operational: bool,
     /// The last sample handed to the runtime per input pin.
     sampled: [Option<bool>; MAX_PINS],
     next_sample: Instant,
@@ -192,6 +196,7 @@ impl ChannelLoop {
         ChannelLoop {
             pins,
             filters: None,
+            filters_in_operational: false,
             sampled: [None; MAX_PINS],
             next_sample: Instant::ZERO,
             levels: [None; MAX_PINS],
@@ -265,20 +270,27 @@ impl ChannelLoop {
         self.next_sample = now + SAMPLE_PERIOD;
         if handed || shared::time::expired(self.runtime_deadline, now) {
             self.runtime_deadline = runtime.poll(now, &mut io);
-            #[cfg_attr(
-                not(feature = "simplecan"),
-                expect(unused_mut, reason = "only SimpleCAN adds to the list")
-            )]
-            let mut list =
-                AcceptanceList::of(runtime.node().node_id(), runtime.node().safety_config());
-            #[cfg(feature = "simplecan")]
-            if let Some(layer) = runtime.node().protocol().simplecan() {
-                list.add_simplecan(&layer);
+            // In Operational the configuration cannot change (EN 50325-5 8.2.2: the SRDO
+            // objects refuse writes there), so the list built on entering it stands; outside
+            // it an SDO write may change it at any iteration.
+            let operational = runtime.node().nmt_state() == NmtState::Operational;
+            if !(operational && self.filters_in_operational) {
+                #[cfg_attr(
+                    not(feature = "simplecan"),
+                    expect(unused_mut, reason = "only SimpleCAN adds to the list")
+                )]
+                let mut list =
+                    AcceptanceList::of(runtime.node().node_id(), runtime.node().safety_config());
+                #[cfg(feature = "simplecan")]
+                if let Some(layer) = runtime.node().protocol().simplecan() {
+                    list.add_simplecan(&layer);
+                }
+                if self.filters.as_ref() != Some(&list) {
+                    io.driver.apply_filters(&list);
+                    self.filters = Some(list);
+                }
             }
-            if self.filters.as_ref() != Some(&list) {
-                io.driver.apply_filters(&list);
-                self.filters = Some(list);
-            }
+            self.filters_in_operational = operational;
         }
         // SimpleCAN's producers and master learn what went out (what the calls above sent,
         // on a board whose controller confirms at once, and what completed since the last

@@ -396,6 +396,20 @@ pub enum ChannelEvent {
     },
 }
 
+impl ChannelEvent {
+    /// `true` for the events every pair brings (a pair received, data both channels
+    /// confirmed): a board counts them rather than logging each one (the runtime counts the
+    /// pairs per SRDO); transitions and faults are logged.
+    pub fn is_per_pair(&self) -> bool {
+        match self {
+            ChannelEvent::Node(Event::SrdoReceived { .. }) | ChannelEvent::Confirmed { .. } => true,
+            #[cfg(feature = "simplecan")]
+            ChannelEvent::SimpleCanConfirmed { .. } => true,
+            _ => false,
+        }
+    }
+}
+
 /// The board layer, as the runtime sees it.
 pub trait Io {
     /// Puts `frame` on the CAN bus.
@@ -1663,6 +1677,17 @@ mod tests {
 
     /// One frame per identifier: the newest replaces the older, a full set refuses another
     /// identifier, and what is taken is gone.
+    /// Pairs are counted, not logged one by one; transitions and faults are logged.
+    #[test]
+    fn only_the_events_of_every_pair_are_per_pair() {
+        let srdo = SrdoNumber::FIRST;
+        assert!(ChannelEvent::Node(Event::SrdoReceived { srdo, data: 1 }).is_per_pair());
+        assert!(ChannelEvent::Confirmed { srdo, data: 1 }.is_per_pair());
+        assert!(!ChannelEvent::Node(Event::GfcReceived).is_per_pair());
+        assert!(!ChannelEvent::Node(Event::NmtState(NmtState::Operational)).is_per_pair());
+        assert!(!ChannelEvent::Fault(ChannelFault::BusOff).is_per_pair());
+    }
+
     #[test]
     fn frame_slots_keep_the_newest_frame_per_identifier() {
         let mut slots = FrameSlots::<2>::default();
