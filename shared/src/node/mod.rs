@@ -1139,6 +1139,8 @@ impl Shell {
 #[cfg(test)]
 mod access_tests;
 #[cfg(test)]
+mod lss_tests;
+#[cfg(test)]
 mod sdo_tests;
 #[cfg(test)]
 mod simplecan_tests;

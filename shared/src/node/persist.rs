@@ -411,6 +411,7 @@ pub(super) fn load<F: Flash, P: SafetyProtocol>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::canopen::storage::RamFlash;
     use crate::safety::config::SafetyConfig;
 
     fn sample() -> SafetyConfig<2> {
@@ -506,6 +507,86 @@ mod tests {
         let len = encode::<SrdoTable<2>>(None, &without_secret, node(7), None, &mut out);
         assert_eq!(decode::<2>(&out[..len]).unwrap().0.access, without_secret);
         assert_eq!(decode::<2>(&out[..len + 1]), Err(PersistError::Malformed));
+    }
+
+    #[test]
+    fn cia305_lss_settings_round_trip_beside_the_parameters() {
+        let lss = LssSettings {
+            node_id: Some(node(42)),
+            bit_rate: Some(crate::canopen::lss::BitRate::Kbit125),
+        };
+        let mut out = [0u8; MAX_IMAGE];
+        let mut table = table::<2>();
+        table.safety = sample();
+        let len = encode(Some((&table, 250)), &access(), node(7), Some(lss), &mut out);
+        let (header, config) = decode::<2>(&out[..len]).unwrap();
+        assert_eq!(header.lss, Some(lss));
+        assert_eq!(
+            (header.access, header.node_id, config),
+            (access(), node(7), sample())
+        );
+        // Bytes that are not LSS settings are refused as a whole.
+        for bad in [[0u8, 0xFF], [0x80, 0xFF], [1, 5]] {
+            let mut copy = out;
+            copy[HEADER..HEADER + LSS_LEN].copy_from_slice(&bad);
+            assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::Malformed));
+        }
+    }
+
+    /// The stored image as bytes.
+    fn raw(flash: &mut RamFlash<2048>) -> std::vec::Vec<u8> {
+        let mut buf = [0u8; 2048];
+        let len = storage::load(flash, &mut buf).unwrap().unwrap();
+        buf[..len].to_vec()
+    }
+
+    /// CiA 305 Fig. 36: store configuration changes the LSS settings of the stored image and
+    /// nothing else of it, byte for byte.
+    #[test]
+    fn cia305_store_configuration_rewrites_only_the_lss_settings() {
+        let mut flash = RamFlash::<2048>::new();
+        let mut table = table::<2>();
+        table.safety = sample();
+        store(&mut flash, &table, 250, node(7), &access(), None).unwrap();
+        let before = raw(&mut flash);
+        let first = LssSettings {
+            node_id: Some(node(42)),
+            bit_rate: None,
+        };
+        store_lss::<_, SrdoTable<2>>(&mut flash, node(7), &access(), first).unwrap();
+        let after = raw(&mut flash);
+        let mut expected = before.clone();
+        expected[2] |= HAS_LSS;
+        expected.splice(HEADER..HEADER, first.encode());
+        assert_eq!(after, expected);
+        let second = LssSettings {
+            node_id: None,
+            bit_rate: Some(crate::canopen::lss::BitRate::Kbit500),
+        };
+        store_lss::<_, SrdoTable<2>>(&mut flash, node(7), &access(), second).unwrap();
+        let mut expected = after.clone();
+        expected[HEADER..HEADER + LSS_LEN].copy_from_slice(&second.encode());
+        assert_eq!(raw(&mut flash), expected);
+        // 0x1010 keeps them; so does 0x1011 (an image without parameters).
+        store(&mut flash, &table, 100, node(7), &access(), Some(second)).unwrap();
+        assert_eq!(decode::<2>(&raw(&mut flash)).unwrap().0.lss, Some(second));
+        restore_defaults::<_, SrdoTable<2>>(
+            &mut flash,
+            node(7),
+            &Persisted::new([0; 2]),
+            Some(second),
+        )
+        .unwrap();
+        let (header, _) = decode::<2>(&raw(&mut flash)).unwrap();
+        assert_eq!((header.lss, header.heartbeat_ms), (Some(second), None));
+        // With nothing stored, an image of the LSS settings and the access part alone.
+        let mut empty = RamFlash::<2048>::new();
+        store_lss::<_, SrdoTable<2>>(&mut empty, node(7), &access(), first).unwrap();
+        let (header, _) = decode::<2>(&raw(&mut empty)).unwrap();
+        assert_eq!(
+            (header.lss, header.access, header.heartbeat_ms),
+            (Some(first), access(), None)
+        );
     }
 
     #[test]
