@@ -581,7 +581,7 @@ impl Lss {
     /// in force (`None`: unconfigured).
     pub fn reset_communication(&mut self) -> Option<NodeId> {
         self.active = self.switches.or(self.pending);
-        self.to_waiting();
+        self.enter_waiting();
         self.active
     }
 
@@ -590,7 +590,7 @@ impl Lss {
         if self.state != LssState::Configuration {
             return None;
         }
-        self.to_waiting();
+        self.enter_waiting();
         Some(LssEvent::ConfigurationLeftForOperational)
     }
 
@@ -600,7 +600,7 @@ impl Lss {
         self.stored = settings.node_id;
     }
 
-    fn to_waiting(&mut self) {
+    fn enter_waiting(&mut self) {
         self.state = LssState::Waiting;
         self.selective = specifier::SWITCH_SELECTIVE_VENDOR;
         self.identify = specifier::IDENTIFY_VENDOR;
@@ -660,14 +660,14 @@ impl Lss {
                 // CiA 305 (CANopenNode `CO_LSSslave_receive`): an unconfigured node that was
                 // given a node-ID takes it now, by a reset communication of its own.
                 let reset = self.active.is_none() && self.pending.is_some();
-                self.to_waiting();
+                self.enter_waiting();
                 LssOutcome {
                     reset_communication: reset,
                     ..LssOutcome::event(LssEvent::WaitingEntered)
                 }
             }
             (0, LssState::Waiting) => {
-                self.to_waiting();
+                self.enter_waiting();
                 LssOutcome::default()
             }
             (1, _) if operational => LssOutcome::event(LssEvent::RefusedInOperational {
