@@ -16,6 +16,8 @@
 //!   signature (the tool's own), the configure/verify plan.
 //! - [`procedure`]: `configure` and `verify` (EN 50325-5 8.3.1), `scan`.
 //! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
+//! - [`lss`]: the LSS master (CiA 305): fastscan of unconfigured nodes and their node-IDs from
+//!   the network file, node-ID and bit rate of one node, store, inquire.
 //! - [`monitor`]: the live bus monitor: SRDO pairs and their verdicts, NMT, EMCY, SDO; candump
 //!   logs recorded and replayed.
 //! - [`error`]: every error as a sentence.
@@ -25,6 +27,7 @@ pub mod calc;
 pub mod client;
 pub mod eds;
 pub mod error;
+pub mod lss;
 pub mod monitor;
 pub mod network_file;
 pub mod procedure;
