@@ -648,5 +648,244 @@ impl<T: Transport> LssMaster<T> {
     }
 }
 
+/// The `lss` subcommand's actions.
+#[derive(Clone, Debug, PartialEq, Eq, clap::Subcommand)]
+pub enum LssCommand {
+    /// Find every unconfigured node (node-ID FFh) by fastscan and give each the node-ID the
+    /// network file assigns to its identity; it boots on it at once. Nodes the file does not
+    /// know stay unconfigured and are listed (the command then fails).
+    Fastscan {
+        /// The network file (TOML).
+        file: String,
+        /// Have each node store its node-ID (LSS store configuration), so it keeps it after a
+        /// power cycle.
+        #[arg(long)]
+        store: bool,
+    },
+    /// Give the node with IDENTITY a node-ID (1 to 127, or `none` to make it unconfigured).
+    /// It takes effect at the node's next NMT reset communication (at once for an
+    /// unconfigured node); the node's safety configuration must then be validated again for
+    /// the new node-ID.
+    SetId {
+        /// The node's identity, VENDOR:PRODUCT:REVISION:SERIAL (object 1018h).
+        identity: String,
+        /// The node-ID, or `none`.
+        node_id: String,
+        /// Store it (LSS store configuration).
+        #[arg(long)]
+        store: bool,
+    },
+    /// Set the bit rate (bit/s, of the CiA 301 table) the node with IDENTITY switches to at
+    /// the next activate-bitrate, or starts on after storing it.
+    SetBitrate {
+        /// The node's identity, VENDOR:PRODUCT:REVISION:SERIAL (object 1018h).
+        identity: String,
+        /// The bit rate in bit/s (1000000, 800000, 500000, 250000, 125000, 50000, 20000,
+        /// 10000).
+        bit_rate: u32,
+        /// Store it (LSS store configuration).
+        #[arg(long)]
+        store: bool,
+    },
+    /// Switch every node to the LSS configuration state and have them all switch to their
+    /// configured bit rate after DELAY_MS, silent for DELAY_MS before and after (CiA 305
+    /// Fig. 35). Switch this interface to the new bit rate meanwhile; the nodes stay in the
+    /// configuration state until a master switches them back at the new rate.
+    ActivateBitrate {
+        /// The switch delay in milliseconds.
+        delay_ms: u16,
+    },
+    /// Have the node with IDENTITY store its LSS settings (node-ID and bit rate).
+    Store {
+        /// The node's identity, VENDOR:PRODUCT:REVISION:SERIAL (object 1018h).
+        identity: String,
+    },
+    /// Read the identity and the active node-ID of the node with IDENTITY, or of the only
+    /// LSS node on the bus when none is given.
+    Inquire {
+        /// The node's identity, VENDOR:PRODUCT:REVISION:SERIAL (object 1018h).
+        identity: Option<String>,
+    },
+}
+
+/// What an `lss` action did: a text for a person, the same as JSON, and whether it did all it
+/// was asked.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LssOutput {
+    /// Lines for a person.
+    pub text: String,
+    /// The same for scripts (`--json`).
+    pub json: serde_json::Value,
+    /// `false` when something was left undone (nodes the file does not know).
+    pub complete: bool,
+}
+
+impl LssOutput {
+    fn done(text: String, json: serde_json::Value) -> Self {
+        LssOutput {
+            text,
+            json,
+            complete: true,
+        }
+    }
+}
+
+/// The node-ID of the command line: 1 to 127, or `none` (unconfigured).
+fn parse_node_id(text: &str) -> Result<Option<u8>, LssError> {
+    if text.eq_ignore_ascii_case("none") {
+        return Ok(None);
+    }
+    text.parse::<u8>()
+        .ok()
+        .filter(|id| (1..=127).contains(id))
+        .map(Some)
+        .ok_or_else(|| LssError::Usage(format!("{text:?} is not a node-ID 1 to 127, nor `none`")))
+}
+
+/// Runs `command` over `transport` with answers waited for `timeout`; `network` is the parsed
+/// file of [`LssCommand::Fastscan`].
+pub fn run<T: Transport>(
+    transport: T,
+    command: &LssCommand,
+    network: Option<&Network>,
+    timeout: Duration,
+) -> Result<LssOutput, LssError> {
+    let mut master = LssMaster::new(transport, timeout);
+    let selected = |master: &mut LssMaster<T>, text: &str| -> Result<Target, LssError> {
+        let identity = parse_identity(text)?;
+        master.select(identity)?;
+        Ok(Target::Node(identity))
+    };
+    match command {
+        LssCommand::Fastscan { store, .. } => {
+            let network =
+                network.ok_or_else(|| LssError::Usage("fastscan needs the network file".into()))?;
+            let report = master.fastscan_assign(network, *store)?;
+            let mut text = String::new();
+            for node in &report.assigned {
+                let name = node
+                    .name
+                    .as_deref()
+                    .map(|n| format!(" ({n})"))
+                    .unwrap_or_default();
+                let stored = if node.stored { ", stored" } else { "" };
+                text.push_str(&format!(
+                    "node {}{name}: {} given node-ID {}{stored}; it booted on it\n",
+                    node.node_id, node.identity, node.node_id
+                ));
+            }
+            for identity in &report.unknown {
+                text.push_str(&format!(
+                    "not in the network file, left unconfigured: {identity}\n"
+                ));
+            }
+            for (identity, node_id) in &report.duplicates {
+                text.push_str(&format!(
+                    "matches node {node_id} of the file, whose node-ID another node took: {identity}; left unconfigured (pin the revision in the file)\n"
+                ));
+            }
+            if report.assigned.is_empty() && report.unknown.is_empty() {
+                text.push_str("no unconfigured node answered fastscan\n");
+            }
+            text.push_str(&format!(
+                "{} LSS requests, {} answers\n",
+                report.requests, report.answers
+            ));
+            let complete = report.unknown.is_empty() && report.duplicates.is_empty();
+            let json = serde_json::to_value(&report).unwrap_or(serde_json::Value::Null);
+            Ok(LssOutput {
+                text,
+                json,
+                complete,
+            })
+        }
+        LssCommand::SetId {
+            identity,
+            node_id,
+            store,
+        } => {
+            let node_id = parse_node_id(node_id)?;
+            let target = selected(&mut master, identity)?;
+            master.configure_node_id(target, node_id)?;
+            if *store {
+                master.store(target)?;
+            }
+            master.switch_global(false)?;
+            let shown = node_id.map_or("none (unconfigured)".to_owned(), |id| id.to_string());
+            Ok(LssOutput::done(
+                format!(
+                    "{target}: node-ID {shown} pending{}; in force at the node's next NMT reset communication (at once if it was unconfigured)\n",
+                    if *store { ", stored" } else { "" }
+                ),
+                serde_json::json!({"node_id": node_id, "stored": store}),
+            ))
+        }
+        LssCommand::SetBitrate {
+            identity,
+            bit_rate,
+            store,
+        } => {
+            let rate = BitRate::from_bits_per_second(*bit_rate).ok_or_else(|| {
+                LssError::Usage(format!(
+                    "{bit_rate} bit/s is not in the CiA 301 bit-timing table (1000000, 800000, 500000, 250000, 125000, 50000, 20000, 10000)"
+                ))
+            })?;
+            let target = selected(&mut master, identity)?;
+            master.configure_bit_rate(target, rate)?;
+            if *store {
+                master.store(target)?;
+            }
+            master.switch_global(false)?;
+            Ok(LssOutput::done(
+                format!(
+                    "{target}: bit rate {bit_rate} bit/s pending{}; in force after activate-bitrate{}\n",
+                    if *store { ", stored" } else { "" },
+                    if *store { " or a power cycle" } else { "" }
+                ),
+                serde_json::json!({"bit_rate": bit_rate, "stored": store}),
+            ))
+        }
+        LssCommand::ActivateBitrate { delay_ms } => {
+            master.switch_global(true)?;
+            master.activate_bit_rate(*delay_ms)?;
+            Ok(LssOutput::done(
+                format!(
+                    "activate bit timing sent: the nodes in LSS configuration switch after {delay_ms} ms and stay silent {delay_ms} ms more; switch this interface to the new bit rate\n"
+                ),
+                serde_json::json!({"delay_ms": delay_ms}),
+            ))
+        }
+        LssCommand::Store { identity } => {
+            let target = selected(&mut master, identity)?;
+            master.store(target)?;
+            master.switch_global(false)?;
+            Ok(LssOutput::done(
+                format!("{target}: LSS settings stored\n"),
+                serde_json::json!({"stored": true}),
+            ))
+        }
+        LssCommand::Inquire { identity } => {
+            let target = match identity {
+                Some(text) => selected(&mut master, text)?,
+                None => {
+                    master.switch_global(true)?;
+                    Target::Selected
+                }
+            };
+            let result = master
+                .inquire_identity(target)
+                .and_then(|found| Ok((found, master.inquire_node_id(target)?)));
+            // Back to waiting whatever happened: no node stays in the configuration state.
+            master.switch_global(false)?;
+            let (found, node_id) = result?;
+            let shown = node_id.map_or("none (unconfigured)".to_owned(), |id| id.to_string());
+            Ok(LssOutput::done(
+                format!("{found}: active node-ID {shown}\n"),
+                serde_json::json!({"identity": found, "node_id": node_id}),
+            ))
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests;

@@ -433,3 +433,111 @@ fn an_identity_on_the_command_line_is_four_numbers() {
         );
     }
 }
+
+#[test]
+fn the_lss_command_reports_assigned_and_unknown_nodes_and_fails_with_unknown_ones() {
+    let known = [VENDOR, PRODUCT, 1, 1];
+    let stranger = [VENDOR, PRODUCT, 1, 2];
+    let bus = Bus::new(vec![unconfigured(known), unconfigured(stranger)]);
+    let command = LssCommand::Fastscan {
+        file: "lss.toml".into(),
+        store: true,
+    };
+    let file = network(&[(6, known, true)]);
+    let output = run(bus, &command, Some(&file), TIMEOUT).unwrap();
+    assert!(!output.complete, "a node was left unconfigured");
+    let lines: Vec<&str> = output.text.lines().collect();
+    assert_eq!(
+        lines[..2],
+        [
+            "node 6 (node 6): vendor 00000ABCh, product 00000304h, revision 00000001h, serial 1 given node-ID 6, stored; it booted on it",
+            "not in the network file, left unconfigured: vendor 00000ABCh, product 00000304h, revision 00000001h, serial 2",
+        ]
+    );
+    assert_eq!(output.json["assigned"][0]["node_id"], 6);
+    assert_eq!(output.json["unknown"][0]["serial"], 2);
+}
+
+#[test]
+fn the_lss_command_refuses_bad_arguments_before_sending() {
+    let identity = "0xABC:0x304:1:1".to_owned();
+    for (command, words) in [
+        (
+            LssCommand::SetId {
+                identity: identity.clone(),
+                node_id: "128".into(),
+                store: false,
+            },
+            "\"128\" is not a node-ID 1 to 127, nor `none`",
+        ),
+        (
+            LssCommand::SetBitrate {
+                identity: identity.clone(),
+                bit_rate: 100_000,
+                store: false,
+            },
+            "100000 bit/s is not in the CiA 301 bit-timing table",
+        ),
+        (
+            LssCommand::Store {
+                identity: "0xABC:0x304:1".into(),
+            },
+            "is not an identity",
+        ),
+    ] {
+        let mut bus = Bus::new(vec![unconfigured([VENDOR, PRODUCT, 1, 1])]);
+        let error = run(&mut bus, &command, None, TIMEOUT)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains(words), "{error}");
+        assert_eq!(bus.frames, 0, "nothing sent");
+    }
+}
+
+#[test]
+fn the_lss_command_sets_a_node_id_by_identity_and_inquires_the_only_node() {
+    let identity = [VENDOR, PRODUCT, 1, 1];
+    let mut bus = Bus::new(vec![unconfigured(identity)]);
+    let set = LssCommand::SetId {
+        identity: "0xABC:0x304:1:1".into(),
+        node_id: "33".into(),
+        store: true,
+    };
+    let output = run(&mut bus, &set, None, TIMEOUT).unwrap();
+    assert!(
+        output.text.contains("node-ID 33 pending, stored"),
+        "{}",
+        output.text
+    );
+    // It was unconfigured: it took the node-ID when switched back to waiting.
+    assert_eq!(bus.lss(0).active().map(NodeId::raw), Some(33));
+    let output = run(
+        &mut bus,
+        &LssCommand::Inquire { identity: None },
+        None,
+        TIMEOUT,
+    )
+    .unwrap();
+    assert_eq!(
+        output.text,
+        "vendor 00000ABCh, product 00000304h, revision 00000001h, serial 1: active node-ID 33\n"
+    );
+    assert_eq!(
+        bus.lss(0).state(),
+        LssState::Waiting,
+        "left in the waiting state"
+    );
+}
+
+/// The bus borrowed, so a test looks at it after an `lss` command took its transport.
+impl Transport for &mut Bus {
+    fn now(&mut self) -> Duration {
+        (**self).now()
+    }
+    fn send(&mut self, frame: &CanFrame) -> Result<(), TransportError> {
+        (**self).send(frame)
+    }
+    fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError> {
+        (**self).receive(deadline)
+    }
+}
