@@ -605,6 +605,8 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             sink.event(Event::Lss(event));
         }
         if outcome.reset_communication {
+            // As an NMT reset communication would (SC_REQ_43: an unlock ends at a reset).
+            self.core.access.lock();
             self.sdo.reset();
             self.core.reset(now, false, sink);
         }
@@ -739,7 +741,8 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         self.core.shell.next_deadline = Instant::ZERO;
     }
 
-    /// The node-ID.
+    /// The node-ID. With LSS enabled and no node-ID, the one the device was built with, which
+    /// it does not use: [`Device::configured_node_id`] says `None` then.
     pub fn node_id(&self) -> NodeId {
         self.core.shell.config.node_id
     }
