@@ -189,7 +189,6 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             self.heartbeat.period_ms(),
             self.shell.config.node_id,
             self.access.persisted(),
-            self.stored_lss,
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
@@ -206,7 +205,6 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             &mut self.flash,
             self.shell.config.node_id,
             self.access.persisted(),
-            self.stored_lss,
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
