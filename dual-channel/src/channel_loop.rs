@@ -246,9 +246,7 @@ impl ChannelLoop {
         let count = io.driver.link_read(&mut link);
         if count > 0 {
             let at = io.driver.now();
-            for &byte in &link[..count] {
-                runtime.on_link_byte(at, byte, &mut io);
-            }
+            runtime.on_link_bytes(at, &link[..count], &mut io);
             handed = true;
             // The link may have more than one buffer's worth: come back at once.
             more |= count == link.len();
