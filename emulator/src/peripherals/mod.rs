@@ -8,6 +8,7 @@
 
 pub mod bxcan;
 pub mod iwdg;
+pub mod tim2;
 pub mod usart;
 
 use crate::time::{Clocks, Nanos};
