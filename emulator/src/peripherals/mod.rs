@@ -7,6 +7,7 @@
 //! is an [`AccessError`], which ends the run with a sentence: nothing reads as 0 silently.
 
 pub mod bxcan;
+pub mod flash;
 pub mod iwdg;
 pub mod tim2;
 pub mod usart;
