@@ -7,8 +7,12 @@
 //! is an [`AccessError`], which ends the run with a sentence: nothing reads as 0 silently.
 
 pub mod bxcan;
+pub mod dbgmcu;
 pub mod flash;
+pub mod gpio;
 pub mod iwdg;
+pub mod pwr;
+pub mod rcc;
 pub mod tim2;
 pub mod usart;
 
