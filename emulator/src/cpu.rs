@@ -995,7 +995,7 @@ fn mmio_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32) {
             Ok(effects) if effects.system_reset => {
                 let pc = reg(uc, RegisterARM::PC);
                 let st = uc.get_data_mut();
-                let at = st.describe(pc);
+                let at = st.symbols.describe_block(pc);
                 st.set_stop(Stop::Reset {
                     cause: ResetCause::Software,
                     at,
@@ -1050,7 +1050,7 @@ fn is_system(address: u32) -> bool {
 fn unclaimed(uc: &mut Uc<'_>, address: u32, size: u32, written: Option<u32>) {
     let pc = reg(uc, RegisterARM::PC);
     let st = uc.get_data_mut();
-    let at = st.describe(pc);
+    let at = st.symbols.describe_block(pc);
     st.set_stop(Stop::Unclaimed {
         access: Access {
             address,
@@ -1066,7 +1066,7 @@ fn unclaimed(uc: &mut Uc<'_>, address: u32, size: u32, written: Option<u32>) {
 fn refused(uc: &mut Uc<'_>, address: u32, size: u32, written: Option<u32>, error: AccessError) {
     let pc = reg(uc, RegisterARM::PC);
     let st = uc.get_data_mut();
-    let at = st.describe(pc);
+    let at = st.symbols.describe_block(pc);
     st.set_stop(Stop::Refused {
         access: Access {
             address,
@@ -1492,6 +1492,11 @@ impl Machine {
     /// A core register.
     pub fn register(&self, register: Register) -> u32 {
         reg(&self.uc, register)
+    }
+
+    /// Sets a core register (the PC with its Thumb bit, as `bx` would).
+    pub fn set_register(&mut self, register: Register, value: u32) {
+        set_reg(&mut self.uc, register, value);
     }
 
     /// The system part (NVIC, SCB, SysTick), for tests and reports.

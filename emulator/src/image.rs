@@ -156,6 +156,15 @@ impl Symbols {
         (address < function.start.saturating_add(function.size)).then_some(function.name.as_str())
     }
 
+    /// As [`Symbols::describe`], for a PC known only to the start of its translated block
+    /// (Unicorn does not bring the PC up to date for an access to a peripheral).
+    pub fn describe_block(&self, address: u32) -> String {
+        match self.function(address) {
+            Some(name) => format!("`{name}` (in the block from PC {address:#010x})"),
+            None => format!("the block from {address:#010x} (no function symbol holds it)"),
+        }
+    }
+
     /// `function (PC 0x...)`, or the address alone when no symbol holds it.
     pub fn describe(&self, address: u32) -> String {
         match self.function(address) {
