@@ -929,8 +929,73 @@ fn sync_flash(uc: &mut Uc<'_>) {
     }
 }
 
-/// A read of a peripheral block or the private peripheral bus.
+/// APB1 and APB2 (RM0090 2.3, Table 1): behind the AHB/APB bridges.
+fn on_apb(address: u32) -> bool {
+    (0x4000_0000..0x4001_8000).contains(&address)
+}
+
+/// A read through the memory map: the AHB/APB bridges turn a byte or half-word access into a
+/// word access of the whole register (RM0090 10.3.11, "Addressing an AHB peripheral that does
+/// not support byte or halfword write operations"); the core takes its lane.
 fn mmio_read(uc: &mut Uc<'_>, address: u32, size: u32) -> u64 {
+    let reported = Access {
+        address,
+        size,
+        written: None,
+    };
+    if on_apb(address) && size < 4 {
+        let word = device_read(uc, address & !3, 4, reported);
+        let lane = word >> (8 * (address & 3));
+        return lane & ((1u64 << (8 * size)) - 1);
+    }
+    device_read(uc, address, size, reported)
+}
+
+/// A write through the memory map: on APB, a byte or half-word write reaches the register as
+/// a word write with the data repeated in every lane (RM0090 10.3.11, as for reads).
+fn mmio_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32) {
+    let reported = Access {
+        address,
+        size,
+        written: Some(value),
+    };
+    if on_apb(address) && size < 4 {
+        let repeated = match size {
+            1 => (value & 0xFF) * 0x0101_0101,
+            _ => (value & 0xFFFF) * 0x0001_0001,
+        };
+        device_write(uc, address & !3, 4, repeated, reported);
+        return;
+    }
+    device_write(uc, address, size, value, reported);
+}
+
+/// After a model's access: the lines it holds up pended, the clock tree followed (RCC, PWR),
+/// its next event brought into the deadline (an access can only make it earlier or later;
+/// a later one costs one early service, which recomputes).
+fn after_model_access(st: &mut State, base: u32, model: &RefCell<dyn Peripheral>) {
+    st.sample(&*model.borrow());
+    if base == rcc::BASE || base == pwr::BASE {
+        st.follow_clock_tree();
+        st.recompute = true;
+    }
+    if let Some(at) = model.borrow().next_event(&st.context()) {
+        st.deadline = st.deadline.min(st.clock.cycles_at(at));
+    }
+}
+
+/// After an access to the system part: a pending change is looked at before the next block,
+/// SysTick's next event brought into the deadline.
+fn after_system_access(st: &mut State) {
+    st.attention = true;
+    if let Some(at) = st.system.next_event() {
+        st.deadline = st.deadline.min(at);
+    }
+}
+
+/// A read of a peripheral block or the private peripheral bus; `reported` is the core's
+/// access, for sentences.
+fn device_read(uc: &mut Uc<'_>, address: u32, size: u32, reported: Access) -> u64 {
     if uc.get_data().stop.is_some() {
         return 0;
     }
@@ -939,8 +1004,7 @@ fn mmio_read(uc: &mut Uc<'_>, address: u32, size: u32) -> u64 {
         let st = uc.get_data_mut();
         let core = st.core(ipsr);
         let result = st.system.read(address, size, core);
-        st.attention = true;
-        st.recompute = true;
+        after_system_access(st);
         result
     } else {
         let st = uc.get_data_mut();
@@ -956,16 +1020,14 @@ fn mmio_read(uc: &mut Uc<'_>, address: u32, size: u32) -> u64 {
                     model.advance(&ctx);
                     model.read(&ctx, address - base, size)
                 };
-                st.sample(&*model.borrow());
-                st.follow_clock_tree();
-                st.recompute = true;
+                after_model_access(st, base, &model);
                 if base == flash::BASE {
                     after_flash_access(uc);
                 }
                 result
             }
             None => {
-                unclaimed(uc, address, size, None);
+                unclaimed(uc, reported);
                 return 0;
             }
         }
@@ -973,14 +1035,15 @@ fn mmio_read(uc: &mut Uc<'_>, address: u32, size: u32) -> u64 {
     match result {
         Ok(value) => u64::from(value),
         Err(error) => {
-            refused(uc, address, size, None, error);
+            refused(uc, reported, error);
             0
         }
     }
 }
 
-/// A write to a peripheral block or the private peripheral bus.
-fn mmio_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32) {
+/// A write to a peripheral block or the private peripheral bus; `reported` is the core's
+/// access, for sentences.
+fn device_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32, reported: Access) {
     if uc.get_data().stop.is_some() {
         return;
     }
@@ -989,8 +1052,7 @@ fn mmio_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32) {
         let st = uc.get_data_mut();
         let core = st.core(ipsr);
         let result = st.system.write(address, size, value, core);
-        st.attention = true;
-        st.recompute = true;
+        after_system_access(st);
         match result {
             Ok(effects) if effects.system_reset => {
                 let pc = reg(uc, RegisterARM::PC);
@@ -1021,10 +1083,7 @@ fn mmio_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32) {
                     model.advance(&ctx);
                     model.write(&ctx, address - base, size, value)
                 };
-                st.sample(&*model.borrow());
-                st.follow_clock_tree();
-                st.recompute = true;
-                st.attention = true;
+                after_model_access(st, base, &model);
                 if base == flash::BASE {
                     st.flash_dirty = true;
                     after_flash_access(uc);
@@ -1032,13 +1091,13 @@ fn mmio_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32) {
                 result
             }
             None => {
-                unclaimed(uc, address, size, Some(value));
+                unclaimed(uc, reported);
                 return;
             }
         }
     };
     if let Err(error) = result {
-        refused(uc, address, size, Some(value), error);
+        refused(uc, reported, error);
     }
 }
 
@@ -1047,35 +1106,20 @@ fn is_system(address: u32) -> bool {
         || (system::DWT_BASE..system::DWT_BASE + 0x1000).contains(&address)
 }
 
-fn unclaimed(uc: &mut Uc<'_>, address: u32, size: u32, written: Option<u32>) {
+fn unclaimed(uc: &mut Uc<'_>, access: Access) {
     let pc = reg(uc, RegisterARM::PC);
     let st = uc.get_data_mut();
     let at = st.symbols.describe_block(pc);
-    st.set_stop(Stop::Unclaimed {
-        access: Access {
-            address,
-            size,
-            written,
-        },
-        at,
-    });
+    st.set_stop(Stop::Unclaimed { access, at });
     st.stopping = true;
     let _ = uc.emu_stop();
 }
 
-fn refused(uc: &mut Uc<'_>, address: u32, size: u32, written: Option<u32>, error: AccessError) {
+fn refused(uc: &mut Uc<'_>, access: Access, error: AccessError) {
     let pc = reg(uc, RegisterARM::PC);
     let st = uc.get_data_mut();
     let at = st.symbols.describe_block(pc);
-    st.set_stop(Stop::Refused {
-        access: Access {
-            address,
-            size,
-            written,
-        },
-        error,
-        at,
-    });
+    st.set_stop(Stop::Refused { access, error, at });
     st.stopping = true;
     let _ = uc.emu_stop();
 }

@@ -270,3 +270,13 @@ fn armv7m_b3_2_aircr_sysresetreq_with_its_key_ends_the_run_as_a_system_reset() {
         "{stop}"
     );
 }
+
+#[test]
+fn rm0090_10_3_11_a_byte_write_on_apb_reaches_the_register_as_a_word_with_the_byte_repeated() {
+    let (mut machine, _) = machine("apb_bridge");
+    run(&mut machine, 100 * MICROSECOND);
+    // 0x01010101 written: LPDS (bit 0) and DBP (bit 8) kept, VOS (bit 14) cleared; the
+    // other lanes' bits are reserved or write-one-to-clear-only.
+    assert_eq!(machine.register(Register::R2), 0x0101);
+    assert_eq!(machine.register(Register::R3), 0x01);
+}
