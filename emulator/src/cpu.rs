@@ -1369,7 +1369,9 @@ impl Machine {
     }
 
     /// The power-on reset (B1.5.5): the main stack pointer and the PC from the vector table
-    /// at 0 (flash, through the boot alias), Thread mode, privileged, nothing pending.
+    /// at 0 (flash, through the boot alias), Thread mode, privileged, nothing pending. For a
+    /// new machine: a reset during a run (the watchdog's, SYSRESETREQ) ends the run instead
+    /// ([`Stop::Reset`]).
     pub fn reset(&mut self) -> Result<(), Stop> {
         let sp = read_word(&self.uc, memory::BOOT_ALIAS);
         let pc = read_word(&self.uc, memory::BOOT_ALIAS + 4);

@@ -180,7 +180,7 @@ pub enum Stop {
         at: String,
     },
     /// A fault while HardFault or NMI was active, or with FAULTMASK set: the core locks up
-    /// (ARMv7-M B1.5.15).
+    /// (ARMv7-M B1.5, "Unrecoverable exception cases").
     Lockup {
         /// The fault.
         fault: Fault,
@@ -219,7 +219,7 @@ impl core::fmt::Display for Stop {
             Stop::HardFault { fault, at } => write!(f, "HardFault: {fault}, in {at}"),
             Stop::Lockup { fault, at } => write!(
                 f,
-                "lockup: {fault} while HardFault or NMI was active (ARMv7-M B1.5.15), in {at}"
+                "lockup: {fault} while HardFault or NMI was active (ARMv7-M B1.5, "Unrecoverable exception cases"), in {at}"
             ),
             Stop::Reset {
                 cause: ResetCause::IndependentWatchdog,

@@ -280,3 +280,19 @@ fn rm0090_10_3_11_a_byte_write_on_apb_reaches_the_register_as_a_word_with_the_by
     assert_eq!(machine.register(Register::R2), 0x0101);
     assert_eq!(machine.register(Register::R3), 0x01);
 }
+
+#[test]
+fn rm0090_3_6_a_store_to_flash_is_programmed_by_the_flash_interface_only_with_pg_set() {
+    let (mut machine, _) = machine("flash");
+    run(&mut machine, MILLISECOND);
+    assert_eq!(
+        machine.register(Register::R3),
+        0xFFFF_FFFF,
+        "refused without PG"
+    );
+    assert_ne!(machine.register(Register::R4) & (1 << 7), 0, "PGSERR");
+    assert_eq!(machine.register(Register::R6), 0x1234_5678, "programmed");
+    assert_eq!(word(&machine, 0x080E_0000), 0x1234_5678);
+    // The boot alias shows the same array.
+    assert_eq!(word(&machine, 0x000E_0000), 0x1234_5678);
+}
