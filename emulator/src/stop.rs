@@ -219,7 +219,8 @@ impl core::fmt::Display for Stop {
             Stop::HardFault { fault, at } => write!(f, "HardFault: {fault}, in {at}"),
             Stop::Lockup { fault, at } => write!(
                 f,
-                "lockup: {fault} while HardFault or NMI was active (ARMv7-M B1.5, unrecoverable exception cases), in {at}"
+                "lockup: {fault} while HardFault or NMI was active (ARMv7-M B1.5, \
+                 unrecoverable exception cases), in {at}"
             ),
             Stop::Reset {
                 cause: ResetCause::IndependentWatchdog,
