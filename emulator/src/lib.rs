@@ -7,8 +7,19 @@
 //! Layers:
 //! - [`peripherals`]: one small model per peripheral block, pure logic (no Unicorn), each
 //!   citing its RM0090 section and tested against the manual's statements;
-//! - the CPU side (Unicorn, the system part, the memory map that routes every access to the
-//!   model that claims it; an access no model claims stops the run with a sentence).
+//! - [`system`]: the Cortex-M4's System Control Space (NVIC, SCB, SysTick, DWT), pure logic;
+//! - [`cpu`]: Unicorn, exception entry and return, sleep, and the memory map that routes
+//!   every access to the model that claims it (an access no model claims stops the run with
+//!   a sentence, [`stop`]);
+//! - [`image`], [`rtt`], [`log`]: the sealed image loaded, its defmt log drained from RTT and
+//!   decoded.
 
+pub mod cpu;
+pub mod image;
+pub mod log;
+pub mod memory;
 pub mod peripherals;
+pub mod rtt;
+pub mod stop;
+pub mod system;
 pub mod time;

@@ -7,6 +7,7 @@ mod bench;
 mod campaign;
 mod child;
 mod e2e;
+mod emulate;
 mod footprint;
 mod fullnet;
 mod images;
@@ -96,6 +97,24 @@ enum Task {
         /// The addresses, hexadecimal (`0x08001234` or `08001234`).
         #[arg(required = true)]
         addresses: Vec<String>,
+    },
+    /// One shipped hardware image alone on the emulated STM32F405 (the `emulator` crate:
+    /// Unicorn with the F405's peripherals modelled from RM0090), its defmt log decoded; ends
+    /// with how the run ended and the emulation speed. Fails when the run stops early (an
+    /// access no model claims, a HardFault, a reset).
+    Emulate {
+        /// Which channel's image: `a` or `b`.
+        #[arg(long, value_parser = ["a", "b"], default_value = "a")]
+        channel: String,
+        /// Virtual time to run for: `500ms`, `2s`, `1500us`.
+        #[arg(long = "for", default_value = "1s")]
+        duration: String,
+        /// The node-ID the node-ID switches are set to (1 to 127).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=127))]
+        node_id: u8,
+        /// The image's safety protocol: `canopen-safety` (the default) or `simplecan`.
+        #[arg(long, value_enum, default_value_t)]
+        protocol: network::Protocol,
     },
     /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
     Qemu {
@@ -319,6 +338,12 @@ fn task() -> Result<()> {
             bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS)),
             protocol,
         ),
+        Task::Emulate {
+            channel,
+            duration,
+            node_id,
+            protocol,
+        } => emulate::task(&root, &channel, &duration, node_id, protocol),
         Task::Qemu {
             channel,
             selftest,

@@ -207,6 +207,7 @@ pub fn setup(probe_rs: bool, fuzz: bool) -> Result<()> {
         ensure_fuzzing()?;
     }
     ensure_qemu()?;
+    ensure_emulator_build_deps()?;
     ensure_defmt_print()?;
     ensure_tshark()?;
     if !exists("valgrind") {
@@ -248,6 +249,35 @@ pub fn ensure_defmt_print() -> Result<()> {
     }
     eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
     super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))
+}
+
+/// Whether Debian's package `package` is installed.
+fn debian_package_installed(package: &str) -> bool {
+    output("dpkg-query", &["-W", "-f=${Status}", package])
+        .is_some_and(|status| status.contains("install ok installed"))
+}
+
+/// cmake and libclang-dev (Debian's packages), which building the emulator's
+/// `unicorn-engine` needs: cmake builds Unicorn's C code, libclang lets bindgen generate its
+/// Rust bindings.
+pub fn ensure_emulator_build_deps() -> Result<()> {
+    let missing: Vec<&str> = ["cmake", "libclang-dev"]
+        .into_iter()
+        .filter(|package| !debian_package_installed(package))
+        .collect();
+    if missing.is_empty() {
+        eprintln!("xtask: cmake, libclang-dev: installed");
+        return Ok(());
+    }
+    eprintln!(
+        "xtask: installing {} (Debian), which the emulator's unicorn-engine needs to build \
+         (cmake for Unicorn's C code, libclang for bindgen)",
+        missing.join(", ")
+    );
+    as_root(&format!(
+        "apt-get update -qq && apt-get install -y -qq {}",
+        missing.join(" ")
+    ))
 }
 
 /// tshark (Debian's package), which the hub's test uses to check that its pcap traces decode

@@ -6,6 +6,16 @@
 //! something to do and which interrupt lines it holds up. What a model does not implement
 //! is an [`AccessError`], which ends the run with a sentence: nothing reads as 0 silently.
 
+pub mod bxcan;
+pub mod dbgmcu;
+pub mod flash;
+pub mod gpio;
+pub mod iwdg;
+pub mod pwr;
+pub mod rcc;
+pub mod tim2;
+pub mod usart;
+
 use crate::time::{Clocks, Nanos};
 
 /// What the CPU side lends a model on each call.

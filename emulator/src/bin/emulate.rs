@@ -1,0 +1,169 @@
+//! `emulate`: runs one sealed firmware image alone on the emulated STM32F405 for a span of
+//! virtual time and prints its decoded defmt log, then how the run ended and how fast it went.
+//! `cargo xtask emulate` builds the images and calls it.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use clap::Parser;
+use emulator::cpu::{Config, Machine};
+use emulator::image::Image;
+use emulator::log::LogTable;
+use emulator::peripherals::gpio::Port;
+use emulator::peripherals::rcc::{self, Hse};
+use emulator::stop::Outcome;
+use emulator::time::Nanos;
+
+/// The command line.
+#[derive(Parser)]
+#[command(
+    name = "emulate",
+    about = "Run one sealed firmware image on the emulated STM32F405 and print its log"
+)]
+struct Cli {
+    /// The sealed ELF image (`cargo xtask build` writes them).
+    image: PathBuf,
+    /// Virtual time to run for: `500ms`, `2s`, `1500us`.
+    #[arg(long = "for", default_value = "1s", value_parser = parse_duration)]
+    duration: Nanos,
+    /// Make the HSE crystal fail to start (RCC_CR.HSERDY never sets).
+    #[arg(long)]
+    hse_fails: bool,
+    /// Close the node-ID switches of this node-ID (1 to 127): PC2 (bit 0) to PC8 (bit 6)
+    /// driven high, as `board::hw` wires them. Open (all low) without it.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=127))]
+    node_id: Option<u8>,
+    /// Close the channel's safety input contact (PC0 driven high).
+    #[arg(long)]
+    input_closed: bool,
+}
+
+/// `<number><unit>` with unit `s`, `ms` or `us`.
+fn parse_duration(text: &str) -> Result<Nanos, String> {
+    let (number, scale) = if let Some(number) = text.strip_suffix("ms") {
+        (number, 1_000_000)
+    } else if let Some(number) = text.strip_suffix("us") {
+        (number, 1_000)
+    } else if let Some(number) = text.strip_suffix('s') {
+        (number, 1_000_000_000)
+    } else {
+        return Err(format!(
+            "`{text}` is not a duration: give a number and a unit, e.g. 500ms, 2s, 1500us"
+        ));
+    };
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("`{number}` in `{text}` is not a number"))?;
+    if !(value > 0.0 && value <= 3600.0 * 1e9 / scale as f64) {
+        return Err(format!(
+            "`{text}`: the duration must be positive and at most an hour"
+        ));
+    }
+    Ok((value * scale as f64) as Nanos)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(&cli) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::FAILURE,
+        Err(error) => {
+            eprintln!("emulate: {error}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Runs the image; `Ok(false)` when the run stopped before its time.
+fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
+    let image = Image::load(&cli.image)?;
+    println!(
+        "emulate: {}: sealed image, CRC {:08X}h, {} bytes of flash",
+        image.path.display(),
+        image.crc,
+        image.segments.iter().map(|s| s.bytes.len()).sum::<usize>()
+    );
+    let table = LogTable::from_elf(&image.elf)?;
+    let mut decoder = table.decoder();
+    let hse = if cli.hse_fails {
+        Hse::FailsToStart
+    } else {
+        rcc::BOARD_HSE
+    };
+    let mut machine = Machine::new(Config { hse })?;
+    machine.load(&image)?;
+    {
+        let mut port_c = machine.gpio(Port::C);
+        if let Some(node_id) = cli.node_id {
+            for bit in 0..7 {
+                port_c.drive(2 + bit, Some(node_id & (1 << bit) != 0));
+            }
+        }
+        port_c.drive(0, Some(cli.input_closed));
+    }
+    machine.reset()?;
+    let started = Instant::now();
+    let slice: Nanos = 10_000_000;
+    let end = cli.duration;
+    let outcome = loop {
+        let until = (machine.now() + slice).min(end);
+        let outcome = machine.run_until(until);
+        for (at, bytes) in machine.take_log() {
+            for line in decoder.feed(at, &bytes) {
+                println!("{line}");
+            }
+        }
+        if outcome != Outcome::Elapsed || machine.now() >= end {
+            break outcome;
+        }
+    };
+    let host = started.elapsed().as_secs_f64();
+    let virtual_seconds = machine.now() as f64 / 1e9;
+    let ok = match &outcome {
+        Outcome::Elapsed => {
+            let pc = machine.register(emulator::cpu::Register::PC);
+            println!(
+                "emulate: ran the full {:.3} s of virtual time; at the end the core {} {}",
+                virtual_seconds,
+                if machine.asleep() {
+                    "was asleep after"
+                } else {
+                    "was running"
+                },
+                image.symbols.describe(pc)
+            );
+            true
+        }
+        Outcome::Stopped { stop, at } => {
+            println!(
+                "emulate: stopped at {:.6} ms of virtual time: {stop}",
+                *at as f64 / 1e6
+            );
+            false
+        }
+    };
+    let clocks = machine.clocks();
+    println!(
+        "emulate: {} instructions in {:.3} s of host time: {:.3} s of virtual time per host \
+         second, {:.1} million instructions per host second; core clock {} MHz at the end",
+        machine.instructions(),
+        host,
+        virtual_seconds / host.max(1e-9),
+        machine.instructions() as f64 / host.max(1e-9) / 1e6,
+        clocks.hclk / 1_000_000
+    );
+    if decoder.malformed() > 0 {
+        println!(
+            "emulate: {} log frames could not be decoded",
+            decoder.malformed()
+        );
+    }
+    if machine.unpaired_usart_words() > 0 {
+        println!(
+            "emulate: USART3 sent {} words with no peer wired",
+            machine.unpaired_usart_words()
+        );
+    }
+    Ok(ok)
+}
