@@ -1567,6 +1567,12 @@ impl Machine {
         self.uc.get_data().models.gpio[index].borrow_mut()
     }
 
+    /// FLASH_ACR as the image left it (RM0090 3.9.1): wait states, prefetch, instruction
+    /// cache, data cache.
+    pub fn flash_accelerator(&self) -> (u32, bool, bool, bool) {
+        self.uc.get_data().models.flash.borrow().accelerator()
+    }
+
     /// The bxCAN model (for a bus to offer and deliver frames).
     pub fn can(&self) -> Rc<RefCell<Can>> {
         self.uc.get_data().models.can.clone()

@@ -497,6 +497,8 @@ fn panic_site(root: &Path, image: &Path, log: &str) -> Result<locate::Frame> {
 
 fn test(root: &Path) -> Result<()> {
     let cross = toolchain::ensure()?;
+    // The emulator crate (clippy and its tests below) builds unicorn-engine's C code.
+    toolchain::ensure_emulator_build_deps()?;
     step("rustfmt");
     run(cargo().args(["fmt", "--all", "--check"]))?;
     step("clippy (host, every crate and target)");
@@ -540,6 +542,8 @@ fn test(root: &Path) -> Result<()> {
     }
     step("firmware images");
     images::build(root, &cross)?;
+    step("each shipped image alone on the emulated STM32F405, to its start-up self-tests");
+    emulate::startup_checks(root, &cross)?;
     step("each image alone under QEMU, to its self-test verdict");
     toolchain::ensure_qemu()?;
     toolchain::ensure_defmt_print()?;

@@ -143,6 +143,15 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             false
         }
     };
+    let (latency, prefetch, icache, dcache) = machine.flash_accelerator();
+    let on = |on: bool| if on { "on" } else { "off" };
+    println!(
+        "emulate: FLASH_ACR at the end: {latency} wait states, prefetch {}, instruction cache {}, \
+         data cache {}",
+        on(prefetch),
+        on(icache),
+        on(dcache)
+    );
     let clocks = machine.clocks();
     println!(
         "emulate: {} instructions in {:.3} s of host time: {:.3} s of virtual time per host \
