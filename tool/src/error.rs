@@ -264,6 +264,9 @@ pub enum ToolError {
     /// The monitor stopped: its log, recording, terminal or bus failed.
     #[error(transparent)]
     Monitor(#[from] crate::monitor::MonitorError),
+    /// An LSS service failed (CiA 305); the message names the node and the step.
+    #[error(transparent)]
+    Lss(#[from] crate::lss::LssError),
     /// The result could not be written as JSON (`--json`).
     #[error(
         "the result could not be written as JSON ({0}), so none was printed; run the command without --json to read it"

@@ -18,6 +18,8 @@
 //! - [`eds`]: the node's EDS and DCFs (CiA 306), from the device description.
 //! - [`dissector`]: a Wireshark Lua dissector of a network file's safety frames (SRDO pairs,
 //!   GFC, SimpleCAN packets with their CRC).
+//! - [`lss`]: the LSS master (CiA 305): fastscan of unconfigured nodes and their node-IDs from
+//!   the network file, node-ID and bit rate of one node, store, inquire.
 //! - [`monitor`]: the live bus monitor: SRDO pairs and their verdicts, NMT, EMCY, SDO; candump
 //!   logs recorded and replayed.
 //! - [`error`]: every error as a sentence.
@@ -28,6 +30,7 @@ pub mod client;
 pub mod dissector;
 pub mod eds;
 pub mod error;
+pub mod lss;
 pub mod monitor;
 pub mod network_file;
 pub mod procedure;

@@ -250,6 +250,17 @@ enum Command {
         #[arg(long, default_value_t = DeviceTiming::HARDWARE.output_us)]
         output_us: u64,
     },
+    /// Layer Setting Services (CiA 305): node-IDs and bit rates over the bus, by identity
+    /// (object 1018h); fastscan gives unconfigured nodes the network file's node-IDs. A node
+    /// in NMT Operational answers no configuring service.
+    Lss {
+        #[command(subcommand)]
+        action: safety_config::lss::LssCommand,
+        /// How long each LSS request waits for its answers, in milliseconds (fastscan waits
+        /// it on every one of its requests: several nodes may answer).
+        #[arg(long, default_value_t = 100)]
+        lss_timeout_ms: u64,
+    },
     /// Bus load per bit rate and the residual error rate against a SIL for a network file
     /// (EN 50325-5 9.4); exits with failure when a limit is exceeded. Offline.
     Budget {
@@ -803,6 +814,24 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         | Command::Monitor { .. }
         | Command::Sfrt { .. }
         | Command::Budget { .. } => Ok(true),
+        Command::Lss {
+            action,
+            lss_timeout_ms,
+        } => {
+            let network = match &action {
+                safety_config::lss::LssCommand::Fastscan { file, .. } => Some(load(file)?),
+                _ => None,
+            };
+            let timeout = Duration::from_millis(lss_timeout_ms);
+            let output =
+                safety_config::lss::run(client.transport, &action, network.as_ref(), timeout)?;
+            if cli.json {
+                println!("{}", json(&output.json)?);
+            } else {
+                print!("{}", output.text);
+            }
+            Ok(output.complete)
+        }
         Command::Dcf { node, name } => {
             print!(
                 "{}",

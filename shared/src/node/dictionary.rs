@@ -189,6 +189,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             self.heartbeat.period_ms(),
             self.shell.config.node_id,
             self.access.persisted(),
+            self.stored_lss,
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
@@ -205,6 +206,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             &mut self.flash,
             self.shell.config.node_id,
             self.access.persisted(),
+            self.stored_lss,
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));

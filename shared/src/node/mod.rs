@@ -27,6 +27,16 @@
 //! cause is reported as an [`Event`] and as an EMCY. The producers keep sending the device's
 //! own inputs through a communication fault (they are another device's safety function),
 //! but stop for good when their own two halves disagree.
+//!
+//! # Node-ID and bit rate by LSS (CiA 305)
+//! A board that lets LSS set the node-ID calls [`Device::enable_lss`] with its switches
+//! before the first poll; the device then answers on 7E5h ([`crate::canopen::lss`], where the
+//! safety rules are written down): the switches win where set; otherwise the LSS node-ID
+//! stored with the parameters, or none, and an unconfigured device boots no further than
+//! NMT Initialising, silent but for LSS. A configured node-ID takes effect at NMT reset
+//! communication; the stored safety configuration stays valid only on the node-ID it was
+//! validated for. Store configuration writes the LSS settings into the same stored record
+//! as the parameters, atomically, leaving the parameters as they were.
 
 pub mod access;
 mod both;
@@ -38,6 +48,7 @@ mod srdo_table;
 
 use crate::canopen::emcy::{self, Emergency};
 use crate::canopen::heartbeat::{self, Heartbeat};
+use crate::canopen::lss::{self, BitRates, Lss, LssEvent, LssSettings, StoreFailure};
 use crate::canopen::nmt::{self, NmtCommand, NmtError, NmtState};
 use crate::canopen::node_id::NodeId;
 use crate::canopen::od::{AbortCode, Address};
@@ -205,6 +216,8 @@ pub enum Event {
         /// The node-ID the stored configuration was validated for.
         validated_for: NodeId,
     },
+    /// Something LSS did or refused (CiA 305; [`Device::enable_lss`]).
+    Lss(LssEvent),
 }
 
 /// Why an application call was refused.
@@ -284,6 +297,12 @@ struct Core<F: Flash, P: SafetyProtocol> {
     /// The time of the SDO request being served (the object dictionary has no `now`).
     now: Instant,
     flash: F,
+    /// The LSS slave, when the board enabled it ([`Device::enable_lss`]).
+    lss: Option<Lss>,
+    /// The LSS settings in the stored image (kept by 0x1010 and 0x1011).
+    stored_lss: Option<LssSettings>,
+    /// What LSS has to say at the next poll (the node-ID's source, at start and reset).
+    lss_event: Option<LssEvent>,
 }
 
 /// The part of the shell a protocol reaches through its [`Slot`]: NMT state, the latch and
@@ -463,6 +482,9 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
                 access: access::AccessControl::new(P::NO_SIGNATURES),
                 now: Instant::ZERO,
                 flash,
+                lss: None,
+                stored_lss: None,
+                lss_event: None,
             },
         })
     }
@@ -475,6 +497,53 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     pub fn restore_parameters(&mut self) {
         if self.core.shell.state == NmtState::Initialising {
             self.core.restore_parameters(Instant::ZERO);
+        }
+    }
+
+    /// Enables the LSS slave (CiA 305, [`crate::canopen::lss`]) after
+    /// [`Device::restore_parameters`] and before the first [`Device::poll`]: `switches` is
+    /// the node-ID the board's switches set (`None`: all open, "use LSS"), `supported` the bit
+    /// rates the board can switch to. The node-ID in force becomes the switches', else the
+    /// LSS node-ID stored with the parameters (which are restored again for it), else none:
+    /// the device is unconfigured and stays in NMT Initialising, silent but for LSS, until a
+    /// master gives it a node-ID. `false` (and nothing changes) after the first poll or when
+    /// LSS is enabled already.
+    #[must_use = "`false` means LSS was not enabled"]
+    pub fn enable_lss(&mut self, switches: Option<NodeId>, supported: BitRates) -> bool {
+        let core = &mut self.core;
+        // A device without LSS leaves Initialising at its first poll.
+        if core.shell.state != NmtState::Initialising || core.lss.is_some() {
+            return false;
+        }
+        let lss = Lss::new(
+            core.shell.config.identity,
+            switches,
+            core.stored_lss,
+            supported,
+        );
+        core.lss_event = lss.start_event();
+        if let Some(id) = lss.active() {
+            if id != core.shell.config.node_id {
+                core.shell.config.node_id = id;
+                core.restore_parameters(Instant::ZERO);
+            }
+        }
+        core.lss = Some(lss);
+        true
+    }
+
+    /// The LSS slave, when enabled ([`Device::enable_lss`]): the bit rate LSS stored for the
+    /// board to start its CAN controller on, where the node-ID comes from.
+    pub fn lss(&self) -> Option<&Lss> {
+        self.core.lss.as_ref()
+    }
+
+    /// The node-ID in force; `None` when LSS is enabled and the device has none
+    /// (unconfigured, node-ID FFh).
+    pub fn configured_node_id(&self) -> Option<NodeId> {
+        match &self.core.lss {
+            Some(lss) => lss.active(),
+            None => Some(self.core.shell.config.node_id),
         }
     }
 
@@ -491,6 +560,10 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             return;
         }
         let id = frame.id().raw();
+        if self.core.lss_holds_back(now) && id != lss::MASTER_TO_SLAVE.raw() {
+            // Unconfigured, or silent for a bit-rate switch: only LSS is served.
+            return;
+        }
         if id == nmt::NMT_ID.raw() {
             match nmt::parse(frame, self.core.shell.config.node_id) {
                 Ok(Some(command)) => self.on_nmt(now, command, sink),
@@ -501,7 +574,46 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             self.core.on_gfc(sink);
         } else if id == 0x600 + u16::from(self.core.shell.config.node_id.raw()) {
             self.on_sdo_request(now, frame, sink);
+        } else if id == lss::MASTER_TO_SLAVE.raw() {
+            self.on_lss(now, frame, sink);
         }
+    }
+
+    /// A frame on 7E5h: the LSS slave's, when enabled (CiA 305).
+    fn on_lss(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
+        let Core {
+            shell,
+            access,
+            flash,
+            lss,
+            stored_lss,
+            ..
+        } = &mut self.core;
+        let Some(lss) = lss.as_mut() else {
+            return;
+        };
+        let operational = shell.state == NmtState::Operational;
+        let node_id = shell.config.node_id;
+        let outcome = lss.on_frame(now, frame, operational, |settings| {
+            persist::store_lss::<F, P>(flash, node_id, access.persisted(), settings)
+                .map_err(StoreFailure::Failed)
+        });
+        if let Some(LssEvent::Stored(settings)) = outcome.event {
+            *stored_lss = Some(settings);
+        }
+        if let Some(response) = outcome.response {
+            sink.transmit(response);
+        }
+        if let Some(event) = outcome.event {
+            sink.event(Event::Lss(event));
+        }
+        if outcome.reset_communication {
+            // As an NMT reset communication would (SC_REQ_43: an unlock ends at a reset).
+            self.core.access.lock();
+            self.sdo.reset();
+            self.core.reset(now, false, sink);
+        }
+        self.core.shell.next_deadline = Instant::ZERO;
     }
 
     /// The controller reports that `frame`, handed to the sink before, went out on the bus
@@ -557,6 +669,25 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     /// The slow path of [`Device::poll`]: something is (or may be) due.
     #[inline(never)]
     fn poll_due(&mut self, now: Instant, sink: &mut impl Sink) -> Instant {
+        let mut lss_deadline = Instant::NEVER;
+        if let Some(lss) = self.core.lss.as_mut() {
+            if let Some(event) = lss.poll(now) {
+                sink.event(Event::Lss(event));
+            }
+            lss_deadline = lss.deadline();
+            if let Some(event) = self.core.lss_event.take() {
+                sink.event(Event::Lss(event));
+            }
+            if self.core.lss_holds_back(now) {
+                // Unconfigured (it says why it cannot start: stored parameters rejected, say)
+                // or silent for a bit-rate switch: no boot-up, no timer, nothing sent.
+                if self.core.unconfigured() {
+                    self.core.flush_pending(sink);
+                }
+                self.core.shell.next_deadline = lss_deadline;
+                return lss_deadline;
+            }
+        }
         if self.core.shell.state == NmtState::Initialising {
             self.core.boot(now, sink);
         }
@@ -564,7 +695,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             sink.transmit(self.core.sdo_response(response));
         }
         self.core.run_timers(now, sink);
-        let mut next = self.core.protocol_deadline(now);
+        let mut next = self.core.protocol_deadline(now).min(lss_deadline);
         next = next.min(self.core.heartbeat.deadline());
         if let Some(sdo) = self.sdo.deadline() {
             next = next.min(sdo);
@@ -613,7 +744,8 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         self.core.shell.next_deadline = Instant::ZERO;
     }
 
-    /// The node-ID.
+    /// The node-ID. With LSS enabled and no node-ID, the one the device was built with, which
+    /// it does not use: [`Device::configured_node_id`] says `None` then.
     pub fn node_id(&self) -> NodeId {
         self.core.shell.config.node_id
     }
@@ -759,10 +891,35 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         self.gfc_parameter = gfc::GFC_NOT_VALID;
         self.shell.gfc_requested = false;
         self.shell.error_register = 0;
+        if let Some(lss) = self.lss.as_mut() {
+            // CiA 305: the pending node-ID comes into force (the switches' where set).
+            if let Some(id) = lss.reset_communication() {
+                self.shell.config.node_id = id;
+            }
+            self.lss_event = lss.start_event();
+        }
         self.restore_parameters(now);
         self.shell.state = NmtState::Initialising;
         sink.event(Event::NmtState(NmtState::Initialising));
+        if self.unconfigured() {
+            // No node-ID: no boot-up message; LSS waits for a master (CiA 305).
+            self.shell.next_deadline = Instant::ZERO;
+            return;
+        }
         self.boot(now, sink);
+    }
+
+    /// `true` when LSS is enabled and the device has no node-ID (FFh).
+    fn unconfigured(&self) -> bool {
+        self.lss.as_ref().is_some_and(|lss| lss.active().is_none())
+    }
+
+    /// `true` when only LSS is served: the device is unconfigured, or silent for a bit-rate
+    /// switch (CiA 305 Fig. 35).
+    fn lss_holds_back(&self, now: Instant) -> bool {
+        self.lss
+            .as_ref()
+            .is_some_and(|lss| lss.active().is_none() || lss.muted(now))
     }
 
     /// Loads the stored parameters, or the defaults when none are stored or they are unusable.
@@ -775,6 +932,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             &mut self.protocol,
             &mut heartbeat_ms,
             &mut self.access,
+            &mut self.stored_lss,
         ) {
             Ok(Some(stored_by)) if stored_by == self.shell.config.node_id => {
                 Some(Event::ParametersRestored)
@@ -803,6 +961,12 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         if self.shell.state != state {
             self.shell.state = state;
             sink.event(Event::NmtState(state));
+        }
+        if state == NmtState::Operational {
+            // LSS safety rule 1: no configuration state in Operational.
+            if let Some(event) = self.lss.as_mut().and_then(Lss::leave_configuration) {
+                sink.event(Event::Lss(event));
+            }
         }
     }
 
@@ -980,6 +1144,8 @@ impl Shell {
 
 #[cfg(test)]
 mod access_tests;
+#[cfg(test)]
+mod lss_tests;
 #[cfg(test)]
 mod sdo_tests;
 #[cfg(test)]

@@ -2,7 +2,9 @@
 //!
 //! The image is serialised here into a small, versioned byte layout and handed to
 //! [`crate::canopen::storage`], which makes storing it atomic. It is the shell's header, the
-//! access control's stored part ([`super::access`]: the salted hash of the device secret and
+//! LSS settings when LSS stored some ([`crate::canopen::lss`]: the node-ID and bit rate, in
+//! the same record as the parameters, so one atomic store covers both), the access control's
+//! stored part ([`super::access`]: the salted hash of the device secret and
 //! the audit record), then the section of the safety protocol in the node's slot
 //! ([`SafetyProtocol::persist`]; the SRDO table's layout is on [`super::SrdoTable`]). Parsing
 //! is strict: a wrong version, unknown flags, a length that does not add up, an out-of-range
@@ -11,9 +13,11 @@
 //! node then runs on its defaults (which are not validated, so it stays in the safe state
 //! until a tool configures it).
 //!
-//! 0x1011 (restore defaults) keeps the access part: it stores an image without parameters
-//! instead of erasing, unless there is nothing to keep, so no SDO write removes the secret or
-//! the audit record (SC_REQ_43).
+//! 0x1011 (restore defaults) keeps the access part and the LSS settings: it stores an image
+//! without parameters instead of erasing, unless there is nothing to keep, so no SDO write
+//! removes the secret or the audit record (SC_REQ_43), nor the node's LSS address. 0x1010
+//! keeps the LSS settings stored; LSS store configuration ([`store_lss`]) rewrites only them,
+//! leaving the stored parameters byte for byte as they were.
 //!
 //! The image carries the node-ID of the device that stored it. 0x13FE can only hold A5h on a
 //! device whose configuration was validated there (by the tool, or restored from an image
@@ -27,8 +31,9 @@
 //! |-------|-------|
 //! | 1 | format version (3) |
 //! | 1 | node-ID of the device that stored the image, `1..=127` |
-//! | 1 | flags: bit 0 the parameters follow, bit 1 a secret follows; other bits 0 |
+//! | 1 | flags: bit 0 the parameters follow, bit 1 a secret follows, bit 2 LSS settings follow; other bits 0 |
 //! | 1 | number of the protocol's signatures `M` (the SRDO table: one per SRDO) |
+//! | 2 | if bit 2: the LSS node-ID (FFh: unconfigured) and bit-timing index (FFh: none) |
 //! | 16 + 32 | if bit 1: the secret's salt, `SHA-256(salt ‖ secret)` |
 //! | 4 | audit: validated changes |
 //! | 2 M + 2 M | audit: the signatures before, then after, the last validated change |
@@ -42,6 +47,7 @@
 use super::SrdoTable;
 use super::access::{AccessControl, Audit, Persisted, SALT_LEN, Secret};
 use super::slot::SafetyProtocol;
+use crate::canopen::lss::LssSettings;
 use crate::canopen::node_id::NodeId;
 use crate::canopen::storage::{self, Flash, StorageError};
 use crate::safety::MAX_SRDOS;
@@ -52,8 +58,14 @@ const VERSION: u8 = 3;
 const HAS_PARAMETERS: u8 = 0x01;
 /// Flag: a secret follows.
 const HAS_SECRET: u8 = 0x02;
+/// Flag: LSS settings follow the header.
+const HAS_LSS: u8 = 0x04;
+/// Every flag this layout knows.
+const FLAGS: u8 = HAS_PARAMETERS | HAS_SECRET | HAS_LSS;
 /// Bytes of the shell's header: version, node-ID, flags, `M`.
 const HEADER: usize = 4;
+/// Bytes of the LSS settings.
+const LSS_LEN: usize = 2;
 /// The most signatures a protocol has: one per SRDO of the largest SRDO table.
 const MAX_SIGNATURES: usize = MAX_SRDOS;
 /// Bytes of the access part at most: salt, hash, change counter, two signatures each.
@@ -68,7 +80,7 @@ pub const MAX_SECTION: usize = SrdoTable::<MAX_SRDOS>::MAX_PERSISTED;
 /// The largest image of any device (each device's own is its protocol's
 /// [`Image`](SafetyProtocol::Image), sized for it).
 #[cfg(test)]
-pub const MAX_IMAGE: usize = HEADER + ACCESS_MAX + PARAMETERS_HEADER + MAX_SECTION;
+pub const MAX_IMAGE: usize = HEADER + LSS_LEN + ACCESS_MAX + PARAMETERS_HEADER + MAX_SECTION;
 
 /// Why stored parameters were not used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -129,12 +141,14 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// Serialises the access part, and the parameters when given (`protocol`'s section and the
-/// heartbeat time), of the device with `node_id` into `out`; returns the length used.
+/// Serialises the LSS settings when given, the access part, and the parameters when given
+/// (`protocol`'s section and the heartbeat time), of the device with `node_id` into `out`;
+/// returns the length used.
 fn encode<P: SafetyProtocol>(
     parameters: Option<(&P, u16)>,
     access: &Persisted<P::Signatures>,
     node_id: NodeId,
+    lss: Option<LssSettings>,
     out: &mut [u8],
 ) -> usize {
     const {
@@ -145,6 +159,7 @@ fn encode<P: SafetyProtocol>(
         assert!(
             core::mem::size_of::<P::Image>()
                 >= HEADER
+                    + LSS_LEN
                     + SALT_LEN
                     + 32
                     + 4
@@ -172,10 +187,16 @@ fn encode<P: SafetyProtocol>(
     if access.secret.is_some() {
         flags |= HAS_SECRET;
     }
+    if lss.is_some() {
+        flags |= HAS_LSS;
+    }
     let audit = &access.audit;
     // At most MAX_SIGNATURES (checked above), so the count fits its byte.
     let count = audit.after.as_ref().len() as u8;
     push(&[VERSION, node_id.raw(), flags, count]);
+    if let Some(lss) = lss {
+        push(&lss.encode());
+    }
     if let Some(secret) = &access.secret {
         push(&secret.salt);
         push(&secret.hash);
@@ -204,6 +225,8 @@ struct Header<S> {
     access: Persisted<S>,
     /// The node-ID of the device that stored it.
     node_id: NodeId,
+    /// The LSS settings, when LSS stored some.
+    lss: Option<LssSettings>,
 }
 
 /// Parses a stored image, the protocol's section (if any) into `protocol`; all or nothing
@@ -221,13 +244,18 @@ fn decode<P: SafetyProtocol>(
     let raw_node_id = reader.u8()?;
     let node_id = NodeId::new(raw_node_id).map_err(|_| PersistError::BadNodeId(raw_node_id))?;
     let flags = reader.u8()?;
-    if flags & !(HAS_PARAMETERS | HAS_SECRET) != 0 {
+    if flags & !FLAGS != 0 {
         return Err(PersistError::Malformed);
     }
     let mut access = Persisted::new(P::NO_SIGNATURES);
     if usize::from(reader.u8()?) != access.audit.after.as_ref().len() {
         return Err(PersistError::SrdoCountMismatch);
     }
+    let lss = if flags & HAS_LSS != 0 {
+        Some(LssSettings::decode(reader.take()?).ok_or(PersistError::Malformed)?)
+    } else {
+        None
+    };
     if flags & HAS_SECRET != 0 {
         access.secret = Some(Secret {
             salt: reader.take()?,
@@ -256,54 +284,115 @@ fn decode<P: SafetyProtocol>(
         heartbeat_ms,
         access,
         node_id,
+        lss,
     })
 }
 
 /// Stores the parameters (0x1010) of the device with `node_id`, with the access control's
-/// stored part.
+/// stored part and the LSS settings stored before (`lss`).
 pub(super) fn store<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     protocol: &P,
     heartbeat_ms: u16,
     node_id: NodeId,
     access: &Persisted<P::Signatures>,
+    lss: Option<LssSettings>,
 ) -> Result<(), StorageError> {
     let mut image = P::image();
     let image = image.as_mut();
-    let len = encode(Some((protocol, heartbeat_ms)), access, node_id, image);
+    let len = encode(Some((protocol, heartbeat_ms)), access, node_id, lss, image);
     storage::store(flash, image.get(..len).unwrap_or(image))
 }
 
+/// LSS store configuration (CiA 305 Fig. 36): the LSS settings `lss` in the stored image,
+/// atomically, everything else of it byte for byte as it was. With nothing stored, an image
+/// without parameters (the access control's stored part `access`, of the device with
+/// `node_id`, and `lss`). A stored image this firmware does not read (another format
+/// version, unknown flags, truncated) is not rewritten: [`StorageError::Corrupt`], nothing
+/// changes (the node reported it at start-up, and a new image would hide that).
+pub(super) fn store_lss<F: Flash, P: SafetyProtocol>(
+    flash: &mut F,
+    node_id: NodeId,
+    access: &Persisted<P::Signatures>,
+    lss: LssSettings,
+) -> Result<(), StorageError> {
+    let mut image = P::image();
+    let image = image.as_mut();
+    let len = match storage::load(flash, image)? {
+        None => encode::<P>(None, access, node_id, Some(lss), image),
+        Some(len) => with_lss(image, len, lss)?,
+    };
+    storage::store(flash, image.get(..len).unwrap_or(image))
+}
+
+/// Puts `lss` into the stored image of `len` bytes at the start of `image`, in place: over
+/// the LSS settings it holds, or inserted after the header with the flag set. Returns the
+/// new length.
+fn with_lss(image: &mut [u8], len: usize, lss: LssSettings) -> Result<usize, StorageError> {
+    let bytes = lss.encode();
+    let readable = len >= HEADER
+        && image.first() == Some(&VERSION)
+        && image.get(2).is_some_and(|flags| flags & !FLAGS == 0);
+    if !readable {
+        return Err(StorageError::Corrupt);
+    }
+    let has_lss = image.get(2).is_some_and(|flags| flags & HAS_LSS != 0);
+    if has_lss {
+        image
+            .get_mut(HEADER..HEADER + LSS_LEN)
+            .ok_or(StorageError::Corrupt)?
+            .copy_from_slice(&bytes);
+        return Ok(len);
+    }
+    let new_len = len + LSS_LEN;
+    if new_len > image.len() {
+        return Err(StorageError::TooLarge);
+    }
+    image.copy_within(HEADER..len, HEADER + LSS_LEN);
+    image
+        .get_mut(HEADER..HEADER + LSS_LEN)
+        .ok_or(StorageError::TooLarge)?
+        .copy_from_slice(&bytes);
+    if let Some(flags) = image.get_mut(2) {
+        *flags |= HAS_LSS;
+    }
+    Ok(new_len)
+}
+
 /// 0x1011: the defaults at the next reset. Erases the stored parameters when there is
-/// nothing of the access control to keep; otherwise stores an image with the access part
-/// alone, so the secret and the audit record stay (SC_REQ_43).
+/// nothing of the access control and no LSS settings to keep; otherwise stores an image with
+/// the access part and the LSS settings alone, so the secret and the audit record stay
+/// (SC_REQ_43), and the node's LSS address.
 pub(super) fn restore_defaults<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     node_id: NodeId,
     access: &Persisted<P::Signatures>,
+    lss: Option<LssSettings>,
 ) -> Result<(), StorageError> {
-    if *access == Persisted::new(P::NO_SIGNATURES) {
+    if *access == Persisted::new(P::NO_SIGNATURES) && lss.is_none() {
         return storage::restore_defaults(flash);
     }
     let mut image = P::image();
     let image = image.as_mut();
-    let len = encode::<P>(None, access, node_id, image);
+    let len = encode::<P>(None, access, node_id, lss, image);
     storage::store(flash, image.get(..len).unwrap_or(image))
 }
 
-/// Loads stored parameters into `protocol` and `heartbeat_ms`, and the access control's
-/// stored part into `access`: `Ok(Some(node-ID))` when parameters were restored, with the
-/// node-ID of the device that stored them; `Ok(None)` when none are stored (defaults stay);
-/// `Err` when the stored image is unusable (nothing else changed, the caller keeps the
-/// defaults, and `access` holds no secret and no audit record: a damaged image is a new
-/// device, see docs/access-protection.md).
+/// Loads stored parameters into `protocol` and `heartbeat_ms`, the access control's stored
+/// part into `access` and the LSS settings into `lss`: `Ok(Some(node-ID))` when parameters
+/// were restored, with the node-ID of the device that stored them; `Ok(None)` when none are
+/// stored (defaults stay); `Err` when the stored image is unusable (nothing else changed, the
+/// caller keeps the defaults, `access` holds no secret and no audit record: a damaged image
+/// is a new device, see docs/access-protection.md; and `lss` is `None`: no LSS address).
 pub(super) fn load<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     protocol: &mut P,
     heartbeat_ms: &mut u16,
     access: &mut AccessControl<P::Signatures>,
+    lss: &mut Option<LssSettings>,
 ) -> Result<Option<NodeId>, PersistError> {
     access.restore(Persisted::new(P::NO_SIGNATURES));
+    *lss = None;
     let mut image = P::image();
     let image = image.as_mut();
     let Some(len) = storage::load(flash, image).map_err(PersistError::Storage)? else {
@@ -311,6 +400,7 @@ pub(super) fn load<F: Flash, P: SafetyProtocol>(
     };
     let header = decode(image.get(..len).ok_or(PersistError::Malformed)?, protocol)?;
     access.restore(header.access);
+    *lss = header.lss;
     let Some(stored_heartbeat_ms) = header.heartbeat_ms else {
         return Ok(None);
     };
@@ -321,6 +411,7 @@ pub(super) fn load<F: Flash, P: SafetyProtocol>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::canopen::storage::RamFlash;
     use crate::safety::config::SafetyConfig;
 
     fn sample() -> SafetyConfig<2> {
@@ -367,7 +458,7 @@ mod tests {
         let mut out = [0u8; MAX_IMAGE];
         let mut table = table::<2>();
         table.safety = sample();
-        let len = encode(Some((&table, 250)), &access(), node(7), &mut out);
+        let len = encode(Some((&table, 250)), &access(), node(7), None, &mut out);
         (out, len)
     }
 
@@ -384,6 +475,7 @@ mod tests {
                     heartbeat_ms: Some(250),
                     access: access(),
                     node_id: node(7),
+                    lss: None,
                 },
                 sample()
             ))
@@ -393,7 +485,7 @@ mod tests {
     #[test]
     fn sc_req_43_an_image_without_parameters_keeps_secret_and_audit() {
         let mut out = [0u8; MAX_IMAGE];
-        let len = encode::<SrdoTable<2>>(None, &access(), node(7), &mut out);
+        let len = encode::<SrdoTable<2>>(None, &access(), node(7), None, &mut out);
         assert_eq!(len, PARAMETERS_AT);
         let untouched = table::<2>().config().clone();
         assert_eq!(
@@ -403,6 +495,7 @@ mod tests {
                     heartbeat_ms: None,
                     access: access(),
                     node_id: node(7),
+                    lss: None,
                 },
                 untouched
             ))
@@ -411,9 +504,89 @@ mod tests {
             secret: None,
             ..access()
         };
-        let len = encode::<SrdoTable<2>>(None, &without_secret, node(7), &mut out);
+        let len = encode::<SrdoTable<2>>(None, &without_secret, node(7), None, &mut out);
         assert_eq!(decode::<2>(&out[..len]).unwrap().0.access, without_secret);
         assert_eq!(decode::<2>(&out[..len + 1]), Err(PersistError::Malformed));
+    }
+
+    #[test]
+    fn cia305_lss_settings_round_trip_beside_the_parameters() {
+        let lss = LssSettings {
+            node_id: Some(node(42)),
+            bit_rate: Some(crate::canopen::lss::BitRate::Kbit125),
+        };
+        let mut out = [0u8; MAX_IMAGE];
+        let mut table = table::<2>();
+        table.safety = sample();
+        let len = encode(Some((&table, 250)), &access(), node(7), Some(lss), &mut out);
+        let (header, config) = decode::<2>(&out[..len]).unwrap();
+        assert_eq!(header.lss, Some(lss));
+        assert_eq!(
+            (header.access, header.node_id, config),
+            (access(), node(7), sample())
+        );
+        // Bytes that are not LSS settings are refused as a whole.
+        for bad in [[0u8, 0xFF], [0x80, 0xFF], [1, 5]] {
+            let mut copy = out;
+            copy[HEADER..HEADER + LSS_LEN].copy_from_slice(&bad);
+            assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::Malformed));
+        }
+    }
+
+    /// The stored image as bytes.
+    fn raw(flash: &mut RamFlash<2048>) -> std::vec::Vec<u8> {
+        let mut buf = [0u8; 2048];
+        let len = storage::load(flash, &mut buf).unwrap().unwrap();
+        buf[..len].to_vec()
+    }
+
+    /// CiA 305 Fig. 36: store configuration changes the LSS settings of the stored image and
+    /// nothing else of it, byte for byte.
+    #[test]
+    fn cia305_store_configuration_rewrites_only_the_lss_settings() {
+        let mut flash = RamFlash::<2048>::new();
+        let mut table = table::<2>();
+        table.safety = sample();
+        store(&mut flash, &table, 250, node(7), &access(), None).unwrap();
+        let before = raw(&mut flash);
+        let first = LssSettings {
+            node_id: Some(node(42)),
+            bit_rate: None,
+        };
+        store_lss::<_, SrdoTable<2>>(&mut flash, node(7), &access(), first).unwrap();
+        let after = raw(&mut flash);
+        let mut expected = before.clone();
+        expected[2] |= HAS_LSS;
+        expected.splice(HEADER..HEADER, first.encode());
+        assert_eq!(after, expected);
+        let second = LssSettings {
+            node_id: None,
+            bit_rate: Some(crate::canopen::lss::BitRate::Kbit500),
+        };
+        store_lss::<_, SrdoTable<2>>(&mut flash, node(7), &access(), second).unwrap();
+        let mut expected = after.clone();
+        expected[HEADER..HEADER + LSS_LEN].copy_from_slice(&second.encode());
+        assert_eq!(raw(&mut flash), expected);
+        // 0x1010 keeps them; so does 0x1011 (an image without parameters).
+        store(&mut flash, &table, 100, node(7), &access(), Some(second)).unwrap();
+        assert_eq!(decode::<2>(&raw(&mut flash)).unwrap().0.lss, Some(second));
+        restore_defaults::<_, SrdoTable<2>>(
+            &mut flash,
+            node(7),
+            &Persisted::new([0; 2]),
+            Some(second),
+        )
+        .unwrap();
+        let (header, _) = decode::<2>(&raw(&mut flash)).unwrap();
+        assert_eq!((header.lss, header.heartbeat_ms), (Some(second), None));
+        // With nothing stored, an image of the LSS settings and the access part alone.
+        let mut empty = RamFlash::<2048>::new();
+        store_lss::<_, SrdoTable<2>>(&mut empty, node(7), &access(), first).unwrap();
+        let (header, _) = decode::<2>(&raw(&mut empty)).unwrap();
+        assert_eq!(
+            (header.lss, header.access, header.heartbeat_ms),
+            (Some(first), access(), None)
+        );
     }
 
     #[test]
@@ -437,7 +610,7 @@ mod tests {
             copy[1] = raw;
             assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::BadNodeId(raw)));
         }
-        for flags in [0x04, 0x80, 0xFF] {
+        for flags in [0x08, 0x80, 0xFF] {
             let mut copy = out;
             copy[2] = flags;
             assert_eq!(decode::<2>(&copy[..len]), Err(PersistError::Malformed));
@@ -487,18 +660,18 @@ mod tests {
     fn the_largest_section_is_the_64_srdo_table_s() {
         assert_eq!(MAX_SECTION, 5_058);
         assert_eq!(ACCESS_MAX, 308);
-        assert_eq!(MAX_IMAGE, 5_372);
+        assert_eq!(MAX_IMAGE, 5_374);
     }
 
-    /// The image buffer is the device's own size: 143 bytes per SRDO (the product's 4 SRDOs:
-    /// 572 bytes on the stack while parameters are stored or restored, where the largest
-    /// table's would be 5,372), and the largest image of that device fits it (the build checks
-    /// it too).
+    /// The image buffer is the device's own size: 145 bytes per SRDO (the product's 4 SRDOs:
+    /// 580 bytes on the stack while parameters are stored or restored, where the largest
+    /// table's would be 5,374), and the largest image of that device, LSS settings included,
+    /// fits it (the build checks it too).
     #[test]
     fn the_image_buffer_is_sized_for_the_device_and_holds_its_largest_image() {
         assert_eq!(
             core::mem::size_of::<<SrdoTable<4> as SafetyProtocol>::Image>(),
-            572
+            580
         );
         let mut table = table::<4>();
         for record in &mut table.safety.srdos {
@@ -516,9 +689,20 @@ mod tests {
             },
         };
         let mut image = <SrdoTable<4> as SafetyProtocol>::image();
-        let len = encode(Some((&table, 100)), &access, node(1), image.as_mut());
-        // 4 header + 52 secret and counter + 16 signatures + 2 heartbeat + 2 + 4 records of 79.
-        assert_eq!(len, 4 + 52 + 16 + 2 + 2 + 4 * 79);
+        let lss = LssSettings {
+            node_id: Some(node(127)),
+            bit_rate: Some(crate::canopen::lss::BitRate::Kbit500),
+        };
+        let len = encode(
+            Some((&table, 100)),
+            &access,
+            node(1),
+            Some(lss),
+            image.as_mut(),
+        );
+        // 4 header + 2 LSS + 52 secret and counter + 16 signatures + 2 heartbeat + 2 + 4
+        // records of 79.
+        assert_eq!(len, 4 + 2 + 52 + 16 + 2 + 2 + 4 * 79);
         assert!(len <= image.as_ref().len(), "{len}");
     }
 }

@@ -394,6 +394,7 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
         0,
         node_id(33),
         &super::access::Persisted::new([0; 4]),
+        None,
     )
     .unwrap();
     let (mut node, mut sink) = node_on(33, medium);
@@ -474,6 +475,7 @@ fn en50325_5_6_4_1_6_configuration_valid_reads_0_after_a_refused_start() {
         0,
         node_id(33),
         &super::access::Persisted::new([0; 4]),
+        None,
     )
     .unwrap();
     let (mut node, mut sink) = node_on(33, medium);
