@@ -26,6 +26,12 @@
 //! the LSS state that does not offer it. A request that is refused changes nothing: the
 //! pending values are replaced whole or not at all.
 //!
+//! The device's use of this slave (`Device::enable_lss` in [`crate::node`], the LSS settings
+//! in the stored image) is behind the crate's `lss` feature, off by default: the firmware
+//! images do not carry LSS until the boards wire it. This module itself is always built (the
+//! tool's LSS master frames its requests with it); code no device calls is not linked into an
+//! image.
+//!
 //! # Safety rules
 //!
 //! These are the node's own, on top of CiA 305; each has a test named after it.

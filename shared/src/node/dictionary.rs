@@ -189,6 +189,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             self.heartbeat.period_ms(),
             self.shell.config.node_id,
             self.access.persisted(),
+            #[cfg(feature = "lss")]
             self.stored_lss,
         )
         .map_err(|error| {
@@ -206,6 +207,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             &mut self.flash,
             self.shell.config.node_id,
             self.access.persisted(),
+            #[cfg(feature = "lss")]
             self.stored_lss,
         )
         .map_err(|error| {

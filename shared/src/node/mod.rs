@@ -29,14 +29,18 @@
 //! but stop for good when their own two halves disagree.
 //!
 //! # Node-ID and bit rate by LSS (CiA 305)
-//! A board that lets LSS set the node-ID calls [`Device::enable_lss`] with its switches
-//! before the first poll; the device then answers on 7E5h ([`crate::canopen::lss`], where the
-//! safety rules are written down): the switches win where set; otherwise the LSS node-ID
-//! stored with the parameters, or none, and an unconfigured device boots no further than
-//! NMT Initialising, silent but for LSS. A configured node-ID takes effect at NMT reset
-//! communication; the stored safety configuration stays valid only on the node-ID it was
-//! validated for. Store configuration writes the LSS settings into the same stored record
-//! as the parameters, atomically, leaving the parameters as they were.
+//! With the crate's `lss` feature (off by default), a board that lets LSS set the node-ID
+//! calls `Device::enable_lss` with its switches before the first poll; the device then
+//! answers on 7E5h ([`crate::canopen::lss`], where the safety rules are written down): the
+//! switches win where set; otherwise the LSS node-ID stored with the parameters, or none,
+//! and an unconfigured device boots no further than NMT Initialising, silent but for LSS. A
+//! configured node-ID takes effect at NMT reset communication; the stored safety
+//! configuration stays valid only on the node-ID it was validated for. Store configuration
+//! writes the LSS settings into the same stored record as the parameters, atomically,
+//! leaving the parameters as they were. Without the feature the device has no LSS slave,
+//! keeps no LSS state and stores no LSS settings (its stored image is byte for byte the one
+//! of a device that never had LSS, and one holding LSS settings is rejected as malformed):
+//! the firmware images do not carry LSS until the boards wire it.
 
 pub mod access;
 mod both;
@@ -48,6 +52,7 @@ mod srdo_table;
 
 use crate::canopen::emcy::{self, Emergency};
 use crate::canopen::heartbeat::{self, Heartbeat};
+#[cfg(feature = "lss")]
 use crate::canopen::lss::{self, BitRates, Lss, LssEvent, LssSettings, StoreFailure};
 use crate::canopen::nmt::{self, NmtCommand, NmtError, NmtState};
 use crate::canopen::node_id::NodeId;
@@ -61,6 +66,8 @@ use crate::safety::gfc;
 use crate::safety::srdo::{Discarded, SrdoFault};
 use crate::safety::types::SrdoNumber;
 use crate::time::{Duration, Instant};
+#[cfg(feature = "lss")]
+use core::ops::ControlFlow;
 
 pub use both::{BothSignatures, SrdoAndSimpleCan, WithSrdoTable};
 pub use persist::PersistError;
@@ -217,6 +224,7 @@ pub enum Event {
         validated_for: NodeId,
     },
     /// Something LSS did or refused (CiA 305; [`Device::enable_lss`]).
+    #[cfg(feature = "lss")]
     Lss(LssEvent),
 }
 
@@ -298,10 +306,13 @@ struct Core<F: Flash, P: SafetyProtocol> {
     now: Instant,
     flash: F,
     /// The LSS slave, when the board enabled it ([`Device::enable_lss`]).
+    #[cfg(feature = "lss")]
     lss: Option<Lss>,
     /// The LSS settings in the stored image (kept by 0x1010 and 0x1011).
+    #[cfg(feature = "lss")]
     stored_lss: Option<LssSettings>,
     /// What LSS has to say at the next poll (the node-ID's source, at start and reset).
+    #[cfg(feature = "lss")]
     lss_event: Option<LssEvent>,
 }
 
@@ -482,8 +493,11 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
                 access: access::AccessControl::new(P::NO_SIGNATURES),
                 now: Instant::ZERO,
                 flash,
+                #[cfg(feature = "lss")]
                 lss: None,
+                #[cfg(feature = "lss")]
                 stored_lss: None,
+                #[cfg(feature = "lss")]
                 lss_event: None,
             },
         })
@@ -508,6 +522,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     /// the device is unconfigured and stays in NMT Initialising, silent but for LSS, until a
     /// master gives it a node-ID. `false` (and nothing changes) after the first poll or when
     /// LSS is enabled already.
+    #[cfg(feature = "lss")]
     #[must_use = "`false` means LSS was not enabled"]
     pub fn enable_lss(&mut self, switches: Option<NodeId>, supported: BitRates) -> bool {
         let core = &mut self.core;
@@ -534,12 +549,14 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
 
     /// The LSS slave, when enabled ([`Device::enable_lss`]): the bit rate LSS stored for the
     /// board to start its CAN controller on, where the node-ID comes from.
+    #[cfg(feature = "lss")]
     pub fn lss(&self) -> Option<&Lss> {
         self.core.lss.as_ref()
     }
 
     /// The node-ID in force; `None` when LSS is enabled and the device has none
     /// (unconfigured, node-ID FFh).
+    #[cfg(feature = "lss")]
     pub fn configured_node_id(&self) -> Option<NodeId> {
         match &self.core.lss {
             Some(lss) => lss.active(),
@@ -560,6 +577,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             return;
         }
         let id = frame.id().raw();
+        #[cfg(feature = "lss")]
         if self.core.lss_holds_back(now) && id != lss::MASTER_TO_SLAVE.raw() {
             // Unconfigured, or silent for a bit-rate switch: only LSS is served.
             return;
@@ -574,12 +592,15 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             self.core.on_gfc(sink);
         } else if id == 0x600 + u16::from(self.core.shell.config.node_id.raw()) {
             self.on_sdo_request(now, frame, sink);
-        } else if id == lss::MASTER_TO_SLAVE.raw() {
+        }
+        #[cfg(feature = "lss")]
+        if id == lss::MASTER_TO_SLAVE.raw() {
             self.on_lss(now, frame, sink);
         }
     }
 
     /// A frame on 7E5h: the LSS slave's, when enabled (CiA 305).
+    #[cfg(feature = "lss")]
     fn on_lss(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
         let Core {
             shell,
@@ -669,25 +690,11 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     /// The slow path of [`Device::poll`]: something is (or may be) due.
     #[inline(never)]
     fn poll_due(&mut self, now: Instant, sink: &mut impl Sink) -> Instant {
-        let mut lss_deadline = Instant::NEVER;
-        if let Some(lss) = self.core.lss.as_mut() {
-            if let Some(event) = lss.poll(now) {
-                sink.event(Event::Lss(event));
-            }
-            lss_deadline = lss.deadline();
-            if let Some(event) = self.core.lss_event.take() {
-                sink.event(Event::Lss(event));
-            }
-            if self.core.lss_holds_back(now) {
-                // Unconfigured (it says why it cannot start: stored parameters rejected, say)
-                // or silent for a bit-rate switch: no boot-up, no timer, nothing sent.
-                if self.core.unconfigured() {
-                    self.core.flush_pending(sink);
-                }
-                self.core.shell.next_deadline = lss_deadline;
-                return lss_deadline;
-            }
-        }
+        #[cfg(feature = "lss")]
+        let lss_deadline = match self.core.poll_lss(now, sink) {
+            ControlFlow::Continue(deadline) => deadline,
+            ControlFlow::Break(deadline) => return deadline,
+        };
         if self.core.shell.state == NmtState::Initialising {
             self.core.boot(now, sink);
         }
@@ -695,7 +702,11 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             sink.transmit(self.core.sdo_response(response));
         }
         self.core.run_timers(now, sink);
-        let mut next = self.core.protocol_deadline(now).min(lss_deadline);
+        let mut next = self.core.protocol_deadline(now);
+        #[cfg(feature = "lss")]
+        {
+            next = next.min(lss_deadline);
+        }
         next = next.min(self.core.heartbeat.deadline());
         if let Some(sdo) = self.sdo.deadline() {
             next = next.min(sdo);
@@ -745,7 +756,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
     }
 
     /// The node-ID. With LSS enabled and no node-ID, the one the device was built with, which
-    /// it does not use: [`Device::configured_node_id`] says `None` then.
+    /// it does not use: `Device::configured_node_id` (with the `lss` feature) says `None` then.
     pub fn node_id(&self) -> NodeId {
         self.core.shell.config.node_id
     }
@@ -891,6 +902,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         self.gfc_parameter = gfc::GFC_NOT_VALID;
         self.shell.gfc_requested = false;
         self.shell.error_register = 0;
+        #[cfg(feature = "lss")]
         if let Some(lss) = self.lss.as_mut() {
             // CiA 305: the pending node-ID comes into force (the switches' where set).
             if let Some(id) = lss.reset_communication() {
@@ -901,6 +913,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         self.restore_parameters(now);
         self.shell.state = NmtState::Initialising;
         sink.event(Event::NmtState(NmtState::Initialising));
+        #[cfg(feature = "lss")]
         if self.unconfigured() {
             // No node-ID: no boot-up message; LSS waits for a master (CiA 305).
             self.shell.next_deadline = Instant::ZERO;
@@ -909,13 +922,42 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         self.boot(now, sink);
     }
 
+    /// The LSS part of [`Device::poll`], before anything else of it: the LSS slave's events
+    /// and deadline; `Break` with the deadline when nothing else is due (the device is
+    /// unconfigured, or silent for a bit-rate switch), `Continue` with it otherwise.
+    #[cfg(feature = "lss")]
+    fn poll_lss(&mut self, now: Instant, sink: &mut impl Sink) -> ControlFlow<Instant, Instant> {
+        let Some(lss) = self.lss.as_mut() else {
+            return ControlFlow::Continue(Instant::NEVER);
+        };
+        if let Some(event) = lss.poll(now) {
+            sink.event(Event::Lss(event));
+        }
+        let deadline = lss.deadline();
+        if let Some(event) = self.lss_event.take() {
+            sink.event(Event::Lss(event));
+        }
+        if !self.lss_holds_back(now) {
+            return ControlFlow::Continue(deadline);
+        }
+        // Unconfigured (it says why it cannot start: stored parameters rejected, say) or
+        // silent for a bit-rate switch: no boot-up, no timer, nothing sent.
+        if self.unconfigured() {
+            self.flush_pending(sink);
+        }
+        self.shell.next_deadline = deadline;
+        ControlFlow::Break(deadline)
+    }
+
     /// `true` when LSS is enabled and the device has no node-ID (FFh).
+    #[cfg(feature = "lss")]
     fn unconfigured(&self) -> bool {
         self.lss.as_ref().is_some_and(|lss| lss.active().is_none())
     }
 
     /// `true` when only LSS is served: the device is unconfigured, or silent for a bit-rate
     /// switch (CiA 305 Fig. 35).
+    #[cfg(feature = "lss")]
     fn lss_holds_back(&self, now: Instant) -> bool {
         self.lss
             .as_ref()
@@ -932,6 +974,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             &mut self.protocol,
             &mut heartbeat_ms,
             &mut self.access,
+            #[cfg(feature = "lss")]
             &mut self.stored_lss,
         ) {
             Ok(Some(stored_by)) if stored_by == self.shell.config.node_id => {
@@ -962,6 +1005,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             self.shell.state = state;
             sink.event(Event::NmtState(state));
         }
+        #[cfg(feature = "lss")]
         if state == NmtState::Operational {
             // LSS safety rule 1: no configuration state in Operational.
             if let Some(event) = self.lss.as_mut().and_then(Lss::leave_configuration) {
@@ -1144,7 +1188,7 @@ impl Shell {
 
 #[cfg(test)]
 mod access_tests;
-#[cfg(test)]
+#[cfg(all(test, feature = "lss"))]
 mod lss_tests;
 #[cfg(test)]
 mod sdo_tests;

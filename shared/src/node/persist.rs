@@ -2,10 +2,10 @@
 //!
 //! The image is serialised here into a small, versioned byte layout and handed to
 //! [`crate::canopen::storage`], which makes storing it atomic. It is the shell's header, the
-//! LSS settings when LSS stored some ([`crate::canopen::lss`]: the node-ID and bit rate, in
-//! the same record as the parameters, so one atomic store covers both), the access control's
-//! stored part ([`super::access`]: the salted hash of the device secret and
-//! the audit record), then the section of the safety protocol in the node's slot
+//! LSS settings when LSS stored some (with the crate's `lss` feature, [`crate::canopen::lss`]:
+//! the node-ID and bit rate, in the same record as the parameters, so one atomic store covers
+//! both), the access control's stored part ([`super::access`]: the salted hash of the device
+//! secret and the audit record), then the section of the safety protocol in the node's slot
 //! ([`SafetyProtocol::persist`]; the SRDO table's layout is on [`super::SrdoTable`]). Parsing
 //! is strict: a wrong version, unknown flags, a length that does not add up, an out-of-range
 //! node-ID, another number of signatures than the protocol's (or whatever the protocol refuses
@@ -17,7 +17,9 @@
 //! without parameters instead of erasing, unless there is nothing to keep, so no SDO write
 //! removes the secret or the audit record (SC_REQ_43), nor the node's LSS address. 0x1010
 //! keeps the LSS settings stored; LSS store configuration ([`store_lss`]) rewrites only them,
-//! leaving the stored parameters byte for byte as they were.
+//! leaving the stored parameters byte for byte as they were. Without the `lss` feature no
+//! image has LSS settings: bit 2 of the flags is unknown there, so an image with them is
+//! refused as malformed, and every image is the layout's without them, byte for byte.
 //!
 //! The image carries the node-ID of the device that stored it. 0x13FE can only hold A5h on a
 //! device whose configuration was validated there (by the tool, or restored from an image
@@ -31,7 +33,7 @@
 //! |-------|-------|
 //! | 1 | format version (3) |
 //! | 1 | node-ID of the device that stored the image, `1..=127` |
-//! | 1 | flags: bit 0 the parameters follow, bit 1 a secret follows, bit 2 LSS settings follow; other bits 0 |
+//! | 1 | flags: bit 0 the parameters follow, bit 1 a secret follows, bit 2 LSS settings follow (`lss` feature); other bits 0 |
 //! | 1 | number of the protocol's signatures `M` (the SRDO table: one per SRDO) |
 //! | 2 | if bit 2: the LSS node-ID (FFh: unconfigured) and bit-timing index (FFh: none) |
 //! | 16 + 32 | if bit 1: the secret's salt, `SHA-256(salt ‖ secret)` |
@@ -47,6 +49,7 @@
 use super::SrdoTable;
 use super::access::{AccessControl, Audit, Persisted, SALT_LEN, Secret};
 use super::slot::SafetyProtocol;
+#[cfg(feature = "lss")]
 use crate::canopen::lss::LssSettings;
 use crate::canopen::node_id::NodeId;
 use crate::canopen::storage::{self, Flash, StorageError};
@@ -58,14 +61,24 @@ const VERSION: u8 = 3;
 const HAS_PARAMETERS: u8 = 0x01;
 /// Flag: a secret follows.
 const HAS_SECRET: u8 = 0x02;
-/// Flag: LSS settings follow the header.
+/// Flag: LSS settings follow the header (the `lss` feature's).
+#[cfg(feature = "lss")]
 const HAS_LSS: u8 = 0x04;
-/// Every flag this layout knows.
+/// Every flag this firmware knows.
+#[cfg(feature = "lss")]
 const FLAGS: u8 = HAS_PARAMETERS | HAS_SECRET | HAS_LSS;
+/// Every flag this firmware knows: without the `lss` feature, not the LSS settings'.
+#[cfg(not(feature = "lss"))]
+const FLAGS: u8 = HAS_PARAMETERS | HAS_SECRET;
 /// Bytes of the shell's header: version, node-ID, flags, `M`.
 const HEADER: usize = 4;
-/// Bytes of the LSS settings.
-const LSS_LEN: usize = 2;
+/// Bytes of the LSS settings in an image: with the `lss` feature, the node-ID and the
+/// bit-timing index.
+#[cfg(feature = "lss")]
+pub(super) const LSS_LEN: usize = 2;
+/// Bytes of the LSS settings in an image: none without the `lss` feature.
+#[cfg(not(feature = "lss"))]
+pub(super) const LSS_LEN: usize = 0;
 /// The most signatures a protocol has: one per SRDO of the largest SRDO table.
 const MAX_SIGNATURES: usize = MAX_SRDOS;
 /// Bytes of the access part at most: salt, hash, change counter, two signatures each.
@@ -141,14 +154,14 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// Serialises the LSS settings when given, the access part, and the parameters when given
-/// (`protocol`'s section and the heartbeat time), of the device with `node_id` into `out`;
-/// returns the length used.
+/// Serialises the LSS settings when given (`lss` feature), the access part, and the
+/// parameters when given (`protocol`'s section and the heartbeat time), of the device with
+/// `node_id` into `out`; returns the length used.
 fn encode<P: SafetyProtocol>(
     parameters: Option<(&P, u16)>,
     access: &Persisted<P::Signatures>,
     node_id: NodeId,
-    lss: Option<LssSettings>,
+    #[cfg(feature = "lss")] lss: Option<LssSettings>,
     out: &mut [u8],
 ) -> usize {
     const {
@@ -187,6 +200,7 @@ fn encode<P: SafetyProtocol>(
     if access.secret.is_some() {
         flags |= HAS_SECRET;
     }
+    #[cfg(feature = "lss")]
     if lss.is_some() {
         flags |= HAS_LSS;
     }
@@ -194,6 +208,7 @@ fn encode<P: SafetyProtocol>(
     // At most MAX_SIGNATURES (checked above), so the count fits its byte.
     let count = audit.after.as_ref().len() as u8;
     push(&[VERSION, node_id.raw(), flags, count]);
+    #[cfg(feature = "lss")]
     if let Some(lss) = lss {
         push(&lss.encode());
     }
@@ -226,6 +241,7 @@ struct Header<S> {
     /// The node-ID of the device that stored it.
     node_id: NodeId,
     /// The LSS settings, when LSS stored some.
+    #[cfg(feature = "lss")]
     lss: Option<LssSettings>,
 }
 
@@ -251,6 +267,7 @@ fn decode<P: SafetyProtocol>(
     if usize::from(reader.u8()?) != access.audit.after.as_ref().len() {
         return Err(PersistError::SrdoCountMismatch);
     }
+    #[cfg(feature = "lss")]
     let lss = if flags & HAS_LSS != 0 {
         Some(LssSettings::decode(reader.take()?).ok_or(PersistError::Malformed)?)
     } else {
@@ -284,23 +301,31 @@ fn decode<P: SafetyProtocol>(
         heartbeat_ms,
         access,
         node_id,
+        #[cfg(feature = "lss")]
         lss,
     })
 }
 
 /// Stores the parameters (0x1010) of the device with `node_id`, with the access control's
-/// stored part and the LSS settings stored before (`lss`).
+/// stored part and the LSS settings stored before (`lss`, with the `lss` feature).
 pub(super) fn store<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     protocol: &P,
     heartbeat_ms: u16,
     node_id: NodeId,
     access: &Persisted<P::Signatures>,
-    lss: Option<LssSettings>,
+    #[cfg(feature = "lss")] lss: Option<LssSettings>,
 ) -> Result<(), StorageError> {
     let mut image = P::image();
     let image = image.as_mut();
-    let len = encode(Some((protocol, heartbeat_ms)), access, node_id, lss, image);
+    let len = encode(
+        Some((protocol, heartbeat_ms)),
+        access,
+        node_id,
+        #[cfg(feature = "lss")]
+        lss,
+        image,
+    );
     storage::store(flash, image.get(..len).unwrap_or(image))
 }
 
@@ -310,6 +335,7 @@ pub(super) fn store<F: Flash, P: SafetyProtocol>(
 /// `node_id`, and `lss`). A stored image this firmware does not read (another format
 /// version, unknown flags, truncated) is not rewritten: [`StorageError::Corrupt`], nothing
 /// changes (the node reported it at start-up, and a new image would hide that).
+#[cfg(feature = "lss")]
 pub(super) fn store_lss<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     node_id: NodeId,
@@ -328,6 +354,7 @@ pub(super) fn store_lss<F: Flash, P: SafetyProtocol>(
 /// Puts `lss` into the stored image of `len` bytes at the start of `image`, in place: over
 /// the LSS settings it holds, or inserted after the header with the flag set. Returns the
 /// new length.
+#[cfg(feature = "lss")]
 fn with_lss(image: &mut [u8], len: usize, lss: LssSettings) -> Result<usize, StorageError> {
     let bytes = lss.encode();
     let readable = len >= HEADER
@@ -360,39 +387,53 @@ fn with_lss(image: &mut [u8], len: usize, lss: LssSettings) -> Result<usize, Sto
 }
 
 /// 0x1011: the defaults at the next reset. Erases the stored parameters when there is
-/// nothing of the access control and no LSS settings to keep; otherwise stores an image with
-/// the access part and the LSS settings alone, so the secret and the audit record stay
-/// (SC_REQ_43), and the node's LSS address.
+/// nothing of the access control and no LSS settings (`lss` feature) to keep; otherwise
+/// stores an image with the access part and the LSS settings alone, so the secret and the
+/// audit record stay (SC_REQ_43), and the node's LSS address.
 pub(super) fn restore_defaults<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     node_id: NodeId,
     access: &Persisted<P::Signatures>,
-    lss: Option<LssSettings>,
+    #[cfg(feature = "lss")] lss: Option<LssSettings>,
 ) -> Result<(), StorageError> {
-    if *access == Persisted::new(P::NO_SIGNATURES) && lss.is_none() {
+    let nothing_to_keep = *access == Persisted::new(P::NO_SIGNATURES);
+    #[cfg(feature = "lss")]
+    let nothing_to_keep = nothing_to_keep && lss.is_none();
+    if nothing_to_keep {
         return storage::restore_defaults(flash);
     }
     let mut image = P::image();
     let image = image.as_mut();
-    let len = encode::<P>(None, access, node_id, lss, image);
+    let len = encode::<P>(
+        None,
+        access,
+        node_id,
+        #[cfg(feature = "lss")]
+        lss,
+        image,
+    );
     storage::store(flash, image.get(..len).unwrap_or(image))
 }
 
 /// Loads stored parameters into `protocol` and `heartbeat_ms`, the access control's stored
-/// part into `access` and the LSS settings into `lss`: `Ok(Some(node-ID))` when parameters
-/// were restored, with the node-ID of the device that stored them; `Ok(None)` when none are
-/// stored (defaults stay); `Err` when the stored image is unusable (nothing else changed, the
-/// caller keeps the defaults, `access` holds no secret and no audit record: a damaged image
-/// is a new device, see docs/access-protection.md; and `lss` is `None`: no LSS address).
+/// part into `access` and the LSS settings into `lss` (`lss` feature): `Ok(Some(node-ID))`
+/// when parameters were restored, with the node-ID of the device that stored them;
+/// `Ok(None)` when none are stored (defaults stay); `Err` when the stored image is unusable
+/// (nothing else changed, the caller keeps the defaults, `access` holds no secret and no
+/// audit record: a damaged image is a new device, see docs/access-protection.md; and `lss`
+/// is `None`: no LSS address).
 pub(super) fn load<F: Flash, P: SafetyProtocol>(
     flash: &mut F,
     protocol: &mut P,
     heartbeat_ms: &mut u16,
     access: &mut AccessControl<P::Signatures>,
-    lss: &mut Option<LssSettings>,
+    #[cfg(feature = "lss")] lss: &mut Option<LssSettings>,
 ) -> Result<Option<NodeId>, PersistError> {
     access.restore(Persisted::new(P::NO_SIGNATURES));
-    *lss = None;
+    #[cfg(feature = "lss")]
+    {
+        *lss = None;
+    }
     let mut image = P::image();
     let image = image.as_mut();
     let Some(len) = storage::load(flash, image).map_err(PersistError::Storage)? else {
@@ -400,7 +441,10 @@ pub(super) fn load<F: Flash, P: SafetyProtocol>(
     };
     let header = decode(image.get(..len).ok_or(PersistError::Malformed)?, protocol)?;
     access.restore(header.access);
-    *lss = header.lss;
+    #[cfg(feature = "lss")]
+    {
+        *lss = header.lss;
+    }
     let Some(stored_heartbeat_ms) = header.heartbeat_ms else {
         return Ok(None);
     };
@@ -411,6 +455,8 @@ pub(super) fn load<F: Flash, P: SafetyProtocol>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::canopen::lss::LssSettings;
+    #[cfg(feature = "lss")]
     use crate::canopen::storage::RamFlash;
     use crate::safety::config::SafetyConfig;
 
@@ -458,7 +504,14 @@ mod tests {
         let mut out = [0u8; MAX_IMAGE];
         let mut table = table::<2>();
         table.safety = sample();
-        let len = encode(Some((&table, 250)), &access(), node(7), None, &mut out);
+        let len = encode(
+            Some((&table, 250)),
+            &access(),
+            node(7),
+            #[cfg(feature = "lss")]
+            None,
+            &mut out,
+        );
         (out, len)
     }
 
@@ -475,6 +528,7 @@ mod tests {
                     heartbeat_ms: Some(250),
                     access: access(),
                     node_id: node(7),
+                    #[cfg(feature = "lss")]
                     lss: None,
                 },
                 sample()
@@ -485,7 +539,14 @@ mod tests {
     #[test]
     fn sc_req_43_an_image_without_parameters_keeps_secret_and_audit() {
         let mut out = [0u8; MAX_IMAGE];
-        let len = encode::<SrdoTable<2>>(None, &access(), node(7), None, &mut out);
+        let len = encode::<SrdoTable<2>>(
+            None,
+            &access(),
+            node(7),
+            #[cfg(feature = "lss")]
+            None,
+            &mut out,
+        );
         assert_eq!(len, PARAMETERS_AT);
         let untouched = table::<2>().config().clone();
         assert_eq!(
@@ -495,6 +556,7 @@ mod tests {
                     heartbeat_ms: None,
                     access: access(),
                     node_id: node(7),
+                    #[cfg(feature = "lss")]
                     lss: None,
                 },
                 untouched
@@ -504,11 +566,41 @@ mod tests {
             secret: None,
             ..access()
         };
-        let len = encode::<SrdoTable<2>>(None, &without_secret, node(7), None, &mut out);
+        let len = encode::<SrdoTable<2>>(
+            None,
+            &without_secret,
+            node(7),
+            #[cfg(feature = "lss")]
+            None,
+            &mut out,
+        );
         assert_eq!(decode::<2>(&out[..len]).unwrap().0.access, without_secret);
         assert_eq!(decode::<2>(&out[..len + 1]), Err(PersistError::Malformed));
     }
 
+    /// An image with LSS settings is read by a device with the `lss` feature and refused as
+    /// malformed by one without it (bit 2 of the flags is unknown there): never misread.
+    #[test]
+    fn cia305_an_image_with_lss_settings_is_read_only_with_the_lss_feature() {
+        let (out, len) = encoded();
+        let lss = LssSettings {
+            node_id: Some(node(42)),
+            bit_rate: None,
+        };
+        let mut image = out[..len].to_vec();
+        image[2] |= 0x04;
+        image.splice(HEADER..HEADER, lss.encode());
+        let read = decode::<2>(&image).map(|(header, config)| (header.access, config));
+        #[cfg(feature = "lss")]
+        {
+            assert_eq!(read, Ok((access(), sample())));
+            assert_eq!(decode::<2>(&image).unwrap().0.lss, Some(lss));
+        }
+        #[cfg(not(feature = "lss"))]
+        assert_eq!(read, Err(PersistError::Malformed));
+    }
+
+    #[cfg(feature = "lss")]
     #[test]
     fn cia305_lss_settings_round_trip_beside_the_parameters() {
         let lss = LssSettings {
@@ -534,6 +626,7 @@ mod tests {
     }
 
     /// The stored image as bytes.
+    #[cfg(feature = "lss")]
     fn raw(flash: &mut RamFlash<2048>) -> std::vec::Vec<u8> {
         let mut buf = [0u8; 2048];
         let len = storage::load(flash, &mut buf).unwrap().unwrap();
@@ -542,6 +635,7 @@ mod tests {
 
     /// CiA 305 Fig. 36: store configuration changes the LSS settings of the stored image and
     /// nothing else of it, byte for byte.
+    #[cfg(feature = "lss")]
     #[test]
     fn cia305_store_configuration_rewrites_only_the_lss_settings() {
         let mut flash = RamFlash::<2048>::new();
@@ -660,18 +754,20 @@ mod tests {
     fn the_largest_section_is_the_64_srdo_table_s() {
         assert_eq!(MAX_SECTION, 5_058);
         assert_eq!(ACCESS_MAX, 308);
-        assert_eq!(MAX_IMAGE, 5_374);
+        let lss = if cfg!(feature = "lss") { 2 } else { 0 };
+        assert_eq!(MAX_IMAGE, 5_372 + lss);
     }
 
-    /// The image buffer is the device's own size: 145 bytes per SRDO (the product's 4 SRDOs:
-    /// 580 bytes on the stack while parameters are stored or restored, where the largest
-    /// table's would be 5,374), and the largest image of that device, LSS settings included,
-    /// fits it (the build checks it too).
+    /// The image buffer is the device's own size: 143 bytes per SRDO, 145 with the `lss`
+    /// feature (the product's 4 SRDOs: 572 or 580 bytes on the stack while parameters are
+    /// stored or restored, where the largest table's would be 5,372 or 5,374), and the
+    /// largest image of that device, LSS settings included with the feature, fits it (the
+    /// build checks it too).
     #[test]
     fn the_image_buffer_is_sized_for_the_device_and_holds_its_largest_image() {
         assert_eq!(
             core::mem::size_of::<<SrdoTable<4> as SafetyProtocol>::Image>(),
-            580
+            if cfg!(feature = "lss") { 580 } else { 572 }
         );
         let mut table = table::<4>();
         for record in &mut table.safety.srdos {
@@ -689,20 +785,20 @@ mod tests {
             },
         };
         let mut image = <SrdoTable<4> as SafetyProtocol>::image();
-        let lss = LssSettings {
-            node_id: Some(node(127)),
-            bit_rate: Some(crate::canopen::lss::BitRate::Kbit500),
-        };
         let len = encode(
             Some((&table, 100)),
             &access,
             node(1),
-            Some(lss),
+            #[cfg(feature = "lss")]
+            Some(LssSettings {
+                node_id: Some(node(127)),
+                bit_rate: Some(crate::canopen::lss::BitRate::Kbit500),
+            }),
             image.as_mut(),
         );
-        // 4 header + 2 LSS + 52 secret and counter + 16 signatures + 2 heartbeat + 2 + 4
-        // records of 79.
-        assert_eq!(len, 4 + 2 + 52 + 16 + 2 + 2 + 4 * 79);
+        // 4 header + 2 LSS (with the feature) + 52 secret and counter + 16 signatures + 2
+        // heartbeat + 2 + 4 records of 79.
+        assert_eq!(len, 4 + LSS_LEN + 52 + 16 + 2 + 2 + 4 * 79);
         assert!(len <= image.as_ref().len(), "{len}");
     }
 }

@@ -394,6 +394,7 @@ fn en50325_5_8_3_1_a_restored_invalid_configuration_keeps_the_node_safe() {
         0,
         node_id(33),
         &super::access::Persisted::new([0; 4]),
+        #[cfg(feature = "lss")]
         None,
     )
     .unwrap();
@@ -475,6 +476,7 @@ fn en50325_5_6_4_1_6_configuration_valid_reads_0_after_a_refused_start() {
         0,
         node_id(33),
         &super::access::Persisted::new([0; 4]),
+        #[cfg(feature = "lss")]
         None,
     )
     .unwrap();

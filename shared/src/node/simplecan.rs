@@ -31,7 +31,7 @@
 use heapless::Vec;
 
 use super::dictionary::{exact, length, put};
-use super::persist::Reader;
+use super::persist::{self, Reader};
 use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::{Event, NodeConfig, PersistError, SafeStateCause, Sink};
 use crate::canopen::emcy::code;
@@ -637,10 +637,11 @@ impl<const E: usize> Running<E> {
 pub type SimpleCanImage<const E: usize> = RowImage<IMAGE_PER_ENTRY, E>;
 
 /// Bytes of the stored image per entry: the entry itself and the shell's fixed part with
-/// this section's own (the shell's header, LSS settings, salt, hash, change counter, the two
-/// audit signatures of 4 bytes, the heartbeat time: 68 bytes; 15 of its own) counted once
-/// per entry, which covers it for any layer of at least one entry.
-const IMAGE_PER_ENTRY: usize = ENTRY_STORED + 68 + FIXED_STORED;
+/// this section's own (the shell's header, salt, hash, change counter, the two audit
+/// signatures of 4 bytes, the heartbeat time: 66 bytes, and the LSS settings with the `lss`
+/// feature; 15 of its own) counted once per entry, which covers it for any layer of at
+/// least one entry.
+const IMAGE_PER_ENTRY: usize = ENTRY_STORED + 66 + persist::LSS_LEN + FIXED_STORED;
 
 impl<const E: usize> SafetyProtocol for SimpleCan<E> {
     const MAX_PERSISTED: usize = FIXED_STORED + E * ENTRY_STORED;

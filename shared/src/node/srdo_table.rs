@@ -9,7 +9,7 @@ mod integrity;
 use heapless::Vec;
 
 use super::dictionary::put;
-use super::persist::Reader;
+use super::persist::{self, Reader};
 use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::{ApiError, Event, NodeConfig, PersistError, SafeStateCause, Sink};
 use crate::canopen::od::{AbortCode, Address};
@@ -404,14 +404,15 @@ impl<const N: usize> SrdoTable<N> {
 
 /// Bytes of a stored image per SRDO of the table, the shell's part included: a record with 16
 /// mapping entries (79 bytes) and its two audit signatures (4), and the shell's fixed part
-/// (62 bytes: header, LSS settings, salt, hash, change counter, heartbeat time, and this
-/// table's own two bytes) counted once per SRDO, which covers it for any table of at least
-/// one SRDO.
-pub(super) const IMAGE_PER_SRDO: usize = RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES + 4 + 62;
+/// (60 bytes: header, salt, hash, change counter, heartbeat time, and this table's own two
+/// bytes; and the LSS settings with the `lss` feature) counted once per SRDO, which covers
+/// it for any table of at least one SRDO.
+pub(super) const IMAGE_PER_SRDO: usize =
+    RECORD_FIXED + 4 * MAX_MAPPING_ENTRIES + 4 + 60 + persist::LSS_LEN;
 
 /// The stored image of a table of `N` SRDOs: `N` times [`IMAGE_PER_SRDO`] bytes, so that a
-/// device of 4 SRDOs restores its parameters through 580 bytes of stack, not the 5 KiB of the
-/// largest table.
+/// device of 4 SRDOs restores its parameters through 572 bytes of stack (580 with the `lss`
+/// feature), not the 5 KiB of the largest table.
 pub type SrdoImage<const N: usize> = RowImage<IMAGE_PER_SRDO, N>;
 
 impl<const N: usize> SafetyProtocol for SrdoTable<N> {
