@@ -12,6 +12,7 @@ mod footprint;
 mod fullnet;
 mod images;
 mod interop;
+mod licences;
 mod locate;
 mod manual;
 mod network;
@@ -510,6 +511,8 @@ fn test(root: &Path) -> Result<()> {
         "-D",
         "warnings",
     ]))?;
+    step("licences: no GPL crate (the emulator, unicorn-engine) in what ships");
+    licences::check()?;
     step("tests (nextest, whose JUnit report the traceability matrix is built from)");
     toolchain::ensure_tshark()?;
     if !trace::run_tests(root)? {
