@@ -559,6 +559,14 @@ impl Hosts {
                     .ok_or_else(|| format!("no link `{name}`"))?;
                 self.links.cut.extend([a, b]);
             }
+            Command::Restore(name) => {
+                let (a, b) = *self
+                    .links
+                    .named
+                    .get(name)
+                    .ok_or_else(|| format!("no link `{name}`"))?;
+                self.links.cut.retain(|end| *end != a && *end != b);
+            }
             Command::Clear => hub.retain_faults(|_| false),
             Command::Load { percent, frames } => {
                 let frames = frames
