@@ -464,6 +464,10 @@ fn mixed_load(root: &Path, python: &Path) -> Result<()> {
                     .arg(MIXED_LOAD_PERCENT.to_string()),
             )
         });
+    // The hub reports its pacing every second on the control port: the latest report.
+    let _ = network
+        .control
+        .watch(std::time::Duration::from_millis(1500));
     let pace = network.pace_summary();
     let faults = network.stop();
     let result = result?;

@@ -6,6 +6,7 @@
 mod bench;
 mod campaign;
 mod child;
+mod defmt_log;
 mod e2e;
 mod footprint;
 mod fullnet;
@@ -517,7 +518,6 @@ fn test(root: &Path) -> Result<()> {
     images::build(root, &cross)?;
     step("each image alone under QEMU, to its self-test verdict");
     toolchain::ensure_qemu()?;
-    toolchain::ensure_defmt_print()?;
     qemu::build(root, &cross)?;
     for channel in ["a", "b"] {
         let image = qemu::image(&cross, root, channel);

@@ -207,7 +207,6 @@ pub fn setup(probe_rs: bool, fuzz: bool) -> Result<()> {
         ensure_fuzzing()?;
     }
     ensure_qemu()?;
-    ensure_defmt_print()?;
     ensure_tshark()?;
     if !exists("valgrind") {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
@@ -238,16 +237,6 @@ pub fn ensure_fuzzing() -> Result<()> {
     }
     eprintln!("xtask: installing cargo-fuzz (cargo install --locked), for the fuzz targets");
     super::run(Command::new("cargo").args(["install", "--locked", "cargo-fuzz"]))
-}
-
-/// defmt-print, which decodes the QEMU images' logs (about a minute of compiling).
-pub fn ensure_defmt_print() -> Result<()> {
-    if exists("defmt-print") {
-        eprintln!("xtask: defmt-print: installed");
-        return Ok(());
-    }
-    eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
-    super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))
 }
 
 /// tshark (Debian's package), which the hub's test uses to check that its pcap traces decode
