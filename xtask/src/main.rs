@@ -128,7 +128,8 @@ enum Task {
         #[arg(long = "for", value_parser = run::parse_duration)]
         duration: Option<std::time::Duration>,
         /// Schedule an action: `5s:press` (press, release, drop, corrupt, stop, b-differs,
-        /// cut-link, gfc, reset; repeatable; before the end of a `--for` run).
+        /// cut-link, restore-link, gfc, reset) or a key of the live view (`5s:l`: e d c s b l
+        /// g r p q); repeatable; before the end of a `--for` run.
         #[arg(long, value_parser = run::parse_at)]
         at: Vec<(std::time::Duration, run::Action)>,
         /// The safety protocol between node 1 and node 33: `canopen-safety` (SRDO 1, the
