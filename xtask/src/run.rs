@@ -265,9 +265,8 @@ struct Observed {
     notice: Option<String>,
 }
 
-/// Does `action` at hub time `hub_time` (run time `at`); returns what was done, in words.
-/// An action the network refuses is an error, said on the screen by the caller; the run
-/// goes on.
+/// Does `action` (at run time `at`); returns what was done, in words. An action the network
+/// refuses is an error, said on the screen by the caller; the run goes on.
 fn apply(
     network: &mut Network,
     bus: &mut SocketcandClient,
@@ -288,11 +287,19 @@ fn apply(
     }
     Ok(match action {
         Action::Press => {
+            let on = network::output_33(&network.control.latest) == Some(1);
             let pressed = network.command("input node1a 0")?;
             network.command("input node1b 0")?;
             seen.pressed = true;
-            seen.press_pending = Some((pressed, network.control.history.len()));
-            "emergency stop pressed (node 1's input 0)".to_owned()
+            if on {
+                seen.press_pending = Some((pressed, network.control.history.len()));
+                "emergency stop pressed (node 1's input 0)".to_owned()
+            } else {
+                seen.press_pending = None;
+                "emergency stop pressed (node 1's input 0); node 33's output was not on, so \
+                 there is no latency to measure"
+                    .to_owned()
+            }
         }
         Action::Release => {
             network.command("input node1a 1")?;
@@ -397,8 +404,8 @@ fn press_latency(history: &[(String, f64, Status)], pressed: f64, from: usize) -
 }
 
 /// How long a reset waits, on the network's time, for the nodes' boot-up messages after NMT
-/// reset node, and then for every channel Operational and working after NMT start: a node
-/// boots once both its channels run, within a second on the emulated network.
+/// reset node, and then for every channel Operational and working after NMT start (a node
+/// boots once both its channels run).
 const RESTART_PATIENCE: f64 = 10.0;
 
 /// What a reset in progress has the run do next.
