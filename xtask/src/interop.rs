@@ -440,8 +440,10 @@ const MIXED_LOAD_PERCENT: u32 = 30;
 /// them on low identifiers (010h..02Eh, above every frame of the nodes), filling
 /// [`MIXED_LOAD_PERCENT`] of the bus counted in the bus's time; a third connection records
 /// every frame with the hub's time stamp (`xtask/interop/mixed_load.py`). Reports, on the
-/// bus's time, the largest SDO response time (request to answer) and the longest gap
-/// between two heartbeats of each node, beside the uploads, the client's time-outs and the
+/// bus's time, the largest SDO response time (request to answer), the longest gap between two
+/// heartbeats of each node and the longest stretch of frames back to back (a burst of the
+/// load delays every frame of lower priority that long), beside the uploads, the client's
+/// time-outs and the
 /// replies it found answering another request. Fails when a request went unanswered on the
 /// bus, or the load fell short of its share (the case then measured nothing).
 fn mixed_load(root: &Path, python: &Path) -> Result<()> {
@@ -477,7 +479,8 @@ fn mixed_load(root: &Path, python: &Path) -> Result<()> {
     let gap = |node: &str| gaps[node].as_f64().unwrap_or(f64::NAN);
     println!(
         "interop 5: {:.1} s of bus time, {} frames, the load {:.1} % of the bus ({:.1} % in \
-         all); {} SDO requests answered, the largest response time {:.2} ms (bus time); \
+         all; frames back to back for at most {:.1} ms); {} SDO requests answered, the largest \
+         response time {:.2} ms (bus time); \
          longest gap between heartbeats: node 1 {:.1} ms, node 33 {:.1} ms (bus time; \
          producer time 100 ms); python-canopen: {} uploads, {} time-outs ({} s, host time), \
          {} replies to another request; longest upload {:.3} s of host time; {pace}",
@@ -485,6 +488,7 @@ fn mixed_load(root: &Path, python: &Path) -> Result<()> {
         result["frames"],
         100.0 * number("load_share"),
         100.0 * number("bus_share"),
+        number("longest_busy_ms"),
         result["sdo_responses"],
         number("sdo_response_max_ms"),
         gap("1"),
