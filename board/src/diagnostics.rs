@@ -11,6 +11,7 @@ use dual_channel::runtime::{
     ChannelEvent, ChannelProtocol, Role, Runtime, is_srdo, safe_state_code,
 };
 use emulation_wire::Status;
+use shared::canopen::nmt::NmtState;
 use shared::canopen::storage::Flash;
 use shared::node::Event;
 use shared::safety::types::SrdoNumber;
@@ -84,6 +85,10 @@ impl Diagnostics {
             ChannelEvent::Node(Event::SafeState(cause)) => {
                 self.status.cause = safe_state_code(cause);
             }
+            // An NMT reset (node or communication) clears the latched safe state and its
+            // cause (`shared::node`): the report says "none since power-on or reset", as
+            // `Status::cause` promises, not the cause of a safe state the reset ended.
+            ChannelEvent::Node(Event::NmtState(NmtState::Initialising)) => self.status.cause = 0,
             ChannelEvent::Fault(fault) => self.status.cause = fault.cause_code(),
             _ => {}
         }
@@ -180,5 +185,41 @@ impl Diagnostics {
     /// When the next periodic report is due.
     pub fn deadline(&self) -> Instant {
         self.next_report
+    }
+
+    /// The cause code the next report carries (`Status::cause`).
+    pub fn cause(&self) -> u8 {
+        self.status.cause
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::node::SafeStateCause;
+
+    /// EN 50325-5 7.2.1, CiA 301 7.3.2.2.1: a GFC latches the safe state, and NMT reset node
+    /// (or communication) ends it; the report's cause follows: the GFC's code while latched,
+    /// none after the reset (a safe state entered after the reset is reported again).
+    #[test]
+    fn en50325_5_7_2_1_a_reset_clears_the_reported_cause_of_the_safe_state_it_ended() {
+        let mut diagnostics = Diagnostics::new();
+        assert_eq!(diagnostics.cause(), 0);
+        let gfc = ChannelEvent::Node(Event::SafeState(SafeStateCause::Gfc));
+        diagnostics.event(&gfc);
+        let latched = diagnostics.cause();
+        assert_ne!(latched, 0);
+        diagnostics.event(&ChannelEvent::Node(Event::NmtState(
+            NmtState::PreOperational,
+        )));
+        assert_eq!(
+            diagnostics.cause(),
+            latched,
+            "only a reset ends the safe state"
+        );
+        diagnostics.event(&ChannelEvent::Node(Event::NmtState(NmtState::Initialising)));
+        assert_eq!(diagnostics.cause(), 0);
+        diagnostics.event(&gfc);
+        assert_eq!(diagnostics.cause(), latched);
     }
 }

@@ -13,6 +13,7 @@
 //!                             sender; arbitration and bit time as for everyone)
 //! → mute node1a / unmute node1a
 //! → cut node33-link           the link relay stops passing bytes, both ways
+//! → restore node33-link       it passes them again
 //! → clear                     every injected bus fault is removed
 //! → load 30 621#4018100100000000 281#5555555555555555
 //!                             the hub sends these frames in turn, in its virtual time, so
@@ -133,6 +134,8 @@ pub enum Command {
     Mute(String, bool),
     /// The link relay `name` stops passing bytes.
     Cut(String),
+    /// The link relay `name` passes bytes again.
+    Restore(String),
     /// Remove every injected bus fault.
     Clear,
     /// Generate load ([`crate::load`]): `percent` of the bus, these frames in turn
@@ -250,6 +253,7 @@ impl Command {
             ["mute", name] => Command::Mute((*name).to_string(), true),
             ["unmute", name] => Command::Mute((*name).to_string(), false),
             ["cut", name] => Command::Cut((*name).to_string()),
+            ["restore", name] => Command::Restore((*name).to_string()),
             ["clear"] => Command::Clear,
             ["load", "off"] => Command::LoadOff,
             ["load", percent, frames @ ..] => Command::Load {
@@ -263,7 +267,7 @@ impl Command {
             [verb, ..] => {
                 return Err(format!(
                     "`{verb}` with {} argument(s) is not a command (input, drop, corrupt, delay, \
-                     repeat, reorder, insert, mute, unmute, cut, clear, load)",
+                     repeat, reorder, insert, mute, unmute, cut, restore, clear, load)",
                     words.len() - 1
                 ));
             }
@@ -290,6 +294,7 @@ impl fmt::Display for Command {
             Command::Mute(name, true) => write!(f, "mute {name}"),
             Command::Mute(name, false) => write!(f, "unmute {name}"),
             Command::Cut(name) => write!(f, "cut {name}"),
+            Command::Restore(name) => write!(f, "restore {name}"),
             Command::Clear => write!(f, "clear"),
             Command::Load { percent, frames } => {
                 write!(f, "load {percent}")?;
@@ -498,6 +503,7 @@ mod tests {
             "mute node1a",
             "unmute node1b",
             "cut node33-link",
+            "restore node33-link",
             "clear",
             "load 30 621#4018100100000000 281#5555555555555555 000#",
             "load off",

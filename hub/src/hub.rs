@@ -113,6 +113,10 @@ pub struct Hub {
     /// Frames of emulated MCUs refused because their transmit queue was full: (time,
     /// participant, frame). See [`Hub::receive`].
     pub overflowed: Vec<(Instant, usize, CanFrame)>,
+    /// The latest time a frame was queued for the bus: no frame waiting now was queued after
+    /// it, so an arbitration at or after it is one every waiting frame can take part in
+    /// ([`Hub::next_arbitration`]).
+    last_queued: Instant,
 }
 
 impl Hub {
@@ -136,6 +140,7 @@ impl Hub {
             links: Vec::new(),
             acknowledgements: Vec::new(),
             overflowed: Vec::new(),
+            last_queued: Instant::ZERO,
         }
     }
 
@@ -239,8 +244,40 @@ impl Hub {
     /// Queues an emulated MCU's `frame`, or records it in [`Hub::overflowed`] when its
     /// transmit queue is full.
     fn queue_or_refuse(&mut self, now: Instant, id: usize, frame: CanFrame) {
-        if self.bus.try_send(id, frame).is_err() {
+        if self.queue(now, id, frame).is_err() {
             self.overflowed.push((now, id, frame));
+        }
+    }
+
+    /// Queues participant `id`'s `frame` at `now`, after the bus has carried, back to back,
+    /// what was waiting before `now` ([`Hub::catch_up`]): the frame takes part in the
+    /// arbitrations from `now` on, not in one that began before it was sent.
+    fn queue(&mut self, now: Instant, id: usize, frame: CanFrame) -> Result<(), QueueFull> {
+        self.catch_up(now);
+        self.bus.try_send(id, frame)?;
+        self.last_queued = self.last_queued.max(now);
+        Ok(())
+    }
+
+    /// When the next arbitration begins, if a frame is waiting: when the bus is free, but
+    /// not before the latest frame was queued. Every frame waiting was queued by then, and
+    /// none had a chance at the bus since: the previous arbitration either took the bus
+    /// until after it was queued or found it waiting with nothing to send.
+    fn next_arbitration(&self) -> Option<Instant> {
+        self.bus.next_start(self.last_queued)
+    }
+
+    /// Runs the arbitrations that begin before `before`, one after the other at the instants
+    /// the bus becomes free, as a real bus carries frames back to back: the hub's loop runs
+    /// when the host lets it, and an arbitration held until its next round would leave the
+    /// bus idle meanwhile in the virtual time, and make a frame of low priority wait as long
+    /// as a sender of higher priority has another frame queued at each round (seen: node 33's
+    /// SDO answers and both nodes' heartbeats held about half a second behind a tool sending
+    /// frames on low identifiers, the bus idle most of that time).
+    fn catch_up(&mut self, before: Instant) {
+        while let Some(start) = self.next_arbitration().filter(|start| *start < before) {
+            let deliveries = self.bus.arbitrate(start);
+            self.in_flight.extend(deliveries);
         }
     }
 
@@ -268,7 +305,7 @@ impl Hub {
                     }),
                     // One message holds at most one frame, and the FIFO had room for it.
                     Output::Send(frame) => {
-                        let _ = self.bus.try_send(id, frame);
+                        let _ = self.queue(now, id, frame);
                     }
                     Output::Close => self.closing.push(id),
                 }
@@ -295,11 +332,11 @@ impl Hub {
         self.bus.has_room(id)
     }
 
-    /// `frame` goes on the bus from participant `id` (the hub's own sender, say), which need
-    /// not be connected; it competes in arbitration like any other. Refused when that
-    /// participant's transmit FIFO is full.
-    pub fn send(&mut self, id: usize, frame: CanFrame) -> Result<(), QueueFull> {
-        self.bus.try_send(id, frame)
+    /// `frame` goes on the bus from participant `id` (the hub's own sender, say) at `now`,
+    /// which need not be connected; it competes in arbitration like any other. Refused when
+    /// that participant's transmit FIFO is full.
+    pub fn send(&mut self, now: Instant, id: usize, frame: CanFrame) -> Result<(), QueueFull> {
+        self.queue(now, id, frame)
     }
 
     /// The bytes that set a board's input pin to `value`.
@@ -373,15 +410,15 @@ impl Hub {
                     }
                 }
             }
-            // Arbitrate while the bus is free at `now`; a dropped or muted frame leaves it free.
-            if self.bus.next_start(now).is_some_and(|start| start <= now) {
-                let deliveries = self.bus.arbitrate(now);
-                if deliveries.is_empty() {
-                    continue;
+            // Every arbitration due by `now`, each when the bus became free ([`Hub::catch_up`]);
+            // a dropped or muted frame leaves it free. What ends by `now` is handed out above.
+            match self.next_arbitration() {
+                Some(start) if start <= now => {
+                    let deliveries = self.bus.arbitrate(start);
+                    self.in_flight.extend(deliveries);
                 }
-                self.in_flight.extend(deliveries);
+                _ => break,
             }
-            break;
         }
         let grace_ends = self.framings.iter().filter_map(|framing| match framing {
             Framing::Socketcand(session) => session
@@ -393,7 +430,7 @@ impl Hub {
             .in_flight
             .iter()
             .map(|d| d.at)
-            .chain(self.bus.next_start(now))
+            .chain(self.next_arbitration())
             .chain(grace_ends)
             .min();
         (out, next)
@@ -810,6 +847,95 @@ mod tests {
                 .any(|o| o.to == 1 && text(o).starts_with("< frame 701 ")),
             "{out:?}"
         );
+    }
+
+    /// The end on the bus of each frame that completed, with its identifier, in order.
+    fn ends(hub: &Hub) -> Vec<(u16, u64)> {
+        hub.completed
+            .iter()
+            .map(|(at, frame, _)| (frame.id().raw(), at.as_micros()))
+            .collect()
+    }
+
+    /// ISO 11898-1 10.4.2.2 (bus idle: a node may start a frame once the intermission after
+    /// the previous one is over): frames waiting go on the bus one right after the other in
+    /// the virtual time, however late the hub's loop polls. A sender of higher priority with
+    /// a queue of frames (a tool on low identifiers) takes the bus only for their bit times,
+    /// and a node's heartbeat queued with them follows at once, not at the end of the hub's
+    /// next rounds: one arbitration per round left the bus idle in the virtual time between
+    /// rounds and held the heartbeat as long as the tool had a frame queued at each.
+    #[test]
+    fn iso11898_1_10_4_2_2_frames_follow_each_other_on_the_bus_however_late_the_hub_polls() {
+        let mut hub = Hub::new(500_000);
+        for id in 0..3 {
+            hub.join(id);
+        }
+        let load: Vec<CanFrame> = (0..10).map(|n| frame(0x281 + n, &[0x55; 8])).collect();
+        let bytes: Vec<u8> = load.iter().flat_map(|f| encode(f).to_vec()).collect();
+        hub.receive(Instant::ZERO, 1, &bytes);
+        hub.receive(Instant::ZERO, 0, &encode(&frame(0x721, &[5])));
+        let _ = hub.poll(Instant::ZERO);
+        // The hub's loop comes back only 20 ms later (a busy host).
+        let (out, _) = hub.poll(Instant::from_millis(20));
+        let ends = ends(&hub);
+        let mut expected = Vec::new();
+        let mut end = 0;
+        for frame in load.iter().chain([&frame(0x721, &[5])]) {
+            end += crate::bus::frame_time(frame, 500_000).as_micros();
+            expected.push((frame.id().raw(), end));
+        }
+        assert_eq!(ends, expected, "back to back from 0, in identifier order");
+        assert_eq!(
+            out.iter().filter(|o| o.to == 2).count(),
+            11,
+            "every frame reached the receiver"
+        );
+    }
+
+    /// ISO 11898-1 10.4.2.2: a frame sent while the bus was busy with another takes part in
+    /// the arbitration at that frame's end, even when a frame of higher priority is sent
+    /// later, before the hub's loop came round: it is on the bus first.
+    #[test]
+    fn iso11898_1_10_4_2_2_a_frame_is_not_overtaken_by_one_sent_after_the_bus_fell_free() {
+        let mut hub = Hub::new(500_000);
+        for id in 0..4 {
+            hub.join(id);
+        }
+        hub.receive(Instant::ZERO, 1, &encode(&frame(0x281, &[0x55; 8])));
+        let _ = hub.poll(Instant::ZERO);
+        hub.receive(Instant::from_micros(10), 0, &encode(&frame(0x721, &[5])));
+        // 10 ms later, a frame of higher priority: the bus was free long before.
+        let later = Instant::from_millis(10);
+        hub.receive(later, 2, &encode(&frame(0x050, &[1])));
+        let _ = hub.poll(later);
+        let _ = hub.poll(later + shared::Duration::from_millis(1));
+        let first = crate::bus::frame_time(&frame(0x281, &[0x55; 8]), 500_000).as_micros();
+        let heartbeat = crate::bus::frame_time(&frame(0x721, &[5]), 500_000).as_micros();
+        let late = crate::bus::frame_time(&frame(0x050, &[1]), 500_000).as_micros();
+        assert_eq!(
+            ends(&hub),
+            [
+                (0x281, first),
+                (0x721, first + heartbeat),
+                (0x050, later.as_micros() + late)
+            ]
+        );
+    }
+
+    /// A frame sent while the bus was idle starts when it was sent, not earlier (the bus
+    /// cannot carry a frame before its sender had it) and not at the hub's next round.
+    #[test]
+    fn a_frame_sent_to_an_idle_bus_starts_when_it_was_sent() {
+        let mut hub = Hub::new(500_000);
+        hub.join(0);
+        hub.join(1);
+        hub.receive(Instant::ZERO, 1, &encode(&frame(0x281, &[1])));
+        let _ = hub.poll(Instant::ZERO);
+        let sent = Instant::from_millis(5);
+        hub.receive(sent, 0, &encode(&frame(0x721, &[5])));
+        let _ = hub.poll(Instant::from_millis(8));
+        let heartbeat = crate::bus::frame_time(&frame(0x721, &[5]), 500_000).as_micros();
+        assert_eq!(ends(&hub)[1], (0x721, sent.as_micros() + heartbeat));
     }
 
     #[test]

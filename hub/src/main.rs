@@ -470,7 +470,7 @@ impl Hosts {
             && let Some(frame) = load.poll(now)
         {
             // The queue is empty: the frame is queued.
-            let _ = hub.send(sender, frame);
+            let _ = hub.send(now, sender, frame);
         }
     }
 
@@ -533,7 +533,7 @@ impl Hosts {
                     .ok()
                     .and_then(|id| shared::CanFrame::new(id, data).ok())
                     .ok_or_else(|| format!("{command} is not a CAN frame"))?;
-                hub.send(self.own_sender(), frame).map_err(|_| {
+                hub.send(now, self.own_sender(), frame).map_err(|_| {
                     format!(
                         "the hub's own transmit queue is full ({} frames waiting for the \
                              bus): {command} not sent",
@@ -558,6 +558,14 @@ impl Hosts {
                     .get(name)
                     .ok_or_else(|| format!("no link `{name}`"))?;
                 self.links.cut.extend([a, b]);
+            }
+            Command::Restore(name) => {
+                let (a, b) = *self
+                    .links
+                    .named
+                    .get(name)
+                    .ok_or_else(|| format!("no link `{name}`"))?;
+                self.links.cut.retain(|end| *end != a && *end != b);
             }
             Command::Clear => hub.retain_faults(|_| false),
             Command::Load { percent, frames } => {

@@ -218,7 +218,7 @@ fn frames_reach_the_other_participants_and_the_traces() {
 
 /// The control port: commands are answered, bad ones with the reason; an inserted frame
 /// reaches the tools; an injected fault applies to the next matching frame; the link relay
-/// passes link messages between the two channels of a node until cut.
+/// passes link messages between the two channels of a node until cut, and again once restored.
 #[test]
 fn the_control_port_inserts_injects_and_cuts() {
     use can_hub::tool::Control;
@@ -290,6 +290,23 @@ fn the_control_port_inserts_injects_and_cuts() {
     assert!(control.command("cut l").unwrap().is_ok());
     left.write_all(&link(b"lost")).unwrap();
     assert!(right.read(&mut buf).is_err(), "nothing passes a cut link");
+    // Restored, the link passes bytes again.
+    assert!(control.command("restore l").unwrap().is_ok());
+    let mut decoder = Decoder::new();
+    let relayed = (0..50).find_map(|_| {
+        left.write_all(&link(b"back")).unwrap();
+        while right.read_exact(&mut buf).is_ok() {
+            if let Some(message) = decoder.push(buf[0]) {
+                return Some(message);
+            }
+        }
+        None
+    });
+    assert_eq!(
+        relayed,
+        Some(Ok(Wire::Link(LinkBytes::new(b"back").unwrap())))
+    );
+    assert!(control.command("restore nowhere").unwrap().is_err());
 }
 
 /// The control port refuses a line longer than `control::MAX_LINE` bytes with a sentence (a

@@ -54,6 +54,10 @@ pub enum Part {
     Canopen,
     /// python-canopen's sweep of the SimpleCAN images' EDS on the emulated SimpleCAN network.
     Simplecan,
+    /// python-canopen reading node 33's objects back to back on the emulated network while
+    /// python-can fills 30 % of the bus, for 60 s of the bus's time: the largest SDO response
+    /// time and heartbeat gap. Only when asked for (`--only mixed-load`): it takes minutes.
+    MixedLoad,
 }
 
 /// The virtual environment's Python, created and provisioned when needed.
@@ -418,6 +422,105 @@ pub fn task(root: &Path, only: Option<Part>) -> Result<()> {
     }
     if runs(Part::Simplecan) {
         simplecan(root, &python)?;
+    }
+    if only == Some(Part::MixedLoad) {
+        mixed_load(root, &python)?;
+    }
+    Ok(())
+}
+
+/// The bus time [`mixed_load`] runs for, in seconds.
+pub const MIXED_LOAD_SECONDS: u32 = 60;
+
+/// The share of the bus python-can fills in [`mixed_load`], in percent.
+const MIXED_LOAD_PERCENT: u32 = 30;
+
+/// Part 5: python-canopen uploads node 33's identity and SRDO configuration one after the
+/// other (its own time-out, host time) while python-can sends ordinary frames, a fifth of
+/// them on low identifiers (010h..02Eh, above every frame of the nodes), filling
+/// [`MIXED_LOAD_PERCENT`] of the bus counted in the bus's time; a third connection records
+/// every frame with the hub's time stamp (`xtask/interop/mixed_load.py`). Reports, on the
+/// bus's time, the largest SDO response time (request to answer), the longest gap between two
+/// heartbeats of each node and the longest stretch of frames back to back (a burst of the
+/// load delays every frame of lower priority that long), beside the uploads, the client's
+/// time-outs and the
+/// replies it found answering another request. Fails when a request went unanswered on the
+/// bus, or the load fell short of its share (the case then measured nothing).
+fn mixed_load(root: &Path, python: &Path) -> Result<()> {
+    crate::step(&format!(
+        "interop 5: python-canopen reading node 33 back to back beside python-can's \
+         {MIXED_LOAD_PERCENT} % of the bus, for {MIXED_LOAD_SECONDS} s of the bus's time (QEMU)"
+    ));
+    let mut network = Network::start(root)?;
+    network.release_tool();
+    let address = network::hub_tcp();
+    let result = address
+        .split_once(':')
+        .context("the hub's address")
+        .and_then(|(host, port)| {
+            script_json(
+                Command::new(python)
+                    .arg(root.join("xtask/interop/mixed_load.py"))
+                    .args([host, port, "33"])
+                    .arg(MIXED_LOAD_SECONDS.to_string())
+                    .arg(MIXED_LOAD_PERCENT.to_string()),
+            )
+        });
+    // The hub reports its pacing every second on the control port: the latest report.
+    let _ = network
+        .control
+        .watch(std::time::Duration::from_millis(1500));
+    let pace = network.pace_summary();
+    let faults = network.stop();
+    let result = result?;
+    faults?;
+    let number = |key: &str| result[key].as_f64().unwrap_or(f64::NAN);
+    let gaps = &result["heartbeat_gap_max_ms"];
+    let gap = |node: &str| gaps[node].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "interop 5: {:.1} s of bus time, {} frames, the load {:.1} % of the bus ({:.1} % in \
+         all; frames back to back for at most {:.1} ms); {} SDO requests answered, the largest \
+         response time {:.2} ms (bus time); \
+         longest gap between heartbeats: node 1 {:.1} ms, node 33 {:.1} ms (bus time; \
+         producer time 100 ms); python-canopen: {} uploads, {} time-outs ({} s, host time), \
+         {} replies to another request; longest upload {:.3} s of host time; {pace}",
+        number("bus_seconds"),
+        result["frames"],
+        100.0 * number("load_share"),
+        100.0 * number("bus_share"),
+        number("longest_busy_ms"),
+        result["sdo_responses"],
+        number("sdo_response_max_ms"),
+        gap("1"),
+        gap("33"),
+        result["uploads"],
+        result["timeouts"],
+        result["client_timeout_s"],
+        result["wrong_replies"],
+        number("longest_upload_host_s"),
+    );
+    if let Some(failures) = result["failures"].as_array().filter(|f| !f.is_empty()) {
+        for failure in failures {
+            println!(
+                "interop 5: python-canopen: {}",
+                failure.as_str().unwrap_or("?")
+            );
+        }
+    }
+    let requests = result["sdo_requests"].as_u64().unwrap_or(0);
+    let answered = result["sdo_responses"].as_u64().unwrap_or(0);
+    if answered < requests {
+        bail!(
+            "interop 5: {} of node 33's {requests} SDO requests on the bus went unanswered",
+            requests - answered
+        );
+    }
+    let share = 100.0 * number("load_share");
+    if share.is_nan() || share < f64::from(MIXED_LOAD_PERCENT) * 0.8 {
+        bail!(
+            "interop 5: python-can's load filled {share:.1} % of the bus, not the \
+             {MIXED_LOAD_PERCENT} % the case is about"
+        );
     }
     Ok(())
 }

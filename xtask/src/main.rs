@@ -6,6 +6,7 @@
 mod bench;
 mod campaign;
 mod child;
+mod defmt_log;
 mod e2e;
 mod emulate;
 mod footprint;
@@ -147,7 +148,8 @@ enum Task {
         #[arg(long = "for", value_parser = run::parse_duration)]
         duration: Option<std::time::Duration>,
         /// Schedule an action: `5s:press` (press, release, drop, corrupt, stop, b-differs,
-        /// cut-link, gfc, reset; repeatable; before the end of a `--for` run).
+        /// cut-link, restore-link, gfc, reset) or a key of the live view (`5s:l`: e d c s b l
+        /// g r p q); repeatable; before the end of a `--for` run.
         #[arg(long, value_parser = run::parse_at)]
         at: Vec<(std::time::Duration, run::Action)>,
         /// The safety protocol between node 1 and node 33: `canopen-safety` (SRDO 1, the
@@ -549,7 +551,6 @@ fn test(root: &Path) -> Result<()> {
     emulate::startup_checks(root, &cross)?;
     step("each image alone under QEMU, to its self-test verdict");
     toolchain::ensure_qemu()?;
-    toolchain::ensure_defmt_print()?;
     qemu::build(root, &cross)?;
     for channel in ["a", "b"] {
         let image = qemu::image(&cross, root, channel);

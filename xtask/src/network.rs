@@ -410,11 +410,31 @@ impl Network {
     }
 
     fn start_speaking(root: &Path, monitored: &[&str], protocol: Protocol) -> Result<Network> {
+        // Each step says what it installs or builds and why before it starts, and cargo shows
+        // its progress: a first run compiles for minutes, and silence looks like a hang.
+        eprintln!(
+            "xtask: [1/5] the compiler's target {} for the firmware (rustup; installed once)",
+            toolchain::TARGET
+        );
         let cross = toolchain::ensure()?;
+        eprintln!("xtask: [2/5] QEMU 8 or later, which emulates the four STM32F405 MCUs");
         toolchain::ensure_qemu()?;
-        toolchain::ensure_defmt_print()?;
+        eprintln!(
+            "xtask: [3/5] building the QEMU firmware images of channels A and B ({:?}; the first \
+             build compiles the firmware's crates, a minute or two, later builds only what \
+             changed)",
+            protocol.layer()
+        );
         images::build_layer(root, &cross, protocol.layer())?;
-        crate::run(crate::cargo().args(["build", "--quiet", "-p", "can-hub"]))?;
+        eprintln!(
+            "xtask: [4/5] building can-hub, the CAN bus model the MCUs and the tools share \
+             (a few seconds after the first time)"
+        );
+        crate::run(crate::cargo().args(["build", "-p", "can-hub"]))?;
+        eprintln!(
+            "xtask: [5/5] starting the hub and four QEMU instances (nodes 1 and 33, channels A \
+             and B), then configuring both nodes over the bus with the tool library"
+        );
         let dir = root.join("target/emulate");
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir)?;
@@ -786,7 +806,7 @@ impl Network {
         for (name, _, channel) in CHANNELS {
             let image = images::image(&self.cross, &self.root, self.protocol.layer(), channel);
             let raw = std::fs::read(self.dir.join(format!("{name}.defmt")))?;
-            let decoded = decode(&image, &raw)?;
+            let decoded = crate::defmt_log::decode(&image, &raw)?;
             std::fs::write(self.dir.join(format!("{name}.log")), &decoded)?;
             let lines = decoded
                 .lines()
@@ -846,20 +866,6 @@ pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
         ));
     }
     out
-}
-
-fn decode(image: &Path, raw: &[u8]) -> Result<String> {
-    use std::io::Write as _;
-    let mut child = Command::new("defmt-print")
-        .arg("-e")
-        .arg(image)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()?;
-    if let Some(mut stdin) = child.stdin.take() {
-        stdin.write_all(raw)?;
-    }
-    Ok(String::from_utf8_lossy(&child.wait_with_output()?.stdout).into_owned())
 }
 
 #[cfg(test)]

@@ -6,7 +6,6 @@ use crate::child::Guarded;
 use crate::images::{self, Layer};
 use crate::toolchain::{self, Cross};
 use anyhow::{Context, Result, bail};
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -35,7 +34,6 @@ fn run_alone_with(
     extra: &[&str],
 ) -> Result<(i32, String)> {
     toolchain::require("qemu-system-arm", "run `cargo xtask setup`")?;
-    toolchain::require("defmt-print", "run `cargo xtask setup`")?;
     let mut semihosting = String::from("enable=on,target=native");
     for argument in arguments {
         semihosting.push_str(",arg=");
@@ -69,18 +67,7 @@ fn run_alone_with(
         std::io::Read::read_to_end(&mut stdout, &mut raw)?;
     }
     let status = qemu.wait()?;
-    let mut decoder = Command::new("defmt-print")
-        .arg("-e")
-        .arg(image)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .context("starting defmt-print")?;
-    if let Some(mut stdin) = decoder.stdin.take() {
-        stdin.write_all(&raw)?;
-    }
-    let decoded = decoder.wait_with_output()?;
-    let log = String::from_utf8_lossy(&decoded.stdout).into_owned();
+    let log = crate::defmt_log::decode(image, &raw)?;
     // `timeout` exits with 124 when the limit ended the run.
     Ok((status.code().unwrap_or(-1), log))
 }
@@ -185,7 +172,6 @@ fn count_self_tests(image: &Path, seconds: u64) -> Result<()> {
 pub fn task(root: &Path, channel: &str, selftest: bool, count: bool, seconds: u64) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_qemu()?;
-    toolchain::ensure_defmt_print()?;
     build(root, &cross)?;
     let image = image(&cross, root, channel);
     if count {

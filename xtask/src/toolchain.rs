@@ -208,7 +208,6 @@ pub fn setup(probe_rs: bool, fuzz: bool) -> Result<()> {
     }
     ensure_qemu()?;
     ensure_emulator_build_deps()?;
-    ensure_defmt_print()?;
     ensure_tshark()?;
     if !exists("valgrind") {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
@@ -239,16 +238,6 @@ pub fn ensure_fuzzing() -> Result<()> {
     }
     eprintln!("xtask: installing cargo-fuzz (cargo install --locked), for the fuzz targets");
     super::run(Command::new("cargo").args(["install", "--locked", "cargo-fuzz"]))
-}
-
-/// defmt-print, which decodes the QEMU images' logs (about a minute of compiling).
-pub fn ensure_defmt_print() -> Result<()> {
-    if exists("defmt-print") {
-        eprintln!("xtask: defmt-print: installed");
-        return Ok(());
-    }
-    eprintln!("xtask: installing defmt-print (cargo install --locked), for the QEMU logs");
-    super::run(Command::new("cargo").args(["install", "--locked", "defmt-print"]))
 }
 
 /// Whether Debian's package `package` is installed.

@@ -303,12 +303,30 @@ pub struct NodeView {
     pub sdo_requests: u64,
     /// SDO responses from it.
     pub sdo_responses: u64,
+    /// The heartbeat consumer time its heartbeat is judged by (CiA 301 7.2.8.3.2.2, object
+    /// 1016h of a consumer), when the caller knows it (a bystander cannot tell it from the
+    /// bus); `None`: its heartbeat is never judged.
+    pub consumer_time: Option<Duration>,
+    /// Its latest heartbeat is older than its consumer time (the node went silent); cleared
+    /// by its next heartbeat or boot-up message.
+    pub heartbeat_lost: bool,
 }
 
 impl NodeView {
     /// Time since its latest heartbeat.
     pub fn heartbeat_age(&self, now: Duration) -> Option<Duration> {
         self.last_heartbeat.map(|at| now.saturating_sub(at))
+    }
+
+    /// When its heartbeat counts as lost if none comes before: its latest heartbeat plus its
+    /// consumer time (a heartbeat *at* the limit is late, as a consumer's timer judges it).
+    /// `None` when it is lost already, or has no consumer time (0 disables a consumer too).
+    pub fn heartbeat_deadline(&self) -> Option<Duration> {
+        if self.heartbeat_lost {
+            return None;
+        }
+        let consumer_time = self.consumer_time.filter(|time| !time.is_zero())?;
+        Some(self.last_heartbeat? + consumer_time)
     }
 }
 
@@ -467,12 +485,20 @@ impl Monitor {
                         NmtState::from_heartbeat_code(state & 0x7F)
                     };
                     view.state = state;
-                    view.heartbeat_period = view
-                        .last_heartbeat
-                        .filter(|_| !boot_up)
-                        .map(|at| now.saturating_sub(at));
+                    let silence = view.last_heartbeat.map(|at| now.saturating_sub(at));
+                    let was_lost = std::mem::take(&mut view.heartbeat_lost);
+                    view.heartbeat_period = silence.filter(|_| !boot_up);
                     view.last_heartbeat = Some(now);
                     view.heartbeats += 1;
+                    if let (true, Some(silence)) = (was_lost, silence) {
+                        self.note(
+                            now,
+                            format!(
+                                "node {node}: heartbeat back after {:.1} ms of silence",
+                                silence.as_secs_f64() * 1000.0
+                            ),
+                        );
+                    }
                     if boot_up {
                         self.note(now, format!("node {node}: boot-up, Pre-operational"));
                     } else if before != state {
@@ -486,7 +512,8 @@ impl Monitor {
     }
 
     /// Advances the model's time to `now`: an inverted frame not seen within SRVT is judged
-    /// missing.
+    /// missing, and a heartbeat older than its node's consumer time lost
+    /// ([`NodeView::consumer_time`]).
     pub fn poll(&mut self, now: Duration) {
         self.advance(now, None);
     }
@@ -507,12 +534,35 @@ impl Monitor {
         for (plain, before) in changed {
             self.note_verdict(plain, before);
         }
+        let mut lost = Vec::new();
+        for (id, node) in &mut self.nodes {
+            if let Some(due) = node.heartbeat_deadline()
+                && now >= due
+            {
+                node.heartbeat_lost = true;
+                lost.push((due, *id, node.consumer_time.unwrap_or_default()));
+            }
+        }
+        for (due, id, consumer_time) in lost {
+            self.note(
+                due,
+                format!(
+                    "node {id}: heartbeat lost (none for its consumer time, {} ms)",
+                    consumer_time.as_millis()
+                ),
+            );
+        }
     }
 
-    /// When [`Monitor::poll`] next has a verdict to reach, if ever.
+    /// When [`Monitor::poll`] next has a verdict to reach (an inverted frame missing, a
+    /// heartbeat lost), if ever.
     #[must_use]
     pub fn deadline(&self) -> Option<Duration> {
-        self.srdos.values().filter_map(SrdoView::deadline).min()
+        self.srdos
+            .values()
+            .filter_map(SrdoView::deadline)
+            .chain(self.nodes.values().filter_map(NodeView::heartbeat_deadline))
+            .min()
     }
 
     fn srdo_frame(&mut self, now: Duration, frame: &CanFrame) {

@@ -71,8 +71,12 @@ fn node_cells(id: u8, node: &NodeView, now: Duration) -> [String; 7] {
     [
         id.to_string(),
         node.name.clone().unwrap_or_default(),
-        node.state
-            .map_or_else(|| "not heard".to_owned(), |s| s.describe().to_owned()),
+        if node.heartbeat_lost {
+            "heartbeat lost".to_owned()
+        } else {
+            node.state
+                .map_or_else(|| "not heard".to_owned(), |s| s.describe().to_owned())
+        },
         node.heartbeat_age(now)
             .map_or_else(|| "-".to_owned(), |age| format!("{} ms", ms(age))),
         node.heartbeat_period

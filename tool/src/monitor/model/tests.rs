@@ -251,6 +251,60 @@ fn monitor_follows_nmt_state_and_heartbeat_age() {
     );
 }
 
+/// CiA 301 7.2.8.3.2.2 (heartbeat consumer: a heartbeat not received within the consumer
+/// time is a heartbeat event): a node whose heartbeat is older than its consumer time is
+/// flagged lost once, at the instant the time ran out, while the bus goes on (another node's
+/// frames move the model's time), and a heartbeat *at* the limit is late; its next heartbeat
+/// clears it. A node without a consumer time is not judged.
+#[test]
+fn cia301_7_2_8_3_2_2_a_heartbeat_older_than_its_consumer_time_is_flagged_lost() {
+    let mut monitor = Monitor::default();
+    monitor.nodes.entry(1).or_default().consumer_time = Some(250 * MS);
+    for beat in 0..3 {
+        monitor.feed(beat * 100 * MS, &frame(0x701, &[0x05]));
+        monitor.feed(beat * 100 * MS, &frame(0x721, &[0x05]));
+    }
+    assert_eq!(monitor.deadline(), Some(450 * MS), "node 1: 200 + 250 ms");
+    // Node 1 falls silent; node 33 goes on.
+    monitor.feed(300 * MS, &frame(0x721, &[0x05]));
+    monitor.feed(400 * MS, &frame(0x721, &[0x05]));
+    assert!(!monitor.nodes[&1].heartbeat_lost, "due at 450 ms");
+    monitor.poll(450 * MS);
+    assert!(
+        monitor.nodes[&1].heartbeat_lost,
+        "a heartbeat at the limit is late"
+    );
+    assert_eq!(monitor.deadline(), None, "flagged once");
+    monitor.feed(500 * MS, &frame(0x721, &[0x05]));
+    monitor.feed(600 * MS, &frame(0x701, &[0x05]));
+    assert!(!monitor.nodes[&1].heartbeat_lost);
+    assert_eq!(monitor.deadline(), Some(850 * MS));
+    // Node 33, with no consumer time, is never judged.
+    monitor.poll(5_000 * MS);
+    assert!(!monitor.nodes[&33].heartbeat_lost);
+    let lines: Vec<(Duration, &str)> = monitor
+        .happenings
+        .iter()
+        .map(|(at, line)| (*at, line.as_str()))
+        .collect();
+    assert_eq!(
+        lines,
+        [
+            (Duration::ZERO, "node 1: Operational"),
+            (Duration::ZERO, "node 33: Operational"),
+            (
+                450 * MS,
+                "node 1: heartbeat lost (none for its consumer time, 250 ms)"
+            ),
+            (600 * MS, "node 1: heartbeat back after 400.0 ms of silence"),
+            (
+                850 * MS,
+                "node 1: heartbeat lost (none for its consumer time, 250 ms)"
+            ),
+        ]
+    );
+}
+
 /// EMCYs in words: the SRDO and the cause from this device's manufacturer-specific bytes,
 /// through `shared::safety::cause::Cause`, and the error register's bits.
 #[test]
