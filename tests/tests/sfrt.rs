@@ -45,9 +45,8 @@ fn higher_priority(bit_rate: u32) -> Stream {
 /// 3.8, SCT expiry 1.00 to 1.021). The event-driven bound charges each of the two link
 /// crossings with five maximal link messages ahead (1.38 ms at 1 Mbit/s on the link, two of
 /// them the latency supervision's probe and echo), which the random phases rarely meet, and
-/// every frame with an
-/// 8-byte frame of blocking, which an idle bus never has (the GFC's 50 µs at 1 Mbit/s
-/// against 190 µs). The SCT path, the one that sets the safety function's worst case, is
+/// every frame with an 8-byte frame of blocking, which an idle bus never has (the GFC's 50 µs
+/// at 1 Mbit/s against 190 µs). The SCT path, the one that sets the safety function's worst case, is
 /// within 3 % (2.03 % at 1 Mbit/s with higher-priority traffic: channel B co-signs each plain
 /// frame against its own announcement, which can come up to five link messages after the
 /// frame, and the mute of some phases falls between the plain and the inverted frame, so the
