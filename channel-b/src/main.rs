@@ -41,16 +41,12 @@ mod firmware {
             Ok(role) => role,
             Err(_) => panic!("channel B input table"),
         };
-        // Under QEMU the link between the channels and the CAN bus are two separate paths
-        // through the hub on a shared host: channel A's announcement of a plain frame can reach
-        // channel B tens of milliseconds after the frame itself when the host is loaded (the
-        // channels measured stalls of 40-60 ms with other work beside them; a 20 ms window
-        // made node 1 report its own plain frame as foreign). Channel B waits up to its window
-        // for it: 60 ms, which leaves 40 ms of the emulated network's SRVT (100 ms) for the
-        // inverted frame. On hardware the link lags about 0.2 ms and the 5 ms default applies:
-        // no tolerance of the hardware image changes.
+        // Under QEMU channel A's announcement of a plain frame can reach channel B tens of
+        // milliseconds after the frame itself: channel B waits up to the QEMU window for it,
+        // and channel A's link supervision follows the same window (its main). On hardware the
+        // default applies: no tolerance of the hardware image changes.
         #[cfg(all(feature = "qemu", not(feature = "hw")))]
-        role.set_window(shared::Duration::from_millis(60));
+        role.set_window(dual_channel::runtime::QEMU_SAMPLE_WINDOW);
         // SimpleCAN's Model A (docs/simplecan.md section 13): channel B computes each packet of
         // the node and must hear channel A's on the bus within the packet's slot (1 ms), a sync
         // within 2 ms, not ahead of B's time by more than 200 µs. Under QEMU the SimpleCAN

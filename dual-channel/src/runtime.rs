@@ -36,6 +36,17 @@
 //!   device sending on another's identifiers is a fault of the network, not of one SRDO.
 //! - **Link supervision.** A heartbeat every `link_period` (at least four per smallest SCT);
 //!   a missing, late, repeated or corrupt message is a fault ([`Receiver`]).
+//! - **Link latency supervision.** Where the node produces SRDOs, channel B's co-signing
+//!   needs channel A's announcement within B's window: each channel probes the link's round
+//!   trip every `link_period`, and channel B also when a plain frame of its node arrives; the
+//!   other channel echoes at once, and a round trip at or over [`round_trip_bound`] of the
+//!   window ([`Role::announcement_window`]) is [`LinkFault::Latency`] ([`RoundTrip`], where
+//!   the bound is argued). Its deadline is settled before anything else a call brings, so
+//!   that a link too slow latches as such before channel B's wait for an announcement ends;
+//!   and a channel whose link is at fault sends no [`Message::ForeignFrame`] over it: the
+//!   link may not carry it, and channel B's verdict on a plain frame rests on the link's
+//!   announcements (channel A, which receives every plain frame but its own, finds a foreign
+//!   one without the link).
 //! - **Configuration and NMT cross-check.** Every heartbeat carries the sender's NMT state and
 //!   a digest of the signatures it computes by its own implementation; in Operational the
 //!   digests must match (an output leaves the safe state only after they have, once per
@@ -68,7 +79,7 @@
 
 use crate::clock::PeerClock;
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
-use crate::link::{LinkFault, Message, Receiver, Sender};
+use crate::link::{LinkFault, Message, Receiver, RoundTrip, Sender, round_trip_bound};
 use crate::supervision::{ConfigurationCheck, InputCheck, NmtCheck};
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
@@ -79,7 +90,7 @@ use shared::node::{
 };
 use shared::safety::cause::Cause;
 use shared::safety::config::SafetyConfig;
-use shared::safety::types::{SRDO_IDENTIFIERS, SrdoNumber};
+use shared::safety::types::{Direction, SRDO_IDENTIFIERS, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
 
 /// How long after power-on the other channel's first link message may take (its self-tests
@@ -97,6 +108,17 @@ pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 /// smallest SRVT (the inverted frame can follow the plain frame up to one window late) and
 /// above the link latency between the channels (USART at 1 Mbit/s: about 0.2 ms).
 pub const SAMPLE_WINDOW: Duration = Duration::from_millis(5);
+
+/// The sample window of the QEMU images, on both channels: channel B's window
+/// (`ChannelB::set_window`) and channel A's announcement window
+/// (`ChannelA::set_announcement_window`), so that both channels hold the link's round trip to
+/// the same bound ([`round_trip_bound`]). Under QEMU the link between the channels and the CAN
+/// bus are two separate paths through the hub on a shared host: channel A's announcement of a
+/// plain frame can reach channel B tens of milliseconds after the frame itself when the host is
+/// loaded (the channels measured stalls of 40 to 60 ms with other work beside them; a window of
+/// 20 ms made node 1 report its own plain frame as foreign). It leaves 40 ms of the emulated
+/// network's SRVT (100 ms) for the inverted frame. The hardware images keep [`SAMPLE_WINDOW`].
+pub const QEMU_SAMPLE_WINDOW: Duration = Duration::from_millis(60);
 
 /// How many safety inputs (plain objects) a channel samples and cross-checks; one more is
 /// [`ChannelFault::InputTableFull`].
@@ -242,6 +264,14 @@ pub trait Role<const N: usize> {
         SAMPLE_WINDOW
     }
 
+    /// How long channel B waits for channel A's announcement of a plain frame (B's window):
+    /// the link's round-trip bound follows from it on both channels ([`round_trip_bound`]).
+    /// Channel B's is its [`Role::window`]; channel A's must be set to the same where an
+    /// image widens B's (`channel_a::role`).
+    fn announcement_window(&self) -> Duration {
+        self.window()
+    }
+
     /// Model A's time bounds for the node's SimpleCAN packets (channel B's check of A's):
     /// the standard's, unless an image's frames take longer to reach the channel than a
     /// board's (channel B's QEMU image, `channel_b::role`).
@@ -342,6 +372,7 @@ impl ChannelFault {
             ChannelFault::Link(LinkFault::Missing { .. }) => Cause::LinkMissing,
             ChannelFault::Link(LinkFault::Repeated { .. }) => Cause::LinkRepeated,
             ChannelFault::Link(LinkFault::Timeout) => Cause::LinkTimeout,
+            ChannelFault::Link(LinkFault::Latency) => Cause::LinkLatency,
             ChannelFault::Cross(CrossFault::Disagreement { .. }) => Cause::VerdictsDisagree,
             ChannelFault::Cross(CrossFault::Unconfirmed { .. }) => Cause::VerdictUnconfirmed,
             ChannelFault::Cross(CrossFault::UnknownSrdo { .. }) => Cause::VerdictForUnknownSrdo,
@@ -512,6 +543,8 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N> =
     role: R,
     sender: Sender,
     receiver: Receiver,
+    /// The link's latency supervision: this channel's probes and the bound they are held to.
+    round_trip: RoundTrip,
     verdicts: VerdictCheck<N>,
     link_period: Duration,
     next_heartbeat: Instant,
@@ -607,6 +640,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             role,
             sender: Sender::new(),
             receiver: Receiver::new(now, timeout, STARTUP),
+            round_trip: RoundTrip::new(),
             verdicts: VerdictCheck::new(timeout),
             link_period,
             next_heartbeat: now,
@@ -682,6 +716,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if !self.link_up {
             return; // The core has not booted: the node is not on the bus yet.
         }
+        self.settle_round_trip(now, io);
         #[cfg(feature = "simplecan")]
         if self.simplecan_frame(now, frame, io) {
             return;
@@ -691,6 +726,12 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             // GFC sent) whenever it sends, not only the first time.
             let reply = self.role.observe(now, frame, self.node.safety_config());
             self.role_reply(now, reply, io);
+            if !self.role.speaks_for_the_node() && self.is_own_plain_frame(frame) {
+                // Channel B's wait for the announcement of this frame starts now: a probe
+                // sent now comes back after every announcement channel A made before the
+                // frame reached the bus, or is late before the wait ends ([`RoundTrip`]).
+                self.probe(now, io);
+            }
         } else if is_srdo(frame) && !frame.is_remote() {
             // Not Operational yet, but perhaps about to be: each channel handles NMT start in
             // its own loop, and the other's half of a pair may come first. Kept for the window.
@@ -718,6 +759,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     /// A byte from the link.
     pub fn on_link_byte(&mut self, now: Instant, byte: u8, io: &mut impl Io) {
+        self.settle_round_trip(now, io);
         if let Some(completed) = self.receiver.receive(now, byte) {
             self.on_link_completed(now, completed, io);
         }
@@ -727,6 +769,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// call): each message or fault they complete is handled at `now`, in order, as
     /// [`Runtime::on_link_byte`] handles it for one byte at a time.
     pub fn on_link_bytes(&mut self, now: Instant, bytes: &[u8], io: &mut impl Io) {
+        self.settle_round_trip(now, io);
         let mut rest = bytes;
         while !rest.is_empty() {
             let (taken, completed) = self.receiver.receive_bytes(now, rest);
@@ -770,6 +813,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         value: &[u8],
         io: &mut impl Io,
     ) -> Result<(), AbortCode> {
+        self.settle_round_trip(now, io);
         let len = value.len();
         let mut bytes = [0u8; 8];
         bytes
@@ -825,12 +869,14 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// inputs read within [`SAMPLE_WINDOW`]; a board that stops reading its pins gets nothing
     /// co-signed after the window).
     pub fn inputs_sampled(&mut self, now: Instant, io: &mut impl Io) {
+        self.settle_round_trip(now, io);
         let reply = self.role.sampled(now, self.node.safety_config());
         self.role_reply(now, reply, io);
     }
 
     /// Runs what is due at `now`; returns when to call again.
     pub fn poll(&mut self, now: Instant, io: &mut impl Io) -> Instant {
+        self.settle_round_trip(now, io);
         let node_deadline = if self.link_up {
             collect!(collect);
             let deadline = self.node.poll(now, &mut collect);
@@ -857,6 +903,10 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         if shared::time::expired(self.next_heartbeat, now) {
             self.heartbeat(io);
+            if self.link_up {
+                self.arm_round_trip();
+                self.probe(now, io);
+            }
             self.next_heartbeat = now + self.link_period;
         }
         // Supervision deadlines already passed have done their work (the fault is latched);
@@ -864,6 +914,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let supervision = [
             self.role.deadline(),
             self.receiver.deadline(),
+            self.round_trip.deadline(),
             self.verdicts.deadline(),
             self.nmt.deadline(),
             self.input_check.deadline(),
@@ -892,7 +943,13 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             }
             Ok(None) => {}
             Err(ChannelFault::ForeignFrame { id }) => {
-                self.send(&Message::ForeignFrame { id }, io);
+                // Over a link at fault the report may not arrive, and channel B's verdict on a
+                // plain frame rests on the link's announcements: one that is late looks like
+                // none. Channel A finds a foreign frame without the link (it receives every
+                // plain frame but its own), and its GFC goes as before.
+                if !matches!(self.fault, Some(ChannelFault::Link(_))) {
+                    self.send(&Message::ForeignFrame { id }, io);
+                }
                 self.foreign_frame(now, id, io);
             }
             Err(fault @ ChannelFault::InvertedMismatch { .. }) => {
@@ -1023,6 +1080,48 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 self.role_reply(now, reply, io);
             }
         }
+    }
+
+    /// Latches [`LinkFault::Latency`] once a probe has not been answered within the bound:
+    /// first thing in every call, so that what else the call brings (channel B's end of a wait
+    /// for an announcement) comes after it.
+    fn settle_round_trip(&mut self, now: Instant, io: &mut impl Io) {
+        if let Err(fault) = self.round_trip.poll(now) {
+            self.latch(ChannelFault::Link(fault), io);
+        }
+    }
+
+    /// Arms the latency supervision where the node produces SRDOs, which channel B co-signs
+    /// on channel A's announcements, with the bound of the announcement window; disarms it
+    /// otherwise (the verdicts and NMT states the link carries then have the time-out's
+    /// tolerance). Called every link period: a changed configuration counts from the next.
+    fn arm_round_trip(&mut self) {
+        let produces = self
+            .node
+            .safety_config()
+            .srdos
+            .iter()
+            .any(|record| record.parsed_direction() == Ok(Direction::Transmit));
+        let bound = produces.then(|| round_trip_bound(self.role.announcement_window()));
+        self.round_trip.set_bound(bound);
+    }
+
+    /// Sends a probe of the link's round trip, if the supervision is armed.
+    fn probe(&mut self, now: Instant, io: &mut impl Io) {
+        if let Some(probe) = self.round_trip.probe(now) {
+            self.send(&probe, io);
+        }
+    }
+
+    /// `true` for a data frame on the plain identifier (COB-ID 1) of one of the node's
+    /// transmit SRDOs.
+    fn is_own_plain_frame(&self, frame: &CanFrame) -> bool {
+        let id = u32::from(frame.id().raw());
+        !frame.is_remote()
+            && self.node.safety_config().srdos.iter().any(|record| {
+                record.parsed_direction() == Ok(Direction::Transmit)
+                    && record.cob_id_1 & 0x7FF == id
+            })
     }
 
     fn heartbeat(&mut self, io: &mut impl Io) {
@@ -1180,6 +1279,18 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     }
 
     fn on_message(&mut self, now: Instant, message: Message, io: &mut impl Io) {
+        match message {
+            // Answered at once, whatever the state or epoch: the other channel's round trip
+            // is measured on it.
+            Message::Probe { stamp } => return self.send(&Message::Echo { stamp }, io),
+            Message::Echo { stamp } => {
+                if let Err(fault) = self.round_trip.echo(now, stamp) {
+                    self.latch(ChannelFault::Link(fault), io);
+                }
+                return;
+            }
+            _ => {}
+        }
         #[cfg(feature = "defmt")]
         if !matches!(message, Message::Heartbeat { .. }) {
             defmt::debug!("link: {}", message);
@@ -1223,7 +1334,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             return;
         }
         match message {
-            Message::Heartbeat { .. } => {}
+            Message::Heartbeat { .. } | Message::Probe { .. } | Message::Echo { .. } => {}
             Message::Inputs { sample } => self.peer_inputs(now, sample, io),
             Message::Verdict {
                 srdo,

@@ -446,10 +446,11 @@ fn cia304_9_5_a_lost_inverted_frame_is_reported_by_the_producer() {
 #[test]
 fn a_link_message_from_before_an_nmt_reset_is_ignored_after_it() {
     let mut net = running();
-    // As slow as a producer's link may be: channel B waits at most the sample window (5 ms)
-    // for channel A's announcement of a plain frame (until 2026-12-01 this test ran at 8 ms,
-    // before B co-signed only announced frames).
-    net.node_mut(1).link_faults.latency = Duration::from_millis(4);
+    // Slow, as a producer's link may be: its round trip must stay under the announcement
+    // window less the link queue time (`dual_channel::link::round_trip_bound`), which a
+    // latency of 1.25 ms each way keeps to (until 2026-12-01 this test ran at 8 ms, before B
+    // co-signed only announced frames; then at 4 ms, before the link latency supervision).
+    net.node_mut(1).link_faults.latency = Duration::from_micros(1_250);
     net.run_for(Duration::from_millis(50));
     // Channel B of node 1 reads otherwise; the moment one channel latches, the contacts
     // agree again and the reset comes, while its safe-state message is still on the link.

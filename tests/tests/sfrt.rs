@@ -43,12 +43,12 @@ fn higher_priority(bit_rate: u32) -> Stream {
 /// path, bit rate and load. The factors state how far above the worst case seen the
 /// calculation may lie (measured with 40 repetitions: event-driven 3.6 to 7.3, GFC 1.1 to
 /// 3.8, SCT expiry 1.00 to 1.021). The event-driven bound charges each of the two link
-/// crossings with three maximal link messages ahead (a heartbeat's three, 1.02 ms at
-/// 1 Mbit/s on the link), which the random phases rarely meet, and every frame with an
-/// 8-byte frame of blocking, which an idle bus never has (the GFC's 50 µs at 1 Mbit/s
-/// against 190 µs). The SCT path, the one that sets the safety function's worst case, is
+/// crossings with five maximal link messages ahead (1.38 ms at 1 Mbit/s on the link, two of
+/// them the latency supervision's probe and echo), which the random phases rarely meet, and
+/// every frame with an 8-byte frame of blocking, which an idle bus never has (the GFC's 50 µs
+/// at 1 Mbit/s against 190 µs). The SCT path, the one that sets the safety function's worst case, is
 /// within 3 % (2.03 % at 1 Mbit/s with higher-priority traffic: channel B co-signs each plain
-/// frame against its own announcement, which can come up to three link messages after the
+/// frame against its own announcement, which can come up to five link messages after the
 /// frame, and the mute of some phases falls between the plain and the inverted frame, so the
 /// pair before counts; the worst of 40 phases is then 49,067 µs against the bound's 50,065).
 #[test]

@@ -100,6 +100,7 @@ fn widths(tag: u8) -> Option<&'static [usize]> {
         0x04 | 0x05 => &[1],
         0x06 => &[2, 1, 8],
         0x07 => &[2],
+        0x0B | 0x0C => &[4],
         _ => return None,
     })
 }
@@ -159,14 +160,17 @@ pub fn link_message(body: &[u8]) -> Option<Message> {
             data: f[2],
         },
         0x07 => Message::ForeignFrame { id: f[0] as u16 },
+        0x0B => Message::Probe { stamp: f[0] as u32 },
+        0x0C => Message::Echo { stamp: f[0] as u32 },
         _ => return None,
     })
 }
 
-/// A body of a known tag made from any bytes: the tag from the first (01h..07h), the fields
-/// from the rest, cut or padded with zeros to the tag's length.
+/// A body of a known tag made from any bytes: the tag from the first (01h..07h, 0Bh, 0Ch),
+/// the fields from the rest, cut or padded with zeros to the tag's length.
 pub fn link_body_from(bytes: &[u8]) -> Vec<u8> {
-    let tag = 1 + bytes.first().copied().unwrap_or(0) % 7;
+    const TAGS: [u8; 9] = [0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0B, 0x0C];
+    let tag = TAGS[usize::from(bytes.first().copied().unwrap_or(0)) % TAGS.len()];
     let len = widths(tag).map_or(0, |widths| widths.iter().sum());
     let mut body = vec![tag];
     body.extend(bytes.iter().skip(1).copied().chain(core::iter::repeat(0)).take(len));
@@ -205,6 +209,8 @@ pub fn link_body(message: &Message) -> Vec<u8> {
         Message::SafeState { cause } => (0x05, vec![cause.into()]),
         Message::PlainFrame { id, len, data } => (0x06, vec![id.into(), len.into(), data]),
         Message::ForeignFrame { id } => (0x07, vec![id.into()]),
+        Message::Probe { stamp } => (0x0B, vec![stamp.into()]),
+        Message::Echo { stamp } => (0x0C, vec![stamp.into()]),
     };
     let mut body = vec![tag];
     for (&width, value) in widths(tag).unwrap_or_default().iter().zip(values) {

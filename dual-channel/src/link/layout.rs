@@ -17,6 +17,8 @@
 //! 08h  SimpleCanPacket    id 2 | len 1 | data[0..8] 8                             12
 //! 09h  SimpleCanVerdict   entry 1 | sc_id 1 | cycle_stamp 1 | value 4 | valid 1     9
 //! 0Ah  SimpleCanFault     cause 1 | id 2 | other 2                                 6
+//! 0Bh  Probe              stamp 4                                                  5
+//! 0Ch  Echo               stamp 4                                                  5
 //! ```
 //!
 //! The tags are constants, not the variants' order: a variant behind a feature (the
@@ -46,6 +48,8 @@ const SIMPLECAN_PACKET: u8 = 0x08;
 const SIMPLECAN_VERDICT: u8 = 0x09;
 #[cfg(feature = "simplecan")]
 const SIMPLECAN_FAULT: u8 = 0x0A;
+const PROBE: u8 = 0x0B;
+const ECHO: u8 = 0x0C;
 
 /// Writes fields one after the other into a body.
 struct Put<'a> {
@@ -160,6 +164,8 @@ impl Message {
             Message::SafeState { cause } => put.u8(SAFE_STATE).u8(cause),
             Message::PlainFrame { id, len, data } => put.u8(PLAIN_FRAME).u16(id).u8(len).u64(data),
             Message::ForeignFrame { id } => put.u8(FOREIGN_FRAME).u16(id),
+            Message::Probe { stamp } => put.u8(PROBE).u32(stamp),
+            Message::Echo { stamp } => put.u8(ECHO).u32(stamp),
             #[cfg(feature = "simplecan")]
             Message::SimpleCanPacket { id, len, data } => {
                 put.u8(SIMPLECAN_PACKET).u16(id).u8(len).bytes(&data)
@@ -217,6 +223,8 @@ impl Message {
                 data: take.u64()?,
             },
             FOREIGN_FRAME => Message::ForeignFrame { id: take.u16()? },
+            PROBE => Message::Probe { stamp: take.u32()? },
+            ECHO => Message::Echo { stamp: take.u32()? },
             #[cfg(feature = "simplecan")]
             SIMPLECAN_PACKET => Message::SimpleCanPacket {
                 id: take.u16()?,

@@ -22,12 +22,24 @@
 //! the channel treats every one as a reason for the safe state (Model III: the link is part of
 //! the safety function). The receiver resynchronises afterwards so that the channels can agree
 //! again after an NMT reset.
+//!
+//! # Latency
+//!
+//! The time-out only finds a link that falls silent; a link that keeps delivering, but late,
+//! goes unnoticed by it. The round trip ([`RoundTrip`]) measures it: a channel sends a
+//! [`Message::Probe`] with a stamp of its clock, the other sends the stamp back at once in a
+//! [`Message::Echo`], and a round trip at or over the bound, or a probe not answered within
+//! it, is [`LinkFault::Latency`]. The bound follows from what the link must carry in time
+//! ([`round_trip_bound`]).
 
 use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_32_ISO_HDLC, Crc};
 use shared::{Duration, Instant};
 
 pub mod layout;
+mod round_trip;
+
+pub use round_trip::{RoundTrip, round_trip_bound, stamp};
 
 /// CRC-32 of every link frame.
 const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
@@ -36,6 +48,20 @@ const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 const MAX_RAW: usize = 2 + layout::MAX_BODY + 4;
 /// Largest frame on the wire: COBS adds at most one byte per 254, plus the delimiter.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
+
+/// One byte on the link at the boards' rate: the USART at 1 Mbit/s, ten bits a byte (the
+/// baud rate of `board::hw`).
+pub const BYTE_TIME: Duration = Duration::from_micros(10);
+
+/// Link messages that may be ahead of one message in a channel's link transmit queue, and
+/// the message itself: a heartbeat and the probe sent with it, the echo of the other
+/// channel's probe, an input digest sent at an input change, a verdict on a received pair.
+pub const MESSAGES_AHEAD: u64 = 6;
+
+/// The longest one message takes through its sender's queue and onto the line:
+/// [`MESSAGES_AHEAD`] frames of [`MAX_WIRE`] bytes at [`BYTE_TIME`].
+pub const QUEUE_TIME: Duration =
+    Duration::from_micros(MESSAGES_AHEAD * MAX_WIRE as u64 * BYTE_TIME.as_micros());
 
 /// What one channel tells the other. Small, fixed-size values only.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -108,6 +134,17 @@ pub enum Message {
         /// The identifier.
         id: u16,
     },
+    /// The sender measures the link's round trip: the receiver answers at once with
+    /// [`Message::Echo`] carrying the same stamp ([`RoundTrip`]).
+    Probe {
+        /// The low 32 bits of the sender's clock, in µs, when it sent the probe ([`stamp`]).
+        stamp: u32,
+    },
+    /// The answer to a [`Message::Probe`], sent as soon as the probe arrived.
+    Echo {
+        /// The probe's stamp, unchanged.
+        stamp: u32,
+    },
     /// Channel A received this SimpleCAN frame (data or sync) and forwards it to channel B
     /// as it came off the bus, not unpacked (SC_REQ_24): B decodes and checks it with its
     /// own code. Behind the `simplecan` feature, which no shipped image enables; its tag
@@ -176,6 +213,10 @@ pub enum LinkFault {
     },
     /// No valid message within the link timeout.
     Timeout,
+    /// The link is too slow for what it carries: a probe's echo came back at or over the
+    /// round-trip bound, or had not come back when the bound ran out (a slow link, or a
+    /// silent one), or answered no probe this channel was waiting on ([`RoundTrip`]).
+    Latency,
 }
 
 /// Why a message could not be encoded (a bug: every message fits).

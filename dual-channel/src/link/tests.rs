@@ -33,6 +33,8 @@ fn messages() -> Vec<Message> {
             data: u64::MAX,
         },
         Message::ForeignFrame { id: 0x7FF },
+        Message::Probe { stamp: u32::MAX },
+        Message::Echo { stamp: 0 },
         #[cfg(feature = "simplecan")]
         Message::SimpleCanPacket {
             id: u16::MAX,
@@ -229,11 +231,11 @@ fn sequence_numbers_compare_across_the_wrap() {
 proptest! {
     /// Any body the layout reads is the one encoding of the message it reads as: written
     /// again, it gives the same octets (so no two bodies carry one message), and no body
-    /// panics the reader. Tags drawn from 00h..0Ch, so that every known one and a few
+    /// panics the reader. Tags drawn from 00h..0Eh, so that every known one and a few
     /// unknown ones come up.
     #[test]
     fn a_body_the_layout_reads_is_the_one_encoding_of_its_message(
-        tag in 0u8..=0x0C,
+        tag in 0u8..=0x0E,
         fields in proptest::collection::vec(prop_oneof![Just(0u8), Just(1u8), any::<u8>()], 0..=16),
     ) {
         let body = [&[tag][..], &fields].concat();
@@ -438,6 +440,14 @@ fn every_variant_has_the_layout_of_the_table() {
             vec![0x06, 0x01, 0x01, 2, 0x55, 0xAA, 0, 0, 0, 0, 0, 0],
         ),
         (Message::ForeignFrame { id: 0x7FF }, vec![0x07, 0xFF, 0x07]),
+        (
+            Message::Probe { stamp: 0x0403_0201 },
+            vec![0x0B, 1, 2, 3, 4],
+        ),
+        (
+            Message::Echo { stamp: 0xFFFF_FFFE },
+            vec![0x0C, 0xFE, 0xFF, 0xFF, 0xFF],
+        ),
         #[cfg(feature = "simplecan")]
         (
             Message::SimpleCanPacket {
@@ -550,4 +560,187 @@ fn sc_req_14_a_simplecan_fault_crosses_the_link_and_fits_the_bound() {
     let wire = sender.encode(&largest).unwrap();
     assert!(wire.len() <= MAX_WIRE);
     assert_eq!(feed(&mut receiver, Instant::ZERO, &wire), [Ok(largest)]);
+}
+
+/// The round trip's bound in these tests (a window of 5 ms less the queue time).
+fn bound() -> Duration {
+    round_trip_bound(Duration::from_millis(5))
+}
+
+fn armed() -> RoundTrip {
+    let mut round_trip = RoundTrip::new();
+    round_trip.set_bound(Some(bound()));
+    round_trip
+}
+
+fn stamp_of(message: Option<Message>) -> u32 {
+    match message {
+        Some(Message::Probe { stamp }) => stamp,
+        other => panic!("a probe, not {other:?}"),
+    }
+}
+
+/// CiA 304 9.5: the bound is the co-signing window less the longest an announcement takes
+/// through channel A's link queue, so that a round trip under it puts the announcement at
+/// channel B within the window (the `round_trip` module documentation); a window no
+/// longer than the queue time gives a bound of zero, which every round trip reaches.
+#[test]
+fn cia304_9_5_the_round_trip_bound_is_the_window_less_the_queue_time() {
+    let window = Duration::from_millis(5);
+    assert_eq!(
+        round_trip_bound(window).as_micros() + QUEUE_TIME.as_micros(),
+        window.as_micros()
+    );
+    assert_eq!(
+        QUEUE_TIME.as_micros(),
+        MESSAGES_AHEAD * MAX_WIRE as u64 * BYTE_TIME.as_micros()
+    );
+    assert_eq!(round_trip_bound(QUEUE_TIME), Duration::ZERO);
+    assert_eq!(round_trip_bound(Duration::ZERO), Duration::ZERO);
+}
+
+/// CiA 304 9.5, EN 50325-5 Annex A.4: an echo under the bound is accepted, one at the bound
+/// or over it is a latency fault, the deadline is the oldest probe's send time plus the bound.
+#[test]
+fn cia304_9_5_an_echo_at_or_over_the_bound_is_a_latency_fault() {
+    let sent = Instant::from_millis(100);
+    let mut round_trip = armed();
+    assert_eq!(round_trip.deadline(), Instant::NEVER, "nothing outstanding");
+    let stamp = stamp_of(round_trip.probe(sent));
+    assert_eq!(round_trip.deadline(), sent + bound());
+    let just_in_time = Instant::from_micros(sent.as_micros() + bound().as_micros() - 1);
+    assert_eq!(round_trip.echo(just_in_time, stamp), Ok(()));
+    assert_eq!(round_trip.deadline(), Instant::NEVER, "answered");
+
+    let stamp = stamp_of(round_trip.probe(sent));
+    assert_eq!(
+        round_trip.echo(sent + bound(), stamp),
+        Err(LinkFault::Latency),
+        "at the bound"
+    );
+    let stamp = stamp_of(round_trip.probe(sent));
+    assert_eq!(
+        round_trip.echo(sent + bound() + Duration::from_millis(3), stamp),
+        Err(LinkFault::Latency),
+        "over it"
+    );
+}
+
+/// CiA 304 9.5: a probe whose echo is lost (or still on a slow link) is a latency fault at its
+/// deadline itself, not a moment before; a later probe does not move the deadline of an
+/// earlier one.
+#[test]
+fn cia304_9_5_a_lost_echo_is_a_latency_fault_at_the_deadline() {
+    let mut round_trip = armed();
+    let sent = Instant::from_millis(7);
+    let _lost = stamp_of(round_trip.probe(sent));
+    let _later = stamp_of(round_trip.probe(sent + Duration::from_millis(1)));
+    let deadline = sent + bound();
+    assert_eq!(round_trip.deadline(), deadline);
+    let before = Instant::from_micros(deadline.as_micros() - 1);
+    assert_eq!(round_trip.poll(before), Ok(()));
+    assert_eq!(round_trip.poll(deadline), Err(LinkFault::Latency));
+}
+
+/// CiA 304 9.5: echoes answer probes in their order; an echo of a probe other than the
+/// oldest outstanding one, or of none at all, answers nothing this channel asked and is a
+/// latency fault, as is one that comes after a probe fell due.
+#[test]
+fn cia304_9_5_an_echo_that_answers_no_outstanding_probe_is_a_fault() {
+    let mut round_trip = armed();
+    let at = Instant::from_millis(1);
+    assert_eq!(round_trip.echo(at, 0), Err(LinkFault::Latency), "none sent");
+    let first = stamp_of(round_trip.probe(at));
+    let second = stamp_of(round_trip.probe(at + Duration::from_micros(10)));
+    assert_ne!(first, second);
+    assert_eq!(
+        round_trip.echo(at + Duration::from_micros(500), second),
+        Err(LinkFault::Latency),
+        "the second answered before the first"
+    );
+}
+
+/// CiA 304 9.5: four probes at most are outstanding; the oldest falls due first, so the
+/// supervision loses nothing by sending no more. After echoes it probes again.
+#[test]
+fn cia304_9_5_probes_outstanding_are_bounded_and_answered_in_order() {
+    let mut round_trip = armed();
+    let start = Instant::from_millis(50);
+    let stamps: Vec<u32> = (0..4)
+        .map(|i| stamp_of(round_trip.probe(start + Duration::from_micros(100 * i))))
+        .collect();
+    assert_eq!(round_trip.probe(start + Duration::from_millis(1)), None);
+    for (i, stamp) in stamps.into_iter().enumerate() {
+        let at = start + Duration::from_micros(1_000 + 100 * i as u64);
+        assert_eq!(round_trip.echo(at, stamp), Ok(()), "echo {i}");
+    }
+    assert!(round_trip.probe(start + Duration::from_millis(2)).is_some());
+}
+
+/// CiA 304 9.5: the stamp is the low 32 bits of the prober's microseconds: it wraps about
+/// every 71 minutes, and a probe sent just before the wrap and answered just after is matched
+/// and measured as any other (the round trip is taken on the full instant).
+#[test]
+fn cia304_9_5_a_stamp_that_wraps_between_probe_and_echo_is_measured_right() {
+    let wrap = 1u64 << 32;
+    let sent = Instant::from_micros(3 * wrap - 300);
+    let mut round_trip = armed();
+    let stamp = stamp_of(round_trip.probe(sent));
+    assert_eq!(stamp, u32::MAX - 299);
+    assert_eq!(stamp, super::stamp(sent));
+    let back = Instant::from_micros(3 * wrap + 700);
+    assert_eq!(super::stamp(back), 700, "wrapped");
+    assert_eq!(round_trip.deadline(), sent + bound());
+    assert_eq!(round_trip.echo(back, stamp), Ok(()), "a round trip of 1 ms");
+    // The same across the wrap, but late.
+    let stamp = stamp_of(round_trip.probe(sent));
+    assert_eq!(
+        round_trip.echo(sent + bound(), stamp),
+        Err(LinkFault::Latency)
+    );
+}
+
+/// A disarmed supervision (a node that produces no SRDO) sends no probe and judges no echo,
+/// but still takes the echoes of probes sent while it was armed off its list.
+#[test]
+fn a_disarmed_round_trip_sends_no_probe_and_judges_no_echo() {
+    let mut round_trip = RoundTrip::new();
+    assert_eq!(round_trip.bound(), None);
+    assert_eq!(round_trip.probe(Instant::ZERO), None);
+    round_trip.set_bound(Some(bound()));
+    let stamp = stamp_of(round_trip.probe(Instant::ZERO));
+    round_trip.set_bound(None);
+    assert_eq!(round_trip.deadline(), Instant::NEVER);
+    assert_eq!(round_trip.poll(Instant::from_millis(100)), Ok(()));
+    assert_eq!(round_trip.echo(Instant::from_millis(100), stamp), Ok(()));
+    round_trip.set_bound(Some(bound()));
+    assert_eq!(
+        round_trip.deadline(),
+        Instant::NEVER,
+        "nothing left outstanding"
+    );
+}
+
+/// EN 50325-5 Annex A.4: a probe and its echo cross the link framed as every message, and an
+/// echo sent back for a probe received is measured by the prober.
+#[test]
+fn cia304_9_5_a_probe_crosses_the_link_and_its_echo_comes_back() {
+    let (mut a_out, mut b_out) = (Sender::new(), Sender::new());
+    let mut a_in = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let mut b_in = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let mut round_trip = armed();
+    let sent = Instant::from_millis(2);
+    let probe = round_trip.probe(sent).unwrap();
+    let at_b = sent + Duration::from_micros(400);
+    let received = feed(&mut b_in, at_b, &a_out.encode(&probe).unwrap());
+    let [Ok(Message::Probe { stamp })] = received[..] else {
+        panic!("{received:?}")
+    };
+    let echo = Message::Echo { stamp };
+    let back = at_b + Duration::from_micros(400);
+    let received = feed(&mut a_in, back, &b_out.encode(&echo).unwrap());
+    let [Ok(Message::Echo { stamp })] = received[..] else {
+        panic!("{received:?}")
+    };
+    assert_eq!(round_trip.echo(back, stamp), Ok(()));
 }

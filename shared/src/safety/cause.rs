@@ -41,6 +41,9 @@ pub enum Cause {
     LinkRepeated = 0x13,
     /// The other channel has not been heard on the link in time.
     LinkTimeout = 0x14,
+    /// The link's round trip reached its bound: channel A's announcement of a plain frame
+    /// could come after channel B stops waiting for it.
+    LinkLatency = 0x15,
     /// The channels' verdicts on a received SRDO differ.
     VerdictsDisagree = 0x20,
     /// A verdict on a received SRDO was not matched by the other channel in time.
@@ -138,7 +141,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 50] = [
+    pub const ALL: [Cause; 51] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -151,6 +154,7 @@ impl Cause {
         Cause::LinkMissing,
         Cause::LinkRepeated,
         Cause::LinkTimeout,
+        Cause::LinkLatency,
         Cause::VerdictsDisagree,
         Cause::VerdictUnconfirmed,
         Cause::VerdictForUnknownSrdo,
@@ -217,6 +221,7 @@ impl Cause {
             Cause::LinkMissing => "link messages missing",
             Cause::LinkRepeated => "link message repeated",
             Cause::LinkTimeout => "link silent",
+            Cause::LinkLatency => "link too slow for co-signing",
             Cause::VerdictsDisagree => "verdicts differ",
             Cause::VerdictUnconfirmed => "verdict not confirmed in time",
             Cause::VerdictForUnknownSrdo => "verdict for an unknown SRDO",
@@ -293,7 +298,7 @@ mod tests {
 
     #[test]
     fn a_number_that_is_no_cause_code_is_none_and_reads_other() {
-        for code in [0x03, 0x08, 0x15, 0x24, 0x3C, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
+        for code in [0x03, 0x08, 0x16, 0x24, 0x3C, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
             assert_eq!(Cause::from_code(code), None, "{code:#04x}");
             assert_eq!(Cause::describe_code(code), "other");
         }
@@ -306,6 +311,7 @@ mod tests {
             (Cause::SrvtElapsed, 0x02),
             (Cause::NotInverted, 0x05),
             (Cause::LinkTimeout, 0x14),
+            (Cause::LinkLatency, 0x15),
             (Cause::VerdictUnconfirmed, 0x21),
             (Cause::InputDiscrepancy, 0x33),
             (Cause::ReceiveOverrun, 0x3A),

@@ -53,9 +53,13 @@ fn description() -> NodeConfig {
 }
 
 /// Link messages that may be ahead of one message in a channel's link transmit queue, and
-/// the message itself: a heartbeat (which carries the configuration and input digests), an
-/// input digest sent at an input change, a verdict on a received pair.
-pub const LINK_MESSAGES_AHEAD: u64 = 4;
+/// the message itself: a heartbeat (which carries the configuration and input digests) and
+/// the probe of the link's round trip sent with it, the echo of the other channel's probe, an
+/// input digest sent at an input change, a verdict on a received pair
+/// ([`dual_channel::link::MESSAGES_AHEAD`]). The latency supervision's probe and echo made
+/// it two more than before (2026-12-07); the same count bounds the round trip
+/// (`dual_channel::link::round_trip_bound`).
+pub const LINK_MESSAGES_AHEAD: u64 = dual_channel::link::MESSAGES_AHEAD;
 
 /// The device's own timing, which the network file does not give.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -86,7 +90,7 @@ impl DeviceTiming {
     pub const HARDWARE: DeviceTiming = DeviceTiming {
         input_sample_us: 1000,
         contact_skew_us: SAMPLE_WINDOW.as_micros(),
-        link_byte_us: 10,
+        link_byte_us: dual_channel::link::BYTE_TIME.as_micros(),
         processing_us: super::target::MEASURED.processing_us(),
         output_us: 0,
     };
@@ -405,9 +409,9 @@ mod tests {
         parse(&example_network(25, 50, 20), "example").unwrap()
     }
 
-    /// The bound by hand at 1 Mbit/s on an otherwise empty bus: B's digest behind three link
-    /// messages (4 × 23 bytes × 10 µs = 920 µs), each frame blocked by one 8-byte frame
-    /// (135 µs) and 65 µs long, channel B waiting for the announcement 920 − 200 µs after
+    /// The bound by hand at 1 Mbit/s on an otherwise empty bus: B's digest behind five link
+    /// messages (6 × 23 bytes × 10 µs = 1380 µs), each frame blocked by one 8-byte frame
+    /// (135 µs) and 65 µs long, channel B waiting for the announcement 1380 − 200 µs after
     /// the plain frame, the inverted frame also behind the plain frame's two streams (cyclic
     /// and event-driven, 2 × 65 µs: the analysis does not assume the producer waits for its
     /// own pair); with a fault SCT + one frame.
@@ -420,8 +424,8 @@ mod tests {
         let reaction = &reactions[0];
         assert_eq!((reaction.producer, reaction.consumer), ((1, 1), (33, 1)));
         let micros: Vec<u64> = reaction.parts.iter().map(|p| p.micros).collect();
-        assert_eq!(micros, [0, 920, 0, 135, 65, 720, 265, 65, 0, 0, 0]);
-        assert_eq!(reaction.fault_free_us, 2170);
+        assert_eq!(micros, [0, 1380, 0, 135, 65, 1180, 265, 65, 0, 0, 0]);
+        assert_eq!(reaction.fault_free_us, 3090);
         assert_eq!(reaction.one_fault_us, 50_065);
         assert_eq!(reaction.worst_us, 50_065);
         // GFC: blocked by one 8-byte frame, 55 bits of its own.
@@ -440,10 +444,10 @@ mod tests {
             &reactions(&network, &streams, 1_000_000, &DeviceTiming::HARDWARE).unwrap()[0];
         let step = DeviceTiming::HARDWARE.processing_us;
         assert!(step > 0, "the processing step is measured, not left at 0");
-        // The window replaces B's digest over the link (920 µs): the frame waits 5 ms at most.
+        // The window replaces B's digest over the link (1380 µs): the frame waits 5 ms at most.
         assert_eq!(
             hardware.fault_free_us - simulated.fault_free_us,
-            1000 + (SAMPLE_WINDOW.as_micros() - 920) + 3 * step
+            1000 + (SAMPLE_WINDOW.as_micros() - 1380) + 3 * step
         );
         assert_eq!(hardware.parts[1].micros, SAMPLE_WINDOW.as_micros());
         assert_eq!(hardware.one_fault_us - simulated.one_fault_us, step);
