@@ -20,6 +20,7 @@ mod network;
 mod qemu;
 mod run;
 mod scenario;
+mod spin;
 mod target_cost;
 mod toolchain;
 mod trace;
@@ -232,6 +233,14 @@ enum Task {
         /// Fail when a committed generated part differs from a fresh one instead of writing it.
         #[arg(long)]
         check: bool,
+    },
+    /// Model-check the two channels' protocol with SPIN (dual-channel/model): the model
+    /// exhaustively within its bounds, and each past race re-introduced by its mutation switch
+    /// found, its counterexample printed. Fails on any error. Needs spin and gcc.
+    Spin {
+        /// Bigger bounds; writes the run's figures into docs/model-checking.md.
+        #[arg(long)]
+        full: bool,
     },
     /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
     /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
@@ -447,6 +456,7 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
+        Task::Spin { full } => spin::task(&root, full),
         Task::Scenario {
             files,
             emulated: false,
@@ -600,6 +610,8 @@ fn test(root: &Path) -> Result<()> {
         .map(|file| root.join(file))
         .collect();
     scenario::emulated(root, &set)?;
+    step("model check of the two channels' protocol (SPIN, CI bounds)");
+    spin::check(root)?;
     step("traceability matrix");
     trace::report(root)?;
     step("all checks passed");
