@@ -195,6 +195,7 @@ fn mutations() -> Vec<Run> {
 
 /// `cargo xtask spin [--full]`.
 pub fn task(root: &Path, full: bool) -> Result<()> {
+    crate::toolchain::ensure_spin()?;
     let bounds: Vec<&'static str> = if full {
         vec![
             "-DNMT_BUDGET=3",

@@ -208,6 +208,7 @@ pub fn setup(probe_rs: bool, fuzz: bool) -> Result<()> {
     }
     ensure_qemu()?;
     ensure_emulator_build_deps()?;
+    ensure_spin()?;
     ensure_tshark()?;
     if !exists("valgrind") {
         eprintln!("xtask: note: valgrind is missing; `cargo xtask bench` needs it");
@@ -244,6 +245,20 @@ pub fn ensure_fuzzing() -> Result<()> {
 fn debian_package_installed(package: &str) -> bool {
     output("dpkg-query", &["-W", "-f=${Status}", package])
         .is_some_and(|status| status.contains("install ok installed"))
+}
+
+/// SPIN (Debian's package `spin`), the model checker of the channels' protocol
+/// (`cargo xtask spin`, `dual-channel/model/`); it compiles its verifiers with gcc.
+pub fn ensure_spin() -> Result<()> {
+    if exists("spin") {
+        eprintln!("xtask: spin: installed");
+        return Ok(());
+    }
+    eprintln!(
+        "xtask: installing spin (Debian), the model checker of the channels' protocol \
+         (dual-channel/model)"
+    );
+    as_root("apt-get update -qq && apt-get install -y -qq spin")
 }
 
 /// cmake and libclang-dev (Debian's packages), which building the emulator's
