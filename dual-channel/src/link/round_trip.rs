@@ -107,7 +107,7 @@ impl RoundTrip {
     }
 
     /// A probe to send now, recorded as outstanding; `None` when the supervision is not armed,
-    /// or [`OUTSTANDING`] probes are unanswered already.
+    /// or `OUTSTANDING` probes are unanswered already.
     #[must_use]
     pub fn probe(&mut self, now: Instant) -> Option<Message> {
         self.bound?;

@@ -239,7 +239,7 @@ impl FilterBanks {
 }
 
 /// A frame's identifier as a 32-bit filter sees it (RM0090 32.7.4 figure "Filter bank
-/// scale configuration"): STID[10:0] in bits 31:21, EXID[17:0] in 20:3, IDE bit 2, RTR bit 1.
+/// scale configuration"): STID\[10:0\] in bits 31:21, EXID\[17:0\] in 20:3, IDE bit 2, RTR bit 1.
 pub fn image_32(frame: &Frame) -> u32 {
     (frame.id.standard_part() << 21)
         | (frame.id.extension_part() << 3)
@@ -247,8 +247,8 @@ pub fn image_32(frame: &Frame) -> u32 {
         | (u32::from(frame.remote) << 1)
 }
 
-/// A frame's identifier as a 16-bit filter sees it: STID[10:0] in bits 15:5, RTR bit 4, IDE
-/// bit 3, EXID[17:15] in 2:0.
+/// A frame's identifier as a 16-bit filter sees it: STID\[10:0\] in bits 15:5, RTR bit 4, IDE
+/// bit 3, EXID\[17:15\] in 2:0.
 pub fn image_16(frame: &Frame) -> u32 {
     (frame.id.standard_part() << 5)
         | (u32::from(frame.remote) << 4)

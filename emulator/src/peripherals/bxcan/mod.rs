@@ -17,7 +17,7 @@
 //!   TERR, TME, CODE and LOW.
 //! - 32.7.3: FIFOs of three messages, FMP, FULL, FOVR, release by RFOM, overrun overwriting
 //!   the last message (RFLM = 0) or dropping the new one (RFLM = 1).
-//! - 32.7.4: filters in [`filters`] (all four scale/mode combinations, FIFO assignment, FMI).
+//! - 32.7.4: filters in `filters` (all four scale/mode combinations, FIFO assignment, FMI).
 //! - 32.7.6: TEC and REC by the ISO 11898-1 rules the bus reports (transmit error +8, success
 //!   -1, receive error +1, success -1 or back to 119 from above 127; no TEC change for an ACK
 //!   error while error passive), EWGF (96), EPVF (above 127), bus-off above 255, recovery
