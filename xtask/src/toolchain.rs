@@ -250,7 +250,14 @@ fn debian_package_installed(package: &str) -> bool {
 /// SPIN (Debian's package `spin`), the model checker of the channels' protocol
 /// (`cargo xtask spin`, `dual-channel/model/`); it compiles its verifiers with gcc.
 pub fn ensure_spin() -> Result<()> {
-    if exists("spin") {
+    // SPIN prints its version with -V (`--version` is a usage error, exit 1).
+    let installed = Command::new("spin")
+        .arg("-V")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|status| status.success());
+    if installed {
         eprintln!("xtask: spin: installed");
         return Ok(());
     }
