@@ -105,7 +105,7 @@ fn cia304_9_5_model_mirrors_the_link_period_and_time_out() {
 /// EN 50325-5 Table 5: the refresh time, SCT and SRVT of the pre-defined connection set,
 /// which the model's producer and consumer use, and the producer's start delay.
 #[test]
-fn en50325_5_table_5_model_mirrors_the_predefined_srdo_times() {
+fn en50325_5_table5_model_mirrors_the_predefined_srdo_times() {
     let model = model();
     let producer = SafetyConfig::<1>::predefined(1, &[0x6000_0108, 0x6001_0108], &[]);
     let consumer = SafetyConfig::<1>::predefined(33, &[], &[0x6200_0108, 0x6201_0108]);

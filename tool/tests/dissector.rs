@@ -239,7 +239,7 @@ fn number(decoded: &Decoded, field: &str) -> f64 {
 
 /// The whole trace: SRDO pairs, a GFC, SimpleCAN packets good and corrupted.
 #[test]
-fn en50325_5_7_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissector() {
+fn en50325_5_7_1_1_and_sc_req_15_tshark_decodes_a_recorded_trace_with_the_dissector() {
     let network = safety_config::network_file::parse(NETWORK, "network.toml").unwrap();
     let hash = network.simplecan.as_ref().unwrap().hashes[&0x30];
     let sc_30 = ScId::new(0x30).unwrap();

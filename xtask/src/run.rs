@@ -1546,7 +1546,7 @@ mod tests {
     /// every channel Operational and working, and is over; what it waits for is said in words
     /// meanwhile.
     #[test]
-    fn cia301_7_3_2_2_1_a_reset_starts_the_nodes_once_both_booted_and_ends_when_they_work() {
+    fn cia301_7_3_2_a_reset_starts_the_nodes_once_both_booted_and_ends_when_they_work() {
         let mut restart = Restart::new(20.0);
         let down = restart_statuses((NmtState::PreOperational, true, true, Cause::None));
         let Step::Wait(words) = restart.step(20.5, &down, false) else {
@@ -1577,7 +1577,7 @@ mod tests {
     /// link with what to do; the run goes on (no error). A node that sends no boot-up is
     /// started all the same, and said so.
     #[test]
-    fn en50325_5_a_node_that_does_not_come_back_after_a_reset_says_why_in_words() {
+    fn cia301_7_3_2_a_node_that_does_not_come_back_after_a_reset_says_why_in_words() {
         let mut restart = Restart::new(0.0);
         restart.frame(&boot_up(0x01));
         let cut = restart_statuses((NmtState::Operational, false, false, Cause::LinkTimeout));

@@ -277,7 +277,7 @@ fn cia305_fig34_bit_timing_outside_the_table_or_not_supported_gets_error_1() {
 }
 
 #[test]
-fn cia301_bit_timing_table_indices_round_trip() {
+fn cia305_bit_timing_table_indices_round_trip() {
     for rate in BitRate::ALL {
         assert_eq!(BitRate::from_index(rate.index()), Some(rate));
         if let Some(bits) = rate.bits_per_second() {
