@@ -707,44 +707,11 @@ mod tests {
     /// PSIZE x32.
     const X32: u32 = 0b10 << 8;
 
-    struct Bench {
-        flash: Flash,
-        now: Nanos,
-    }
+    type Bench = crate::peripherals::bench::Bench<Flash>;
 
     impl Bench {
         fn new() -> Bench {
-            Bench {
-                flash: Flash::new(),
-                now: 0,
-            }
-        }
-
-        fn ctx(&self) -> Context {
-            Context {
-                now: self.now,
-                clocks: Clocks::RESET,
-            }
-        }
-
-        fn read(&mut self, offset: u32) -> u32 {
-            let ctx = self.ctx();
-            self.flash
-                .read(&ctx, offset, 4)
-                .expect("a modelled register")
-        }
-
-        fn write(&mut self, offset: u32, value: u32) {
-            let ctx = self.ctx();
-            self.flash
-                .write(&ctx, offset, 4, value)
-                .expect("a modelled register");
-        }
-
-        fn wait(&mut self, duration: Nanos) {
-            self.now += duration;
-            let ctx = self.ctx();
-            self.flash.advance(&ctx);
+            Bench::on(Flash::new(), Clocks::RESET)
         }
 
         fn unlock(&mut self) {
@@ -754,11 +721,11 @@ mod tests {
 
         fn program(&mut self, address: u32, size: u32, value: u64) {
             let ctx = self.ctx();
-            self.flash.program(address, size, value, &ctx);
+            self.model.program(address, size, value, &ctx);
         }
 
         fn word(&self, address: u32) -> u32 {
-            self.flash.read_memory(address, 4).expect("in the array")
+            self.model.read_memory(address, 4).expect("in the array")
         }
     }
 
@@ -777,7 +744,7 @@ mod tests {
         let mut bench = Bench::new();
         bench.write(ACR, 5 | (1 << 8) | acr::ICEN | acr::DCEN);
         assert_eq!(bench.read(ACR), 5 | (1 << 8) | acr::ICEN | acr::DCEN);
-        assert_eq!(bench.flash.accelerator(), (5, true, true, true));
+        assert_eq!(bench.model.accelerator(), (5, true, true, true));
     }
 
     #[test]
@@ -799,7 +766,7 @@ mod tests {
         bench.unlock();
         bench.write(CR, cr::PG);
         assert_eq!(bench.read(CR), cr::PG);
-        assert!(!bench.flash.take_bus_error());
+        assert!(!bench.model.take_bus_error());
     }
 
     #[test]
@@ -807,15 +774,12 @@ mod tests {
         let mut bench = Bench::new();
         bench.write(KEYR, KEYS[0]);
         bench.write(KEYR, 0x1234_5678);
-        assert!(bench.flash.take_bus_error());
+        assert!(bench.model.take_bus_error());
         bench.unlock();
-        assert!(bench.flash.take_bus_error(), "still a bus error");
+        assert!(bench.model.take_bus_error(), "still a bus error");
         bench.write(CR, cr::PG);
         assert_eq!(bench.read(CR), cr::LOCK);
-        let mut fresh = Bench {
-            flash: Flash::with_memory(bench.flash.into_memory()),
-            now: 0,
-        };
+        let mut fresh = Bench::on(Flash::with_memory(bench.model.into_memory()), Clocks::RESET);
         fresh.unlock();
         fresh.write(CR, cr::PG);
         assert_eq!(fresh.read(CR), cr::PG, "a reset ends the lock");
@@ -837,15 +801,15 @@ mod tests {
         bench.write(CR, cr::PG | X32 | cr::EOPIE);
         bench.program(MEMORY_BASE + 0x100, 4, 0x1234_5678);
         assert_ne!(bench.read(SR) & sr::BSY, 0);
-        assert_eq!(bench.flash.busy_until(), Some(WORD_PROGRAM_TIME));
+        assert_eq!(bench.model.busy_until(), Some(WORD_PROGRAM_TIME));
         bench.wait(WORD_PROGRAM_TIME - 1);
         assert_ne!(bench.read(SR) & sr::BSY, 0);
         bench.wait(1);
         assert_eq!(bench.read(SR), sr::EOP);
         assert_eq!(bench.word(MEMORY_BASE + 0x100), 0x1234_5678);
-        assert!(bench.flash.interrupt(IRQ));
+        assert!(bench.model.interrupt(IRQ));
         bench.write(SR, sr::EOP);
-        assert!(!bench.flash.interrupt(IRQ));
+        assert!(!bench.model.interrupt(IRQ));
     }
 
     #[test]
@@ -880,7 +844,7 @@ mod tests {
         bench.write(CR, X32 | cr::ERRIE);
         bench.program(MEMORY_BASE, 4, 0);
         assert_eq!(bench.read(SR), sr::PGSERR | sr::OPERR, "OPERR with ERRIE");
-        assert!(bench.flash.interrupt(IRQ));
+        assert!(bench.model.interrupt(IRQ));
         assert_eq!(bench.word(MEMORY_BASE), 0xFFFF_FFFF);
     }
 
@@ -891,7 +855,7 @@ mod tests {
         bench.write(CR, cr::PG | X32);
         bench.program(MEMORY_BASE, 2, 0);
         assert_eq!(bench.read(SR), sr::PGPERR);
-        assert_eq!(bench.flash.busy_until(), None);
+        assert_eq!(bench.model.busy_until(), None);
         bench.write(SR, sr::PGPERR);
         bench.write(CR, cr::PG | (0b01 << 8));
         bench.program(MEMORY_BASE, 2, 0x1234);
@@ -916,25 +880,25 @@ mod tests {
     #[test]
     fn rm0090_3_6_3_sector_erase_takes_the_datasheet_time_and_sets_the_sector_to_ff() {
         let mut bench = Bench::new();
-        for byte in &mut bench.flash.memory_mut()[..0x2_0000 + 16] {
+        for byte in &mut bench.model.memory_mut()[..0x2_0000 + 16] {
             *byte = 0;
         }
         bench.unlock();
         bench.write(CR, cr::SER | (1 << 3) | X32 | cr::EOPIE);
         bench.write(CR, cr::SER | (1 << 3) | X32 | cr::EOPIE | cr::STRT);
         assert_ne!(bench.read(CR) & cr::STRT, 0, "STRT reads 1 while busy");
-        assert_eq!(bench.flash.busy_until(), Some(SECTOR_ERASE_16K[2]));
+        assert_eq!(bench.model.busy_until(), Some(SECTOR_ERASE_16K[2]));
         bench.wait(SECTOR_ERASE_16K[2]);
         assert_eq!(bench.read(SR), sr::EOP);
         assert_eq!(bench.read(CR) & cr::STRT, 0);
-        let memory = bench.flash.memory();
+        let memory = bench.model.memory();
         assert!(memory[0x4000..0x8000].iter().all(|&byte| byte == 0xFF));
         assert!(memory[..0x4000].iter().all(|&byte| byte == 0));
         assert!(memory[0x8000..0x2_0000].iter().all(|&byte| byte == 0));
         // A 128 KiB sector at x8.
         bench.write(CR, cr::SER | (5 << 3) | cr::STRT);
         assert_eq!(
-            bench.flash.busy_until(),
+            bench.model.busy_until(),
             Some(bench.now + SECTOR_ERASE_128K[0])
         );
     }
@@ -942,20 +906,20 @@ mod tests {
     #[test]
     fn rm0090_3_6_3_mass_erase_erases_every_sector() {
         let mut bench = Bench::new();
-        bench.flash.memory_mut().fill(0);
+        bench.model.memory_mut().fill(0);
         bench.unlock();
         bench.write(CR, cr::MER | X32 | cr::STRT);
         bench.wait(MASS_ERASE[2]);
-        assert!(bench.flash.memory().iter().all(|&byte| byte == 0xFF));
+        assert!(bench.model.memory().iter().all(|&byte| byte == 0xFF));
     }
 
     #[test]
     fn rm0090_3_6_3_mer_and_ser_together_erase_nothing() {
         let mut bench = Bench::new();
-        bench.flash.memory_mut().fill(0);
+        bench.model.memory_mut().fill(0);
         bench.unlock();
         bench.write(CR, cr::MER | cr::SER | cr::STRT);
-        assert_eq!(bench.flash.busy_until(), None);
+        assert_eq!(bench.model.busy_until(), None);
         assert_eq!(bench.word(MEMORY_BASE), 0);
     }
 
@@ -979,7 +943,7 @@ mod tests {
     #[test]
     fn rm0090_3_9_4_a_write_protected_sector_gives_wrperr() {
         let mut bench = Bench::new();
-        bench.flash.set_write_protected(1 << 2);
+        bench.model.set_write_protected(1 << 2);
         assert_eq!(bench.read(OPTCR) >> 16, 0xFFB);
         bench.unlock();
         bench.write(CR, cr::SER | (2 << 3) | X32 | cr::STRT);
@@ -989,7 +953,7 @@ mod tests {
         assert_eq!(bench.read(SR), sr::WRPERR);
         assert_eq!(bench.word(MEMORY_BASE + 0x8000), 0xFFFF_FFFF);
         bench.write(CR, cr::MER | X32 | cr::STRT);
-        assert_eq!(bench.flash.busy_until(), None, "mass erase refused too");
+        assert_eq!(bench.model.busy_until(), None, "mass erase refused too");
     }
 
     #[test]
@@ -1004,7 +968,7 @@ mod tests {
             0x0000_FFFF,
             "the first ended first"
         );
-        assert_eq!(bench.flash.busy_until(), Some(2 * WORD_PROGRAM_TIME));
+        assert_eq!(bench.model.busy_until(), Some(2 * WORD_PROGRAM_TIME));
     }
 
     #[test]
@@ -1018,7 +982,7 @@ mod tests {
         bench.write(OPTCR, 0x0FFF_AAEC & !(1 << 16));
         assert_eq!(bench.read(OPTCR), 0x0FFE_AAEC);
         let ctx = bench.ctx();
-        assert!(bench.flash.write(&ctx, OPTCR, 4, 0x0FFF_AAEE).is_err());
+        assert!(bench.model.write(&ctx, OPTCR, 4, 0x0FFF_AAEE).is_err());
     }
 
     #[test]
@@ -1026,30 +990,30 @@ mod tests {
         let mut bench = Bench::new();
         let ctx = bench.ctx();
         assert!(matches!(
-            bench.flash.read(&ctx, SR, 2),
+            bench.model.read(&ctx, SR, 2),
             Err(AccessError::Width { .. })
         ));
-        assert!(bench.flash.read(&ctx, 0x18, 4).is_err());
-        assert_eq!(bench.flash.interrupt_lines(), &[4]);
+        assert!(bench.model.read(&ctx, 0x18, 4).is_err());
+        assert_eq!(bench.model.interrupt_lines(), &[4]);
     }
 
     #[test]
     fn ds8626_power_cut_during_a_word_program_leaves_some_bits_programmed() {
         let run = |seed: u64| {
             let mut bench = Bench::new();
-            bench.flash.cut_power_at(1, seed);
+            bench.model.cut_power_at(1, seed);
             bench.unlock();
             bench.write(CR, cr::PG | X32);
             bench.program(MEMORY_BASE, 4, 0x1234_5678);
             bench.wait(WORD_PROGRAM_TIME);
-            assert!(!bench.flash.power_lost(), "operation 0 completes");
+            assert!(!bench.model.power_lost(), "operation 0 completes");
             bench.program(MEMORY_BASE + 4, 4, 0x0000_0000);
             assert_eq!(
-                bench.flash.next_event(&bench.ctx()),
+                bench.model.next_event(&bench.ctx()),
                 Some(bench.now + WORD_PROGRAM_TIME / 2)
             );
             bench.wait(WORD_PROGRAM_TIME);
-            assert!(bench.flash.power_lost());
+            assert!(bench.model.power_lost());
             (bench.word(MEMORY_BASE), bench.word(MEMORY_BASE + 4))
         };
         let (first, half) = run(7);
@@ -1064,13 +1028,13 @@ mod tests {
     #[test]
     fn ds8626_power_cut_during_a_sector_erase_leaves_it_partly_erased() {
         let mut bench = Bench::new();
-        bench.flash.memory_mut()[..0x4000].fill(0);
-        bench.flash.cut_power_at(0, 42);
+        bench.model.memory_mut()[..0x4000].fill(0);
+        bench.model.cut_power_at(0, 42);
         bench.unlock();
         bench.write(CR, cr::SER | X32 | cr::STRT);
         bench.wait(SECTOR_ERASE_16K[2]);
-        assert!(bench.flash.power_lost());
-        let sector = &bench.flash.memory()[..0x4000];
+        assert!(bench.model.power_lost());
+        let sector = &bench.model.memory()[..0x4000];
         let erased = sector
             .chunks(16)
             .filter(|row| row.iter().all(|&b| b == 0xFF))
@@ -1080,7 +1044,7 @@ mod tests {
             .filter(|row| row.iter().all(|&b| b == 0))
             .count();
         assert!(erased > 0 && untouched > 0 && erased + untouched < 0x4000 / 16);
-        let memory = bench.flash.into_memory();
+        let memory = bench.model.into_memory();
         let after = Flash::with_memory(memory.clone());
         assert_eq!(after.memory(), &memory[..], "the array survives the cut");
     }

@@ -255,44 +255,11 @@ mod tests {
     const SR: u32 = 0x0C;
     const MILLISECOND: Nanos = 1_000_000;
 
-    struct Bench {
-        iwdg: Iwdg,
-        now: Nanos,
-    }
+    type Bench = crate::peripherals::bench::Bench<Iwdg>;
 
     impl Bench {
         fn new() -> Bench {
-            Bench {
-                iwdg: Iwdg::new(),
-                now: 0,
-            }
-        }
-
-        fn ctx(&self) -> Context {
-            Context {
-                now: self.now,
-                clocks: Clocks::RESET,
-            }
-        }
-
-        fn read(&mut self, offset: u32) -> u32 {
-            let ctx = self.ctx();
-            self.iwdg
-                .read(&ctx, offset, 4)
-                .expect("a modelled register")
-        }
-
-        fn write(&mut self, offset: u32, value: u32) {
-            let ctx = self.ctx();
-            self.iwdg
-                .write(&ctx, offset, 4, value)
-                .expect("a modelled register");
-        }
-
-        fn wait(&mut self, duration: Nanos) {
-            self.now += duration;
-            let ctx = self.ctx();
-            self.iwdg.advance(&ctx);
+            Bench::on(Iwdg::new(), Clocks::RESET)
         }
 
         /// Unlocks, writes PR and RLR, waits for both updates.
@@ -312,9 +279,9 @@ mod tests {
         assert_eq!(bench.read(PR), 0);
         assert_eq!(bench.read(RLR), 0xFFF);
         assert_eq!(bench.read(SR), 0);
-        assert!(!bench.iwdg.is_running());
+        assert!(!bench.model.is_running());
         bench.wait(3_600_000 * MILLISECOND);
-        assert!(!bench.iwdg.reset_requested(), "not started: no reset");
+        assert!(!bench.model.reset_requested(), "not started: no reset");
     }
 
     #[test]
@@ -323,9 +290,9 @@ mod tests {
         bench.write(KR, 0xCCCC);
         // 4096 ticks of 4 LSI cycles at 32 kHz: Table 107's maximum for PR = 0.
         bench.wait(512 * MILLISECOND - 1);
-        assert!(!bench.iwdg.reset_requested());
+        assert!(!bench.model.reset_requested());
         bench.wait(1);
-        assert!(bench.iwdg.reset_requested());
+        assert!(bench.model.reset_requested());
     }
 
     #[test]
@@ -348,12 +315,12 @@ mod tests {
             let timeout = micros * 1_000;
             bench.wait(timeout - 1);
             assert!(
-                !bench.iwdg.reset_requested(),
+                !bench.model.reset_requested(),
                 "PR {prescaler} RL {reload:#x}"
             );
             bench.wait(1);
             assert!(
-                bench.iwdg.reset_requested(),
+                bench.model.reset_requested(),
                 "PR {prescaler} RL {reload:#x}"
             );
         }
@@ -369,9 +336,9 @@ mod tests {
             bench.wait(30 * MILLISECOND);
             bench.write(KR, 0xAAAA);
         }
-        assert!(!bench.iwdg.reset_requested());
+        assert!(!bench.model.reset_requested());
         bench.wait(32 * MILLISECOND);
-        assert!(bench.iwdg.reset_requested());
+        assert!(bench.model.reset_requested());
     }
 
     #[test]
@@ -434,7 +401,7 @@ mod tests {
         // Reloaded before the new RLR reached the VDD domain: 256 ticks, 32 ms.
         bench.write(KR, 0xAAAA);
         bench.wait(32 * MILLISECOND);
-        assert!(bench.iwdg.reset_requested());
+        assert!(bench.model.reset_requested());
     }
 
     #[test]
@@ -446,9 +413,9 @@ mod tests {
         bench.write(KR, 0x5555);
         bench.write(PR, 1);
         bench.wait(511 * MILLISECOND);
-        assert!(!bench.iwdg.reset_requested());
+        assert!(!bench.model.reset_requested());
         bench.wait(MILLISECOND);
-        assert!(bench.iwdg.reset_requested());
+        assert!(bench.model.reset_requested());
     }
 
     #[test]
@@ -458,14 +425,17 @@ mod tests {
         bench.write(KR, 0x0000);
         bench.write(KR, 0xCCCC);
         bench.wait(512 * MILLISECOND);
-        assert!(bench.iwdg.reset_requested());
+        assert!(bench.model.reset_requested());
     }
 
     #[test]
     fn rm0090_21_4_next_event_is_the_expiry() {
         let mut bench = Bench::new();
         bench.write(KR, 0xCCCC);
-        assert_eq!(bench.iwdg.next_event(&bench.ctx()), Some(512 * MILLISECOND));
+        assert_eq!(
+            bench.model.next_event(&bench.ctx()),
+            Some(512 * MILLISECOND)
+        );
     }
 
     #[test]
@@ -473,12 +443,12 @@ mod tests {
         let mut bench = Bench::new();
         let ctx = bench.ctx();
         assert!(matches!(
-            bench.iwdg.write(&ctx, KR, 1, 0xCC),
+            bench.model.write(&ctx, KR, 1, 0xCC),
             Err(AccessError::Width { .. })
         ));
-        assert!(bench.iwdg.write(&ctx, KR, 2, 0xCCCC).is_ok());
+        assert!(bench.model.write(&ctx, KR, 2, 0xCCCC).is_ok());
         assert!(matches!(
-            bench.iwdg.read(&ctx, 0x10, 4),
+            bench.model.read(&ctx, 0x10, 4),
             Err(AccessError::Unmodelled { offset: 0x10, .. })
         ));
     }

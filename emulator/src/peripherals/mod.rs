@@ -6,6 +6,8 @@
 //! something to do and which interrupt lines it holds up. What a model does not implement
 //! is an [`AccessError`], which ends the run with a sentence: nothing reads as 0 silently.
 
+#[cfg(test)]
+mod bench;
 pub mod bxcan;
 pub mod dbgmcu;
 pub mod flash;

@@ -477,21 +477,13 @@ mod tests {
     /// PSC for one tick a microsecond at 84 MHz.
     const PSC_1_MHZ: u32 = 83;
 
-    struct Bench {
-        timer: Tim2,
-        now: Nanos,
-        clocks: Clocks,
-    }
+    type Bench = crate::peripherals::bench::Bench<Tim2>;
 
     impl Bench {
         fn new() -> Bench {
-            let mut bench = Bench {
-                timer: Tim2::new(),
-                now: 0,
-                clocks: CLOCKS,
-            };
+            let mut bench = Bench::on(Tim2::new(), CLOCKS);
             let ctx = bench.ctx();
-            bench.timer.advance(&ctx);
+            bench.model.advance(&ctx);
             bench
         }
 
@@ -504,33 +496,6 @@ mod tests {
             bench.write(EGR, 1);
             bench.write(CR1, control | cr1::CEN);
             bench
-        }
-
-        fn ctx(&self) -> Context {
-            Context {
-                now: self.now,
-                clocks: self.clocks,
-            }
-        }
-
-        fn read(&mut self, offset: u32) -> u32 {
-            let ctx = self.ctx();
-            self.timer
-                .read(&ctx, offset, 4)
-                .expect("a modelled register")
-        }
-
-        fn write(&mut self, offset: u32, value: u32) {
-            let ctx = self.ctx();
-            self.timer
-                .write(&ctx, offset, 4, value)
-                .expect("a modelled register");
-        }
-
-        fn wait(&mut self, duration: Nanos) {
-            self.now += duration;
-            let ctx = self.ctx();
-            self.timer.advance(&ctx);
         }
     }
 
@@ -589,11 +554,11 @@ mod tests {
         bench.wait(99 * MICROSECOND);
         assert_eq!(bench.read(CNT), 99);
         assert_eq!(bench.read(SR) & sr::UIF, 0);
-        assert!(!bench.timer.interrupt(IRQ));
+        assert!(!bench.model.interrupt(IRQ));
         bench.wait(MICROSECOND);
         assert_eq!(bench.read(CNT), 0);
         assert_ne!(bench.read(SR) & sr::UIF, 0);
-        assert!(bench.timer.interrupt(IRQ));
+        assert!(bench.model.interrupt(IRQ));
     }
 
     #[test]
@@ -682,7 +647,7 @@ mod tests {
         assert_eq!(bench.read(SR) & 0b110, 0);
         bench.wait(MICROSECOND);
         assert_eq!(bench.read(SR) & 0b110, 0b100, "CC2IF");
-        assert!(bench.timer.interrupt(IRQ));
+        assert!(bench.model.interrupt(IRQ));
         bench.wait(0x8000 * MICROSECOND);
         assert_eq!(bench.read(SR) & 0b110, 0b110, "CC1IF too");
     }
@@ -753,13 +718,13 @@ mod tests {
         bench.write(CCR1, 0x8000);
         let ctx = bench.ctx();
         assert_eq!(
-            bench.timer.next_event(&ctx),
+            bench.model.next_event(&ctx),
             Some(bench.now + 0x8000 * MICROSECOND)
         );
         bench.wait(0x8000 * MICROSECOND);
         let ctx = bench.ctx();
         assert_eq!(
-            bench.timer.next_event(&ctx),
+            bench.model.next_event(&ctx),
             Some(bench.now + 0x8000 * MICROSECOND),
             "the overflow"
         );
@@ -770,26 +735,26 @@ mod tests {
         let mut bench = Bench::new();
         let ctx = bench.ctx();
         assert!(
-            bench.timer.write(&ctx, CR1, 4, 1 << 5).is_err(),
+            bench.model.write(&ctx, CR1, 4, 1 << 5).is_err(),
             "center-aligned"
         );
         assert!(
-            bench.timer.write(&ctx, 0x08, 4, 0b111).is_err(),
+            bench.model.write(&ctx, 0x08, 4, 0b111).is_err(),
             "slave mode"
         );
         assert!(
-            bench.timer.write(&ctx, DIER, 4, 1 << 8).is_err(),
+            bench.model.write(&ctx, DIER, 4, 1 << 8).is_err(),
             "DMA request"
         );
         assert!(
-            bench.timer.write(&ctx, CCMR1, 4, 0b01).is_err(),
+            bench.model.write(&ctx, CCMR1, 4, 0b01).is_err(),
             "input capture"
         );
-        assert!(bench.timer.read(&ctx, 0x48, 4).is_err(), "DCR");
+        assert!(bench.model.read(&ctx, 0x48, 4).is_err(), "DCR");
         assert!(matches!(
-            bench.timer.read(&ctx, CNT, 1),
+            bench.model.read(&ctx, CNT, 1),
             Err(AccessError::Width { .. })
         ));
-        assert_eq!(bench.timer.interrupt_lines(), &[28]);
+        assert_eq!(bench.model.interrupt_lines(), &[28]);
     }
 }

@@ -448,17 +448,11 @@ mod tests {
     const FRAME: Nanos = 86_875;
     const BRR_115200: u32 = 0x8B;
 
-    struct Bench {
-        usart: Usart,
-        now: Nanos,
-    }
+    type Bench = crate::peripherals::bench::Bench<Usart>;
 
     impl Bench {
         fn new() -> Bench {
-            Bench {
-                usart: Usart::new(),
-                now: 0,
-            }
+            Bench::on(Usart::new(), Clocks::RESET)
         }
 
         /// UE, TE, RE at 115 200 baud, then past the idle frame.
@@ -468,33 +462,6 @@ mod tests {
             bench.write(CR1, cr1::UE | cr1::TE | cr1::RE);
             bench.wait(FRAME);
             bench
-        }
-
-        fn ctx(&self) -> Context {
-            Context {
-                now: self.now,
-                clocks: Clocks::RESET,
-            }
-        }
-
-        fn read(&mut self, offset: u32) -> u32 {
-            let ctx = self.ctx();
-            self.usart
-                .read(&ctx, offset, 4)
-                .expect("a modelled register")
-        }
-
-        fn write(&mut self, offset: u32, value: u32) {
-            let ctx = self.ctx();
-            self.usart
-                .write(&ctx, offset, 4, value)
-                .expect("a modelled register");
-        }
-
-        fn wait(&mut self, duration: Nanos) {
-            self.now += duration;
-            let ctx = self.ctx();
-            self.usart.advance(&ctx);
         }
     }
 
@@ -511,8 +478,8 @@ mod tests {
     fn rm0090_30_3_4_oversampling_by_16_bit_time_is_brr_cycles() {
         let mut bench = Bench::new();
         bench.write(BRR, BRR_115200);
-        assert_eq!(bench.usart.bit_cycles(), 139);
-        assert_eq!(bench.usart.frame_time(), FRAME);
+        assert_eq!(bench.model.bit_cycles(), 139);
+        assert_eq!(bench.model.frame_time(), FRAME);
     }
 
     #[test]
@@ -521,8 +488,8 @@ mod tests {
         // USARTDIV 17.375: mantissa 17, fraction 3 (bit 3 of the fraction is ignored).
         bench.write(CR1, cr1::OVER8);
         bench.write(BRR, (17 << 4) | 0xB);
-        assert_eq!(bench.usart.bit_cycles(), 17 * 8 + 3);
-        assert_eq!(bench.usart.frame_time(), FRAME);
+        assert_eq!(bench.model.bit_cycles(), 17 * 8 + 3);
+        assert_eq!(bench.model.frame_time(), FRAME);
     }
 
     #[test]
@@ -530,20 +497,20 @@ mod tests {
         let mut bench = Bench::new();
         bench.write(BRR, 0x100);
         let bit = Clocks::nanos(0x100, Clocks::RESET.pclk1);
-        assert_eq!(bench.usart.frame_time(), 10 * bit);
+        assert_eq!(bench.model.frame_time(), 10 * bit);
         bench.write(CR2, 0b10 << 12);
-        assert_eq!(bench.usart.frame_time(), 11 * bit, "2 stop bits");
+        assert_eq!(bench.model.frame_time(), 11 * bit, "2 stop bits");
         bench.write(CR1, cr1::M);
         assert_eq!(
-            bench.usart.frame_time(),
+            bench.model.frame_time(),
             12 * bit,
             "9 data bits, 2 stop bits"
         );
         bench.write(CR1, 0);
         bench.write(CR2, 0b01 << 12);
-        assert_eq!(bench.usart.frame_time(), 19 * bit / 2, "half a stop bit");
+        assert_eq!(bench.model.frame_time(), 19 * bit / 2, "half a stop bit");
         bench.write(CR2, 0b11 << 12);
-        assert_eq!(bench.usart.frame_time(), 21 * bit / 2, "1.5 stop bits");
+        assert_eq!(bench.model.frame_time(), 21 * bit / 2, "1.5 stop bits");
     }
 
     #[test]
@@ -552,11 +519,11 @@ mod tests {
         bench.write(BRR, BRR_115200);
         bench.write(CR1, cr1::UE | cr1::TE);
         bench.write(DR, 0x41);
-        let sent = bench.usart.take_transmitted();
+        let sent = bench.model.take_transmitted();
         assert_eq!(sent, None, "the idle frame is on the line");
         bench.wait(FRAME);
         let sent = bench
-            .usart
+            .model
             .take_transmitted()
             .expect("started after the idle frame");
         assert_eq!(
@@ -578,8 +545,8 @@ mod tests {
         assert_eq!(bench.read(SR) & sr::TXE, 0, "waits in TDR");
         bench.wait(FRAME);
         assert_ne!(bench.read(SR) & sr::TXE, 0);
-        let first = bench.usart.take_transmitted().expect("first");
-        let second = bench.usart.take_transmitted().expect("second");
+        let first = bench.model.take_transmitted().expect("first");
+        let second = bench.model.take_transmitted().expect("second");
         assert_eq!(first.end, second.start, "back to back");
         assert_eq!(second.word, 2);
     }
@@ -608,18 +575,18 @@ mod tests {
         let mut bench = Bench::enabled();
         bench.write(DR, 1);
         assert_ne!(
-            bench.usart.status() & sr::TC,
+            bench.model.status() & sr::TC,
             0,
             "a DR write without an SR read first leaves TC"
         );
         bench.write(SR, !sr::TC);
-        assert_eq!(bench.usart.status() & sr::TC, 0);
+        assert_eq!(bench.model.status() & sr::TC, 0);
     }
 
     #[test]
     fn rm0090_30_3_3_a_received_word_sets_rxne_and_reading_dr_clears_it() {
         let mut bench = Bench::enabled();
-        bench.usart.receive(0x5A, bench.now + 10);
+        bench.model.receive(0x5A, bench.now + 10);
         assert_eq!(bench.read(SR) & sr::RXNE, 0, "not yet arrived");
         bench.wait(10);
         assert_ne!(bench.read(SR) & sr::RXNE, 0);
@@ -630,7 +597,7 @@ mod tests {
     #[test]
     fn rm0090_30_6_1_rxne_is_cleared_by_writing_0() {
         let mut bench = Bench::enabled();
-        bench.usart.receive(1, bench.now);
+        bench.model.receive(1, bench.now);
         bench.wait(0);
         bench.write(SR, !sr::RXNE);
         assert_eq!(bench.read(SR) & sr::RXNE, 0);
@@ -639,8 +606,8 @@ mod tests {
     #[test]
     fn rm0090_30_3_3_overrun_keeps_rdr_and_is_cleared_by_reading_sr_then_dr() {
         let mut bench = Bench::enabled();
-        bench.usart.receive(1, bench.now);
-        bench.usart.receive(2, bench.now + FRAME);
+        bench.model.receive(1, bench.now);
+        bench.model.receive(2, bench.now + FRAME);
         bench.wait(FRAME);
         let status = bench.read(SR);
         assert_ne!(status & sr::ORE, 0);
@@ -651,18 +618,18 @@ mod tests {
     #[test]
     fn rm0090_30_6_1_ore_stays_without_the_sr_read_first() {
         let mut bench = Bench::enabled();
-        bench.usart.receive(1, bench.now);
-        bench.usart.receive(2, bench.now);
+        bench.model.receive(1, bench.now);
+        bench.model.receive(2, bench.now);
         bench.wait(0);
         bench.read(DR);
-        assert_ne!(bench.usart.status() & sr::ORE, 0);
+        assert_ne!(bench.model.status() & sr::ORE, 0);
     }
 
     #[test]
     fn rm0090_30_3_3_idle_is_set_one_idle_frame_after_a_reception_and_once() {
         let mut bench = Bench::enabled();
-        bench.usart.receive(1, bench.now);
-        bench.usart.receive(2, bench.now + FRAME);
+        bench.model.receive(1, bench.now);
+        bench.model.receive(2, bench.now + FRAME);
         bench.wait(FRAME);
         bench.read(SR);
         bench.read(DR);
@@ -689,7 +656,7 @@ mod tests {
         let mut bench = Bench::new();
         bench.write(BRR, BRR_115200);
         bench.write(CR1, cr1::UE | cr1::TE);
-        bench.usart.receive(1, bench.now);
+        bench.model.receive(1, bench.now);
         bench.wait(10 * FRAME);
         assert_eq!(bench.read(SR) & (sr::RXNE | sr::IDLE), 0);
     }
@@ -697,26 +664,26 @@ mod tests {
     #[test]
     fn rm0090_30_4_interrupt_sources_and_their_enables() {
         let mut bench = Bench::enabled();
-        assert!(!bench.usart.interrupt(IRQ));
+        assert!(!bench.model.interrupt(IRQ));
         bench.write(CR1, cr1::UE | cr1::TE | cr1::RE | cr1::TXEIE);
-        assert!(bench.usart.interrupt(IRQ), "TXE");
+        assert!(bench.model.interrupt(IRQ), "TXE");
         bench.write(CR1, cr1::UE | cr1::TE | cr1::RE | cr1::TCIE);
-        assert!(bench.usart.interrupt(IRQ), "TC");
+        assert!(bench.model.interrupt(IRQ), "TC");
         bench.write(SR, !sr::TC);
-        assert!(!bench.usart.interrupt(IRQ));
+        assert!(!bench.model.interrupt(IRQ));
         bench.write(CR1, cr1::UE | cr1::TE | cr1::RE | cr1::RXNEIE);
-        bench.usart.receive(1, bench.now);
-        bench.usart.receive(2, bench.now);
+        bench.model.receive(1, bench.now);
+        bench.model.receive(2, bench.now);
         bench.wait(0);
-        assert!(bench.usart.interrupt(IRQ), "RXNE");
+        assert!(bench.model.interrupt(IRQ), "RXNE");
         bench.write(SR, !sr::RXNE);
-        assert!(bench.usart.interrupt(IRQ), "ORE with RXNEIE");
+        assert!(bench.model.interrupt(IRQ), "ORE with RXNEIE");
         bench.read(SR);
         bench.read(DR);
-        assert!(!bench.usart.interrupt(IRQ));
+        assert!(!bench.model.interrupt(IRQ));
         bench.write(CR1, cr1::UE | cr1::TE | cr1::RE | cr1::IDLEIE);
         bench.wait(FRAME);
-        assert!(bench.usart.interrupt(IRQ), "IDLE");
+        assert!(bench.model.interrupt(IRQ), "IDLE");
         assert_eq!(Usart::new().interrupt_lines(), &[39]);
     }
 
@@ -727,8 +694,8 @@ mod tests {
         a.write(DR, 0x31);
         a.write(DR, 0x32);
         a.wait(2 * FRAME);
-        while let Some(sent) = a.usart.take_transmitted() {
-            b.usart.receive(sent.word, sent.end);
+        while let Some(sent) = a.model.take_transmitted() {
+            b.model.receive(sent.word, sent.end);
         }
         b.wait(FRAME - 1);
         assert_eq!(b.read(SR) & sr::RXNE, 0);
@@ -743,12 +710,12 @@ mod tests {
         let mut bench = Bench::new();
         let ctx = bench.ctx();
         assert!(matches!(
-            bench.usart.read(&ctx, SR, 1),
+            bench.model.read(&ctx, SR, 1),
             Err(AccessError::Width { .. })
         ));
-        assert!(bench.usart.write(&ctx, CR1, 4, cr1::PCE).is_err(), "parity");
-        assert!(bench.usart.write(&ctx, 0x14, 4, 1 << 7).is_err(), "DMA");
-        assert!(bench.usart.write(&ctx, 0x14, 4, 1 << 11).is_ok(), "ONEBIT");
-        assert!(bench.usart.read(&ctx, 0x1C, 4).is_err());
+        assert!(bench.model.write(&ctx, CR1, 4, cr1::PCE).is_err(), "parity");
+        assert!(bench.model.write(&ctx, 0x14, 4, 1 << 7).is_err(), "DMA");
+        assert!(bench.model.write(&ctx, 0x14, 4, 1 << 11).is_ok(), "ONEBIT");
+        assert!(bench.model.read(&ctx, 0x1C, 4).is_err());
     }
 }
