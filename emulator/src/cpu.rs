@@ -52,7 +52,7 @@ use crate::peripherals::iwdg::{self, Iwdg};
 use crate::peripherals::pwr::{self, Pwr};
 use crate::peripherals::rcc::{self, Hse, Rcc, ResetCause};
 use crate::peripherals::tim2::{self, Tim2};
-use crate::peripherals::usart::{self, Usart};
+use crate::peripherals::usart::{self, Transmitted, Usart};
 use crate::peripherals::{AccessError, Context, Peripheral};
 use crate::stop::{Access, Fault, Outcome, Stop};
 use crate::system::exceptions::{FIRST_IRQ, Masks, number};
@@ -183,6 +183,16 @@ pub struct State {
     last_invalid: Option<(u32, u64)>,
     /// Words the USART sent that no peer took.
     usart_words: u64,
+    /// Whether a peer takes the USART's words ([`Machine::wire_usart`]).
+    usart_wired: bool,
+    /// Words the USART started, for the peer, in the order they started.
+    usart_out: Vec<Transmitted>,
+    /// Whether a transmit request to the CAN controller ends the run early
+    /// ([`Machine::yield_on_transmit_request`]).
+    yield_on_transmit: bool,
+    /// A transmit request ended the run early; [`Machine::run_until`] returns
+    /// [`Outcome::Yielded`].
+    yielded: bool,
     /// The flash array as Unicorn holds it (the flash model's array is the reference).
     flash_shadow: Vec<u8>,
     /// Whether the flash model's array may differ from Unicorn's.
@@ -629,8 +639,12 @@ fn service(uc: &mut Uc<'_>) {
         st.sample(&*model.borrow());
     }
     st.follow_clock_tree();
-    while st.models.usart.borrow_mut().take_transmitted().is_some() {
-        st.usart_words += 1;
+    while let Some(word) = st.models.usart.borrow_mut().take_transmitted() {
+        if st.usart_wired {
+            st.usart_out.push(word);
+        } else {
+            st.usart_words += 1;
+        }
     }
     let ctx = st.context();
     let mut deadline = st.end;
@@ -1078,12 +1092,24 @@ fn device_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32, reported: 
                 }
                 let st = uc.get_data_mut();
                 let ctx = st.context();
+                let requests = st.models.can.borrow().transmit_requests();
                 let result = {
                     let mut model = model.borrow_mut();
                     model.advance(&ctx);
                     model.write(&ctx, address - base, size, value)
                 };
                 after_model_access(st, base, &model);
+                let yield_now = st.yield_on_transmit
+                    && base == bxcan::BASE
+                    && st.models.can.borrow().transmit_requests() != requests;
+                if yield_now {
+                    // The bus model must see the request at this instant (arbitration
+                    // starts when the bus is idle): end the run here.
+                    st.yielded = true;
+                    st.stopping = true;
+                    let _ = uc.emu_stop();
+                }
+                let st = uc.get_data_mut();
                 if base == flash::BASE {
                     st.flash_dirty = true;
                     after_flash_access(uc);
@@ -1184,6 +1210,10 @@ impl Machine {
             mapped_pages: Vec::new(),
             last_invalid: None,
             usart_words: 0,
+            usart_wired: false,
+            usart_out: Vec::new(),
+            yield_on_transmit: false,
+            yielded: false,
             flash_shadow: vec![0xFF; memory::FLASH_SIZE as usize],
             flash_dirty: false,
             flash_busy_until: None,
@@ -1428,6 +1458,10 @@ impl Machine {
                 drain_rtt(&mut self.uc);
                 return Outcome::Stopped { stop, at };
             }
+            if std::mem::take(&mut st.yielded) {
+                drain_rtt(&mut self.uc);
+                return Outcome::Yielded;
+            }
             st.end = st.clock.cycles_at(until);
             if st.clock.cycles() >= st.end {
                 drain_rtt(&mut self.uc);
@@ -1581,6 +1615,42 @@ impl Machine {
     /// Words the USART sent that nothing took (no peer wired).
     pub fn unpaired_usart_words(&self) -> u64 {
         self.uc.get_data().usart_words
+    }
+
+    /// Wires USART3's TX line to a peer: from now on the words it sends are kept for
+    /// [`Machine::take_usart_words`] instead of counted as lost.
+    pub fn wire_usart(&mut self) {
+        self.uc.get_data_mut().usart_wired = true;
+    }
+
+    /// The words USART3 started since the last call (wired: [`Machine::wire_usart`]), each
+    /// with its start and end on the line.
+    pub fn take_usart_words(&mut self) -> Vec<Transmitted> {
+        std::mem::take(&mut self.uc.get_data_mut().usart_out)
+    }
+
+    /// A word whose last stop bit reaches USART3's RX pin at `at` (a peer's word).
+    pub fn usart_receive(&mut self, word: u16, at: Nanos) {
+        let st = self.uc.get_data_mut();
+        st.models.usart.borrow_mut().receive(word, at);
+        st.deadline = st.deadline.min(st.clock.cycles_at(at));
+        st.recompute = true;
+    }
+
+    /// Makes a transmit request to the CAN controller (TXRQ set in a mailbox) end
+    /// [`Machine::run_until`] early with [`Outcome::Yielded`], so that a bus model sees the
+    /// request at the instant it was made.
+    pub fn yield_on_transmit_request(&mut self, on: bool) {
+        self.uc.get_data_mut().yield_on_transmit = on;
+    }
+
+    /// Tells the machine that the bus side changed the CAN controller (a frame delivered,
+    /// a transmission concluded): its interrupt lines and next event are looked at before
+    /// the next instruction.
+    pub fn can_changed(&mut self) {
+        let st = self.uc.get_data_mut();
+        st.recompute = true;
+        st.attention = true;
     }
 
     /// The RTT bytes the image wrote since the last call, with the time of each drain.

@@ -18,6 +18,7 @@ pub mod cpu;
 pub mod image;
 pub mod log;
 pub mod memory;
+pub mod network;
 pub mod peripherals;
 pub mod rtt;
 pub mod stop;

@@ -261,6 +261,10 @@ impl core::fmt::Display for Stop {
 pub enum Outcome {
     /// The time asked for has passed.
     Elapsed,
+    /// It returned early, at [`crate::cpu::Machine::now`], because the image asked the CAN
+    /// controller to transmit (only when asked for:
+    /// [`crate::cpu::Machine::yield_on_transmit_request`]).
+    Yielded,
     /// It stopped before: the reason and the virtual time.
     Stopped {
         /// Why.

@@ -122,6 +122,30 @@ impl CycleClock {
     }
 }
 
+/// `<number><unit>` with unit `s`, `ms` or `us`.
+pub fn parse_duration(text: &str) -> Result<Nanos, String> {
+    let (number, scale) = if let Some(number) = text.strip_suffix("ms") {
+        (number, 1_000_000)
+    } else if let Some(number) = text.strip_suffix("us") {
+        (number, 1_000)
+    } else if let Some(number) = text.strip_suffix('s') {
+        (number, 1_000_000_000)
+    } else {
+        return Err(format!(
+            "`{text}` is not a duration: give a number and a unit, e.g. 500ms, 2s, 1500us"
+        ));
+    };
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("`{number}` in `{text}` is not a number"))?;
+    if !(value > 0.0 && value <= 3600.0 * 1e9 / scale as f64) {
+        return Err(format!(
+            "`{text}`: the duration must be positive and at most an hour"
+        ));
+    }
+    Ok((value * scale as f64) as Nanos)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

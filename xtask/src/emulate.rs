@@ -102,3 +102,216 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
     }
     Ok(())
 }
+
+/// Builds and seals the shipped images of `protocol`, then runs both nodes (1 and 33, channels
+/// A and B each) on one emulated bus for `duration` of virtual time with every contact
+/// closed, and prints every MCU's decoded log and the summary.
+pub fn network_task(root: &Path, duration: &str, protocol: Protocol) -> Result<()> {
+    let cross = toolchain::ensure()?;
+    toolchain::ensure_emulator_build_deps()?;
+    let layer = protocol.hardware_layer();
+    images::build_layer(root, &cross, layer)?;
+    crate::run(
+        cargo()
+            .current_dir(root)
+            .args([
+                "run",
+                "--quiet",
+                "--release",
+                "-p",
+                "emulator",
+                "--bin",
+                "emulate-network",
+                "--",
+            ])
+            .arg(images::image(&cross, root, layer, "a"))
+            .arg(images::image(&cross, root, layer, "b"))
+            .args(["--for", duration, "--inputs-closed"]),
+    )
+}
+
+/// How long the network check runs, in virtual time: past the first link periods, the
+/// link's time-out and twenty heartbeats.
+const NETWORK_CHECK: &str = "2500ms";
+
+/// The producer heartbeat time the shipped images start with: object 1017h's default in the
+/// device description the tool generates (the EDS).
+fn default_heartbeat_ms() -> Result<u64> {
+    let eds = safety_config::eds::eds();
+    let section = eds
+        .split("\n[")
+        .find(|section| section.starts_with("1017]"))
+        .ok_or_else(|| anyhow::anyhow!("the EDS has no object 1017h"))?;
+    section
+        .lines()
+        .find_map(|line| line.strip_prefix("DefaultValue="))
+        .and_then(|value| value.trim().parse().ok())
+        .ok_or_else(|| anyhow::anyhow!("the EDS's object 1017h has no numeric default"))
+}
+
+/// One frame of a candump log: (seconds, identifier, data as hexadecimal).
+fn candump_frames(log: &str) -> Vec<(f64, u16, String)> {
+    log.lines()
+        .filter_map(|line| {
+            let (stamp, rest) = line.strip_prefix('(')?.split_once(')')?;
+            let frame = rest.split_whitespace().nth(1)?;
+            let (id, data) = frame.split_once('#')?;
+            Some((
+                stamp.parse().ok()?,
+                u16::from_str_radix(id, 16).ok()?,
+                data.to_owned(),
+            ))
+        })
+        .collect()
+}
+
+/// What the bus trace of the fault-free start-up must show (CiA 301 7.2.8.3.2, 7.2.8.3.2.2):
+/// each node's boot-up message (700h + node-ID, data 00h) once, before anything else of the
+/// node's on 700h + node-ID, then heartbeats in pre-operational (7Fh) every `period_ms`
+/// (within a millisecond), and nothing on the bus from any other identifier.
+fn check_start_up_trace(trace: &str, nodes: &[u16], period_ms: u64) -> Result<(), String> {
+    let frames = candump_frames(trace);
+    if frames.is_empty() {
+        return Err("no frame on the bus".into());
+    }
+    for &node in nodes {
+        let id = 0x700 + node;
+        let own: Vec<_> = frames.iter().filter(|(_, i, _)| *i == id).collect();
+        let Some(((_, _, first), rest)) = own.split_first() else {
+            return Err(format!("node {node} sent no boot-up message on {id:03X}h"));
+        };
+        if first != "00" {
+            return Err(format!(
+                "node {node}'s first message on {id:03X}h carries {first}, not the boot-up 00"
+            ));
+        }
+        if rest.len() < 2 || rest.iter().any(|(_, _, data)| data != "7F") {
+            return Err(format!(
+                "node {node} did not follow its boot-up with heartbeats in pre-operational \
+                 (7F): {rest:?}"
+            ));
+        }
+        for pair in rest.windows(2) {
+            let gap_ms = (pair[1].0 - pair[0].0) * 1e3;
+            if (gap_ms - period_ms as f64).abs() > 1.0 {
+                return Err(format!(
+                    "node {node}'s heartbeats came {gap_ms:.3} ms apart, not every {period_ms} ms"
+                ));
+            }
+        }
+    }
+    if let Some((at, id, data)) = frames
+        .iter()
+        .find(|(_, id, _)| !nodes.iter().any(|node| *id == 0x700 + node))
+    {
+        return Err(format!(
+            "an unexpected frame {id:03X}#{data} at {at:.6} s: an unconfigured node sends only \
+             its boot-up and heartbeats"
+        ));
+    }
+    Ok(())
+}
+
+/// `cargo xtask test`'s check of both nodes' shipped images on one emulated bus (both
+/// protocols): the four MCUs start, each node's channels link up over their USART3s and stay
+/// linked, each node announces itself and keeps its heartbeat, no channel logs a fault or a
+/// safe state, none stops; and the same images give the same trace and the same logs twice.
+pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
+    crate::run(cargo().current_dir(root).args([
+        "build",
+        "--quiet",
+        "--release",
+        "-p",
+        "emulator",
+        "--bin",
+        "emulate-network",
+    ]))?;
+    let emulate = root.join("target/release/emulate-network");
+    let period_ms = default_heartbeat_ms()?;
+    let scratch = root.join("target/emulate-network");
+    std::fs::create_dir_all(&scratch)?;
+    for protocol in [Protocol::CanopenSafety, Protocol::Simplecan] {
+        let layer = protocol.hardware_layer();
+        let mut runs = Vec::new();
+        for run in 0..2 {
+            let candump = scratch.join(format!("{protocol:?}-{run}.log"));
+            let output = std::process::Command::new(&emulate)
+                .arg(images::image(cross, root, layer, "a"))
+                .arg(images::image(cross, root, layer, "b"))
+                .args(["--for", NETWORK_CHECK, "--inputs-closed", "--candump"])
+                .arg(&candump)
+                .output()?;
+            let log = String::from_utf8_lossy(&output.stdout).into_owned();
+            let trace = std::fs::read_to_string(&candump)?;
+            let troubled = log
+                .lines()
+                .filter(|line| line.contains("Fault") || line.contains("SafeState"))
+                .collect::<Vec<_>>();
+            let verdict = if !output.status.success() {
+                Err("an MCU stopped, or the network could not start".to_owned())
+            } else if !troubled.is_empty() {
+                Err(format!("channels logged faults: {troubled:?}"))
+            } else {
+                check_start_up_trace(&trace, &[1, 33], period_ms)
+            };
+            if let Err(why) = verdict {
+                anyhow::bail!(
+                    "{protocol:?}: both nodes' shipped images on one emulated bus: {why}\n{log}{}",
+                    String::from_utf8_lossy(&output.stderr)
+                );
+            }
+            // The speed line is the host's; everything else is the emulation's.
+            let emulated: Vec<String> = log
+                .lines()
+                .filter(|line| !line.contains("host time"))
+                .map(str::to_owned)
+                .collect();
+            if let Some(speed) = log.lines().find(|line| line.contains("host time")) {
+                println!("xtask: {protocol:?}: {speed}");
+            }
+            runs.push((emulated, trace));
+        }
+        if runs[0] != runs[1] {
+            anyhow::bail!(
+                "{protocol:?}: two runs of the same images on the emulated network differ \
+                 (logs or bus trace): the emulation is not deterministic"
+            );
+        }
+        println!(
+            "xtask: {protocol:?}: both nodes started on one emulated bus, links up, heartbeats \
+             every {period_ms} ms, no fault; two runs identical"
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TRACE: &str = "(0.288713) vcan0 701#00\n(0.288827) vcan0 721#00\n\
+                         (0.388715) vcan0 721#7F\n(0.388833) vcan0 701#7F\n\
+                         (0.488717) vcan0 701#7F\n(0.488833) vcan0 721#7F\n\
+                         (0.588725) vcan0 701#7F\n(0.588841) vcan0 721#7F\n";
+
+    #[test]
+    fn cia301_7_2_8_3_2_boot_up_then_steady_heartbeats_pass() {
+        assert_eq!(check_start_up_trace(TRACE, &[1, 33], 100), Ok(()));
+    }
+
+    #[test]
+    fn cia301_7_2_8_3_2_late_heartbeat_or_missing_boot_up_or_stray_frame_fails() {
+        let late = TRACE.replace("(0.588725) vcan0 701#7F", "(0.590725) vcan0 701#7F");
+        assert!(check_start_up_trace(&late, &[1, 33], 100).is_err());
+        let no_boot = TRACE.replace("(0.288713) vcan0 701#00\n", "");
+        assert!(check_start_up_trace(&no_boot, &[1, 33], 100).is_err());
+        let stray = format!("{TRACE}(0.6) vcan0 181#01\n");
+        assert!(check_start_up_trace(&stray, &[1, 33], 100).is_err());
+        assert!(check_start_up_trace(TRACE, &[1, 33, 5], 100).is_err());
+    }
+
+    #[test]
+    fn the_heartbeat_time_comes_from_the_device_description() {
+        assert!(default_heartbeat_ms().is_ok_and(|ms| ms > 0));
+    }
+}

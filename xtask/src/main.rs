@@ -104,8 +104,13 @@ enum Task {
     /// One shipped hardware image alone on the emulated STM32F405 (the `emulator` crate:
     /// Unicorn with the F405's peripherals modelled from RM0090), its defmt log decoded; ends
     /// with how the run ended and the emulation speed. Fails when the run stops early (an
-    /// access no model claims, a HardFault, a reset).
+    /// access no model claims, a HardFault, a reset). With `--network`, both nodes' four
+    /// shipped images on one emulated CAN bus, each node's channels linked by USART3.
     Emulate {
+        /// The four shipped images (nodes 1 and 33, channels A and B) on one emulated bus
+        /// instead of one image alone.
+        #[arg(long)]
+        network: bool,
         /// Which channel's image: `a` or `b`.
         #[arg(long, value_parser = ["a", "b"], default_value = "a")]
         channel: String,
@@ -351,10 +356,17 @@ fn task() -> Result<()> {
             protocol,
         ),
         Task::Emulate {
+            network: true,
+            duration,
+            protocol,
+            ..
+        } => emulate::network_task(&root, &duration, protocol),
+        Task::Emulate {
             channel,
             duration,
             node_id,
             protocol,
+            network: false,
         } => emulate::task(&root, &channel, &duration, node_id, protocol),
         Task::Qemu {
             channel,
@@ -559,6 +571,8 @@ fn test(root: &Path) -> Result<()> {
     images::build(root, &cross)?;
     step("each shipped image alone on the emulated STM32F405, to its start-up self-tests");
     emulate::startup_checks(root, &cross)?;
+    step("both nodes' shipped images on one emulated bus, their links on USART3");
+    emulate::network_checks(root, &cross)?;
     step("each image alone under QEMU, to its self-test verdict");
     toolchain::ensure_qemu()?;
     qemu::build(root, &cross)?;

@@ -25,7 +25,7 @@ struct Cli {
     /// The sealed ELF image (`cargo xtask build` writes them).
     image: PathBuf,
     /// Virtual time to run for: `500ms`, `2s`, `1500us`.
-    #[arg(long = "for", default_value = "1s", value_parser = parse_duration)]
+    #[arg(long = "for", default_value = "1s", value_parser = emulator::time::parse_duration)]
     duration: Nanos,
     /// Make the HSE crystal fail to start (RCC_CR.HSERDY never sets).
     #[arg(long)]
@@ -37,30 +37,6 @@ struct Cli {
     /// Close the channel's safety input contact (PC0 driven high).
     #[arg(long)]
     input_closed: bool,
-}
-
-/// `<number><unit>` with unit `s`, `ms` or `us`.
-fn parse_duration(text: &str) -> Result<Nanos, String> {
-    let (number, scale) = if let Some(number) = text.strip_suffix("ms") {
-        (number, 1_000_000)
-    } else if let Some(number) = text.strip_suffix("us") {
-        (number, 1_000)
-    } else if let Some(number) = text.strip_suffix('s') {
-        (number, 1_000_000_000)
-    } else {
-        return Err(format!(
-            "`{text}` is not a duration: give a number and a unit, e.g. 500ms, 2s, 1500us"
-        ));
-    };
-    let value: f64 = number
-        .parse()
-        .map_err(|_| format!("`{number}` in `{text}` is not a number"))?;
-    if !(value > 0.0 && value <= 3600.0 * 1e9 / scale as f64) {
-        return Err(format!(
-            "`{text}`: the duration must be positive and at most an hour"
-        ));
-    }
-    Ok((value * scale as f64) as Nanos)
 }
 
 fn main() -> ExitCode {
@@ -121,7 +97,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     let host = started.elapsed().as_secs_f64();
     let virtual_seconds = machine.now() as f64 / 1e9;
     let ok = match &outcome {
-        Outcome::Elapsed => {
+        Outcome::Elapsed | Outcome::Yielded => {
             let pc = machine.register(emulator::cpu::Register::PC);
             println!(
                 "emulate: ran the full {:.3} s of virtual time; at the end the core {} {}",

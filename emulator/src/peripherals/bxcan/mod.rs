@@ -394,6 +394,13 @@ impl Can {
         (0..3).find(|&index| self.mailboxes[index].state == MailboxState::Transmitting)
     }
 
+    /// How many transmit requests the mailboxes have taken since reset (TXRQ set in an
+    /// empty mailbox, RM0090 32.7.1): a bus model compares it around an access to see a
+    /// request at the instant it is made.
+    pub fn transmit_requests(&self) -> u64 {
+        self.next_order
+    }
+
     /// The frame the controller would start on the bus now: its highest-priority pending
     /// mailbox, in normal mode, not bus-off, not silent, not in loop-back, and not already
     /// transmitting.

@@ -1,0 +1,178 @@
+//! `emulate-network`: the shipped images of two safety nodes (channels A and B of each) on
+//! one emulated CAN bus in one process, each node's two channels linked by their USART3s,
+//! for a span of virtual time; prints every MCU's decoded log, the frames on the bus and how
+//! each MCU's run ended. `cargo xtask emulate --network` builds the images and calls it.
+
+use std::io::Write as _;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use emulator::image::Image;
+use emulator::log::LogTable;
+use emulator::network::{Event, Member, Network};
+use emulator::peripherals::rcc;
+use emulator::time::Nanos;
+
+/// The command line.
+#[derive(Parser)]
+#[command(
+    name = "emulate-network",
+    about = "Run the sealed images of two nodes (channels A and B each) on one emulated CAN bus"
+)]
+struct Cli {
+    /// Channel A's sealed image.
+    image_a: PathBuf,
+    /// Channel B's sealed image.
+    image_b: PathBuf,
+    /// Virtual time to run for: `500ms`, `2s`, `1500us`.
+    #[arg(long = "for", default_value = "2s", value_parser = emulator::time::parse_duration)]
+    duration: Nanos,
+    /// The node-IDs of the nodes (their switches), comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1u8, 33u8])]
+    nodes: Vec<u8>,
+    /// The bus's bit rate.
+    #[arg(long, default_value_t = 500_000)]
+    bit_rate: u32,
+    /// Close every channel's safety input contact at power-on.
+    #[arg(long)]
+    inputs_closed: bool,
+    /// Write the frames on the bus as a candump log here.
+    #[arg(long)]
+    candump: Option<PathBuf>,
+    /// Print no MCU log lines, only the summary.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(&cli) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::FAILURE,
+        Err(error) => {
+            eprintln!("emulate-network: {error}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Runs the network; `Ok(false)` when an MCU stopped before the end.
+fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
+    let image_a = Image::load(&cli.image_a)?;
+    let image_b = Image::load(&cli.image_b)?;
+    for image in [&image_a, &image_b] {
+        println!(
+            "emulate-network: {}: sealed image, CRC {:08X}h",
+            image.path.display(),
+            image.crc
+        );
+    }
+    let tables = [
+        LogTable::from_elf(&image_a.elf)?,
+        LogTable::from_elf(&image_b.elf)?,
+    ];
+    let mut members = Vec::new();
+    for &node in &cli.nodes {
+        if !(1..=127).contains(&node) {
+            return Err(format!("node-ID {node} is not one of 1 to 127").into());
+        }
+        for (channel, image) in [("a", &image_a), ("b", &image_b)] {
+            members.push(Member {
+                name: format!("node{node}{channel}"),
+                image: image.clone(),
+                node_id: Some(node),
+                input_closed: cli.inputs_closed,
+                hse: rcc::BOARD_HSE,
+            });
+        }
+    }
+    let mut network = Network::new(members, cli.bit_rate)?;
+    for pair in 0..cli.nodes.len() {
+        network.link(2 * pair, 2 * pair + 1);
+    }
+    let names: Vec<String> = network.names().map(str::to_owned).collect();
+    let mut decoders: Vec<_> = (0..names.len())
+        .map(|mcu| tables[mcu % 2].decoder())
+        .collect();
+    let mut candump = match &cli.candump {
+        Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path)?)),
+        None => None,
+    };
+    let started = std::time::Instant::now();
+    let slice: Nanos = 10_000_000;
+    let mut frames = vec![0u64; names.len() + 1];
+    let mut stopped = false;
+    while network.now() < cli.duration {
+        network.run_until((network.now() + slice).min(cli.duration));
+        for mcu in 0..names.len() {
+            for (at, bytes) in network.take_log(mcu) {
+                for line in decoders[mcu].feed(at, &bytes) {
+                    if !cli.quiet {
+                        println!("{:<8} {line}", names[mcu]);
+                    }
+                }
+            }
+        }
+        for event in network.take_events() {
+            match event {
+                Event::Frame { at, from, frame } => {
+                    let index = names.iter().position(|n| *n == from).unwrap_or(names.len());
+                    frames[index] += 1;
+                    if let Some(out) = candump.as_mut() {
+                        writeln!(
+                            out,
+                            "{}",
+                            can_hub::trace::candump_line(at / 1_000, "vcan0", &frame)
+                        )?;
+                    }
+                }
+                Event::Output { at, mcu, on } => println!(
+                    "{:<8} {:>12.6} ms output {}",
+                    names[mcu],
+                    at as f64 / 1e6,
+                    if on { "on" } else { "off" }
+                ),
+                Event::Stopped { mcu, stop, at } => {
+                    stopped = true;
+                    println!(
+                        "{:<8} stopped at {:.6} ms of virtual time: {stop}",
+                        names[mcu],
+                        at as f64 / 1e6
+                    );
+                }
+                Event::Refused { mcu, at, frame } => println!(
+                    "{:<8} {:>12.6} ms sent {frame:?}, which the bus model cannot carry (an \
+                     extended identifier): ended with a form error",
+                    names[mcu],
+                    at as f64 / 1e6
+                ),
+            }
+        }
+    }
+    let host = started.elapsed().as_secs_f64();
+    let virtual_seconds = network.now() as f64 / 1e9;
+    for (mcu, name) in names.iter().enumerate() {
+        let machine = network.machine(mcu);
+        println!(
+            "emulate-network: {name}: {} instructions, {} frames sent, output {}{}",
+            machine.instructions(),
+            frames[mcu],
+            if network.output(mcu) { "on" } else { "off" },
+            if network.stopped(mcu) {
+                ", stopped"
+            } else {
+                ""
+            }
+        );
+    }
+    println!(
+        "emulate-network: {:.3} s of virtual time in {:.3} s of host time: {:.3} s of virtual \
+         time per host second for {} MCUs",
+        virtual_seconds,
+        host,
+        virtual_seconds / host.max(1e-9),
+        names.len()
+    );
+    Ok(!stopped)
+}

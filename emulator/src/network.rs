@@ -1,0 +1,575 @@
+//! Emulated MCUs on one CAN bus in one process, in one deterministic virtual time: each
+//! MCU's bxCAN on the bus model the host simulation and the hub use ([`can_hub::bus`]:
+//! arbitration by identifier, bit time with stuff bits, the hub's fault vocabulary), the two
+//! channels of a node with their USART3s crossed (the link), inputs driven and outputs
+//! observed.
+//!
+//! # Time
+//! The MCUs run in lockstep rounds of at most one [`Network::quantum`] of virtual time; no
+//! MCU is ever more than a round ahead of another. Nothing one MCU does reaches another
+//! sooner than a round: a link word arrives a whole word time after it starts (one word at
+//! the link's 1 Mbit/s is the default round), a CAN frame no sooner than the shortest frame
+//! after its arbitration. So every word and every frame reaches its receivers at the instant
+//! the models compute, never after they have run past it. A transmit request ends its MCU's
+//! round at once ([`Machine::yield_on_transmit_request`]) so that arbitration on an idle bus
+//! starts at the instant of the request; what the model does not resolve is the order of two
+//! requests within one round on an idle bus: they arbitrate together, by identifier, as if
+//! made at the first one's instant.
+//!
+//! # Determinism
+//! The MCUs run in a fixed order, the bus is the hub's deterministic model, every event is
+//! ordered by time and then by MCU: the same images, inputs and faults give the same trace.
+
+use can_hub::bus::{Bus, Delivery};
+use shared::{CanFrame, CanId, Instant};
+
+use crate::cpu::{Config, EngineError, Machine};
+use crate::image::Image;
+use crate::peripherals::bxcan::{BusError, Frame, Identifier};
+use crate::peripherals::gpio::Port;
+use crate::peripherals::rcc::Hse;
+use crate::stop::{Outcome, Stop};
+use crate::time::Nanos;
+
+/// One round of the lockstep, by default: one word on the link at 1 Mbit/s (10 bit times).
+pub const DEFAULT_QUANTUM: Nanos = 10_000;
+
+/// The node-ID switches: PC2 (bit 0) to PC8 (bit 6), closed = driven high (`board::hw`).
+const NODE_ID_PINS: usize = 2;
+/// The channel's safety input contact, closed = high (`board::hw`).
+const INPUT_PIN: usize = 0;
+/// The channel's safety output, 1 = the relay enabled (`board::hw`).
+const OUTPUT_PIN: usize = 1;
+
+/// One MCU of the network, before it starts.
+pub struct Member {
+    /// Its name in traces and reports (`node1a`).
+    pub name: String,
+    /// The sealed image it runs.
+    pub image: Image,
+    /// The node-ID its switches are set to (`None`: all open).
+    pub node_id: Option<u8>,
+    /// Whether its safety input contact is closed at power-on.
+    pub input_closed: bool,
+    /// Its crystal.
+    pub hse: Hse,
+}
+
+/// What happened in the network, in time order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Event {
+    /// A frame ended on the bus (its sender named; external participants by their
+    /// participant number).
+    Frame {
+        /// When its last bit ended, as the receivers got it.
+        at: Nanos,
+        /// The sender's name.
+        from: String,
+        /// The frame as the receivers got it.
+        frame: CanFrame,
+    },
+    /// An MCU's safety output changed.
+    Output {
+        /// When the network saw it (the end of the round it changed in).
+        at: Nanos,
+        /// The MCU.
+        mcu: usize,
+        /// The relay enabled.
+        on: bool,
+    },
+    /// An MCU stopped: a fault, a lockup, an unclaimed access, a reset it asked for or the
+    /// watchdog's. It runs no further.
+    Stopped {
+        /// The MCU.
+        mcu: usize,
+        /// Why.
+        stop: Stop,
+        /// When.
+        at: Nanos,
+    },
+    /// An MCU's CAN controller put a frame on the bus that the bus model cannot carry (an
+    /// extended identifier): the bus carries only CAN 2.0A frames. The frame is ended with
+    /// a form error on the sender's side.
+    Refused {
+        /// The MCU.
+        mcu: usize,
+        /// When.
+        at: Nanos,
+        /// The frame.
+        frame: Frame,
+    },
+}
+
+/// Why the network could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum NetworkError {
+    /// Unicorn could not be set up for an MCU.
+    #[error("{name}: {error}")]
+    Engine {
+        /// The MCU.
+        name: String,
+        /// What failed.
+        error: EngineError,
+    },
+    /// An MCU could not be reset into its image (no vector table, for one).
+    #[error("{name}: {stop}")]
+    Reset {
+        /// The MCU.
+        name: String,
+        /// Why.
+        stop: Stop,
+    },
+}
+
+/// An emulated MCU in the network.
+struct Mcu {
+    name: String,
+    machine: Machine,
+    /// The MCU whose USART3 RX its USART3 TX drives, while the link is not cut.
+    peer: Option<usize>,
+    link_cut: bool,
+    stopped: bool,
+    output: bool,
+    /// When its current offer was first seen by the bus (a transmit request in this round,
+    /// or an older offer waiting since the start of the round).
+    offering_since: Option<Nanos>,
+    /// The end of its frame on the bus, while it is transmitting: (end, outcome).
+    transmitting: Option<(Nanos, Conclusion)>,
+    log: Vec<(Nanos, Vec<u8>)>,
+}
+
+/// How a transmission ends for its sender.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Conclusion {
+    /// Sent and acknowledged.
+    Sent,
+    /// Nobody acknowledged it (the sender is cut off the bus: the hub's `mute`).
+    NotAcknowledged,
+    /// The bus model cannot carry it.
+    Form,
+}
+
+/// The network.
+pub struct Network {
+    mcus: Vec<Mcu>,
+    bus: Bus,
+    now: Nanos,
+    quantum: Nanos,
+    /// Frames on their way to the receivers.
+    deliveries: Vec<Delivery>,
+    /// External participants (tools), numbered after the MCUs, by name.
+    externals: Vec<String>,
+    /// Frames delivered to external participants: (participant, delivery).
+    external_frames: Vec<(usize, Delivery)>,
+    events: Vec<Event>,
+}
+
+fn instant(at: Nanos) -> Instant {
+    Instant::from_micros(at.div_ceil(1_000))
+}
+
+fn nanos(at: Instant) -> Nanos {
+    at.as_micros() * 1_000
+}
+
+/// The frame as the bus model carries it; `None` for an extended identifier.
+fn to_bus(frame: &Frame) -> Option<CanFrame> {
+    let Identifier::Standard(id) = frame.id else {
+        return None;
+    };
+    let id = CanId::new(id).ok()?;
+    if frame.remote {
+        CanFrame::remote(id, frame.dlc.min(8)).ok()
+    } else {
+        CanFrame::new(id, &frame.data[..frame.data_len()]).ok()
+    }
+}
+
+/// The frame as a CAN controller receives it.
+fn from_bus(frame: &CanFrame) -> Frame {
+    let id = Identifier::Standard(frame.id().raw());
+    if frame.is_remote() {
+        Frame::remote(id, frame.dlc())
+    } else {
+        Frame::data(id, frame.data())
+    }
+}
+
+impl Network {
+    /// The MCUs powered on at virtual time 0, on a bus at `bit_rate`, no links wired yet.
+    pub fn new(members: Vec<Member>, bit_rate: u32) -> Result<Network, NetworkError> {
+        let mut mcus = Vec::with_capacity(members.len());
+        for member in members {
+            let engine = |error| NetworkError::Engine {
+                name: member.name.clone(),
+                error,
+            };
+            let mut machine = Machine::new(Config { hse: member.hse }).map_err(engine)?;
+            machine.load(&member.image).map_err(engine)?;
+            {
+                let mut port_c = machine.gpio(Port::C);
+                for bit in 0..7 {
+                    let closed = member.node_id.is_some_and(|id| id & (1 << bit) != 0);
+                    port_c.drive(NODE_ID_PINS + bit, Some(closed));
+                }
+                port_c.drive(INPUT_PIN, Some(member.input_closed));
+            }
+            machine.reset().map_err(|stop| NetworkError::Reset {
+                name: member.name.clone(),
+                stop,
+            })?;
+            machine.yield_on_transmit_request(true);
+            mcus.push(Mcu {
+                name: member.name,
+                machine,
+                peer: None,
+                link_cut: false,
+                stopped: false,
+                output: false,
+                offering_since: None,
+                transmitting: None,
+                log: Vec::new(),
+            });
+        }
+        let mut bus = Bus::new(bit_rate, mcus.len());
+        // Each MCU offers one frame at a time (its controller's best pending mailbox); a
+        // tool's frames compete by identifier, as the hub queues them.
+        bus.set_transmit_mailboxes(can_hub::bus::ORDERED_BY_IDENTIFIER);
+        Ok(Network {
+            mcus,
+            bus,
+            now: 0,
+            quantum: DEFAULT_QUANTUM,
+            deliveries: Vec::new(),
+            externals: Vec::new(),
+            external_frames: Vec::new(),
+            events: Vec::new(),
+        })
+    }
+
+    /// Crosses the USART3s of MCUs `a` and `b` (the link between a node's two channels).
+    pub fn link(&mut self, a: usize, b: usize) {
+        self.mcus[a].peer = Some(b);
+        self.mcus[b].peer = Some(a);
+        self.mcus[a].machine.wire_usart();
+        self.mcus[b].machine.wire_usart();
+    }
+
+    /// Cuts (or mends) the link wire from MCU `mcu`'s TX: its words are lost while cut.
+    pub fn cut_link(&mut self, mcu: usize, cut: bool) {
+        self.mcus[mcu].link_cut = cut;
+    }
+
+    /// The longest round, in virtual nanoseconds.
+    pub fn quantum(&self) -> Nanos {
+        self.quantum
+    }
+
+    /// Virtual time now: every MCU has run at least this far.
+    pub fn now(&self) -> Nanos {
+        self.now
+    }
+
+    /// The MCUs' names, in their order.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.mcus.iter().map(|mcu| mcu.name.as_str())
+    }
+
+    /// MCU `mcu`'s machine (for reports: instructions, registers, the flash accelerator).
+    pub fn machine(&self, mcu: usize) -> &Machine {
+        &self.mcus[mcu].machine
+    }
+
+    /// Whether MCU `mcu` stopped.
+    pub fn stopped(&self, mcu: usize) -> bool {
+        self.mcus[mcu].stopped
+    }
+
+    /// The bus (faults are injected here, with the hub's vocabulary).
+    pub fn bus_mut(&mut self) -> &mut Bus {
+        &mut self.bus
+    }
+
+    /// Opens or closes MCU `mcu`'s safety input contact.
+    pub fn set_input(&mut self, mcu: usize, closed: bool) {
+        self.mcus[mcu]
+            .machine
+            .gpio(Port::C)
+            .drive(INPUT_PIN, Some(closed));
+    }
+
+    /// MCU `mcu`'s safety output: the relay enabled.
+    pub fn output(&self, mcu: usize) -> bool {
+        self.mcus[mcu].output
+    }
+
+    /// A participant that is not an MCU (a tool on the socketcand port, a load generator):
+    /// its number for [`Network::send`] and in [`Network::take_external_frames`].
+    pub fn join_external(&mut self, name: &str) -> usize {
+        self.externals.push(name.to_owned());
+        self.mcus.len() + self.externals.len() - 1
+    }
+
+    /// Queues `frame` from external participant `from` (by identifier, after the frames it
+    /// queued before at the same identifier).
+    pub fn send(&mut self, from: usize, frame: CanFrame) {
+        self.bus.send(from, frame);
+    }
+
+    /// Frames the bus delivered to external participants since the last call, with the
+    /// participant and the time each ended (every frame but the participant's own).
+    pub fn take_external_frames(&mut self) -> Vec<(usize, Delivery)> {
+        std::mem::take(&mut self.external_frames)
+    }
+
+    /// What happened since the last call, in time order.
+    pub fn take_events(&mut self) -> Vec<Event> {
+        std::mem::take(&mut self.events)
+    }
+
+    /// MCU `mcu`'s RTT bytes since the last call, with the time of each drain (decode them
+    /// with its image's [`crate::log::LogTable`]).
+    pub fn take_log(&mut self, mcu: usize) -> Vec<(Nanos, Vec<u8>)> {
+        std::mem::take(&mut self.mcus[mcu].log)
+    }
+
+    /// The name of participant `from` (an MCU or an external participant).
+    pub fn participant_name(&self, from: usize) -> String {
+        match self.mcus.get(from) {
+            Some(mcu) => mcu.name.clone(),
+            None => self
+                .externals
+                .get(from - self.mcus.len())
+                .cloned()
+                .unwrap_or_else(|| format!("participant {from}")),
+        }
+    }
+
+    /// The next instant the bus needs the MCUs to be at: a delivery or the end of a
+    /// transmission.
+    fn next_bus_event(&self) -> Option<Nanos> {
+        let deliveries = self.deliveries.iter().map(|d| nanos(d.at));
+        let ends = self
+            .mcus
+            .iter()
+            .filter_map(|mcu| mcu.transmitting.map(|(end, _)| end));
+        deliveries.chain(ends).min()
+    }
+
+    /// Runs every MCU until virtual time `end`.
+    pub fn run_until(&mut self, end: Nanos) {
+        while self.now < end {
+            let mut horizon = (self.now + self.quantum).min(end);
+            if let Some(at) = self.next_bus_event() {
+                horizon = horizon.min(at.max(self.now + 1));
+            }
+            self.round(horizon);
+        }
+    }
+
+    /// One round: every MCU runs to `horizon`, then the bus and the links catch up.
+    fn round(&mut self, horizon: Nanos) {
+        let round_start = self.now;
+        for index in 0..self.mcus.len() {
+            let mcu = &mut self.mcus[index];
+            if mcu.stopped {
+                continue;
+            }
+            if mcu.offering_since.is_none() && mcu.machine.can().borrow().offer().is_some() {
+                mcu.offering_since = Some(round_start);
+            }
+            loop {
+                match mcu.machine.run_until(horizon) {
+                    Outcome::Elapsed => break,
+                    Outcome::Yielded => {
+                        if mcu.offering_since.is_none() {
+                            mcu.offering_since = Some(mcu.machine.now());
+                        }
+                    }
+                    Outcome::Stopped { stop, at } => {
+                        mcu.stopped = true;
+                        self.events.push(Event::Stopped {
+                            mcu: index,
+                            stop,
+                            at,
+                        });
+                        break;
+                    }
+                }
+            }
+            let mcu = &mut self.mcus[index];
+            mcu.log.extend(mcu.machine.take_log());
+            let output = mcu.machine.gpio(Port::C).output_level(OUTPUT_PIN) == Some(true);
+            if output != mcu.output {
+                mcu.output = output;
+                self.events.push(Event::Output {
+                    at: horizon,
+                    mcu: index,
+                    on: output,
+                });
+            }
+        }
+        self.now = horizon;
+        self.links();
+        self.conclude_transmissions();
+        self.deliver();
+        self.arbitrate();
+    }
+
+    /// Link words to the peers' RX, at the end of their stop bits.
+    fn links(&mut self) {
+        for index in 0..self.mcus.len() {
+            let words = self.mcus[index].machine.take_usart_words();
+            let (Some(peer), false) = (self.mcus[index].peer, self.mcus[index].link_cut) else {
+                continue;
+            };
+            if self.mcus[peer].stopped {
+                continue;
+            }
+            for word in words {
+                self.mcus[peer].machine.usart_receive(word.word, word.end);
+            }
+        }
+    }
+
+    /// Transmissions whose frame ended by now: the sender learns the outcome.
+    fn conclude_transmissions(&mut self) {
+        for mcu in &mut self.mcus {
+            let Some((end, conclusion)) = mcu.transmitting else {
+                continue;
+            };
+            if end > self.now {
+                continue;
+            }
+            mcu.transmitting = None;
+            {
+                let can = mcu.machine.can();
+                let mut can = can.borrow_mut();
+                match conclusion {
+                    Conclusion::Sent => can.transmitted(end),
+                    Conclusion::NotAcknowledged => can.error(BusError::Acknowledgment, end),
+                    Conclusion::Form => can.error(BusError::Form, end),
+                }
+            }
+            mcu.machine.can_changed();
+        }
+    }
+
+    /// Frames that reached their receivers by now.
+    fn deliver(&mut self) {
+        let now = instant(self.now);
+        let (due, later): (Vec<_>, Vec<_>) = self.deliveries.drain(..).partition(|d| d.at <= now);
+        self.deliveries = later;
+        for delivery in due {
+            let at = nanos(delivery.at);
+            self.events.push(Event::Frame {
+                at,
+                from: self.participant_name(delivery.from),
+                frame: delivery.frame,
+            });
+            let frame = from_bus(&delivery.frame);
+            for (index, mcu) in self.mcus.iter_mut().enumerate() {
+                if index == delivery.from || mcu.stopped {
+                    continue;
+                }
+                mcu.machine.can().borrow_mut().deliver(&frame, at);
+                mcu.machine.can_changed();
+            }
+            for external in 0..self.externals.len() {
+                let participant = self.mcus.len() + external;
+                if participant != delivery.from {
+                    self.external_frames.push((participant, delivery));
+                }
+            }
+        }
+    }
+
+    /// When the bus is free: the MCUs' offers join the tools' queued frames, and the lowest
+    /// identifier starts at the earliest instant an offer was made (not before the bus was
+    /// free).
+    fn arbitrate(&mut self) {
+        let free_at = nanos(self.bus.free_at());
+        if free_at > self.now {
+            return;
+        }
+        let mut earliest: Option<Nanos> = None;
+        let mut offers: Vec<Option<CanFrame>> = vec![None; self.mcus.len()];
+        for (index, mcu) in self.mcus.iter_mut().enumerate() {
+            self.bus.leave(index);
+            let offer = if mcu.stopped {
+                None
+            } else {
+                mcu.machine.can().borrow().offer()
+            };
+            let Some(offer) = offer else {
+                mcu.offering_since = None;
+                continue;
+            };
+            let since = mcu.offering_since.unwrap_or(self.now);
+            earliest = Some(earliest.map_or(since, |e| e.min(since)));
+            match to_bus(&offer) {
+                Some(frame) => {
+                    offers[index] = Some(frame);
+                    self.bus.send(index, frame);
+                }
+                None => {
+                    // Ended at once with a form error for its sender; it never wins.
+                    let start = since.max(free_at);
+                    let can = mcu.machine.can();
+                    can.borrow_mut().start_transmission(start);
+                    mcu.transmitting = Some((start + 1, Conclusion::Form));
+                    mcu.offering_since = None;
+                    self.events.push(Event::Refused {
+                        mcu: index,
+                        at: start,
+                        frame: offer,
+                    });
+                }
+            }
+        }
+        let externals_waiting = (self.mcus.len()..self.mcus.len() + self.externals.len())
+            .any(|p| self.bus.queued(p) > 0);
+        if externals_waiting {
+            earliest = Some(earliest.map_or(self.now, |e| e.min(self.now)));
+        }
+        let Some(earliest) = earliest else {
+            return;
+        };
+        let start = instant(earliest.max(free_at));
+        self.bus.arbitrate_into(start, &mut self.deliveries);
+        let end = self.bus.free_at();
+        let winner = (0..self.mcus.len()).find(|&i| offers[i].is_some() && self.bus.queued(i) == 0);
+        let start_nanos = nanos(start);
+        for (index, mcu) in self.mcus.iter_mut().enumerate() {
+            let Some(offer) = offers[index] else {
+                continue;
+            };
+            let can = mcu.machine.can();
+            let mut can = can.borrow_mut();
+            can.start_transmission(start_nanos);
+            if Some(index) == winner {
+                let (conclude_at, conclusion) = if end <= start {
+                    // The hub's `mute`: the frame never reaches the bus (the bus stays
+                    // free), so nobody acknowledges it; the sender's error comes at the ACK
+                    // slot, about the frame's length later.
+                    let bits = u64::from(can_hub::bus::frame_bits(&offer));
+                    (
+                        start_nanos + bits * 1_000_000_000 / u64::from(self.bus.bit_rate()),
+                        Conclusion::NotAcknowledged,
+                    )
+                } else {
+                    (nanos(end), Conclusion::Sent)
+                };
+                mcu.transmitting = Some((conclude_at, conclusion));
+                mcu.offering_since = None;
+            } else {
+                // Lost arbitration within the identifier (RM0090 32.7.1: ALST); it stays
+                // pending and competes again when the bus is free.
+                can.lost_arbitration(start_nanos);
+                drop(can);
+                mcu.machine.can_changed();
+            }
+            self.bus.leave(index);
+        }
+    }
+}
