@@ -14,6 +14,7 @@
 //! - [`image`], [`rtt`], [`log`]: the sealed image loaded, its defmt log drained from RTT and
 //!   decoded.
 
+pub mod cases;
 pub mod cpu;
 pub mod image;
 pub mod log;
@@ -24,3 +25,4 @@ pub mod rtt;
 pub mod stop;
 pub mod system;
 pub mod time;
+pub mod tool_port;

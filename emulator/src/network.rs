@@ -159,8 +159,8 @@ pub struct Network {
     deliveries: Vec<Delivery>,
     /// External participants (tools), numbered after the MCUs, by name.
     externals: Vec<String>,
-    /// Frames delivered to external participants: (participant, delivery).
-    external_frames: Vec<(usize, Delivery)>,
+    /// Frames delivered to each external participant, oldest first.
+    inboxes: Vec<std::collections::VecDeque<Delivery>>,
     events: Vec<Event>,
 }
 
@@ -242,7 +242,7 @@ impl Network {
             quantum: DEFAULT_QUANTUM,
             deliveries: Vec::new(),
             externals: Vec::new(),
-            external_frames: Vec::new(),
+            inboxes: Vec::new(),
             events: Vec::new(),
         })
     }
@@ -307,6 +307,7 @@ impl Network {
     /// its number for [`Network::send`] and in [`Network::take_external_frames`].
     pub fn join_external(&mut self, name: &str) -> usize {
         self.externals.push(name.to_owned());
+        self.inboxes.push(Default::default());
         self.mcus.len() + self.externals.len() - 1
     }
 
@@ -316,10 +317,38 @@ impl Network {
         self.bus.send(from, frame);
     }
 
-    /// Frames the bus delivered to external participants since the last call, with the
-    /// participant and the time each ended (every frame but the participant's own).
-    pub fn take_external_frames(&mut self) -> Vec<(usize, Delivery)> {
-        std::mem::take(&mut self.external_frames)
+    /// The oldest frame the bus delivered to external participant `participant` that it has
+    /// not taken yet (every frame but its own), with the time it ended.
+    pub fn receive(&mut self, participant: usize) -> Option<Delivery> {
+        self.inboxes
+            .get_mut(participant.checked_sub(self.mcus.len())?)?
+            .pop_front()
+    }
+
+    /// Runs until virtual time `end`, or until the end of the round in which a frame reached
+    /// external participant `participant`. Returns whether one did.
+    pub fn run_until_frame_for(&mut self, participant: usize, end: Nanos) -> bool {
+        let Some(index) = participant.checked_sub(self.mcus.len()) else {
+            self.run_until(end);
+            return false;
+        };
+        while self.now < end {
+            if self
+                .inboxes
+                .get(index)
+                .is_some_and(|inbox| !inbox.is_empty())
+            {
+                return true;
+            }
+            let mut horizon = (self.now + self.quantum).min(end);
+            if let Some(at) = self.next_bus_event() {
+                horizon = horizon.min(at.max(self.now + 1));
+            }
+            self.round(horizon);
+        }
+        self.inboxes
+            .get(index)
+            .is_some_and(|inbox| !inbox.is_empty())
     }
 
     /// What happened since the last call, in time order.
@@ -475,10 +504,9 @@ impl Network {
                 mcu.machine.can().borrow_mut().deliver(&frame, at);
                 mcu.machine.can_changed();
             }
-            for external in 0..self.externals.len() {
-                let participant = self.mcus.len() + external;
-                if participant != delivery.from {
-                    self.external_frames.push((participant, delivery));
+            for (external, inbox) in self.inboxes.iter_mut().enumerate() {
+                if self.mcus.len() + external != delivery.from {
+                    inbox.push_back(delivery);
                 }
             }
         }

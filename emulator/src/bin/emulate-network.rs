@@ -43,6 +43,12 @@ struct Cli {
     /// Print no MCU log lines, only the summary.
     #[arg(long)]
     quiet: bool,
+    /// Run the nominal end-to-end case instead of a fixed time: configure both nodes from
+    /// this network file with the configuration tool's library, start them, check that they
+    /// work, open node 1's contacts and time node 33's outputs going off
+    /// (`emulator::cases::nominal`). Needs `--nodes 1,33` (the default) and closed contacts.
+    #[arg(long, value_name = "NETWORK_FILE")]
+    nominal: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -100,8 +106,48 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         None => None,
     };
     let started = std::time::Instant::now();
-    let slice: Nanos = 10_000_000;
     let mut frames = vec![0u64; names.len() + 1];
+    if let Some(path) = &cli.nominal {
+        let text = std::fs::read_to_string(path)
+            .map_err(|error| format!("{}: {error}", path.display()))?;
+        let file = safety_config::network_file::parse(&text, &path.display().to_string())?;
+        let mut trace = Vec::new();
+        let result =
+            emulator::cases::nominal(&mut network, &file, &mut |event| trace.push(event.clone()));
+        network.run_until(network.now() + 100_000_000);
+        trace.extend(network.take_events());
+        let mut stopped = false;
+        for event in &trace {
+            stopped |= print_event(event, &names, &mut frames, candump.as_mut())?;
+        }
+        if !cli.quiet {
+            for mcu in 0..names.len() {
+                for (at, bytes) in network.take_log(mcu) {
+                    for line in decoders[mcu].feed(at, &bytes) {
+                        println!("{:<8} {line}", names[mcu]);
+                    }
+                }
+            }
+        }
+        summary(&network, &names, &frames, started);
+        return match result {
+            Ok(nominal) => {
+                println!(
+                    "emulate-network: nominal case passed: configured in {:.3} s of virtual                      time ({} SDO requests); node 33's outputs off {:.3} ms after node 1's                      contacts opened (bound: the refresh time, {:.0} ms)",
+                    nominal.configured_in as f64 / 1e9,
+                    nominal.sdo_requests,
+                    nominal.reaction as f64 / 1e6,
+                    nominal.bound as f64 / 1e6
+                );
+                Ok(!stopped && nominal.reaction <= nominal.bound)
+            }
+            Err(why) => {
+                println!("emulate-network: nominal case failed: {why}");
+                Ok(false)
+            }
+        };
+    }
+    let slice: Nanos = 10_000_000;
     let mut stopped = false;
     while network.now() < cli.duration {
         network.run_until((network.now() + slice).min(cli.duration));
@@ -115,41 +161,58 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             }
         }
         for event in network.take_events() {
-            match event {
-                Event::Frame { at, from, frame } => {
-                    let index = names.iter().position(|n| *n == from).unwrap_or(names.len());
-                    frames[index] += 1;
-                    if let Some(out) = candump.as_mut() {
-                        writeln!(
-                            out,
-                            "{}",
-                            can_hub::trace::candump_line(at / 1_000, "vcan0", &frame)
-                        )?;
-                    }
-                }
-                Event::Output { at, mcu, on } => println!(
-                    "{:<8} {:>12.6} ms output {}",
-                    names[mcu],
-                    at as f64 / 1e6,
-                    if on { "on" } else { "off" }
-                ),
-                Event::Stopped { mcu, stop, at } => {
-                    stopped = true;
-                    println!(
-                        "{:<8} stopped at {:.6} ms of virtual time: {stop}",
-                        names[mcu],
-                        at as f64 / 1e6
-                    );
-                }
-                Event::Refused { mcu, at, frame } => println!(
-                    "{:<8} {:>12.6} ms sent {frame:?}, which the bus model cannot carry (an \
-                     extended identifier): ended with a form error",
-                    names[mcu],
-                    at as f64 / 1e6
-                ),
-            }
+            stopped |= print_event(&event, &names, &mut frames, candump.as_mut())?;
         }
     }
+    summary(&network, &names, &frames, started);
+    Ok(!stopped)
+}
+
+/// Prints one event (frames go to the candump log only); whether it is an MCU's stop.
+fn print_event(
+    event: &Event,
+    names: &[String],
+    frames: &mut [u64],
+    candump: Option<&mut std::io::BufWriter<std::fs::File>>,
+) -> std::io::Result<bool> {
+    match event {
+        Event::Frame { at, from, frame } => {
+            let index = names.iter().position(|n| n == from).unwrap_or(names.len());
+            frames[index] += 1;
+            if let Some(out) = candump {
+                writeln!(
+                    out,
+                    "{}",
+                    can_hub::trace::candump_line(at / 1_000, "vcan0", frame)
+                )?;
+            }
+        }
+        Event::Output { at, mcu, on } => println!(
+            "{:<8} {:>12.6} ms output {}",
+            names[*mcu],
+            *at as f64 / 1e6,
+            if *on { "on" } else { "off" }
+        ),
+        Event::Stopped { mcu, stop, at } => {
+            println!(
+                "{:<8} stopped at {:.6} ms of virtual time: {stop}",
+                names[*mcu],
+                *at as f64 / 1e6
+            );
+            return Ok(true);
+        }
+        Event::Refused { mcu, at, frame } => println!(
+            "{:<8} {:>12.6} ms sent {frame:?}, which the bus model cannot carry (an extended \
+             identifier): ended with a form error",
+            names[*mcu],
+            *at as f64 / 1e6
+        ),
+    }
+    Ok(false)
+}
+
+/// Each MCU's instructions, frames and output, and the emulation's speed.
+fn summary(network: &Network, names: &[String], frames: &[u64], started: std::time::Instant) {
     let host = started.elapsed().as_secs_f64();
     let virtual_seconds = network.now() as f64 / 1e9;
     for (mcu, name) in names.iter().enumerate() {
@@ -174,5 +237,4 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         virtual_seconds / host.max(1e-9),
         names.len()
     );
-    Ok(!stopped)
 }
