@@ -406,6 +406,14 @@ impl dual_channel::selftest::StartUp for HwStartUp {
 pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let p = embassy_stm32::init(clocks());
     accelerator_on();
+    // Why the MCU started, then the flags cleared (RMVF) so that the next start says its own.
+    let csr = embassy_stm32::pac::RCC.csr().read().0;
+    embassy_stm32::pac::RCC.csr().modify(|w| w.set_rmvf(true));
+    if crate::reset_cause::after_watchdog(csr) {
+        defmt::warn!("reset by {=str}", crate::reset_cause::describe(csr));
+    } else {
+        defmt::info!("reset by {=str}", crate::reset_cause::describe(csr));
+    }
     // The self-tests first, then the watchdog (`dual_channel::selftest::start_up` says why).
     let mut watchdog = match dual_channel::selftest::start_up(HwStartUp { iwdg: p.IWDG }) {
         Ok(watchdog) => watchdog,

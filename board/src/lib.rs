@@ -35,6 +35,7 @@ pub mod parameter_flash;
 pub mod qemu;
 #[cfg(target_os = "none")]
 pub mod ram;
+pub mod reset_cause;
 pub mod stack;
 pub mod transmit_queue;
 

@@ -91,7 +91,7 @@ fn run_until_event(
 fn event_time(event: &Event) -> Nanos {
     match event {
         Event::Frame { at, .. } | Event::Output { at, .. } | Event::Refused { at, .. } => *at,
-        Event::Stopped { at, .. } => *at,
+        Event::Stopped { at, .. } | Event::Reset { at, .. } => *at,
     }
 }
 

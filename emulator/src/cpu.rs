@@ -148,6 +148,7 @@ struct Models {
     usart: Rc<RefCell<Usart>>,
     can: Rc<RefCell<Can>>,
     flash: Rc<RefCell<Flash>>,
+    tim2: Rc<RefCell<Tim2>>,
 }
 
 /// Everything the hooks share: Unicorn's user data.
@@ -193,6 +194,8 @@ pub struct State {
     /// A transmit request ended the run early; [`Machine::run_until`] returns
     /// [`Outcome::Yielded`].
     yielded: bool,
+    /// Until then the core executes nothing and takes no exception ([`Machine::hang`]).
+    hung_until: Nanos,
     /// The flash array as Unicorn holds it (the flash model's array is the reference).
     flash_shadow: Vec<u8>,
     /// Whether the flash model's array may differ from Unicorn's.
@@ -1193,6 +1196,7 @@ impl Machine {
                 usart: usart.clone(),
                 can: can.clone(),
                 flash: flash.clone(),
+                tim2: tim2.clone(),
             },
             stop: None,
             end: 0,
@@ -1214,6 +1218,7 @@ impl Machine {
             usart_out: Vec::new(),
             yield_on_transmit: false,
             yielded: false,
+            hung_until: 0,
             flash_shadow: vec![0xFF; memory::FLASH_SIZE as usize],
             flash_dirty: false,
             flash_busy_until: None,
@@ -1437,11 +1442,43 @@ impl Machine {
         set_reg(uc, RegisterARM::PC, pc);
         let st = uc.get_data_mut();
         st.system = SystemControl::new();
+        st.hung_until = 0;
         st.stop = None;
         st.sleep = None;
         st.event_register = false;
         st.recompute = true;
         Ok(())
+    }
+
+    /// A system reset for `cause` (the watchdog's, or software's SYSRESETREQ), as the MCU
+    /// takes it (RM0090 7.1.2): every peripheral back to its reset state except what a
+    /// system reset keeps — the RCC's reset flags gain the cause's (RM0090 7.3.21, CSR), the
+    /// flash array stays, SRAM keeps its contents, the DBGMCU register and the backup domain
+    /// are untouched, the board keeps driving its pins — then the core starts from the
+    /// vector table again on the 16 MHz HSI.
+    pub fn system_reset(&mut self, cause: ResetCause) -> Result<(), Stop> {
+        {
+            let st = self.uc.get_data_mut();
+            let now = st.clock.now();
+            let models = &st.models;
+            let rcc = models.rcc.borrow().after_reset(cause, now);
+            *models.rcc.borrow_mut() = rcc;
+            *models.pwr.borrow_mut() = Pwr::new();
+            for port in &models.gpio {
+                let fresh = port.borrow().after_reset();
+                *port.borrow_mut() = fresh;
+            }
+            *models.iwdg.borrow_mut() = Iwdg::new();
+            *models.usart.borrow_mut() = Usart::new();
+            *models.can.borrow_mut() = Can::new();
+            let flash = models.flash.borrow().after_reset();
+            *models.flash.borrow_mut() = flash;
+            *models.tim2.borrow_mut() = Tim2::new();
+            st.flash_busy_until = None;
+            st.follow_clock_tree();
+            st.usart_out.clear();
+        }
+        self.reset()
     }
 
     /// Runs for `duration` of virtual time (or until something stops the run).
@@ -1469,6 +1506,18 @@ impl Machine {
             }
             service(&mut self.uc);
             if self.uc.get_data().stop.is_some() {
+                continue;
+            }
+            let st = self.uc.get_data_mut();
+            if st.hung_until > st.clock.now() {
+                // Hung: time and the peripherals go on (the watchdog counts down), the core
+                // does nothing.
+                let next = st
+                    .deadline
+                    .min(st.end)
+                    .min(st.clock.cycles_at(st.hung_until));
+                st.clock.advance_to(next.max(st.clock.cycles() + 1));
+                st.recompute = true;
                 continue;
             }
             if let Some(sleep) = self.uc.get_data().sleep {
@@ -1635,6 +1684,13 @@ impl Machine {
         st.models.usart.borrow_mut().receive(word, at);
         st.deadline = st.deadline.min(st.clock.cycles_at(at));
         st.recompute = true;
+    }
+
+    /// Hangs the core until virtual time `until`: it executes no instruction and takes no
+    /// exception, as a loop stuck with interrupts masked would, while time and the
+    /// peripherals go on (the independent watchdog expires unless fed). A reset ends it.
+    pub fn hang(&mut self, until: Nanos) {
+        self.uc.get_data_mut().hung_until = until;
     }
 
     /// Makes a transmit request to the CAN controller (TXRQ set in a mailbox) end

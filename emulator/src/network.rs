@@ -77,8 +77,18 @@ pub enum Event {
         /// The relay enabled.
         on: bool,
     },
-    /// An MCU stopped: a fault, a lockup, an unclaimed access, a reset it asked for or the
-    /// watchdog's. It runs no further.
+    /// An MCU was reset (its watchdog ran out, or its software asked for it) and starts
+    /// again from its image, as a board does.
+    Reset {
+        /// The MCU.
+        mcu: usize,
+        /// Why, with the code that ran.
+        stop: Stop,
+        /// When.
+        at: Nanos,
+    },
+    /// An MCU stopped: a fault, a lockup, an unclaimed access, or a reset it could not start
+    /// again from (no vector table). It runs no further.
     Stopped {
         /// The MCU.
         mcu: usize,
@@ -290,6 +300,13 @@ impl Network {
         &mut self.bus
     }
 
+    /// Hangs MCU `mcu`'s core for `duration` from now: no instruction, no interrupt, while
+    /// its peripherals run on (a loop stuck with interrupts masked; [`Machine::hang`]).
+    pub fn hang(&mut self, mcu: usize, duration: Nanos) {
+        let until = self.now + duration;
+        self.mcus[mcu].machine.hang(until);
+    }
+
     /// Opens or closes MCU `mcu`'s safety input contact.
     pub fn set_input(&mut self, mcu: usize, closed: bool) {
         self.mcus[mcu]
@@ -413,6 +430,30 @@ impl Network {
                     Outcome::Yielded => {
                         if mcu.offering_since.is_none() {
                             mcu.offering_since = Some(mcu.machine.now());
+                        }
+                    }
+                    Outcome::Stopped {
+                        stop: stop @ Stop::Reset { cause, .. },
+                        at,
+                    } => {
+                        // The board starts again: the transmission in progress is lost
+                        // with the controller's state.
+                        mcu.transmitting = None;
+                        mcu.offering_since = None;
+                        let restarted = mcu.machine.system_reset(cause);
+                        self.events.push(Event::Reset {
+                            mcu: index,
+                            stop,
+                            at,
+                        });
+                        if let Err(stop) = restarted {
+                            mcu.stopped = true;
+                            self.events.push(Event::Stopped {
+                                mcu: index,
+                                stop,
+                                at,
+                            });
+                            break;
                         }
                     }
                     Outcome::Stopped { stop, at } => {

@@ -49,6 +49,25 @@ struct Cli {
     /// (`emulator::cases::nominal`). Needs `--nodes 1,33` (the default) and closed contacts.
     #[arg(long, value_name = "NETWORK_FILE")]
     nominal: Option<PathBuf>,
+    /// Hang an MCU's core (no instruction, no interrupt; its watchdog runs on), as
+    /// `NAME@AT/FOR`: `node33a@1200ms/300ms`. Repeatable.
+    #[arg(long, value_parser = parse_hang)]
+    hang: Vec<(String, Nanos, Nanos)>,
+}
+
+/// `NAME@AT/FOR` of `--hang`.
+fn parse_hang(text: &str) -> Result<(String, Nanos, Nanos), String> {
+    let (name, times) = text
+        .split_once('@')
+        .ok_or_else(|| format!("`{text}`: give NAME@AT/FOR, e.g. node33a@1200ms/300ms"))?;
+    let (at, duration) = times
+        .split_once('/')
+        .ok_or_else(|| format!("`{text}`: give NAME@AT/FOR, e.g. node33a@1200ms/300ms"))?;
+    Ok((
+        name.to_owned(),
+        emulator::time::parse_duration(at)?,
+        emulator::time::parse_duration(duration)?,
+    ))
 }
 
 fn main() -> ExitCode {
@@ -149,8 +168,35 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     }
     let slice: Nanos = 10_000_000;
     let mut stopped = false;
+    let mut hangs = Vec::new();
+    for (name, at, duration) in &cli.hang {
+        let mcu = names
+            .iter()
+            .position(|n| n == name)
+            .ok_or_else(|| format!("--hang {name}: no MCU of that name (one of {names:?})"))?;
+        hangs.push((*at, mcu, *duration));
+    }
+    hangs.sort();
+    let mut hangs = hangs.into_iter().peekable();
     while network.now() < cli.duration {
-        network.run_until((network.now() + slice).min(cli.duration));
+        let mut until = (network.now() + slice).min(cli.duration);
+        if let Some(&(at, _, _)) = hangs.peek() {
+            until = until.min(at.max(network.now() + 1));
+        }
+        network.run_until(until);
+        while let Some(&(at, mcu, duration)) = hangs.peek() {
+            if at > network.now() {
+                break;
+            }
+            println!(
+                "{:<8} {:>12.6} ms hung for {:.3} ms",
+                names[mcu],
+                network.now() as f64 / 1e6,
+                duration as f64 / 1e6
+            );
+            network.hang(mcu, duration);
+            hangs.next();
+        }
         for mcu in 0..names.len() {
             for (at, bytes) in network.take_log(mcu) {
                 for line in decoders[mcu].feed(at, &bytes) {
@@ -201,6 +247,11 @@ fn print_event(
             );
             return Ok(true);
         }
+        Event::Reset { mcu, stop, at } => println!(
+            "{:<8} {:>12.6} ms reset, starting again: {stop}",
+            names[*mcu],
+            *at as f64 / 1e6
+        ),
         Event::Refused { mcu, at, frame } => println!(
             "{:<8} {:>12.6} ms sent {frame:?}, which the bus model cannot carry (an extended \
              identifier): ended with a form error",

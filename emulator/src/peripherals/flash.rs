@@ -217,6 +217,13 @@ impl Flash {
         Flash::with_memory(vec![0xFF; MEMORY_SIZE])
     }
 
+    /// The flash interface after a system reset (RM0090 7.1.2): the registers at their
+    /// reset values, locked, the array as it stands. An operation still in progress is cut
+    /// off with nothing of it applied (the model applies an operation at its end).
+    pub fn after_reset(&self) -> Flash {
+        Flash::with_memory(self.memory.clone())
+    }
+
     /// A flash interface after power-on over `memory` (padded with erased bytes or cut to
     /// 1 MiB): the registers at their reset values, the array as it was left.
     pub fn with_memory(mut memory: Vec<u8>) -> Flash {

@@ -104,6 +104,15 @@ impl Gpio {
         }
     }
 
+    /// The port after a system reset (RM0090 8.4): its registers back to their reset values;
+    /// what the board drives on its pins stays driven.
+    pub fn after_reset(&self) -> Gpio {
+        Gpio {
+            driven: self.driven,
+            ..Gpio::new(self.port)
+        }
+    }
+
     /// The port's name and base.
     pub fn port(&self) -> Port {
         self.port
