@@ -691,7 +691,16 @@ fn cia305_fig33_fig34_a_refused_value_leaves_the_whole_slave_unchanged() {
             let supported = selector == 0
                 && BitRate::from_index(index).is_some_and(|rate| RATES.contains(rate));
             if !supported {
-                refused.push([specifier::CONFIGURE_BIT_TIMING, selector, index, 0, 0, 0, 0, 0]);
+                refused.push([
+                    specifier::CONFIGURE_BIT_TIMING,
+                    selector,
+                    index,
+                    0,
+                    0,
+                    0,
+                    0,
+                    0,
+                ]);
             }
         }
     }
