@@ -10,6 +10,7 @@
 pub const CHANNEL: char = 'B';
 
 pub mod diverse;
+pub mod lss_mirror;
 pub mod role;
 pub mod signature;
 pub mod simplecan;

@@ -106,6 +106,29 @@ impl Network {
         }
     }
 
+    /// `count` devices on a bus at `bit_rate` whose LSS slave is enabled (CiA 305, the
+    /// `shared` feature `lss`) with their node-ID switches open and nothing stored: each is
+    /// unconfigured (node-ID FFh) and silent but for LSS until a master gives it a node-ID.
+    /// Their identities are the device's (`dual_channel::device::config`) with serial
+    /// numbers 1 to `count`; each can be set to every bit rate of the bus model.
+    pub fn unconfigured_lss(bit_rate: u32, count: u8) -> Self {
+        use shared::canopen::lss::{BitRate, BitRates};
+        let rates = BitRates::of(&[
+            BitRate::Kbit1000,
+            BitRate::Kbit500,
+            BitRate::Kbit250,
+            BitRate::Kbit125,
+        ]);
+        let devices: Vec<(u8, &'static str)> =
+            (1..=count).map(|serial| (serial, "LSS node")).collect();
+        let mut net = Network::new(bit_rate, &devices);
+        for device in &mut net.devices {
+            let enabled = device.node.enable_lss(None, rates);
+            assert!(enabled, "LSS is enabled before the first poll");
+        }
+        net
+    }
+
     /// The device with node-ID `id`.
     pub fn index_of(&self, id: u8) -> usize {
         self.devices

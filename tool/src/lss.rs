@@ -20,6 +20,21 @@
 //! nodes may answer one request, and a late answer taken for the next request's would
 //! corrupt the scan (CANopenNode and lely-core wait the same way).
 //!
+//! # The nodes the file names first
+//! The scan learns a node's 128 bits one request at a time, and every request nobody
+//! answers costs the whole timeout: about half of them. Most nodes to be configured are
+//! named in the network file by their whole identity (revision included), so
+//! [`LssMaster::fastscan_assign`] first asks whether any unconfigured node is there (the
+//! scan's reset, done at the first answer), then selects each such node by its identity
+//! (switch state selective, Fig. 32: only that node answers), asks its active node-ID
+//! (Fig. 41: only a node that answers FFh is given one; a configured node is switched back
+//! and left alone) and configures it, each answer taken as it comes: every one of these
+//! answers comes from the one node selected, or has a specifier of its own. It asks again
+//! after each node; when nobody answers, no unconfigured node is left and it is done, the
+//! one timeout of the whole run. Nodes the file names without a revision, and nodes it does
+//! not name, are then found by the scan above. A named node that is absent (or in
+//! Operational, where it answers no selection) costs one timeout.
+//!
 //! Every error names the node (its identity, or "the selected node") and the step.
 
 use crate::network_file::{Network, NodeSpec};
@@ -357,6 +372,35 @@ impl<T: Transport> LssMaster<T> {
         Ok(())
     }
 
+    /// [`LssMaster::select`], `false` when no node answered (none with `identity` is in the
+    /// LSS waiting state outside Operational).
+    fn try_select(&mut self, identity: NodeIdentity) -> Result<bool, LssError> {
+        match self.select(identity) {
+            Ok(()) => Ok(true),
+            Err(LssError::NoAnswer { .. }) => Ok(false),
+            Err(error) => Err(error),
+        }
+    }
+
+    /// Whether any unconfigured node is on the bus: the scan's reset (bit check 80h), done at
+    /// the first answer. The other nodes' answers (the same 4Fh) may come after it; the next
+    /// requests wait for other specifiers ([`LssMaster::fastscan_assign`]), and a scan
+    /// request drops what arrived before it and waits its whole timeout.
+    fn any_unconfigured(&mut self) -> Result<bool, LssError> {
+        self.locked = Some(Vec::new());
+        let data = [specifier::FASTSCAN, 0, 0, 0, 0, lss::FASTSCAN_CONFIRM, 0, 0];
+        match self.confirmed(
+            data,
+            specifier::IDENTIFY_SLAVE,
+            Target::Unconfigured,
+            "fastscan",
+        ) {
+            Ok(_) => Ok(true),
+            Err(LssError::NoAnswer { .. }) => Ok(false),
+            Err(error) => Err(error),
+        }
+    }
+
     /// Configure node-ID (Fig. 33) of the node in the configuration state: `None` makes it
     /// unconfigured (FFh). Pending until its NMT reset communication, unless it was
     /// unconfigured.
@@ -609,6 +653,80 @@ impl<T: Transport> LssMaster<T> {
         store: bool,
     ) -> Result<FastscanReport, LssError> {
         let mut report = FastscanReport::default();
+        let mut named: Vec<(NodeIdentity, &NodeSpec)> = network
+            .nodes
+            .iter()
+            .filter_map(|spec| whole_identity(spec).map(|identity| (identity, spec)))
+            .collect();
+        named.sort_by_key(|(identity, _)| parts(*identity));
+        let mut named = named.into_iter();
+        let mut left = self.any_unconfigured()?;
+        while left {
+            let Some((identity, spec)) = named.next() else {
+                break;
+            };
+            if !self.try_select(identity)? {
+                continue;
+            }
+            let target = Target::Node(identity);
+            let active = self.confirmed(
+                [specifier::INQUIRE_NODE_ID, 0, 0, 0, 0, 0, 0, 0],
+                specifier::INQUIRE_NODE_ID,
+                target,
+                "inquire node-ID",
+            )?;
+            if active[1] != lss::UNCONFIGURED {
+                // Configured already: left as it is.
+                self.switch_global(false)?;
+                continue;
+            }
+            self.assign(target, spec, store, &mut report)?;
+            left = self.any_unconfigured()?;
+        }
+        if left {
+            self.scan_and_assign(network, store, &mut report)?;
+        }
+        report.requests = self.requests;
+        report.answers = self.answers;
+        Ok(report)
+    }
+
+    /// Gives the node `target` in the configuration state `spec`'s node-ID (stored when
+    /// `store`), switches it back to waiting and waits for its boot-up.
+    fn assign(
+        &mut self,
+        target: Target,
+        spec: &NodeSpec,
+        store: bool,
+        report: &mut FastscanReport,
+    ) -> Result<(), LssError> {
+        self.configure_node_id(target, Some(spec.id))?;
+        if store {
+            self.store(target)?;
+        }
+        // CiA 305: back in the waiting state, the unconfigured node takes its node-ID by an
+        // NMT reset communication of its own, and boots.
+        self.switch_global(false)?;
+        self.boot_up(target, spec.id)?;
+        if let Target::Node(identity) = target {
+            report.assigned.push(Assigned {
+                identity,
+                node_id: spec.id,
+                name: spec.name.clone(),
+                stored: store,
+            });
+        }
+        Ok(())
+    }
+
+    /// The scan of [`LssMaster::fastscan_after`] over every unconfigured node left, each
+    /// given the node-ID `network` assigns to its identity.
+    fn scan_and_assign(
+        &mut self,
+        network: &Network,
+        store: bool,
+        report: &mut FastscanReport,
+    ) -> Result<(), LssError> {
         let mut after = None;
         while let Some(found) = self.fastscan_after(after)? {
             after = Some(found);
@@ -627,25 +745,21 @@ impl<T: Transport> LssMaster<T> {
                 self.switch_global(false)?;
                 continue;
             }
-            self.configure_node_id(target, Some(spec.id))?;
-            if store {
-                self.store(target)?;
-            }
-            // CiA 305: back in the waiting state, the unconfigured node takes its node-ID by an
-            // NMT reset communication of its own, and boots.
-            self.switch_global(false)?;
-            self.boot_up(target, spec.id)?;
-            report.assigned.push(Assigned {
-                identity: found,
-                node_id: spec.id,
-                name: spec.name.clone(),
-                stored: store,
-            });
+            self.assign(target, spec, store, report)?;
         }
-        report.requests = self.requests;
-        report.answers = self.answers;
-        Ok(report)
+        Ok(())
     }
+}
+
+/// The identity the file gives `spec` when it names every part of it (the revision pinned).
+fn whole_identity(spec: &NodeSpec) -> Option<NodeIdentity> {
+    let identity = &spec.identity;
+    Some(NodeIdentity {
+        vendor: identity.vendor,
+        product: identity.product,
+        revision: identity.revision?,
+        serial: identity.serial,
+    })
 }
 
 /// The `lss` subcommand's actions.

@@ -24,6 +24,14 @@
 //! 4. python-canopen on the emulated SimpleCAN network (the SimpleCAN images, configured from
 //!    `scenarios/networks/simplecan.toml`): the same sweep of every entry, with the SimpleCAN
 //!    images' EDS (`eds/safety-node-simplecan.eds`), on node 33.
+//! 5. (`--only mixed-load`) python-canopen beside python-can's bus load, below.
+//! 6. python-canopen's LSS master (CiA 305: fast scan, configure node-ID, store) on a
+//!    host-simulated unconfigured LSS node behind `socketcand_sim --lss 1` ([`lss`]: the
+//!    firmware images carry no LSS, so the emulated network's nodes cannot be configured by
+//!    it); `--only lss-bench` times the tool's fastscan and python-canopen's against the bus
+//!    time of their frames, into docs/tool.md.
+
+mod lss;
 
 use crate::child::Guarded;
 use crate::network::{self, Network};
@@ -58,6 +66,13 @@ pub enum Part {
     /// python-can fills 30 % of the bus, for 60 s of the bus's time: the largest SDO response
     /// time and heartbeat gap. Only when asked for (`--only mixed-load`): it takes minutes.
     MixedLoad,
+    /// python-canopen's LSS master configures a host-simulated unconfigured LSS node (fast
+    /// scan, configure node-ID, store), the tool inquires it (no QEMU).
+    Lss,
+    /// The tool's and python-canopen's fastscan of 1 and 8 unconfigured nodes in bus time,
+    /// against the bus time of their frames, into docs/tool.md. Only when asked for
+    /// (`--only lss-bench`): python-canopen's scans take minutes.
+    LssBench,
 }
 
 /// The virtual environment's Python, created and provisioned when needed.
@@ -423,8 +438,14 @@ pub fn task(root: &Path, only: Option<Part>) -> Result<()> {
     if runs(Part::Simplecan) {
         simplecan(root, &python)?;
     }
+    if runs(Part::Lss) {
+        lss::check(root, &python)?;
+    }
     if only == Some(Part::MixedLoad) {
         mixed_load(root, &python)?;
+    }
+    if only == Some(Part::LssBench) {
+        lss::bench(root, &python)?;
     }
     Ok(())
 }

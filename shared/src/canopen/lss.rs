@@ -34,15 +34,16 @@
 //!
 //! # Safety rules
 //!
-//! These are the node's own, on top of CiA 305; each has a test named after it.
+//! These are the node's own, on top of CiA 305; each has tests named after the figure they
+//! touch and the rule (`cia305_fig33_rule_2_...`).
 //!
-//! 1. *No configuration in Operational* (`lss_rule_1_...`). The LSS configuration state is
+//! 1. *No configuration in Operational* (`cia305_..._rule_1_...`). The LSS configuration state is
 //!    entered only outside NMT Operational: in Operational a switch to the configuration
 //!    state (global, selective or by fastscan) is not obeyed and not answered, and
 //!    [`LssEvent::RefusedInOperational`] names the specifier for the node's log. A node that
 //!    enters Operational leaves the configuration state ([`Lss::leave_configuration`]), so no
 //!    configuring service ever reaches a node in Operational.
-//! 2. *Pending until reset* (`lss_rule_2_...`). A configured node-ID is *pending*: the node
+//! 2. *Pending until reset* (`cia305_..._rule_2_...`). A configured node-ID is *pending*: the node
 //!    keeps its *active* node-ID until NMT reset communication (or reset node), as CiA 305
 //!    asks, so nothing runs on a half-changed address. Inquire node-ID answers the active
 //!    one. The one exception is CiA 305's own: an unconfigured node that was given a
@@ -51,14 +52,14 @@
 //!    restarts on another node-ID than the one its stored safety configuration was
 //!    validated for withdraws that validation (the node's rule, EN 50325-5 6.4.1.6): an
 //!    address changed by LSS never runs a configuration checked for another address.
-//! 3. *Switches win* (`lss_rule_3_...`). Where the board's node-ID switches are set, their
+//! 3. *Switches win* (`cia305_..._rule_3_...`). Where the board's node-ID switches are set, their
 //!    node-ID is the node's, whatever LSS stored; configure node-ID is then refused with the
 //!    manufacturer-specific error FFh, [`SWITCHES_SET`]. All switches open means "use LSS":
 //!    the LSS node-ID stored with the parameters, or none; a node without a node-ID is
 //!    *unconfigured* (node-ID FFh): it sends no boot-up message and nothing else but LSS
 //!    answers, obeys no NMT command, and answers fastscan and identify non-configured
 //!    remote slave.
-//! 4. *Silent switch* (`lss_rule_4_...`). Activate bit timing makes the node send nothing for
+//! 4. *Silent switch* (`cia305_..._rule_4_...`). Activate bit timing makes the node send nothing for
 //!    the switch delay, then reports the new bit rate ([`LssEvent::SwitchBitRate`]) for the
 //!    board to apply, then sends nothing for the switch delay again (CiA 305 Fig. 35).
 //!
@@ -455,7 +456,8 @@ struct Switch {
 }
 
 /// The LSS slave of one node (sans-I/O: fed frames and `now`, answers with frames and events).
-#[derive(Clone, Debug)]
+/// Comparable whole, so a test can show that a refused request changed nothing.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Lss {
     identity: [u32; 4],
     switches: Option<NodeId>,

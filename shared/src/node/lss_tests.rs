@@ -137,7 +137,7 @@ fn sdo_write<F: Flash>(
 /// Safety rule 3: all switches open and nothing stored is an unconfigured node: no boot-up
 /// message, no heartbeat, no NMT, no SDO; only LSS, fastscan included.
 #[test]
-fn lss_rule_3_an_unconfigured_node_sends_no_boot_up_and_answers_fastscan() {
+fn cia305_fig46_rule_3_an_unconfigured_node_sends_no_boot_up_and_answers_fastscan() {
     let (mut node, mut sink) = started(Medium::new(), None, |c| c.heartbeat_ms = 10);
     assert!(sink.frames.is_empty(), "{:?}", sink.frames);
     assert_eq!(lss_events(&sink), [LssEvent::Unconfigured]);
@@ -165,7 +165,7 @@ fn lss_rule_3_an_unconfigured_node_sends_no_boot_up_and_answers_fastscan() {
 /// Safety rule 2, CiA 305's exception: the unconfigured node found by fastscan takes the
 /// node-ID it was given when switched back to waiting, and boots on it.
 #[test]
-fn lss_rule_2_an_unconfigured_node_takes_its_node_id_when_switched_to_waiting() {
+fn cia305_fig31_rule_2_an_unconfigured_node_takes_its_node_id_when_switched_to_waiting() {
     let (mut node, mut sink) = started(Medium::new(), None, |_| {});
     select_by_fastscan(&mut node, &mut sink);
     send(&mut node, &mut sink, ms(1), [0x11, 12, 0, 0, 0, 0, 0, 0]);
@@ -185,7 +185,7 @@ fn lss_rule_2_an_unconfigured_node_takes_its_node_id_when_switched_to_waiting() 
 /// Safety rule 2: a node-ID configured in a configured node waits for NMT reset
 /// communication; until then the node answers on its old one.
 #[test]
-fn lss_rule_2_a_configured_node_id_takes_effect_at_nmt_reset_communication() {
+fn cia305_fig33_rule_2_a_configured_node_id_takes_effect_at_nmt_reset_communication() {
     let (mut node, mut sink) = started(Medium::new(), None, |_| {});
     select_by_fastscan(&mut node, &mut sink);
     send(&mut node, &mut sink, ms(1), [0x11, 5, 0, 0, 0, 0, 0, 0]);
@@ -246,7 +246,7 @@ fn assigned<F: Flash>(flash: F, node_id: u8) -> (TestNode<F>, Recorder) {
 /// configuration was validated for does not run that configuration (0x13FE reads 0), after
 /// NMT reset communication and after a power cycle alike.
 #[test]
-fn lss_rule_2_a_new_node_id_withdraws_the_validated_configuration() {
+fn cia305_fig33_rule_2_a_new_node_id_withdraws_the_validated_configuration() {
     let (mut node, mut sink) = assigned(Medium::new(), 5);
     validate_and_store(&mut node, &mut sink, 5);
     send(&mut node, &mut sink, ms(2), [0x04, 1, 0, 0, 0, 0, 0, 0]);
@@ -292,7 +292,7 @@ fn lss_rule_2_a_new_node_id_withdraws_the_validated_configuration() {
 /// Safety rule 1: a node in Operational answers no switch into the configuration state and
 /// logs every refusal; entering Operational leaves the configuration state.
 #[test]
-fn lss_rule_1_a_node_in_operational_is_not_configured_and_logs_the_refusal() {
+fn cia305_fig31_fig32_rule_1_a_node_in_operational_is_not_configured_and_logs_the_refusal() {
     let (mut node, mut sink) = started(Medium::new(), Some(id(7)), |_| {});
     for record in node.core.protocol.safety.srdos.iter_mut() {
         record.signature = signature::compute(record);
@@ -331,7 +331,7 @@ fn lss_rule_1_a_node_in_operational_is_not_configured_and_logs_the_refusal() {
 
 /// Safety rule 3: with the switches set, their node-ID is the node's whatever LSS stored.
 #[test]
-fn lss_rule_3_the_switches_win_over_the_stored_lss_node_id() {
+fn cia305_fig33_rule_3_the_switches_win_over_the_stored_lss_node_id() {
     let (node, _) = assigned(Medium::new(), 40);
     let (mut node, mut sink) = started(node.flash().clone(), Some(id(3)), |_| {});
     assert_eq!(boot_ups(&sink), [3]);
@@ -495,7 +495,7 @@ fn cia305_fig36_store_over_an_unreadable_record_answers_2() {
 /// Safety rule 4: from activate bit timing the node sends nothing (not even its heartbeat)
 /// for the switch delay, reports the new bit rate, and sends nothing for the delay again.
 #[test]
-fn lss_rule_4_the_node_sends_nothing_around_a_bit_rate_switch() {
+fn cia305_fig35_rule_4_the_node_sends_nothing_around_a_bit_rate_switch() {
     let (mut node, mut sink) = started(Medium::new(), Some(id(7)), |c| c.heartbeat_ms = 50);
     sink.frames.clear();
     send(&mut node, &mut sink, ms(10), [0x04, 1, 0, 0, 0, 0, 0, 0]);

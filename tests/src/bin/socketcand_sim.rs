@@ -5,6 +5,9 @@
 //! same protocol core as the firmware, without the emulation's timing.
 //!
 //! Usage: `socketcand_sim PORT` (listens on 127.0.0.1:PORT, bus `can0`; runs until killed).
+//! `socketcand_sim PORT --lss N`: instead, N devices with the LSS slave enabled and no
+//! node-ID (`Network::unconfigured_lss`, serial numbers 1 to N), left to an LSS master (the
+//! interop case of python-canopen's `LssMaster`; the firmware images carry no LSS).
 
 use safety_config::network_file;
 use safety_config::procedure::{self, Quiet};
@@ -64,10 +67,32 @@ fn main() -> ExitCode {
 }
 
 fn run() -> Result<(), String> {
-    let port: u16 = std::env::args()
-        .nth(1)
+    const USAGE: &str = "usage: socketcand_sim PORT [--lss NODES]";
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let port: u16 = args
+        .first()
         .and_then(|port| port.parse().ok())
-        .ok_or("usage: socketcand_sim PORT")?;
+        .ok_or(USAGE)?;
+    let net = match args.get(1..).unwrap_or_default() {
+        [] => configured()?,
+        [flag, count] if flag == "--lss" => {
+            let count: u8 = count
+                .parse()
+                .ok()
+                .filter(|count| (1..=127).contains(count))
+                .ok_or("--lss takes a number of nodes, 1 to 127")?;
+            let mut net = Network::unconfigured_lss(500_000, count);
+            net.run_for(Duration::from_millis(50));
+            eprintln!("socketcand_sim: {count} unconfigured LSS nodes");
+            net
+        }
+        _ => return Err(USAGE.into()),
+    };
+    serve_network(net, port)
+}
+
+/// Nodes 1 and 33 configured by the tool library from [`FILE`], Operational.
+fn configured() -> Result<Network, String> {
     let name = dual_channel::device::CHANNEL_A_NAME;
     let mut net = Network::new(500_000, &[(1, name), (33, name)]);
     net.run_for(Duration::from_millis(50));
@@ -83,10 +108,15 @@ fn run() -> Result<(), String> {
     }
     net.nmt(NmtCommand::Start, 0);
     net.run_for(Duration::from_millis(300));
+    eprintln!("socketcand_sim: nodes 1 and 33 Operational");
+    Ok(net)
+}
 
+/// Runs `net` in real time behind a socketcand server on 127.0.0.1:`port` until killed.
+fn serve_network(mut net: Network, port: u16) -> Result<(), String> {
     let listener = TcpListener::bind(("127.0.0.1", port)).map_err(|e| e.to_string())?;
     listener.set_nonblocking(true).map_err(|e| e.to_string())?;
-    eprintln!("socketcand_sim: nodes 1 and 33 Operational; socketcand on 127.0.0.1:{port}");
+    eprintln!("socketcand_sim: socketcand on 127.0.0.1:{port}");
     let origin = net.now;
     let wall = std::time::Instant::now();
     let mut clients: Vec<Client> = Vec::new();

@@ -196,9 +196,11 @@ fn cia305_fig46_fastscan_gives_one_unconfigured_node_the_file_s_node_id() {
     let lss = master.transport.lss(0);
     assert_eq!(lss.active().map(NodeId::raw), Some(5));
     assert_eq!(lss.state(), LssState::Waiting);
-    // 1 reset, 128 bits, 3 parts locked, 1 selection; node-ID, store, switch; then one
-    // reset nobody answers: no unconfigured node is left.
-    assert_eq!(report.requests, 1 + 128 + 3 + 1 + 3 + 1);
+    // The file names its whole identity: 1 reset (is anyone unconfigured?), the 4 requests of
+    // the selection, inquire node-ID; node-ID, store, switch; then one reset nobody answers:
+    // no unconfigured node is left. No bit is scanned.
+    assert_eq!(report.requests, 1 + 4 + 1 + 3 + 1);
+    assert_eq!(report.answers, 1 + 1 + 1 + 2);
     print_figures("fastscan", 1, &master.transport, &report);
 }
 
@@ -540,4 +542,40 @@ impl Transport for &mut Bus {
     fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError> {
         (**self).receive(deadline)
     }
+}
+
+/// A node the file names whose node-ID is set already is selected, asked, and left alone
+/// (Fig. 41: it answers its active node-ID); the unconfigured one beside it gets its node-ID,
+/// and the named node that is absent costs only its selection.
+#[test]
+fn cia305_fig41_fastscan_leaves_a_configured_node_it_selects_by_identity_alone() {
+    let configured = Lss::new(
+        [VENDOR, PRODUCT, 1, 1],
+        None,
+        Some(shared::canopen::lss::LssSettings {
+            node_id: NodeId::new(3).ok(),
+            bit_rate: None,
+        }),
+        RATES,
+    );
+    let fresh = [VENDOR, PRODUCT, 1, 2];
+    let slaves = vec![Slave::Lss(configured), unconfigured(fresh)];
+    let mut master = LssMaster::new(Bus::new(slaves), TIMEOUT);
+    let file = network(&[
+        (9, [VENDOR, PRODUCT, 1, 1], true),
+        (10, fresh, true),
+        (11, [VENDOR, PRODUCT, 1, 0], true),
+    ]);
+    let report = master.fastscan_assign(&file, false).unwrap();
+    assert_eq!(report.assigned.len(), 1);
+    assert_eq!(
+        (report.assigned[0].identity, report.assigned[0].node_id),
+        (super::identity(fresh), 10)
+    );
+    assert!(report.unknown.is_empty() && report.duplicates.is_empty());
+    let [kept, given] = [0, 1].map(|index| master.transport.lss(index));
+    assert_eq!(kept.active().map(NodeId::raw), Some(3));
+    assert_eq!(kept.pending().map(NodeId::raw), Some(3), "nothing pending");
+    assert_eq!(kept.state(), LssState::Waiting);
+    assert_eq!(given.active().map(NodeId::raw), Some(10));
 }

@@ -476,7 +476,7 @@ fn cia305_fig46_fastscan_requests_out_of_range_or_for_another_part_are_ignored()
 /// Safety rule 1: a node in NMT Operational enters no configuration state, answers no
 /// selective switch, and reports each refusal.
 #[test]
-fn lss_rule_1_no_configuration_state_in_operational() {
+fn cia305_fig31_fig32_fig46_rule_1_no_configuration_state_in_operational() {
     let mut lss = configured(5);
     let outcome = lss.on_frame(
         Instant::ZERO,
@@ -517,7 +517,7 @@ fn lss_rule_1_no_configuration_state_in_operational() {
 
 /// Safety rule 2: a configured node-ID is pending until NMT reset communication.
 #[test]
-fn lss_rule_2_a_configured_node_id_waits_for_reset_communication() {
+fn cia305_fig33_rule_2_a_configured_node_id_waits_for_reset_communication() {
     let mut lss = configured(5);
     to_configuration(&mut lss);
     send(&mut lss, request([0x11, 9, 0, 0, 0, 0, 0, 0]));
@@ -542,7 +542,7 @@ fn lss_rule_2_a_configured_node_id_waits_for_reset_communication() {
 /// Safety rule 3: the switches win over a stored LSS node-ID, configure node-ID is refused
 /// while they are set, and all switches open means the LSS node-ID (or none).
 #[test]
-fn lss_rule_3_the_switches_win_over_an_lss_node_id() {
+fn cia305_fig33_rule_3_the_switches_win_over_an_lss_node_id() {
     let stored = LssSettings {
         node_id: Some(id(40)),
         bit_rate: None,
@@ -587,7 +587,7 @@ fn lss_rule_3_the_switches_win_over_an_lss_node_id() {
 /// Safety rule 4: activate bit timing silences the node for the switch delay, reports the
 /// new bit rate, then keeps it silent for the delay again.
 #[test]
-fn lss_rule_4_activate_bit_timing_is_silent_around_the_switch() {
+fn cia305_fig35_rule_4_activate_bit_timing_is_silent_around_the_switch() {
     let mut lss = configured(5);
     to_configuration(&mut lss);
     send(&mut lss, request([0x13, 0, 3, 0, 0, 0, 0, 0]));
@@ -625,7 +625,7 @@ fn lss_rule_4_activate_bit_timing_is_silent_around_the_switch() {
 }
 
 #[test]
-fn lss_settings_round_trip_and_refuse_other_bytes() {
+fn cia305_fig36_lss_settings_round_trip_and_refuse_other_bytes() {
     for node_id in [None, Some(id(1)), Some(id(127))] {
         for bit_rate in core::iter::once(None).chain(BitRate::ALL.map(Some)) {
             let settings = LssSettings { node_id, bit_rate };
@@ -641,5 +641,76 @@ fn lss_settings_round_trip_and_refuse_other_bytes() {
         [1, 0xFE],
     ] {
         assert_eq!(LssSettings::decode(bad), None, "{bad:?}");
+    }
+}
+
+/// In the configuration state too, a configuring request that is not 8 bytes long is not
+/// answered and applies nothing: no node-ID, no bit rate, no store, no switch.
+#[test]
+fn cia305_a_configuring_request_of_the_wrong_length_applies_nothing() {
+    let requests = [
+        [specifier::CONFIGURE_NODE_ID, 9, 0, 0, 0, 0, 0, 0],
+        [specifier::CONFIGURE_BIT_TIMING, 0, 3, 0, 0, 0, 0, 0],
+        [specifier::ACTIVATE_BIT_TIMING, 10, 0, 0, 0, 0, 0, 0],
+        [specifier::STORE_CONFIGURATION, 0, 0, 0, 0, 0, 0, 0],
+        [specifier::INQUIRE_NODE_ID, 0, 0, 0, 0, 0, 0, 0],
+        [specifier::SWITCH_GLOBAL, 0, 0, 0, 0, 0, 0, 0],
+    ];
+    for data in requests {
+        for len in 0..8 {
+            let mut lss = configured(5);
+            to_configuration(&mut lss);
+            let frame = CanFrame::new(MASTER_TO_SLAVE, &data[..len]).unwrap();
+            let mut stored = false;
+            let outcome = lss.on_frame(Instant::ZERO, &frame, false, |_| {
+                stored = true;
+                Ok(())
+            });
+            let what = format!("{:02X}h, {len} bytes", data[0]);
+            assert_eq!(outcome, LssOutcome::default(), "{what}");
+            assert!(!stored, "{what}");
+            assert_eq!(lss.state(), LssState::Configuration, "{what}");
+            assert_eq!(lss.pending(), Some(id(5)), "{what}");
+            assert_eq!(lss.bit_rate(), None, "{what}");
+            assert_eq!(lss.deadline(), Instant::NEVER, "{what}: no switch started");
+        }
+    }
+}
+
+/// Every request with a refused value (node-ID 0 or 80h..FEh, a bit timing outside the table
+/// or not supported) leaves the whole slave as it was: what a refused request changes is
+/// nothing but its answer.
+#[test]
+fn cia305_fig33_fig34_a_refused_value_leaves_the_whole_slave_unchanged() {
+    let mut refused = Vec::new();
+    for raw in core::iter::once(0u8).chain(0x80..=0xFE) {
+        refused.push([specifier::CONFIGURE_NODE_ID, raw, 0, 0, 0, 0, 0, 0]);
+    }
+    for selector in 0..=255u8 {
+        for index in 0..=255u8 {
+            let supported = selector == 0
+                && BitRate::from_index(index).is_some_and(|rate| RATES.contains(rate));
+            if !supported {
+                refused.push([
+                    specifier::CONFIGURE_BIT_TIMING,
+                    selector,
+                    index,
+                    0,
+                    0,
+                    0,
+                    0,
+                    0,
+                ]);
+            }
+        }
+    }
+    let mut lss = configured(5);
+    to_configuration(&mut lss);
+    send(&mut lss, request([0x13, 0, 2, 0, 0, 0, 0, 0]));
+    let before = lss.clone();
+    for data in refused {
+        let outcome = send(&mut lss, request(data));
+        assert_eq!(answer(outcome).map(|a| a[1]), Some(REFUSED), "{data:02X?}");
+        assert_eq!(lss, before, "{data:02X?}");
     }
 }
