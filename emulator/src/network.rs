@@ -138,6 +138,8 @@ struct Mcu {
     /// The MCU whose USART3 RX its USART3 TX drives, while the link is not cut.
     peer: Option<usize>,
     link_cut: bool,
+    /// Transmissions still to be destroyed by a bit error ([`Network::inject_bit_errors`]).
+    bit_errors: u32,
     stopped: bool,
     output: bool,
     /// When its current offer was first seen by the bus (a transmit request in this round,
@@ -157,6 +159,8 @@ enum Conclusion {
     NotAcknowledged,
     /// The bus model cannot carry it.
     Form,
+    /// A bit error the network injected ([`Network::inject_bit_errors`]).
+    BitError,
 }
 
 /// The network.
@@ -234,6 +238,7 @@ impl Network {
                 machine,
                 peer: None,
                 link_cut: false,
+                bit_errors: 0,
                 stopped: false,
                 output: false,
                 offering_since: None,
@@ -305,6 +310,16 @@ impl Network {
     pub fn hang(&mut self, mcu: usize, duration: Nanos) {
         let until = self.now + duration;
         self.mcus[mcu].machine.hang(until);
+    }
+
+    /// Destroys MCU `mcu`'s next `count` transmissions with a bit error (ISO 11898-1 10.9.2:
+    /// the sender reads a dominant level where it sent a recessive one, as a faulty
+    /// transceiver or a short would make it): an error frame instead of the frame, no
+    /// receiver takes it (each counts a receive error), the sender's TEC goes up by 8 each
+    /// time (RM0090 32.7.6) and its controller retransmits, until it is error passive and then
+    /// bus-off.
+    pub fn inject_bit_errors(&mut self, mcu: usize, count: u32) {
+        self.mcus[mcu].bit_errors = count;
     }
 
     /// Opens or closes MCU `mcu`'s safety input contact.
@@ -519,6 +534,7 @@ impl Network {
                     Conclusion::Sent => can.transmitted(end),
                     Conclusion::NotAcknowledged => can.error(BusError::Acknowledgment, end),
                     Conclusion::Form => can.error(BusError::Form, end),
+                    Conclusion::BitError => can.error(BusError::BitDominant, end),
                 }
             }
             mcu.machine.can_changed();
@@ -605,9 +621,26 @@ impl Network {
             return;
         };
         let start = instant(earliest.max(free_at));
+        let first = self.deliveries.len();
         self.bus.arbitrate_into(start, &mut self.deliveries);
         let end = self.bus.free_at();
         let winner = (0..self.mcus.len()).find(|&i| offers[i].is_some() && self.bus.queued(i) == 0);
+        let destroyed = winner.is_some_and(|w| self.mcus[w].bit_errors > 0) && end > start;
+        if destroyed {
+            // The error frame replaces the frame: nobody receives it (each receiver counts a
+            // receive error), the bus is taken for as long (an approximation: an error frame
+            // is 14 to 20 bits after the bit in error).
+            self.deliveries.truncate(first);
+            for (index, mcu) in self.mcus.iter_mut().enumerate() {
+                if Some(index) != winner && !mcu.stopped {
+                    mcu.machine
+                        .can()
+                        .borrow_mut()
+                        .receive_error(BusError::Form, nanos(end));
+                    mcu.machine.can_changed();
+                }
+            }
+        }
         let start_nanos = nanos(start);
         for (index, mcu) in self.mcus.iter_mut().enumerate() {
             let Some(offer) = offers[index] else {
@@ -626,6 +659,9 @@ impl Network {
                         start_nanos + bits * 1_000_000_000 / u64::from(self.bus.bit_rate()),
                         Conclusion::NotAcknowledged,
                     )
+                } else if destroyed {
+                    mcu.bit_errors -= 1;
+                    (nanos(end), Conclusion::BitError)
                 } else {
                     (nanos(end), Conclusion::Sent)
                 };

@@ -106,11 +106,20 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
 /// Builds and seals the shipped images of `protocol`, then runs both nodes (1 and 33, channels
 /// A and B each) on one emulated bus for `duration` of virtual time with every contact
 /// closed, and prints every MCU's decoded log and the summary.
-pub fn network_task(root: &Path, duration: &str, protocol: Protocol) -> Result<()> {
+pub fn network_task(root: &Path, duration: &str, protocol: Protocol, nominal: bool) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_emulator_build_deps()?;
     let layer = protocol.hardware_layer();
     images::build_layer(root, &cross, layer)?;
+    let mut case = Vec::new();
+    if nominal {
+        if protocol != Protocol::CanopenSafety {
+            anyhow::bail!("the nominal case on the emulated network is CANopen Safety's only");
+        }
+        let file = write_network_file(root)?;
+        case.push("--nominal".into());
+        case.push(file.into_os_string());
+    }
     crate::run(
         cargo()
             .current_dir(root)
@@ -126,8 +135,18 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol) -> Result<(
             ])
             .arg(images::image(&cross, root, layer, "a"))
             .arg(images::image(&cross, root, layer, "b"))
-            .args(["--for", duration, "--inputs-closed"]),
+            .args(["--for", duration, "--inputs-closed"])
+            .args(case),
     )
+}
+
+/// Writes `cargo xtask run`'s network file for the emulated network's cases; returns its path.
+fn write_network_file(root: &Path) -> Result<std::path::PathBuf> {
+    let dir = root.join("target/emulate-network");
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join("network.toml");
+    std::fs::write(&path, Protocol::CanopenSafety.network_file())?;
+    Ok(path)
 }
 
 /// How long the network check runs, in virtual time: past the first link periods, the
@@ -281,6 +300,56 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
             "xtask: {protocol:?}: both nodes started on one emulated bus, links up, heartbeats \
              every {period_ms} ms, no fault; two runs identical"
         );
+        let output = std::process::Command::new(&emulate)
+            .arg(images::image(cross, root, layer, "a"))
+            .arg(images::image(cross, root, layer, "b"))
+            .args(["--for", NETWORK_CHECK, "--inputs-closed"])
+            .args([
+                "--hang",
+                "node33a@1200ms/500ms",
+                "--bit-errors",
+                "node1a@1500ms/40",
+            ])
+            .output()?;
+        let log = String::from_utf8_lossy(&output.stdout);
+        if let Err(why) = check_faults(&log) {
+            anyhow::bail!(
+                "{protocol:?}: a stalled loop and bus-off on the shipped images: {why}\n{log}{}",
+                String::from_utf8_lossy(&output.stderr)
+            );
+        }
+        println!(
+            "xtask: {protocol:?}: a stalled loop is reset by the watchdog and says so; the other \
+             channel goes safe; bus-off latches the safe state"
+        );
+    }
+    Ok(())
+}
+
+/// What the shipped images must do when node 33's channel A hangs with interrupts masked
+/// and node 1's channel A's transmissions are destroyed by bit errors (the run of
+/// [`network_checks`]): the independent watchdog resets the hung channel (RM0090 21.3.1), which
+/// starts again and logs that the watchdog reset it; its peer latches the safe state (the
+/// link fell silent); the channel whose transmit error counter passes 255 goes bus-off
+/// (ISO 11898-1 12.1.4, RM0090 32.7.6) and latches the safe state.
+fn check_faults(log: &str) -> Result<(), String> {
+    let position = |mcu: &str, needle: &str| {
+        log.lines()
+            .position(|line| line.starts_with(mcu) && line.contains(needle))
+    };
+    let reset = position("node33a", "reset, starting again: the independent watchdog")
+        .ok_or("the hung channel was not reset by its watchdog")?;
+    position("node33a", "reset by the independent watchdog")
+        .filter(|&said| said > reset)
+        .ok_or("the channel reset by its watchdog did not say so when it started again")?;
+    position("node33b", "SafeState").ok_or("the hung channel's peer did not go safe")?;
+    let bus_off = position("node1a", "Fault(BusOff)")
+        .ok_or("the channel whose frames were destroyed did not report bus-off")?;
+    position("node1a", "SafeState")
+        .filter(|&safe| safe > bus_off)
+        .ok_or("bus-off did not latch the safe state")?;
+    if log.contains(" stopped at ") {
+        return Err("an MCU stopped".into());
     }
     Ok(())
 }
@@ -308,6 +377,20 @@ mod tests {
         let stray = format!("{TRACE}(0.6) vcan0 181#01\n");
         assert!(check_start_up_trace(&stray, &[1, 33], 100).is_err());
         assert!(check_start_up_trace(TRACE, &[1, 33, 5], 100).is_err());
+    }
+
+    #[test]
+    fn the_fault_check_needs_the_watchdog_reset_said_and_bus_off_latched() {
+        let good = "node33a 1.0 ms reset, starting again: the independent watchdog ran out\n\
+                    node33b 1.1 ms INFO Node(SafeState(Application { detail: 20 }))\n\
+                    node33a 1.3 ms WARN reset by the independent watchdog: stalled\n\
+                    node1a 1.5 ms INFO Fault(BusOff)\n\
+                    node1a 1.6 ms INFO Node(SafeState(Application { detail: 59 }))\n";
+        assert_eq!(check_faults(good), Ok(()));
+        let silent = good.replace("WARN reset by the independent watchdog", "WARN started");
+        assert!(check_faults(&silent).is_err());
+        let not_latched = good.replace("node1a 1.6 ms INFO Node(SafeState", "node1a 1.6 ms x");
+        assert!(check_faults(&not_latched).is_err());
     }
 
     #[test]

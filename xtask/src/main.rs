@@ -111,6 +111,11 @@ enum Task {
         /// instead of one image alone.
         #[arg(long)]
         network: bool,
+        /// With `--network`: the nominal end-to-end case instead of a fixed time (configure
+        /// both nodes with the tool's library from `cargo xtask run`'s network file, start
+        /// them, open node 1's contacts and time node 33's outputs going off).
+        #[arg(long, requires = "network")]
+        nominal: bool,
         /// Which channel's image: `a` or `b`.
         #[arg(long, value_parser = ["a", "b"], default_value = "a")]
         channel: String,
@@ -359,14 +364,16 @@ fn task() -> Result<()> {
             network: true,
             duration,
             protocol,
+            nominal,
             ..
-        } => emulate::network_task(&root, &duration, protocol),
+        } => emulate::network_task(&root, &duration, protocol, nominal),
         Task::Emulate {
             channel,
             duration,
             node_id,
             protocol,
             network: false,
+            nominal: _,
         } => emulate::task(&root, &channel, &duration, node_id, protocol),
         Task::Qemu {
             channel,

@@ -53,6 +53,31 @@ struct Cli {
     /// `NAME@AT/FOR`: `node33a@1200ms/300ms`. Repeatable.
     #[arg(long, value_parser = parse_hang)]
     hang: Vec<(String, Nanos, Nanos)>,
+    /// Destroy an MCU's next transmissions with bit errors from a time on, as
+    /// `NAME@AT/COUNT`: `node1a@1s/40` (32 make it bus-off). Repeatable.
+    #[arg(long, value_parser = parse_bit_errors)]
+    bit_errors: Vec<(String, Nanos, u32)>,
+}
+
+/// A fault scheduled from the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Fault {
+    /// `--hang`: for this long.
+    Hang(Nanos),
+    /// `--bit-errors`: this many transmissions.
+    BitErrors(u32),
+}
+
+/// `NAME@AT/COUNT` of `--bit-errors`.
+fn parse_bit_errors(text: &str) -> Result<(String, Nanos, u32), String> {
+    let usage = || format!("`{text}`: give NAME@AT/COUNT, e.g. node1a@1s/40");
+    let (name, rest) = text.split_once('@').ok_or_else(usage)?;
+    let (at, count) = rest.split_once('/').ok_or_else(usage)?;
+    Ok((
+        name.to_owned(),
+        emulator::time::parse_duration(at)?,
+        count.parse().map_err(|_| usage())?,
+    ))
 }
 
 /// `NAME@AT/FOR` of `--hang`.
@@ -169,12 +194,17 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     let slice: Nanos = 10_000_000;
     let mut stopped = false;
     let mut hangs = Vec::new();
-    for (name, at, duration) in &cli.hang {
-        let mcu = names
+    let find = |option: &str, name: &str| {
+        names
             .iter()
             .position(|n| n == name)
-            .ok_or_else(|| format!("--hang {name}: no MCU of that name (one of {names:?})"))?;
-        hangs.push((*at, mcu, *duration));
+            .ok_or_else(|| format!("--{option} {name}: no MCU of that name (one of {names:?})"))
+    };
+    for (name, at, duration) in &cli.hang {
+        hangs.push((*at, find("hang", name)?, Fault::Hang(*duration)));
+    }
+    for (name, at, count) in &cli.bit_errors {
+        hangs.push((*at, find("bit-errors", name)?, Fault::BitErrors(*count)));
     }
     hangs.sort();
     let mut hangs = hangs.into_iter().peekable();
@@ -184,17 +214,29 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             until = until.min(at.max(network.now() + 1));
         }
         network.run_until(until);
-        while let Some(&(at, mcu, duration)) = hangs.peek() {
+        while let Some(&(at, mcu, fault)) = hangs.peek() {
             if at > network.now() {
                 break;
             }
-            println!(
-                "{:<8} {:>12.6} ms hung for {:.3} ms",
-                names[mcu],
-                network.now() as f64 / 1e6,
-                duration as f64 / 1e6
-            );
-            network.hang(mcu, duration);
+            let now = network.now() as f64 / 1e6;
+            match fault {
+                Fault::Hang(duration) => {
+                    println!(
+                        "{:<8} {now:>12.6} ms hung for {:.3} ms",
+                        names[mcu],
+                        duration as f64 / 1e6
+                    );
+                    network.hang(mcu, duration);
+                }
+                Fault::BitErrors(count) => {
+                    println!(
+                        "{:<8} {now:>12.6} ms its next {count} transmissions destroyed by bit \
+                         errors",
+                        names[mcu]
+                    );
+                    network.inject_bit_errors(mcu, count);
+                }
+            }
             hangs.next();
         }
         for mcu in 0..names.len() {
