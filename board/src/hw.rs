@@ -133,6 +133,27 @@ fn accelerator_on() {
     });
 }
 
+/// How long the crystal may take to start before the channel halts: ST's HSE_STARTUP_TIMEOUT
+/// (the crystal's own start-up is a few milliseconds, DS8626 t_SU(HSE)).
+const CRYSTAL_START_MS: u32 = 100;
+
+/// Starts the crystal oscillator (RM0090 6.2.1: HSEON, then HSERDY) and waits for it at most
+/// [`CRYSTAL_START_MS`] on the 16 MHz HSI the MCU starts on. embassy-stm32's clock set-up waits
+/// for HSERDY without a bound, so a dead crystal would hang the channel silently before the
+/// watchdog is armed; this halts it in the safe state with the reason instead.
+fn crystal_starts() -> bool {
+    let rcc = embassy_stm32::pac::RCC;
+    rcc.cr().modify(|w| w.set_hseon(true));
+    for _ in 0..CRYSTAL_START_MS {
+        if rcc.cr().read().hserdy() {
+            return true;
+        }
+        // A millisecond at the HSI's 16 MHz.
+        cortex_m::asm::delay(16_000);
+    }
+    rcc.cr().read().hserdy()
+}
+
 /// Flushes the data cache after the flash array changed (an erase or a program), so that no
 /// read of the parameter slots returns a word cached from before (RM0090 3.5.2: the data
 /// cache holds words read through the D-bus; reset only while disabled, 3.9.1).
@@ -404,6 +425,9 @@ impl dual_channel::selftest::StartUp for HwStartUp {
 /// Initialises the board, runs the start-up self-tests, arms the watchdog and runs the
 /// channel until reset, in the task that calls it.
 pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
+    if !crystal_starts() {
+        halt_safe("the 8 MHz crystal (HSE) did not start within 100 ms: no clock to run on");
+    }
     let p = embassy_stm32::init(clocks());
     accelerator_on();
     // Why the MCU started, then the flags cleared (RMVF) so that the next start says its own.

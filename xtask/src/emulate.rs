@@ -98,6 +98,21 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
                 "xtask: {protocol:?} channel {channel}: start-up self-tests passed on the \
                  emulator, flash accelerator on"
             );
+            // A crystal that never starts (RCC_CR.HSERDY never set, RM0090 6.2.1): the
+            // channel halts in the safe state and says why, instead of waiting forever.
+            let output = std::process::Command::new(&emulate)
+                .arg(&image)
+                .args(["--for", "1s", "--node-id", "1", "--hse-fails"])
+                .output()?;
+            let log = String::from_utf8_lossy(&output.stdout);
+            if !log.contains("halting in the safe state: the 8 MHz crystal (HSE) did not start") {
+                anyhow::bail!(
+                    "{}: with a crystal that does not start, the shipped image does not halt \
+                     safe with the reason:\n{log}",
+                    image.display()
+                );
+            }
+            println!("xtask: {protocol:?} channel {channel}: a dead crystal halts it safe, said");
         }
     }
     Ok(())
