@@ -16,6 +16,8 @@ use safety_config::network_file::Network as NetworkFile;
 use safety_config::procedure::{self, NodeResult, Operator};
 use shared::canopen::nmt::{NmtCommand, NmtState};
 
+use shared::canopen::storage::{self, Slot, StorageError};
+
 use crate::network::{Event, Network};
 use crate::time::Nanos;
 use crate::tool_port::ToolPort;
@@ -115,24 +117,8 @@ pub fn nominal(
         .and_then(|node| node.srdos.first())
         .map(|srdo| Nanos::from(srdo.settings.cycle_time) * MS)
         .ok_or("the network file gives node 1 no SRDO")?;
-    let mut booted = [false; 2];
     let stopped = |event: &Event| matches!(event, Event::Stopped { .. });
-    run_until_event(network, 5_000 * MS, seen, |_, event| {
-        if let Event::Frame { frame, .. } = event {
-            match (frame.id().raw(), frame.data()) {
-                (0x701, [0]) => booted[0] = true,
-                (0x721, [0]) => booted[1] = true,
-                _ => {}
-            }
-        }
-        stopped(event) || booted == [true, true]
-    });
-    if booted != [true, true] {
-        return Err(format!(
-            "no boot-up message from both nodes within 5 s (node 1: {}, node 33: {})",
-            booted[0], booted[1]
-        ));
-    }
+    wait_for_boot_ups(network, &[1, 33], seen)?;
     let started = network.now();
     let (requests, configured_in) = {
         let mut client = Client::new(ToolPort::join(network, "tool"), file.sdo_timeout);
@@ -206,4 +192,205 @@ pub fn nominal(
         reaction: off - pressed,
         bound: refresh,
     })
+}
+
+/// Runs until every node of `nodes` has sent its boot-up message (CiA 301 7.2.8.3.2.2:
+/// 700h + node-ID, data 00h), at most 5 s of virtual time.
+fn wait_for_boot_ups(
+    network: &mut Network,
+    nodes: &[u8],
+    seen: &mut dyn FnMut(&Event),
+) -> Result<(), String> {
+    let mut booted = vec![false; nodes.len()];
+    run_until_event(network, 5_000 * MS, seen, |_, event| {
+        if let Event::Frame { frame, .. } = event
+            && frame.data() == [0]
+            && let Some(index) = nodes
+                .iter()
+                .position(|&node| frame.id().raw() == 0x700 + u16::from(node))
+        {
+            booted[index] = true;
+        }
+        matches!(event, Event::Stopped { .. }) || booted.iter().all(|&b| b)
+    });
+    let silent: Vec<u8> = nodes
+        .iter()
+        .zip(&booted)
+        .filter(|(_, booted)| !**booted)
+        .map(|(node, _)| *node)
+        .collect();
+    if silent.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "no boot-up message within 5 s from node(s) {silent:?}"
+        ))
+    }
+}
+
+/// The parameter slots of `board::parameter_flash::STM32F405_SLOTS` (flash sectors 10 and
+/// 11) in an emulated MCU's flash array, read with the storage layer the images use.
+struct Slots<'a>(&'a [u8]);
+
+/// Where the two slots begin in the flash array, and their length (`board::parameter_flash`).
+const SLOTS: ([usize; 2], usize) = ([0x000C_0000, 0x000E_0000], 0x0002_0000);
+
+impl storage::Flash for Slots<'_> {
+    fn slot_len(&self) -> usize {
+        SLOTS.1
+    }
+    fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
+        let index = match slot {
+            Slot::A => 0,
+            Slot::B => 1,
+        };
+        let start = SLOTS.0[index] + offset;
+        let bytes = self
+            .0
+            .get(start..start + buf.len())
+            .ok_or(StorageError::Medium)?;
+        buf.copy_from_slice(bytes);
+        Ok(())
+    }
+    fn erase(&mut self, _slot: Slot) -> Result<(), StorageError> {
+        Err(StorageError::Medium)
+    }
+    fn write(&mut self, _slot: Slot, _offset: usize, _data: &[u8]) -> Result<(), StorageError> {
+        Err(StorageError::Medium)
+    }
+}
+
+/// What MCU `mcu`'s flash holds as its stored parameters: the payload the storage layer
+/// loads (`None`: nothing stored, the defaults), or why it loads nothing.
+pub fn stored(network: &Network, mcu: usize) -> Result<Option<Vec<u8>>, StorageError> {
+    let array = network.machine(mcu).flash_array();
+    let mut buf = vec![0; SLOTS.1];
+    let len = storage::load(&mut Slots(&array), &mut buf)?;
+    Ok(len.map(|len| buf[..len].to_vec()))
+}
+
+/// Node 1's configuration alone, from `file`.
+fn node_1_only(file: &NetworkFile) -> Result<NetworkFile, String> {
+    let mut only = file.clone();
+    only.nodes.retain(|node| node.id == 1);
+    if only.nodes.is_empty() {
+        return Err("the network file has no node 1".into());
+    }
+    Ok(only)
+}
+
+/// Node 1's stores without a power cut: what each channel held before and after, and how
+/// many flash operations each channel's store took.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Reference {
+    /// Per channel (A, B): the payload loaded before the store.
+    pub old: [Option<Vec<u8>>; 2],
+    /// Per channel: the payload loaded after it.
+    pub new: [Option<Vec<u8>>; 2],
+    /// Per channel: the flash operations (programs and erases) from boot-up to the end of
+    /// the configuration.
+    pub operations: [u64; 2],
+}
+
+/// Configures node 1 alone on a network from `build` (nodes 1 and 33, contacts closed) and
+/// records [`Reference`].
+pub fn reference(
+    build: &dyn Fn() -> Result<Network, String>,
+    file: &NetworkFile,
+) -> Result<Reference, String> {
+    let file = node_1_only(file)?;
+    let mut network = build()?;
+    wait_for_boot_ups(&mut network, &[1], &mut |_| {})?;
+    let channels = mcu_indices(&network, 1);
+    let load = |network: &Network, mcu: usize| {
+        stored(network, mcu)
+            .map_err(|error| format!("{}: {error:?}", network.participant_name(mcu)))
+    };
+    let old = [load(&network, channels[0])?, load(&network, channels[1])?];
+    let before = channels
+        .iter()
+        .map(|&mcu| network.machine(mcu).flash_operations())
+        .collect::<Vec<_>>();
+    configure_only(&mut network, &file)?;
+    let new = [load(&network, channels[0])?, load(&network, channels[1])?];
+    if new[0].is_none() || new == old {
+        return Err("configuring node 1 stored nothing new in its channels' flash".into());
+    }
+    let operations = [0, 1].map(|c| network.machine(channels[c]).flash_operations() - before[c]);
+    Ok(Reference {
+        old,
+        new,
+        operations,
+    })
+}
+
+/// Configures from `file` with the tool's library; the tool's error as a sentence.
+fn configure_only(network: &mut Network, file: &NetworkFile) -> Result<(), String> {
+    let mut client = Client::new(ToolPort::join(network, "tool"), file.sdo_timeout);
+    let report = procedure::configure(&mut client, file, false, &mut Narrator)
+        .map_err(|error| format!("configuration: {error}"))?;
+    for result in &report.nodes {
+        if let NodeResult::Failed { error, .. } = result {
+            return Err(format!("configuration: {error}"));
+        }
+    }
+    Ok(())
+}
+
+/// What a power cut during node 1's store left.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Cut {
+    /// Per channel (A, B): whether its flash holds the new record (else the old one).
+    pub new: [bool; 2],
+}
+
+/// Cuts node 1's power during flash operation `step` of its channel `channel` (0: A, 1: B)
+/// since boot-up, while the tool configures it, from `seed`; then checks what EN 50325-5
+/// 5.3 and CiA 301 7.5.2 (1010h) ask of a store interrupted by a power loss: each channel's
+/// flash loads the old record or the new one, never a mix, never damage and never an older
+/// one; and the node starts again (its boot-up message). `None` when the store was over
+/// before `step`.
+pub fn power_cut(
+    build: &dyn Fn() -> Result<Network, String>,
+    file: &NetworkFile,
+    reference: &Reference,
+    channel: usize,
+    step: u64,
+    seed: u64,
+) -> Result<Option<Cut>, String> {
+    let file = node_1_only(file)?;
+    let mut network = build()?;
+    wait_for_boot_ups(&mut network, &[1], &mut |_| {})?;
+    let channels = mcu_indices(&network, 1);
+    let target = channels[channel];
+    let base = network.machine(target).flash_operations();
+    network.machine_mut(target).cut_power_at(base + step, seed);
+    let configured = configure_only(&mut network, &file);
+    if !network.stopped(target) {
+        return match configured {
+            Ok(()) => Ok(None),
+            Err(why) => Err(format!("without a power cut: {why}")),
+        };
+    }
+    let mut new = [false; 2];
+    for (c, &mcu) in channels.iter().enumerate() {
+        let name = network.participant_name(mcu);
+        let held = stored(&network, mcu).map_err(|error| {
+            format!("{name}: after a power cut at step {step}, its stored parameters do not load: {error:?}")
+        })?;
+        new[c] = if held == reference.new[c] {
+            true
+        } else if held == reference.old[c] {
+            false
+        } else {
+            return Err(format!(
+                "{name}: after a power cut at step {step}, its flash holds neither the old nor \
+                 the new parameters"
+            ));
+        };
+    }
+    network.power_cycle(&channels);
+    wait_for_boot_ups(&mut network, &[1], &mut |_| {})
+        .map_err(|why| format!("after the power came back: {why}"))?;
+    Ok(Some(Cut { new }))
 }

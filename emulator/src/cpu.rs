@@ -32,8 +32,10 @@
 //! - Floating point: Unicorn executes VFP instructions whatever CPACR says (its M-profile FP
 //!   access check is compiled out). CPACR is modelled; an FP instruction run while CPACR
 //!   denies it is noticed from CONTROL.FPCA at the next exception entry or return.
-//! - The stacked xPSR carries APSR, IPSR and EPSR.T; the IT bits are stacked as zero, since
-//!   exceptions are only taken between translated blocks.
+//! - The stacked xPSR carries APSR, IPSR and EPSR.T; its IT bits are zero: QEMU ends a
+//!   translated block at a 1 KiB boundary even inside an IT block, and its IT state lives in
+//!   the translated code, which a register write in a hook does not reach, so an exception
+//!   pending inside an IT block waits for the block's end (at most four instructions).
 
 use std::cell::RefCell;
 use std::collections::HashMap;
@@ -289,6 +291,9 @@ fn set_reg(uc: &mut Uc<'_>, register: RegisterARM, value: u32) {
 }
 
 /// Rebuilds QEMU's cached CPU state after an IPSR or CONTROL write (see the module's notes).
+/// EPSR's IT bits: IT[1:0] in bits 26:25, IT[7:2] in bits 15:10 (B1.4.2).
+const EPSR_IT: u32 = (3 << 25) | (0x3F << 10);
+
 fn refresh_state_flags(uc: &mut Uc<'_>) {
     let flags = reg(uc, RegisterARM::APSR_NZCV);
     set_reg(uc, RegisterARM::APSR_NZCV, flags);
@@ -450,6 +455,13 @@ fn enter(uc: &mut Uc<'_>, n: u32, return_address: u32) {
 fn take_pending(uc: &mut Uc<'_>, return_address: u32) -> bool {
     if uc.get_data().system.exceptions.highest_pending().is_none() {
         uc.get_data_mut().attention = false;
+        return false;
+    }
+    if reg(uc, RegisterARM::XPSR) & EPSR_IT != 0 {
+        // Inside an IT block (a translated block can start there: QEMU ends one at a 1 KiB
+        // boundary). QEMU keeps the IT state in the translated code and does not take it
+        // back from a register write in a hook, so the exception waits for the block's end,
+        // at most four instructions; `attention` stays set.
         return false;
     }
     let masks = masks(uc);
@@ -1450,6 +1462,52 @@ impl Machine {
         Ok(())
     }
 
+    /// Arms a power cut during flash program or erase operation `step` (counted since the
+    /// last power-on), torn as `seed` chooses ([`Flash::cut_power_at`]): the run stops with
+    /// [`Stop::PowerLost`] there.
+    pub fn cut_power_at(&mut self, step: u64, seed: u64) {
+        self.uc
+            .get_data()
+            .models
+            .flash
+            .borrow_mut()
+            .cut_power_at(step, seed);
+    }
+
+    /// Flash program and erase operations started since the last power-on.
+    pub fn flash_operations(&self) -> u64 {
+        self.uc
+            .get_data()
+            .models
+            .flash
+            .borrow()
+            .operations_started()
+    }
+
+    /// The flash array as it stands (1 MiB from 0800_0000h).
+    pub fn flash_array(&self) -> Vec<u8> {
+        self.uc.get_data().models.flash.borrow().memory().to_vec()
+    }
+
+    /// Power back on after a power loss: [`Machine::system_reset`] for a power-on (RCC_CSR:
+    /// PORRSTF, PINRSTF, BORRSTF), SRAM and CCM cleared (their contents are not kept without
+    /// power), the flash array as the loss left it.
+    pub fn power_on_again(&mut self) -> Result<(), Stop> {
+        for (base, size) in [
+            (memory::SRAM, memory::SRAM_SIZE),
+            (memory::CCM, memory::CCM_SIZE),
+        ] {
+            self.uc
+                .mem_write(u64::from(base), &vec![0; size as usize])
+                .map_err(|error| Stop::Engine {
+                    error: format!("{error:?}"),
+                    at: "power-on".to_owned(),
+                })?;
+        }
+        self.uc.get_data_mut().stop = None;
+        self.system_reset(ResetCause::PowerOn)
+    }
+
     /// A system reset for `cause` (the watchdog's, or software's SYSRESETREQ), as the MCU
     /// takes it (RM0090 7.1.2): every peripheral back to its reset state except what a
     /// system reset keeps — the RCC's reset flags gain the cause's (RM0090 7.3.21, CSR), the
@@ -1475,9 +1533,12 @@ impl Machine {
             *models.flash.borrow_mut() = flash;
             *models.tim2.borrow_mut() = Tim2::new();
             st.flash_busy_until = None;
+            st.flash_dirty = true;
             st.follow_clock_tree();
             st.usart_out.clear();
         }
+        // What an operation left in the array is what the core reads from now on.
+        sync_flash(&mut self.uc);
         self.reset()
     }
 

@@ -322,6 +322,38 @@ impl Network {
         self.mcus[mcu].bit_errors = count;
     }
 
+    /// Powers MCUs `mcus` off and on again (a node's supply failed and came back): each
+    /// starts from its image with SRAM cleared and its flash as it stands
+    /// ([`Machine::power_on_again`]), also one that had stopped.
+    pub fn power_cycle(&mut self, mcus: &[usize]) {
+        for &index in mcus {
+            let at = self.now;
+            let mcu = &mut self.mcus[index];
+            mcu.transmitting = None;
+            mcu.offering_since = None;
+            mcu.bit_errors = 0;
+            mcu.stopped = false;
+            if let Err(stop) = mcu.machine.power_on_again() {
+                mcu.stopped = true;
+                self.events.push(Event::Stopped {
+                    mcu: index,
+                    stop,
+                    at,
+                });
+            }
+        }
+    }
+
+    /// Whether any MCU stopped (a fault, or the power cut armed in its flash).
+    pub fn any_stopped(&self) -> bool {
+        self.mcus.iter().any(|mcu| mcu.stopped)
+    }
+
+    /// MCU `mcu`'s machine, to arm a power cut in its flash.
+    pub fn machine_mut(&mut self, mcu: usize) -> &mut Machine {
+        &mut self.mcus[mcu].machine
+    }
+
     /// Opens or closes MCU `mcu`'s safety input contact.
     pub fn set_input(&mut self, mcu: usize, closed: bool) {
         self.mcus[mcu]

@@ -56,6 +56,13 @@ impl Transport for ToolPort<'_> {
         &mut self,
         deadline: Duration,
     ) -> Result<Option<(Duration, CanFrame)>, TransportError> {
+        if self.network.any_stopped() {
+            // A power cut or a fault ended an MCU: the case decides what follows, the tool
+            // does not wait out its time-outs for it.
+            return Err(TransportError::Protocol(
+                "an emulated MCU stopped (a power cut or a fault)".into(),
+            ));
+        }
         let end = nanos(deadline);
         if let Some(delivery) = self.network.receive(self.participant) {
             return Ok(Some((stamp(delivery.at), delivery.frame)));

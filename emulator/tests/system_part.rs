@@ -296,3 +296,20 @@ fn rm0090_3_6_a_store_to_flash_is_programmed_by_the_flash_interface_only_with_pg
     // The boot alias shows the same array.
     assert_eq!(word(&machine, 0x000E_0000), 0x1234_5678);
 }
+
+#[test]
+fn armv7m_b1_5_6_an_interrupt_pending_inside_an_it_block_is_taken_after_it_and_the_block_stays_conditional()
+ {
+    let (mut machine, _) = machine("it_block");
+    run(&mut machine, 100 * MICROSECOND);
+    // The handler ran with no IT state: its first instruction (under `ne` with Z = 1 it
+    // would be skipped) read IPSR 16, and the next one executed too.
+    assert_eq!(machine.register(Register::R7) & 0x1FF, 16);
+    assert_eq!(machine.register(Register::R9), 7);
+    let it_bits = |xpsr: u32| ((xpsr >> 25) & 3) | ((xpsr >> 8) & 0xFC);
+    // Taken after the IT block: no IT state stacked.
+    assert_eq!(it_bits(machine.register(Register::R8)), 0);
+    // The conditional instruction stayed conditional: skipped (Z = 1).
+    assert_eq!(machine.register(Register::R2), 0);
+    assert_eq!(machine.register(Register::R4), 0x55);
+}

@@ -318,6 +318,12 @@ impl Flash {
         self.power_cut = Some(PowerCut { step, seed });
     }
 
+    /// Program and erase operations started since power-on (the steps
+    /// [`Flash::cut_power_at`] counts).
+    pub fn operations_started(&self) -> u64 {
+        self.operations_started
+    }
+
     /// Whether the armed power cut happened: the run must end here.
     pub fn power_lost(&self) -> bool {
         self.powered_off
