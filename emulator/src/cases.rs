@@ -389,6 +389,8 @@ pub fn power_cut(
             ));
         };
     }
+    // The stop the cut caused is reported; what follows is the new power-on.
+    network.take_events();
     network.power_cycle(&channels);
     wait_for_boot_ups(&mut network, &[1], &mut |_| {})
         .map_err(|why| format!("after the power came back: {why}"))?;

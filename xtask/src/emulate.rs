@@ -118,22 +118,44 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
     Ok(())
 }
 
+/// What `cargo xtask emulate --network` runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Case {
+    /// The network for the duration asked for.
+    Run,
+    /// The nominal end-to-end case.
+    Nominal,
+    /// The power-cut sweep of node 1's store, at every `every`th step.
+    PowerCutSweep {
+        /// Every how many steps a cut is made.
+        every: u64,
+    },
+}
+
 /// Builds and seals the shipped images of `protocol`, then runs both nodes (1 and 33, channels
 /// A and B each) on one emulated bus for `duration` of virtual time with every contact
-/// closed, and prints every MCU's decoded log and the summary.
-pub fn network_task(root: &Path, duration: &str, protocol: Protocol, nominal: bool) -> Result<()> {
+/// closed, or runs `case` on them, and prints every MCU's decoded log and the summary.
+pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_emulator_build_deps()?;
     let layer = protocol.hardware_layer();
     images::build_layer(root, &cross, layer)?;
-    let mut case = Vec::new();
-    if nominal {
+    let mut arguments: Vec<std::ffi::OsString> = Vec::new();
+    if case != Case::Run {
         if protocol != Protocol::CanopenSafety {
-            anyhow::bail!("the nominal case on the emulated network is CANopen Safety's only");
+            anyhow::bail!("the emulated network's cases are CANopen Safety's only");
         }
-        let file = write_network_file(root)?;
-        case.push("--nominal".into());
-        case.push(file.into_os_string());
+        let file = write_network_file(root)?.into_os_string();
+        match case {
+            Case::Nominal => arguments.extend(["--nominal".into(), file]),
+            Case::PowerCutSweep { every } => arguments.extend([
+                "--power-cut-sweep".into(),
+                file,
+                "--every".into(),
+                every.to_string().into(),
+            ]),
+            Case::Run => {}
+        }
     }
     crate::run(
         cargo()
@@ -151,7 +173,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, nominal: bo
             .arg(images::image(&cross, root, layer, "a"))
             .arg(images::image(&cross, root, layer, "b"))
             .args(["--for", duration, "--inputs-closed"])
-            .args(case),
+            .args(arguments),
     )
 }
 
@@ -338,8 +360,38 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
              channel goes safe; bus-off latches the safe state"
         );
     }
+    // Power cuts while node 1 stores its configuration (CANopen Safety's file), at every
+    // SWEEP_EVERY-th flash step of each channel's store (all of them:
+    // `cargo xtask emulate --network --power-cut-sweep`).
+    let layer = Protocol::CanopenSafety.hardware_layer();
+    let file = write_network_file(root)?;
+    let output = std::process::Command::new(&emulate)
+        .arg(images::image(cross, root, layer, "a"))
+        .arg(images::image(cross, root, layer, "b"))
+        .args(["--inputs-closed", "--power-cut-sweep"])
+        .arg(&file)
+        .args(["--every", &SWEEP_EVERY.to_string()])
+        .output()?;
+    let log = String::from_utf8_lossy(&output.stdout);
+    let summary: Vec<&str> = log
+        .lines()
+        .filter(|line| line.starts_with("emulate-network:") && !line.contains("sealed image"))
+        .collect();
+    if !output.status.success() {
+        anyhow::bail!(
+            "power cuts during a store on the shipped images: a channel kept neither the old nor \
+             the new parameters, or the node did not start again:\n{log}{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    for line in summary {
+        println!("xtask: {line}");
+    }
     Ok(())
 }
+
+/// `cargo xtask test` cuts the power at every this-many-th flash step of a store.
+const SWEEP_EVERY: u64 = 6;
 
 /// What the shipped images must do when node 33's channel A hangs with interrupts masked
 /// and node 1's channel A's transmissions are destroyed by bit errors (the run of

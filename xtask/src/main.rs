@@ -116,6 +116,14 @@ enum Task {
         /// them, open node 1's contacts and time node 33's outputs going off).
         #[arg(long, requires = "network")]
         nominal: bool,
+        /// With `--network`: cut node 1's power at every flash program and erase step of its
+        /// store (or every `--every`th), and check each channel keeps the old or the new
+        /// parameters and the node starts again.
+        #[arg(long, requires = "network", conflicts_with = "nominal")]
+        power_cut_sweep: bool,
+        /// With `--power-cut-sweep`: every Nth step only.
+        #[arg(long, default_value_t = 1)]
+        every: u64,
         /// Which channel's image: `a` or `b`.
         #[arg(long, value_parser = ["a", "b"], default_value = "a")]
         channel: String,
@@ -365,15 +373,28 @@ fn task() -> Result<()> {
             duration,
             protocol,
             nominal,
+            power_cut_sweep,
+            every,
             ..
-        } => emulate::network_task(&root, &duration, protocol, nominal),
+        } => emulate::network_task(
+            &root,
+            &duration,
+            protocol,
+            if power_cut_sweep {
+                emulate::Case::PowerCutSweep { every }
+            } else if nominal {
+                emulate::Case::Nominal
+            } else {
+                emulate::Case::Run
+            },
+        ),
         Task::Emulate {
             channel,
             duration,
             node_id,
             protocol,
             network: false,
-            nominal: _,
+            ..
         } => emulate::task(&root, &channel, &duration, node_id, protocol),
         Task::Qemu {
             channel,

@@ -385,10 +385,11 @@ fn sweep(
         let steps: Vec<u64> = (0..=last)
             .filter(|step| step % every == 0 || *step + 1 >= last)
             .collect();
-        let (mut kept_old, mut kept_new, mut mixed_channels) = (0, 0, 0);
+        let (mut kept_old, mut kept_new, mut mixed_channels, mut cuts) = (0, 0, 0, 0);
         for &step in &steps {
             match emulator::cases::power_cut(build, &file, &reference, channel, step, step) {
                 Ok(Some(cut)) => {
+                    cuts += 1;
                     if cut.new[channel] {
                         kept_new += 1;
                     } else {
@@ -406,11 +407,14 @@ fn sweep(
             }
         }
         println!(
-            "emulate-network: channel {name}: power cut at {} of its {} store steps: old \
-             parameters kept {kept_old} times, new {kept_new} times, the two channels then \
-             held different records {mixed_channels} times; the node started again every time",
-            steps.len(),
-            last
+            "emulate-network: channel {name}: power cut at {cuts} of its {last} store steps: \
+             old parameters kept {kept_old} times, new {kept_new} times, the two channels then \
+             held different records {mixed_channels} times{}",
+            if failures == 0 {
+                "; the node started again every time"
+            } else {
+                ""
+            }
         );
     }
     println!(
