@@ -49,6 +49,53 @@ pub struct Nominal {
     pub reaction: Nanos,
     /// The bound: the producer's refresh time.
     pub bound: Nanos,
+    /// What each MCU executed (names in the network's order).
+    pub costs: Vec<Cost>,
+}
+
+/// What one MCU executed in two windows of equal length, counted by the emulator
+/// (instructions, not cycles): pre-operational before the configuration (heartbeats, the
+/// link) and Operational with SRDO 1 running.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Cost {
+    /// The MCU.
+    pub name: String,
+    /// Instructions in the pre-operational window.
+    pub idle_instructions: u64,
+    /// Wake-ups from WFI in it: loop iterations.
+    pub idle_wake_ups: u64,
+    /// Instructions in the Operational window.
+    pub operational_instructions: u64,
+    /// SRDO 1 pairs on the bus in the Operational window.
+    pub pairs: u64,
+}
+
+impl Cost {
+    /// Instructions per loop iteration, pre-operational.
+    pub fn per_idle_iteration(&self) -> f64 {
+        self.idle_instructions as f64 / self.idle_wake_ups.max(1) as f64
+    }
+
+    /// Instructions per SRDO pair above the pre-operational baseline: all layers (CAN and
+    /// link interrupts, the loop, the core).
+    pub fn per_pair(&self) -> f64 {
+        self.operational_instructions
+            .saturating_sub(self.idle_instructions) as f64
+            / self.pairs.max(1) as f64
+    }
+}
+
+/// The length of each measuring window.
+const WINDOW: Nanos = 1_000 * MS;
+
+/// Each MCU's (instructions, wake-ups) now.
+fn counters(network: &Network) -> Vec<(u64, u64)> {
+    (0..network.names().count())
+        .map(|mcu| {
+            let machine = network.machine(mcu);
+            (machine.instructions(), machine.wake_ups())
+        })
+        .collect()
 }
 
 const MS: Nanos = 1_000_000;
@@ -119,6 +166,15 @@ pub fn nominal(
         .ok_or("the network file gives node 1 no SRDO")?;
     let stopped = |event: &Event| matches!(event, Event::Stopped { .. });
     wait_for_boot_ups(network, &[1, 33], seen)?;
+    let idle_from = counters(network);
+    if let Some(at) = run_until_event(network, WINDOW, seen, |_, event| stopped(event)) {
+        return Err(format!("an MCU stopped at {:.3} ms", at as f64 / 1e6));
+    }
+    let idle: Vec<(u64, u64)> = counters(network)
+        .iter()
+        .zip(&idle_from)
+        .map(|(now, from)| (now.0 - from.0, now.1 - from.1))
+        .collect();
     let started = network.now();
     let (requests, configured_in) = {
         let mut client = Client::new(ToolPort::join(network, "tool"), file.sdo_timeout);
@@ -167,9 +223,36 @@ pub fn nominal(
         );
     }
     // Steady state for a while: every pair validated, nothing drops out.
-    let steady = run_until_event(network, 1_000 * MS, seen, |network, event| {
+    let operational_from = counters(network);
+    let plain = file
+        .nodes
+        .iter()
+        .find(|node| node.id == 1)
+        .and_then(|node| node.srdos.first())
+        .map(|srdo| srdo.settings.cob_id_1 & 0x7FF)
+        .unwrap_or_default();
+    let mut pairs = 0;
+    let steady = run_until_event(network, WINDOW, seen, |network, event| {
+        if let Event::Frame { frame, .. } = event
+            && u32::from(frame.id().raw()) == plain
+        {
+            pairs += 1;
+        }
         stopped(event) || !consumer.iter().all(|&mcu| network.output(mcu))
     });
+    let costs = counters(network)
+        .iter()
+        .zip(&operational_from)
+        .zip(&idle)
+        .zip(network.names())
+        .map(|(((now, from), idle), name)| Cost {
+            name: name.to_owned(),
+            idle_instructions: idle.0,
+            idle_wake_ups: idle.1,
+            operational_instructions: now.0 - from.0,
+            pairs,
+        })
+        .collect();
     if let Some(at) = steady {
         return Err(format!(
             "node 33's outputs went off at {:.3} ms with node 1's contacts closed",
@@ -191,6 +274,7 @@ pub fn nominal(
         sdo_requests: requests,
         reaction: off - pressed,
         bound: refresh,
+        costs,
     })
 }
 

@@ -198,6 +198,8 @@ pub struct State {
     yielded: bool,
     /// Until then the core executes nothing and takes no exception ([`Machine::hang`]).
     hung_until: Nanos,
+    /// Times the core woke from WFI or WFE ([`Machine::wake_ups`]).
+    wake_ups: u64,
     /// The flash array as Unicorn holds it (the flash model's array is the reference).
     flash_shadow: Vec<u8>,
     /// Whether the flash model's array may differ from Unicorn's.
@@ -1231,6 +1233,7 @@ impl Machine {
             yield_on_transmit: false,
             yielded: false,
             hung_until: 0,
+            wake_ups: 0,
             flash_shadow: vec![0xFF; memory::FLASH_SIZE as usize],
             flash_dirty: false,
             flash_busy_until: None,
@@ -1652,6 +1655,7 @@ impl Machine {
         if woken {
             st.sleep = None;
             st.attention = true;
+            st.wake_ups += 1;
             return;
         }
         let next = st.deadline.min(st.end);
@@ -1672,6 +1676,12 @@ impl Machine {
     /// The clock frequencies the RCC gives now.
     pub fn clocks(&self) -> Clocks {
         self.uc.get_data().clocks
+    }
+
+    /// Times the core woke from WFI or WFE since power-on: the image's loop iterations, for
+    /// an image whose loop sleeps when it has nothing to do (embassy's executor).
+    pub fn wake_ups(&self) -> u64 {
+        self.uc.get_data().wake_ups
     }
 
     /// Whether the core is asleep (WFI or WFE) at the end of the last run.

@@ -211,6 +211,18 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                     nominal.reaction as f64 / 1e6,
                     nominal.bound as f64 / 1e6
                 );
+                for cost in &nominal.costs {
+                    println!(
+                        "emulate-network: cost {{\"mcu\": \"{}\", \
+                         \"instructions_per_idle_iteration\": {:.0}, \
+                         \"instructions_per_pair\": {:.0}, \"pairs\": {}, \
+                         \"window_s\": 1.0}}",
+                        cost.name,
+                        cost.per_idle_iteration(),
+                        cost.per_pair(),
+                        cost.pairs
+                    );
+                }
                 Ok(!stopped && nominal.reaction <= nominal.bound)
             }
             Err(why) => {
