@@ -14,6 +14,7 @@
 use safety_config::client::Client;
 use safety_config::network_file::Network as NetworkFile;
 use safety_config::procedure::{self, NodeResult, Operator};
+use shared::CanFrame;
 use shared::canopen::nmt::{NmtCommand, NmtState};
 
 use shared::canopen::storage::{self, Slot, StorageError};
@@ -51,7 +52,39 @@ pub struct Nominal {
     pub bound: Nanos,
     /// What each MCU executed (names in the network's order).
     pub costs: Vec<Cost>,
+    /// The bus-load part, when asked for.
+    pub load: Option<LoadReport>,
 }
+
+/// The bus-load part of the nominal case: frames on a free identifier of higher priority
+/// than every SRDO (a babbling node) and SDO upload requests to node 33, generated in the
+/// virtual time with the hub's generator (`can_hub::load`) so that the traffic other than
+/// SRDOs fills `percent` of the bus, for `seconds`, beside SRDO 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoadSpec {
+    /// Share of the bus, in percent.
+    pub percent: u32,
+    /// How long, in virtual time.
+    pub duration: Nanos,
+}
+
+/// What the bus-load part measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadReport {
+    /// The share of the bus's bit time the frames other than SRDOs took.
+    pub share: f64,
+    /// SDO requests sent and answered.
+    pub sdo_requests: u64,
+    /// Answers to them.
+    pub sdo_answers: u64,
+    /// Plain-to-inverted gaps of SRDO 1's pairs, sorted.
+    pub gaps: Vec<Nanos>,
+}
+
+/// The babbling identifier of the bus-load part: free in the pre-defined connection set
+/// (CiA 301 7.3.5: NMT 000h, EMCY from 081h) and above every SRDO's priority (CiA 304: 101h
+/// and up).
+const BABBLE_ID: u16 = 0x050;
 
 /// What one MCU executed in two windows of equal length, counted by the emulator
 /// (instructions, not cycles): pre-operational before the configuration (heartbeats, the
@@ -150,6 +183,7 @@ fn event_time(event: &Event) -> Nanos {
 pub fn nominal(
     network: &mut Network,
     file: &NetworkFile,
+    load: Option<LoadSpec>,
     seen: &mut dyn FnMut(&Event),
 ) -> Result<Nominal, String> {
     let producer = mcu_indices(network, 1);
@@ -259,6 +293,10 @@ pub fn nominal(
             at as f64 / 1e6
         ));
     }
+    let load = match load {
+        Some(spec) => Some(under_load(network, spec, plain, &consumer, seen)?),
+        None => None,
+    };
     // The emergency stop: both of node 1's contacts open at once.
     let pressed = network.now();
     for &mcu in &producer {
@@ -275,6 +313,7 @@ pub fn nominal(
         reaction: off - pressed,
         bound: refresh,
         costs,
+        load,
     })
 }
 
@@ -479,4 +518,102 @@ pub fn power_cut(
     wait_for_boot_ups(&mut network, &[1], &mut |_| {})
         .map_err(|why| format!("after the power came back: {why}"))?;
     Ok(Some(Cut { new }))
+}
+
+/// The bus-load part of [`nominal`]: node 33's outputs must stay on throughout, every SDO
+/// request answered.
+fn under_load(
+    network: &mut Network,
+    spec: LoadSpec,
+    plain: u32,
+    consumer: &[usize],
+    seen: &mut dyn FnMut(&Event),
+) -> Result<LoadReport, String> {
+    use can_hub::load::Load;
+    use shared::{CanId, Instant};
+    let frame = |id: u16, data: &[u8]| {
+        CanId::new(id)
+            .ok()
+            .and_then(|id| CanFrame::new(id, data).ok())
+            .ok_or_else(|| format!("no frame {id:03X}h"))
+    };
+    // 1018h:01h, as python-canopen reads an identity (CiA 301 7.2.4.3.4: upload request).
+    let request = frame(0x621, &[0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0])?;
+    let babble = frame(BABBLE_ID, &[0x55; 8])?;
+    let frames = vec![request, babble, babble, babble, babble];
+    let start = network.now();
+    let mut generator = Load::new(
+        spec.percent,
+        500_000,
+        frames,
+        Instant::from_micros(start / 1_000),
+    )
+    .map_err(|error| error.to_string())?;
+    let sender = network.join_external("load");
+    let (mut requests, mut answers) = (0u64, 0u64);
+    let mut other_bits = 0u64;
+    let mut plain_at: Option<Nanos> = None;
+    let mut gaps = Vec::new();
+    let end = start + spec.duration;
+    let mut queued = false;
+    while network.now() < end {
+        let now = Instant::from_micros(network.now() / 1_000);
+        if !queued && let Some(next) = generator.poll(now) {
+            if next.id().raw() == 0x621 {
+                requests += 1;
+            }
+            network.send(sender, next);
+            queued = true;
+        }
+        network.run_until((network.now() + 100_000).min(end));
+        for event in network.take_events() {
+            seen(&event);
+            match &event {
+                Event::Frame { at, from, frame } => {
+                    let ours = from == "load";
+                    if ours {
+                        queued = false;
+                    }
+                    generator.completed(frame, ours);
+                    let id = u32::from(frame.id().raw());
+                    if id == plain {
+                        plain_at = Some(*at);
+                    } else if id == plain + 1 {
+                        if let Some(t) = plain_at.take() {
+                            gaps.push(at - t);
+                        }
+                    } else {
+                        other_bits += u64::from(can_hub::bus::frame_bits(frame));
+                        if frame.id().raw() == 0x5A1 {
+                            answers += 1;
+                        }
+                    }
+                }
+                Event::Stopped { at, .. } => {
+                    return Err(format!(
+                        "an MCU stopped under bus load at {:.3} ms",
+                        *at as f64 / 1e6
+                    ));
+                }
+                _ => {}
+            }
+            if !consumer.iter().all(|&mcu| network.output(mcu)) {
+                return Err(format!(
+                    "node 33's outputs went off under {} % bus load at {:.3} ms",
+                    spec.percent,
+                    network.now() as f64 / 1e6
+                ));
+            }
+        }
+    }
+    // The generator's frame still queued goes with it.
+    while network.receive(sender).is_some() {}
+    gaps.sort_unstable();
+    let seconds = spec.duration as f64 / 1e9;
+    Ok(LoadReport {
+        share: other_bits as f64 / (500_000.0 * seconds),
+        sdo_requests: requests,
+        sdo_answers: answers,
+        gaps,
+    })
 }

@@ -124,6 +124,10 @@ enum Task {
         /// With `--power-cut-sweep`: every Nth step only.
         #[arg(long, default_value_t = 1)]
         every: u64,
+        /// The image with the bxCAN driven by the `bxcan` 0.8 crate (board feature
+        /// `can-bxcan`, docs/can-driver.md) instead of the shipped one, alone.
+        #[arg(long, conflicts_with = "network")]
+        bxcan: bool,
         /// Which channel's image: `a` or `b`.
         #[arg(long, value_parser = ["a", "b"], default_value = "a")]
         channel: String,
@@ -394,8 +398,9 @@ fn task() -> Result<()> {
             node_id,
             protocol,
             network: false,
+            bxcan,
             ..
-        } => emulate::task(&root, &channel, &duration, node_id, protocol),
+        } => emulate::task(&root, &channel, &duration, node_id, protocol, bxcan),
         Task::Qemu {
             channel,
             selftest,

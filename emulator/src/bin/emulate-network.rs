@@ -49,6 +49,13 @@ struct Cli {
     /// (`emulator::cases::nominal`). Needs `--nodes 1,33` (the default) and closed contacts.
     #[arg(long, value_name = "NETWORK_FILE")]
     nominal: Option<PathBuf>,
+    /// With `--nominal`: before the emergency stop, SDO requests to node 33 and a babbling
+    /// higher-priority identifier on this share of the bus (percent) beside the SRDOs.
+    #[arg(long, requires = "nominal", value_parser = clap::value_parser!(u32).range(1..=90))]
+    load: Option<u32>,
+    /// With `--load`: for this long (virtual time).
+    #[arg(long, default_value = "10s", value_parser = emulator::time::parse_duration)]
+    load_for: Nanos,
     /// Hang an MCU's core (no instruction, no interrupt; its watchdog runs on), as
     /// `NAME@AT/FOR`: `node33a@1200ms/300ms`. Repeatable.
     #[arg(long, value_parser = parse_hang)]
@@ -184,8 +191,13 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             .map_err(|error| format!("{}: {error}", path.display()))?;
         let file = safety_config::network_file::parse(&text, &path.display().to_string())?;
         let mut trace = Vec::new();
-        let result =
-            emulator::cases::nominal(&mut network, &file, &mut |event| trace.push(event.clone()));
+        let load = cli.load.map(|percent| emulator::cases::LoadSpec {
+            percent,
+            duration: cli.load_for,
+        });
+        let result = emulator::cases::nominal(&mut network, &file, load, &mut |event| {
+            trace.push(event.clone())
+        });
         network.run_until(network.now() + 100_000_000);
         trace.extend(network.take_events());
         let mut stopped = false;
@@ -211,6 +223,25 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                     nominal.reaction as f64 / 1e6,
                     nominal.bound as f64 / 1e6
                 );
+                if let Some(load) = &nominal.load {
+                    let percentile = |p: f64| {
+                        load.gaps
+                            .get(((load.gaps.len() as f64 - 1.0) * p).round() as usize)
+                            .map_or(0.0, |&gap| gap as f64 / 1e6)
+                    };
+                    println!(
+                        "emulate-network: under load: {:.1} % of the bus beside the SRDOs, {} \
+                         of {} SDO requests answered, no fault; {} pairs, plain-to-inverted \
+                         gap median {:.3} ms, 99 % within {:.3} ms, longest {:.3} ms",
+                        load.share * 100.0,
+                        load.sdo_answers,
+                        load.sdo_requests,
+                        load.gaps.len(),
+                        percentile(0.5),
+                        percentile(0.99),
+                        percentile(1.0)
+                    );
+                }
                 for cost in &nominal.costs {
                     println!(
                         "emulate-network: cost {{\"mcu\": \"{}\", \
