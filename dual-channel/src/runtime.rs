@@ -663,6 +663,14 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         })
     }
 
+    /// Allows the other channel's first link message `longer` more than [`STARTUP`], for a
+    /// board whose start-up may take that much longer on one channel than on the other (the
+    /// hardware's erase ahead of a parameter slot, `board::hw`); before the first message
+    /// only (see [`Receiver::extend_startup`]).
+    pub fn allow_longer_start_up(&mut self, longer: Duration) {
+        self.receiver.extend_startup(longer);
+    }
+
     /// The second step of [`Runtime::new`]: the core's stored parameters loaded in place
     /// ([`Device::restore_parameters`]). Out of line: the stored image it reads into is in
     /// its own frame.

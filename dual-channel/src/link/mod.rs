@@ -286,6 +286,15 @@ impl Receiver {
         }
     }
 
+    /// Allows the first message `longer` more (the other channel's start-up may take that
+    /// much longer on this board); no effect once a valid message came, after which only the
+    /// timeout counts.
+    pub fn extend_startup(&mut self, longer: Duration) {
+        if self.expected.is_none() {
+            self.deadline = self.deadline + longer;
+        }
+    }
+
     /// When [`Receiver::poll`] reports a timeout unless a valid message comes first.
     pub fn deadline(&self) -> Instant {
         self.deadline

@@ -116,6 +116,33 @@ fn the_first_message_starts_the_count_within_the_startup_time() {
     );
 }
 
+/// EN 50325-5 Annex A.4 (Model III link supervision): a board whose other channel may take
+/// longer to start (the hardware's erase ahead of a parameter slot) extends the wait for the
+/// first message, and only that: once a message came, the timeout alone counts.
+#[test]
+fn en50325_5_a_4_a_longer_start_up_extends_only_the_wait_for_the_first_message() {
+    let startup = Duration::from_millis(500);
+    let longer = Duration::from_millis(4000);
+    let mut waiting = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    waiting.extend_startup(longer);
+    assert_eq!(waiting.poll(Instant::from_millis(4499)), Ok(()));
+    assert_eq!(
+        waiting.poll(Instant::from_millis(4500)),
+        Err(LinkFault::Timeout)
+    );
+
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    let at = Instant::from_millis(100);
+    let message = Message::Inputs { sample: 1 };
+    assert_eq!(
+        feed(&mut receiver, at, &sender.encode(&message).unwrap()),
+        [Ok(message)]
+    );
+    receiver.extend_startup(longer);
+    assert_eq!(receiver.deadline(), at + TIMEOUT);
+}
+
 #[test]
 fn garbage_before_the_first_message_is_ignored_but_not_after() {
     let mut sender = Sender::new();

@@ -49,6 +49,70 @@ struct Cli {
     /// (`emulator::cases::nominal`). Needs `--nodes 1,33` (the default) and closed contacts.
     #[arg(long, value_name = "NETWORK_FILE")]
     nominal: Option<PathBuf>,
+    /// Keep each MCU's parameter flash (sectors 10 and 11) across runs, as a power cycle
+    /// keeps it: at power-on from `DIR/<MCU>.parameters` when that file exists (else erased),
+    /// at the end written back there.
+    #[arg(long, value_name = "DIR")]
+    parameters: Option<PathBuf>,
+}
+
+/// The parameter sectors (10 and 11, `memory.x` region PARAMETERS): address and length.
+const PARAMETERS: (u32, usize) = (0x080C_0000, 2 * 128 * 1024);
+
+/// Where `mcu`'s parameter flash is kept between runs.
+fn parameters_file(dir: &std::path::Path, mcu: &str) -> PathBuf {
+    dir.join(format!("{mcu}.parameters"))
+}
+
+/// `image` with `mcu`'s kept parameter flash added as a segment, when there is one.
+fn with_parameters(
+    image: &Image,
+    dir: Option<&std::path::Path>,
+    mcu: &str,
+) -> Result<Image, Box<dyn std::error::Error>> {
+    let mut image = image.clone();
+    let Some(dir) = dir else {
+        return Ok(image);
+    };
+    let path = parameters_file(dir, mcu);
+    if path.exists() {
+        let bytes = std::fs::read(&path).map_err(|error| format!("{}: {error}", path.display()))?;
+        if bytes.len() != PARAMETERS.1 {
+            return Err(format!(
+                "{}: {} bytes, not the {} of the parameter sectors",
+                path.display(),
+                bytes.len(),
+                PARAMETERS.1
+            )
+            .into());
+        }
+        println!(
+            "emulate-network: {mcu}: parameter flash from {}",
+            path.display()
+        );
+        image.segments.push(emulator::image::Segment {
+            address: PARAMETERS.0,
+            bytes,
+        });
+    }
+    Ok(image)
+}
+
+/// Writes every MCU's parameter flash to `dir` (see `--parameters`).
+fn keep_parameters(
+    network: &Network,
+    names: &[String],
+    dir: &std::path::Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    std::fs::create_dir_all(dir)?;
+    for (mcu, name) in names.iter().enumerate() {
+        let bytes = network
+            .machine(mcu)
+            .read_memory(PARAMETERS.0, PARAMETERS.1)
+            .ok_or("the parameter sectors cannot be read")?;
+        std::fs::write(parameters_file(dir, name), bytes)?;
+    }
+    Ok(())
 }
 
 fn main() -> ExitCode {
@@ -84,9 +148,10 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             return Err(format!("node-ID {node} is not one of 1 to 127").into());
         }
         for (channel, image) in [("a", &image_a), ("b", &image_b)] {
+            let name = format!("node{node}{channel}");
             members.push(Member {
-                name: format!("node{node}{channel}"),
-                image: image.clone(),
+                image: with_parameters(image, cli.parameters.as_deref(), &name)?,
+                name,
                 node_id: Some(node),
                 input_closed: cli.inputs_closed,
                 hse: rcc::BOARD_HSE,
@@ -130,6 +195,9 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             }
         }
         summary(&network, &names, &frames, started);
+        if let Some(dir) = &cli.parameters {
+            keep_parameters(&network, &names, dir)?;
+        }
         return match result {
             Ok(nominal) => {
                 println!(
@@ -165,6 +233,9 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
     }
     summary(&network, &names, &frames, started);
+    if let Some(dir) = &cli.parameters {
+        keep_parameters(&network, &names, dir)?;
+    }
     Ok(!stopped)
 }
 
