@@ -374,14 +374,22 @@ fn retire_and_erase<F: Flash>(flash: &mut F, slot: Slot) -> Result<(), StorageEr
     flash.erase(slot)
 }
 
-/// `true` when the `len` bytes of `slot` from its start all read erased.
+/// `true` when the `len` bytes of `slot` from its start all read erased. Compares whole
+/// words where it can: at start-up this reads a whole slot, while the watchdog runs.
 fn erased<F: Flash>(flash: &mut F, slot: Slot, len: usize) -> Result<bool, StorageError> {
-    let mut scratch = [0u8; 64];
+    let mut scratch = [0u8; 256];
     let mut at = 0;
     while at < len {
         let chunk = (len - at).min(scratch.len());
-        flash.read(slot, at, &mut scratch[..chunk])?;
-        if scratch[..chunk].iter().any(|&byte| byte != 0xFF) {
+        let bytes = &mut scratch[..chunk];
+        flash.read(slot, at, bytes)?;
+        let words = bytes.chunks_exact(WORD);
+        let rest = words.remainder();
+        let all_erased = rest.iter().all(|&byte| byte == 0xFF)
+            && words
+                .map(|word| u32::from_ne_bytes([word[0], word[1], word[2], word[3]]))
+                .all(|word| word == u32::MAX);
+        if !all_erased {
             return Ok(false);
         }
         at += chunk;
@@ -470,7 +478,9 @@ fn commit<F: Flash>(flash: &mut F, kind: u8, payload: &[u8]) -> Result<(), Stora
 ///
 /// Never erases the record in force (the target holds neither the newest record nor a
 /// damaged one), and retires the target before the erase, so a power cut during it leaves a
-/// slot that loads as ignored (the module documentation's table).
+/// slot that loads as ignored (the module documentation's table). When a slot is damaged
+/// the load fails ([`StorageError::Corrupt`]) and the target is the other slot: its record
+/// cannot load while the damage stays, and the next store would write over it anyway.
 pub fn erase_ahead<F: Flash>(flash: &mut F) -> Result<Option<Slot>, StorageError> {
     let target = target(contents(flash)?);
     if erased(flash, target, flash.slot_len())? {
