@@ -23,6 +23,7 @@
 //! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
 //! gives [`HwDriver`] the same `CanPort`.
 
+use core::sync::atomic::{AtomicBool, Ordering};
 use core::task::Poll;
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
@@ -150,6 +151,11 @@ fn flush_data_cache() {
     acr.modify(|w| w.set_dcen(true));
 }
 
+/// Set by every flash program and erase: the processor waited for the flash, and the link
+/// USART's interrupt with it, so link bytes may have been lost (its one-byte receive
+/// register overran). Taken by [`HwDriver`]'s `link_deaf`, which tells the runtime.
+static LINK_DEAF: AtomicBool = AtomicBool::new(false);
+
 /// embassy-stm32's blocking flash driver as the word-programmed medium of the parameter
 /// slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`]. The processor
 /// executes from this flash, so an erase stalls it: a store only programs words, and the
@@ -171,6 +177,7 @@ impl Sectors for Stm32Sectors<'_> {
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), StorageError> {
         let window = EraseWindow::open().ok_or(StorageError::Medium)?;
+        LINK_DEAF.store(true, Ordering::Relaxed);
         let erased = self.flash.blocking_erase(from, to);
         flush_data_cache();
         if window.close().is_none() {
@@ -182,6 +189,7 @@ impl Sectors for Stm32Sectors<'_> {
     }
 
     fn program(&mut self, at: u32, word: [u8; 4]) -> Result<(), StorageError> {
+        LINK_DEAF.store(true, Ordering::Relaxed);
         let written = self.flash.blocking_write(at, &word);
         flush_data_cache();
         written.map_err(|_| StorageError::Medium)
@@ -383,6 +391,21 @@ impl Driver for HwDriver<'_> {
         }
     }
 
+    fn link_deaf(&mut self) -> bool {
+        LINK_DEAF.swap(false, Ordering::Relaxed)
+    }
+
+    fn link_restarted(&mut self, restarted: bool) {
+        if restarted {
+            defmt::info!(
+                "link receiver restarted: this channel programmed its parameter flash and \
+                 could not receive meanwhile; bytes it lost are not taken for a link fault"
+            );
+        } else {
+            defmt::warn!("parameter flash programmed in Operational: the link judges as usual");
+        }
+    }
+
     #[cfg(feature = "simplecan")]
     fn transmitted(&mut self) -> Option<CanFrame> {
         self.can.transmitted()
@@ -451,6 +474,8 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         STM32F405_SLOTS,
     );
     erase_ahead(&mut parameters);
+    // Before the link: nothing was lost on it.
+    LINK_DEAF.store(false, Ordering::Relaxed);
 
     let switches = [
         Input::new(p.PC2, Pull::Down),
