@@ -23,6 +23,7 @@
 //! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
 //! gives [`HwDriver`] the same `CanPort`.
 
+use core::sync::atomic::{AtomicBool, Ordering};
 use core::task::Poll;
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
@@ -36,7 +37,8 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
-use shared::canopen::storage::StorageError;
+use shared::canopen::storage::{self, StorageError};
+use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
 use static_cell::StaticCell;
 
@@ -67,6 +69,11 @@ pub const LINK_BAUD: u32 = 1_000_000;
 /// As much as the 256-byte pipe and the 256-byte ring held together when a task moved the
 /// bytes from one to the other; 5.1 ms of the line at [`LINK_BAUD`].
 const LINK_TX_BYTES: usize = 512;
+/// The longest the erase ahead at start-up may take ([`erase_ahead`]): one 128 KiB sector at
+/// the reset value of the programming parallelism (x8, which embassy-stm32's erase keeps),
+/// the STM32F405 datasheet's maximum (DS8626, t_ERASE128KB). The other channel waits this
+/// much longer for this one's first link message ([`Runtime::allow_longer_start_up`]).
+const ERASE_AHEAD_LONGEST: Duration = Duration::from_millis(4000);
 /// The watchdog bites when the runtime loop has not run for this long.
 pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
@@ -165,13 +172,24 @@ fn flush_data_cache() {
     acr.modify(|w| w.set_dcen(true));
 }
 
+/// Set by every flash program and erase: the processor waited for the flash, and the link
+/// USART's interrupt with it, so link bytes may have been lost (its one-byte receive
+/// register overran). Taken by [`HwDriver`]'s `link_deaf`, which tells the runtime.
+static LINK_DEAF: AtomicBool = AtomicBool::new(false);
+
 /// embassy-stm32's blocking flash driver as the word-programmed medium of the parameter
-/// slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`].
+/// slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`]. The processor
+/// executes from this flash, so an erase stalls it: a store only programs words, and the
+/// free slot is erased ahead at start-up ([`erase_ahead`]).
 pub struct Stm32Sectors<'d> {
     flash: embassy_stm32::flash::Flash<'d, embassy_stm32::flash::Blocking>,
 }
 
 impl Sectors for Stm32Sectors<'_> {
+    fn erase_stalls(&self) -> bool {
+        true
+    }
+
     fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError> {
         self.flash
             .blocking_read(at, buf)
@@ -180,6 +198,7 @@ impl Sectors for Stm32Sectors<'_> {
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), StorageError> {
         let window = EraseWindow::open().ok_or(StorageError::Medium)?;
+        LINK_DEAF.store(true, Ordering::Relaxed);
         let erased = self.flash.blocking_erase(from, to);
         flush_data_cache();
         if window.close().is_none() {
@@ -191,6 +210,7 @@ impl Sectors for Stm32Sectors<'_> {
     }
 
     fn program(&mut self, at: u32, word: [u8; 4]) -> Result<(), StorageError> {
+        LINK_DEAF.store(true, Ordering::Relaxed);
         let written = self.flash.blocking_write(at, &word);
         flush_data_cache();
         written.map_err(|_| StorageError::Medium)
@@ -199,12 +219,12 @@ impl Sectors for Stm32Sectors<'_> {
 
 /// The independent watchdog widened for one sector erase.
 ///
-/// Erasing a 128 KiB sector holds the CPU for up to 2 s (STM32F405 datasheet, t_ERASE128KB at
-/// x32 parallelism), a hundred times the loop's watchdog time, so an erase would reset the MCU
-/// in the middle of every store. Stores happen only outside Operational (0x1010 and 0x1011
-/// are refused there), with the output low; for the erase alone the watchdog is set to
-/// /64 and 4095 counts: 8.2 s at the LSI's nominal 32 kHz and still 5.6 s at its fastest
-/// (47 kHz), then put back to the loop's window exactly as it was.
+/// Erasing a 128 KiB sector holds the CPU for seconds (STM32F405 datasheet, t_ERASE128KB),
+/// a hundred times the loop's watchdog time or more, so an erase would reset the MCU. The
+/// only erase is the erase ahead at start-up ([`erase_ahead`]), before the channel loop
+/// runs, with the output low; for the erase alone the watchdog is set to /64 and 4095
+/// counts: 8.2 s at the LSI's nominal 32 kHz and still 5.6 s at its fastest (47 kHz), then
+/// put back to the loop's window exactly as it was.
 #[must_use = "the watchdog stays wide until the window is closed"]
 struct EraseWindow {
     prescaler: embassy_stm32::pac::iwdg::vals::Pr,
@@ -279,8 +299,8 @@ impl HwDriver<'_> {
     /// every change of its error state is logged. The loop calls [`Driver::receive`] at every
     /// wake-up and at least every 1 ms, and a bus-off lasts at least 128 times 11 recessive
     /// bits (2.8 ms at 500 kbit/s, 1.4 ms at 1 Mbit/s) before the automatic recovery, so none
-    /// passes unseen; only during a flash erase (a store, refused in Operational) does the
-    /// loop not run, and a bus-off then costs no SRDO frame.
+    /// passes unseen; the loop does not run during a flash erase, which only happens at
+    /// start-up, before the loop ([`erase_ahead`]).
     fn went_bus_off(&mut self) -> bool {
         let esr = embassy_stm32::pac::CAN1.esr().read().0;
         let state = ErrorState::from_esr(esr);
@@ -382,6 +402,29 @@ impl Driver for HwDriver<'_> {
         if !event.is_per_pair() {
             defmt::info!("{}", event);
         }
+        if let ChannelEvent::Node(Event::StorageFailed(StorageError::NotErased)) = event {
+            defmt::warn!(
+                "parameter store refused (device state): the free parameter slot still holds \
+                 the record the last store superseded, and erasing it now would stall this \
+                 channel for seconds; switch the node off and on before storing again: the \
+                 free parameter slot is erased at start-up"
+            );
+        }
+    }
+
+    fn link_deaf(&mut self) -> bool {
+        LINK_DEAF.swap(false, Ordering::Relaxed)
+    }
+
+    fn link_restarted(&mut self, restarted: bool) {
+        if restarted {
+            defmt::info!(
+                "link receiver restarted: this channel programmed its parameter flash and \
+                 could not receive meanwhile; bytes it lost are not taken for a link fault"
+            );
+        } else {
+            defmt::warn!("parameter flash programmed in Operational: the link judges as usual");
+        }
     }
 
     #[cfg(feature = "simplecan")]
@@ -453,6 +496,19 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let output = Output::new(p.PC1, Level::Low, Speed::Low);
     let input = Input::new(p.PC0, Pull::Down);
 
+    // The erase ahead first, with the output low: before the CAN controller and the link
+    // USART receive anything (their interrupts would not run during the erase, and a full
+    // receive FIFO is a fault) and before the runtime and its link supervision exist.
+    let mut parameters = SectorSlots::new(
+        Stm32Sectors {
+            flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
+        },
+        STM32F405_SLOTS,
+    );
+    erase_ahead(&mut parameters);
+    // Before the link: nothing was lost on it.
+    LINK_DEAF.store(false, Ordering::Relaxed);
+
     let switches = [
         Input::new(p.PC2, Pull::Down),
         Input::new(p.PC3, Pull::Down),
@@ -511,12 +567,6 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let (link_tx, link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) =
         LINK.init(uart).split_ref();
 
-    let parameters = SectorSlots::new(
-        Stm32Sectors {
-            flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
-        },
-        STM32F405_SLOTS,
-    );
     let config = (device.describe)(node_id);
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime
     // (3,584 bytes) through this task's stack frame; the parameters restored where it is
@@ -532,6 +582,8 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };
+    // The other channel may be erasing ahead while this one was not, or for longer.
+    runtime.allow_longer_start_up(ERASE_AHEAD_LONGEST);
     runtime.restore_parameters();
     let mut channel = ChannelLoop::new(device.pins);
     let mut driver = HwDriver {
@@ -564,6 +616,29 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
             Either3::Second(Err(_)) => defmt::warn!("link read error"),
             Either3::Third(()) => {}
         }
+    }
+}
+
+/// The start-up's housekeeping of the parameter slots ([`storage::erase_ahead`]): erases the
+/// slot the next store writes to when it still holds the record the last store superseded,
+/// so that the store only programs words. Runs before the channel loop and the link
+/// supervision exist, with the output low and the watchdog widened ([`EraseWindow`]); the
+/// other channel waits for it ([`ERASE_AHEAD_LONGEST`]). A failure only leaves the next store
+/// refused ([`StorageError::NotErased`]): the record in force is never erased.
+fn erase_ahead(parameters: &mut SectorSlots<Stm32Sectors<'_>>) {
+    match storage::erase_ahead(parameters) {
+        Ok(None) => {}
+        Ok(Some(slot)) => defmt::info!(
+            "parameter slot {} erased at start-up: it held the record the last store \
+             superseded; start-up took one sector erase longer, so that the next store \
+             programs without erasing",
+            slot
+        ),
+        Err(error) => defmt::error!(
+            "parameter slot not erased at start-up ({}): a store will be refused until a \
+             start-up erases it",
+            error
+        ),
     }
 }
 

@@ -16,6 +16,9 @@ use shared::canopen::storage::{Flash, Slot, StorageError};
 
 /// Flash programmed in aligned 32-bit words. Addresses are offsets from the flash origin.
 pub trait Sectors {
+    /// `true` when an erase holds the processor (it runs from this flash):
+    /// [`Flash::erase_stalls`].
+    fn erase_stalls(&self) -> bool;
     /// Reads `buf.len()` bytes from `at`.
     fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError>;
     /// Erases the sectors from `from` to `to` (exclusive).
@@ -64,6 +67,10 @@ impl<S: Sectors> SectorSlots<S> {
 impl<S: Sectors> Flash for SectorSlots<S> {
     fn slot_len(&self) -> usize {
         self.len as usize
+    }
+
+    fn erase_stalls(&self) -> bool {
+        self.sectors.erase_stalls()
     }
 
     fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
@@ -116,6 +123,10 @@ mod tests {
         once_only: bool,
         /// Words programmed since their last erase.
         since_erase: std::collections::BTreeSet<u32>,
+        /// What [`Sectors::erase_stalls`] says.
+        stalls: bool,
+        /// Erases so far.
+        erases: usize,
     }
 
     impl WordNor {
@@ -125,11 +136,16 @@ mod tests {
                 programmed: Vec::new(),
                 once_only: false,
                 since_erase: std::collections::BTreeSet::new(),
+                stalls: false,
+                erases: 0,
             }
         }
     }
 
     impl Sectors for WordNor {
+        fn erase_stalls(&self) -> bool {
+            self.stalls
+        }
         fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError> {
             let at = at as usize;
             let source = self
@@ -144,6 +160,7 @@ mod tests {
                 .get_mut(from as usize..to as usize)
                 .ok_or(StorageError::Medium)?
                 .fill(0xFF);
+            self.erases += 1;
             self.since_erase.retain(|&at| at < from || at >= to);
             Ok(())
         }
@@ -270,6 +287,37 @@ mod tests {
             if round % 5 == 4 {
                 storage::restore_defaults(&mut flash).unwrap();
                 assert_eq!(storage::load(&mut flash, &mut buf), Ok(None));
+            }
+        }
+    }
+
+    /// CiA 301 7.5.2.13 on flash whose erase holds the processor, as the STM32F405's does: a
+    /// store only programs words, each once, and never erases; a second store is refused
+    /// until the start-up's erase ahead, which erases one slot (the superseded one) and never
+    /// programs a word twice either.
+    #[test]
+    fn cia301_7_5_2_13_stores_on_stalling_flash_only_program_and_the_erase_ahead_erases_once() {
+        let mut flash = SectorSlots::new(WordNor::new(256), ([0, 128], 128));
+        flash.sectors.once_only = true;
+        flash.sectors.stalls = true;
+        let mut buf = [0u8; 64];
+        for start_up in 0..6u8 {
+            let erased = storage::erase_ahead(&mut flash).unwrap();
+            // The first start-up finds blank flash; every later one the superseded slot.
+            assert_eq!(erased.is_some(), start_up > 1, "start-up {start_up}");
+            let erases = flash.sectors.erases;
+            let payload: Vec<u8> = (0..start_up * 5 % 19).map(|i| i ^ start_up).collect();
+            storage::store(&mut flash, &payload).unwrap();
+            assert_eq!(flash.sectors.erases, erases, "a store erased");
+            let loaded = storage::load(&mut flash, &mut buf).unwrap();
+            assert_eq!(loaded.map(|n| &buf[..n]), Some(&payload[..]));
+            if start_up > 0 {
+                assert_eq!(
+                    storage::store(&mut flash, b"again"),
+                    Err(StorageError::NotErased)
+                );
+                let loaded = storage::load(&mut flash, &mut buf).unwrap();
+                assert_eq!(loaded.map(|n| &buf[..n]), Some(&payload[..]));
             }
         }
     }

@@ -41,6 +41,10 @@ use shared::safety::config::SrdoRecord;
 use shared::safety::types::{Direction, SrdoNumber};
 use shared::{CanFrame, Duration, Instant};
 
+/// Reads that drop what the link buffered while the processor was held
+/// ([`Driver::link_deaf`]): more than its receive buffer holds in reads of 64 bytes, so the
+/// drop ends however the board buffers, while bytes keep coming.
+const LINK_DRAIN_READS: usize = 16;
 /// Input pins are read at least this often.
 pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 
@@ -92,6 +96,18 @@ pub trait Driver {
     fn set_output(&mut self, pin: usize, level: bool);
     /// Reports `event` (log, diagnostics).
     fn event(&mut self, event: &ChannelEvent);
+    /// `true`, once, when the processor could not receive link bytes for a while since the
+    /// last call (a flash program held it: a store of the parameters); the loop then tells
+    /// the runtime ([`Runtime::link_was_deaf`]). The default: never (a board whose link
+    /// receives whatever the processor does, or whose flash does not stall it).
+    fn link_deaf(&mut self) -> bool {
+        false
+    }
+    /// Whether the runtime restarted its link receiver after [`Driver::link_deaf`] (`false`:
+    /// in Operational, where it judges what it finds), for the board's log.
+    fn link_restarted(&mut self, restarted: bool) {
+        let _ = restarted;
+    }
     /// The oldest frame the controller put on the bus since the last call (a transmit
     /// mailbox completed), `None` when there is none (SimpleCAN's producers and master must
     /// know: SC_REQ_18, SC_REQ_23). The default reports none: a board whose controller
@@ -242,6 +258,24 @@ impl ChannelLoop {
         }
         // The budget used up: the queue may hold more; the board calls again at once.
         let mut more = taken == RECEIVE_BUDGET;
+        // A store above may have held the processor while link bytes came: before reading
+        // them, the runtime learns that some may be lost.
+        if io.driver.link_deaf() {
+            let at = io.driver.now();
+            let restarted = runtime.link_was_deaf(at);
+            if restarted {
+                // What came while the processor was held may miss bytes anywhere, after a
+                // valid frame as much as before one: all of it is dropped, and the receiver
+                // starts on what comes from now on (a frame cut by the drop is a remnant).
+                let mut dropped = [0u8; 64];
+                for _ in 0..LINK_DRAIN_READS {
+                    if io.driver.link_read(&mut dropped) == 0 {
+                        break;
+                    }
+                }
+            }
+            io.driver.link_restarted(restarted);
+        }
         let mut link = [0u8; 64];
         let count = io.driver.link_read(&mut link);
         if count > 0 {

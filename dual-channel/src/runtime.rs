@@ -663,6 +663,33 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         })
     }
 
+    /// This channel could not receive link bytes for a while up to `now`: its processor was
+    /// held by flash programs (a store of the parameters, which the node refuses in
+    /// Operational). Outside Operational the link receiver starts over as at start-up and
+    /// the probes outstanding are forgotten ([`Receiver::restart`], [`RoundTrip::forget`]),
+    /// so the bytes lost meanwhile and the round trips the stall stretched are not taken for
+    /// faults of the link; `true` then. In Operational it changes nothing (`false`): nothing
+    /// programs the flash there, and the supervision judges whatever it finds. Nothing that
+    /// the link carries outside Operational drives an output: no pair is co-signed and no
+    /// output leaves its safe state before both channels have compared their configurations
+    /// in Operational.
+    pub fn link_was_deaf(&mut self, now: Instant) -> bool {
+        if self.node.nmt_state() == NmtState::Operational {
+            return false;
+        }
+        self.receiver.restart(now);
+        self.round_trip.forget();
+        true
+    }
+
+    /// Allows the other channel's first link message `longer` more than [`STARTUP`], for a
+    /// board whose start-up may take that much longer on one channel than on the other (the
+    /// hardware's erase ahead of a parameter slot, `board::hw`); before the first message
+    /// only (see [`Receiver::extend_startup`]).
+    pub fn allow_longer_start_up(&mut self, longer: Duration) {
+        self.receiver.extend_startup(longer);
+    }
+
     /// The second step of [`Runtime::new`]: the core's stored parameters loaded in place
     /// ([`Device::restore_parameters`]). Out of line: the stored image it reads into is in
     /// its own frame.

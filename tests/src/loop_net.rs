@@ -68,6 +68,12 @@ pub struct SimDriver {
     pub aborts: Vec<(Instant, u16)>,
     link_out: Vec<u8>,
     link_in: VecDeque<u8>,
+    /// The processor was held (a flash program, as a store's): the next
+    /// [`Driver::link_deaf`] reports it, once.
+    pub deaf: bool,
+    /// What the loop answered to each [`Driver::link_deaf`]: whether the runtime restarted
+    /// its link receiver.
+    pub restarts: Vec<bool>,
     /// The input pin's level.
     pub input: bool,
     /// The output pin's level.
@@ -102,6 +108,8 @@ impl SimDriver {
             aborts: Vec::new(),
             link_out: Vec::new(),
             link_in: VecDeque::new(),
+            deaf: false,
+            restarts: Vec::new(),
             input: false,
             output: false,
             events: Vec::new(),
@@ -146,6 +154,14 @@ impl SimDriver {
     }
 }
 
+impl SimDriver {
+    /// `bytes` arrive on this channel's link before the next service, as if the other
+    /// channel had sent them (a frame damaged on the way, for tests).
+    pub fn link_arrives(&mut self, bytes: &[u8]) {
+        self.link_in.extend(bytes);
+    }
+}
+
 impl Driver for SimDriver {
     fn now(&mut self) -> Instant {
         self.now
@@ -174,6 +190,12 @@ impl Driver for SimDriver {
     fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {
         self.link_out.extend_from_slice(bytes);
         Ok(())
+    }
+    fn link_deaf(&mut self) -> bool {
+        core::mem::take(&mut self.deaf)
+    }
+    fn link_restarted(&mut self, restarted: bool) {
+        self.restarts.push(restarted);
     }
     fn link_read(&mut self, buf: &mut [u8]) -> usize {
         let count = buf.len().min(self.link_in.len());

@@ -4,7 +4,7 @@
 
 use dual_channel::runtime::ChannelProtocol;
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
-use shared::canopen::nmt::NmtState;
+use shared::canopen::nmt::{NmtCommand, NmtState};
 use shared::{CanFrame, CanId, Duration};
 use system_tests::loop_net::{Filtering, LoopNetwork, SimpleCanLoopNetwork};
 use system_tests::simplecan_net::{ESTOP, ScConfig, ScEntry};
@@ -336,4 +336,41 @@ fn sc_req_18_the_loop_hands_the_cores_withdrawal_of_an_unconfirmed_packet_to_the
         net.node(1).drivers[1].aborts.is_empty(),
         "channel B sends nothing to withdraw"
     );
+}
+
+/// EN 50325-5 Annex A.4: a channel whose processor was held by its own flash programs (a
+/// store) drops what its link buffered meanwhile and restarts its receiver, outside
+/// Operational only. A damaged link frame that would otherwise latch the safe state then
+/// costs nothing; the same frame without that report, or in Operational, is a link fault.
+#[test]
+fn en50325_5_a_4_a_channel_deaf_while_storing_drops_what_its_link_buffered_outside_operational() {
+    // A frame that decodes (COBS) but fails its CRC.
+    let damaged = [0x08, 1, 2, 3, 4, 5, 6, 7, 0x00];
+    let link_fault = |net: &LoopNetwork| {
+        faults(net)
+            .iter()
+            .any(|(id, fault)| *id == 33 && matches!(fault, ChannelFault::Link(_)))
+    };
+    let mut net = started(Filtering::Banks);
+    net.nmt(NmtCommand::EnterPreOperational, 0);
+    net.run_for(Duration::from_millis(50));
+    let driver = &mut net.node_mut(33).drivers[1];
+    driver.deaf = true;
+    driver.link_arrives(&damaged);
+    net.run_for(Duration::from_millis(100));
+    assert_eq!(net.node(33).drivers[1].restarts, [true]);
+    assert!(!link_fault(&net), "{:?}", faults(&net));
+    assert_eq!(net.node(33).b.fault(), None);
+
+    net.node_mut(33).drivers[1].link_arrives(&damaged);
+    net.run_for(Duration::from_millis(20));
+    assert!(link_fault(&net), "{:?}", faults(&net));
+
+    let mut net = started(Filtering::Banks);
+    let driver = &mut net.node_mut(33).drivers[1];
+    driver.deaf = true;
+    driver.link_arrives(&damaged);
+    net.run_for(Duration::from_millis(20));
+    assert_eq!(net.node(33).drivers[1].restarts, [false]);
+    assert!(link_fault(&net), "{:?}", faults(&net));
 }

@@ -636,3 +636,34 @@ fn en50325_5_7_2_1_a_foreign_frame_right_after_reset_and_start_is_detected() {
         assert_eq!(net.output(33), 0, "the consumer is in its safe state");
     }
 }
+
+/// EN 50325-5 Annex A.4: a channel held by its own flash programs (a store) restarts its
+/// link receiver only outside Operational, where nothing the link carries drives an output:
+/// in Operational the same report changes nothing. Restarted, the link keeps working: the
+/// next messages are counted again and no fault comes of it.
+#[test]
+fn en50325_5_a_4_a_channel_deaf_while_storing_restarts_its_link_only_outside_operational() {
+    let mut net = DualNetwork::new(500_000, &[1, 33]);
+    net.configure_and_start().expect("configuration accepted");
+    net.run_for(Duration::from_millis(200));
+    assert_eq!(net.node(33).a.node().nmt_state(), NmtState::Operational);
+    let late = Instant::from_millis(60_000);
+    assert!(!net.node_mut(33).a.link_was_deaf(late));
+    assert!(!net.node_mut(33).b.link_was_deaf(late));
+
+    net.nmt(NmtCommand::EnterPreOperational, 0);
+    net.run_for(Duration::from_millis(50));
+    // The channels' clocks run at the simulation's rate in this network.
+    let now = net.now;
+    let node = net.node_mut(33);
+    assert_eq!(node.a.node().nmt_state(), NmtState::PreOperational);
+    assert!(node.a.link_was_deaf(now));
+    assert!(node.b.link_was_deaf(now));
+    net.run_for(Duration::from_millis(200));
+    assert_eq!(net.node(33).a.fault(), None);
+    assert_eq!(net.node(33).b.fault(), None);
+    net.nmt(NmtCommand::Start, 0);
+    net.run_for(Duration::from_millis(200));
+    assert_eq!(net.node(33).a.fault(), None);
+    assert!(net.node(33).a.node().is_working());
+}

@@ -286,6 +286,26 @@ impl Receiver {
         }
     }
 
+    /// Starts over as at start-up, at `now`: the frame in progress is dropped, and the next
+    /// valid message starts the count (what comes before it is not a fault); it must come
+    /// within the timeout, or the start-up wait if that ends later. For a channel that knows
+    /// it could not receive for a while (its processor held by a flash program), so that the
+    /// bytes it lost meanwhile are not taken for a fault of the link.
+    pub fn restart(&mut self, now: Instant) {
+        self.frames = Reassembler::new();
+        self.expected = None;
+        self.deadline = self.deadline.max(now + self.timeout);
+    }
+
+    /// Allows the first message `longer` more (the other channel's start-up may take that
+    /// much longer on this board); no effect once a valid message came, after which only the
+    /// timeout counts.
+    pub fn extend_startup(&mut self, longer: Duration) {
+        if self.expected.is_none() {
+            self.deadline = self.deadline + longer;
+        }
+    }
+
     /// When [`Receiver::poll`] reports a timeout unless a valid message comes first.
     pub fn deadline(&self) -> Instant {
         self.deadline

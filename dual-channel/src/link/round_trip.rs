@@ -78,6 +78,8 @@ pub struct RoundTrip {
     outstanding: heapless::Deque<Instant, OUTSTANDING>,
     /// The bound; `None`: the supervision is not armed (nothing the link carries needs it).
     bound: Option<Duration>,
+    /// The stamps of the probes [`RoundTrip::forget`] forgot, whose echoes may still come.
+    forgotten: heapless::Vec<u32, OUTSTANDING>,
 }
 
 impl Default for RoundTrip {
@@ -92,6 +94,7 @@ impl RoundTrip {
         RoundTrip {
             outstanding: heapless::Deque::new(),
             bound: None,
+            forgotten: heapless::Vec::new(),
         }
     }
 
@@ -119,6 +122,14 @@ impl RoundTrip {
     /// trip is at or over the bound, or the echo does not answer the oldest probe outstanding.
     /// A disarmed supervision only takes the probe off the list.
     pub fn echo(&mut self, now: Instant, stamp: u32) -> Result<(), LinkFault> {
+        if self.forgotten.contains(&stamp) {
+            // The echo of a forgotten probe: it measures nothing. (`retain`, not `remove`:
+            // no index, so no panic path and its formatting in the image.)
+            self.forgotten.retain(|&forgotten| forgotten != stamp);
+            return Ok(());
+        }
+        // The link keeps the order: every forgotten echo still to come would have come first.
+        self.forgotten.clear();
         let sent = self.outstanding.pop_front();
         if sent.map(self::stamp) != Some(stamp) {
             return Err(LinkFault::Latency);
@@ -128,6 +139,18 @@ impl RoundTrip {
                 Err(LinkFault::Latency)
             }
             _ => Ok(()),
+        }
+    }
+
+    /// Forgets the probes outstanding: a channel that could not receive for a while (its
+    /// processor held by a flash program) may have lost their echoes, and those it did not
+    /// lose measured its own stall. Their echoes, when they come, are taken off and judged
+    /// by nothing.
+    pub fn forget(&mut self) {
+        self.forgotten.clear();
+        while let Some(sent) = self.outstanding.pop_front() {
+            // As many places as probes outstanding: never full.
+            let _ = self.forgotten.push(stamp(sent));
         }
     }
 

@@ -116,6 +116,33 @@ fn the_first_message_starts_the_count_within_the_startup_time() {
     );
 }
 
+/// EN 50325-5 Annex A.4 (Model III link supervision): a board whose other channel may take
+/// longer to start (the hardware's erase ahead of a parameter slot) extends the wait for the
+/// first message, and only that: once a message came, the timeout alone counts.
+#[test]
+fn en50325_5_a_4_a_longer_start_up_extends_only_the_wait_for_the_first_message() {
+    let startup = Duration::from_millis(500);
+    let longer = Duration::from_millis(4000);
+    let mut waiting = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    waiting.extend_startup(longer);
+    assert_eq!(waiting.poll(Instant::from_millis(4499)), Ok(()));
+    assert_eq!(
+        waiting.poll(Instant::from_millis(4500)),
+        Err(LinkFault::Timeout)
+    );
+
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    let at = Instant::from_millis(100);
+    let message = Message::Inputs { sample: 1 };
+    assert_eq!(
+        feed(&mut receiver, at, &sender.encode(&message).unwrap()),
+        [Ok(message)]
+    );
+    receiver.extend_startup(longer);
+    assert_eq!(receiver.deadline(), at + TIMEOUT);
+}
+
 #[test]
 fn garbage_before_the_first_message_is_ignored_but_not_after() {
     let mut sender = Sender::new();
@@ -743,4 +770,75 @@ fn cia304_9_5_a_probe_crosses_the_link_and_its_echo_comes_back() {
         panic!("{received:?}")
     };
     assert_eq!(round_trip.echo(back, stamp), Ok(()));
+}
+
+/// EN 50325-5 Annex A.4: a channel that could not receive for a while (a flash program held
+/// its processor) restarts its receiver as at start-up: the remnant of a frame it lost a
+/// byte of is no fault, the next valid message starts the count whatever its sequence
+/// number, and then a gap is a fault again. A restart never shortens a start-up wait.
+#[test]
+fn en50325_5_a_4_a_restarted_receiver_ignores_what_it_lost_then_counts_again() {
+    let mut sender = Sender::new();
+    let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
+    let first = Message::Inputs { sample: 1 };
+    assert_eq!(
+        feed(
+            &mut receiver,
+            Instant::ZERO,
+            &sender.encode(&first).unwrap()
+        ),
+        [Ok(first)]
+    );
+    let mut damaged = sender.encode(&Message::Inputs { sample: 2 }).unwrap();
+    damaged.remove(3);
+    // Without the restart, the remnant is a fault.
+    let mut strict = receiver.clone();
+    assert!(matches!(
+        feed(&mut strict, Instant::ZERO, &damaged)[..],
+        [Err(_)]
+    ));
+    let _never_seen = sender.encode(&Message::Inputs { sample: 3 }).unwrap();
+    let at = Instant::from_millis(5);
+    receiver.restart(at);
+    assert_eq!(receiver.deadline(), at + TIMEOUT);
+    assert_eq!(feed(&mut receiver, at, &damaged), []);
+    let fourth = Message::Inputs { sample: 4 };
+    assert_eq!(
+        feed(&mut receiver, at, &sender.encode(&fourth).unwrap()),
+        [Ok(fourth)]
+    );
+    let _lost = sender.encode(&Message::Inputs { sample: 5 }).unwrap();
+    let sixth = sender.encode(&Message::Inputs { sample: 6 }).unwrap();
+    assert!(matches!(
+        feed(&mut receiver, at, &sixth)[..],
+        [Err(LinkFault::Missing { .. })]
+    ));
+
+    let startup = Duration::from_millis(500);
+    let mut waiting = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    waiting.restart(Instant::from_millis(1));
+    assert_eq!(waiting.deadline(), Instant::ZERO + startup);
+}
+
+/// CiA 304 9.5: a channel that could not receive for a while forgets its probes
+/// outstanding: nothing falls due for them, and their echoes, late or not, are taken off
+/// without a verdict and answer no newer probe. Once a newer probe is answered, the link's
+/// order says no forgotten echo is still to come: an echo of one is a fault again.
+#[test]
+fn cia304_9_5_forgotten_probes_neither_fall_due_nor_answer_a_newer_probe() {
+    let mut round_trip = armed();
+    let old = stamp_of(round_trip.probe(Instant::from_millis(100)));
+    round_trip.forget();
+    assert_eq!(round_trip.deadline(), Instant::NEVER);
+    assert_eq!(round_trip.poll(Instant::from_millis(200)), Ok(()));
+    let sent = Instant::from_millis(201);
+    let new = stamp_of(round_trip.probe(sent));
+    assert_eq!(round_trip.echo(Instant::from_millis(202), old), Ok(()));
+    assert_eq!(round_trip.deadline(), sent + bound(), "still outstanding");
+    assert_eq!(round_trip.echo(Instant::from_millis(202), new), Ok(()));
+    let _newest = round_trip.probe(Instant::from_millis(210));
+    assert_eq!(
+        round_trip.echo(Instant::from_millis(211), old),
+        Err(LinkFault::Latency)
+    );
 }

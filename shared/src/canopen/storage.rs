@@ -25,13 +25,29 @@
 //! | 24 + `len` | 0..=3 | padding to a word, erased (FFh) |
 //! | 24 + ⌈`len`⌉₄ | 4 | CRC-32 over header, payload and padding |
 //!
-//! # Storing
+//! # Storing: erase ahead, program only
 //!
-//! 1. The target is the slot that holds neither the newest record nor a damaged one. It is
-//!    *retired* (retired word programmed) and erased.
+//! Erasing a slot on the STM32F405 (a 128 KiB sector) takes seconds, and the processor runs
+//! from the same flash, so neither an instruction nor an interrupt runs meanwhile: a channel
+//! stalled that long loses its link to the other channel. So a store only programs words,
+//! and the slot it needs is erased ahead, at start-up ([`erase_ahead`]):
+//!
+//! 1. The target is the slot that holds neither the newest record nor a damaged one. Every
+//!    word the new record will occupy must read erased. When one does not, a medium whose
+//!    erase stalls the processor ([`Flash::erase_stalls`]) refuses the store with
+//!    [`StorageError::NotErased`], nothing written; any other medium (RAM, in host
+//!    simulations) *retires* the target (retired word programmed) and erases it.
 //! 2. Header, payload and CRC are written and read back; only a record that verifies is
 //!    committed, by programming the commit word.
-//! 3. The other slot is retired, then erased (up to 2 s on the STM32F405).
+//! 3. The other slot, when it holds a committed record, is retired (one word programmed).
+//!    It is not erased: a retired slot is ignored by [`load`], whatever it still holds.
+//!
+//! [`erase_ahead`], at start-up, erases the target of the next store when it is not blank:
+//! it retires it first, then erases it. Its target holds neither the newest record nor a
+//! damaged one, so the erase never touches the record in force. After a store the next
+//! start-up erases the superseded slot, and the next store finds its target blank; a second
+//! store without a start-up in between finds the target still holding the superseded record
+//! and is refused on the hardware.
 //!
 //! The new record's sequence number is one more than the newest one found (serial-number
 //! arithmetic, RFC 1982, so the counter may wrap).
@@ -64,7 +80,14 @@
 //!   record is live. Between the commit and the old slot's retirement both slots are live and
 //!   the sequence number (intact in both: both verify) picks the new one. A torn retirement
 //!   makes the old slot retiring, older than the live new one. A torn erase hits only retired
-//!   (or uncommitted) slots.
+//!   (or uncommitted) slots: both the erase of a store on RAM and the erase ahead retire the
+//!   slot first, and neither erases the record in force.
+//! - *An un-erased retired slot.* After a store the superseded record stays, intact, in its
+//!   retired slot until the next start-up. It is ignored by its retired word alone (a word at
+//!   a fixed offset, programmed to 0), so it cannot load whatever happens to the new record:
+//!   a flip of the new record makes it damaged or retiring, which is
+//!   [`StorageError::Corrupt`]; a flip in the retired word of the old slot (0 to a partly
+//!   programmed word) makes it retiring and older than the new record, which loads.
 //! - *Never older after damage.* In every state in which the new record is committed, a flip in
 //!   its header, payload, padding or CRC makes it damaged, and a flip in its retired word (from
 //!   erased to one bit programmed) makes it retiring and newest; both are
@@ -86,11 +109,11 @@
 //!
 //! [`RamFlash`] models NOR flash on the host (erased = 0xFF, a write can only clear bits);
 //! [`PowerCutFlash`] wraps a medium and loses power after a given number of bytes, tearing the
-//! write or erase in progress. The tests cut the power at every byte of a store, and damage
-//! every bit of the new record in every state a cut can leave.
+//! write or erase in progress. The tests cut the power at every byte of a store and of an
+//! erase ahead, and damage every bit of the new record in every state a cut can leave.
 //!
 //! The hardware image implements [`Flash`] on two flash sectors; nothing here knows about
-//! sectors, alignment or timing beyond what the trait says.
+//! sectors, alignment or timing beyond what the trait says ([`Flash::erase_stalls`]).
 
 use crc::{CRC_32_ISO_HDLC, Crc, Digest};
 
@@ -160,12 +183,20 @@ pub enum StorageError {
     Corrupt,
     /// The power failed during the operation (reported by [`PowerCutFlash`]).
     PowerLost,
+    /// Refused, nothing written: the free slot still holds a superseded record, and erasing
+    /// it would hold the processor (seconds on the STM32F405). Reset the node before storing
+    /// again: the free parameter slot is erased at start-up ([`erase_ahead`]).
+    NotErased,
 }
 
 /// A medium with two equal, independently erasable slots.
 pub trait Flash {
     /// Bytes per slot.
     fn slot_len(&self) -> usize;
+    /// `true` when an erase holds the processor (flash the processor executes from: no
+    /// instruction and no interrupt runs until the erase ends); a store then never erases,
+    /// and the free slot is erased ahead ([`erase_ahead`]). `false` for RAM.
+    fn erase_stalls(&self) -> bool;
     /// Reads `buf.len()` bytes of `slot` from `offset`.
     fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError>;
     /// Erases `slot` (every byte reads 0xFF afterwards).
@@ -327,29 +358,66 @@ fn in_force(contents: [Content; 2]) -> Result<Option<(Slot, Header)>, StorageErr
     }
 }
 
-/// Retires `slot` (unless its retired word is programmed already: no word is programmed
-/// twice), then erases it.
+/// Programs the retired word of `slot`, unless it is programmed already (no word is
+/// programmed twice between erases).
 fn retire<F: Flash>(flash: &mut F, slot: Slot) -> Result<(), StorageError> {
     if word(flash, slot, RETIRED_AT)? == ERASED {
         flash.write(slot, RETIRED_AT, &PROGRAMMED)?;
     }
+    Ok(())
+}
+
+/// Retires `slot`, then erases it: a torn erase then hits a retired slot (the module
+/// documentation's table).
+fn retire_and_erase<F: Flash>(flash: &mut F, slot: Slot) -> Result<(), StorageError> {
+    retire(flash, slot)?;
     flash.erase(slot)
 }
 
-/// Writes a record of `kind` into the slot that holds neither the newest record nor a
-/// damaged one, commits it once it verifies, then retires and erases the other slot.
+/// `true` when the `len` bytes of `slot` from its start all read erased. Compares whole
+/// words where it can: at start-up this reads a whole slot, while the watchdog runs.
+fn erased<F: Flash>(flash: &mut F, slot: Slot, len: usize) -> Result<bool, StorageError> {
+    let mut scratch = [0u8; 256];
+    let mut at = 0;
+    while at < len {
+        let chunk = (len - at).min(scratch.len());
+        let bytes = &mut scratch[..chunk];
+        flash.read(slot, at, bytes)?;
+        let words = bytes.chunks_exact(WORD);
+        let rest = words.remainder();
+        let all_erased = rest.iter().all(|&byte| byte == 0xFF)
+            && words
+                .map(|word| u32::from_ne_bytes([word[0], word[1], word[2], word[3]]))
+                .all(|word| word == u32::MAX);
+        if !all_erased {
+            return Ok(false);
+        }
+        at += chunk;
+    }
+    Ok(true)
+}
+
+/// The slot the next store writes to: the one that holds neither the newest record nor a
+/// damaged one. A damaged slot is kept until a new record is committed (it keeps the medium
+/// reporting damage if that store is torn); otherwise the newest record is kept.
+fn target(found: [Content; 2]) -> Slot {
+    match found {
+        [Content::Damaged, _] => Slot::B,
+        [_, Content::Damaged] => Slot::A,
+        _ => newest(found)
+            .ok()
+            .flatten()
+            .map_or(Slot::A, |(slot, _, _)| slot.other()),
+    }
+}
+
+/// Writes a record of `kind` into the target slot ([`target`]), commits it once it verifies,
+/// then retires the other slot (the module documentation's "Storing").
 fn commit<F: Flash>(flash: &mut F, kind: u8, payload: &[u8]) -> Result<(), StorageError> {
     let len = u32::try_from(payload.len()).map_err(|_| StorageError::TooLarge)?;
     let (padded, crc_at) = layout(payload.len(), flash.slot_len()).ok_or(StorageError::TooLarge)?;
     let found = contents(flash)?;
-    // A damaged slot is kept until the new record is committed (it keeps the medium reporting
-    // damage if this store is torn); otherwise the newest record is kept.
-    let newest = newest(found).ok().flatten();
-    let target = match found {
-        [Content::Damaged, _] => Slot::B,
-        [_, Content::Damaged] => Slot::A,
-        _ => newest.map_or(Slot::A, |(slot, _, _)| slot.other()),
-    };
+    let target = target(found);
     // Newer than every intact record on the medium, whichever is in force.
     let sequence = found
         .iter()
@@ -372,7 +440,15 @@ fn commit<F: Flash>(flash: &mut F, kind: u8, payload: &[u8]) -> Result<(), Stora
     digest.update(padding);
     let crc = digest.finalize().to_le_bytes();
 
-    retire(flash, target)?;
+    // Every word the record occupies must be erased. The words beyond it are neither
+    // programmed by this store nor read by a load (the CRC ends the record).
+    if !erased(flash, target, crc_at + CRC_LEN)? {
+        if flash.erase_stalls() {
+            // Nothing written: the record in force stays as it is.
+            return Err(StorageError::NotErased);
+        }
+        retire_and_erase(flash, target)?;
+    }
     flash.write(target, HEADER_AT, &encoded)?;
     flash.write(target, PAYLOAD_AT, payload)?;
     flash.write(target, crc_at, &crc)?;
@@ -387,8 +463,31 @@ fn commit<F: Flash>(flash: &mut F, kind: u8, payload: &[u8]) -> Result<(), Stora
     if content(flash, target)? != Content::Live(header) {
         return Err(StorageError::VerifyFailed);
     }
-    // The new record is in force; the other slot goes.
-    retire(flash, target.other())
+    // The new record is in force. The other slot is retired when it holds a committed record
+    // (an uncommitted one is ignored as it is); it is erased later, by [`erase_ahead`] or by
+    // the next store on a medium whose erase does not stall.
+    if word(flash, target.other(), COMMIT_AT)? != ERASED {
+        retire(flash, target.other())?;
+    }
+    Ok(())
+}
+
+/// Erases the slot the next store will write to, when it is not blank, so that the store
+/// only programs words: the erase ahead, for start-up, before anything depends on the
+/// processor's timing. Returns the slot it erased, `None` when the target was blank already.
+///
+/// Never erases the record in force (the target holds neither the newest record nor a
+/// damaged one), and retires the target before the erase, so a power cut during it leaves a
+/// slot that loads as ignored (the module documentation's table). When a slot is damaged
+/// the load fails ([`StorageError::Corrupt`]) and the target is the other slot: its record
+/// cannot load while the damage stays, and the next store would write over it anyway.
+pub fn erase_ahead<F: Flash>(flash: &mut F) -> Result<Option<Slot>, StorageError> {
+    let target = target(contents(flash)?);
+    if erased(flash, target, flash.slot_len())? {
+        return Ok(None);
+    }
+    retire_and_erase(flash, target)?;
+    Ok(Some(target))
 }
 
 /// Stores `payload` atomically: after a power failure at any point, [`load`] returns either
@@ -437,6 +536,9 @@ pub fn load<F: Flash>(flash: &mut F, buf: &mut [u8]) -> Result<Option<usize>, St
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RamFlash<const N: usize> {
     slots: [[u8; N]; 2],
+    /// What [`Flash::erase_stalls`] says: `false` unless a test asks for the hardware's
+    /// behaviour ([`RamFlash::with_stalling_erase`]).
+    erase_stalls: bool,
 }
 
 impl<const N: usize> Default for RamFlash<N> {
@@ -450,13 +552,25 @@ impl<const N: usize> RamFlash<N> {
     pub const fn new() -> Self {
         RamFlash {
             slots: [[0xFF; N]; 2],
+            erase_stalls: false,
         }
+    }
+
+    /// The same medium, saying that its erase holds the processor, as the hardware's flash
+    /// does: a store then refuses to erase ([`StorageError::NotErased`]). For tests of the
+    /// hardware's sequence.
+    pub const fn with_stalling_erase(mut self) -> Self {
+        self.erase_stalls = true;
+        self
     }
 
     /// Two slots of zeros, as a medium in no known state; erase both before use. For a
     /// `static` in zero-initialised RAM (no initial image in flash, no copy on the stack).
     pub const fn zeroed() -> Self {
-        RamFlash { slots: [[0; N]; 2] }
+        RamFlash {
+            slots: [[0; N]; 2],
+            erase_stalls: false,
+        }
     }
 
     /// The raw bytes of `slot`, for tests that corrupt or inspect the medium.
@@ -479,6 +593,9 @@ impl<F: Flash + ?Sized> Flash for &mut F {
     fn slot_len(&self) -> usize {
         (**self).slot_len()
     }
+    fn erase_stalls(&self) -> bool {
+        (**self).erase_stalls()
+    }
     fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
         (**self).read(slot, offset, buf)
     }
@@ -493,6 +610,10 @@ impl<F: Flash + ?Sized> Flash for &mut F {
 impl<const N: usize> Flash for RamFlash<N> {
     fn slot_len(&self) -> usize {
         N
+    }
+
+    fn erase_stalls(&self) -> bool {
+        self.erase_stalls
     }
 
     fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
@@ -585,6 +706,10 @@ impl<F: Flash> Flash for PowerCutFlash<F> {
         self.inner.slot_len()
     }
 
+    fn erase_stalls(&self) -> bool {
+        self.inner.erase_stalls()
+    }
+
     fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
         if !self.powered {
             return Err(StorageError::PowerLost);
@@ -648,13 +773,19 @@ mod tests {
         let mut flash = Medium::new();
         store(&mut flash, b"first").unwrap();
         assert_eq!(loaded(&mut flash), Ok(Some(b"first".to_vec())));
+        // The first store left slot B as it was: nothing to retire in it.
+        assert!(flash.slot_mut(Slot::B).iter().all(|&b| b == 0xFF));
         store(&mut flash, b"second, longer").unwrap();
         assert_eq!(loaded(&mut flash), Ok(Some(b"second, longer".to_vec())));
-        // The second record went to slot B and the first was erased after the commit.
-        assert!(flash.slot_mut(Slot::A).iter().all(|&b| b == 0xFF));
+        // The second record went to slot B and the first was retired after the commit, not
+        // erased.
+        assert_eq!(flash.slot_mut(Slot::A)[RETIRED_AT..][..WORD], PROGRAMMED);
+        assert_eq!(flash.slot_mut(Slot::B)[RETIRED_AT..][..WORD], ERASED);
+        // RAM does not stall: the third store erases slot A itself, then retires slot B.
         store(&mut flash, b"").unwrap();
         assert_eq!(loaded(&mut flash), Ok(Some(std::vec::Vec::new())));
-        assert!(flash.slot_mut(Slot::B).iter().all(|&b| b == 0xFF));
+        assert_eq!(flash.slot_mut(Slot::A)[RETIRED_AT..][..WORD], ERASED);
+        assert_eq!(flash.slot_mut(Slot::B)[RETIRED_AT..][..WORD], PROGRAMMED);
     }
 
     /// CiA 301 7.5.2.14: after "restore defaults" the device starts on its defaults; a later
@@ -818,9 +949,14 @@ mod tests {
         layout(len, 256).unwrap().1 + CRC_LEN
     }
 
-    /// The slot that holds a record (the other one erased).
+    /// The slot that holds the record in force: committed and not retired (the other one
+    /// is erased or retired).
     fn holding(flash: &mut Medium) -> Slot {
-        if flash.slot_mut(Slot::A).iter().any(|&b| b != 0xFF) {
+        let live = |slot: &[u8; 256]| {
+            slot[COMMIT_AT..COMMIT_AT + WORD] != ERASED
+                && slot[RETIRED_AT..RETIRED_AT + WORD] == ERASED
+        };
+        if live(flash.slot_mut(Slot::A)) {
             Slot::A
         } else {
             Slot::B
@@ -935,6 +1071,208 @@ mod tests {
                 if completed {
                     break;
                 }
+            }
+        }
+    }
+
+    /// A medium that counts its erases.
+    #[derive(Clone, Debug)]
+    struct Counting {
+        inner: Medium,
+        erases: usize,
+    }
+
+    impl Flash for Counting {
+        fn slot_len(&self) -> usize {
+            self.inner.slot_len()
+        }
+        fn erase_stalls(&self) -> bool {
+            self.inner.erase_stalls()
+        }
+        fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
+            self.inner.read(slot, offset, buf)
+        }
+        fn erase(&mut self, slot: Slot) -> Result<(), StorageError> {
+            self.erases += 1;
+            self.inner.erase(slot)
+        }
+        fn write(&mut self, slot: Slot, offset: usize, data: &[u8]) -> Result<(), StorageError> {
+            self.inner.write(slot, offset, data)
+        }
+    }
+
+    /// CiA 301 7.5.2.13 on flash whose erase stalls the processor: a store only programs
+    /// words; a second store before the next erase ahead is refused and changes nothing; the
+    /// erase ahead erases the superseded slot only, once.
+    #[test]
+    fn cia301_7_5_2_13_a_store_on_stalling_flash_never_erases_and_the_erase_ahead_frees_the_next_slot()
+     {
+        let mut flash = Counting {
+            inner: Medium::new().with_stalling_erase(),
+            erases: 0,
+        };
+        assert_eq!(erase_ahead(&mut flash), Ok(None), "a blank medium");
+        store(&mut flash, b"first").unwrap();
+        store(&mut flash, b"second").unwrap();
+        assert_eq!(flash.erases, 0);
+        assert_eq!(loaded(&mut flash), Ok(Some(b"second".to_vec())));
+
+        // Slot A still holds the first record, retired: a third store would need an erase.
+        let before = flash.inner.clone();
+        assert_eq!(store(&mut flash, b"third"), Err(StorageError::NotErased));
+        assert_eq!(restore_defaults(&mut flash), Err(StorageError::NotErased));
+        assert_eq!(flash.inner, before, "a refused store writes nothing");
+        assert_eq!(flash.erases, 0);
+        assert_eq!(loaded(&mut flash), Ok(Some(b"second".to_vec())));
+
+        // Start-up: the erase ahead erases slot A, not the record in force; only once.
+        assert_eq!(erase_ahead(&mut flash), Ok(Some(Slot::A)));
+        assert!(flash.inner.slot_mut(Slot::A).iter().all(|&b| b == 0xFF));
+        assert_eq!(loaded(&mut flash), Ok(Some(b"second".to_vec())));
+        assert_eq!(erase_ahead(&mut flash), Ok(None));
+        assert_eq!(flash.erases, 1);
+        store(&mut flash, b"third").unwrap();
+        assert_eq!(flash.erases, 1);
+        assert_eq!(loaded(&mut flash), Ok(Some(b"third".to_vec())));
+    }
+
+    /// The erase ahead never changes what loads: on every state the stores and the cuts of
+    /// the tests leave (nothing, one record, two committed, a damaged newest record over an
+    /// intact older one), the load answers the same before and after it.
+    #[test]
+    fn en50325_5_8_3_1_the_erase_ahead_never_changes_what_loads() {
+        let mut states = std::vec::Vec::new();
+        states.push(Medium::new());
+        let mut one = Medium::new();
+        store(&mut one, b"one").unwrap();
+        states.push(one.clone());
+        let mut two = one.clone();
+        store(&mut two, b"two").unwrap();
+        states.push(two);
+        for (first, second) in [(Slot::A, Slot::B), (Slot::B, Slot::A)] {
+            let mut both = Medium::new();
+            committed(&mut both, first, 3, b"older");
+            committed(&mut both, second, 4, b"newer");
+            states.push(both.clone());
+            for damage_at in [RETIRED_AT, HEADER_AT, PAYLOAD_AT] {
+                let mut damaged = both.clone();
+                damaged.slot_mut(second)[damage_at] ^= 0x10;
+                states.push(damaged);
+            }
+        }
+        // And every cut of a store on RAM over two records.
+        let mut base = Medium::new();
+        store(&mut base, b"oldest").unwrap();
+        store(&mut base, b"old").unwrap();
+        for budget in 0..200 {
+            let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
+            let _ = store(&mut flash, b"new");
+            states.push(flash.into_inner());
+        }
+        for (number, state) in states.into_iter().enumerate() {
+            let mut flash = state.with_stalling_erase();
+            let before = loaded(&mut flash);
+            erase_ahead(&mut flash).unwrap();
+            assert_eq!(loaded(&mut flash), before, "state {number}");
+            // And the next store finds its target blank: it needs no erase.
+            store(&mut flash, b"next").unwrap();
+            assert_eq!(
+                loaded(&mut flash),
+                Ok(Some(b"next".to_vec())),
+                "state {number}"
+            );
+        }
+    }
+
+    /// CiA 301 7.5.2.13 and EN 50325-5 8.3.1 on flash whose erase stalls: the power fails
+    /// after every possible number of bytes of a start-up's erase ahead followed by a store.
+    /// Afterwards the old or the new record loads, never the oldest (still in the retired
+    /// slot until the erase ahead); once the store answered Ok, only the new one; and the
+    /// next start-up's erase ahead lets the next store complete.
+    #[test]
+    fn cia301_7_5_2_13_a_power_cut_at_any_byte_of_the_erase_ahead_and_the_store_leaves_old_or_new()
+    {
+        let oldest = b"oldest configuration, superseded, retired, not erased";
+        let old = b"old configuration, 0x13FE = A5";
+        let new = b"NEW configuration, of another length";
+        let mut base = Medium::new().with_stalling_erase();
+        store(&mut base, oldest).unwrap();
+        store(&mut base, old).unwrap();
+        let mut outcomes = [0usize; 2];
+        for budget in 0.. {
+            let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
+            let erased = erase_ahead(&mut flash);
+            let result = erased.and_then(|_| store(&mut flash, new));
+            let completed = flash.powered();
+            flash.power_on();
+            let after = loaded(&mut flash).unwrap().unwrap();
+            assert_ne!(after, oldest.to_vec(), "budget {budget}");
+            if result.is_ok() {
+                assert_eq!(after, new.to_vec(), "budget {budget}");
+            } else {
+                assert_eq!(result, Err(StorageError::PowerLost), "budget {budget}");
+                assert!(
+                    after == old.to_vec() || after == new.to_vec(),
+                    "budget {budget}: {after:?}"
+                );
+            }
+            outcomes[usize::from(after == new.to_vec())] += 1;
+            // The next start-up and store.
+            erase_ahead(&mut flash).unwrap();
+            store(&mut flash, b"next").unwrap();
+            assert_eq!(
+                loaded(&mut flash),
+                Ok(Some(b"next".to_vec())),
+                "budget {budget}"
+            );
+            if completed {
+                break;
+            }
+        }
+        assert!(outcomes[0] > 0 && outcomes[1] > 0, "{outcomes:?}");
+    }
+
+    /// EN 50325-5 8.3.1: after a completed store the superseded record stays whole in its
+    /// retired slot until the next erase ahead. Every single-bit flip of either slot, and
+    /// every cut of a further store (on RAM, which erases the retired slot itself), never
+    /// loads it.
+    #[test]
+    fn en50325_5_8_3_1_a_retired_slot_not_erased_never_loads_the_older_record() {
+        let old = b"old configuration, the one the user replaced";
+        let new = b"NEW configuration";
+        let mut base = Medium::new();
+        store(&mut base, old).unwrap();
+        store(&mut base, new).unwrap();
+        let live = holding(&mut base);
+        // The old record is there, whole, behind its retired word.
+        assert_eq!(&base.slot_mut(live.other())[PAYLOAD_AT..][..old.len()], old);
+        for slot in [Slot::A, Slot::B] {
+            for bit in 0..extent(old.len()) * 8 {
+                let mut flash = base.clone();
+                flash.slot_mut(slot)[bit / 8] ^= 1 << (bit % 8);
+                let after = loaded(&mut flash);
+                assert_ne!(after, Ok(Some(old.to_vec())), "{slot:?} bit {bit}");
+                assert!(
+                    after == Ok(Some(new.to_vec())) || after == Err(StorageError::Corrupt),
+                    "{slot:?} bit {bit}: {after:?}"
+                );
+            }
+        }
+        for budget in 0.. {
+            let mut flash = PowerCutFlash::new(base.clone(), Some(budget));
+            let result = store(&mut flash, b"fresh");
+            let completed = flash.powered();
+            flash.power_on();
+            let after = loaded(&mut flash);
+            assert!(
+                after == Ok(Some(new.to_vec())) || after == Ok(Some(b"fresh".to_vec())),
+                "budget {budget}: {after:?}"
+            );
+            if result.is_ok() {
+                assert_eq!(after, Ok(Some(b"fresh".to_vec())));
+            }
+            if completed {
+                break;
             }
         }
     }

@@ -9,7 +9,7 @@ use super::access::AccessControl;
 use super::{Core, Event, persist};
 use crate::canopen::nmt::NmtState;
 use crate::canopen::od::{AbortCode, Address, ObjectDictionary};
-use crate::canopen::storage::Flash;
+use crate::canopen::storage::{Flash, StorageError};
 use crate::node::slot::SafetyProtocol;
 use crate::process_image::Access;
 use crate::safety::gfc;
@@ -194,7 +194,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
-            AbortCode::HardwareError
+            storage_abort(error)
         })
     }
 
@@ -212,7 +212,22 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         )
         .map_err(|error| {
             self.deferred_event = Some(Event::StorageFailed(error));
-            AbortCode::HardwareError
+            storage_abort(error)
         })
+    }
+}
+
+/// The abort code of a failed store or restore (0x1010, 0x1011): 0800 0022h when the medium
+/// refused it for the device's state (the free slot is erased at the next start-up,
+/// [`StorageError::NotErased`]), 0606 0000h for every failure of the medium itself.
+fn storage_abort(error: StorageError) -> AbortCode {
+    match error {
+        StorageError::NotErased => AbortCode::DeviceState,
+        StorageError::TooLarge
+        | StorageError::OutOfBounds
+        | StorageError::Medium
+        | StorageError::VerifyFailed
+        | StorageError::Corrupt
+        | StorageError::PowerLost => AbortCode::HardwareError,
     }
 }

@@ -425,6 +425,9 @@ impl Flash for FailingFlash {
     fn slot_len(&self) -> usize {
         self.inner.slot_len()
     }
+    fn erase_stalls(&self) -> bool {
+        self.inner.erase_stalls()
+    }
     fn read(&mut self, slot: Slot, offset: usize, buf: &mut [u8]) -> Result<(), StorageError> {
         self.inner.read(slot, offset, buf)
     }

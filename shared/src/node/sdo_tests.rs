@@ -312,6 +312,41 @@ fn cia301_7_5_2_13_stored_configuration_is_restored_at_reset() {
     assert_eq!(node.safety_config().configuration_valid, 0);
 }
 
+/// CiA 301 7.5.2.13 on flash whose erase stalls the processor (the hardware's): a store
+/// succeeds while its slot is blank (a new device has two, so two stores pass); the next
+/// one, and a restore (0x1011), are refused with 0800 0022h (the free slot is erased only at
+/// the next start-up), with the reason as an event, and write nothing: the last store stays
+/// in force.
+#[test]
+fn cia301_7_5_2_13_a_store_without_a_blank_slot_is_refused_for_the_device_state() {
+    let medium = PowerCutFlash::new(RamFlash::new().with_stalling_erase(), None);
+    let (mut node, mut sink) = node_on(33, medium);
+    configure_consumer(&mut node, &mut sink, 60);
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
+    let stored = node.safety_config().clone();
+    let untouched = node.flash().clone().into_inner();
+    configure_consumer(&mut node, &mut sink, 90);
+    sink_clear(&mut sink);
+    for (index, data) in [(0x1010u16, b"save"), (0x1011, b"load")] {
+        assert_eq!(
+            abort_of(write(&mut node, &mut sink, index, 1, data)),
+            AbortCode::DeviceState,
+            "{index:04X}"
+        );
+        assert!(
+            sink.events.contains(&Event::StorageFailed(
+                crate::canopen::storage::StorageError::NotErased
+            )),
+            "{index:04X}: {:?}",
+            sink.events
+        );
+    }
+    assert_eq!(node.flash().clone().into_inner(), untouched);
+    nmt(&mut node, &mut sink, NmtCommand::ResetNode);
+    assert_eq!(node.safety_config(), &stored);
+}
+
 /// A store interrupted by a power cut at every possible byte: after power comes back the node
 /// holds the old configuration or the new one, whole, never a mix, and either one takes it to
 /// Operational, because each is consistent with its own signatures.
@@ -626,9 +661,11 @@ fn en50325_5_8_3_1_every_bit_flip_of_the_stored_record_is_reported_with_emcy_630
     write(&mut node, &mut sink, 0x1010, 1, b"save").unwrap();
     let new = node.safety_config().clone();
     let mut medium = node.flash().clone().into_inner();
-    // Put the old record back beside the new one: the state a power cut between the commit
-    // and the erase of the superseded slot leaves.
-    let new_slot = if medium.slot_mut(Slot::A).iter().any(|&b| b != 0xFF) {
+    // Put the old record back beside the new one, not retired: the state a power cut
+    // between the commit and the retirement of the superseded slot leaves. The new record
+    // is the one committed (first word programmed) and not retired (second word erased).
+    let live = |slot: &[u8; 8192]| slot[0] != 0xFF && slot[4..8] == [0xFF; 4];
+    let new_slot = if live(medium.slot_mut(Slot::A)) {
         Slot::A
     } else {
         Slot::B
