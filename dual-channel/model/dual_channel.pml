@@ -844,11 +844,14 @@ inline on_message(c, m) {
   fi
 }
 
-/* Something for Runtime::poll at this tick (a deadline reached). */
+/* Something for Runtime::poll at this tick (a deadline reached). A changed input is due for
+ * the core's producer only while it runs (as core_transmit_a takes it): otherwise the poll
+ * would find it due again and again, and time would stop (no tick while a poll is due). */
 #define POLL_DUE(c) \
   (nmt_cd[c] == 0 || \
    (c < CA && fault[c] == 0 && dage[c] == DISC_T) || \
-   (c == PA && (refresh_cd == 0 || changed || awaited_cd == 0 || cut_cd == 0 || \
+   (c == PA && (refresh_cd == 0 || (changed && nmt[PA] == OPER && !core_safe[PA]) || \
+                awaited_cd == 0 || cut_cd == 0 || \
                 (waiting != NONE && (dage[PA] == NONE || dage[PA] >= W_T)))) || \
    (c == PB && (held_cd == 0 || unann_cd == 0)) || \
    (c >= CA && (srvt_cd[c - CA] == 0 || sct_cd[c - CA] == 0 || \

@@ -236,10 +236,27 @@ fn runs(mode: Mode) -> Vec<Run> {
         ltl: None,
         expect: None,
     };
+    // The full bounds with `extra`, each of which replaces the flag of its name.
     let full = |extra: &[&'static str]| {
-        let mut defines = FULL.to_vec();
+        let name = |define: &str| define.split('=').next().unwrap_or_default().to_string();
+        let mut defines: Vec<&'static str> = FULL
+            .iter()
+            .copied()
+            .filter(|define| !extra.iter().any(|other| name(other) == name(define)))
+            .collect();
         defines.extend_from_slice(extra);
         defines
+    };
+    // A fault class once: the nodes started at power-on with the contacts closed (the
+    // outputs run, so that the fault has something to stop), no NMT command.
+    let fault = |class: &'static str| {
+        full(&[
+            "-DSTARTED=1",
+            "-DINITIAL_INPUT=1",
+            "-DNMT_BUDGET=0",
+            "-DFAULT_BUDGET=1",
+            class,
+        ])
     };
     match mode {
         Mode::Ci => {
@@ -278,34 +295,33 @@ fn runs(mode: Mode) -> Vec<Run> {
             ),
             check(
                 "full-foreign-frame",
-                "safety with a foreign frame on the producer's identifiers",
-                full(&["-DFAULT_BUDGET=1", "-DFAULTS=1", "-DNMT_BUDGET=0"]),
+                "safety with a foreign frame on the producer's identifiers (started at \
+                 power-on, contacts closed, no NMT command)",
+                fault("-DFAULTS=1"),
             ),
             check(
                 "full-loss",
-                "safety with a lost bus frame or link message",
-                full(&["-DFAULT_BUDGET=1", "-DFAULTS=2", "-DNMT_BUDGET=0"]),
+                "safety with a lost bus frame or link message (started at power-on, contacts \
+                 closed, no NMT command)",
+                fault("-DFAULTS=2"),
             ),
             check(
                 "full-stuck-contact",
-                "safety with a contact stuck",
-                full(&["-DFAULT_BUDGET=1", "-DFAULTS=4", "-DNMT_BUDGET=0"]),
+                "safety with a contact stuck (started at power-on, contacts closed, no NMT \
+                 command)",
+                fault("-DFAULTS=4"),
             ),
             check(
                 "full-late-b",
                 "safety and availability with channel B's bus frames up to a tick late, \
                  no input change (the slow-loop artefact), the NMT frames not overtaking A's \
                  plain frame",
-                {
-                    let mut defines = full(&[
-                        "-DFAULT_BUDGET=0",
-                        "-DLATE_LOOPS=2",
-                        "-DRESET_NOT_OVERTAKING",
-                    ]);
-                    defines.retain(|define| !define.starts_with("-DINPUT_BUDGET"));
-                    defines.push("-DINPUT_BUDGET=0");
-                    defines
-                },
+                full(&[
+                    "-DINPUT_BUDGET=0",
+                    "-DFAULT_BUDGET=0",
+                    "-DLATE_LOOPS=2",
+                    "-DRESET_NOT_OVERTAKING",
+                ]),
             ),
         ],
         Mode::Liveness => vec![Run {
@@ -386,7 +402,7 @@ fn verify(
         outcome.errors,
         outcome
             .stopped
-            .map(|why| format!(", stopped: {why}"))
+            .map(|why| format!(", {why}"))
             .unwrap_or_default()
     );
     eprintln!("spin: {}: {summary}", run.name);
@@ -398,9 +414,14 @@ fn verify(
         (None, _, _) => "**error**",
     };
     let row = format!(
-        "| {} | {} | {} | {} | {:.1} | {:.1} | {} |",
+        "| {} | {} | `{}` | {} | {} | {:.1} | {:.1} | {} |",
         run.name,
         run.what,
+        run.defines
+            .iter()
+            .map(|define| define.trim_start_matches("-D"))
+            .collect::<Vec<_>>()
+            .join(" "),
         outcome.states,
         outcome.depth,
         outcome.memory_mb,
@@ -427,9 +448,9 @@ fn verify(
             eprint!("{}", replay(&dir, run).map_err(fail)?);
             return Err(fail(anyhow::anyhow!("the model has an error ({summary})")));
         }
-        if let Some(why) = outcome.stopped {
+        if outcome.stopped.is_some() {
             return Err(fail(anyhow::anyhow!(
-                "the search was not complete ({why}; {summary})"
+                "the search was not complete ({summary})"
             )));
         }
     }
@@ -601,9 +622,12 @@ fn write_report(
         .split_once(&end)
         .with_context(|| format!("{REPORT} has no line `{end}`"))?;
     let bounds = match mode {
-        Mode::Ci => "each run's bounds are in its name (see Mutations)".to_string(),
-        Mode::Full => format!("`{}`, and each run's own", FULL.join(" ")),
-        Mode::Liveness => "the run's own (see Properties)".to_string(),
+        Mode::Ci => "each run's flags".to_string(),
+        Mode::Full => format!(
+            "each run's flags (the full bounds `{}`, some replaced)",
+            FULL.join(" ")
+        ),
+        Mode::Liveness => "the run's flags".to_string(),
     };
     let limit = minutes.map_or("none".to_string(), |minutes| {
         format!("{minutes} min per run (`pan -Q{minutes}`)")
@@ -611,8 +635,8 @@ fn write_report(
     let mut section = format!(
         "{begin}\n\nMeasured by `{command}` with {} and {} (`-O2 -DCOLLAPSE -DMEMLIM={memory}`, \
          `pan -m500000 -w{}`); bounds: {bounds}; time limit: {limit}; {} cores.\n\n\
-         | run | checks | states stored | depth | memory (MB) | time (s) | result |\n\
-         |---|---|---|---|---|---|---|\n",
+         | run | checks | flags | states stored | depth | memory (MB) | time (s) | result |\n\
+         |---|---|---|---|---|---|---|---|\n",
         version("spin", "-V"),
         version("gcc", "--version"),
         if memory <= MEMORY_MB { 24 } else { 26 },
