@@ -250,7 +250,7 @@ enum Task {
         #[arg(long)]
         report: bool,
         /// The minutes each verifier run may take (by default none at the CI size, 5 per run
-        /// with --full, 25 with --liveness); a run stopped by it fails and is reported so.
+        /// with --full, 20 with --liveness); a run stopped by it fails and is reported so.
         #[arg(long)]
         minutes: Option<u32>,
     },

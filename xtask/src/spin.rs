@@ -192,8 +192,8 @@ const FULL: &[&str] = &[
 /// The minutes each `--full` run may take by default (five runs: within 25 minutes).
 pub const FULL_MINUTES: u32 = 5;
 
-/// The minutes the liveness run may take by default.
-pub const LIVENESS_MINUTES: u32 = 25;
+/// The minutes each liveness run may take by default (two runs, the first short).
+pub const LIVENESS_MINUTES: u32 = 20;
 
 /// The memory the verifier may use, in MB (pan's `-DMEMLIM`): within a CI runner's.
 const MEMORY_MB: u32 = 3000;
@@ -324,21 +324,32 @@ fn runs(mode: Mode) -> Vec<Run> {
                 ]),
             ),
         ],
-        Mode::Liveness => vec![Run {
-            name: "recovery".to_string(),
-            what: "liveness (weak fairness): after the last fault, the contacts repaired, NMT \
-                   reset and start, both nodes Operational with a confirmed pair"
-                .to_string(),
-            defines: vec![
-                "-DLIVENESS",
-                "-DNMT_BUDGET=0",
-                "-DINPUT_BUDGET=0",
-                "-DFAULT_BUDGET=1",
-                "-DSTART_AFTER_RESET_T=1",
-            ],
-            ltl: Some("recovers"),
-            expect: None,
-        }],
+        Mode::Liveness => {
+            let recovery = |name: &str, what: &str, inputs: &'static str| Run {
+                name: name.to_string(),
+                what: format!(
+                    "liveness (weak fairness): after one fault of any class{what}, the contacts \
+                     repaired, NMT reset and start, both nodes Operational with a confirmed pair"
+                ),
+                defines: vec![
+                    "-DLIVENESS",
+                    "-DNMT_BUDGET=0",
+                    inputs,
+                    "-DFAULT_BUDGET=1",
+                    "-DSTART_AFTER_RESET_T=1",
+                ],
+                ltl: Some("recovers"),
+                expect: None,
+            };
+            vec![
+                recovery("recovery", "", "-DINPUT_BUDGET=0"),
+                recovery(
+                    "recovery-input-change",
+                    " and one input change",
+                    "-DINPUT_BUDGET=1",
+                ),
+            ]
+        }
     }
 }
 
