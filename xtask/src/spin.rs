@@ -217,6 +217,7 @@ struct Run {
 }
 
 /// What the verifier reported.
+#[derive(Debug)]
 struct Outcome {
     errors: u64,
     states: u64,
@@ -661,4 +662,71 @@ fn write_report(
     std::fs::write(&path, format!("{head}{section}{end}{tail}"))?;
     eprintln!("spin: wrote {REPORT}");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse;
+
+    /// The end of a report of pan (SPIN 6.5.2) after `head`, with `errors` and `states`.
+    fn report(head: &str, errors: u32, states: u64) -> String {
+        format!(
+            "{head}\n(Spin Version 6.5.2 -- 6 December 2019)\n\
+             State-vector 404 byte, depth reached 962, errors: {errors}\n \
+             {states} states, stored\n 57217313 states, matched\n\
+             Stats on memory usage (in Megabytes):\n 5871.027\ttotal actual memory usage\n\n\
+             pan: elapsed time 303 seconds\n"
+        )
+    }
+
+    #[test]
+    fn a_complete_search_reports_its_figures_and_no_stop() {
+        let outcome = parse(&report("", 0, 900_558)).expect("a whole report");
+        assert_eq!(outcome.errors, 0);
+        assert_eq!(outcome.states, 900_558);
+        assert_eq!(outcome.depth, 962);
+        assert!((outcome.memory_mb - 5871.027).abs() < 1e-6);
+        assert!((outcome.seconds - 303.0).abs() < 1e-6);
+        assert_eq!(outcome.stopped, None);
+    }
+
+    #[test]
+    fn a_search_stopped_at_the_time_limit_or_the_memory_bound_is_not_complete() {
+        let timed = report(
+            "Time limit of      5 minutes exceeded\n\nWarning: Search not completed",
+            0,
+            23_000_000,
+        );
+        assert_eq!(
+            parse(&timed).expect("a whole report").stopped,
+            Some("stopped at the time limit")
+        );
+        let memory = report(
+            "pan: reached -DMEMLIM bound\n\nWarning: Search not completed",
+            0,
+            23_000_000,
+        );
+        assert_eq!(
+            parse(&memory).expect("a whole report").stopped,
+            Some("stopped at the memory bound")
+        );
+    }
+
+    #[test]
+    fn a_search_that_found_an_error_is_not_reported_as_stopped() {
+        // pan stops at the first error and says the search was not completed.
+        let found = report(
+            "pan:1: assertion violated injected (at depth 115)\n",
+            1,
+            10_201,
+        );
+        let outcome = parse(&found).expect("a whole report");
+        assert_eq!(outcome.errors, 1);
+        assert_eq!(outcome.stopped, None);
+    }
+
+    #[test]
+    fn a_report_without_figures_is_refused() {
+        assert!(parse("spin: dual_channel.pml:276, Error: d_step sequence too long").is_err());
+    }
 }
