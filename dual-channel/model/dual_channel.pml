@@ -70,14 +70,21 @@
 /* -DRESET_NOT_OVERTAKING: the master's NMT commands never reach the bus while channel A's
  * plain frame waits in its transmit queue (excludes the finding of docs/model-checking.md:
  * such a frame reaches the bus after the reset, its announcement is forgotten, and channel B
- * reports it as foreign). */
+ * reports it as foreign): the master queues none then, and one it queued before waits. */
 #ifdef RESET_NOT_OVERTAKING
 #define MASTER_MAY_SEND empty(tx_a)
+#define M_READY (nempty(tx_m) && empty(tx_a))   /* the master's frame goes on the bus */
+#define M_WAITS (empty(tx_m) || nempty(tx_a))   /* ... or not (SPIN negates no queue test) */
 #else
 #define MASTER_MAY_SEND true
+#define M_READY nempty(tx_m)
+#define M_WAITS empty(tx_m)
 #endif
 #ifndef SLOW_LOOPS
 #define SLOW_LOOPS 0            /* channels (bit c) whose bus frames may lag their link */
+#endif
+#ifndef LATE_LOOPS
+#define LATE_LOOPS 0            /* channels (bit c) whose bus frames may also wait a tick boundary */
 #endif
 #ifndef PAIR_MOD
 #define PAIR_MOD 4              /* pair numbers are counted modulo this */
@@ -225,6 +232,9 @@ bool bus_drop;            /* the next frame on the bus is lost */
 bool link_drop[4];        /* the next link message from channel c is lost */
 byte gap_cd = NONE;       /* the second contact must follow within this many ticks */
 bool env_done;            /* the environment made its last move (liveness) */
+bool again;               /* a channel entered a safe state after the master's last move */
+bool start_due;           /* the master's start follows its reset (liveness) */
+byte restart_cd = NONE;   /* ticks until the master may restart the network (liveness) */
 byte reset_age = 255;     /* ticks since the master's last reset, saturating */
 bool env_turn = 1;        /* the environment moves at the start of each tick, first */
 
@@ -236,11 +246,20 @@ byte gpeer_data[2];
 bool gfc_sent;            /* a GFC was on the bus */
 byte foreign_cd = NONE;   /* ticks left for the node to reach the safe state */
 bool got_pair[2];         /* a pair was confirmed since the last NMT reset */
+byte rx_late[4];          /* frames at the head of rx[c] that came before the last tick */
 hidden int tick_count;           /* ticks since power-on, for the printed trail only */
 
 /* The channel loop hands the runtime its bus frames before its link bytes, its pins and its
  * deadlines (ChannelLoop::service); a slow loop (SLOW_LOOPS) may take them in any order. */
-#define LAGS(c) ((SLOW_LOOPS / (1 << (c))) % 2 == 1)
+#define LAGS(c) (((SLOW_LOOPS | LATE_LOOPS) / (1 << (c))) % 2 == 1)
+/* A late loop (LATE_LOOPS) may also leave bus frames in its receive queue across one tick
+ * boundary, as a receive delay of less than a tick does (the host simulation's): the other
+ * channel's link messages sent after the boundary (its first announcement once its start
+ * delay passed, say) may come before them. The delay shifts the channel's own deadlines with
+ * its frames (they count from when it handled them), so it polls them only once the frames
+ * of the last tick are handled. */
+#define LATE(c) ((LATE_LOOPS / (1 << (c))) % 2 == 1)
+#define RX_DONE(c) (empty(rx[c]) || (LATE(c) && rx_late[c] == 0))
 #define WORKING(c) (fault[c] == 0 && !core_safe[c] && nmt[c] == OPER)
 #define SAME_EPOCH(c) (peer_epoch[c] == NONE || peer_epoch[c] == epoch[c])
 #define DEC(x) if :: (x) != NONE && (x) > 0 -> x = (x) - 1 :: else -> skip fi
@@ -287,6 +306,9 @@ inline safe_state_entered(c, why) {
   :: else -> skip
   fi;
   assert(injected);
+#ifdef LIVENESS
+  again = (again || (env_done && !core_safe[c] && (fault[c] == 0 || fault[c] == why)));
+#endif
   core_safe[c] = 1
 }
 
@@ -778,7 +800,9 @@ inline on_message(c, m) {
         peer_epoch[c] = (MPAY(m) / 2) % 4; peer_nmt[c] = MPAY(m) / 8;
         nmt_compare(c);
         if
-        :: tmp != NONE && tmp != peer_epoch[c] && c == PB -> peer_reset_b()
+        :: tmp != NONE && tmp != peer_epoch[c] && c == PB ->
+           printf("@%d B: A's heartbeat names a new epoch\n", tick_count);
+           peer_reset_b()
         :: else -> skip
         fi;
         if
@@ -788,10 +812,11 @@ inline on_message(c, m) {
         :: else -> skip
         fi
 #ifdef MUTATION_DROP_ANNOUNCEMENTS
-     :: MTYPE(m) != M_HB && !SAME_EPOCH(c) -> skip
+     :: MTYPE(m) != M_HB && !SAME_EPOCH(c) ->
 #else
-     :: MTYPE(m) != M_HB && MTYPE(m) != M_PLAIN && !SAME_EPOCH(c) -> skip
+     :: MTYPE(m) != M_HB && MTYPE(m) != M_PLAIN && !SAME_EPOCH(c) ->
 #endif
+        printf("@%d ch%d: ignores link message %d of another epoch\n", tick_count, c, MTYPE(m))
      :: else ->
         if
         :: MTYPE(m) == M_INPUTS -> if :: c < CA -> peer_inputs(c, MPAY(m)) :: else -> skip fi
@@ -806,7 +831,9 @@ inline on_message(c, m) {
         :: MTYPE(m) == M_MISMATCH -> latch(c, F_TRANSMIT)
         :: MTYPE(m) == M_PLAIN ->
            if
-           :: c == PB -> announced_b(FRAME(ID_PLAIN, S_A, MPAY(m) / 2, MPAY(m) % 2))
+           :: c == PB ->
+              printf("@%d B: announcement of plain %d\n", tick_count, MPAY(m) % 2);
+              announced_b(FRAME(ID_PLAIN, S_A, MPAY(m) / 2, MPAY(m) % 2))
            :: else -> skip
            fi
         :: MTYPE(m) == M_FOREIGN -> foreign(c)
@@ -817,11 +844,14 @@ inline on_message(c, m) {
   fi
 }
 
-/* Something for Runtime::poll at this tick (a deadline reached). */
+/* Something for Runtime::poll at this tick (a deadline reached). A changed input is due for
+ * the core's producer only while it runs (as core_transmit_a takes it): otherwise the poll
+ * would find it due again and again, and time would stop (no tick while a poll is due). */
 #define POLL_DUE(c) \
   (nmt_cd[c] == 0 || \
    (c < CA && fault[c] == 0 && dage[c] == DISC_T) || \
-   (c == PA && (refresh_cd == 0 || changed || awaited_cd == 0 || cut_cd == 0 || \
+   (c == PA && (refresh_cd == 0 || (changed && nmt[PA] == OPER && !core_safe[PA]) || \
+                awaited_cd == 0 || cut_cd == 0 || \
                 (waiting != NONE && (dage[PA] == NONE || dage[PA] >= W_T)))) || \
    (c == PB && (held_cd == 0 || unann_cd == 0)) || \
    (c >= CA && (srvt_cd[c - CA] == 0 || sct_cd[c - CA] == 0 || \
@@ -880,12 +910,17 @@ inline output_invariant(k) {
 proctype Channel(byte c) {
   byte f, m, tmp, tmp2, tmp3, tmp4, d;
   do
-  :: d_step { !env_turn && nempty(rx[c]) -> rx[c]?f; on_frame(c, f); f = 0; tmp = 0; tmp2 = 0; tmp3 = 0 }
+  :: d_step { !env_turn && nempty(rx[c]) -> rx[c]?f;
+       if
+       :: rx_late[c] > 0 -> rx_late[c]--; printf("@%d ch%d: (late) a frame of the last tick\n", tick_count, c)
+       :: else -> skip
+       fi;
+       on_frame(c, f); f = 0; tmp = 0; tmp2 = 0; tmp3 = 0 }
   :: d_step { !env_turn && (empty(rx[c]) || LAGS(c)) && link[c]?[m, d] ->
        link[c]?m, d; on_message(c, m); m = 0; d = 0; tmp = 0; tmp2 = 0; tmp3 = 0 }
   :: d_step { !env_turn && (empty(rx[c]) || LAGS(c)) && c < CA && pin[c] != sampled[c] ->
        set_input(c, pin[c]); tmp = 0; tmp2 = 0; tmp3 = 0 }
-  :: d_step { !env_turn && (empty(rx[c]) || LAGS(c)) && POLL_DUE(c) -> poll(c); tmp = 0; tmp2 = 0; tmp3 = 0 }
+  :: d_step { !env_turn && (empty(rx[c]) || LAGS(c)) && rx_late[c] == 0 && POLL_DUE(c) -> poll(c); tmp = 0; tmp2 = 0; tmp3 = 0 }
   od
 }
 
@@ -920,16 +955,16 @@ inline on_bus(f, from) {
 proctype Bus() {
   byte f;
   do
-  :: atomic { ROOM && nempty(tx_m) -> tx_m?f; on_bus(f, 4); f = 0 }
-  :: atomic { ROOM && empty(tx_m) && gfc_pending > 0 ->
+  :: atomic { ROOM && M_READY -> tx_m?f; on_bus(f, 4); f = 0 }
+  :: atomic { ROOM && M_WAITS && gfc_pending > 0 ->
        gfc_pending = gfc_pending - 1; on_bus(FRAME(ID_GFC, S_A, 0, 0), PA) }
-  :: atomic { ROOM && empty(tx_m) && gfc_pending == 0 && nempty(tx_a) -> tx_a?f; on_bus(f, PA); f = 0 }
-  :: atomic { ROOM && empty(tx_m) && gfc_pending == 0 && foreign_frame != NONE && FID(foreign_frame) == ID_PLAIN ->
+  :: atomic { ROOM && M_WAITS && gfc_pending == 0 && nempty(tx_a) -> tx_a?f; on_bus(f, PA); f = 0 }
+  :: atomic { ROOM && M_WAITS && gfc_pending == 0 && foreign_frame != NONE && FID(foreign_frame) == ID_PLAIN ->
        f = foreign_frame; foreign_frame = NONE; on_bus(f, 4); f = 0 }
-  :: atomic { ROOM && empty(tx_m) && gfc_pending == 0 && empty(tx_a) &&
+  :: atomic { ROOM && M_WAITS && gfc_pending == 0 && empty(tx_a) &&
        !(foreign_frame != NONE && FID(foreign_frame) == ID_PLAIN) && nempty(tx_b) ->
        tx_b?f; on_bus(f, PB); f = 0 }
-  :: atomic { ROOM && empty(tx_m) && gfc_pending == 0 && empty(tx_a) && foreign_frame != NONE &&
+  :: atomic { ROOM && M_WAITS && gfc_pending == 0 && empty(tx_a) && foreign_frame != NONE &&
        FID(foreign_frame) == ID_INV -> f = foreign_frame; foreign_frame = NONE; on_bus(f, 4); f = 0 }
   od
 }
@@ -937,7 +972,7 @@ proctype Bus() {
 /* Nothing left to do at this instant: every frame is on the bus and handled, every message
  * whose latency is used up delivered, every deadline polled, every pin sampled. */
 #define QUIET \
-  (empty(rx[PA]) && empty(rx[PB]) && empty(rx[CA]) && empty(rx[CB]) && \
+  (RX_DONE(PA) && RX_DONE(PB) && RX_DONE(CA) && RX_DONE(CB) && \
    empty(tx_m) && empty(tx_a) && empty(tx_b) && gfc_pending == 0 && foreign_frame == NONE && \
    !(link[PA]?[_, 0]) && !(link[PB]?[_, 0]) && !(link[CA]?[_, 0]) && !(link[CB]?[_, 0]) && \
    !POLL_DUE(PA) && !POLL_DUE(PB) && !POLL_DUE(CA) && !POLL_DUE(CB) && \
@@ -962,6 +997,7 @@ proctype Clock() {
        :: c < 4 ->
           DEC(nmt_cd[c]);
           age_link(link[c]);
+          if :: LATE(c) -> rx_late[c] = len(rx[c]) :: else -> skip fi;
           c++
        :: else -> break
        od;
@@ -978,6 +1014,9 @@ proctype Clock() {
        DEC(refresh_cd); DEC(awaited_cd); DEC(cut_cd); DEC(held_cd); DEC(unann_cd);
        if :: prev_age < W_T -> prev_age++ :: else -> skip fi;
        DEC(gap_cd);
+#ifdef LIVENESS
+       DEC(restart_cd);
+#endif
        if :: reset_age < START_AFTER_RESET_T -> reset_age++ :: else -> reset_age = 255 fi;
        if
        :: foreign_cd != NONE ->
@@ -1005,7 +1044,8 @@ proctype Clock() {
 proctype Environment() {
   do
   /* Nothing (more) at this tick. */
-  :: atomic { env_turn && gap_cd != 0 -> env_turn = 0 }
+  :: atomic { env_turn && gap_cd != 0 && !(again && !start_due && restart_cd == 0 && len(tx_m) == 0) &&
+              !(start_due && reset_age >= START_AFTER_RESET_T) -> env_turn = 0 }
   /* NMT commands to all nodes, at any moment (also between two frames of a tick). */
   :: atomic { nmt_left > 0 && MASTER_MAY_SEND && nfull(tx_m) && reset_age >= START_AFTER_RESET_T ->
        nmt_left--; tx_m!FRAME(ID_START, S_M, 0, 0) }
@@ -1037,11 +1077,21 @@ proctype Environment() {
        if :: link_drop[PA] = 1 :: link_drop[PB] = 1 :: link_drop[CA] = 1 :: link_drop[CB] = 1 fi;
        printf("@%d env: next link message lost\n", tick_count) }
 #ifdef LIVENESS
-  /* The last move: the contacts repaired, then NMT reset and start. */
+  /* The last move: the contacts repaired, then NMT reset, and start a tick later
+   * (START_AFTER_RESET_T; at once, the finding of docs/model-checking.md may stop it). */
   :: atomic { env_turn && !env_done && nfull(tx_m) && len(tx_m) == 0 && gap_cd == NONE ->
        pin[PB] = pin[PA];
-       tx_m!FRAME(ID_RESET, S_M, 0, 0); tx_m!FRAME(ID_START, S_M, 0, 0);
+       tx_m!FRAME(ID_RESET, S_M, 0, 0); reset_age = 0; start_due = 1;
        nmt_left = 0; input_left = 0; fault_left = 0; env_done = 1 }
+  :: atomic { env_turn && start_due && reset_age >= START_AFTER_RESET_T && nfull(tx_m) ->
+       start_due = 0; restart_cd = TIMEOUT_T + 1; tx_m!FRAME(ID_START, S_M, 0, 0) }
+  /* A fault of before the last move found after it (a GFC channel A sends on channel B's
+   * report of a foreign frame, a window after its own; a lost link message found at the next
+   * one) stops the network again: the master restarts it, once the NMT check's grace after
+   * its last start has passed (sooner, restarts a tick apart keep the channels' NMT states
+   * apart on a link slower than a tick, and the NMT check latches). */
+  :: atomic { env_turn && again && !start_due && restart_cd == 0 && nfull(tx_m) && len(tx_m) == 0 ->
+       again = 0; tx_m!FRAME(ID_RESET, S_M, 0, 0); reset_age = 0; start_due = 1 }
 #endif
   od
 }

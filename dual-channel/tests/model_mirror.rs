@@ -168,3 +168,50 @@ fn cia304_9_5_model_mirrors_the_queue_and_slot_sizes() {
         "Runtime::early's size changed (`{early}`): update EARLY_SLOTS"
     );
 }
+
+/// The names of the constants the tests above compare with Rust.
+const COMPARED: [&str; 12] = [
+    "SAMPLE_WINDOW_US",
+    "INPUT_DISCREPANCY_US",
+    "LINK_PERIOD_US",
+    "LINK_TIMEOUT_FACTOR",
+    "REFRESH_US",
+    "SCT_US",
+    "SRVT_US",
+    "PRODUCER_START_US",
+    "VERDICT_DEPTH",
+    "ANNOUNCED_SLOTS",
+    "EARLY_SLOTS",
+    "AWAITED_SLOTS",
+];
+
+/// CiA 304 9.5: every constant in the model's block of mirrored constants is one the tests
+/// above compare with Rust, so that a constant mirrored later cannot go unchecked.
+#[test]
+fn cia304_9_5_every_constant_the_model_mirrors_is_compared_with_rust() {
+    let model = model();
+    let block = model
+        .split_once("Mirrored constants")
+        .and_then(|(_, rest)| rest.split_once("Model bounds"))
+        .map(|(block, _)| block)
+        .expect("the model has its block of mirrored constants before its bounds");
+    let mirrored: Vec<&str> = block
+        .lines()
+        .filter_map(|line| line.trim().strip_prefix("#define "))
+        .filter_map(|rest| rest.split_whitespace().next())
+        .collect();
+    let unchecked: Vec<&&str> = mirrored
+        .iter()
+        .filter(|name| !COMPARED.contains(name))
+        .collect();
+    assert!(
+        unchecked.is_empty(),
+        "the model mirrors {unchecked:?}, which no test compares with Rust: add the comparison"
+    );
+    for name in COMPARED {
+        assert!(
+            mirrored.contains(&name),
+            "{name} is compared with Rust but is not in the model's block of mirrored constants"
+        );
+    }
+}

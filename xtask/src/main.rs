@@ -260,9 +260,21 @@ enum Task {
     /// exhaustively within its bounds, and each past race re-introduced by its mutation switch
     /// found, its counterexample printed. Fails on any error. Needs spin and gcc.
     Spin {
-        /// Bigger bounds; writes the run's figures into docs/model-checking.md.
-        #[arg(long)]
+        /// Bigger bounds, every fault class, a late loop; writes the runs' figures into
+        /// docs/model-checking.md.
+        #[arg(long, conflicts_with = "liveness")]
         full: bool,
+        /// The recovery property under weak fairness (LTL); writes its figures into
+        /// docs/model-checking.md.
+        #[arg(long)]
+        liveness: bool,
+        /// At the CI size: also write the runs' figures into docs/model-checking.md.
+        #[arg(long)]
+        report: bool,
+        /// The minutes each verifier run may take (by default none at the CI size, 5 per run
+        /// with --full, 20 with --liveness); a run stopped by it fails and is reported so.
+        #[arg(long)]
+        minutes: Option<u32>,
     },
     /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
     /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
@@ -501,7 +513,21 @@ fn task() -> Result<()> {
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
         Task::Trace { report_only } => trace::task(&root, report_only),
-        Task::Spin { full } => spin::task(&root, full),
+        Task::Spin {
+            full,
+            liveness,
+            report,
+            minutes,
+        } => {
+            let mode = if full {
+                spin::Mode::Full
+            } else if liveness {
+                spin::Mode::Liveness
+            } else {
+                spin::Mode::Ci
+            };
+            spin::task(&root, mode, report, minutes)
+        }
         Task::Scenario {
             files,
             emulated: false,
