@@ -378,6 +378,10 @@ impl storage::Flash for Slots<'_> {
     fn erase(&mut self, _slot: Slot) -> Result<(), StorageError> {
         Err(StorageError::Medium)
     }
+    fn erase_stalls(&self) -> bool {
+        // The F405's flash: an erase holds the processor (only loads run on this view).
+        true
+    }
     fn write(&mut self, _slot: Slot, _offset: usize, _data: &[u8]) -> Result<(), StorageError> {
         Err(StorageError::Medium)
     }

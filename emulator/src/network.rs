@@ -368,7 +368,7 @@ impl Network {
     }
 
     /// A participant that is not an MCU (a tool on the socketcand port, a load generator):
-    /// its number for [`Network::send`] and in [`Network::take_external_frames`].
+    /// its number for [`Network::send`] and [`Network::receive`].
     pub fn join_external(&mut self, name: &str) -> usize {
         self.externals.push(name.to_owned());
         self.inboxes.push(Default::default());
