@@ -469,7 +469,7 @@ impl dual_channel::selftest::StartUp for HwStartUp {
 /// channel until reset, in the task that calls it.
 pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     if !crystal_starts() {
-        halt_safe("the 8 MHz crystal (HSE) did not start within 100 ms: no clock to run on");
+        halt_safe("the crystal (HSE) did not start");
     }
     let p = embassy_stm32::init(clocks());
     accelerator_on();
