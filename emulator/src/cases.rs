@@ -99,6 +99,8 @@ pub struct Cost {
     pub idle_wake_ups: u64,
     /// Instructions in the Operational window.
     pub operational_instructions: u64,
+    /// Wake-ups in it.
+    pub operational_wake_ups: u64,
     /// SRDO 1 pairs on the bus in the Operational window.
     pub pairs: u64,
 }
@@ -284,6 +286,7 @@ pub fn nominal(
             idle_instructions: idle.0,
             idle_wake_ups: idle.1,
             operational_instructions: now.0 - from.0,
+            operational_wake_ups: now.1 - from.1,
             pairs,
         })
         .collect();

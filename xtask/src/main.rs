@@ -128,6 +128,10 @@ enum Task {
         /// `can-bxcan`, docs/can-driver.md) instead of the shipped one, alone.
         #[arg(long, conflicts_with = "network")]
         bxcan: bool,
+        /// Only the emulator's checks of `cargo xtask test` (the shipped images alone, then on
+        /// one bus: start-up, faults, power cuts, the nominal case), on the images as built.
+        #[arg(long)]
+        checks: bool,
         /// Which channel's image: `a` or `b`.
         #[arg(long, value_parser = ["a", "b"], default_value = "a")]
         channel: String,
@@ -384,6 +388,12 @@ fn task() -> Result<()> {
             bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS)),
             protocol,
         ),
+        Task::Emulate { checks: true, .. } => {
+            let cross = toolchain::ensure()?;
+            images::build(&root, &cross)?;
+            emulate::startup_checks(&root, &cross)?;
+            emulate::network_checks(&root, &cross)
+        }
         Task::Emulate {
             network: true,
             duration,

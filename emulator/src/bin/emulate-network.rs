@@ -217,7 +217,9 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         return match result {
             Ok(nominal) => {
                 println!(
-                    "emulate-network: nominal case passed: configured in {:.3} s of virtual                      time ({} SDO requests); node 33's outputs off {:.3} ms after node 1's                      contacts opened (bound: the refresh time, {:.0} ms)",
+                    "emulate-network: nominal case passed: configured in {:.3} s of virtual \
+                     time ({} SDO requests); node 33's outputs off {:.3} ms after node 1's \
+                     contacts opened (bound: the refresh time, {:.0} ms)",
                     nominal.configured_in as f64 / 1e9,
                     nominal.sdo_requests,
                     nominal.reaction as f64 / 1e6,
@@ -245,13 +247,21 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                 for cost in &nominal.costs {
                     println!(
                         "emulate-network: cost {{\"mcu\": \"{}\", \
-                         \"instructions_per_idle_iteration\": {:.0}, \
-                         \"instructions_per_pair\": {:.0}, \"pairs\": {}, \
-                         \"window_s\": 1.0}}",
+                         \"pre_operational\": {{\"instructions\": {}, \"iterations\": {}, \
+                         \"per_iteration\": {:.0}}}, \
+                         \"operational\": {{\"instructions\": {}, \"iterations\": {}, \
+                         \"per_iteration\": {:.0}, \"pairs\": {}}}, \
+                         \"per_pair_above_pre_operational\": {:.0}, \"window_s\": 1.0}}",
                         cost.name,
+                        cost.idle_instructions,
+                        cost.idle_wake_ups,
                         cost.per_idle_iteration(),
-                        cost.per_pair(),
-                        cost.pairs
+                        cost.operational_instructions,
+                        cost.operational_wake_ups,
+                        cost.operational_instructions as f64
+                            / cost.operational_wake_ups.max(1) as f64,
+                        cost.pairs,
+                        cost.per_pair()
                     );
                 }
                 Ok(!stopped && nominal.reaction <= nominal.bound)
