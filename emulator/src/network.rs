@@ -404,11 +404,7 @@ impl Network {
             {
                 return true;
             }
-            let mut horizon = (self.now + self.quantum).min(end);
-            if let Some(at) = self.next_bus_event() {
-                horizon = horizon.min(at.max(self.now + 1));
-            }
-            self.round(horizon);
+            self.round(self.horizon(end));
         }
         self.inboxes
             .get(index)
@@ -452,12 +448,18 @@ impl Network {
     /// Runs every MCU until virtual time `end`.
     pub fn run_until(&mut self, end: Nanos) {
         while self.now < end {
-            let mut horizon = (self.now + self.quantum).min(end);
-            if let Some(at) = self.next_bus_event() {
-                horizon = horizon.min(at.max(self.now + 1));
-            }
-            self.round(horizon);
+            self.round(self.horizon(end));
         }
+    }
+
+    /// Where the next round ends: a quantum on, at the next bus event if sooner, at `end`
+    /// at the latest.
+    fn horizon(&self, end: Nanos) -> Nanos {
+        let mut horizon = (self.now + self.quantum).min(end);
+        if let Some(at) = self.next_bus_event() {
+            horizon = horizon.min(at.max(self.now + 1));
+        }
+        horizon
     }
 
     /// One round: every MCU runs to `horizon`, then the bus and the links catch up.
