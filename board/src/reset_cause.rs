@@ -27,21 +27,21 @@ pub mod flags {
 pub fn describe(csr: u32) -> &'static str {
     use flags::*;
     if csr & INDEPENDENT_WATCHDOG != 0 {
-"the independent watchdog: the loop stalled"
+        "the independent watchdog: the loop stalled"
     } else if csr & WINDOW_WATCHDOG != 0 {
-"the window watchdog"
+        "the window watchdog"
     } else if csr & SOFTWARE != 0 {
-"software"
+        "software"
     } else if csr & LOW_POWER != 0 {
-"low-power management"
+        "low-power management"
     } else if csr & POWER_ON != 0 {
         "power-on"
     } else if csr & BROWN_OUT != 0 {
-"brown-out"
+        "brown-out"
     } else if csr & PIN != 0 {
-"the reset pin"
+        "the reset pin"
     } else {
-"no flag"
+        "no flag"
     }
 }
 
