@@ -244,63 +244,41 @@ fn configured<const N: usize>(node_id: u8) -> Node<RamFlash<4096>, N> {
             .expect("input");
     }
     let transmit = node_id <= 32;
-    let sdo = CanId::new(0x600 + u16::from(node_id)).expect("valid id");
-    let mut exchange = |request: [u8; 8]| {
-        let mut sink = Counter::default();
-        let frame = CanFrame::new(sdo, &request).expect("8 bytes");
-        node.handle_frame(Instant::ZERO, &frame, &mut sink);
-        sink.last.and_then(|f| f.data().try_into().ok())
-    };
-    let mut write = |index: u16, sub: u8, data: &[u8]| {
-        sdo_client::download(&mut exchange, Address::new(index, sub), data)
-            .unwrap_or_else(|error| panic!("{index:04X}:{sub:02X} refused: {error:?}"));
-    };
     let mapping = if transmit {
         config(node_id).default_transmit_mapping
     } else {
         config(node_id).default_receive_mapping
     };
     for k in 0..N as u16 {
-        // Deleted first, so the identifiers and the mapping may change.
-        write(0x1301 + k, 1, &[0]);
-        write(0x1381 + k, 0, &[0]);
-        for (sub, entry) in mapping.iter().enumerate() {
-            write(0x1381 + k, sub as u8 + 1, &entry.to_le_bytes());
+        // Deleted first, so that the identifiers and the mapping may change.
+        write(&mut node, 0x1301 + k, 1, &[0]);
+        write(&mut node, 0x1381 + k, 0, &[0]);
+        for (sub, entry) in (1..).zip(mapping) {
+            write(&mut node, 0x1381 + k, sub, &entry.to_le_bytes());
         }
-        write(0x1381 + k, 0, &[mapping.len() as u8]);
+        write(&mut node, 0x1381 + k, 0, &[mapping.len() as u8]);
+        let cycle_time: u16 = if transmit { 25 } else { 50 };
+        write(&mut node, 0x1301 + k, 2, &cycle_time.to_le_bytes());
+        write(&mut node, 0x1301 + k, 3, &[20]);
         write(
+            &mut node,
             0x1301 + k,
-            2,
-            &(if transmit { 25u16 } else { 50 }).to_le_bytes(),
+            5,
+            &u32::from(0x101 + 2 * k).to_le_bytes(),
         );
-        write(0x1301 + k, 3, &[20]);
-        write(0x1301 + k, 5, &u32::from(0x101 + 2 * k).to_le_bytes());
-        write(0x1301 + k, 6, &u32::from(0x102 + 2 * k).to_le_bytes());
-        write(0x1301 + k, 1, &[if transmit { 1 } else { 2 }]);
+        write(
+            &mut node,
+            0x1301 + k,
+            6,
+            &u32::from(0x102 + 2 * k).to_le_bytes(),
+        );
+        write(&mut node, 0x1301 + k, 1, &[if transmit { 1 } else { 2 }]);
     }
-    drop(write);
     for k in 0..N {
         let signature = shared::safety::signature::compute(&node.safety_config().srdos[k]);
-        let mut exchange = |request: [u8; 8]| {
-            let mut sink = Counter::default();
-            let frame = CanFrame::new(sdo, &request).expect("8 bytes");
-            node.handle_frame(Instant::ZERO, &frame, &mut sink);
-            sink.last.and_then(|f| f.data().try_into().ok())
-        };
-        sdo_client::download(
-            &mut exchange,
-            Address::new(0x13FF, k as u8 + 1),
-            &signature.to_le_bytes(),
-        )
-        .expect("signature accepted");
+        write(&mut node, 0x13FF, k as u8 + 1, &signature.to_le_bytes());
     }
-    let mut exchange = |request: [u8; 8]| {
-        let mut sink = Counter::default();
-        let frame = CanFrame::new(sdo, &request).expect("8 bytes");
-        node.handle_frame(Instant::ZERO, &frame, &mut sink);
-        sink.last.and_then(|f| f.data().try_into().ok())
-    };
-    sdo_client::download(&mut exchange, Address::new(0x13FE, 0), &[0xA5]).expect("valid");
+    write(&mut node, 0x13FE, 0, &[0xA5]);
     node.handle_frame(
         Instant::ZERO,
         &nmt::command_frame(nmt::NmtCommand::Start, 0),
@@ -311,6 +289,19 @@ fn configured<const N: usize>(node_id: u8) -> Node<RamFlash<4096>, N> {
         "node {node_id} is Operational and working"
     );
     node
+}
+
+/// One SDO download to `node` at t = 0, which must be accepted.
+fn write<const N: usize>(node: &mut Node<RamFlash<4096>, N>, index: u16, sub: u8, data: &[u8]) {
+    let sdo = CanId::new(0x600 + u16::from(node.node_id().raw())).expect("valid id");
+    let exchange = |request: [u8; 8]| {
+        let mut sink = Counter::default();
+        let frame = CanFrame::new(sdo, &request).expect("8 bytes");
+        node.handle_frame(Instant::ZERO, &frame, &mut sink);
+        sink.last.and_then(|f| f.data().try_into().ok())
+    };
+    sdo_client::download(exchange, Address::new(index, sub), data)
+        .unwrap_or_else(|error| panic!("{index:04X}:{sub:02X} refused: {error:?}"));
 }
 
 /// Measured: both frames of a valid pair into a consumer with `N` SRDOs.
