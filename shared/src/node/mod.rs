@@ -576,6 +576,13 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         if protocol.on_frame(now, frame, &mut Slot { shell, image, sink }) {
             return;
         }
+        self.on_service_frame(now, frame, sink);
+    }
+
+    /// A frame the protocol did not take: NMT, GFC, SDO or LSS. Out of line, so that the
+    /// protocol's receive path does not pay for the registers these services use.
+    #[inline(never)]
+    fn on_service_frame(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
         let id = frame.id().raw();
         #[cfg(feature = "lss")]
         if self.core.lss_holds_back(now) && id != lss::MASTER_TO_SLAVE.raw() {

@@ -17,7 +17,7 @@
 
 use super::config::ResolvedMapping;
 use super::types::SrdoNumber;
-use crate::process_image::ProcessImage;
+use crate::process_image::{ProcessImage, Span};
 use crate::time::{self, Duration, Instant};
 
 /// Why a consumer (or producer) gave up on an SRDO.
@@ -264,7 +264,10 @@ impl Consumer {
     /// The inverted frame (COB-ID 2) arrived at `now`. A valid pair restarts SCT; with no
     /// plain frame pending the frame is discarded (CAN double reception, or monitoring that
     /// started between the two frames) and SCT keeps running.
-    #[inline]
+    ///
+    /// Inlined always: its one caller is the receive hot path, whose result it would
+    /// otherwise return through memory.
+    #[inline(always)]
     pub fn on_inverted(
         &mut self,
         now: Instant,
@@ -422,19 +425,46 @@ fn gather_clamped(
 
 /// Delivers a validated pair into the process image: plain data to the plain objects, inverted
 /// data (as received) to the inverted objects.
-#[inline]
+///
+/// Inlined always: its one caller is the receive hot path, where a call cost the pair the
+/// saving and restoring of the callee's registers.
+#[inline(always)]
 pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, inverted: u64) {
     let mut at = 0u32;
-    for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
-        let span = mapping.plain[pair];
+    let pairs = usize::from(mapping.pairs).min(mapping.plain.len());
+    for (&plain_span, &inverted_span) in mapping.plain[..pairs].iter().zip(&mapping.inverted) {
         // Validation keeps every object inside the 8 payload bytes, so an object starts at
         // byte 0..=7 and the shift is below 64; the mask keeps a damaged mapping from
         // panicking (it then delivers wrong bytes, which validation has already excluded).
         let shift = (8 * at) & 63;
-        image.put_le(span, plain >> shift);
-        image.put_le(mapping.inverted[pair], inverted >> shift);
-        at += u32::from(span.len);
+        let (plain_part, inverted_part) = (plain >> shift, inverted >> shift);
+        if plain_span.len == inverted_span.len
+            && plain_span.len <= 8
+            && plain_span.offset.max(inverted_span.offset) <= WINDOW_END
+        {
+            // Every pair of a valid mapping: both words lie in the image, one mask for both.
+            image.put_le(plain_span, plain_part);
+            image.put_le(inverted_span, inverted_part);
+        } else {
+            deliver_clamped(image, plain_span, inverted_span, plain_part, inverted_part);
+        }
+        at += u32::from(plain_span.len);
     }
+}
+
+/// One pair of [`deliver`] whose objects differ in length, are longer than 8 bytes or end past
+/// the image (a damaged mapping). Cold: a valid mapping never comes here.
+#[cold]
+#[inline(never)]
+fn deliver_clamped(
+    image: &mut ProcessImage,
+    plain_span: Span,
+    inverted_span: Span,
+    plain: u64,
+    inverted: u64,
+) {
+    image.put_le(plain_span, plain);
+    image.put_le(inverted_span, inverted);
 }
 
 /// Sets every object of a receive mapping to 0, the safe state (SC_REQ_05).
@@ -448,7 +478,6 @@ pub fn clear(image: &mut ProcessImage, mapping: &ResolvedMapping) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::process_image::Span;
 
     const SCT: Duration = Duration::from_millis(50);
     const SRVT: Duration = Duration::from_millis(20);
