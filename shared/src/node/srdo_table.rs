@@ -127,6 +127,11 @@ pub struct SrdoTable<const N: usize> {
     event_driven: bool,
     remote_frames_ignored: u32,
     double_reception: DoubleReception,
+    /// The earliest timer of the running SRDOs as the last poll left them, and whether the
+    /// device was latched then: what [`SafetyProtocol::deadline`] answers without a second
+    /// pass over the SRDOs. `None` when anything since may have moved a timer (a frame, a
+    /// changed object, the safe state, a start or stop), and then the deadline is computed.
+    next_timer: Option<(Instant, bool)>,
 }
 
 impl<const N: usize> SrdoTable<N> {
@@ -160,6 +165,7 @@ impl<const N: usize> SrdoTable<N> {
             event_driven: config.event_driven,
             remote_frames_ignored: 0,
             double_reception: DoubleReception::default(),
+            next_timer: None,
         })
     }
 
@@ -240,8 +246,11 @@ impl<const N: usize> SrdoTable<N> {
     }
 
     /// A frame on an SRDO identifier at `offset` from [`SRDO_ID_BASE`], in Operational (the hot
-    /// path of a consumer).
-    #[inline]
+    /// path of a consumer). Inlined into the device's frame handler on the host, where the
+    /// caller's loop then saves and restores its registers once rather than per frame; out of
+    /// line in the firmware images, which keep one copy.
+    #[cfg_attr(not(target_os = "none"), inline(always))]
+    #[cfg_attr(target_os = "none", inline)]
     fn on_srdo_frame<S: Sink>(
         &mut self,
         now: Instant,
@@ -273,6 +282,7 @@ impl<const N: usize> SrdoTable<N> {
         let Role::Consumer(consumer) = &mut runtime.role else {
             return;
         };
+        self.next_timer = None;
         let len = runtime.mapping.len;
         let result = if tag & LOOKUP_INVERTED == 0 {
             let srvt = Duration::from_millis(u64::from(record.srvt));
@@ -350,8 +360,11 @@ impl<const N: usize> SrdoTable<N> {
         slot.latch(cause);
     }
 
-    /// Every running SRDO's timers (Operational only).
-    fn run_srdos<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
+    /// Every running SRDO's timers (Operational only); returns the earliest timer of the
+    /// running SRDOs after them, each judged as [`SafetyProtocol::deadline`] judges it with the
+    /// device's state at that SRDO's turn (which a fault on the way makes moot).
+    fn run_srdos<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) -> Instant {
+        let mut next = Instant::NEVER;
         for position in 0..self.active.len() {
             let Some(&index) = self.active.get(position) else {
                 break;
@@ -363,9 +376,16 @@ impl<const N: usize> SrdoTable<N> {
                 continue;
             };
             let number = SrdoNumber::from_index(index);
-            let result = match &mut runtime.role {
-                Role::Consumer(consumer) if !slot.latched() => consumer.check_timers(now),
-                Role::Producer(producer) if !self.producers_halted && producer.due(now) => {
+            // Each arm gives the SRDO's next timer as `deadline` judges it; a fault makes it
+            // moot (the pass's answer is then dropped, see `poll`).
+            let (result, timer) = match &mut runtime.role {
+                Role::Consumer(consumer) if !slot.latched() => {
+                    (consumer.check_timers(now), consumer.deadline())
+                }
+                Role::Producer(producer) if !self.producers_halted && !producer.due(now) => {
+                    (Ok(()), producer.deadline(now))
+                }
+                Role::Producer(producer) if !self.producers_halted => {
                     match srdo::gather(slot.image(), &runtime.mapping) {
                         Ok((plain, inverted)) => {
                             let cob_1 = CanId::from_masked(record.cob_id_1 as u16);
@@ -382,13 +402,14 @@ impl<const N: usize> SrdoTable<N> {
                             ));
                             producer.sent(now, Duration::from_millis(u64::from(record.cycle_time)));
                             runtime.pairs = runtime.pairs.wrapping_add(1);
-                            Ok(())
+                            (Ok(()), producer.deadline(now))
                         }
-                        Err(cause) => Err(cause),
+                        Err(cause) => (Err(cause), Instant::NEVER),
                     }
                 }
-                _ => Ok(()),
+                _ => (Ok(()), Instant::NEVER),
             };
+            next = next.min(timer);
             if let Err(cause) = result {
                 self.latch(
                     SafeStateCause::Srdo(SrdoFault {
@@ -398,6 +419,35 @@ impl<const N: usize> SrdoTable<N> {
                     slot,
                 );
             }
+        }
+        next
+    }
+
+    /// The earliest timer of the running SRDOs, each judged by [`SrdoTable::timer`]: a pass
+    /// over them, for a deadline asked for when the last poll's answer no longer holds.
+    fn timers(&self, now: Instant, latched: bool) -> Instant {
+        self.active
+            .iter()
+            .filter_map(|&index| self.runtime.get(usize::from(index)))
+            .map(|runtime| self.timer(runtime, now, latched))
+            .min()
+            .unwrap_or(Instant::NEVER)
+    }
+
+    /// [`SafetyProtocol::deadline`] from a fresh pass over the SRDOs, whatever the last poll
+    /// left: what the answer from the poll's own pass must equal.
+    #[cfg(test)]
+    pub(super) fn fresh_deadline(&self, now: Instant, latched: bool) -> Instant {
+        self.integrity.deadline().min(self.timers(now, latched))
+    }
+
+    /// The earliest instant at which `runtime` has something to do.
+    #[inline]
+    fn timer(&self, runtime: &SrdoRuntime, now: Instant, latched: bool) -> Instant {
+        match &runtime.role {
+            Role::Consumer(consumer) if !latched => consumer.deadline(),
+            Role::Producer(producer) if !self.producers_halted => producer.deadline(now),
+            _ => Instant::NEVER,
         }
     }
 }
@@ -608,6 +658,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         self.lookup = [0; SRDO_IDS];
         self.integrity = integrity::Integrity::IDLE;
         self.running = false;
+        self.next_timer = None;
     }
 
     fn reset(&mut self) {
@@ -636,25 +687,25 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
     }
 
     fn poll<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
-        self.run_srdos(now, slot);
+        // The pass judges each SRDO with the device's state at its turn: its answer is the
+        // deadline only when nothing entered the safe state on the way (which would change
+        // how the earlier ones count), and entering it clears `next_timer`. The integrity
+        // check or another protocol entering it later clears it again.
+        let latched = slot.latched();
+        self.next_timer = Some((Instant::NEVER, latched));
+        let next = self.run_srdos(now, slot);
+        if self.next_timer.is_some() {
+            self.next_timer = Some((next, latched));
+        }
         self.poll_integrity(now, slot);
     }
 
     fn deadline(&self, now: Instant, latched: bool) -> Instant {
-        let mut next = self.integrity.deadline();
-        for &index in &self.active {
-            let deadline = match self
-                .runtime
-                .get(usize::from(index))
-                .map(|runtime| &runtime.role)
-            {
-                Some(Role::Consumer(consumer)) if !latched => consumer.deadline(),
-                Some(Role::Producer(producer)) if !self.producers_halted => producer.deadline(now),
-                _ => Instant::NEVER,
-            };
-            next = next.min(deadline);
-        }
-        next
+        let srdos = match self.next_timer {
+            Some((next, for_latched)) if for_latched == latched => next,
+            _ => self.timers(now, latched),
+        };
+        self.integrity.deadline().min(srdos)
     }
 
     /// Consumers deliver 0 from then on. Producers keep sending through a communication
@@ -681,6 +732,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         if !already_latched {
             self.clear_received(image);
         }
+        self.next_timer = None;
     }
 
     /// Marks every running producer whose mapping includes the byte at `offset` as changed.
@@ -696,6 +748,9 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
                     due = true;
                 }
             }
+        }
+        if due {
+            self.next_timer = None;
         }
         due
     }
