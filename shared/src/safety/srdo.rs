@@ -233,7 +233,10 @@ impl Consumer {
     ///
     /// With a plain frame pending, an exact repeat of it is discarded (CAN double reception)
     /// and any other plain frame is a sequence error (CiA 304 9.5).
-    #[inline]
+    ///
+    /// Inlined always: its one caller is the receive hot path, whose result it would
+    /// otherwise return through memory.
+    #[inline(always)]
     pub fn on_plain(
         &mut self,
         now: Instant,
