@@ -382,29 +382,28 @@ impl<const N: usize> SrdoTable<N> {
                 Role::Consumer(consumer) if !slot.latched() => {
                     (consumer.check_timers(now), consumer.deadline())
                 }
-                Role::Producer(producer) if !self.producers_halted && !producer.due(now) => {
-                    (Ok(()), producer.deadline(now))
-                }
                 Role::Producer(producer) if !self.producers_halted => {
-                    match srdo::gather(slot.image(), &runtime.mapping) {
-                        Ok((plain, inverted)) => {
-                            let cob_1 = CanId::from_masked(record.cob_id_1 as u16);
-                            let cob_2 = CanId::from_masked(record.cob_id_2 as u16);
-                            slot.transmit(CanFrame::with_len(
-                                cob_1,
-                                plain.to_le_bytes(),
-                                runtime.mapping.len,
-                            ));
-                            slot.transmit(CanFrame::with_len(
-                                cob_2,
-                                inverted.to_le_bytes(),
-                                runtime.mapping.len,
-                            ));
-                            producer.sent(now, Duration::from_millis(u64::from(record.cycle_time)));
-                            runtime.pairs = runtime.pairs.wrapping_add(1);
-                            (Ok(()), producer.deadline(now))
+                    if !producer.due(now) {
+                        (Ok(()), producer.deadline(now))
+                    } else {
+                        match srdo::gather(slot.image(), &runtime.mapping) {
+                            Ok((plain, inverted)) => {
+                                let cob_1 = CanId::from_masked(record.cob_id_1 as u16);
+                                let cob_2 = CanId::from_masked(record.cob_id_2 as u16);
+                                let len = runtime.mapping.len;
+                                slot.transmit(CanFrame::with_len(cob_1, plain.to_le_bytes(), len));
+                                slot.transmit(CanFrame::with_len(
+                                    cob_2,
+                                    inverted.to_le_bytes(),
+                                    len,
+                                ));
+                                let refresh = Duration::from_millis(u64::from(record.cycle_time));
+                                producer.sent(now, refresh);
+                                runtime.pairs = runtime.pairs.wrapping_add(1);
+                                (Ok(()), producer.deadline(now))
+                            }
+                            Err(cause) => (Err(cause), Instant::NEVER),
                         }
-                        Err(cause) => (Err(cause), Instant::NEVER),
                     }
                 }
                 _ => (Ok(()), Instant::NEVER),
