@@ -85,11 +85,11 @@ pub const RAM_PER_SRDO: usize =
 // at compile time on every target, so the cross build proves it for thumbv7em.
 const _: () = assert!(RAM_PER_SRDO <= 160, "more than 160 bytes of RAM per SRDO");
 
-/// Entry of the identifier table: the slot in the low 7 bits plus one (0: not ours), bit 7 set
-/// for the inverted frame, bit 6 set for a transmit SRDO.
+/// Entry of the identifier table: the slot in the low 7 bits plus one (0: not ours; slots
+/// `0..64` give `1..=64`), bit 7 set for the inverted frame. Whether the SRDO transmits is its
+/// run-time role's to say (a frame on a producer's own identifier reaches no consumer).
 pub(super) const LOOKUP_INVERTED: u8 = 0x80;
-pub(super) const LOOKUP_TRANSMIT: u8 = 0x40;
-const LOOKUP_SLOT: u8 = 0x3F;
+const LOOKUP_SLOT: u8 = 0x7F;
 /// First identifier of the SRDO range ([`SRDO_IDENTIFIERS`](crate::safety::types::SRDO_IDENTIFIERS)).
 pub(super) const SRDO_ID_BASE: u16 = *crate::safety::types::SRDO_IDENTIFIERS.start();
 /// Identifiers in the SRDO range (128).
@@ -270,8 +270,8 @@ impl<const N: usize> SrdoTable<N> {
             slot.event(Event::RemoteFrameIgnored(number));
             return;
         }
-        if tag & LOOKUP_TRANSMIT != 0 || slot.latched() {
-            return; // Our own identifiers; or latched: nothing is delivered any more.
+        if slot.latched() {
+            return; // Latched: nothing is delivered any more.
         }
         let (Some(runtime), Some(record)) = (
             self.runtime.get_mut(position - 1),
@@ -280,7 +280,7 @@ impl<const N: usize> SrdoTable<N> {
             return;
         };
         let Role::Consumer(consumer) = &mut runtime.role else {
-            return;
+            return; // Our own identifiers (a producer's).
         };
         self.next_timer = None;
         let len = runtime.mapping.len;
@@ -602,12 +602,9 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         } = self;
         let result = safety.check_for_operational(slot.image(), |number, valid| {
             let index = number.index();
-            let (role, transmit) = match valid.direction {
-                Direction::Transmit => (
-                    Role::Producer(Producer::start(now, node_id)),
-                    LOOKUP_TRANSMIT,
-                ),
-                _ => (Role::Consumer(Consumer::start(now, valid.cycle_time)), 0),
+            let role = match valid.direction {
+                Direction::Transmit => Role::Producer(Producer::start(now, node_id)),
+                _ => Role::Consumer(Consumer::start(now, valid.cycle_time)),
             };
             if let Some(entry) = runtime.get_mut(index) {
                 *entry = SrdoRuntime {
@@ -616,8 +613,8 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
                     pairs: 0,
                 };
             }
-            // `index < N <= 64`, so it fits the table's six bits with the +1.
-            let tag = (index as u8 + 1) | transmit;
+            // `index < N <= 64`, so it fits the table's seven bits with the +1.
+            let tag = index as u8 + 1;
             let first = usize::from(valid.cob_ids.first() - SRDO_ID_BASE);
             if let Some(plain) = lookup.get_mut(first) {
                 *plain = tag;

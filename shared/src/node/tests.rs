@@ -1156,3 +1156,39 @@ proptest::proptest! {
         }
     }
 }
+
+/// EN 50325-5 6.2.2 (object 0x1340, CiA 304 8.4.2): the last SRDO of the largest device, SRDO
+/// 64, receives like the first: its identifiers lead to it, and a valid pair is delivered.
+#[test]
+fn en50325_5_6_2_2_srdo_64_of_a_64_srdo_device_receives_its_pairs() {
+    let mut node = Node::<RamFlash<16384>, 64>::new(config(33), RamFlash::new()).unwrap();
+    let mut sink = Recorder::default();
+    node.poll(Instant::ZERO, &mut sink);
+    let srdos = &mut node.core.protocol.safety.srdos;
+    srdos[63] = srdos[0];
+    srdos[0] = SrdoRecord::DELETED;
+    srdos[63].cob_id_1 = 0x17F;
+    srdos[63].cob_id_2 = 0x180;
+    for record in srdos.iter_mut() {
+        record.signature = signature::compute(record);
+    }
+    node.core.protocol.safety.configuration_valid = 0xA5;
+    node.handle_frame(
+        Instant::ZERO,
+        &nmt::command_frame(NmtCommand::Start, 0),
+        &mut sink,
+    );
+    assert!(node.is_working());
+    node.handle_frame(ms(10), &frame(0x17F, &[0x5A]), &mut sink);
+    node.handle_frame(ms(11), &frame(0x180, &[0xA5]), &mut sink);
+    let srdo = SrdoNumber::new(64).unwrap();
+    assert_eq!(node.srdo_pairs(srdo), 1);
+    assert!(
+        sink.events
+            .contains(&Event::SrdoReceived { srdo, data: 0x5A })
+    );
+    let mut value = [0u8; 1];
+    node.read_object(Address::new(0x6200, 1), &mut value)
+        .unwrap();
+    assert_eq!(value, [0x5A], "the plain value in its object");
+}

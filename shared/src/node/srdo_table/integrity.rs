@@ -7,12 +7,12 @@
 //!
 //! On the way into Operational the node validates the records (0x1301.., 0x1381.., 0x13FE,
 //! 0x13FF) once and derives from them what the receive and transmit paths actually use: the
-//! identifier table (CAN identifier → SRDO slot, plain or inverted, transmit or receive), each
-//! running SRDO's resolved mapping and role, and the list of running SRDOs. The configuration
-//! digest the two channels of a dual-channel device compare covers the records only. Here,
-//! every period (see below), the same Operational-entry check runs again on the records
-//! (each signature, 0x13FE) and the tables are derived again into fresh ones and compared
-//! with the ones in use entry by entry. The derivation goes through the same validation
+//! identifier table (CAN identifier → SRDO slot, plain or inverted), each running SRDO's
+//! resolved mapping and role (transmit or receive), and the list of running SRDOs. The
+//! configuration digest the two channels of a dual-channel device compare covers the records
+//! only. Here, every period (see below), the same Operational-entry check runs again on the
+//! records (each signature, 0x13FE) and the tables are derived again into fresh ones and
+//! compared with the ones in use entry by entry. The derivation goes through the same validation
 //! functions as at Operational entry: this finds damage in memory, not a fault in that code
 //! (which the configuration tests cover). Any difference latches the safe state
 //! ([`crate::node::SafeStateCause::Integrity`]) with EMCY 6300h (data set) and an event naming
@@ -48,8 +48,7 @@
 use heapless::Vec;
 
 use super::{
-    LOOKUP_INVERTED, LOOKUP_TRANSMIT, Role, SRDO_ID_BASE, SRDO_IDS, SafeStateCause, Sink,
-    SrdoRuntime, SrdoTable,
+    LOOKUP_INVERTED, Role, SRDO_ID_BASE, SRDO_IDS, SafeStateCause, Sink, SrdoRuntime, SrdoTable,
 };
 use crate::node::slot::Slot;
 use crate::process_image::ProcessImage;
@@ -201,8 +200,8 @@ impl<const N: usize> SrdoTable<N> {
                 if !matches {
                     runtime_fault.get_or_insert(IntegrityFault::Runtime(number));
                 }
-                // `slot < N <= 64`: the tag's six bits hold it with the +1.
-                let tag = (slot as u8 + 1) | if transmit { LOOKUP_TRANSMIT } else { 0 };
+                // `slot < N <= 64`: the tag's seven bits hold it with the +1.
+                let tag = slot as u8 + 1;
                 let first = usize::from(valid.cob_ids.first() - SRDO_ID_BASE);
                 if let Some(entry) = lookup.get_mut(first) {
                     *entry = tag;
