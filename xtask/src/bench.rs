@@ -428,7 +428,10 @@ fn render_scaled(md: &mut String, scaled: &[Scaled]) {
          `docs/performance.json`.\n",
         100.0 * SCALE_SPREAD
     );
-    let counts: Vec<String> = SCALE_SRDOS.iter().map(|n| format!("{n} SRDOs")).collect();
+    let counts: Vec<String> = SCALE_SRDOS
+        .iter()
+        .map(|&n| format!("{n} SRDO{}", if n == 1 { "" } else { "s" }))
+        .collect();
     let _ = writeln!(md, "| path | {} | spread |", counts.join(" | "));
     let _ = writeln!(
         md,
