@@ -299,8 +299,7 @@ impl<const N: usize> SrdoTable<N> {
             let sct = Duration::from_millis(u64::from(record.cycle_time));
             // A `match`, not `Result::map` with a closure: the closure was compiled out of
             // line, and its call (registers saved, captures spilled) cost the validated pair
-            // 28 of its 359 instructions (`cargo xtask bench`, x86-64); 148 bytes of channel
-            // B's image.
+            // instructions (`cargo xtask bench`) and channel B's image flash.
             match consumer.on_inverted(now, frame.raw_data(), frame.dlc(), len, sct) {
                 Ok(InvertedOutcome::Pair { plain, inverted }) => {
                     srdo::deliver(slot.image_mut(), &runtime.mapping, plain, inverted);

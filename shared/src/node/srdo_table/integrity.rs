@@ -35,15 +35,13 @@
 //!
 //! Cost: one check runs the Operational-entry check (one CRC-16 signature and one mapping
 //! resolution per existing SRDO, and the COB-ID comparison with every other record) and
-//! compares 128 table bytes, the active list and every slot's mapping. Counted with callgrind
-//! as `cargo xtask bench` counts (`shared/examples/hot_paths.rs`, mode `integrity-check`,
-//! `--toggle-collect=hot_paths::check`; x86-64, release, rustc 1.95): 1,164 instructions for
-//! the poll that runs it, one 8-byte producer with a 25 ms refresh time. At that period it is
-//! 0.05 % of a 168 MHz Cortex-M4 even at two cycles an instruction; it grows about linearly
-//! with the SRDOs (quadratically only in the COB-ID comparison, 64 × 63 for the largest
-//! device). The check runs in a poll of its own, so the receive path (unchanged, 337
-//! instructions per validated pair) does not pay for it; the transmit poll pays 6 instructions
-//! for the extra deadline (315 → 321).
+//! compares the identifier table, the active list and every slot's mapping. `cargo xtask
+//! bench` counts the poll that runs it with callgrind (`shared/examples/hot_paths.rs`, mode
+//! `integrity-check`, one 8-byte producer with a 25 ms refresh time; the figure is in
+//! `docs/performance.md`): at that period a small fraction of a 168 MHz Cortex-M4 even at two
+//! cycles an instruction. It grows about linearly with the SRDOs (quadratically only in the
+//! COB-ID comparison, 64 × 63 for the largest device). The check runs in a poll of its own,
+//! so the receive path does not pay for it; the transmit poll pays for one more deadline.
 
 use heapless::Vec;
 
