@@ -378,9 +378,9 @@ pub fn gather(
         {
             return gather_clamped(image, mapping);
         }
-        // `1 <= len <= 8 - at`, so `at < 8` and the shift is below 64.
+        // `1 <= len <= 8 - at`, so `at < 8` and both shifts are below 64.
         let shift = 8 * at as u32;
-        let mask = payload_mask(plain_span.len);
+        let mask = u64::MAX >> (64 - 8 * len as u32);
         plain |= (image.word(plain_span) & mask) << shift;
         inverted |= (image.word(inverted_span) & mask) << shift;
         at += len;
