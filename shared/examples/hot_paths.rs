@@ -4,6 +4,7 @@
 //!
 //! ```text
 //! hot_paths <validated-pair|produced-pair|idle-poll|integrity-check> <iterations>
+//! hot_paths <validated-pair-at|produced-pair-at> <srdos> <iterations>
 //! ```
 //!
 //! - `validated-pair`: an 8-byte SRDO pair received by an Operational consumer (node 33):
@@ -17,6 +18,12 @@
 //!   (node 1, one producer: the Operational-entry check again, the tables derived again and
 //!   compared). It runs once per refresh time, in a poll of its own; `produced-pair` counts
 //!   only the polls that transmit.
+//! - `validated-pair-at` and `produced-pair-at`: the same two paths on a node with `srdos`
+//!   (1, 4, 16 or 64) SRDOs configured and running, all receive SRDOs (node 33) or all
+//!   transmit SRDOs (node 1) with the same mapping and timing, on consecutive identifiers
+//!   from 101h. The consumer is fed the pairs of its SRDOs in turn, every 500 µs (so each
+//!   SRDO's SCT is honoured at 64); the producer's SRDOs share a refresh time, so each
+//!   transmitting poll sends one pair per SRDO. Divided by the pairs, not the iterations.
 
 use shared::canopen::od::Address;
 use shared::canopen::sdo_client;
@@ -222,6 +229,175 @@ fn idle_poll(iterations: u64) -> Counter {
     sink
 }
 
+/// Writes the records of `N` SRDOs over SDO (all `direction`, on identifiers 101h + 2k and
+/// 102h + 2k, the device's default mapping for that direction, refresh time or SCT 25 ms or
+/// 50 ms, SRVT 20 ms), signs and validates them, and starts the node at t = 0.
+fn configured<const N: usize>(node_id: u8) -> Node<RamFlash<4096>, N> {
+    let mut node =
+        Node::<RamFlash<4096>, N>::new(config(node_id), RamFlash::new()).expect("valid node");
+    let mut sink = Counter::default();
+    node.poll(Instant::ZERO, &mut sink);
+    if node_id <= 32 {
+        node.write_object(Address::new(0x6001, 1), &[0xFF; 4])
+            .expect("input");
+        node.write_object(Address::new(0x6003, 1), &[0xFF; 4])
+            .expect("input");
+    }
+    let transmit = node_id <= 32;
+    let mapping = if transmit {
+        config(node_id).default_transmit_mapping
+    } else {
+        config(node_id).default_receive_mapping
+    };
+    for k in 0..N as u16 {
+        // Deleted first, so that the identifiers and the mapping may change.
+        write(&mut node, 0x1301 + k, 1, &[0]);
+        write(&mut node, 0x1381 + k, 0, &[0]);
+        for (sub, entry) in (1..).zip(mapping) {
+            write(&mut node, 0x1381 + k, sub, &entry.to_le_bytes());
+        }
+        write(&mut node, 0x1381 + k, 0, &[mapping.len() as u8]);
+        let cycle_time: u16 = if transmit { 25 } else { 50 };
+        write(&mut node, 0x1301 + k, 2, &cycle_time.to_le_bytes());
+        write(&mut node, 0x1301 + k, 3, &[20]);
+        write(
+            &mut node,
+            0x1301 + k,
+            5,
+            &u32::from(0x101 + 2 * k).to_le_bytes(),
+        );
+        write(
+            &mut node,
+            0x1301 + k,
+            6,
+            &u32::from(0x102 + 2 * k).to_le_bytes(),
+        );
+        write(&mut node, 0x1301 + k, 1, &[if transmit { 1 } else { 2 }]);
+    }
+    for k in 0..N {
+        let signature = shared::safety::signature::compute(&node.safety_config().srdos[k]);
+        write(&mut node, 0x13FF, k as u8 + 1, &signature.to_le_bytes());
+    }
+    write(&mut node, 0x13FE, 0, &[0xA5]);
+    node.handle_frame(
+        Instant::ZERO,
+        &nmt::command_frame(nmt::NmtCommand::Start, 0),
+        &mut sink,
+    );
+    assert!(
+        node.is_working(),
+        "node {node_id} is Operational and working"
+    );
+    node
+}
+
+/// One SDO download to `node` at t = 0, which must be accepted.
+fn write<const N: usize>(node: &mut Node<RamFlash<4096>, N>, index: u16, sub: u8, data: &[u8]) {
+    let sdo = CanId::new(0x600 + u16::from(node.node_id().raw())).expect("valid id");
+    let exchange = |request: [u8; 8]| {
+        let mut sink = Counter::default();
+        let frame = CanFrame::new(sdo, &request).expect("8 bytes");
+        node.handle_frame(Instant::ZERO, &frame, &mut sink);
+        sink.last.and_then(|f| f.data().try_into().ok())
+    };
+    sdo_client::download(exchange, Address::new(index, sub), data)
+        .unwrap_or_else(|error| panic!("{index:04X}:{sub:02X} refused: {error:?}"));
+}
+
+/// Measured: both frames of a valid pair into a consumer with `N` SRDOs.
+#[inline(never)]
+pub fn receive_pair_at<const N: usize>(
+    node: &mut Node<RamFlash<4096>, N>,
+    at: Instant,
+    plain: &CanFrame,
+    inverted: &CanFrame,
+    sink: &mut Counter,
+) {
+    node.handle_frame(at, plain, sink);
+    node.handle_frame(at + Duration::from_micros(300), inverted, sink);
+}
+
+/// Measured: the poll at which the cyclic transmissions of a producer with `N` SRDOs are due.
+#[inline(never)]
+pub fn produce_at<const N: usize>(
+    node: &mut Node<RamFlash<4096>, N>,
+    due: Instant,
+    sink: &mut Counter,
+) -> Instant {
+    node.poll(due, sink)
+}
+
+/// The poll at which the integrity check is due, not measured.
+#[inline(never)]
+fn check_at<const N: usize>(
+    node: &mut Node<RamFlash<4096>, N>,
+    due: Instant,
+    sink: &mut Counter,
+) -> Instant {
+    black_box(node.poll(due, sink))
+}
+
+/// `iterations` valid pairs into a consumer with `N` SRDOs, its SRDOs in turn.
+fn validated_pairs_at<const N: usize>(iterations: u64) -> Counter {
+    let mut node = configured::<N>(33);
+    let mut sink = Counter::default();
+    for i in 0..iterations {
+        let value = i.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let first = 0x101 + 2 * (i % N as u64) as u16;
+        let plain = CanFrame::new(CanId::new(first).expect("id"), &value.to_le_bytes());
+        let inverted = CanFrame::new(CanId::new(first + 1).expect("id"), &(!value).to_le_bytes());
+        let at = Instant::from_micros(500 * (i + 1));
+        receive_pair_at(
+            &mut node,
+            at,
+            &plain.expect("frame"),
+            &inverted.expect("frame"),
+            &mut sink,
+        );
+    }
+    assert!(node.is_working(), "every pair was valid");
+    assert_eq!(sink.events as u64, iterations, "every pair was delivered");
+    sink
+}
+
+/// The transmitting polls of a producer with `N` SRDOs until `pairs` pairs are sent, and the
+/// integrity checks between them (not measured).
+fn produced_pairs_at<const N: usize>(pairs: u64) -> Counter {
+    let mut node = configured::<N>(1);
+    let mut sink = Counter::default();
+    let mut due = node.poll(Instant::ZERO, &mut sink);
+    let mut produced = 0;
+    while produced < pairs {
+        let before = sink.frames;
+        if due.as_micros() % REFRESH_US == 0 {
+            due = check_at(&mut node, due, &mut sink);
+            assert_eq!(sink.frames, before, "the check sends nothing");
+        } else {
+            due = produce_at(&mut node, due, &mut sink);
+            assert_eq!(sink.frames, before + 2 * N as u32, "a pair per SRDO");
+            produced += N as u64;
+        }
+    }
+    assert!(node.is_working(), "the check found nothing");
+    sink
+}
+
+/// The scaled paths, by SRDO count.
+fn at_scale(path: &str, srdos: u64, pairs: u64) -> Option<Counter> {
+    let receive = path == "validated-pair-at";
+    Some(match (srdos, receive) {
+        (1, true) => validated_pairs_at::<1>(pairs),
+        (4, true) => validated_pairs_at::<4>(pairs),
+        (16, true) => validated_pairs_at::<16>(pairs),
+        (64, true) => validated_pairs_at::<64>(pairs),
+        (1, false) => produced_pairs_at::<1>(pairs),
+        (4, false) => produced_pairs_at::<4>(pairs),
+        (16, false) => produced_pairs_at::<16>(pairs),
+        (64, false) => produced_pairs_at::<64>(pairs),
+        _ => return None,
+    })
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let (Some(path), Some(iterations)) = (args.next(), args.next()) else {
@@ -234,6 +410,19 @@ fn main() {
         eprintln!("iterations must be a number, not {iterations:?}");
         std::process::exit(2);
     };
+    if path.ends_with("-at") {
+        let Some(Ok(pairs)) = args.next().map(|pairs| pairs.parse::<u64>()) else {
+            eprintln!("usage: hot_paths {path} <srdos> <pairs>");
+            std::process::exit(2);
+        };
+        // `iterations` is the SRDO count here.
+        let Some(sink) = at_scale(&path, iterations, pairs) else {
+            eprintln!("{path} runs at 1, 4, 16 or 64 SRDOs, not {iterations}");
+            std::process::exit(2);
+        };
+        black_box(sink.last);
+        return;
+    }
     let sink = match path.as_str() {
         "validated-pair" => validated_pair(iterations),
         "produced-pair" | "integrity-check" => producer_polls(iterations),

@@ -206,6 +206,38 @@ impl ProcessImage {
         window
     }
 
+    /// The 8 bytes from the start of `span` as a little-endian `u64`: the bytes of
+    /// [`ProcessImage::window`], one load where a whole window fits in the image.
+    #[inline]
+    pub fn word(&self, span: Span) -> u64 {
+        let start = usize::from(span.offset);
+        match self
+            .bytes
+            .get(start..start + 8)
+            .and_then(|bytes| <[u8; 8]>::try_from(bytes).ok())
+        {
+            Some(bytes) => u64::from_le_bytes(bytes),
+            None => self.tail_word(span),
+        }
+    }
+
+    /// [`ProcessImage::word`] of a span whose window runs past the image. Cold: kept out of
+    /// the transmit hot path, where no valid mapping comes.
+    #[cold]
+    #[inline(never)]
+    fn tail_word(&self, span: Span) -> u64 {
+        u64::from_le_bytes(self.window(span))
+    }
+
+    /// How many bytes [`ProcessImage::get`] gives for `span`: its length, clamped to the
+    /// image.
+    #[inline]
+    pub fn span_len(span: Span) -> usize {
+        let start = usize::from(span.offset);
+        let end = (start + usize::from(span.len)).min(PROCESS_IMAGE_LEN);
+        end.saturating_sub(start)
+    }
+
     /// Copies `data` into `span` (as much as both hold).
     #[inline]
     pub fn set(&mut self, span: Span, data: &[u8]) {
@@ -348,6 +380,23 @@ mod tests {
                     window[inside..].iter().all(|&byte| byte == 0),
                     "offset {offset}: zero past the image"
                 );
+            }
+        }
+    }
+
+    /// The word is the window read little-endian, and the clamped length is `get`'s, at every
+    /// offset (past the end included) and every length.
+    #[test]
+    fn a_word_is_its_window_and_a_span_len_is_what_get_gives() {
+        let mut image = ProcessImage::new(&TABLE).unwrap();
+        for (at, byte) in image.bytes.iter_mut().enumerate() {
+            *byte = (at as u8).wrapping_mul(37) | 1;
+        }
+        for offset in 0..=u8::MAX {
+            for len in 0..=12u8 {
+                let span = Span { offset, len };
+                assert_eq!(image.word(span), u64::from_le_bytes(image.window(span)));
+                assert_eq!(ProcessImage::span_len(span), image.get(span).len());
             }
         }
     }

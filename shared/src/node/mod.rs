@@ -576,6 +576,13 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
         if protocol.on_frame(now, frame, &mut Slot { shell, image, sink }) {
             return;
         }
+        self.on_service_frame(now, frame, sink);
+    }
+
+    /// A frame the protocol did not take: NMT, GFC, SDO or LSS. Out of line, so that the
+    /// protocol's receive path does not pay for the registers these services use.
+    #[inline(never)]
+    fn on_service_frame(&mut self, now: Instant, frame: &CanFrame, sink: &mut impl Sink) {
         let id = frame.id().raw();
         #[cfg(feature = "lss")]
         if self.core.lss_holds_back(now) && id != lss::MASTER_TO_SLAVE.raw() {
@@ -862,7 +869,10 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
 }
 
 impl<F: Flash, P: SafetyProtocol> Core<F, P> {
-    /// Power-on or reset: boot-up message, then Pre-operational (CiA 301 7.3.2.2.1).
+    /// Power-on or reset: boot-up message, then Pre-operational (CiA 301 7.3.2.2.1). Cold:
+    /// kept out of the poll's hot path.
+    #[cold]
+    #[inline(never)]
     fn boot(&mut self, now: Instant, sink: &mut impl Sink) {
         let refused = match self.deferred_event {
             Some(Event::StoredParametersRejected(_)) => Some([0, STORED_PARAMETERS_REJECTED, 0]),
@@ -1078,12 +1088,20 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
         // Operational when the node has left it since is dropped: no GFC outside
         // Operational (EN 50325-5 8.2.2; CiA 301 Table 2).
         if self.shell.gfc_requested {
-            self.shell.gfc_requested = false;
-            if self.shell.state == NmtState::Operational {
-                self.gfc_parameter = gfc::GFC_VALID;
-                sink.transmit(gfc::frame());
-                sink.event(Event::GfcSent);
-            }
+            self.send_requested_gfc(sink);
+        }
+    }
+
+    /// The GFC requested since the last poll, in Operational only. Cold: kept out of the
+    /// poll's hot path.
+    #[cold]
+    #[inline(never)]
+    fn send_requested_gfc(&mut self, sink: &mut impl Sink) {
+        self.shell.gfc_requested = false;
+        if self.shell.state == NmtState::Operational {
+            self.gfc_parameter = gfc::GFC_VALID;
+            sink.transmit(gfc::frame());
+            sink.event(Event::GfcSent);
         }
     }
 

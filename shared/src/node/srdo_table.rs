@@ -85,11 +85,11 @@ pub const RAM_PER_SRDO: usize =
 // at compile time on every target, so the cross build proves it for thumbv7em.
 const _: () = assert!(RAM_PER_SRDO <= 160, "more than 160 bytes of RAM per SRDO");
 
-/// Entry of the identifier table: the slot in the low 7 bits plus one (0: not ours), bit 7 set
-/// for the inverted frame, bit 6 set for a transmit SRDO.
+/// Entry of the identifier table: the slot in the low 7 bits plus one (0: not ours; slots
+/// `0..64` give `1..=64`), bit 7 set for the inverted frame. Whether the SRDO transmits is its
+/// run-time role's to say (a frame on a producer's own identifier reaches no consumer).
 pub(super) const LOOKUP_INVERTED: u8 = 0x80;
-pub(super) const LOOKUP_TRANSMIT: u8 = 0x40;
-const LOOKUP_SLOT: u8 = 0x3F;
+const LOOKUP_SLOT: u8 = 0x7F;
 /// First identifier of the SRDO range ([`SRDO_IDENTIFIERS`](crate::safety::types::SRDO_IDENTIFIERS)).
 pub(super) const SRDO_ID_BASE: u16 = *crate::safety::types::SRDO_IDENTIFIERS.start();
 /// Identifiers in the SRDO range (128).
@@ -127,6 +127,11 @@ pub struct SrdoTable<const N: usize> {
     event_driven: bool,
     remote_frames_ignored: u32,
     double_reception: DoubleReception,
+    /// The earliest timer of the running SRDOs as the last poll left them, and whether the
+    /// device was latched then: what [`SafetyProtocol::deadline`] answers without a second
+    /// pass over the SRDOs. `None` when anything since may have moved a timer (a frame, a
+    /// changed object, the safe state, a start or stop), and then the deadline is computed.
+    next_timer: Option<(Instant, bool)>,
 }
 
 impl<const N: usize> SrdoTable<N> {
@@ -160,6 +165,7 @@ impl<const N: usize> SrdoTable<N> {
             event_driven: config.event_driven,
             remote_frames_ignored: 0,
             double_reception: DoubleReception::default(),
+            next_timer: None,
         })
     }
 
@@ -240,8 +246,11 @@ impl<const N: usize> SrdoTable<N> {
     }
 
     /// A frame on an SRDO identifier at `offset` from [`SRDO_ID_BASE`], in Operational (the hot
-    /// path of a consumer).
-    #[inline]
+    /// path of a consumer). Inlined into the device's frame handler on the host, where the
+    /// caller's loop then saves and restores its registers once rather than per frame; out of
+    /// line in the firmware images, which keep one copy.
+    #[cfg_attr(not(target_os = "none"), inline(always))]
+    #[cfg_attr(target_os = "none", inline)]
     fn on_srdo_frame<S: Sink>(
         &mut self,
         now: Instant,
@@ -261,8 +270,8 @@ impl<const N: usize> SrdoTable<N> {
             slot.event(Event::RemoteFrameIgnored(number));
             return;
         }
-        if tag & LOOKUP_TRANSMIT != 0 || slot.latched() {
-            return; // Our own identifiers; or latched: nothing is delivered any more.
+        if slot.latched() {
+            return; // Latched: nothing is delivered any more.
         }
         let (Some(runtime), Some(record)) = (
             self.runtime.get_mut(position - 1),
@@ -271,8 +280,9 @@ impl<const N: usize> SrdoTable<N> {
             return;
         };
         let Role::Consumer(consumer) = &mut runtime.role else {
-            return;
+            return; // Our own identifiers (a producer's).
         };
+        self.next_timer = None;
         let len = runtime.mapping.len;
         let result = if tag & LOOKUP_INVERTED == 0 {
             let srvt = Duration::from_millis(u64::from(record.srvt));
@@ -289,8 +299,7 @@ impl<const N: usize> SrdoTable<N> {
             let sct = Duration::from_millis(u64::from(record.cycle_time));
             // A `match`, not `Result::map` with a closure: the closure was compiled out of
             // line, and its call (registers saved, captures spilled) cost the validated pair
-            // 28 of its 359 instructions (`cargo xtask bench`, x86-64); 148 bytes of channel
-            // B's image.
+            // instructions (`cargo xtask bench`) and channel B's image flash.
             match consumer.on_inverted(now, frame.raw_data(), frame.dlc(), len, sct) {
                 Ok(InvertedOutcome::Pair { plain, inverted }) => {
                     srdo::deliver(slot.image_mut(), &runtime.mapping, plain, inverted);
@@ -350,8 +359,11 @@ impl<const N: usize> SrdoTable<N> {
         slot.latch(cause);
     }
 
-    /// Every running SRDO's timers (Operational only).
-    fn run_srdos<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
+    /// Every running SRDO's timers (Operational only); returns the earliest timer of the
+    /// running SRDOs after them, each judged as [`SafetyProtocol::deadline`] judges it with the
+    /// device's state at that SRDO's turn (which a fault on the way makes moot).
+    fn run_srdos<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) -> Instant {
+        let mut next = Instant::NEVER;
         for position in 0..self.active.len() {
             let Some(&index) = self.active.get(position) else {
                 break;
@@ -363,32 +375,39 @@ impl<const N: usize> SrdoTable<N> {
                 continue;
             };
             let number = SrdoNumber::from_index(index);
-            let result = match &mut runtime.role {
-                Role::Consumer(consumer) if !slot.latched() => consumer.check_timers(now),
-                Role::Producer(producer) if !self.producers_halted && producer.due(now) => {
-                    match srdo::gather(slot.image(), &runtime.mapping) {
-                        Ok((plain, inverted)) => {
-                            let cob_1 = CanId::from_masked(record.cob_id_1 as u16);
-                            let cob_2 = CanId::from_masked(record.cob_id_2 as u16);
-                            slot.transmit(CanFrame::with_len(
-                                cob_1,
-                                plain.to_le_bytes(),
-                                runtime.mapping.len,
-                            ));
-                            slot.transmit(CanFrame::with_len(
-                                cob_2,
-                                inverted.to_le_bytes(),
-                                runtime.mapping.len,
-                            ));
-                            producer.sent(now, Duration::from_millis(u64::from(record.cycle_time)));
-                            runtime.pairs = runtime.pairs.wrapping_add(1);
-                            Ok(())
+            // Each arm gives the SRDO's next timer as `deadline` judges it; a fault makes it
+            // moot (the pass's answer is then dropped, see `poll`).
+            let (result, timer) = match &mut runtime.role {
+                Role::Consumer(consumer) if !slot.latched() => {
+                    (consumer.check_timers(now), consumer.deadline())
+                }
+                Role::Producer(producer) if !self.producers_halted => {
+                    if !producer.due(now) {
+                        (Ok(()), producer.deadline(now))
+                    } else {
+                        match srdo::gather(slot.image(), &runtime.mapping) {
+                            Ok((plain, inverted)) => {
+                                let cob_1 = CanId::from_masked(record.cob_id_1 as u16);
+                                let cob_2 = CanId::from_masked(record.cob_id_2 as u16);
+                                let len = runtime.mapping.len;
+                                slot.transmit(CanFrame::with_len(cob_1, plain.to_le_bytes(), len));
+                                slot.transmit(CanFrame::with_len(
+                                    cob_2,
+                                    inverted.to_le_bytes(),
+                                    len,
+                                ));
+                                let refresh = Duration::from_millis(u64::from(record.cycle_time));
+                                producer.sent(now, refresh);
+                                runtime.pairs = runtime.pairs.wrapping_add(1);
+                                (Ok(()), producer.deadline(now))
+                            }
+                            Err(cause) => (Err(cause), Instant::NEVER),
                         }
-                        Err(cause) => Err(cause),
                     }
                 }
-                _ => Ok(()),
+                _ => (Ok(()), Instant::NEVER),
             };
+            next = next.min(timer);
             if let Err(cause) = result {
                 self.latch(
                     SafeStateCause::Srdo(SrdoFault {
@@ -398,6 +417,35 @@ impl<const N: usize> SrdoTable<N> {
                     slot,
                 );
             }
+        }
+        next
+    }
+
+    /// The earliest timer of the running SRDOs, each judged by [`SrdoTable::timer`]: a pass
+    /// over them, for a deadline asked for when the last poll's answer no longer holds.
+    fn timers(&self, now: Instant, latched: bool) -> Instant {
+        self.active
+            .iter()
+            .filter_map(|&index| self.runtime.get(usize::from(index)))
+            .map(|runtime| self.timer(runtime, now, latched))
+            .min()
+            .unwrap_or(Instant::NEVER)
+    }
+
+    /// [`SafetyProtocol::deadline`] from a fresh pass over the SRDOs, whatever the last poll
+    /// left: what the answer from the poll's own pass must equal.
+    #[cfg(test)]
+    pub(super) fn fresh_deadline(&self, now: Instant, latched: bool) -> Instant {
+        self.integrity.deadline().min(self.timers(now, latched))
+    }
+
+    /// The earliest instant at which `runtime` has something to do.
+    #[inline]
+    fn timer(&self, runtime: &SrdoRuntime, now: Instant, latched: bool) -> Instant {
+        match &runtime.role {
+            Role::Consumer(consumer) if !latched => consumer.deadline(),
+            Role::Producer(producer) if !self.producers_halted => producer.deadline(now),
+            _ => Instant::NEVER,
         }
     }
 }
@@ -553,12 +601,9 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         } = self;
         let result = safety.check_for_operational(slot.image(), |number, valid| {
             let index = number.index();
-            let (role, transmit) = match valid.direction {
-                Direction::Transmit => (
-                    Role::Producer(Producer::start(now, node_id)),
-                    LOOKUP_TRANSMIT,
-                ),
-                _ => (Role::Consumer(Consumer::start(now, valid.cycle_time)), 0),
+            let role = match valid.direction {
+                Direction::Transmit => Role::Producer(Producer::start(now, node_id)),
+                _ => Role::Consumer(Consumer::start(now, valid.cycle_time)),
             };
             if let Some(entry) = runtime.get_mut(index) {
                 *entry = SrdoRuntime {
@@ -567,8 +612,8 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
                     pairs: 0,
                 };
             }
-            // `index < N <= 64`, so it fits the table's six bits with the +1.
-            let tag = (index as u8 + 1) | transmit;
+            // `index < N <= 64`, so it fits the table's seven bits with the +1.
+            let tag = index as u8 + 1;
             let first = usize::from(valid.cob_ids.first() - SRDO_ID_BASE);
             if let Some(plain) = lookup.get_mut(first) {
                 *plain = tag;
@@ -608,6 +653,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         self.lookup = [0; SRDO_IDS];
         self.integrity = integrity::Integrity::IDLE;
         self.running = false;
+        self.next_timer = None;
     }
 
     fn reset(&mut self) {
@@ -636,25 +682,25 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
     }
 
     fn poll<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
-        self.run_srdos(now, slot);
+        // The pass judges each SRDO with the device's state at its turn: its answer is the
+        // deadline only when nothing entered the safe state on the way (which would change
+        // how the earlier ones count), and entering it clears `next_timer`. The integrity
+        // check or another protocol entering it later clears it again.
+        let latched = slot.latched();
+        self.next_timer = Some((Instant::NEVER, latched));
+        let next = self.run_srdos(now, slot);
+        if self.next_timer.is_some() {
+            self.next_timer = Some((next, latched));
+        }
         self.poll_integrity(now, slot);
     }
 
     fn deadline(&self, now: Instant, latched: bool) -> Instant {
-        let mut next = self.integrity.deadline();
-        for &index in &self.active {
-            let deadline = match self
-                .runtime
-                .get(usize::from(index))
-                .map(|runtime| &runtime.role)
-            {
-                Some(Role::Consumer(consumer)) if !latched => consumer.deadline(),
-                Some(Role::Producer(producer)) if !self.producers_halted => producer.deadline(now),
-                _ => Instant::NEVER,
-            };
-            next = next.min(deadline);
-        }
-        next
+        let srdos = match self.next_timer {
+            Some((next, for_latched)) if for_latched == latched => next,
+            _ => self.timers(now, latched),
+        };
+        self.integrity.deadline().min(srdos)
     }
 
     /// Consumers deliver 0 from then on. Producers keep sending through a communication
@@ -681,6 +727,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         if !already_latched {
             self.clear_received(image);
         }
+        self.next_timer = None;
     }
 
     /// Marks every running producer whose mapping includes the byte at `offset` as changed.
@@ -696,6 +743,9 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
                     due = true;
                 }
             }
+        }
+        if due {
+            self.next_timer = None;
         }
         due
     }

@@ -1029,3 +1029,166 @@ fn sc_req_05_application_safe_state_clears_outputs_and_stops_producers() {
         "no SRDO after an application fault"
     );
 }
+
+// ---- Deadlines ----------------------------------------------------------------------------
+
+/// One step of the deadline model below.
+#[derive(Clone, Copy, Debug)]
+enum Step {
+    /// Time passes by this many microseconds, then the node is polled.
+    Poll(u64),
+    /// A valid pair for receive SRDO 2 or 4 (`true`: 4) with this value.
+    Pair(bool, u8),
+    /// The plain frame of receive SRDO 2 or 4 (`true`: 4) with this value.
+    Plain(bool, u8),
+    /// Its inverted frame: the exact inverse of the last plain frame's value (`true`), or not.
+    Inverted(bool, bool),
+    /// The application hands transmit SRDO 1 or 3 (`true`: 3) new halves of this value, the
+    /// inverted one its exact inverse (`true`) or not (event-driven transmission; halves that
+    /// are not inverses halt the producers).
+    Halves(bool, u8, bool),
+    /// A GFC.
+    Gfc,
+    /// NMT enter Pre-operational, then start again.
+    Restart,
+    /// The application puts the device in its safe state.
+    Application,
+}
+
+fn step() -> impl proptest::strategy::Strategy<Value = Step> {
+    use proptest::prelude::*;
+    // Faults latch for good, so they are rare: most runs go on long enough to exercise the
+    // timers of a working device.
+    prop_oneof![
+        30 => (0u64..12_000).prop_map(Step::Poll),
+        30 => (any::<bool>(), any::<u8>()).prop_map(|(k, v)| Step::Pair(k, v)),
+        6 => (any::<bool>(), any::<u8>()).prop_map(|(k, v)| Step::Plain(k, v)),
+        6 => (any::<bool>(), proptest::bool::weighted(0.9))
+            .prop_map(|(k, exact)| Step::Inverted(k, exact)),
+        8 => (any::<bool>(), any::<u8>(), proptest::bool::weighted(0.9))
+            .prop_map(|(k, v, exact)| Step::Halves(k, v, exact)),
+        1 => Just(Step::Gfc),
+        2 => Just(Step::Restart),
+        1 => Just(Step::Application),
+    ]
+}
+
+proptest::proptest! {
+    /// CiA 304 9.5, EN 50325-5 7.1.2: the deadline the SRDO table answers (after a poll, from
+    /// the poll's own pass over the SRDOs) is the one a fresh pass over them gives, through
+    /// pairs, faults, late frames, event-driven transmissions, GFC and the application's safe
+    /// state; so the node is polled at every SRVT, SCT and refresh deadline.
+    #[test]
+    fn cia304_9_5_the_deadline_after_a_poll_is_the_earliest_timer_of_the_srdos(
+        steps in proptest::collection::vec(step(), 1..120),
+    ) {
+        let (mut node, mut sink) = booted(3, |config| config.event_driven = true);
+        let srdos = &mut node.core.protocol.safety.srdos;
+        // SRDO 1 transmits (pre-defined for node 3), SRDO 3 too with other inputs and another
+        // refresh time; SRDOs 2 and 4 receive, with their own SCT and SRVT.
+        srdos[2] = srdos[0];
+        srdos[2].cycle_time = 30;
+        srdos[2].cob_id_1 = 0x111;
+        srdos[2].cob_id_2 = 0x112;
+        srdos[2].mapping[..2].copy_from_slice(&[0x6000_0208, 0x6001_0208]);
+        for (slot, first, sct, srvt) in [(1, 0x141, 50, 20), (3, 0x151, 35, 8)] {
+            let record = &mut srdos[slot];
+            record.direction = 2;
+            record.cycle_time = sct;
+            record.srvt = srvt;
+            record.cob_id_1 = first;
+            record.cob_id_2 = first + 1;
+            record.mapping_count = 2;
+            record.mapping[..2].copy_from_slice(&RX_MAPPING);
+        }
+        validate(&mut node);
+        for srdo in [1, 3] {
+            let srdo = SrdoNumber::new(srdo).unwrap();
+            node.set_transmit_payloads(srdo, &[0], &[0xFF]).unwrap();
+        }
+        start(&mut node, Instant::ZERO, &mut sink);
+        proptest::prop_assert!(node.is_working());
+        let mut now = Instant::ZERO;
+        let mut last_plain = [0u8; 2];
+        for step in steps {
+            let id = |fourth: bool| if fourth { 0x151 } else { 0x141 };
+            match step {
+                Step::Poll(micros) => {
+                    now = now + Duration::from_micros(micros);
+                    node.poll(now, &mut sink);
+                }
+                Step::Pair(fourth, value) => {
+                    node.handle_frame(now, &frame(id(fourth), &[value]), &mut sink);
+                    node.handle_frame(now, &frame(id(fourth) + 1, &[!value]), &mut sink);
+                }
+                Step::Plain(fourth, value) => {
+                    last_plain[usize::from(fourth)] = value;
+                    node.handle_frame(now, &frame(id(fourth), &[value]), &mut sink);
+                }
+                Step::Inverted(fourth, exact) => {
+                    let plain = last_plain[usize::from(fourth)];
+                    let value = if exact { !plain } else { plain };
+                    node.handle_frame(now, &frame(id(fourth) + 1, &[value]), &mut sink);
+                }
+                Step::Halves(third, plain, exact) => {
+                    let inverted = if exact { !plain } else { plain };
+                    let srdo = SrdoNumber::new(if third { 3 } else { 1 }).unwrap();
+                    node.set_transmit_payloads(srdo, &[plain], &[inverted]).unwrap();
+                }
+                Step::Gfc => node.handle_frame(now, &gfc::frame(), &mut sink),
+                Step::Restart => {
+                    let command = nmt::command_frame(NmtCommand::EnterPreOperational, 0);
+                    node.handle_frame(now, &command, &mut sink);
+                    start(&mut node, now, &mut sink);
+                }
+                Step::Application => node.enter_safe_state(7, &mut sink),
+            }
+            if node.nmt_state() == NmtState::Operational {
+                let (table, latched) = (&node.core.protocol, node.fault().is_some());
+                proptest::prop_assert_eq!(
+                    table.deadline(now, latched),
+                    table.fresh_deadline(now, latched),
+                    "after {:?}",
+                    step
+                );
+            }
+            sink.take();
+        }
+    }
+}
+
+/// EN 50325-5 6.2.2 (object 0x1340, CiA 304 8.4.2): the last SRDO of the largest device, SRDO
+/// 64, receives like the first: its identifiers lead to it, and a valid pair is delivered.
+#[test]
+fn en50325_5_6_2_2_srdo_64_of_a_64_srdo_device_receives_its_pairs() {
+    let mut node = Node::<RamFlash<16384>, 64>::new(config(33), RamFlash::new()).unwrap();
+    let mut sink = Recorder::default();
+    node.poll(Instant::ZERO, &mut sink);
+    let srdos = &mut node.core.protocol.safety.srdos;
+    srdos[63] = srdos[0];
+    srdos[0] = SrdoRecord::DELETED;
+    srdos[63].cob_id_1 = 0x17F;
+    srdos[63].cob_id_2 = 0x180;
+    for record in srdos.iter_mut() {
+        record.signature = signature::compute(record);
+    }
+    node.core.protocol.safety.configuration_valid = 0xA5;
+    node.handle_frame(
+        Instant::ZERO,
+        &nmt::command_frame(NmtCommand::Start, 0),
+        &mut sink,
+    );
+    assert!(node.is_working());
+    node.handle_frame(ms(10), &frame(0x17F, &[0x5A]), &mut sink);
+    node.handle_frame(ms(11), &frame(0x180, &[0xA5]), &mut sink);
+    let srdo = SrdoNumber::new(64).unwrap();
+    assert_eq!(node.srdo_pairs(srdo), 1);
+    assert!(
+        sink.events
+            .contains(&Event::SrdoReceived { srdo, data: 0x5A })
+    );
+    let mut value = [0u8; 1];
+    node.read_object(Address::new(0x6200, 1), &mut value)
+        .unwrap();
+    assert_eq!(value, [0x5A], "the plain value in its object");
+}

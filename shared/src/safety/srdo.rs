@@ -17,7 +17,7 @@
 
 use super::config::ResolvedMapping;
 use super::types::SrdoNumber;
-use crate::process_image::ProcessImage;
+use crate::process_image::{ProcessImage, Span};
 use crate::time::{self, Duration, Instant};
 
 /// Why a consumer (or producer) gave up on an SRDO.
@@ -233,7 +233,10 @@ impl Consumer {
     ///
     /// With a plain frame pending, an exact repeat of it is discarded (CAN double reception)
     /// and any other plain frame is a sequence error (CiA 304 9.5).
-    #[inline]
+    ///
+    /// Inlined always: its one caller is the receive hot path, whose result it would
+    /// otherwise return through memory.
+    #[inline(always)]
     pub fn on_plain(
         &mut self,
         now: Instant,
@@ -264,7 +267,10 @@ impl Consumer {
     /// The inverted frame (COB-ID 2) arrived at `now`. A valid pair restarts SCT; with no
     /// plain frame pending the frame is discarded (CAN double reception, or monitoring that
     /// started between the two frames) and SCT keeps running.
-    #[inline]
+    ///
+    /// Inlined always: its one caller is the receive hot path, whose result it would
+    /// otherwise return through memory.
+    #[inline(always)]
     pub fn on_inverted(
         &mut self,
         now: Instant,
@@ -345,6 +351,9 @@ impl Producer {
     }
 }
 
+/// The last offset at which a whole 8-byte window lies in the process image.
+const WINDOW_END: u8 = (crate::process_image::PROCESS_IMAGE_LEN - 8) as u8;
+
 /// Gathers the plain and inverted payloads of a transmit SRDO from the process image and checks
 /// that they are exact inverses; `Err` means nothing may be sent.
 #[inline]
@@ -352,37 +361,64 @@ pub fn gather(
     image: &ProcessImage,
     mapping: &ResolvedMapping,
 ) -> Result<(u64, u64), SrdoFaultCause> {
-    // Eight bytes of room past the payload: an object is copied as the whole 8-byte window
-    // that starts with it (the bytes past its end, or past the image's, are overwritten by
-    // the next object or masked off below), a load and a store instead of a copy call of its
-    // length.
-    let mut plain = [0u8; 16];
-    let mut inverted = [0u8; 16];
+    // Each object is read as the 8-byte word that starts with it, masked to its length and
+    // shifted to its place in the payload: a load, a mask and a shift, no copy of its length.
+    // Every pair of a valid mapping has two objects of the same length, 1 byte at least, that
+    // fit in what is left of the payload and whose whole words lie in the image; any other
+    // pair (a damaged mapping) is left to the general path, which clamps.
+    let mut plain = 0u64;
+    let mut inverted = 0u64;
+    let mut at = 0usize;
+    let pairs = usize::from(mapping.pairs).min(mapping.plain.len());
+    for (&plain_span, &inverted_span) in mapping.plain[..pairs].iter().zip(&mapping.inverted) {
+        let len = usize::from(plain_span.len);
+        if plain_span.len != inverted_span.len
+            || plain_span.offset.max(inverted_span.offset) > WINDOW_END
+            || len.wrapping_sub(1) >= 8 - at
+        {
+            return gather_clamped(image, mapping);
+        }
+        // `1 <= len <= 8 - at`, so `at < 8` and both shifts are below 64.
+        let shift = 8 * at as u32;
+        let mask = u64::MAX >> (64 - 8 * len as u32);
+        plain |= (image.word(plain_span) & mask) << shift;
+        inverted |= (image.word(inverted_span) & mask) << shift;
+        at += len;
+    }
+    if is_inverse(plain, inverted, mapping.len) {
+        Ok((plain, inverted))
+    } else {
+        Err(SrdoFaultCause::TransmitHalvesNotInverted)
+    }
+}
+
+/// [`gather`] for any mapping, damaged ones included: each span clamped to the image, as
+/// [`ProcessImage::get`] gives it, and the payload to 8 bytes. Cold: a valid mapping never
+/// comes here.
+#[cold]
+#[inline(never)]
+fn gather_clamped(
+    image: &ProcessImage,
+    mapping: &ResolvedMapping,
+) -> Result<(u64, u64), SrdoFaultCause> {
+    let mut plain = 0u64;
+    let mut inverted = 0u64;
     let mut at = 0usize;
     for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
         let (plain_span, inverted_span) = (mapping.plain[pair], mapping.inverted[pair]);
-        let source = image.get(plain_span);
-        let mirror = image.get(inverted_span);
-        let end = (at + source.len()).min(8);
-        // Validation guarantees equal lengths and a total of at most 8 bytes; `min` keeps a
-        // damaged mapping from panicking, and the inverse check below then fails it.
-        if mirror.len() != source.len() {
+        let len = ProcessImage::span_len(plain_span);
+        if ProcessImage::span_len(inverted_span) != len {
             return Err(SrdoFaultCause::TransmitHalvesNotInverted);
         }
-        if end > at {
-            plain[at..at + 8].copy_from_slice(&image.window(plain_span));
-            inverted[at..at + 8].copy_from_slice(&image.window(inverted_span));
+        if at < 8 {
+            // `at < 8`, so the shift is below 64; what goes past the payload is shifted out.
+            let shift = 8 * at as u32;
+            let mask = payload_mask(len.min(8) as u8);
+            plain |= (image.word(plain_span) & mask) << shift;
+            inverted |= (image.word(inverted_span) & mask) << shift;
         }
-        at = end;
+        at = (at + len).min(8);
     }
-    // Only the `at` bytes copied count; what a window brought past them goes.
-    let mask = payload_mask(at as u8);
-    let word = |bytes: &[u8; 16]| {
-        let mut low = [0u8; 8];
-        low.copy_from_slice(&bytes[..8]);
-        u64::from_le_bytes(low) & mask
-    };
-    let (plain, inverted) = (word(&plain), word(&inverted));
     if is_inverse(plain, inverted, mapping.len) {
         Ok((plain, inverted))
     } else {
@@ -392,19 +428,46 @@ pub fn gather(
 
 /// Delivers a validated pair into the process image: plain data to the plain objects, inverted
 /// data (as received) to the inverted objects.
-#[inline]
+///
+/// Inlined always: its one caller is the receive hot path, where a call cost the pair the
+/// saving and restoring of the callee's registers.
+#[inline(always)]
 pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, inverted: u64) {
     let mut at = 0u32;
-    for pair in 0..usize::from(mapping.pairs).min(mapping.plain.len()) {
-        let span = mapping.plain[pair];
+    let pairs = usize::from(mapping.pairs).min(mapping.plain.len());
+    for (&plain_span, &inverted_span) in mapping.plain[..pairs].iter().zip(&mapping.inverted) {
         // Validation keeps every object inside the 8 payload bytes, so an object starts at
         // byte 0..=7 and the shift is below 64; the mask keeps a damaged mapping from
         // panicking (it then delivers wrong bytes, which validation has already excluded).
         let shift = (8 * at) & 63;
-        image.put_le(span, plain >> shift);
-        image.put_le(mapping.inverted[pair], inverted >> shift);
-        at += u32::from(span.len);
+        let (plain_part, inverted_part) = (plain >> shift, inverted >> shift);
+        if plain_span.len == inverted_span.len
+            && plain_span.len <= 8
+            && plain_span.offset.max(inverted_span.offset) <= WINDOW_END
+        {
+            // Every pair of a valid mapping: both words lie in the image, one mask for both.
+            image.put_le(plain_span, plain_part);
+            image.put_le(inverted_span, inverted_part);
+        } else {
+            deliver_clamped(image, plain_span, inverted_span, plain_part, inverted_part);
+        }
+        at += u32::from(plain_span.len);
     }
+}
+
+/// One pair of [`deliver`] whose objects differ in length, are longer than 8 bytes or end past
+/// the image (a damaged mapping). Cold: a valid mapping never comes here.
+#[cold]
+#[inline(never)]
+fn deliver_clamped(
+    image: &mut ProcessImage,
+    plain_span: Span,
+    inverted_span: Span,
+    plain: u64,
+    inverted: u64,
+) {
+    image.put_le(plain_span, plain);
+    image.put_le(inverted_span, inverted);
 }
 
 /// Sets every object of a receive mapping to 0, the safe state (SC_REQ_05).
@@ -418,7 +481,6 @@ pub fn clear(image: &mut ProcessImage, mapping: &ResolvedMapping) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::process_image::Span;
 
     const SCT: Duration = Duration::from_millis(50);
     const SRVT: Duration = Duration::from_millis(20);

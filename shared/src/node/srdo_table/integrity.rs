@@ -7,12 +7,12 @@
 //!
 //! On the way into Operational the node validates the records (0x1301.., 0x1381.., 0x13FE,
 //! 0x13FF) once and derives from them what the receive and transmit paths actually use: the
-//! identifier table (CAN identifier → SRDO slot, plain or inverted, transmit or receive), each
-//! running SRDO's resolved mapping and role, and the list of running SRDOs. The configuration
-//! digest the two channels of a dual-channel device compare covers the records only. Here,
-//! every period (see below), the same Operational-entry check runs again on the records
-//! (each signature, 0x13FE) and the tables are derived again into fresh ones and compared
-//! with the ones in use entry by entry. The derivation goes through the same validation
+//! identifier table (CAN identifier → SRDO slot, plain or inverted), each running SRDO's
+//! resolved mapping and role (transmit or receive), and the list of running SRDOs. The
+//! configuration digest the two channels of a dual-channel device compare covers the records
+//! only. Here, every period (see below), the same Operational-entry check runs again on the
+//! records (each signature, 0x13FE) and the tables are derived again into fresh ones and
+//! compared with the ones in use entry by entry. The derivation goes through the same validation
 //! functions as at Operational entry: this finds damage in memory, not a fault in that code
 //! (which the configuration tests cover). Any difference latches the safe state
 //! ([`crate::node::SafeStateCause::Integrity`]) with EMCY 6300h (data set) and an event naming
@@ -35,21 +35,18 @@
 //!
 //! Cost: one check runs the Operational-entry check (one CRC-16 signature and one mapping
 //! resolution per existing SRDO, and the COB-ID comparison with every other record) and
-//! compares 128 table bytes, the active list and every slot's mapping. Counted with callgrind
-//! as `cargo xtask bench` counts (`shared/examples/hot_paths.rs`, mode `integrity-check`,
-//! `--toggle-collect=hot_paths::check`; x86-64, release, rustc 1.95): 1,164 instructions for
-//! the poll that runs it, one 8-byte producer with a 25 ms refresh time. At that period it is
-//! 0.05 % of a 168 MHz Cortex-M4 even at two cycles an instruction; it grows about linearly
-//! with the SRDOs (quadratically only in the COB-ID comparison, 64 × 63 for the largest
-//! device). The check runs in a poll of its own, so the receive path (unchanged, 337
-//! instructions per validated pair) does not pay for it; the transmit poll pays 6 instructions
-//! for the extra deadline (315 → 321).
+//! compares the identifier table, the active list and every slot's mapping. `cargo xtask
+//! bench` counts the poll that runs it with callgrind (`shared/examples/hot_paths.rs`, mode
+//! `integrity-check`, one 8-byte producer with a 25 ms refresh time; the figure is in
+//! `docs/performance.md`): at that period a small fraction of a 168 MHz Cortex-M4 even at two
+//! cycles an instruction. It grows about linearly with the SRDOs (quadratically only in the
+//! COB-ID comparison, 64 × 63 for the largest device). The check runs in a poll of its own,
+//! so the receive path does not pay for it; the transmit poll pays for one more deadline.
 
 use heapless::Vec;
 
 use super::{
-    LOOKUP_INVERTED, LOOKUP_TRANSMIT, Role, SRDO_ID_BASE, SRDO_IDS, SafeStateCause, Sink,
-    SrdoRuntime, SrdoTable,
+    LOOKUP_INVERTED, Role, SRDO_ID_BASE, SRDO_IDS, SafeStateCause, Sink, SrdoRuntime, SrdoTable,
 };
 use crate::node::slot::Slot;
 use crate::process_image::ProcessImage;
@@ -201,8 +198,8 @@ impl<const N: usize> SrdoTable<N> {
                 if !matches {
                     runtime_fault.get_or_insert(IntegrityFault::Runtime(number));
                 }
-                // `slot < N <= 64`: the tag's six bits hold it with the +1.
-                let tag = (slot as u8 + 1) | if transmit { LOOKUP_TRANSMIT } else { 0 };
+                // `slot < N <= 64`: the tag's seven bits hold it with the +1.
+                let tag = slot as u8 + 1;
                 let first = usize::from(valid.cob_ids.first() - SRDO_ID_BASE);
                 if let Some(entry) = lookup.get_mut(first) {
                     *entry = tag;
