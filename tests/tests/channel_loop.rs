@@ -343,7 +343,7 @@ fn sc_req_18_the_loop_hands_the_cores_withdrawal_of_an_unconfirmed_packet_to_the
 /// Operational only. A damaged link frame that would otherwise latch the safe state then
 /// costs nothing; the same frame without that report, or in Operational, is a link fault.
 #[test]
-fn en50325_5_a_4_a_channel_deaf_while_storing_drops_what_its_link_buffered_outside_operational() {
+fn cia304_9_5_a_channel_deaf_while_storing_drops_what_its_link_buffered_outside_operational() {
     // A frame that decodes (COBS) but fails its CRC.
     let damaged = [0x08, 1, 2, 3, 4, 5, 6, 7, 0x00];
     let link_fault = |net: &LoopNetwork| {

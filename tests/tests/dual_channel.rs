@@ -642,7 +642,7 @@ fn en50325_5_7_2_1_a_foreign_frame_right_after_reset_and_start_is_detected() {
 /// in Operational the same report changes nothing. Restarted, the link keeps working: the
 /// next messages are counted again and no fault comes of it.
 #[test]
-fn en50325_5_a_4_a_channel_deaf_while_storing_restarts_its_link_only_outside_operational() {
+fn cia304_9_5_a_channel_deaf_while_storing_restarts_its_link_only_outside_operational() {
     let mut net = DualNetwork::new(500_000, &[1, 33]);
     net.configure_and_start().expect("configuration accepted");
     net.run_for(Duration::from_millis(200));

@@ -120,7 +120,7 @@ fn the_first_message_starts_the_count_within_the_startup_time() {
 /// longer to start (the hardware's erase ahead of a parameter slot) extends the wait for the
 /// first message, and only that: once a message came, the timeout alone counts.
 #[test]
-fn en50325_5_a_4_a_longer_start_up_extends_only_the_wait_for_the_first_message() {
+fn cia304_9_5_a_longer_start_up_extends_only_the_wait_for_the_first_message() {
     let startup = Duration::from_millis(500);
     let longer = Duration::from_millis(4000);
     let mut waiting = Receiver::new(Instant::ZERO, TIMEOUT, startup);
@@ -777,7 +777,7 @@ fn cia304_9_5_a_probe_crosses_the_link_and_its_echo_comes_back() {
 /// byte of is no fault, the next valid message starts the count whatever its sequence
 /// number, and then a gap is a fault again. A restart never shortens a start-up wait.
 #[test]
-fn en50325_5_a_4_a_restarted_receiver_ignores_what_it_lost_then_counts_again() {
+fn cia304_9_5_a_restarted_receiver_ignores_what_it_lost_then_counts_again() {
     let mut sender = Sender::new();
     let mut receiver = Receiver::new(Instant::ZERO, TIMEOUT, TIMEOUT);
     let first = Message::Inputs { sample: 1 };
