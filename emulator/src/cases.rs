@@ -212,22 +212,12 @@ pub fn nominal(
         .map(|(now, from)| (now.0 - from.0, now.1 - from.1))
         .collect();
     let started = network.now();
-    let (requests, configured_in) = {
-        let mut client = Client::new(ToolPort::join(network, "tool"), file.sdo_timeout);
-        let report = procedure::configure(&mut client, file, false, &mut Narrator)
-            .map_err(|error| format!("configuration: {error}"))?;
-        for result in &report.nodes {
-            if let NodeResult::Failed { error, .. } = result {
-                return Err(format!("configuration: {error}"));
-            }
-        }
+    let requests = configure_then(network, file, |client| {
         client
             .nmt(NmtCommand::Start, 0)
-            .map_err(|error| format!("NMT start: {error}"))?;
-        let requests = client.requests;
-        let network = client.transport.network();
-        (requests, network.now() - started)
-    };
+            .map_err(|error| format!("NMT start: {error}"))
+    })?;
+    let configured_in = network.now() - started;
     let mut operational = [false; 2];
     run_until_event(network, 2_000 * MS, seen, |network, event| {
         if let Event::Frame { frame, .. } = event {
@@ -441,7 +431,7 @@ pub fn reference(
         .iter()
         .map(|&mcu| network.machine(mcu).flash_operations())
         .collect::<Vec<_>>();
-    configure_only(&mut network, &file)?;
+    configure_then(&mut network, &file, |_| Ok(()))?;
     let new = [load(&network, channels[0])?, load(&network, channels[1])?];
     if new[0].is_none() || new == old {
         return Err("configuring node 1 stored nothing new in its channels' flash".into());
@@ -454,8 +444,13 @@ pub fn reference(
     })
 }
 
-/// Configures from `file` with the tool's library; the tool's error as a sentence.
-fn configure_only(network: &mut Network, file: &NetworkFile) -> Result<(), String> {
+/// Configures from `file` with the tool's library, then `then` with the same client; the
+/// SDO requests sent, or the tool's error as a sentence.
+fn configure_then(
+    network: &mut Network,
+    file: &NetworkFile,
+    then: impl FnOnce(&mut Client<ToolPort<'_>>) -> Result<(), String>,
+) -> Result<u64, String> {
     let mut client = Client::new(ToolPort::join(network, "tool"), file.sdo_timeout);
     let report = procedure::configure(&mut client, file, false, &mut Narrator)
         .map_err(|error| format!("configuration: {error}"))?;
@@ -464,7 +459,8 @@ fn configure_only(network: &mut Network, file: &NetworkFile) -> Result<(), Strin
             return Err(format!("configuration: {error}"));
         }
     }
-    Ok(())
+    then(&mut client)?;
+    Ok(client.requests)
 }
 
 /// What a power cut during node 1's store left.
@@ -495,10 +491,10 @@ pub fn power_cut(
     let target = channels[channel];
     let base = network.machine(target).flash_operations();
     network.machine_mut(target).cut_power_at(base + step, seed);
-    let configured = configure_only(&mut network, &file);
+    let configured = configure_then(&mut network, &file, |_| Ok(()));
     if !network.stopped(target) {
         return match configured {
-            Ok(()) => Ok(None),
+            Ok(_) => Ok(None),
             Err(why) => Err(format!("without a power cut: {why}")),
         };
     }
@@ -613,8 +609,8 @@ fn under_load(
             }
         }
     }
-    // The generator's frame still queued goes with it.
-    while network.receive(sender).is_some() {}
+    // Nothing more is kept for the generator (its last frame still goes out).
+    network.leave_external(sender);
     gaps.sort_unstable();
     let seconds = spec.duration as f64 / 1e9;
     Ok(LoadReport {

@@ -174,7 +174,8 @@ pub struct Network {
     /// External participants (tools), numbered after the MCUs, by name.
     externals: Vec<String>,
     /// Frames delivered to each external participant, oldest first.
-    inboxes: Vec<std::collections::VecDeque<Delivery>>,
+    /// `None` once the participant left ([`Network::leave_external`]).
+    inboxes: Vec<Option<std::collections::VecDeque<Delivery>>>,
     events: Vec<Event>,
 }
 
@@ -371,7 +372,7 @@ impl Network {
     /// its number for [`Network::send`] and [`Network::receive`].
     pub fn join_external(&mut self, name: &str) -> usize {
         self.externals.push(name.to_owned());
-        self.inboxes.push(Default::default());
+        self.inboxes.push(Some(Default::default()));
         self.mcus.len() + self.externals.len() - 1
     }
 
@@ -386,7 +387,29 @@ impl Network {
     pub fn receive(&mut self, participant: usize) -> Option<Delivery> {
         self.inboxes
             .get_mut(participant.checked_sub(self.mcus.len())?)?
+            .as_mut()?
             .pop_front()
+    }
+
+    /// External participant `participant` stops listening: nothing more is kept for it (the
+    /// frames it queued still go out, as a controller's transmit queue empties after its
+    /// software stopped).
+    pub fn leave_external(&mut self, participant: usize) {
+        if let Some(inbox) = participant
+            .checked_sub(self.mcus.len())
+            .and_then(|index| self.inboxes.get_mut(index))
+        {
+            *inbox = None;
+        }
+    }
+
+    /// Whether a frame waits for external participant `index` (counted among the external
+    /// participants).
+    fn has_frame_for(&self, index: usize) -> bool {
+        self.inboxes
+            .get(index)
+            .and_then(Option::as_ref)
+            .is_some_and(|inbox| !inbox.is_empty())
     }
 
     /// Runs until virtual time `end`, or until the end of the round in which a frame reached
@@ -397,18 +420,12 @@ impl Network {
             return false;
         };
         while self.now < end {
-            if self
-                .inboxes
-                .get(index)
-                .is_some_and(|inbox| !inbox.is_empty())
-            {
+            if self.has_frame_for(index) {
                 return true;
             }
             self.round(self.horizon(end));
         }
-        self.inboxes
-            .get(index)
-            .is_some_and(|inbox| !inbox.is_empty())
+        self.has_frame_for(index)
     }
 
     /// What happened since the last call, in time order.
@@ -596,7 +613,9 @@ impl Network {
                 mcu.machine.can_changed();
             }
             for (external, inbox) in self.inboxes.iter_mut().enumerate() {
-                if self.mcus.len() + external != delivery.from {
+                if let Some(inbox) = inbox
+                    && self.mcus.len() + external != delivery.from
+                {
                     inbox.push_back(delivery);
                 }
             }

@@ -34,6 +34,13 @@ impl<'n> ToolPort<'n> {
     }
 }
 
+impl Drop for ToolPort<'_> {
+    /// The tool leaves the bus: nothing more is kept for it.
+    fn drop(&mut self) {
+        self.network.leave_external(self.participant);
+    }
+}
+
 fn nanos(at: Duration) -> Nanos {
     u64::try_from(at.as_nanos()).unwrap_or(Nanos::MAX)
 }
