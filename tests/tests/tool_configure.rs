@@ -340,3 +340,33 @@ fn en50325_5_8_3_1_node_that_stops_answering_is_named_and_left_invalid() {
     );
     assert_eq!(verdicts[0], Verdict::Matches { node: 1 });
 }
+
+/// A node whose flash erase holds the processor (the hardware's medium) writes each store to
+/// a slot erased at start-up. A store that finds its slot not erased refuses with
+/// 0800 0022h (CiA 301 7.5.2.13, EN 50325-5 8.3.1's store step), nothing written, and the
+/// tool says in words why and what to do instead of quoting the abort code.
+#[test]
+fn en50325_5_8_3_1_a_store_refused_until_a_power_cycle_is_explained() {
+    use shared::canopen::storage::RamFlash;
+    let mut client = simulated();
+    let net = &mut client.transport.net;
+    let index = net.index_of(33);
+    *net.devices[index].node.flash_mut() = RamFlash::new().with_stalling_erase();
+
+    // A new node's medium is blank: its first two stores find their slot erased. The
+    // third would write the first store's slot again, which only a start-up erases.
+    for store in ["first", "second"] {
+        client
+            .write(33, procedure::STORE_PARAMETERS, b"save")
+            .unwrap_or_else(|error| panic!("the {store} store is taken: {error}"));
+    }
+    let error = procedure::store(&mut client, 33).expect_err("the third store is refused");
+    assert!(
+        matches!(error, ToolError::StoreRefused { node: 33 }),
+        "{error:?}"
+    );
+    let sentence = error.to_string();
+    for words in ["node 33", "08000022h", "not stored", "power-cycle"] {
+        assert!(sentence.contains(words), "{sentence}");
+    }
+}

@@ -231,8 +231,8 @@ pub fn set_secret_with_salt<T: Transport>(
         result => result?,
     }
     client
-        .write(node, Address::new(0x1010, 1), b"save")
-        .map_err(explain_refusal)
+        .write(node, crate::procedure::STORE_PARAMETERS, b"save")
+        .map_err(|error| crate::procedure::explain_store_refusal(explain_refusal(error)))
 }
 
 /// The node's audit record: validated changes and the signatures before and after the last.

@@ -215,6 +215,17 @@ pub enum ToolError {
         /// After which step.
         when: &'static str,
     },
+    /// The node refused to store its parameters for its present state (0800 0022h on
+    /// 0x1010:01): it stores outside Operational only, and into a flash slot erased while it
+    /// started up, so a store after another store may have to wait for a power cycle
+    /// (docs/parameter-storage.md).
+    #[error(
+        "node {node} refused to store its parameters (0x1010:01, abort 08000022h): a node stores only outside Operational, and only into flash it erased when it started, which an earlier store since then may have used; what the node holds is in force until it resets but not stored: power-cycle the node, configure it again and store"
+    )]
+    StoreRefused {
+        /// The node-ID.
+        node: u8,
+    },
     /// The node refuses changes of its safety configuration until it is unlocked (SC_REQ_43).
     #[error(
         "node {node} is locked against changes of its safety configuration (SC_REQ_43); nothing was written (pass --unlock and give the node's secret)"

@@ -29,7 +29,7 @@ use crate::network_file::{Identity, Network, NodeSpec};
 use crate::signature::{SrdoSettings, signature};
 use crate::transport::Transport;
 use shared::canopen::nmt::NmtCommand;
-use shared::canopen::od::Address;
+use shared::canopen::od::{AbortCode, Address};
 use shared::node::access::AccessState;
 use shared::safety::config::{CONFIGURATION_VALID, TRANSMISSION_TYPE};
 use std::time::Duration;
@@ -452,8 +452,26 @@ pub fn validate<T: Transport>(client: &mut Client<T>, node: u8) -> Result<(), To
 
 /// Stores the parameters (0x1010:01 = "save", CiA 301 7.5.2.13) and reads 0x13FE again.
 pub fn store<T: Transport>(client: &mut Client<T>, node: u8) -> Result<(), ToolError> {
-    client.write(node, Address::new(0x1010, 1), b"save")?;
+    client
+        .write(node, STORE_PARAMETERS, b"save")
+        .map_err(explain_store_refusal)?;
     check_valid(client, node, "storing (0x1010)")
+}
+
+/// Store parameters, save all (CiA 301 7.5.2.13).
+pub const STORE_PARAMETERS: Address = Address::new(0x1010, 1);
+
+/// `error`, or [`ToolError::StoreRefused`] when it is the node's refusal of a store for its
+/// state (0800 0022h on 0x1010:01): the sentence then says why and what to do.
+pub fn explain_store_refusal(error: ToolError) -> ToolError {
+    match error {
+        ToolError::Aborted {
+            node, object, code, ..
+        } if code == AbortCode::DeviceState as u32 && object.0 == STORE_PARAMETERS => {
+            ToolError::StoreRefused { node }
+        }
+        other => other,
+    }
 }
 
 /// Signs SRDOs `srdos` of `node` over the values they hold: reads each record back whole,

@@ -95,9 +95,9 @@ impl<F: Flash, P: SafetyProtocol> ObjectDictionary for Core<F, P> {
             0x1010 | 0x1011 => match sub {
                 0 => Err(AbortCode::ReadOnly),
                 // In Operational the parameters cannot change (EN 50325-5 8.2.2), so there is
-                // nothing new to store, and a store would hold the channel's loop for as long
-                // as the medium takes to erase (seconds for an STM32F4 sector): refused, and
-                // the configuration tool stores in Pre-Operational.
+                // nothing new to store, and programming flash holds the processor word by
+                // word while the safety protocol runs: refused, and the configuration tool
+                // stores in Pre-Operational.
                 1 if operational => Err(AbortCode::DeviceState),
                 1 => {
                     let signature = u32::from_le_bytes(exact(data)?);

@@ -27,12 +27,10 @@ use super::{
 };
 use crate::client::Client;
 use crate::error::ToolError;
+use crate::procedure::{STORE_PARAMETERS as STORE, explain_store_refusal};
 use crate::transport::Transport;
 use shared::canopen::od::Address;
 use std::collections::BTreeMap;
-
-/// 1010h:01, store parameters (CiA 301 7.5.2.13).
-const STORE: Address = Address::new(0x1010, 1);
 
 /// One SDO operation of a plan.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -259,7 +257,9 @@ fn run<T: Transport>(
     for operation in plan {
         match operation {
             Operation::Write { address, data } => {
-                client.write(node, *address, data)?;
+                client
+                    .write(node, *address, data)
+                    .map_err(explain_store_refusal)?;
                 last_write = Some(*address);
             }
             Operation::ReadBack { address, len } => {
