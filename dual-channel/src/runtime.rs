@@ -1207,6 +1207,13 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                     // count again: the reset clears the latch, and the other channel's news
                     // (its new input digest, say) may be on the link behind the reset.
                     self.input_check.restart(now);
+                    // Likewise a link that had timed out (a wire cut and mended): its
+                    // silence before the reset is not judged after it; the other channel's
+                    // next message must come within a whole time-out from the reset, as at
+                    // power-on, and a link still dead times out again then (CiA 304 9.5).
+                    if self.receiver.reset_if_timed_out(now) {
+                        self.round_trip.forget();
+                    }
                     self.follow_core(io);
                 }
                 Event::NmtState(NmtState::PreOperational) => {

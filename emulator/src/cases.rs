@@ -133,11 +133,11 @@ fn counters(network: &Network) -> Vec<(u64, u64)> {
         .collect()
 }
 
-const MS: Nanos = 1_000_000;
+pub(crate) const MS: Nanos = 1_000_000;
 
 /// The node-ID of the MCU at `index` in a network built as `emulate-network` builds it (two
 /// channels a node, in the order of the node-IDs).
-fn mcu_indices(network: &Network, node: u8) -> Vec<usize> {
+pub(crate) fn mcu_indices(network: &Network, node: u8) -> Vec<usize> {
     network
         .names()
         .enumerate()
@@ -172,7 +172,7 @@ fn run_until_event(
     None
 }
 
-fn event_time(event: &Event) -> Nanos {
+pub(crate) fn event_time(event: &Event) -> Nanos {
     match event {
         Event::Frame { at, .. } | Event::Output { at, .. } | Event::Refused { at, .. } => *at,
         Event::Stopped { at, .. } | Event::Reset { at, .. } => *at,
@@ -312,7 +312,7 @@ pub fn nominal(
 
 /// Runs until every node of `nodes` has sent its boot-up message (CiA 301 7.2.8.3.2.2:
 /// 700h + node-ID, data 00h), at most 5 s of virtual time.
-fn wait_for_boot_ups(
+pub(crate) fn wait_for_boot_ups(
     network: &mut Network,
     nodes: &[u8],
     seen: &mut dyn FnMut(&Event),

@@ -16,6 +16,7 @@
 
 pub mod cases;
 pub mod cpu;
+pub mod e2e;
 pub mod image;
 pub mod log;
 pub mod memory;

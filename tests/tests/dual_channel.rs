@@ -180,6 +180,47 @@ fn link_cut_puts_both_channels_in_the_safe_state() {
     assert_eq!(net.output(33), 0);
 }
 
+/// CiA 304 9.5: a link that was cut and is mended again, then NMT reset and start, brings node
+/// 33 back to work: the reset gives the link a whole time-out from the reset (as at power-on),
+/// instead of judging the silence from before it. (The shipped images on the emulated
+/// STM32F405 latched a link time-out within a millisecond of the reset.) A link still cut
+/// after the reset times out again, and the output stays off.
+#[test]
+fn cia304_9_5_a_mended_link_works_again_after_nmt_reset() {
+    let mut net = running();
+    net.node_mut(33).link_faults.cut = true;
+    net.run_for(Duration::from_millis(50));
+    assert_eq!(net.output(33), 0, "the cut link latched the safe state");
+
+    // Mended at once before the reset: the channels have heard nothing for the whole cut.
+    net.node_mut(33).link_faults.cut = false;
+    let since = net.log.len();
+    net.nmt(NmtCommand::ResetNode, 0);
+    net.run_for(Duration::from_millis(100));
+    net.nmt(NmtCommand::Start, 0);
+    net.run_for(Duration::from_millis(300));
+    assert_eq!(
+        fault_of(&net, since, 33),
+        None,
+        "no fault after the reset with the link mended"
+    );
+    assert_eq!(net.output(33), 1);
+
+    // Cut again and reset: the time-out counts from the reset, and still latches.
+    net.node_mut(33).link_faults.cut = true;
+    net.run_for(Duration::from_millis(50));
+    let since = net.log.len();
+    let reset = net.now;
+    net.nmt(NmtCommand::ResetNode, 0);
+    net.run_for(Duration::from_millis(100));
+    let (at, _, fault) = fault_of(&net, since, 33).expect("the cut link times out again");
+    assert_eq!(fault, ChannelFault::Link(LinkFault::Timeout));
+    assert!(at > reset, "after the reset");
+    net.nmt(NmtCommand::Start, 0);
+    net.run_for(Duration::from_millis(300));
+    assert_eq!(net.output(33), 0);
+}
+
 /// A corrupt link message is a fault at once.
 #[test]
 fn a_corrupt_link_byte_is_a_fault() {

@@ -297,6 +297,20 @@ impl Receiver {
         self.deadline = self.deadline.max(now + self.timeout);
     }
 
+    /// An NMT reset at `now`: a link that had timed out (a wire cut, and perhaps mended since)
+    /// starts over as at start-up ([`Receiver::restart`]: its silence before the reset is not
+    /// judged after it, and the next valid message starts the count), so the other channel's
+    /// next message must come within a whole timeout from the reset. A link that had not
+    /// timed out is left as it is: the message on the wire across the reset completes and
+    /// the count goes on. Returns whether it started over.
+    pub fn reset_if_timed_out(&mut self, now: Instant) -> bool {
+        let timed_out = self.poll(now).is_err();
+        if timed_out {
+            self.restart(now);
+        }
+        timed_out
+    }
+
     /// Allows the first message `longer` more (the other channel's start-up may take that
     /// much longer on this board); no effect once a valid message came, after which only the
     /// timeout counts.

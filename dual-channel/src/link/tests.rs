@@ -842,3 +842,36 @@ fn cia304_9_5_forgotten_probes_neither_fall_due_nor_answer_a_newer_probe() {
         Err(LinkFault::Latency)
     );
 }
+
+/// CiA 304 9.5: at an NMT reset, a link that had timed out starts over (a whole timeout from
+/// the reset, the count restarted), and one that had not is left as it was.
+#[test]
+fn cia304_9_5_an_nmt_reset_starts_over_only_a_link_that_had_timed_out() {
+    let startup = Duration::from_millis(500);
+    let mut sender = Sender::new();
+    let mut dead = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    let first = Message::Inputs { sample: 1 };
+    let at = Instant::from_millis(100);
+    assert_eq!(
+        feed(&mut dead, at, &sender.encode(&first).unwrap()),
+        [Ok(first)]
+    );
+    let reset = at + TIMEOUT + TIMEOUT;
+    assert!(dead.reset_if_timed_out(reset));
+    assert_eq!(dead.deadline(), reset + TIMEOUT);
+    assert_eq!(dead.poll(reset + TIMEOUT), Err(LinkFault::Timeout));
+    // The count starts with the next message, whatever its sequence number.
+    for _ in 0..5 {
+        let _ = sender.encode(&Message::Inputs { sample: 0 }).unwrap();
+    }
+    let message = Message::Inputs { sample: 7 };
+    assert_eq!(
+        feed(&mut dead, reset, &sender.encode(&message).unwrap()),
+        [Ok(message)]
+    );
+
+    let mut alive = Receiver::new(Instant::ZERO, TIMEOUT, startup);
+    let before = alive.deadline();
+    assert!(!alive.reset_if_timed_out(Instant::from_millis(100)));
+    assert_eq!(alive.deadline(), before);
+}

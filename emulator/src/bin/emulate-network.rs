@@ -53,6 +53,12 @@ struct Cli {
     /// higher-priority identifier on this share of the bus (percent) beside the SRDOs.
     #[arg(long, requires = "nominal", value_parser = clap::value_parser!(u32).range(1..=90))]
     load: Option<u32>,
+    /// With `--nominal`: then the end-to-end fault cases (`emulator::e2e::faults`): the
+    /// inverted frame dropped and corrupted, node 1 silent, node 1's channel B reading
+    /// otherwise and node 33's link cut, each timed against its bound and followed by an NMT
+    /// reset of both nodes.
+    #[arg(long, requires = "nominal")]
+    e2e: bool,
     /// With `--load`: for this long (virtual time).
     #[arg(long, default_value = "10s", value_parser = emulator::time::parse_duration)]
     load_for: Nanos,
@@ -195,9 +201,15 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             percent,
             duration: cli.load_for,
         });
-        let result = emulator::cases::nominal(&mut network, &file, load, &mut |event| {
-            trace.push(event.clone())
-        });
+        let mut keep = |event: &emulator::network::Event| trace.push(event.clone());
+        let result =
+            emulator::cases::nominal(&mut network, &file, load, &mut keep).and_then(|nominal| {
+                match cli.e2e {
+                    true => emulator::e2e::faults(&mut network, &file, &mut keep)
+                        .map(|faults| (nominal, faults)),
+                    false => Ok((nominal, Vec::new())),
+                }
+            });
         network.run_until(network.now() + 100_000_000);
         trace.extend(network.take_events());
         let mut stopped = false;
@@ -215,7 +227,28 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
         summary(&network, &names, &frames, started);
         return match result {
-            Ok(nominal) => {
+            Ok((nominal, faults)) => {
+                for case in &faults {
+                    let causes: Vec<String> = case
+                        .causes
+                        .iter()
+                        .map(|(node, cause)| format!("node {node}: {cause}"))
+                        .collect();
+                    println!(
+                        "emulate-network: case {{\"case\": \"{}\", \"reaction_ms\": {:.3}, \
+                         \"bound_ms\": {:.3}}} EMCY: {}",
+                        case.case,
+                        case.reaction as f64 / 1e6,
+                        case.bound as f64 / 1e6,
+                        causes.join("; ")
+                    );
+                }
+                if cli.e2e {
+                    println!(
+                        "emulate-network: {} fault cases passed, each within its bound",
+                        faults.len()
+                    );
+                }
                 println!(
                     "emulate-network: nominal case passed: configured in {:.3} s of virtual \
                      time ({} SDO requests); node 33's outputs off {:.3} ms after node 1's \
