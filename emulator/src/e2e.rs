@@ -157,8 +157,7 @@ impl Rig<'_> {
         })
     }
 
-    /// Waits until node 33's outputs are off and an EMCY of `node` names one of `causes` (or
-    /// that its other channel went safe first, 40h, when `told` allows it).
+    /// Waits until node 33's outputs are off and an EMCY of `node` names one of `causes`.
     fn safe_with(&mut self, node: u8, causes: &[Cause], patience: Nanos) -> Option<Nanos> {
         let consumer = self.consumer.clone();
         self.run_until(patience, |network, seen| {

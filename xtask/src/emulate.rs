@@ -154,7 +154,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         }
         let file = write_network_file(root)?.into_os_string();
         match case {
-            Case::Nominal => arguments.extend(["--nominal".into(), file]),
+            Case::Nominal => arguments.extend(["--nominal".into(), file, "--e2e".into()]),
             Case::PowerCutSweep { every } => arguments.extend([
                 "--power-cut-sweep".into(),
                 file,
@@ -413,7 +413,7 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
     let output = std::process::Command::new(emulate)
         .arg(images::image(cross, root, layer, "a"))
         .arg(images::image(cross, root, layer, "b"))
-        .args(["--inputs-closed", "--quiet", "--nominal"])
+        .args(["--inputs-closed", "--quiet", "--e2e", "--nominal"])
         .arg(file)
         .args([
             "--load",
@@ -442,8 +442,9 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
     let mut report = String::from(
         "# Figures of the shipped images on the emulated network\n\n\
          Written by `cargo xtask test` (`xtask/src/emulate.rs`, `nominal_check`) from \
-         `emulate-network --nominal` on the four shipped CANopen Safety images, with \
-         the bus under load; do not edit by hand. Virtual time is exact; instructions are \
+         `emulate-network --nominal --e2e` on the four shipped CANopen Safety images, with \
+         the bus under load, then the end-to-end fault cases (`emulator::e2e`, each bound the \
+         standard's time plus the devices' own allowance); do not edit by hand. Virtual time is exact; instructions are \
          counted by the emulator (one per executed Thumb instruction, not cycles); an \
          iteration is a wake-up of the core from WFI (docs/emulator.md).\n\n",
     );

@@ -235,8 +235,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                         .map(|(node, cause)| format!("node {node}: {cause}"))
                         .collect();
                     println!(
-                        "emulate-network: case {{\"case\": \"{}\", \"reaction_ms\": {:.3}, \
-                         \"bound_ms\": {:.3}}} EMCY: {}",
+                        "emulate-network: fault case: {}: {:.3} ms (bound {:.3} ms); EMCY: {}",
                         case.case,
                         case.reaction as f64 / 1e6,
                         case.bound as f64 / 1e6,
