@@ -126,12 +126,16 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
 }
 
 /// What `cargo xtask emulate --network` runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Case {
     /// The network for the duration asked for.
     Run,
-    /// The nominal end-to-end case.
-    Nominal,
+    /// The nominal end-to-end case, then the fault cases; with the bus under load for this
+    /// long (seconds of virtual time) before the emergency stop, if given.
+    Nominal {
+        /// Seconds of bus load.
+        load_seconds: Option<f64>,
+    },
     /// The power-cut sweep of node 1's store, at every `every`th step.
     PowerCutSweep {
         /// Every how many steps a cut is made.
@@ -154,7 +158,17 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         }
         let file = write_network_file(root)?.into_os_string();
         match case {
-            Case::Nominal => arguments.extend(["--nominal".into(), file, "--e2e".into()]),
+            Case::Nominal { load_seconds } => {
+                arguments.extend(["--nominal".into(), file, "--e2e".into()]);
+                if let Some(seconds) = load_seconds {
+                    arguments.extend([
+                        "--load".into(),
+                        crate::e2e::LOAD_PERCENT.to_string().into(),
+                        "--load-for".into(),
+                        format!("{}ms", (seconds * 1000.0).round()).into(),
+                    ]);
+                }
+            }
             Case::PowerCutSweep { every } => arguments.extend([
                 "--power-cut-sweep".into(),
                 file,

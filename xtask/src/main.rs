@@ -71,11 +71,14 @@ enum Task {
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
     },
-    /// The end-to-end tests on the emulated network: nominal, emergency stop, dropped and
-    /// corrupted frames, a stopped node, a channel that reads otherwise, a cut link.
+    /// The end-to-end tests on the shipped hardware images on the emulated STM32F405
+    /// network (`emulator::cases`, `emulator::e2e`): configured by the tool's library,
+    /// nominal, emergency stop, dropped and corrupted frames, a silent node, a channel that
+    /// reads otherwise, a cut link. `--qemu`: on the QEMU images with the hub instead.
     E2e {
         /// Also 60 s of SDO and non-safety traffic on 30 % of the bus beside the SRDOs
-        /// (opt-in: it takes 11 to 19 minutes of host time on a loaded 2-core machine).
+        /// (opt-in; on the QEMU images it takes 11 to 19 minutes of host time on a loaded
+        /// 2-core machine).
         #[arg(long)]
         bus_load: bool,
         /// The case under bus load for this many seconds of the network's time instead
@@ -83,9 +86,14 @@ enum Task {
         #[arg(long, value_name = "SECONDS", conflicts_with = "bus_load", value_parser = load_seconds)]
         bus_load_seconds: Option<f64>,
         /// The cases of this protocol: `canopen-safety` (the default, the cases above) or
-        /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped).
+        /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped; on
+        /// the QEMU images only, so far).
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
+        /// Run the cases on the QEMU images (`board::qemu`) with the hub, as before the
+        /// emulated STM32F405, instead of on the shipped hardware images.
+        #[arg(long)]
+        qemu: bool,
     },
     /// Where addresses of a firmware image are in the source: the functions (with what was
     /// inlined there), files and lines. For the return addresses a panic logs (`panicked;
@@ -384,11 +392,25 @@ fn task() -> Result<()> {
             bus_load,
             bus_load_seconds,
             protocol,
-        } => e2e::task_for(
-            &root,
-            bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS)),
-            protocol,
-        ),
+            qemu,
+        } => {
+            let load_seconds = bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS));
+            if qemu || protocol == network::Protocol::Simplecan {
+                if !qemu {
+                    println!(
+                        "xtask: the SimpleCAN cases run on the QEMU images only so far                          (docs/emulator.md)"
+                    );
+                }
+                e2e::task_for(&root, load_seconds, protocol)
+            } else {
+                emulate::network_task(
+                    &root,
+                    "1s",
+                    protocol,
+                    emulate::Case::Nominal { load_seconds },
+                )
+            }
+        }
         Task::Emulate { checks: true, .. } => {
             let cross = toolchain::ensure()?;
             images::build(&root, &cross)?;
@@ -410,7 +432,7 @@ fn task() -> Result<()> {
             if power_cut_sweep {
                 emulate::Case::PowerCutSweep { every }
             } else if nominal {
-                emulate::Case::Nominal
+                emulate::Case::Nominal { load_seconds: None }
             } else {
                 emulate::Case::Run
             },
