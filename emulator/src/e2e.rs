@@ -26,7 +26,7 @@
 use can_hub::bus::{Fault, Injection, Match};
 use safety_config::calc::sfrt::DeviceTiming;
 use safety_config::network_file::Network as NetworkFile;
-use shared::canopen::emcy::Emergency;
+use shared::canopen::emcy::{self, Emergency};
 use shared::canopen::nmt::{self, NmtCommand, NmtState};
 use shared::safety::cause::Cause;
 use shared::{CanFrame, Instant};
@@ -89,17 +89,39 @@ impl Timing {
 }
 
 /// The network and what the cases watch of it.
-struct Rig<'a> {
-    network: &'a mut Network,
-    seen: &'a mut dyn FnMut(&Event),
+pub(crate) struct Rig<'a> {
+    pub(crate) network: &'a mut Network,
+    pub(crate) seen: &'a mut dyn FnMut(&Event),
     producer: Vec<usize>,
     consumer: Vec<usize>,
-    tool: usize,
+    /// The external participant that sends NMT commands (and a scenario's frames).
+    pub(crate) tool: usize,
     /// The causes of the EMCY frames since the case began: (node, cause).
     causes: Vec<(u8, Cause)>,
 }
 
-impl Rig<'_> {
+impl<'a> Rig<'a> {
+    /// The rig around `network` (nodes 1 and 33, two channels each), its tool joined.
+    pub(crate) fn new(
+        network: &'a mut Network,
+        seen: &'a mut dyn FnMut(&Event),
+    ) -> Result<Rig<'a>, String> {
+        let producer = mcu_indices(network, 1);
+        let consumer = mcu_indices(network, 33);
+        if producer.len() != 2 || consumer.len() != 2 {
+            return Err("the end-to-end cases need nodes 1 and 33, two channels each".into());
+        }
+        let tool = network.join_external("e2e");
+        Ok(Rig {
+            network,
+            seen,
+            producer,
+            consumer,
+            tool,
+            causes: Vec::new(),
+        })
+    }
+
     /// Runs until `until` holds, at most `patience`; every frame's EMCY cause is kept.
     /// Returns when it held.
     fn run_until(
@@ -170,7 +192,7 @@ impl Rig<'_> {
 
     /// Both nodes reset by NMT, booted, started: node 33's outputs on again with the
     /// contacts closed, and both nodes Operational in their heartbeats.
-    fn reset(&mut self, after: &str) -> Result<(), String> {
+    pub(crate) fn reset(&mut self, after: &str) -> Result<(), String> {
         self.network.bus_mut().clear_faults();
         self.contacts(true);
         self.nmt(NmtCommand::ResetNode);
@@ -220,18 +242,20 @@ impl Rig<'_> {
 }
 
 /// The node and cause an EMCY frame names (the cause is the second manufacturer-specific
-/// byte on this device, `shared::canopen::emcy::Emergency::detail`); `None` for any other
-/// frame, and for an EMCY that clears an error (0000h).
-fn emcy_cause(frame: &CanFrame) -> Option<(u8, Cause)> {
+/// byte on this device, `shared::canopen::emcy::Emergency::detail`; a GFC's FF01h is the
+/// GFC); `None` for any other frame, and for an EMCY that clears an error (0000h).
+pub(crate) fn emcy_cause(frame: &CanFrame) -> Option<(u8, Cause)> {
     let id = frame.id().raw();
     if !(0x081..=0x0FF).contains(&id) {
         return None;
     }
     let emergency = Emergency::parse(frame.data())?;
-    if emergency.code == 0 {
-        return None;
+    let node = (id - 0x080) as u8;
+    match emergency.code {
+        emcy::code::NO_ERROR => None,
+        emcy::code::GLOBAL_FAIL_SAFE => Some((node, Cause::Gfc)),
+        _ => Some((node, Cause::from_code(emergency.detail[1])?)),
     }
-    Some(((id - 0x080) as u8, Cause::from_code(emergency.detail[1])?))
 }
 
 /// The fault cases on a network that passed [`crate::cases::nominal`] (both nodes configured,
@@ -243,20 +267,7 @@ pub fn faults(
     seen: &mut dyn FnMut(&Event),
 ) -> Result<Vec<Measured>, String> {
     let timing = Timing::of(file)?;
-    let producer = mcu_indices(network, 1);
-    let consumer = mcu_indices(network, 33);
-    if producer.len() != 2 || consumer.len() != 2 {
-        return Err("the fault cases need nodes 1 and 33, two channels each".into());
-    }
-    let tool = network.join_external("e2e");
-    let mut rig = Rig {
-        network,
-        seen,
-        producer,
-        consumer,
-        tool,
-        causes: Vec::new(),
-    };
+    let mut rig = Rig::new(network, seen)?;
     let mut results = Vec::new();
     let mut record = |rig: &mut Rig<'_>,
                       case: &'static str,
@@ -411,6 +422,10 @@ mod tests {
             Some((33, Cause::SrvtElapsed))
         );
         assert_eq!(emcy_cause(&frame(0x0A1, &[0, 0, 0, 0, 0, 0, 0, 0])), None);
+        assert_eq!(
+            emcy_cause(&frame(0x0A1, &[0x01, 0xFF, 0x11, 0, 0, 0, 0, 0])),
+            Some((33, Cause::Gfc))
+        );
         assert_eq!(
             emcy_cause(&frame(0x1A1, &[0x50, 0x82, 0x11, 1, 0x02, 0, 0, 0])),
             None

@@ -23,6 +23,7 @@ pub mod memory;
 pub mod network;
 pub mod peripherals;
 pub mod rtt;
+pub mod scenario;
 pub mod stop;
 pub mod system;
 pub mod time;

@@ -59,6 +59,11 @@ struct Cli {
     /// reset of both nodes.
     #[arg(long, requires = "nominal")]
     e2e: bool,
+    /// With `--nominal`: then play these scenario files (`scenarios/emulated/*.toml`) one
+    /// after the other, each after an NMT reset and start of both nodes, judged as on the
+    /// QEMU network (`emulator::scenario`). Repeatable.
+    #[arg(long, requires = "nominal", value_name = "SCENARIO_FILE")]
+    scenario: Vec<PathBuf>,
     /// With `--load`: for this long (virtual time).
     #[arg(long, default_value = "10s", value_parser = emulator::time::parse_duration)]
     load_for: Nanos,
@@ -201,6 +206,13 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             percent,
             duration: cli.load_for,
         });
+        let mut scenarios = Vec::new();
+        for path in &cli.scenario {
+            scenarios.push(
+                system_tests::scenario_runner::file::load(path)
+                    .map_err(|error| format!("{}: {error}", path.display()))?,
+            );
+        }
         let mut keep = |event: &emulator::network::Event| trace.push(event.clone());
         let result =
             emulator::cases::nominal(&mut network, &file, load, &mut keep).and_then(|nominal| {
@@ -210,6 +222,15 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                     false => Ok((nominal, Vec::new())),
                 }
             });
+        let result = result.and_then(|outcome| {
+            if scenarios.is_empty() {
+                return Ok(outcome);
+            }
+            match emulator::scenario::play_all(&mut network, &scenarios, &mut keep)? {
+                true => Ok(outcome),
+                false => Err("a scenario failed (its report above)".to_string()),
+            }
+        });
         network.run_until(network.now() + 100_000_000);
         trace.extend(network.take_events());
         let mut stopped = false;
