@@ -24,19 +24,16 @@
 //! gives [`HwDriver`] the same `CanPort`.
 
 use core::sync::atomic::{AtomicBool, Ordering};
-use core::task::Poll;
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_futures::select::{Either3, select3};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
-use embassy_stm32::peripherals::USART3;
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::usart;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_time::Timer;
-use embedded_io_async::{Read, Write};
 use shared::canopen::storage::{self, StorageError};
 use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
@@ -54,9 +51,10 @@ use bxcan_can::CanPort;
 mod embassy_can;
 #[cfg(not(feature = "can-bxcan"))]
 use embassy_can::CanPort;
+mod link_usart;
 
 bind_interrupts!(struct Irqs {
-    USART3 => usart::BufferedInterruptHandler<USART3>;
+    USART3 => link_usart::LinkInterrupt;
 });
 
 /// CAN bit rate (CiA 301 Table 1): the device description's.
@@ -65,9 +63,8 @@ pub const BIT_RATE: u32 = dual_channel::device::BIT_RATE;
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
 /// Link USART baud rate.
 pub const LINK_BAUD: u32 = 1_000_000;
-/// The link's transmit queue, bytes: the buffered USART's ring, which its interrupt empties.
-/// As much as the 256-byte pipe and the 256-byte ring held together when a task moved the
-/// bytes from one to the other; 5.1 ms of the line at [`LINK_BAUD`].
+/// The link's transmit queue, bytes, which the USART's interrupt empties ([`link_usart`]):
+/// 5.1 ms of the line at [`LINK_BAUD`].
 const LINK_TX_BYTES: usize = 512;
 /// The longest the erase ahead at start-up may take ([`erase_ahead`]): one 128 KiB sector at
 /// the reset value of the programming parallelism (x8, which embassy-stm32's erase keeps),
@@ -282,16 +279,8 @@ struct HwDriver<'d> {
     can: CanPort,
     /// The controller's error state when last read, for reporting changes once.
     error_state: ErrorState,
-    link: BufferedUartRx<'static>,
-    /// The link's transmit half: its ring ([`LINK_TX_BYTES`]) is the link's transmit queue,
-    /// emptied by the USART interrupt.
-    link_tx: BufferedUartTx<'static>,
     input: Input<'d>,
     output: Output<'d>,
-    /// Link bytes the wait read, for the loop's next [`Driver::link_read`] (which takes them
-    /// whole: its buffer is as long).
-    link_bytes: [u8; 64],
-    link_count: usize,
 }
 
 impl HwDriver<'_> {
@@ -351,40 +340,22 @@ impl Driver for HwDriver<'_> {
     }
 
     fn link_write(&mut self, bytes: &[u8]) -> Result<(), QueueFull> {
-        // All or nothing: a message cut short would reach the other channel corrupt.
-        // embassy-stm32's buffered transmit (0.6) takes a write whole when its ring has the
-        // room and none of it otherwise; polled once, so the loop never waits for room.
-        match embassy_futures::poll_once(self.link_tx.write(bytes)) {
-            Poll::Ready(Ok(written)) if written == bytes.len() => Ok(()),
-            Poll::Ready(Ok(_)) => {
-                // Not this version's behaviour; the part sent fails the other channel's
-                // frame check, so the message is lost, as it is when refused.
-                defmt::error!("link transmit took part of a message");
-                Err(QueueFull)
-            }
-            Poll::Ready(Err(_)) | Poll::Pending => {
-                defmt::warn!("link transmit buffer full");
-                Err(QueueFull)
-            }
+        // All or nothing: a message cut short would reach the other channel corrupt; the
+        // loop never waits for room.
+        if link_usart::write(bytes) {
+            Ok(())
+        } else {
+            defmt::warn!("link transmit queue full");
+            Err(QueueFull)
         }
     }
 
     fn link_read(&mut self, buf: &mut [u8]) -> usize {
-        let stashed = core::mem::take(&mut self.link_count);
-        if let (Some(to), Some(from)) = (buf.get_mut(..stashed), self.link_bytes.get(..stashed)) {
-            if stashed > 0 {
-                to.copy_from_slice(from);
-                return stashed;
-            }
+        if link_usart::take_lost() {
+            // The link's frame check finds the gap; said once here, where it happened.
+            defmt::warn!("link bytes lost: receive queue full or USART overrun");
         }
-        match embassy_futures::poll_once(self.link.read(buf)) {
-            core::task::Poll::Ready(Ok(count)) => count,
-            core::task::Poll::Ready(Err(_)) => {
-                defmt::warn!("link read error");
-                0
-            }
-            core::task::Poll::Pending => 0,
-        }
+        link_usart::read(buf)
     }
 
     fn input(&mut self, _pin: usize) -> bool {
@@ -545,27 +516,21 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock");
     };
     let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
-    static LINK_TX_BUF: StaticCell<[u8; LINK_TX_BYTES]> = StaticCell::new();
-    static LINK_RX_BUF: StaticCell<[u8; 256]> = StaticCell::new();
     let mut link_config = usart::Config::default();
     link_config.baudrate = LINK_BAUD;
-    let uart = match BufferedUart::new(
-        p.USART3,
-        p.PB11,
-        p.PB10,
-        LINK_TX_BUF.init([0; LINK_TX_BYTES]),
-        LINK_RX_BUF.init([0; 256]),
-        Irqs,
-        link_config,
-    ) {
-        Ok(link) => link,
+    // embassy-stm32 sets the USART up (clock, pins, BRR, TE and RE); the interrupt and the
+    // queues are the link driver's ([`link_usart`]). Kept for as long as the loop runs: its
+    // drop would switch the USART off.
+    static LINK: StaticCell<usart::Uart<'static, embassy_stm32::mode::Blocking>> =
+        StaticCell::new();
+    match usart::Uart::new_blocking(p.USART3, p.PB11, p.PB10, link_config) {
+        Ok(uart) => {
+            LINK.init(uart);
+        }
         Err(_) => halt_safe("link USART configuration refused"),
-    };
-    // In a static, split by reference: splitting by value moved the halves through the
-    // task's state with a `memmove` (1,574 bytes of compiler-builtins, `docs/footprint.md`).
-    static LINK: StaticCell<BufferedUart<'static>> = StaticCell::new();
-    let (link_tx, link_rx): (BufferedUartTx<'static>, BufferedUartRx<'static>) =
-        LINK.init(uart).split_ref();
+    }
+    let _ = Irqs;
+    link_usart::start();
 
     let config = (device.describe)(node_id);
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime
@@ -589,12 +554,8 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let mut driver = HwDriver {
         can,
         error_state: ErrorState::Active,
-        link: link_rx,
-        link_tx,
         input,
         output,
-        link_bytes: [0; 64],
-        link_count: 0,
     };
     let mut stack_mark = crate::stack::Sampled::new();
     loop {
@@ -603,19 +564,13 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         if let Some(stack) = stack_mark.poll() {
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
-        // What the wait takes (a frame, some link bytes) is kept for the next service.
-        match select3(
+        // The next service takes what woke it (a frame, link bytes, the instant).
+        let _: Either3<(), (), ()> = select3(
             driver.can.wait(),
-            driver.link.read(&mut driver.link_bytes),
+            link_usart::readable(),
             Timer::at(embassy_instant(wake)),
         )
-        .await
-        {
-            Either3::First(()) => {}
-            Either3::Second(Ok(count)) => driver.link_count = count,
-            Either3::Second(Err(_)) => defmt::warn!("link read error"),
-            Either3::Third(()) => {}
-        }
+        .await;
     }
 }
 

@@ -160,6 +160,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         match case {
             Case::Nominal { load_seconds } => {
                 arguments.extend(["--nominal".into(), file, "--e2e".into()]);
+                arguments.extend(scenario_arguments(root)?);
                 if let Some(seconds) = load_seconds {
                     arguments.extend([
                         "--load".into(),
@@ -429,6 +430,7 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
         .arg(images::image(cross, root, layer, "b"))
         .args(["--inputs-closed", "--quiet", "--e2e", "--nominal"])
         .arg(file)
+        .args(scenario_arguments(root)?)
         .args([
             "--load",
             NOMINAL_LOAD_PERCENT,
@@ -458,7 +460,8 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
          Written by `cargo xtask test` (`xtask/src/emulate.rs`, `nominal_check`) from \
          `emulate-network --nominal --e2e` on the four shipped CANopen Safety images, with \
          the bus under load, then the end-to-end fault cases (`emulator::e2e`, each bound the \
-         standard's time plus the devices' own allowance); do not edit by hand. Virtual time is exact; instructions are \
+         standard's time plus the devices' own allowance) and the scenarios of \
+         `scenarios/emulated/` (`emulator::scenario`); do not edit by hand. Virtual time is exact; instructions are \
          counted by the emulator (one per executed Thumb instruction, not cycles); an \
          iteration is a wake-up of the core from WFI (docs/emulator.md).\n\n",
     );
@@ -477,6 +480,17 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
     std::fs::write(root.join(FIGURES), report)?;
     println!("xtask: the nominal case passed on the shipped images; figures in {FIGURES}");
     Ok(())
+}
+
+/// `--scenario FILE` for every scenario written for the emulated network
+/// (`scenarios/emulated/*.toml`), which the shipped images play after the fault cases.
+fn scenario_arguments(root: &Path) -> Result<Vec<std::ffi::OsString>> {
+    let files = system_tests::scenario_runner::files_in(&root.join("scenarios/emulated"))
+        .map_err(|why| anyhow::anyhow!(why))?;
+    Ok(files
+        .into_iter()
+        .flat_map(|file| ["--scenario".into(), file.into_os_string()])
+        .collect())
 }
 
 /// `cargo xtask test` cuts the power at every this-many-th flash step of a store.

@@ -1,0 +1,159 @@
+//! The link's USART3, interrupt-driven by our own handler (RM0090 30.6), and why it is not
+//! embassy-stm32's buffered USART.
+//!
+//! embassy-stm32's `BufferedUart` (0.6) clears the IDLE and overrun flags of the F4's USART
+//! by the sequence RM0090 30.6.1 prescribes, a read of SR followed by a read of DR, and it
+//! does so in every interrupt in which SR shows IDLE, also when RXNE is clear. A byte that
+//! completes between those two reads is taken out of DR by the second one and never pushed
+//! into the receive ring: it is lost without a flag. Its authors name the race
+//! (embassy-rs/embassy pull request 1561: "a character could arrive after checking SR, but
+//! before reading DR"). On the link it costs a COBS code byte now and then, the other channel
+//! latches "link message malformed" (11h), and a node in fault-free operation goes to its
+//! safe state: the shipped images showed it on the emulated STM32F405, in the
+//! emergency-stop scenario, when the IDLE interrupt of one message ran after the first byte
+//! of the next one had begun.
+//!
+//! This handler reads DR only when SR shows RXNE (RM0090 30.6.1: RXNE "cleared by a read to
+//! the USART_DR register"; an overrun, noise, framing or parity flag is cleared by the same
+//! SR-then-DR sequence and always comes with RXNE set, the byte in DR being the one before
+//! the overrun). IDLE detection is not enabled (IDLEIE stays 0): the loop is woken instead
+//! when a frame delimiter arrives ([`DELIMITER`]) or the receive queue is half full, so the
+//! IDLE flag is never cleared and never needs to be. Transmission: TXE with TXEIE (RM0090
+//! 30.6.4), one byte from the transmit queue per interrupt, TXEIE cleared when it is empty.
+//!
+//! embassy-stm32 still sets the USART up (clock, pins, BRR, TE/RE: `Uart::new_blocking`); only
+//! the interrupt handler and the queues are ours. The emulator's USART model (written from
+//! RM0090, `emulator/src/peripherals/usart.rs`) runs this driver in the shipped images.
+
+use core::cell::RefCell;
+use core::future::poll_fn;
+use core::sync::atomic::{AtomicBool, Ordering};
+use core::task::Poll;
+use embassy_stm32::interrupt::typelevel::{self, Handler, Interrupt};
+use embassy_stm32::pac;
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::waitqueue::AtomicWaker;
+use heapless::Deque;
+
+/// The byte that ends every link frame (COBS, `cobs-frames`).
+pub const DELIMITER: u8 = 0x00;
+/// Receive queue, bytes: what arrives while the loop is busy.
+const RX_BYTES: usize = 256;
+/// Transmit queue, bytes (the link's transmit queue: `super::LINK_TX_BYTES`).
+const TX_BYTES: usize = super::LINK_TX_BYTES;
+
+type Shared<T> = Mutex<CriticalSectionRawMutex, RefCell<T>>;
+
+/// Bytes received, oldest first.
+static RX: Shared<Deque<u8, RX_BYTES>> = Mutex::new(RefCell::new(Deque::new()));
+/// Bytes to send, oldest first.
+static TX: Shared<Deque<u8, TX_BYTES>> = Mutex::new(RefCell::new(Deque::new()));
+/// The loop, waiting for link bytes.
+static RX_WAKER: AtomicWaker = AtomicWaker::new();
+/// A byte was lost since the last [`take_lost`]: the receive queue was full, or the USART
+/// overran (its one-byte DR was not read in time).
+static LOST: AtomicBool = AtomicBool::new(false);
+
+/// The USART3 interrupt: receive what RXNE says is there, send what TXE asks for.
+pub struct LinkInterrupt;
+
+impl Handler<typelevel::USART3> for LinkInterrupt {
+    unsafe fn on_interrupt() {
+        let usart = pac::USART3;
+        let status = usart.sr().read();
+        if status.rxne() {
+            // RM0090 30.6.1: this read after the SR read clears RXNE and, with them, ORE,
+            // NF, FE and PE; DR holds the byte received (the one before an overrun).
+            let byte = usart.dr().read().dr() as u8;
+            let (kept, wake) = RX.lock(|rx| {
+                let mut rx = rx.borrow_mut();
+                let kept = rx.push_back(byte).is_ok();
+                (kept, byte == DELIMITER || rx.len() >= RX_BYTES / 2)
+            });
+            if !kept || status.ore() {
+                LOST.store(true, Ordering::Relaxed);
+            }
+            if wake || !kept {
+                RX_WAKER.wake();
+            }
+        }
+        if status.txe() && usart.cr1().read().txeie() {
+            TX.lock(|tx| match tx.borrow_mut().pop_front() {
+                // RM0090 30.6.1: a write to DR clears TXE.
+                Some(byte) => usart.dr().write(|w| w.set_dr(u16::from(byte))),
+                None => usart.cr1().modify(|w| w.set_txeie(false)),
+            });
+        }
+    }
+}
+
+/// Starts the driver on a USART3 that embassy-stm32 set up (clock, pins, BRR, TE and RE):
+/// empties the queues, enables RXNEIE and the interrupt in the NVIC.
+pub fn start() {
+    RX.lock(|rx| rx.borrow_mut().clear());
+    TX.lock(|tx| tx.borrow_mut().clear());
+    LOST.store(false, Ordering::Relaxed);
+    pac::USART3.cr1().modify(|w| {
+        w.set_rxneie(true);
+        w.set_idleie(false);
+        w.set_txeie(false);
+    });
+    typelevel::USART3::unpend();
+    // SAFETY: the handler bound to USART3 is [`LinkInterrupt`], whose shared state is behind
+    // critical sections and atomics; enabling it breaks no critical section in progress (the
+    // caller is the channel's task, outside any).
+    unsafe { typelevel::USART3::enable() };
+}
+
+/// Queues `bytes` whole for sending, or none of them (`false`: no room).
+pub fn write(bytes: &[u8]) -> bool {
+    TX.lock(|tx| {
+        let mut tx = tx.borrow_mut();
+        if tx.capacity() - tx.len() < bytes.len() {
+            return false;
+        }
+        for &byte in bytes {
+            // Room was checked above.
+            let _ = tx.push_back(byte);
+        }
+        // Inside the critical section: the handler clears TXEIE under the same lock.
+        pac::USART3.cr1().modify(|w| w.set_txeie(true));
+        true
+    })
+}
+
+/// Moves the bytes received into `buf`, oldest first; how many.
+pub fn read(buf: &mut [u8]) -> usize {
+    RX.lock(|rx| {
+        let mut rx = rx.borrow_mut();
+        let mut count = 0;
+        for slot in buf.iter_mut() {
+            match rx.pop_front() {
+                Some(byte) => *slot = byte,
+                None => break,
+            }
+            count += 1;
+        }
+        count
+    })
+}
+
+/// Whether a byte was lost since the last call (and forgets it).
+pub fn take_lost() -> bool {
+    LOST.swap(false, Ordering::Relaxed)
+}
+
+/// Completes when bytes wait in the receive queue: at once when some do, else when the
+/// handler wakes the loop (a frame delimiter, or the queue half full).
+pub async fn readable() {
+    poll_fn(|cx| {
+        RX_WAKER.register(cx.waker());
+        if RX.lock(|rx| rx.borrow().is_empty()) {
+            Poll::Pending
+        } else {
+            Poll::Ready(())
+        }
+    })
+    .await;
+}
