@@ -22,6 +22,7 @@ pub mod memory;
 pub mod network;
 pub mod peripherals;
 pub mod rtt;
+pub mod socketcand;
 pub mod stop;
 pub mod system;
 pub mod time;

@@ -199,7 +199,7 @@ const NETWORK_CHECK: &str = "2500ms";
 
 /// The producer heartbeat time the shipped images start with: object 1017h's default in the
 /// device description the tool generates (the EDS).
-fn default_heartbeat_ms() -> Result<u64> {
+pub(crate) fn default_heartbeat_ms() -> Result<u64> {
     let eds = safety_config::eds::eds();
     let section = eds
         .split("\n[")

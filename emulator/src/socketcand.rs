@@ -1,0 +1,339 @@
+//! The emulated network's socketcand port: separate programs (python-can's `socketcand`
+//! interface, python-canopen through it, the configuration tool's `--bus socketcand:...`)
+//! join the bus of the shipped images as they join `can-hub`'s.
+//!
+//! - [`Port`], sans-I/O: each client is a session of the tool crate's socketcand server
+//!   ([`safety_config::socketcand::server`], the one `can-hub` serves) and an external
+//!   participant of the [`Network`]; fed a client's bytes, it puts its frames on the bus and
+//!   hands back the replies, and hands out the frames the bus delivered to each client.
+//! - [`Server`]: the port on TCP ([`can_hub::port`]: the accepting thread, a reader thread per
+//!   client, the bounds on clients, backlog and blocked writes, as `can-hub` has them), and
+//!   the network run at the pace of the host clock: third-party tools time out on the wall
+//!   clock, so the virtual time never runs ahead of it ([`can_hub::pace::Pacer`], with the
+//!   network as its one paced participant). When the host cannot keep up, the virtual time
+//!   falls behind and does not race to catch up: the pacer counts the time it was held.
+
+use std::collections::BTreeMap;
+use std::io::Write as _;
+use std::net::{Shutdown, TcpListener, TcpStream};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+
+use can_hub::hub::Outgoing;
+use can_hub::pace::{PaceReport, Pacer};
+use can_hub::port::{Arrival, ToolEvent};
+use safety_config::socketcand::server::{self, Output, Session};
+
+use crate::network::Network;
+use crate::time::Nanos;
+
+/// The name of the bus a client opens (`< open can0 >`), as on `can-hub`.
+pub const BUS: &str = "can0";
+
+/// The network's virtual time as a session's clock.
+fn clock(at: Nanos) -> std::time::Duration {
+    std::time::Duration::from_nanos(at)
+}
+
+/// One client: its session and its participant on the network.
+struct Client {
+    session: Session,
+    participant: usize,
+}
+
+/// The socketcand clients of one network, by the program's number for each connection.
+#[derive(Default)]
+pub struct Port {
+    clients: BTreeMap<usize, Client>,
+    /// Replies not yet handed out by [`Port::poll`].
+    replies: Vec<Outgoing>,
+    /// Clients whose session ended (an `open` of another bus, a message that never ends):
+    /// the program closes their connections after writing what [`Port::poll`] handed out.
+    pub closing: Vec<usize>,
+}
+
+impl Port {
+    /// A port with no client.
+    pub fn new() -> Port {
+        Port::default()
+    }
+
+    /// Client `client` connected: it joins the bus as an external participant named
+    /// `socketcand<client>`; its greeting is handed out by the next [`Port::poll`], bus
+    /// frames only once it has switched to raw mode.
+    pub fn join(&mut self, network: &mut Network, client: usize) {
+        let participant = network.join_external(&format!("socketcand{client}"));
+        self.clients.insert(
+            client,
+            Client {
+                session: Session::new(BUS),
+                participant,
+            },
+        );
+        self.replies.push(Outgoing {
+            to: client,
+            bytes: server::GREETING.as_bytes().to_vec(),
+        });
+    }
+
+    /// Client `client`'s bytes, one message at a time, at the network's present time: its
+    /// commands are served (replies by the next [`Port::poll`]) and its frames queued on the
+    /// bus. Returns how many bytes were taken: the intake stops before a message once the
+    /// client's transmit queue is full ([`Network::has_room`]), and the caller hands the rest
+    /// again after the bus has taken frames. Nothing for a client that is not connected.
+    pub fn receive(&mut self, network: &mut Network, client: usize, bytes: &[u8]) -> usize {
+        let Some(joined) = self.clients.get_mut(&client) else {
+            return 0;
+        };
+        let now = clock(network.now());
+        let mut taken = 0;
+        while taken < bytes.len() {
+            if !network.has_room(joined.participant) || self.closing.contains(&client) {
+                break;
+            }
+            let end = taken + server::first_message(&bytes[taken..]);
+            for output in joined.session.feed(&bytes[taken..end], now) {
+                match output {
+                    Output::Reply(text) => self.replies.push(Outgoing {
+                        to: client,
+                        bytes: text.into_bytes(),
+                    }),
+                    Output::Send(frame) => network.send(joined.participant, frame),
+                    Output::Close => self.closing.push(client),
+                }
+            }
+            taken = end;
+        }
+        taken
+    }
+
+    /// Client `client` left: nothing more is kept for it (the frames it queued still go on
+    /// the bus, as a socketcand daemon writes what it was sent to its CAN socket).
+    pub fn leave(&mut self, network: &mut Network, client: usize) {
+        if let Some(joined) = self.clients.remove(&client) {
+            network.leave_external(joined.participant);
+        }
+        self.replies.retain(|reply| reply.to != client);
+        self.closing.retain(|closing| *closing != client);
+    }
+
+    /// What to write now, each in a write of its own: replies first, then the frames the bus
+    /// delivered to each client in raw mode as `frame` messages stamped with their end on
+    /// the bus (held within the raw-mode grace after the `rawmode` reply, and released
+    /// when it is over; dropped before raw mode).
+    pub fn poll(&mut self, network: &mut Network) -> Vec<Outgoing> {
+        let now = clock(network.now());
+        let mut out = std::mem::take(&mut self.replies);
+        for (&to, joined) in &mut self.clients {
+            let message = |text: String| Outgoing {
+                to,
+                bytes: text.into_bytes(),
+            };
+            out.extend(joined.session.release(now).into_iter().map(message));
+            while let Some(delivery) = network.receive(joined.participant) {
+                let at = std::time::Duration::from_micros(delivery.at.as_micros());
+                if let Some(text) = joined.session.frame(&delivery.frame, at, now) {
+                    out.push(message(text));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// The longest stretch of virtual time the network runs between two looks at the sockets: a
+/// request waits at most this long before it is on the bus.
+const STEP: Nanos = 1_000_000;
+
+/// How often the pacer grants the network virtual time. The network acknowledges a grant
+/// once it has run to it; the pacer's time runs at most [`can_hub::pace::LOOKAHEAD`] past
+/// the last acknowledgement, and stands still beyond (the host cannot keep up).
+const GRANT: shared::Duration = shared::Duration::from_millis(1);
+
+/// A connected client's connection and the bytes it sent that the port has not taken.
+struct Connection {
+    stream: TcpStream,
+    backlog: Vec<u8>,
+    pending: Arc<AtomicUsize>,
+    /// The client closed its connection; it is forgotten once its bytes are taken.
+    departed: bool,
+}
+
+/// The socketcand port on TCP, with the network paced to the host clock.
+pub struct Server {
+    port: Port,
+    events: Receiver<ToolEvent>,
+    connections: BTreeMap<usize, Connection>,
+    pacer: Pacer,
+    started: std::time::Instant,
+    /// The network's time when the pacer's was zero.
+    origin: Nanos,
+    /// The grant of virtual time the network is running to, until it reaches it.
+    granted: Option<shared::Instant>,
+    /// How many clients connected.
+    joined: usize,
+}
+
+/// The participant number of the network in the pacer.
+const NETWORK: usize = 0;
+
+impl Server {
+    /// Listens on `address` (`127.0.0.1:29536`); the network's time from now on follows the
+    /// host clock, starting from `network`'s present time.
+    pub fn listen(address: &str, network: &Network) -> Result<Server, String> {
+        let listener = TcpListener::bind(address)
+            .map_err(|error| format!("cannot listen for socketcand clients on {address}: {error}"))?;
+        let (tx, events) = mpsc::channel();
+        can_hub::port::accept_socketcand(listener, 0, "the emulated network", move |event| {
+            tx.send(event).is_ok()
+        });
+        let mut pacer = Pacer::new(can_hub::pace::LOOKAHEAD, GRANT);
+        pacer.join(NETWORK);
+        Ok(Server {
+            port: Port::new(),
+            events,
+            connections: BTreeMap::new(),
+            pacer,
+            started: std::time::Instant::now(),
+            origin: network.now(),
+            granted: None,
+            joined: 0,
+        })
+    }
+
+    /// The host clock, on the pacer's scale.
+    fn host(&self) -> shared::Instant {
+        shared::Instant::from_micros(self.started.elapsed().as_micros() as u64)
+    }
+
+    /// How many clients connected so far.
+    pub fn clients_joined(&self) -> usize {
+        self.joined
+    }
+
+    /// What the pacing did so far: how far the virtual time is behind the host clock, how
+    /// long it was held at most because the network could not keep up.
+    pub fn pace_report(&self) -> PaceReport {
+        self.pacer.report(self.host())
+    }
+
+    /// Runs `network` until virtual time `until` at the pace of the host clock (never ahead
+    /// of it), serving the clients meanwhile: their bytes go on the bus as they come, the
+    /// frames the bus delivers go out to them at the end of each step.
+    pub fn run_until(&mut self, network: &mut Network, until: Nanos) {
+        while network.now() < until {
+            self.take_events(network, None);
+            self.feed(network);
+            let target = self.pacer.advance(self.host());
+            if !self.pacer.grants_due(self.host()).is_empty() {
+                self.granted = Some(self.pacer.now());
+            }
+            let limit = (self.origin + target.as_micros() * 1_000).min(until);
+            if network.now() < limit {
+                network.run_until(limit.min(network.now() + STEP));
+            }
+            if let Some(granted) = self.granted
+                && network.now() >= self.origin + granted.as_micros() * 1_000
+            {
+                self.pacer.acknowledged(NETWORK, granted, self.host());
+                self.granted = None;
+            }
+            self.exchange(network);
+            if network.now() >= limit && network.now() < until {
+                // Ahead of the host clock: wait for it, or for a client.
+                self.take_events(network, Some(std::time::Duration::from_nanos(STEP)));
+            }
+        }
+    }
+
+    /// Handles what the connection threads reported; with `wait`, waits that long for the
+    /// first report.
+    fn take_events(&mut self, network: &mut Network, wait: Option<std::time::Duration>) {
+        if let Some(wait) = wait {
+            match self.events.recv_timeout(wait) {
+                Ok(event) => self.handle(network, event),
+                Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return,
+            }
+        }
+        while let Ok(event) = self.events.try_recv() {
+            self.handle(network, event);
+        }
+    }
+
+    fn handle(&mut self, network: &mut Network, event: ToolEvent) {
+        match event {
+            ToolEvent::Joined {
+                id,
+                stream,
+                pending,
+            } => {
+                self.joined += 1;
+                self.port.join(network, id);
+                self.connections.insert(
+                    id,
+                    Connection {
+                        stream,
+                        backlog: Vec::new(),
+                        pending,
+                        departed: false,
+                    },
+                );
+                self.exchange(network);
+            }
+            ToolEvent::Arrival(Arrival::Bytes(id, bytes)) => {
+                if let Some(connection) = self.connections.get_mut(&id) {
+                    connection.backlog.extend_from_slice(&bytes);
+                }
+            }
+            ToolEvent::Arrival(Arrival::Left(id)) => {
+                if let Some(connection) = self.connections.get_mut(&id) {
+                    connection.departed = true;
+                }
+            }
+        }
+    }
+
+    /// Hands each client's waiting bytes to the port as far as its transmit queue has room;
+    /// forgets the clients that left once their bytes are taken.
+    fn feed(&mut self, network: &mut Network) {
+        let mut gone = Vec::new();
+        for (&id, connection) in &mut self.connections {
+            if !connection.backlog.is_empty() {
+                let taken = self.port.receive(network, id, &connection.backlog);
+                connection.backlog.drain(..taken);
+                connection.pending.fetch_sub(taken, Ordering::AcqRel);
+            }
+            if connection.departed && connection.backlog.is_empty() {
+                gone.push(id);
+            }
+        }
+        for id in gone {
+            self.connections.remove(&id);
+            self.port.leave(network, id);
+        }
+    }
+
+    /// Writes what the port hands out; closes the sessions that ended and the connections
+    /// that cannot be written to (a client that does not read for
+    /// [`can_hub::port::WRITE_TIMEOUT`]).
+    fn exchange(&mut self, network: &mut Network) {
+        let mut failed = Vec::new();
+        for outgoing in self.port.poll(network) {
+            let Some(connection) = self.connections.get_mut(&outgoing.to) else {
+                continue;
+            };
+            if !connection.departed && connection.stream.write_all(&outgoing.bytes).is_err() {
+                failed.push(outgoing.to);
+            }
+        }
+        let closing: Vec<usize> = self.port.closing.drain(..).collect();
+        for id in closing.into_iter().chain(failed) {
+            if let Some(connection) = self.connections.remove(&id) {
+                // The reader thread then sees the end of the stream and reports it.
+                let _ = connection.stream.shutdown(Shutdown::Both);
+            }
+            self.port.leave(network, id);
+        }
+    }
+}
