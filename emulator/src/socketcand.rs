@@ -10,7 +10,8 @@
 //!   client, the bounds on clients, backlog and blocked writes, as `can-hub` has them), and
 //!   the network run at the pace of the host clock: third-party tools time out on the wall
 //!   clock, so the virtual time never runs ahead of it ([`can_hub::pace::Pacer`], with the
-//!   network as its one paced participant). When the host cannot keep up, the virtual time
+//!   network as its one paced participant, granted time and acknowledging it as the QEMU
+//!   instances do `can-hub`'s, with the same lookahead and grant period). When the host cannot keep up, the virtual time
 //!   falls behind and does not race to catch up: the pacer counts the time it was held.
 
 use std::collections::BTreeMap;
@@ -146,11 +147,6 @@ impl Port {
 /// request waits at most this long before it is on the bus.
 const STEP: Nanos = 1_000_000;
 
-/// How often the pacer grants the network virtual time. The network acknowledges a grant
-/// once it has run to it; the pacer's time runs at most [`can_hub::pace::LOOKAHEAD`] past
-/// the last acknowledgement, and stands still beyond (the host cannot keep up).
-const GRANT: shared::Duration = shared::Duration::from_millis(1);
-
 /// A connected client's connection and the bytes it sent that the port has not taken.
 struct Connection {
     stream: TcpStream,
@@ -173,6 +169,8 @@ pub struct Server {
     granted: Option<shared::Instant>,
     /// How many clients connected.
     joined: usize,
+    /// Clients that came and went, in sentences, until [`Server::take_notes`].
+    notes: Vec<String>,
 }
 
 /// The participant number of the network in the pacer.
@@ -182,13 +180,14 @@ impl Server {
     /// Listens on `address` (`127.0.0.1:29536`); the network's time from now on follows the
     /// host clock, starting from `network`'s present time.
     pub fn listen(address: &str, network: &Network) -> Result<Server, String> {
-        let listener = TcpListener::bind(address)
-            .map_err(|error| format!("cannot listen for socketcand clients on {address}: {error}"))?;
+        let listener = TcpListener::bind(address).map_err(|error| {
+            format!("cannot listen for socketcand clients on {address}: {error}")
+        })?;
         let (tx, events) = mpsc::channel();
         can_hub::port::accept_socketcand(listener, 0, "the emulated network", move |event| {
             tx.send(event).is_ok()
         });
-        let mut pacer = Pacer::new(can_hub::pace::LOOKAHEAD, GRANT);
+        let mut pacer = Pacer::new(can_hub::pace::LOOKAHEAD, can_hub::pace::GRANT_PERIOD);
         pacer.join(NETWORK);
         Ok(Server {
             port: Port::new(),
@@ -199,6 +198,7 @@ impl Server {
             origin: network.now(),
             granted: None,
             joined: 0,
+            notes: Vec::new(),
         })
     }
 
@@ -210,6 +210,20 @@ impl Server {
     /// How many clients connected so far.
     pub fn clients_joined(&self) -> usize {
         self.joined
+    }
+
+    /// Clients that connected, left or were disconnected since the last call, in sentences
+    /// with the virtual time.
+    pub fn take_notes(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.notes)
+    }
+
+    /// Notes `what` happened to client `id` now.
+    fn note(&mut self, network: &Network, id: usize, what: &str) {
+        self.notes.push(format!(
+            "client {id} {what} at {:.6} s of virtual time",
+            network.now() as f64 / 1e9
+        ));
     }
 
     /// What the pacing did so far: how far the virtual time is behind the host clock, how
@@ -269,6 +283,7 @@ impl Server {
                 pending,
             } => {
                 self.joined += 1;
+                self.note(network, id, "connected");
                 self.port.join(network, id);
                 self.connections.insert(
                     id,
@@ -311,6 +326,7 @@ impl Server {
         for id in gone {
             self.connections.remove(&id);
             self.port.leave(network, id);
+            self.note(network, id, "left");
         }
     }
 
@@ -328,12 +344,123 @@ impl Server {
             }
         }
         let closing: Vec<usize> = self.port.closing.drain(..).collect();
-        for id in closing.into_iter().chain(failed) {
+        let ended = closing
+            .into_iter()
+            .map(|id| {
+                (
+                    id,
+                    "was disconnected: its session ended (an error was sent to it)",
+                )
+            })
+            .chain(failed.into_iter().map(|id| {
+                (
+                    id,
+                    "was disconnected: it did not read what was written to it",
+                )
+            }));
+        for (id, why) in ended.collect::<Vec<_>>() {
             if let Some(connection) = self.connections.remove(&id) {
                 // The reader thread then sees the end of the stream and reports it.
                 let _ = connection.stream.shutdown(Shutdown::Both);
             }
             self.port.leave(network, id);
+            self.note(network, id, why);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A network of no MCU: the bus alone, with its external participants.
+    fn bus_only() -> Network {
+        Network::new(Vec::new(), 500_000).expect("a network of no MCU")
+    }
+
+    fn text(outgoing: &Outgoing) -> &str {
+        std::str::from_utf8(&outgoing.bytes).expect("socketcand is text")
+    }
+
+    /// Two clients in raw mode: what one sends reaches the other as a raw-mode `frame`
+    /// message stamped with the frame's end on the bus (after the raw-mode grace), and not
+    /// the sender; each reply is a write of its own.
+    #[test]
+    fn a_clients_frame_reaches_the_other_client_in_raw_mode() {
+        let mut network = bus_only();
+        let mut port = Port::new();
+        port.join(&mut network, 0);
+        port.join(&mut network, 1);
+        let greetings = port.poll(&mut network);
+        assert_eq!(
+            greetings.iter().map(text).collect::<Vec<_>>(),
+            ["< hi >"; 2]
+        );
+        for client in [0, 1] {
+            let hello = b"< open can0 >< rawmode >";
+            assert_eq!(port.receive(&mut network, client, hello), hello.len());
+        }
+        let replies = port.poll(&mut network);
+        assert_eq!(replies.iter().map(text).collect::<Vec<_>>(), ["< ok >"; 4]);
+        // After the raw-mode grace, client 0 sends a frame.
+        network.run_until(50_000_000);
+        port.receive(&mut network, 0, b"< send 123 2 AB CD >");
+        network.run_until(60_000_000);
+        let out = port.poll(&mut network);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert_eq!(out[0].to, 1);
+        assert!(
+            text(&out[0]).starts_with("< frame 123 0.050") && text(&out[0]).ends_with(" ABCD >"),
+            "{}",
+            text(&out[0])
+        );
+    }
+
+    /// A client that floods the bus waits: its intake stops before the message that would
+    /// overflow its transmit queue, and goes on once the bus has taken frames.
+    #[test]
+    fn a_flooding_client_waits_for_room_on_the_bus() {
+        let mut network = bus_only();
+        let mut port = Port::new();
+        port.join(&mut network, 0);
+        port.receive(&mut network, 0, b"< open can0 >< rawmode >");
+        let message = b"< send 300 8 00 11 22 33 44 55 66 77 >";
+        let flood = message.repeat(3 * can_hub::bus::TRANSMIT_QUEUE);
+        let taken = port.receive(&mut network, 0, &flood);
+        assert_eq!(taken, message.len() * can_hub::bus::TRANSMIT_QUEUE);
+        network.run_until(10_000_000);
+        let more = port.receive(&mut network, 0, &flood[taken..]);
+        assert!(more > 0, "room again once the bus has carried frames");
+    }
+
+    /// Bytes that are not socketcand are answered with an error naming them and the session
+    /// goes on; a client that opens another bus is told so and closed; a client that left
+    /// gets nothing more.
+    #[test]
+    fn bad_bytes_get_an_error_and_a_wrong_bus_closes_the_session() {
+        let mut network = bus_only();
+        let mut port = Port::new();
+        port.join(&mut network, 0);
+        port.join(&mut network, 1);
+        let _ = port.poll(&mut network);
+        port.receive(&mut network, 0, b"\xFF\xFEjunk< echo >");
+        let out = port.poll(&mut network);
+        assert_eq!(
+            out.iter().map(text).collect::<Vec<_>>(),
+            [
+                "< error \"??junk\" is not a socketcand message >",
+                "< echo >"
+            ]
+        );
+        port.receive(&mut network, 1, b"< open vcan7 >< rawmode >");
+        assert_eq!(port.closing, [1]);
+        let out = port.poll(&mut network);
+        assert_eq!(
+            out.iter().map(text).collect::<Vec<_>>(),
+            ["< error could not open bus >"]
+        );
+        port.leave(&mut network, 1);
+        assert!(port.closing.is_empty());
+        assert_eq!(port.receive(&mut network, 1, b"< echo >"), 0);
     }
 }

@@ -294,7 +294,9 @@ fn start(args: &Args) -> Result<(), String> {
             if let Ok(writer) = stream.try_clone() {
                 let pending = Arc::new(AtomicUsize::new(0));
                 let _ = tx.send(Input::Joined(id, Box::new(writer), pending.clone()));
-                reader(id, stream, pending, |arrival| tx.send(arrival.into()).is_ok());
+                reader(id, stream, pending, |arrival| {
+                    tx.send(arrival.into()).is_ok()
+                });
             }
         });
     }

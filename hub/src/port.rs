@@ -124,8 +124,9 @@ pub fn accept_socketcand(
     server: &str,
     tell: impl Fn(ToolEvent) -> bool + Clone + Send + 'static,
 ) {
-    let refusal =
-        format!("< error {server} serves {MAX_CLIENTS} tools at once; close one and connect again >");
+    let refusal = format!(
+        "< error {server} serves {MAX_CLIENTS} tools at once; close one and connect again >"
+    );
     let clients = Connections::default();
     std::thread::spawn(move || {
         for (offset, stream) in listener.incoming().enumerate() {

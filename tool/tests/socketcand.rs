@@ -136,7 +136,10 @@ fn socketcand_session_names_bytes_that_are_not_messages_and_bounds_a_message() {
     );
     assert!(session.is_raw());
     let long = [b'x'; 64].repeat(40);
-    let outputs = session.feed(&[b"< send 123 8 ", long.as_slice()].concat(), Duration::ZERO);
+    let outputs = session.feed(
+        &[b"< send 123 8 ", long.as_slice()].concat(),
+        Duration::ZERO,
+    );
     assert_eq!(
         outputs,
         vec![

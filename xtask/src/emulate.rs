@@ -394,7 +394,69 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
     for line in summary {
         println!("xtask: {line}");
     }
+    socketcand_check(root, cross, &emulate)?;
     nominal_check(root, cross, &emulate, &file)
+}
+
+/// The shipped images joined from outside (`emulate-network --socketcand`): the tool
+/// library's socketcand client, a separate process as any third-party program would be,
+/// receives both nodes' heartbeats (CiA 301 7.2.8.3.2) and reads node 1's identity (1018h)
+/// and producer heartbeat time (1017h, the EDS's default) by SDO, on a virtual time that
+/// follows the host clock. python-can, python-canopen and the tool's program on it:
+/// `cargo xtask interop --only emulated-network`.
+fn socketcand_check(root: &Path, cross: &toolchain::Cross, emulate: &Path) -> Result<()> {
+    let layer = Protocol::CanopenSafety.hardware_layer();
+    let address = format!("127.0.0.1:{}", crate::interop::free_port()?);
+    let mut child = crate::child::Guarded::spawn(
+        std::process::Command::new(emulate)
+            .arg(images::image(cross, root, layer, "a"))
+            .arg(images::image(cross, root, layer, "b"))
+            .args(["--inputs-closed", "--quiet", "--socketcand", &address])
+            .stdout(std::process::Stdio::null()),
+    )?;
+    let started = std::time::Instant::now();
+    let mut tool = crate::network::connect_tool_at(&address, std::time::Duration::from_secs(20))?;
+    let mut heard = [false; 2];
+    crate::network::receive_until(&mut tool, std::time::Duration::from_secs(10), |frame| {
+        match (frame.id().raw(), frame.data()) {
+            (0x701, [0x7F]) => heard[0] = true,
+            (0x721, [0x7F]) => heard[1] = true,
+            _ => {}
+        }
+        heard == [true; 2]
+    })?;
+    if heard != [true; 2] {
+        anyhow::bail!(
+            "a socketcand client of emulate-network heard no Pre-operational heartbeat of {} \
+             within 10 s",
+            match heard {
+                [true, _] => "node 33",
+                [_, true] => "node 1",
+                _ => "node 1 nor node 33",
+            }
+        );
+    }
+    let identity = safety_config::procedure::read_identity(&mut tool, 1)?;
+    let heartbeat = tool.read_unsigned(1, shared::canopen::od::Address::new(0x1017, 0), 2)?;
+    let expected = default_heartbeat_ms()?;
+    if u64::from(heartbeat) != expected {
+        anyhow::bail!(
+            "a socketcand client of emulate-network read node 1's 1017h as {heartbeat} ms, not \
+             the EDS's default {expected} ms"
+        );
+    }
+    child.end();
+    println!(
+        "xtask: a socketcand client of emulate-network heard both nodes' heartbeats and read \
+         node 1's identity ({:X}h, {:X}h, {}, {}) and 1017h ({heartbeat} ms) by SDO, {:.1} s of \
+         host time with the emulator's start",
+        identity.vendor,
+        identity.product,
+        identity.revision,
+        identity.serial,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// The nominal case with the bus under load, in `cargo xtask test`: [`NOMINAL_LOAD_PERCENT`]

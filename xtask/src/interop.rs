@@ -117,7 +117,7 @@ fn python(root: &Path) -> Result<PathBuf> {
 
 /// A free TCP port on the loopback address (the hub of part 1 listens there, so that it
 /// never meets a network another task runs on the fixed ports).
-fn free_port() -> Result<u16> {
+pub(crate) fn free_port() -> Result<u16> {
     Ok(std::net::TcpListener::bind("127.0.0.1:0")?
         .local_addr()?
         .port())
@@ -1122,12 +1122,11 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
         "--bin",
         "emulate-network",
     ]))?;
-    crate::run(crate::cargo().current_dir(root).args([
-        "build",
-        "--quiet",
-        "-p",
-        "safety-config",
-    ]))?;
+    crate::run(
+        crate::cargo()
+            .current_dir(root)
+            .args(["build", "--quiet", "-p", "safety-config"]),
+    )?;
     let dir = root.join("target/interop/emulated-network");
     std::fs::create_dir_all(&dir)?;
     let file = dir.join("network.toml");
@@ -1156,17 +1155,7 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
 
 /// Part 7's steps against the emulated network serving socketcand at `address`.
 fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Path) -> Result<()> {
-    let give_up = std::time::Instant::now() + Duration::from_secs(20);
-    let transport = loop {
-        match SocketcandClient::connect(address, "can0") {
-            Ok(client) => break client,
-            Err(_) if std::time::Instant::now() < give_up => {
-                std::thread::sleep(Duration::from_millis(50))
-            }
-            Err(error) => return Err(error).context("the emulated network's socketcand port"),
-        }
-    };
-    let mut tool = Client::new(transport, Duration::from_millis(1000));
+    let mut tool = network::connect_tool_at(address, Duration::from_secs(20))?;
     let mut booted = [false; 2];
     network::receive_until(&mut tool, Duration::from_secs(20), |frame| {
         match frame.id().raw() {
@@ -1192,9 +1181,9 @@ fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Pat
     let python_seconds = started.elapsed().as_secs_f64();
     let mut periods = Vec::new();
     for node in ["1", "33"] {
-        let beats = result["heartbeats"][node]
-            .as_array()
-            .with_context(|| format!("python-can received no heartbeat of node {node}: {result}"))?;
+        let beats = result["heartbeats"][node].as_array().with_context(|| {
+            format!("python-can received no heartbeat of node {node}: {result}")
+        })?;
         let states: Vec<u64> = beats.iter().filter_map(|beat| beat[1].as_u64()).collect();
         if states.is_empty() || states.iter().any(|state| *state != 0x7F) {
             bail!(

@@ -236,12 +236,18 @@ mapping = ["output", "output_inverted"]
 
 /// Connects the tool library's socketcand client to the hub, retrying for up to `patience`.
 pub fn connect_tool(patience: Duration) -> Result<Client<SocketcandClient>> {
+    connect_tool_at(&hub_tcp(), patience)
+}
+
+/// Connects the tool library's socketcand client to the socketcand server at `address`
+/// (bus `can0`: the hub, or `emulate-network --socketcand`), retrying for up to `patience`.
+pub fn connect_tool_at(address: &str, patience: Duration) -> Result<Client<SocketcandClient>> {
     let give_up = std::time::Instant::now() + patience;
     loop {
-        match SocketcandClient::connect(&hub_tcp(), "can0") {
+        match SocketcandClient::connect(address, "can0") {
             Ok(transport) => return Ok(Client::new(transport, SDO_TIMEOUT)),
             Err(error) if std::time::Instant::now() >= give_up => {
-                return Err(error).context(format!("the hub's socketcand port {}", hub_tcp()));
+                return Err(error).context(format!("the socketcand port {address}"));
             }
             Err(_) => std::thread::sleep(Duration::from_millis(50)),
         }

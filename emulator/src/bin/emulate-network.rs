@@ -315,7 +315,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         (None, Some(_)) => Nanos::MAX,
         (None, None) => 2_000_000_000,
     };
-    // With a socket, how the pacing went, every so often.
+    // With a socket, how the pacing went, every so often and when clients come and go.
     let report_every: Nanos = 5_000_000_000;
     let mut next_report = report_every;
     while network.now() < duration {
@@ -326,8 +326,12 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         match server.as_mut() {
             Some(server) => {
                 server.run_until(&mut network, until);
-                if network.now() >= next_report {
-                    next_report += report_every;
+                let notes = server.take_notes();
+                for note in &notes {
+                    println!("emulate-network: socketcand: {note}");
+                }
+                if network.now() >= next_report || !notes.is_empty() {
+                    next_report = network.now() + report_every;
                     pace(server);
                 }
             }
