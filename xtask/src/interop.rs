@@ -1014,83 +1014,6 @@ pub fn kept_section(document: &str) -> Option<&str> {
     Some(&document[start..section_end(document, start)])
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The bench's section replaces its old self and nothing else; a writer of the rest of
-    /// the file (`cargo xtask bench`) can take it over.
-    #[test]
-    fn the_bench_section_is_replaced_in_place_and_kept_by_other_writers() {
-        let old = format!("# P\n\n## A\na\n{BENCH_HEADING}\nold\n## B\nb\n");
-        let new = with_section(&old, &format!("{BENCH_HEADING}\nnew\n"));
-        assert_eq!(
-            new,
-            format!("# P\n\n## A\na\n{BENCH_HEADING}\nnew\n## B\nb\n")
-        );
-        assert_eq!(
-            kept_section(&new),
-            Some(format!("{BENCH_HEADING}\nnew\n").as_str())
-        );
-        let last = with_section("# P\n", &format!("{BENCH_HEADING}\nx\n"));
-        assert_eq!(last, format!("# P\n\n{BENCH_HEADING}\nx\n"));
-        assert_eq!(
-            with_section(&last, &format!("{BENCH_HEADING}\ny\n")),
-            format!("# P\n\n{BENCH_HEADING}\ny\n")
-        );
-        assert_eq!(kept_section("# P\n"), None);
-        // Another writer's generated block after the section is not the section's.
-        let marked =
-            format!("{BENCH_HEADING}\nold\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n");
-        assert_eq!(
-            with_section(&marked, &format!("{BENCH_HEADING}\nnew\n")),
-            format!("{BENCH_HEADING}\nnew\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n")
-        );
-    }
-
-    /// The target counts as met only when every round of the tool beat every round of
-    /// python-canopen; a faster median over overlapping rounds is said to show nothing.
-    #[test]
-    fn the_speed_target_is_met_only_when_every_round_is_faster() {
-        let round = |ms: u64| Round {
-            configure: Duration::from_millis(ms),
-            verify: Duration::ZERO,
-            configure_transactions: 0,
-            verify_transactions: 0,
-        };
-        let rounds = |list: &[u64]| list.iter().map(|ms| round(*ms)).collect::<Vec<_>>();
-        let met = verdict(&rounds(&[100, 110, 120]), &rounds(&[200, 210, 230]));
-        assert_eq!(
-            met,
-            "met: every round of the tool was faster than every round of python-canopen \
-             (median 1.91 times as fast)"
-        );
-        let overlap = verdict(&rounds(&[100, 110, 250]), &rounds(&[200, 210, 230]));
-        assert!(overlap.starts_with("not shown"), "{overlap}");
-        let slower = verdict(&rounds(&[300, 310, 320]), &rounds(&[200, 210, 230]));
-        assert!(slower.starts_with("NOT met"), "{slower}");
-    }
-
-    /// The bench's network files are valid and give each node every SRDO the firmware
-    /// holds, no identifier used twice.
-    #[test]
-    fn the_bench_network_files_configure_every_srdo_of_the_device() {
-        for nodes in 1..=BENCH_NODES.len() {
-            let network = safety_config::network_file::parse(&bench_file(nodes), "bench").unwrap();
-            let ids: Vec<u8> = network.nodes.iter().map(|node| node.id).collect();
-            assert_eq!(ids, BENCH_NODES[..nodes]);
-            let mut cob_ids = std::collections::BTreeSet::new();
-            for node in &network.nodes {
-                assert_eq!(node.srdos.len(), dual_channel::device::SRDO_COUNT);
-                for srdo in &node.srdos {
-                    assert!(cob_ids.insert(srdo.settings.cob_id_1));
-                    assert!(cob_ids.insert(srdo.settings.cob_id_2));
-                }
-            }
-        }
-    }
-}
-
 /// How long python-can listens to the shipped images' heartbeats in part 7 (host time).
 const HEARTBEAT_SECONDS: &str = "2";
 
@@ -1270,4 +1193,81 @@ fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Pat
         file.strip_prefix(root).unwrap_or(file).display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bench's section replaces its old self and nothing else; a writer of the rest of
+    /// the file (`cargo xtask bench`) can take it over.
+    #[test]
+    fn the_bench_section_is_replaced_in_place_and_kept_by_other_writers() {
+        let old = format!("# P\n\n## A\na\n{BENCH_HEADING}\nold\n## B\nb\n");
+        let new = with_section(&old, &format!("{BENCH_HEADING}\nnew\n"));
+        assert_eq!(
+            new,
+            format!("# P\n\n## A\na\n{BENCH_HEADING}\nnew\n## B\nb\n")
+        );
+        assert_eq!(
+            kept_section(&new),
+            Some(format!("{BENCH_HEADING}\nnew\n").as_str())
+        );
+        let last = with_section("# P\n", &format!("{BENCH_HEADING}\nx\n"));
+        assert_eq!(last, format!("# P\n\n{BENCH_HEADING}\nx\n"));
+        assert_eq!(
+            with_section(&last, &format!("{BENCH_HEADING}\ny\n")),
+            format!("# P\n\n{BENCH_HEADING}\ny\n")
+        );
+        assert_eq!(kept_section("# P\n"), None);
+        // Another writer's generated block after the section is not the section's.
+        let marked =
+            format!("{BENCH_HEADING}\nold\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n");
+        assert_eq!(
+            with_section(&marked, &format!("{BENCH_HEADING}\nnew\n")),
+            format!("{BENCH_HEADING}\nnew\n<!-- t:begin (generated) -->\n## T\n<!-- t:end -->\n")
+        );
+    }
+
+    /// The target counts as met only when every round of the tool beat every round of
+    /// python-canopen; a faster median over overlapping rounds is said to show nothing.
+    #[test]
+    fn the_speed_target_is_met_only_when_every_round_is_faster() {
+        let round = |ms: u64| Round {
+            configure: Duration::from_millis(ms),
+            verify: Duration::ZERO,
+            configure_transactions: 0,
+            verify_transactions: 0,
+        };
+        let rounds = |list: &[u64]| list.iter().map(|ms| round(*ms)).collect::<Vec<_>>();
+        let met = verdict(&rounds(&[100, 110, 120]), &rounds(&[200, 210, 230]));
+        assert_eq!(
+            met,
+            "met: every round of the tool was faster than every round of python-canopen \
+             (median 1.91 times as fast)"
+        );
+        let overlap = verdict(&rounds(&[100, 110, 250]), &rounds(&[200, 210, 230]));
+        assert!(overlap.starts_with("not shown"), "{overlap}");
+        let slower = verdict(&rounds(&[300, 310, 320]), &rounds(&[200, 210, 230]));
+        assert!(slower.starts_with("NOT met"), "{slower}");
+    }
+
+    /// The bench's network files are valid and give each node every SRDO the firmware
+    /// holds, no identifier used twice.
+    #[test]
+    fn the_bench_network_files_configure_every_srdo_of_the_device() {
+        for nodes in 1..=BENCH_NODES.len() {
+            let network = safety_config::network_file::parse(&bench_file(nodes), "bench").unwrap();
+            let ids: Vec<u8> = network.nodes.iter().map(|node| node.id).collect();
+            assert_eq!(ids, BENCH_NODES[..nodes]);
+            let mut cob_ids = std::collections::BTreeSet::new();
+            for node in &network.nodes {
+                assert_eq!(node.srdos.len(), dual_channel::device::SRDO_COUNT);
+                for srdo in &node.srdos {
+                    assert!(cob_ids.insert(srdo.settings.cob_id_1));
+                    assert!(cob_ids.insert(srdo.settings.cob_id_2));
+                }
+            }
+        }
+    }
 }
