@@ -126,7 +126,7 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
 }
 
 /// What `cargo xtask emulate --network` runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Case {
     /// The network for the duration asked for.
     Run,
@@ -137,18 +137,37 @@ pub enum Case {
         /// Every how many steps a cut is made.
         every: u64,
     },
+    /// The network served over socketcand on this address, on a virtual time that follows
+    /// the host clock, until interrupted (`emulate-network --socketcand`).
+    Serve {
+        /// `127.0.0.1:29536`.
+        address: String,
+    },
 }
 
 /// Builds and seals the shipped images of `protocol`, then runs both nodes (1 and 33, channels
 /// A and B each) on one emulated bus for `duration` of virtual time with every contact
-/// closed, or runs `case` on them, and prints every MCU's decoded log and the summary.
+/// closed, or runs `case` on them (or serves them over socketcand until interrupted), and
+/// prints every MCU's decoded log and the summary.
 pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_emulator_build_deps()?;
     let layer = protocol.hardware_layer();
     images::build_layer(root, &cross, layer)?;
     let mut arguments: Vec<std::ffi::OsString> = Vec::new();
-    if case != Case::Run {
+    if let Case::Serve { address } = &case {
+        let file = write_network_file(root)?;
+        println!(
+            "xtask: join with python-can or python-canopen (interface socketcand, {address}, \
+             channel can0), or configure the nodes with `safety-config --bus \
+             socketcand:{address}/can0 configure {} --start`",
+            file.display()
+        );
+        arguments.extend(["--socketcand".into(), address.into()]);
+    } else {
+        arguments.extend(["--for".into(), duration.into()]);
+    }
+    if !matches!(case, Case::Run | Case::Serve { .. }) {
         if protocol != Protocol::CanopenSafety {
             anyhow::bail!("the emulated network's cases are CANopen Safety's only");
         }
@@ -161,7 +180,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
                 "--every".into(),
                 every.to_string().into(),
             ]),
-            Case::Run => {}
+            Case::Run | Case::Serve { .. } => {}
         }
     }
     crate::run(
@@ -179,7 +198,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
             ])
             .arg(images::image(&cross, root, layer, "a"))
             .arg(images::image(&cross, root, layer, "b"))
-            .args(["--for", duration, "--inputs-closed"])
+            .arg("--inputs-closed")
             .args(arguments),
     )
 }

@@ -2,6 +2,8 @@
 //! one emulated CAN bus in one process, each node's two channels linked by their USART3s,
 //! for a span of virtual time; prints every MCU's decoded log, the frames on the bus and how
 //! each MCU's run ended. `cargo xtask emulate --network` builds the images and calls it.
+//! With `--socketcand ADDRESS:PORT`, separate programs join the bus over TCP
+//! (`emulator::socketcand`), and the virtual time follows the host clock.
 
 use std::io::Write as _;
 use std::path::PathBuf;
