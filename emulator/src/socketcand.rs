@@ -171,6 +171,8 @@ pub struct Server {
     joined: usize,
     /// Clients that came and went, in sentences, until [`Server::take_notes`].
     notes: Vec<String>,
+    /// The address it listens on.
+    local: std::net::SocketAddr,
 }
 
 /// The participant number of the network in the pacer.
@@ -180,9 +182,11 @@ impl Server {
     /// Listens on `address` (`127.0.0.1:29536`); the network's time from now on follows the
     /// host clock, starting from `network`'s present time.
     pub fn listen(address: &str, network: &Network) -> Result<Server, String> {
-        let listener = TcpListener::bind(address).map_err(|error| {
+        let cannot = |error: std::io::Error| {
             format!("cannot listen for socketcand clients on {address}: {error}")
-        })?;
+        };
+        let listener = TcpListener::bind(address).map_err(cannot)?;
+        let local = listener.local_addr().map_err(cannot)?;
         let (tx, events) = mpsc::channel();
         can_hub::port::accept_socketcand(listener, 0, "the emulated network", move |event| {
             tx.send(event).is_ok()
@@ -199,7 +203,13 @@ impl Server {
             granted: None,
             joined: 0,
             notes: Vec::new(),
+            local,
         })
+    }
+
+    /// The address it listens on (the port chosen, when asked for port 0).
+    pub fn local_addr(&self) -> std::net::SocketAddr {
+        self.local
     }
 
     /// The host clock, on the pacer's scale.
@@ -462,5 +472,79 @@ mod tests {
         port.leave(&mut network, 1);
         assert!(port.closing.is_empty());
         assert_eq!(port.receive(&mut network, 1, b"< echo >"), 0);
+    }
+
+    /// Reads what `stream` has, as text, until it ends with `until` or nothing comes for
+    /// `patience`.
+    fn read_for(stream: &mut TcpStream, until: &str, patience: std::time::Duration) -> String {
+        use std::io::Read as _;
+        stream.set_read_timeout(Some(patience)).expect("a time-out");
+        let mut text = String::new();
+        let mut buffer = [0u8; 1024];
+        while let Ok(count) = stream.read(&mut buffer) {
+            if count == 0 {
+                break;
+            }
+            text.push_str(&String::from_utf8_lossy(&buffer[..count]));
+            if text.ends_with(until) {
+                break;
+            }
+        }
+        text
+    }
+
+    /// Over TCP: two programs join; one's frame reaches the other stamped in the virtual
+    /// time; bytes that are not socketcand get an error and the network runs on; the
+    /// virtual time did not run ahead of the host clock; comings and goings are noted.
+    #[test]
+    fn programs_join_over_tcp_on_a_virtual_time_behind_the_host_clock() {
+        let mut network = bus_only();
+        let started = std::time::Instant::now();
+        let mut server = Server::listen("127.0.0.1:0", &network).expect("a port");
+        let address = server.local_addr();
+        let sender = std::thread::spawn(move || {
+            let mut stream = TcpStream::connect(address).expect("connected");
+            stream.write_all(b"< open can0 >").unwrap();
+            stream.write_all(b"\x00\x01 not socketcand").unwrap();
+            stream.write_all(b"< rawmode >").unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            stream.write_all(b"< send 7E5 1 2A >").unwrap();
+            read_for(&mut stream, "no end", std::time::Duration::from_millis(200))
+        });
+        let receiver = std::thread::spawn(move || {
+            let mut stream = TcpStream::connect(address).expect("connected");
+            stream.write_all(b"< open can0 >< rawmode >").unwrap();
+            read_for(&mut stream, " 2A >", std::time::Duration::from_secs(2))
+        });
+        server.run_until(&mut network, 1_000_000_000);
+        assert!(
+            started.elapsed() >= std::time::Duration::from_secs(1),
+            "the virtual time ran ahead of the host clock"
+        );
+        let sent = sender.join().unwrap();
+        assert!(
+            sent.starts_with(
+                "< hi >< ok >< error \"?? not socketcand\" is not a socketcand message >< ok >"
+            ),
+            "{sent}"
+        );
+        assert!(!sent.contains("< frame"), "no echo to the sender: {sent}");
+        let received = receiver.join().unwrap();
+        assert!(received.starts_with("< hi >< ok >< ok >"), "{received}");
+        assert!(received.contains("< frame 7E5 0."), "{received}");
+        assert!(received.contains(" 2A >"), "{received}");
+        server.run_until(&mut network, 1_100_000_000);
+        let notes = server.take_notes();
+        assert_eq!(
+            notes.iter().filter(|n| n.contains("connected")).count(),
+            2,
+            "{notes:?}"
+        );
+        assert_eq!(
+            notes.iter().filter(|n| n.contains("left")).count(),
+            2,
+            "{notes:?}"
+        );
+        assert_eq!(server.clients_joined(), 2);
     }
 }
