@@ -294,11 +294,8 @@ fn check_start_up_trace(trace: &str, nodes: &[u16], period_ms: u64) -> Result<()
     Ok(())
 }
 
-/// `cargo xtask test`'s check of both nodes' shipped images on one emulated bus (both
-/// protocols): the four MCUs start, each node's channels link up over their USART3s and stay
-/// linked, each node announces itself and keeps its heartbeat, no channel logs a fault or a
-/// safe state, none stops; and the same images give the same trace and the same logs twice.
-pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
+/// Builds the `emulate-network` program (release: the emulation's speed); returns its path.
+pub(crate) fn build_emulate_network(root: &Path) -> Result<std::path::PathBuf> {
     crate::run(cargo().current_dir(root).args([
         "build",
         "--quiet",
@@ -308,7 +305,15 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
         "--bin",
         "emulate-network",
     ]))?;
-    let emulate = root.join("target/release/emulate-network");
+    Ok(root.join("target/release/emulate-network"))
+}
+
+/// `cargo xtask test`'s check of both nodes' shipped images on one emulated bus (both
+/// protocols): the four MCUs start, each node's channels link up over their USART3s and stay
+/// linked, each node announces itself and keeps its heartbeat, no channel logs a fault or a
+/// safe state, none stops; and the same images give the same trace and the same logs twice.
+pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
+    let emulate = build_emulate_network(root)?;
     let period_ms = default_heartbeat_ms()?;
     let scratch = root.join("target/emulate-network");
     std::fs::create_dir_all(&scratch)?;
@@ -435,15 +440,10 @@ fn socketcand_check(root: &Path, cross: &toolchain::Cross, emulate: &Path) -> Re
     )?;
     let started = std::time::Instant::now();
     let mut tool = crate::network::connect_tool_at(&address, std::time::Duration::from_secs(20))?;
-    let mut heard = [false; 2];
-    crate::network::receive_until(&mut tool, std::time::Duration::from_secs(10), |frame| {
-        match (frame.id().raw(), frame.data()) {
-            (0x701, [0x7F]) => heard[0] = true,
-            (0x721, [0x7F]) => heard[1] = true,
-            _ => {}
-        }
-        heard == [true; 2]
-    })?;
+    let heard =
+        crate::network::await_heartbeats(&mut tool, std::time::Duration::from_secs(10), |data| {
+            data == [0x7F]
+        })?;
     if heard != [true; 2] {
         anyhow::bail!(
             "a socketcand client of emulate-network heard no Pre-operational heartbeat of {} \

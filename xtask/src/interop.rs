@@ -1036,15 +1036,7 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
     let protocol = network::Protocol::CanopenSafety;
     let layer = protocol.hardware_layer();
     crate::images::build_layer(root, &cross, layer)?;
-    crate::run(crate::cargo().current_dir(root).args([
-        "build",
-        "--quiet",
-        "--release",
-        "-p",
-        "emulator",
-        "--bin",
-        "emulate-network",
-    ]))?;
+    let emulate = crate::emulate::build_emulate_network(root)?;
     crate::run(
         crate::cargo()
             .current_dir(root)
@@ -1059,7 +1051,7 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
     let port = free_port()?;
     let address = format!("127.0.0.1:{port}");
     let mut emulator = Guarded::spawn(
-        Command::new(root.join("target/release/emulate-network"))
+        Command::new(emulate)
             .arg(crate::images::image(&cross, root, layer, "a"))
             .arg(crate::images::image(&cross, root, layer, "b"))
             .args(["--inputs-closed", "--quiet", "--socketcand", &address])
@@ -1079,15 +1071,7 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
 /// Part 7's steps against the emulated network serving socketcand at `address`.
 fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Path) -> Result<()> {
     let mut tool = network::connect_tool_at(address, Duration::from_secs(20))?;
-    let mut booted = [false; 2];
-    network::receive_until(&mut tool, Duration::from_secs(20), |frame| {
-        match frame.id().raw() {
-            0x701 => booted[0] = true,
-            0x721 => booted[1] = true,
-            _ => {}
-        }
-        booted == [true, true]
-    })?;
+    let booted = network::await_heartbeats(&mut tool, Duration::from_secs(20), |_| true)?;
     if booted != [true, true] {
         bail!("no heartbeat from node 1 and node 33 within 20 s of joining: {booted:?}");
     }

@@ -254,6 +254,26 @@ pub fn connect_tool_at(address: &str, patience: Duration) -> Result<Client<Socke
     }
 }
 
+/// Receives frames for up to `patience` until nodes 1 and 33 have each sent a heartbeat (or
+/// boot-up message, CiA 301 7.2.8.3.2: 700h + node-ID) whose data `state` accepts; which of
+/// the two did.
+pub fn await_heartbeats<T: Transport>(
+    tool: &mut Client<T>,
+    patience: Duration,
+    state: impl Fn(&[u8]) -> bool,
+) -> Result<[bool; 2]> {
+    let mut heard = [false; 2];
+    receive_until(tool, patience, |frame| {
+        match frame.id().raw() {
+            0x701 if state(frame.data()) => heard[0] = true,
+            0x721 if state(frame.data()) => heard[1] = true,
+            _ => {}
+        }
+        heard == [true, true]
+    })?;
+    Ok(heard)
+}
+
 /// Receives frames for up to `patience` until `until` holds for one; whether it did.
 pub fn receive_until<T: Transport>(
     tool: &mut Client<T>,
@@ -621,15 +641,7 @@ impl Network {
             self.protocol.qemu_tolerances()
         );
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
-        let mut booted = [false; 2];
-        receive_until(self.tool()?, Duration::from_secs(20), |frame| {
-            match frame.id().raw() {
-                0x701 => booted[0] = true,
-                0x721 => booted[1] = true,
-                _ => {}
-            }
-            booted == [true, true]
-        })?;
+        let booted = await_heartbeats(self.tool()?, Duration::from_secs(20), |_| true)?;
         self.check_alive()?;
         if booted != [true, true] {
             let silent: Vec<&str> = [("node 1", booted[0]), ("node 33", booted[1])]
