@@ -12,7 +12,10 @@
 //!   every access to the model that claims it (an access no model claims stops the run with
 //!   a sentence, [`stop`]);
 //! - [`image`], [`rtt`], [`log`]: the sealed image loaded, its defmt log drained from RTT and
-//!   decoded.
+//!   decoded;
+//! - [`network`]: MCUs on one CAN bus in one virtual time; [`tool_port`] and [`cases`]: the
+//!   configuration tool's library on it in-process; [`socketcand`]: separate programs on it
+//!   over TCP, on a virtual time that follows the host clock.
 
 pub mod cases;
 pub mod cpu;
@@ -24,6 +27,7 @@ pub mod network;
 pub mod peripherals;
 pub mod rtt;
 pub mod scenario;
+pub mod socketcand;
 pub mod stop;
 pub mod system;
 pub mod time;

@@ -382,6 +382,13 @@ impl Network {
         self.bus.send(from, frame);
     }
 
+    /// Whether external participant `from` can queue another frame: fewer than
+    /// [`can_hub::bus::TRANSMIT_QUEUE`] of its frames wait for the bus. A sender from outside
+    /// (a socketcand client) waits while it cannot, as on a real bus.
+    pub fn has_room(&self, from: usize) -> bool {
+        self.bus.has_room(from)
+    }
+
     /// The oldest frame the bus delivered to external participant `participant` that it has
     /// not taken yet (every frame but its own), with the time it ended.
     pub fn receive(&mut self, participant: usize) -> Option<Delivery> {

@@ -290,10 +290,7 @@ impl Hub {
                 return taken;
             }
             let rest = &bytes[taken..];
-            let end = rest
-                .iter()
-                .position(|&byte| byte == b'>')
-                .map_or(rest.len(), |at| at + 1);
+            let end = server::first_message(rest);
             let Framing::Socketcand(session) = &mut self.framings[id] else {
                 return taken;
             };

@@ -23,5 +23,6 @@ pub mod events;
 pub mod hub;
 pub mod load;
 pub mod pace;
+pub mod port;
 pub mod tool;
 pub mod trace;

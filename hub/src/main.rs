@@ -22,16 +22,18 @@
 //! (`can_hub::pace`): the hub grants it to them and waits for the slowest. The control port's
 //! line protocol is in `can_hub::control`. The hub runs until killed.
 //!
-//! Nothing a participant sends makes the hub hold more and more. A tool whose transmit FIFO
-//! is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus: its bytes stay with the
-//! hub only up to `BACKLOG` bytes; past that the hub stops reading its socket, so the
-//! sender's writes block. An emulated MCU's bytes are always taken (its acknowledgements of
-//! the virtual time travel behind its frames; `can_hub::hub::Hub::receive` says why): a frame
-//! that finds its FIFO full is dropped and reported here, as `board::hw` drops it. A control line is at most `can_hub::control::MAX_LINE` bytes, and a
-//! tool or control client that does not read what the hub writes for `WRITE_TIMEOUT` is
-//! disconnected instead of stalling the bus. At most `MAX_CLIENTS` tools and `MAX_CLIENTS`
-//! control clients are connected at once; one more is told so in a sentence and closed, so
-//! no number of connections makes the hub hold more and more threads either.
+//! Nothing a participant sends makes the hub hold more and more (`can_hub::port`). A tool
+//! whose transmit FIFO is full (`can_hub::bus::TRANSMIT_QUEUE`) waits, as on a real bus: its
+//! bytes stay with the hub only up to `can_hub::port::BACKLOG` bytes; past that the hub stops
+//! reading its socket, so the sender's writes block. An emulated MCU's bytes are always taken
+//! (its acknowledgements of the virtual time travel behind its frames;
+//! `can_hub::hub::Hub::receive` says why): a frame that finds its FIFO full is dropped and
+//! reported here, as `board::hw` drops it. A control line is at most
+//! `can_hub::control::MAX_LINE` bytes, and a tool or control client that does not read what
+//! the hub writes for `can_hub::port::WRITE_TIMEOUT` is disconnected instead of stalling the
+//! bus. At most `can_hub::port::MAX_CLIENTS` tools and as many control clients are connected
+//! at once; one more is told so in a sentence and closed, so no number of connections makes
+//! the hub hold more and more threads either.
 
 use can_hub::bus::{BIT_RATES, Fault, Injection, Match};
 use can_hub::control::{self, Command, status_line};
@@ -39,19 +41,22 @@ use can_hub::events;
 use can_hub::hub::Hub;
 use can_hub::load::Load;
 use can_hub::pace::{self, Pacer};
+use can_hub::port::{
+    Arrival, Connections, MAX_CLIENTS, ToolEvent, WRITE_TIMEOUT, accept_socketcand, reader, refuse,
+};
 use can_hub::trace::{PcapWriter, candump_line};
 use clap::Parser;
 use shared::Instant;
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, BufWriter, Write};
 use std::net::{Shutdown, TcpListener, TcpStream};
 use std::os::unix::net::UnixListener;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 #[derive(Parser)]
@@ -104,49 +109,8 @@ struct Args {
     drop: Vec<String>,
 }
 
-/// Bytes a participant may have sent that the hub has not yet taken (its transmit FIFO was
-/// full); past this the hub stops reading its socket until the bus has taken frames.
-const BACKLOG: usize = 4096;
-
 /// The name of the bus a socketcand client opens (`< open can0 >`).
 const TOOL_BUS: &str = "can0";
-
-/// How long a write to a tool or control client may block before the client is disconnected.
-const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
-
-/// Tool connections, and separately control connections, the hub serves at once.
-const MAX_CLIENTS: usize = 16;
-
-/// Connections of one kind in use, counted up to [`MAX_CLIENTS`].
-#[derive(Clone, Default)]
-struct Connections(Arc<AtomicUsize>);
-
-/// One connection counted in [`Connections`] until dropped (its reader thread ends).
-struct Counted(Arc<AtomicUsize>);
-
-impl Connections {
-    /// A place for one more connection, or `None` when all [`MAX_CLIENTS`] are in use.
-    fn take(&self) -> Option<Counted> {
-        self.0
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
-                (n < MAX_CLIENTS).then_some(n + 1)
-            })
-            .ok()
-            .map(|_| Counted(self.0.clone()))
-    }
-}
-
-impl Drop for Counted {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::AcqRel);
-    }
-}
-
-/// Tells a connection past [`MAX_CLIENTS`] why it is closed, in the protocol it speaks.
-fn refuse(mut stream: TcpStream, line: &str) {
-    let _ = stream.write_all(line.as_bytes());
-    let _ = stream.shutdown(Shutdown::Both);
-}
 
 /// What the connection threads tell the hub.
 enum Input {
@@ -162,25 +126,24 @@ enum Input {
     Control(usize, Result<String, String>),
 }
 
-/// Reads participant `id`'s bytes for the hub while fewer than [`BACKLOG`] are waiting
-/// (`pending`, which the hub lowers as it takes them); otherwise waits, and the sender with it.
-fn reader(id: usize, mut stream: impl Read, tx: Sender<Input>, pending: Arc<AtomicUsize>) {
-    let mut buf = [0u8; 256];
-    loop {
-        while pending.load(Ordering::Acquire) >= BACKLOG {
-            std::thread::sleep(Duration::from_millis(1));
+impl From<Arrival> for Input {
+    fn from(arrival: Arrival) -> Self {
+        match arrival {
+            Arrival::Bytes(id, bytes) => Input::Bytes(id, bytes),
+            Arrival::Left(id) => Input::Left(id),
         }
-        match stream.read(&mut buf) {
-            Ok(0) | Err(_) => {
-                let _ = tx.send(Input::Left(id));
-                return;
-            }
-            Ok(n) => {
-                pending.fetch_add(n, Ordering::AcqRel);
-                if tx.send(Input::Bytes(id, buf[..n].to_vec())).is_err() {
-                    return;
-                }
-            }
+    }
+}
+
+impl From<ToolEvent> for Input {
+    fn from(event: ToolEvent) -> Self {
+        match event {
+            ToolEvent::Joined {
+                id,
+                stream,
+                pending,
+            } => Input::ToolJoined(id, stream, pending),
+            ToolEvent::Arrival(arrival) => arrival.into(),
         }
     }
 }
@@ -331,7 +294,9 @@ fn start(args: &Args) -> Result<(), String> {
             if let Ok(writer) = stream.try_clone() {
                 let pending = Arc::new(AtomicUsize::new(0));
                 let _ = tx.send(Input::Joined(id, Box::new(writer), pending.clone()));
-                reader(id, stream, tx, pending);
+                reader(id, stream, pending, |arrival| {
+                    tx.send(arrival.into()).is_ok()
+                });
             }
         });
     }
@@ -341,32 +306,8 @@ fn start(args: &Args) -> Result<(), String> {
         // After the sockets: the hub's own sender (`insert` on the control port), then its
         // load generator (`load`).
         let first = sockets.len() + 2;
-        let tools = Connections::default();
-        std::thread::spawn(move || {
-            for (offset, stream) in listener.incoming().enumerate() {
-                let Ok(stream) = stream else { continue };
-                let _ = stream.set_nodelay(true);
-                let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
-                let Some(counted) = tools.take() else {
-                    refuse(
-                        stream,
-                        &format!(
-                            "< error the hub serves {MAX_CLIENTS} tools at once; close one and connect again >"
-                        ),
-                    );
-                    continue;
-                };
-                let id = first + offset;
-                if let Ok(writer) = stream.try_clone() {
-                    let pending = Arc::new(AtomicUsize::new(0));
-                    let _ = tx.send(Input::ToolJoined(id, writer, pending.clone()));
-                    let tx = tx.clone();
-                    std::thread::spawn(move || {
-                        let _counted = counted;
-                        reader(id, stream, tx, pending);
-                    });
-                }
-            }
+        accept_socketcand(listener, first, "the hub", move |event| {
+            tx.send(event.into()).is_ok()
         });
     }
     if let Some(address) = &args.control {

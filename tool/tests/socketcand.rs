@@ -117,6 +117,40 @@ fn socketcand_session_refuses_frames_before_raw_mode_and_unknown_buses() {
     );
 }
 
+/// Bytes that are not socketcand messages are answered with an error naming them, in their
+/// place among the replies, and the session goes on; a message that never ends is refused
+/// once it is longer than `MAX_MESSAGE` and the connection closed, so that no client makes
+/// the server hold more and more.
+#[test]
+fn socketcand_session_names_bytes_that_are_not_messages_and_bounds_a_message() {
+    use safety_config::socketcand::server::MAX_MESSAGE;
+    let mut session = Session::new("can0");
+    let outputs = session.feed(b"< open can0 > hello\xFF\x00> < rawmode >", Duration::ZERO);
+    assert_eq!(
+        outputs,
+        vec![
+            Output::Reply("< ok >".into()),
+            Output::Reply("< error \"hello???\" is not a socketcand message >".into()),
+            Output::Reply("< ok >".into()),
+        ]
+    );
+    assert!(session.is_raw());
+    let long = [b'x'; 64].repeat(40);
+    let outputs = session.feed(
+        &[b"< send 123 8 ", long.as_slice()].concat(),
+        Duration::ZERO,
+    );
+    assert_eq!(
+        outputs,
+        vec![
+            Output::Reply(format!(
+                "< error a message of more than {MAX_MESSAGE} bytes without its closing bracket >"
+            )),
+            Output::Close
+        ]
+    );
+}
+
 /// A bus address where nothing listens is reported as a sentence naming that address.
 #[test]
 fn no_server_is_reported_with_its_address() {

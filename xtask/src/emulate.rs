@@ -126,7 +126,7 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
 }
 
 /// What `cargo xtask emulate --network` runs.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Case {
     /// The network for the duration asked for.
     Run,
@@ -141,18 +141,37 @@ pub enum Case {
         /// Every how many steps a cut is made.
         every: u64,
     },
+    /// The network served over socketcand on this address, on a virtual time that follows
+    /// the host clock, until interrupted (`emulate-network --socketcand`).
+    Serve {
+        /// `127.0.0.1:29536`.
+        address: String,
+    },
 }
 
 /// Builds and seals the shipped images of `protocol`, then runs both nodes (1 and 33, channels
 /// A and B each) on one emulated bus for `duration` of virtual time with every contact
-/// closed, or runs `case` on them, and prints every MCU's decoded log and the summary.
+/// closed, or runs `case` on them (or serves them over socketcand until interrupted), and
+/// prints every MCU's decoded log and the summary.
 pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_emulator_build_deps()?;
     let layer = protocol.hardware_layer();
     images::build_layer(root, &cross, layer)?;
     let mut arguments: Vec<std::ffi::OsString> = Vec::new();
-    if case != Case::Run {
+    if let Case::Serve { address } = &case {
+        let file = write_network_file(root)?;
+        println!(
+            "xtask: join with python-can or python-canopen (interface socketcand, {address}, \
+             channel can0), or configure the nodes with `safety-config --bus \
+             socketcand:{address}/can0 configure {} --start`",
+            file.display()
+        );
+        arguments.extend(["--socketcand".into(), address.into()]);
+    } else {
+        arguments.extend(["--for".into(), duration.into()]);
+    }
+    if !matches!(case, Case::Run | Case::Serve { .. }) {
         if protocol != Protocol::CanopenSafety {
             anyhow::bail!("the emulated network's cases are CANopen Safety's only");
         }
@@ -176,7 +195,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
                 "--every".into(),
                 every.to_string().into(),
             ]),
-            Case::Run => {}
+            Case::Run | Case::Serve { .. } => {}
         }
     }
     crate::run(
@@ -194,7 +213,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
             ])
             .arg(images::image(&cross, root, layer, "a"))
             .arg(images::image(&cross, root, layer, "b"))
-            .args(["--for", duration, "--inputs-closed"])
+            .arg("--inputs-closed")
             .args(arguments),
     )
 }
@@ -214,7 +233,7 @@ const NETWORK_CHECK: &str = "2500ms";
 
 /// The producer heartbeat time the shipped images start with: object 1017h's default in the
 /// device description the tool generates (the EDS).
-fn default_heartbeat_ms() -> Result<u64> {
+pub(crate) fn default_heartbeat_ms() -> Result<u64> {
     let eds = safety_config::eds::eds();
     let section = eds
         .split("\n[")
@@ -290,11 +309,8 @@ fn check_start_up_trace(trace: &str, nodes: &[u16], period_ms: u64) -> Result<()
     Ok(())
 }
 
-/// `cargo xtask test`'s check of both nodes' shipped images on one emulated bus (both
-/// protocols): the four MCUs start, each node's channels link up over their USART3s and stay
-/// linked, each node announces itself and keeps its heartbeat, no channel logs a fault or a
-/// safe state, none stops; and the same images give the same trace and the same logs twice.
-pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
+/// Builds the `emulate-network` program (release: the emulation's speed); returns its path.
+pub(crate) fn build_emulate_network(root: &Path) -> Result<std::path::PathBuf> {
     crate::run(cargo().current_dir(root).args([
         "build",
         "--quiet",
@@ -304,7 +320,15 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
         "--bin",
         "emulate-network",
     ]))?;
-    let emulate = root.join("target/release/emulate-network");
+    Ok(root.join("target/release/emulate-network"))
+}
+
+/// `cargo xtask test`'s check of both nodes' shipped images on one emulated bus (both
+/// protocols): the four MCUs start, each node's channels link up over their USART3s and stay
+/// linked, each node announces itself and keeps its heartbeat, no channel logs a fault or a
+/// safe state, none stops; and the same images give the same trace and the same logs twice.
+pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
+    let emulate = build_emulate_network(root)?;
     let period_ms = default_heartbeat_ms()?;
     let scratch = root.join("target/emulate-network");
     std::fs::create_dir_all(&scratch)?;
@@ -409,7 +433,64 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
     for line in summary {
         println!("xtask: {line}");
     }
+    socketcand_check(root, cross, &emulate)?;
     nominal_check(root, cross, &emulate, &file)
+}
+
+/// The shipped images joined from outside (`emulate-network --socketcand`): the tool
+/// library's socketcand client, a separate process as any third-party program would be,
+/// receives both nodes' heartbeats (CiA 301 7.2.8.3.2) and reads node 1's identity (1018h)
+/// and producer heartbeat time (1017h, the EDS's default) by SDO, on a virtual time that
+/// follows the host clock. python-can, python-canopen and the tool's program on it:
+/// `cargo xtask interop --only emulated-network`.
+fn socketcand_check(root: &Path, cross: &toolchain::Cross, emulate: &Path) -> Result<()> {
+    let layer = Protocol::CanopenSafety.hardware_layer();
+    let address = format!("127.0.0.1:{}", crate::interop::free_port()?);
+    let mut child = crate::child::Guarded::spawn(
+        std::process::Command::new(emulate)
+            .arg(images::image(cross, root, layer, "a"))
+            .arg(images::image(cross, root, layer, "b"))
+            .args(["--inputs-closed", "--quiet", "--socketcand", &address])
+            .stdout(std::process::Stdio::null()),
+    )?;
+    let started = std::time::Instant::now();
+    let mut tool = crate::network::connect_tool_at(&address, std::time::Duration::from_secs(20))?;
+    let heard =
+        crate::network::await_heartbeats(&mut tool, std::time::Duration::from_secs(10), |data| {
+            data == [0x7F]
+        })?;
+    if heard != [true; 2] {
+        anyhow::bail!(
+            "a socketcand client of emulate-network heard no Pre-operational heartbeat of {} \
+             within 10 s",
+            match heard {
+                [true, _] => "node 33",
+                [_, true] => "node 1",
+                _ => "node 1 nor node 33",
+            }
+        );
+    }
+    let identity = safety_config::procedure::read_identity(&mut tool, 1)?;
+    let heartbeat = tool.read_unsigned(1, shared::canopen::od::Address::new(0x1017, 0), 2)?;
+    let expected = default_heartbeat_ms()?;
+    if u64::from(heartbeat) != expected {
+        anyhow::bail!(
+            "a socketcand client of emulate-network read node 1's 1017h as {heartbeat} ms, not \
+             the EDS's default {expected} ms"
+        );
+    }
+    child.end();
+    println!(
+        "xtask: a socketcand client of emulate-network heard both nodes' heartbeats and read \
+         node 1's identity ({:X}h, {:X}h, {}, {}) and 1017h ({heartbeat} ms) by SDO, {:.1} s of \
+         host time with the emulator's start",
+        identity.vendor,
+        identity.product,
+        identity.revision,
+        identity.serial,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// The nominal case with the bus under load, in `cargo xtask test`: [`NOMINAL_LOAD_PERCENT`]

@@ -30,6 +30,11 @@
 //!    firmware images carry no LSS, so the emulated network's nodes cannot be configured by
 //!    it); `--only lss-bench` times the tool's fastscan and python-canopen's against the bus
 //!    time of their frames, into docs/tool.md.
+//! 7. The shipped hardware images on the emulator's network (`emulate-network --socketcand`:
+//!    nodes 1 and 33, channels A and B, no QEMU), joined by separate programs
+//!    ([`emulated_network`]): python-can sees both nodes' heartbeats, python-canopen reads node
+//!    1's identity and producer heartbeat time by SDO, and the `safety-config` program
+//!    configures and starts both nodes from the network file.
 
 mod lss;
 
@@ -69,6 +74,9 @@ pub enum Part {
     /// python-canopen's LSS master configures a host-simulated unconfigured LSS node (fast
     /// scan, configure node-ID, store), the tool inquires it (no QEMU).
     Lss,
+    /// python-can, python-canopen and the configuration tool as separate programs on the
+    /// shipped images' emulated network (`emulate-network --socketcand`, no QEMU).
+    EmulatedNetwork,
     /// The tool's and python-canopen's fastscan of 1 and 8 unconfigured nodes in bus time,
     /// against the bus time of their frames, into docs/tool.md. Only when asked for
     /// (`--only lss-bench`): python-canopen's scans take minutes.
@@ -109,7 +117,7 @@ fn python(root: &Path) -> Result<PathBuf> {
 
 /// A free TCP port on the loopback address (the hub of part 1 listens there, so that it
 /// never meets a network another task runs on the fixed ports).
-fn free_port() -> Result<u16> {
+pub(crate) fn free_port() -> Result<u16> {
     Ok(std::net::TcpListener::bind("127.0.0.1:0")?
         .local_addr()?
         .port())
@@ -440,6 +448,9 @@ pub fn task(root: &Path, only: Option<Part>) -> Result<()> {
     }
     if runs(Part::Lss) {
         lss::check(root, &python)?;
+    }
+    if runs(Part::EmulatedNetwork) {
+        emulated_network(root, &python)?;
     }
     if only == Some(Part::MixedLoad) {
         mixed_load(root, &python)?;
@@ -1001,6 +1012,171 @@ fn section_end(document: &str, start: usize) -> usize {
 pub fn kept_section(document: &str) -> Option<&str> {
     let start = document.find(BENCH_HEADING)?;
     Some(&document[start..section_end(document, start)])
+}
+
+/// How long python-can listens to the shipped images' heartbeats in part 7 (host time).
+const HEARTBEAT_SECONDS: &str = "2";
+
+/// Part 7: the shipped hardware images on the emulator's network, joined from outside over
+/// its socketcand port (`emulate-network --socketcand`, the virtual time following the host
+/// clock): python-can receives both nodes' heartbeats (CiA 301 7.2.8.3.2: Pre-operational,
+/// unconfigured); python-canopen reads node 1's identity (1018h) and producer heartbeat time
+/// (1017h) by SDO, which agree with the tool library's reading and the EDS's default; then
+/// the `safety-config` program configures both nodes from the network file and starts them
+/// (EN 50325-5 8.3.1), and the tool library sees both heartbeats Operational and node 1's
+/// SRDO 1 on the bus. Measured, not asserted: the heartbeat period python-can saw on the
+/// server's time stamps and the wall time of each step.
+fn emulated_network(root: &Path, python: &Path) -> Result<()> {
+    crate::step(
+        "interop 7: python-can, python-canopen and safety-config on the shipped images' \
+         emulated network (emulate-network --socketcand, no QEMU)",
+    );
+    let cross = crate::toolchain::ensure()?;
+    crate::toolchain::ensure_emulator_build_deps()?;
+    let protocol = network::Protocol::CanopenSafety;
+    let layer = protocol.hardware_layer();
+    crate::images::build_layer(root, &cross, layer)?;
+    let emulate = crate::emulate::build_emulate_network(root)?;
+    crate::run(
+        crate::cargo()
+            .current_dir(root)
+            .args(["build", "--quiet", "-p", "safety-config"]),
+    )?;
+    let dir = root.join("target/interop/emulated-network");
+    std::fs::create_dir_all(&dir)?;
+    let file = dir.join("network.toml");
+    std::fs::write(&file, protocol.network_file())?;
+    let log_path = dir.join("emulate-network.log");
+    let log = std::fs::File::create(&log_path)?;
+    let port = free_port()?;
+    let address = format!("127.0.0.1:{port}");
+    let mut emulator = Guarded::spawn(
+        Command::new(emulate)
+            .arg(crate::images::image(&cross, root, layer, "a"))
+            .arg(crate::images::image(&cross, root, layer, "b"))
+            .args(["--inputs-closed", "--quiet", "--socketcand", &address])
+            .stdout(log.try_clone()?)
+            .stderr(log),
+    )
+    .context("starting emulate-network")?;
+    let result = emulated_network_checks(root, python, &address, &file);
+    emulator.end();
+    let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+    if let Some(line) = log.lines().rev().find(|line| line.contains("socketcand:")) {
+        println!("xtask: interop 7: {line}");
+    }
+    result.with_context(|| format!("the emulator's output is in {}", log_path.display()))
+}
+
+/// Part 7's steps against the emulated network serving socketcand at `address`.
+fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Path) -> Result<()> {
+    let mut tool = network::connect_tool_at(address, Duration::from_secs(20))?;
+    let booted = network::await_heartbeats(&mut tool, Duration::from_secs(20), |_| true)?;
+    if booted != [true, true] {
+        bail!("no heartbeat from node 1 and node 33 within 20 s of joining: {booted:?}");
+    }
+
+    let (host, port) = address.split_once(':').context("the address")?;
+    let started = std::time::Instant::now();
+    let result = script_json(
+        Command::new(python)
+            .arg(root.join("xtask/interop/python_emulated_network.py"))
+            .args([host, port])
+            .arg(root.join("eds/safety-node.eds"))
+            .arg(HEARTBEAT_SECONDS),
+    )?;
+    let python_seconds = started.elapsed().as_secs_f64();
+    let mut periods = Vec::new();
+    for node in ["1", "33"] {
+        let beats = result["heartbeats"][node].as_array().with_context(|| {
+            format!("python-can received no heartbeat of node {node}: {result}")
+        })?;
+        let states: Vec<u64> = beats.iter().filter_map(|beat| beat[1].as_u64()).collect();
+        if states.is_empty() || states.iter().any(|state| *state != 0x7F) {
+            bail!(
+                "python-can received node {node}'s heartbeats with states {states:X?}, not \
+                 Pre-operational (7Fh) each"
+            );
+        }
+        let stamps: Vec<f64> = beats.iter().filter_map(|beat| beat[0].as_f64()).collect();
+        let gaps: Vec<f64> = stamps.windows(2).map(|pair| pair[1] - pair[0]).collect();
+        let mean = gaps.iter().sum::<f64>() / gaps.len().max(1) as f64;
+        periods.push(format!(
+            "node {node}: {} heartbeats, {:.1} ms apart on average",
+            states.len(),
+            mean * 1e3
+        ));
+    }
+    let theirs = &result["node1"];
+    let ours = procedure::read_identity(&mut tool, 1)?;
+    let identity = [ours.vendor, ours.product, ours.revision, ours.serial];
+    if theirs["identity"] != serde_json::json!(identity) {
+        bail!(
+            "python-canopen read node 1's identity {} and the tool {identity:X?}",
+            theirs["identity"]
+        );
+    }
+    let heartbeat_ms = crate::emulate::default_heartbeat_ms()?;
+    if theirs["heartbeat_time_ms"].as_u64() != Some(heartbeat_ms) {
+        bail!(
+            "python-canopen read node 1's 1017h as {}, not the EDS's default {heartbeat_ms} ms",
+            theirs["heartbeat_time_ms"]
+        );
+    }
+    println!(
+        "xtask: interop 7: python-can received {} frames in {HEARTBEAT_SECONDS} s, both nodes' \
+         heartbeats Pre-operational ({}; the producer heartbeat time is {heartbeat_ms} ms); \
+         python-canopen read node 1's 1018h:01h..04h {:X?} (as the tool does) and 1017h = \
+         {heartbeat_ms} ms in {} s; {python_seconds:.1} s with its start",
+        result["frames"],
+        periods.join(", "),
+        identity,
+        theirs["sdo_seconds"]
+    );
+
+    let started = std::time::Instant::now();
+    let output = Command::new(root.join("target/debug/safety-config"))
+        .args(["--bus", &format!("socketcand:{address}/can0"), "configure"])
+        .arg(file)
+        .arg("--start")
+        .stdin(Stdio::null())
+        .output()
+        .context("running safety-config")?;
+    let configured = started.elapsed().as_secs_f64();
+    if !output.status.success() {
+        bail!(
+            "safety-config configure on the emulated network failed ({}):\n{}{}",
+            output.status,
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    let mut seen = [false; 3];
+    network::receive_until(&mut tool, Duration::from_secs(5), |frame| {
+        match (frame.id().raw(), frame.data()) {
+            (0x701, [0x05]) => seen[0] = true,
+            (0x721, [0x05]) => seen[1] = true,
+            (0x101, _) => seen[2] = true,
+            _ => {}
+        }
+        seen == [true; 3]
+    })?;
+    if seen != [true; 3] {
+        bail!(
+            "after safety-config configure --start: node 1 Operational {}, node 33 Operational \
+             {}, node 1's SRDO 1 (101h) on the bus {} (within 5 s)",
+            seen[0],
+            seen[1],
+            seen[2]
+        );
+    }
+    println!(
+        "xtask: interop 7: safety-config configured, validated, stored and started nodes 1 and \
+         33 from {} in {configured:.1} s of host time (its start included); both heartbeats \
+         Operational and node 1's SRDO 1 on the bus",
+        file.strip_prefix(root).unwrap_or(file).display()
+    );
+    Ok(())
 }
 
 #[cfg(test)]

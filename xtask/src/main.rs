@@ -130,6 +130,16 @@ enum Task {
         /// parameters and the node starts again.
         #[arg(long, requires = "network", conflicts_with = "nominal")]
         power_cut_sweep: bool,
+        /// With `--network`: serve the socketcand protocol on this address (bus `can0`) so
+        /// that python-can, python-canopen and `safety-config` join the shipped images' bus
+        /// as separate programs; the virtual time follows the host clock, until Ctrl-C.
+        #[arg(
+            long,
+            value_name = "ADDRESS:PORT",
+            requires = "network",
+            conflicts_with_all = ["nominal", "power_cut_sweep"]
+        )]
+        socketcand: Option<String>,
         /// With `--power-cut-sweep`: every Nth step only.
         #[arg(long, default_value_t = 1)]
         every: u64,
@@ -203,8 +213,10 @@ enum Task {
     /// Third-party CANopen software on the emulated bus through the hub's socketcand port, in a
     /// virtual environment under target/interop (python-can, python-canopen): python-can's
     /// socketcand bus against the hub and the tool; python-canopen on the emulated network
-    /// (QEMU) with the node's EDS, agreeing with the tool and getting the specific aborts, and
-    /// sweeping the SimpleCAN images' EDS on the emulated SimpleCAN network.
+    /// (QEMU) with the node's EDS, agreeing with the tool and getting the specific aborts,
+    /// sweeping the SimpleCAN images' EDS on the emulated SimpleCAN network; python-can,
+    /// python-canopen and `safety-config` on the shipped images' emulated network
+    /// (`emulate-network --socketcand`).
     Interop {
         /// Run one part only.
         #[arg(long, value_enum)]
@@ -424,12 +436,15 @@ fn task() -> Result<()> {
             nominal,
             power_cut_sweep,
             every,
+            socketcand,
             ..
         } => emulate::network_task(
             &root,
             &duration,
             protocol,
-            if power_cut_sweep {
+            if let Some(address) = socketcand {
+                emulate::Case::Serve { address }
+            } else if power_cut_sweep {
                 emulate::Case::PowerCutSweep { every }
             } else if nominal {
                 emulate::Case::Nominal { load_seconds: None }

@@ -236,16 +236,42 @@ mapping = ["output", "output_inverted"]
 
 /// Connects the tool library's socketcand client to the hub, retrying for up to `patience`.
 pub fn connect_tool(patience: Duration) -> Result<Client<SocketcandClient>> {
+    connect_tool_at(&hub_tcp(), patience)
+}
+
+/// Connects the tool library's socketcand client to the socketcand server at `address`
+/// (bus `can0`: the hub, or `emulate-network --socketcand`), retrying for up to `patience`.
+pub fn connect_tool_at(address: &str, patience: Duration) -> Result<Client<SocketcandClient>> {
     let give_up = std::time::Instant::now() + patience;
     loop {
-        match SocketcandClient::connect(&hub_tcp(), "can0") {
+        match SocketcandClient::connect(address, "can0") {
             Ok(transport) => return Ok(Client::new(transport, SDO_TIMEOUT)),
             Err(error) if std::time::Instant::now() >= give_up => {
-                return Err(error).context(format!("the hub's socketcand port {}", hub_tcp()));
+                return Err(error).context(format!("the socketcand port {address}"));
             }
             Err(_) => std::thread::sleep(Duration::from_millis(50)),
         }
     }
+}
+
+/// Receives frames for up to `patience` until nodes 1 and 33 have each sent a heartbeat (or
+/// boot-up message, CiA 301 7.2.8.3.2: 700h + node-ID) whose data `state` accepts; which of
+/// the two did.
+pub fn await_heartbeats<T: Transport>(
+    tool: &mut Client<T>,
+    patience: Duration,
+    state: impl Fn(&[u8]) -> bool,
+) -> Result<[bool; 2]> {
+    let mut heard = [false; 2];
+    receive_until(tool, patience, |frame| {
+        match frame.id().raw() {
+            0x701 if state(frame.data()) => heard[0] = true,
+            0x721 if state(frame.data()) => heard[1] = true,
+            _ => {}
+        }
+        heard == [true, true]
+    })?;
+    Ok(heard)
 }
 
 /// Receives frames for up to `patience` until `until` holds for one; whether it did.
@@ -615,15 +641,7 @@ impl Network {
             self.protocol.qemu_tolerances()
         );
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
-        let mut booted = [false; 2];
-        receive_until(self.tool()?, Duration::from_secs(20), |frame| {
-            match frame.id().raw() {
-                0x701 => booted[0] = true,
-                0x721 => booted[1] = true,
-                _ => {}
-            }
-            booted == [true, true]
-        })?;
+        let booted = await_heartbeats(self.tool()?, Duration::from_secs(20), |_| true)?;
         self.check_alive()?;
         if booted != [true, true] {
             let silent: Vec<&str> = [("node 1", booted[0]), ("node 33", booted[1])]

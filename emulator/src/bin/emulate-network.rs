@@ -2,6 +2,8 @@
 //! one emulated CAN bus in one process, each node's two channels linked by their USART3s,
 //! for a span of virtual time; prints every MCU's decoded log, the frames on the bus and how
 //! each MCU's run ended. `cargo xtask emulate --network` builds the images and calls it.
+//! With `--socketcand ADDRESS:PORT`, separate programs join the bus over TCP
+//! (`emulator::socketcand`), and the virtual time follows the host clock.
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -25,9 +27,10 @@ struct Cli {
     image_a: PathBuf,
     /// Channel B's sealed image.
     image_b: PathBuf,
-    /// Virtual time to run for: `500ms`, `2s`, `1500us`.
-    #[arg(long = "for", default_value = "2s", value_parser = emulator::time::parse_duration)]
-    duration: Nanos,
+    /// Virtual time to run for: `500ms`, `2s`, `1500us` (default: 2 s; with `--socketcand`,
+    /// until killed).
+    #[arg(long = "for", value_parser = emulator::time::parse_duration)]
+    duration: Option<Nanos>,
     /// The node-IDs of the nodes (their switches), comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1u8, 33u8])]
     nodes: Vec<u8>,
@@ -82,6 +85,14 @@ struct Cli {
     /// (`emulator::cases::power_cut`).
     #[arg(long, value_name = "NETWORK_FILE")]
     power_cut_sweep: Option<PathBuf>,
+    /// Serve the socketcand protocol on this TCP address (`127.0.0.1:29536`), bus `can0`, so
+    /// that separate programs join the network: python-can (`interface="socketcand"`),
+    /// python-canopen through it, the configuration tool (`--bus
+    /// socketcand:127.0.0.1:29536/can0`). The virtual time then follows the host clock (never
+    /// ahead of it), since such programs time out on the wall clock
+    /// (`emulator::socketcand`).
+    #[arg(long, value_name = "ADDRESS:PORT", conflicts_with_all = ["nominal", "power_cut_sweep"])]
+    socketcand: Option<String>,
     /// With `--power-cut-sweep`: cut at every Nth step only (the first and the last steps
     /// always).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
@@ -342,12 +353,45 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     }
     hangs.sort();
     let mut hangs = hangs.into_iter().peekable();
-    while network.now() < cli.duration {
-        let mut until = (network.now() + slice).min(cli.duration);
+    let mut server = match &cli.socketcand {
+        Some(address) => {
+            let server = emulator::socketcand::Server::listen(address, &network)?;
+            println!(
+                "emulate-network: socketcand clients join on {address}, bus {}; the virtual time \
+                 follows the host clock",
+                emulator::socketcand::BUS
+            );
+            Some(server)
+        }
+        None => None,
+    };
+    let duration = match (cli.duration, &server) {
+        (Some(duration), _) => duration,
+        (None, Some(_)) => Nanos::MAX,
+        (None, None) => 2_000_000_000,
+    };
+    // With a socket, how the pacing went, every so often and when clients come and go.
+    let report_every: Nanos = 5_000_000_000;
+    let mut next_report = report_every;
+    while network.now() < duration {
+        let mut until = (network.now() + slice).min(duration);
         if let Some(&(at, _, _)) = hangs.peek() {
             until = until.min(at.max(network.now() + 1));
         }
-        network.run_until(until);
+        match server.as_mut() {
+            Some(server) => {
+                server.run_until(&mut network, until);
+                let notes = server.take_notes();
+                for note in &notes {
+                    println!("emulate-network: socketcand: {note}");
+                }
+                if network.now() >= next_report || !notes.is_empty() {
+                    next_report = network.now() + report_every;
+                    pace(server);
+                }
+            }
+            None => network.run_until(until),
+        }
         while let Some(&(at, mcu, fault)) = hangs.peek() {
             if at > network.now() {
                 break;
@@ -387,7 +431,24 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
     }
     summary(&network, &names, &frames, started);
+    if let Some(server) = &server {
+        pace(server);
+    }
     Ok(!stopped)
+}
+
+/// How the pacing to the host clock went, with the clients served so far.
+fn pace(server: &emulator::socketcand::Server) {
+    let report = server.pace_report();
+    let ms = |d: shared::Duration| d.as_micros() as f64 / 1000.0;
+    println!(
+        "emulate-network: socketcand: {} clients so far; paced for {:.3} s of virtual time, {:.1} ms behind \
+         the host clock, held at most {:.1} ms at a time because the emulation fell behind",
+        server.clients_joined(),
+        report.virtual_time.as_micros() as f64 / 1e6,
+        ms(report.behind),
+        ms(report.longest_hold)
+    );
 }
 
 /// Prints one event (frames go to the candump log only); whether it is an MCU's stop.

@@ -9,7 +9,7 @@
 //! [`RAW_MODE_GRACE`] of the reply: [`Session::frame`] holds such frames and
 //! [`Session::release`] hands them out when the grace is over.
 
-use super::{parse_hex_data, take_messages};
+use super::parse_hex_data;
 use crate::transport::frame_from_parts;
 use shared::CanFrame;
 use std::time::Duration;
@@ -26,6 +26,11 @@ pub const GREETING: &str = "< hi >";
 /// the client has read the reply; 20 ms covers a client scheduled late, and is short beside
 /// any SDO timeout.
 pub const RAW_MODE_GRACE: Duration = Duration::from_millis(20);
+
+/// The longest message a client may send, `<` to `>` included: a `send` of eight octets
+/// written one word each fits several times over. A client that sends more without its `>`
+/// is told so and closed, so that no client makes the server hold more and more.
+pub const MAX_MESSAGE: usize = 256;
 
 /// Where a session is in the protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -83,11 +88,44 @@ impl Session {
         self.mode == Mode::Raw
     }
 
-    /// Handles bytes from the client, received at `now` on the server's clock.
+    /// Handles bytes from the client, received at `now` on the server's clock. Bytes that
+    /// are not a message (text outside `<` and `>` other than whitespace, bytes that are not
+    /// UTF-8) are answered with an error naming them, in their place among the replies; a
+    /// message longer than [`MAX_MESSAGE`] with an error, and the connection is closed.
     pub fn feed(&mut self, bytes: &[u8], now: Duration) -> Vec<Output> {
         self.buffer.push_str(&String::from_utf8_lossy(bytes));
         let mut outputs = Vec::new();
-        for words in take_messages(&mut self.buffer) {
+        loop {
+            let rest = self.buffer.trim_start();
+            let skipped = self.buffer.len() - rest.len();
+            self.buffer.drain(..skipped);
+            if self.buffer.is_empty() {
+                break;
+            }
+            if !self.buffer.starts_with('<') {
+                let end = self.buffer.find('<').unwrap_or(self.buffer.len());
+                let stray: String = self.buffer.drain(..end).collect();
+                outputs.push(Output::Reply(format!(
+                    "< error {} is not a socketcand message >",
+                    quoted(stray.trim_end())
+                )));
+                continue;
+            }
+            let Some(end) = self.buffer.find('>') else {
+                if self.buffer.len() > MAX_MESSAGE {
+                    outputs.push(Output::Reply(format!(
+                        "< error a message of more than {MAX_MESSAGE} bytes without its closing bracket >"
+                    )));
+                    outputs.push(Output::Close);
+                    self.buffer.clear();
+                }
+                break;
+            };
+            let message: String = self.buffer.drain(..=end).collect();
+            let words: Vec<String> = message[1..message.len() - 1]
+                .split_whitespace()
+                .map(str::to_owned)
+                .collect();
             let was_raw = self.is_raw();
             self.handle(&words, &mut outputs);
             if !was_raw && self.is_raw() {
@@ -174,6 +212,35 @@ impl Session {
         let data: String = frame.data().iter().map(|b| format!("{b:02X}")).collect();
         format!("< frame {id:03X} {seconds}.{micros:06} {data} >")
     }
+}
+
+/// How many of `bytes` make up their first message, its `>` included (all of them when none
+/// ends there): a server that stops taking a client's bytes before a message that would
+/// overflow its transmit queue feeds [`Session::feed`] one such piece at a time.
+pub fn first_message(bytes: &[u8]) -> usize {
+    bytes
+        .iter()
+        .position(|&byte| byte == b'>')
+        .map_or(bytes.len(), |at| at + 1)
+}
+
+/// `text` quoted for an error message: at most 32 characters, none that would end the
+/// message or break the line (`<`, `>`, control characters and the replacement character of
+/// bytes that are not UTF-8 are shown as `?`).
+fn quoted(text: &str) -> String {
+    let shown: String = text
+        .chars()
+        .take(32)
+        .map(|c| {
+            if c == '<' || c == '>' || c.is_control() || c == char::REPLACEMENT_CHARACTER {
+                '?'
+            } else {
+                c
+            }
+        })
+        .collect();
+    let more = if text.chars().count() > 32 { "..." } else { "" };
+    format!("\"{shown}{more}\"")
 }
 
 /// The frame of a `send ID LEN B...` or `sendrtr ID LEN` command.

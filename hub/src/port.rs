@@ -1,0 +1,161 @@
+//! The TCP side of a port that serves clients: `can-hub`'s tool and control ports, and the
+//! socketcand port of the emulator's network (`emulate-network --socketcand`). The protocol
+//! itself is elsewhere (socketcand: the tool crate's sans-I/O session,
+//! `safety_config::socketcand::server`; the control lines: [`crate::control`]); here is what
+//! keeps a port from holding more and more whatever its clients do:
+//!
+//! - at most [`MAX_CLIENTS`] connections of a kind at once; one more is told why in a
+//!   sentence, in the protocol it speaks, and closed ([`Connections`], [`refuse`]);
+//! - a client's bytes are read only while fewer than [`BACKLOG`] wait for the program
+//!   ([`reader`]): a sender whose frames wait for the bus waits too, as on a real bus;
+//! - a write that blocks for [`WRITE_TIMEOUT`] fails, and the program disconnects the client
+//!   instead of stalling the bus.
+
+use std::io::{Read, Write};
+use std::net::{Shutdown, TcpListener, TcpStream};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+/// Bytes a client may have sent that the program has not yet taken (its transmit FIFO was
+/// full); past this its socket is not read until the bus has taken frames.
+pub const BACKLOG: usize = 4096;
+
+/// How long a write to a client may block before the client is disconnected.
+pub const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Connections of one kind a port serves at once.
+pub const MAX_CLIENTS: usize = 16;
+
+/// Connections of one kind in use, counted up to [`MAX_CLIENTS`].
+#[derive(Clone, Default)]
+pub struct Connections(Arc<AtomicUsize>);
+
+/// One connection counted in [`Connections`] until dropped (when its reader thread ends).
+pub struct Counted(Arc<AtomicUsize>);
+
+impl Connections {
+    /// A place for one more connection, or `None` when all [`MAX_CLIENTS`] are in use.
+    pub fn take(&self) -> Option<Counted> {
+        self.0
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < MAX_CLIENTS).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Counted(self.0.clone()))
+    }
+}
+
+impl Drop for Counted {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+/// Tells a connection past [`MAX_CLIENTS`] why it is closed (`line`, in the protocol it
+/// speaks), and closes it.
+pub fn refuse(mut stream: TcpStream, line: &str) {
+    let _ = stream.write_all(line.as_bytes());
+    let _ = stream.shutdown(Shutdown::Both);
+}
+
+/// What a client's reader thread reports.
+#[derive(Debug)]
+pub enum Arrival {
+    /// Bytes client `id` sent (counted in its `pending` until the program takes them).
+    Bytes(usize, Vec<u8>),
+    /// Client `id` closed its connection (or it failed).
+    Left(usize),
+}
+
+/// Reads client `id`'s bytes for the program while fewer than [`BACKLOG`] are waiting
+/// (`pending`, which the program lowers as it takes them); otherwise waits, and the sender
+/// with it. Ends when the stream ends or `tell` returns `false` (the program is gone).
+pub fn reader(
+    id: usize,
+    mut stream: impl Read,
+    pending: Arc<AtomicUsize>,
+    mut tell: impl FnMut(Arrival) -> bool,
+) {
+    let mut buf = [0u8; 256];
+    loop {
+        while pending.load(Ordering::Acquire) >= BACKLOG {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        match stream.read(&mut buf) {
+            Ok(0) | Err(_) => {
+                let _ = tell(Arrival::Left(id));
+                return;
+            }
+            Ok(n) => {
+                pending.fetch_add(n, Ordering::AcqRel);
+                if !tell(Arrival::Bytes(id, buf[..n].to_vec())) {
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// What the socketcand port's threads report ([`accept_socketcand`]).
+#[derive(Debug)]
+pub enum ToolEvent {
+    /// A client connected as number `id`: its connection (write to it; shut it down to end
+    /// the session) and its count of bytes not yet taken (lower it by what the program takes).
+    Joined {
+        /// The client's number.
+        id: usize,
+        /// Its connection, with [`WRITE_TIMEOUT`] set.
+        stream: TcpStream,
+        /// Its bytes sent and not yet taken.
+        pending: Arc<AtomicUsize>,
+    },
+    /// Bytes or a departure, from the client's reader thread.
+    Arrival(Arrival),
+}
+
+/// Accepts socketcand clients on `listener` in a thread of its own, numbered `first`,
+/// `first + 1`, ..., each read by a [`reader`] thread; everything is reported to `tell`.
+/// Past [`MAX_CLIENTS`] a client is told, in a socketcand error message naming `server`
+/// (`the hub`), that it serves that many, and closed.
+pub fn accept_socketcand(
+    listener: TcpListener,
+    first: usize,
+    server: &str,
+    tell: impl Fn(ToolEvent) -> bool + Clone + Send + 'static,
+) {
+    let refusal = format!(
+        "< error {server} serves {MAX_CLIENTS} tools at once; close one and connect again >"
+    );
+    let clients = Connections::default();
+    std::thread::spawn(move || {
+        for (offset, stream) in listener.incoming().enumerate() {
+            let Ok(stream) = stream else { continue };
+            let _ = stream.set_nodelay(true);
+            let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
+            let Some(counted) = clients.take() else {
+                refuse(stream, &refusal);
+                continue;
+            };
+            let id = first + offset;
+            let Ok(writer) = stream.try_clone() else {
+                continue;
+            };
+            let pending = Arc::new(AtomicUsize::new(0));
+            if !tell(ToolEvent::Joined {
+                id,
+                stream: writer,
+                pending: pending.clone(),
+            }) {
+                return;
+            }
+            let tell = tell.clone();
+            std::thread::spawn(move || {
+                let _counted = counted;
+                reader(id, stream, pending, |arrival| {
+                    tell(ToolEvent::Arrival(arrival))
+                });
+            });
+        }
+    });
+}
