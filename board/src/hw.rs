@@ -60,11 +60,11 @@ bind_interrupts!(struct Irqs {
 });
 
 /// CAN bit rate (CiA 301 Table 1): the device description's.
-pub const BIT_RATE: u32 = dual_channel::device::BIT_RATE;
+pub const BIT_RATE: u32 = safety_device::BIT_RATE;
 /// Link heartbeat period: five per SCT of 50 ms.
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
-/// Link USART baud rate.
-pub const LINK_BAUD: u32 = 1_000_000;
+/// Link USART baud rate: the device description's.
+pub const LINK_BAUD: u32 = safety_device::timing::LINK_BAUD;
 /// The link's transmit queue, bytes: the buffered USART's ring, which its interrupt empties.
 /// As much as the 256-byte pipe and the 256-byte ring held together when a task moved the
 /// bytes from one to the other; 5.1 ms of the line at [`LINK_BAUD`].

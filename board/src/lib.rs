@@ -46,9 +46,9 @@ pub mod transmit_queue;
 pub const SIMPLECAN_ENTRIES: usize = 2;
 
 /// The SRDOs of the image's SRDO table: the device's
-/// ([`SRDO_COUNT`](dual_channel::device::SRDO_COUNT)).
+/// ([`SRDO_COUNT`](safety_device::SRDO_COUNT)).
 #[cfg(not(feature = "simplecan"))]
-pub const SRDOS: usize = dual_channel::device::SRDO_COUNT;
+pub const SRDOS: usize = safety_device::SRDO_COUNT;
 /// The SRDOs of the image's SRDO table: none. An image with SimpleCAN speaks it instead of
 /// SRDOs: with the SRDO table's code beside SimpleCAN's, the images are 11 to 15 KiB over
 /// their flash budget (docs/footprint.md). The host simulations run both at once
@@ -74,8 +74,8 @@ pub struct Device {
     /// 1); the hardware layer reads its switches instead ([`node_id_from_switches`]).
     pub default_id: NodeId,
     /// The channel's pins and the objects they are sampled into or driven by (the device
-    /// description's [`INPUT_PINS`](dual_channel::device::INPUT_PINS) and
-    /// [`OUTPUT_PINS`](dual_channel::device::OUTPUT_PINS)).
+    /// description's [`INPUT_PINS`](safety_device::INPUT_PINS) and
+    /// [`OUTPUT_PINS`](safety_device::OUTPUT_PINS)).
     pub pins: Pins,
 }
 
@@ -87,7 +87,7 @@ pub struct Device {
 static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
 
 impl Device {
-    /// The demo device (`dual_channel::device`) named `describe` gives, with the node-ID the
+    /// The demo device (`safety_device`) named `describe` gives, with the node-ID the
     /// image was built for (`SAFETY_NODE_ID`, default 1) for an emulated run without one.
     pub fn built(describe: fn(NodeId) -> NodeConfig) -> Result<Device, u8> {
         let raw = option_env!("SAFETY_NODE_ID")
@@ -97,8 +97,8 @@ impl Device {
             describe,
             default_id: NodeId::new(raw).map_err(|_| raw)?,
             pins: Pins {
-                inputs: &dual_channel::device::INPUT_PINS,
-                outputs: &dual_channel::device::OUTPUT_PINS,
+                inputs: &safety_device::INPUT_PINS,
+                outputs: &safety_device::OUTPUT_PINS,
             },
         })
     }

@@ -281,7 +281,7 @@ enum Command {
 #[derive(clap::Args)]
 struct PlanArgs {
     /// The bit rate the network runs at (bit/s).
-    #[arg(long, default_value_t = dual_channel::device::BIT_RATE)]
+    #[arg(long, default_value_t = safety_device::BIT_RATE)]
     bit_rate: u32,
     /// Other traffic on the bus, as ID:LEN:PERIOD_MS (e.g. 0x181:8:10; repeat for more).
     #[arg(long = "traffic")]
@@ -656,7 +656,7 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
     if let Command::Eds { simplecan, srdos } = &cli.command {
         match simplecan {
             Some(entries) => {
-                let srdos = srdos.unwrap_or(dual_channel::device::SRDO_COUNT as u8);
+                let srdos = srdos.unwrap_or(safety_device::SRDO_COUNT as u8);
                 let Some(text) = safety_config::eds::simplecan_eds(*entries, srdos) else {
                     return Err(ToolError::Usage(format!(
                         "--srdos {srdos}: a node with SimpleCAN has no SRDOs or 2 to 4 \

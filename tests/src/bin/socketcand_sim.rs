@@ -93,7 +93,7 @@ fn run() -> Result<(), String> {
 
 /// Nodes 1 and 33 configured by the tool library from [`FILE`], Operational.
 fn configured() -> Result<Network, String> {
-    let name = dual_channel::device::CHANNEL_A_NAME;
+    let name = safety_device::CHANNEL_A_NAME;
     let mut net = Network::new(500_000, &[(1, name), (33, name)]);
     net.run_for(Duration::from_millis(50));
     let file = network_file::parse(FILE, "socketcand_sim").map_err(|e| e.to_string())?;

@@ -39,7 +39,7 @@ const SHORT_TIMEOUT: Duration = Duration::from_millis(10);
 /// The heading of the generated block in docs/tool.md.
 const BLOCK: &str = "lss-bench";
 
-/// The identity of simulated node `serial` (`dual_channel::device::config`).
+/// The identity of simulated node `serial` (`safety_device::config`).
 fn identity(serial: u8) -> [u32; 4] {
     [0x0ABC, 0x0304, 1, u32::from(serial)]
 }
