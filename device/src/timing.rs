@@ -35,3 +35,26 @@ pub const LINK_MESSAGES_AHEAD: u64 = 6;
 /// longest message (`dual_channel::link::MAX_WIRE`, which checks at compile time that it
 /// is this figure).
 pub const LINK_LONGEST_FRAME: usize = 23;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The sample window must stay above the link latency between the channels: channel B's
+    /// input digest reaches channel A behind every message that may be ahead of it, each of
+    /// the longest frame's length, and must still arrive within the window.
+    #[test]
+    fn the_sample_window_holds_the_link_queue_and_a_sample_period() {
+        let queue = LINK_MESSAGES_AHEAD * LINK_LONGEST_FRAME as u64 * LINK_BYTE_TIME.as_micros();
+        assert!(queue + INPUT_SAMPLE_PERIOD.as_micros() < SAMPLE_WINDOW.as_micros());
+    }
+
+    /// One byte takes ten bit times at the link's baud rate, to the microsecond.
+    #[test]
+    fn a_link_byte_is_ten_bit_times() {
+        assert_eq!(
+            u128::from(LINK_BYTE_TIME.as_micros()) * u128::from(LINK_BAUD),
+            10 * 1_000_000
+        );
+    }
+}
