@@ -476,10 +476,10 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // Why the MCU started, then the flags cleared (RMVF) so that the next start says its own.
     let csr = embassy_stm32::pac::RCC.csr().read().0;
     embassy_stm32::pac::RCC.csr().modify(|w| w.set_rmvf(true));
-    if crate::reset_cause::after_watchdog(csr) {
-        defmt::warn!("reset by {=str}", crate::reset_cause::describe(csr));
+    if safety_device::reset_cause::after_watchdog(csr) {
+        defmt::warn!("reset by {=str}", safety_device::reset_cause::describe(csr));
     } else {
-        defmt::info!("reset by {=str}", crate::reset_cause::describe(csr));
+        defmt::info!("reset by {=str}", safety_device::reset_cause::describe(csr));
     }
     // The self-tests first, then the watchdog (`dual_channel::selftest::start_up` says why).
     let mut watchdog = match dual_channel::selftest::start_up(HwStartUp { iwdg: p.IWDG }) {
@@ -526,7 +526,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     };
     let first = read_switches();
     Timer::after_millis(1).await;
-    let node_id = match crate::node_id_from_switches(first, read_switches()) {
+    let node_id = match safety_device::switches::node_id_from_switches(first, read_switches()) {
         Ok(id) => {
             defmt::info!("node-ID {=u8} from the switches", id.raw());
             id

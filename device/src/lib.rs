@@ -9,13 +9,18 @@
 //!   names and the description for the protocol core ([`config`]);
 //! - [`timing`]: the device's own timing (input sampling, the channels' sample window, the
 //!   link between the channels), which the channels run with and the tool's response-time
-//!   calculation adds up.
+//!   calculation adds up;
+//! - [`switches`]: what the node-ID switches' readings at start-up mean;
+//! - [`reset_cause`]: why a channel's MCU started, from its reset flags, in words.
 //!
-//! Only descriptions: no runtime, no I/O, no heap.
+//! Only descriptions and the pure functions that read the device's own values: no runtime,
+//! no I/O, no heap. The board layers read the pins and registers and hand the values here.
 
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod reset_cause;
+pub mod switches;
 pub mod timing;
 
 use shared::Duration;
