@@ -22,7 +22,6 @@
 use dual_channel::channel_loop::Pins;
 use shared::canopen::NodeId;
 use shared::node::NodeConfig;
-use shared::{CanFrame, CanId};
 
 pub mod bxcan_adapter;
 pub mod diagnostics;
@@ -102,42 +101,6 @@ impl Device {
                 outputs: &safety_device::OUTPUT_PINS,
             },
         })
-    }
-}
-
-/// A received standard frame as the CAN controller reports it (identifier, remote flag,
-/// length code, the eight data registers), or `None` when it is not CANopen's: a length code
-/// over 8 (ISO 11898-1 allows 9 to 15 for 8 bytes; CANopen frames never carry them) is
-/// dropped like an extended frame, and the consumers' timers catch a frame lost so.
-pub fn received_frame(id: u16, remote: bool, dlc: u8, data: &[u8; 8]) -> Option<CanFrame> {
-    let id = CanId::new(id).ok()?;
-    if remote {
-        CanFrame::remote(id, dlc).ok()
-    } else {
-        CanFrame::new(id, data.get(..usize::from(dlc))?).ok()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// CiA 301 7.2.2 / ISO 11898-1: every length code a controller can report, for data and
-    /// remote frames; none panics, and only 0 to 8 make a frame.
-    #[test]
-    fn every_received_length_code_is_handled() {
-        let data = [1, 2, 3, 4, 5, 6, 7, 8];
-        for dlc in 0..=15u8 {
-            let frame = received_frame(0x181, false, dlc, &data);
-            let remote = received_frame(0x181, true, dlc, &data);
-            if dlc <= 8 {
-                assert_eq!(frame.unwrap().data(), &data[..usize::from(dlc)]);
-                assert!(remote.is_some_and(|r| r.is_remote() && r.dlc() == dlc));
-            } else {
-                assert!(frame.is_none() && remote.is_none(), "length {dlc}");
-            }
-        }
-        assert!(received_frame(0x800, false, 1, &data).is_none());
     }
 }
 
