@@ -49,6 +49,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
 use emulation_wire::arguments::{Arguments, parse_arguments};
+use emulation_wire::clock::{micros_from_host_ticks, paced_clock};
 use emulation_wire::{self as can_serial, LinkBytes, Wire};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
 use shared::{CanFrame, Duration, Instant};
@@ -140,9 +141,7 @@ fn host_ticks() -> Option<u64> {
 /// Host microseconds since QEMU started.
 fn host_micros() -> u64 {
     let hz = HOST_TICK_HZ.load(Ordering::Relaxed);
-    host_ticks().map_or(0, |ticks| {
-        emulation_wire::clock::micros_from_host_ticks(ticks, hz)
-    })
+    host_ticks().map_or(0, |ticks| micros_from_host_ticks(ticks, hz))
 }
 
 impl VirtualClockDriver {
@@ -154,13 +153,9 @@ impl VirtualClockDriver {
     fn micros_at(&self, cs: critical_section::CriticalSection<'_>, host: u64) -> u64 {
         let last = self.last.borrow(cs);
         let now = match self.grant.borrow(cs).get() {
-            Some((granted, at)) => emulation_wire::clock::paced_clock(
-                last.get(),
-                granted,
-                at,
-                host,
-                LOOKAHEAD.as_micros(),
-            ),
+            Some((granted, at)) => {
+                paced_clock(last.get(), granted, at, host, LOOKAHEAD.as_micros())
+            }
             None => host.max(last.get()),
         };
         last.set(now);
