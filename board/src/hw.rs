@@ -58,11 +58,11 @@ bind_interrupts!(struct Irqs {
 });
 
 /// CAN bit rate (CiA 301 Table 1): the device description's.
-pub const BIT_RATE: u32 = dual_channel::device::BIT_RATE;
+pub const BIT_RATE: u32 = safety_device::BIT_RATE;
 /// Link heartbeat period: five per SCT of 50 ms.
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
-/// Link USART baud rate.
-pub const LINK_BAUD: u32 = 1_000_000;
+/// Link USART baud rate: the device description's.
+pub const LINK_BAUD: u32 = safety_device::timing::LINK_BAUD;
 /// The link's transmit queue, bytes, which the USART's interrupt empties ([`link_usart`]):
 /// 5.1 ms of the line at [`LINK_BAUD`].
 const LINK_TX_BYTES: usize = 512;
@@ -447,10 +447,10 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // Why the MCU started, then the flags cleared (RMVF) so that the next start says its own.
     let csr = embassy_stm32::pac::RCC.csr().read().0;
     embassy_stm32::pac::RCC.csr().modify(|w| w.set_rmvf(true));
-    if crate::reset_cause::after_watchdog(csr) {
-        defmt::warn!("reset by {=str}", crate::reset_cause::describe(csr));
+    if safety_device::reset_cause::after_watchdog(csr) {
+        defmt::warn!("reset by {=str}", safety_device::reset_cause::describe(csr));
     } else {
-        defmt::info!("reset by {=str}", crate::reset_cause::describe(csr));
+        defmt::info!("reset by {=str}", safety_device::reset_cause::describe(csr));
     }
     // The self-tests first, then the watchdog (`dual_channel::selftest::start_up` says why).
     let mut watchdog = match dual_channel::selftest::start_up(HwStartUp { iwdg: p.IWDG }) {
@@ -497,7 +497,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     };
     let first = read_switches();
     Timer::after_millis(1).await;
-    let node_id = match crate::node_id_from_switches(first, read_switches()) {
+    let node_id = match safety_device::switches::node_id_from_switches(first, read_switches()) {
         Ok(id) => {
             defmt::info!("node-ID {=u8} from the switches", id.raw());
             id

@@ -48,6 +48,8 @@ use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time_queue_utils::Queue;
+use emulation_wire::arguments::{Arguments, parse_arguments};
+use emulation_wire::clock::{micros_from_host_ticks, paced_clock};
 use emulation_wire::{self as can_serial, LinkBytes, Wire};
 use shared::canopen::storage::{Flash as _, RamFlash, Slot};
 use shared::{CanFrame, Duration, Instant};
@@ -139,7 +141,7 @@ fn host_ticks() -> Option<u64> {
 /// Host microseconds since QEMU started.
 fn host_micros() -> u64 {
     let hz = HOST_TICK_HZ.load(Ordering::Relaxed);
-    host_ticks().map_or(0, |ticks| crate::micros_from_host_ticks(ticks, hz))
+    host_ticks().map_or(0, |ticks| micros_from_host_ticks(ticks, hz))
 }
 
 impl VirtualClockDriver {
@@ -152,7 +154,7 @@ impl VirtualClockDriver {
         let last = self.last.borrow(cs);
         let now = match self.grant.borrow(cs).get() {
             Some((granted, at)) => {
-                crate::paced_clock(last.get(), granted, at, host, LOOKAHEAD.as_micros())
+                paced_clock(last.get(), granted, at, host, LOOKAHEAD.as_micros())
             }
             None => host.max(last.get()),
         };
@@ -461,7 +463,7 @@ fn now() -> Instant {
 }
 
 /// The semihosting command line (QEMU's `-semihosting-config arg=...`).
-fn arguments() -> crate::Arguments {
+fn arguments() -> Arguments {
     let mut buf = [0u8; 96];
     #[repr(C)]
     struct Block {
@@ -481,9 +483,9 @@ fn arguments() -> crate::Arguments {
         )
     };
     if result != 0 {
-        return crate::Arguments::default();
+        return Arguments::default();
     }
-    crate::parse_arguments(&buf[..block.len.min(buf.len())])
+    parse_arguments(&buf[..block.len.min(buf.len())])
 }
 
 /// QEMU's start-up: the board's self-tests in the hardware's order; netduinoplus2 models no

@@ -24,8 +24,8 @@ mod firmware {
     use defmt_rtt as _;
     #[cfg(all(feature = "qemu", not(feature = "hw")))]
     use defmt_semihosting as _;
-    use dual_channel::device;
     use embassy_executor::Spawner;
+    use safety_device as device;
 
     #[embassy_executor::main]
     async fn main(_spawner: Spawner) {

@@ -23,7 +23,7 @@
 //!   one `Inputs` message to the other channel). The emulated board's pin changes only when
 //!   the hub says so: the same rule gives it the same behaviour.
 //! - **Outputs**: each output pin follows the received object the device description names
-//!   for it ([`crate::device::OUTPUT_PINS`]), read from the confirmed data of the receive
+//!   for it ([`safety_device::OUTPUT_PINS`]), read from the confirmed data of the receive
 //!   SRDO that maps it, or (feature `simplecan`) from the confirmed value of the consumed
 //!   SimpleCAN SC-ID whose SDD entry maps it; low when none does and in the safe state.
 //! - **SimpleCAN's transmissions** (feature `simplecan`, a runtime whose protocol
@@ -39,14 +39,14 @@ use shared::canopen::od::Address;
 use shared::canopen::storage::Flash;
 use shared::safety::config::SrdoRecord;
 use shared::safety::types::{Direction, SrdoNumber};
-use shared::{CanFrame, Duration, Instant};
+use shared::{CanFrame, Instant};
 
 /// Reads that drop what the link buffered while the processor was held
 /// ([`Driver::link_deaf`]): more than its receive buffer holds in reads of 64 bytes, so the
 /// drop ends however the board buffers, while bytes keep coming.
 const LINK_DRAIN_READS: usize = 16;
-/// Input pins are read at least this often.
-pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+/// Input pins are read at least this often: the device's input sample period.
+pub use safety_device::timing::INPUT_SAMPLE_PERIOD as SAMPLE_PERIOD;
 
 /// Frames taken from the receive queue in one [`ChannelLoop::service`], so that a queue kept
 /// full cannot hold the loop (and the watchdog it feeds) for ever: the loop asks to be called
@@ -172,7 +172,7 @@ impl<D: Driver> Io for DriverIo<'_, D> {
 }
 
 /// The pins of a device: which objects each input pin is sampled into, which object drives
-/// each output pin ([`crate::device::INPUT_PINS`], [`crate::device::OUTPUT_PINS`]).
+/// each output pin ([`safety_device::INPUT_PINS`], [`safety_device::OUTPUT_PINS`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Pins {
     /// Per input pin, its plain object and the inverted copy.

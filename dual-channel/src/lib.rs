@@ -26,7 +26,6 @@ pub mod can_loopback;
 pub mod channel_loop;
 pub mod clock;
 pub mod crosscheck;
-pub mod device;
 pub mod filters;
 pub mod link;
 pub mod runtime;

@@ -104,10 +104,8 @@ pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 
 /// How long a transmit SRDO frame with changed data waits for the other channel's sample to
 /// agree, and how long channel B accepts its previous sample or waits for its next one and
-/// for channel A's announcement of a plain frame. It must stay well below the consumers'
-/// smallest SRVT (the inverted frame can follow the plain frame up to one window late) and
-/// above the link latency between the channels (USART at 1 Mbit/s: about 0.2 ms).
-pub const SAMPLE_WINDOW: Duration = Duration::from_millis(5);
+/// for channel A's announcement of a plain frame: the device's sample window.
+pub use safety_device::timing::SAMPLE_WINDOW;
 
 /// The sample window of the QEMU images, on both channels: channel B's window
 /// (`ChannelB::set_window`) and channel A's announcement window
@@ -1791,7 +1789,7 @@ mod tests {
     #[test]
     fn more_inputs_than_the_input_table_holds_is_a_full_table_not_a_discrepancy() {
         let mut config =
-            crate::device::config(shared::canopen::NodeId::new(1).unwrap(), "input table test");
+            safety_device::config(shared::canopen::NodeId::new(1).unwrap(), "input table test");
         config.app_objects = &MANY_INPUTS;
         let mut runtime = Runtime::<_, _, 1>::new(
             config,

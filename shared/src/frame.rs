@@ -151,6 +151,19 @@ impl CanFrame {
     pub const fn raw_data(&self) -> &[u8; 8] {
         &self.data
     }
+
+    /// A received standard frame as a CAN controller reports it (identifier, remote flag,
+    /// length code, the eight data registers), or `None` when it is not CANopen's: a length code
+    /// over 8 (ISO 11898-1 allows 9 to 15 for 8 bytes; CANopen frames never carry them) is
+    /// dropped like an extended frame, and the consumers' timers catch a frame lost so.
+    pub fn received(id: u16, remote: bool, dlc: u8, data: &[u8; 8]) -> Option<CanFrame> {
+        let id = CanId::new(id).ok()?;
+        if remote {
+            CanFrame::remote(id, dlc).ok()
+        } else {
+            CanFrame::new(id, data.get(..usize::from(dlc))?).ok()
+        }
+    }
 }
 
 #[cfg(test)]
@@ -180,6 +193,24 @@ mod tests {
         let frame = CanFrame::from_parts(id, 2, [1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
         assert_eq!(frame.data(), &[1, 2]);
         assert_eq!(frame, CanFrame::new(id, &[1, 2]).unwrap());
+    }
+
+    /// CiA 301 7.2.2 / ISO 11898-1: every length code a controller can report, for data and
+    /// remote frames; none panics, and only 0 to 8 make a frame.
+    #[test]
+    fn every_received_length_code_is_handled() {
+        let data = [1, 2, 3, 4, 5, 6, 7, 8];
+        for dlc in 0..=15u8 {
+            let frame = CanFrame::received(0x181, false, dlc, &data);
+            let remote = CanFrame::received(0x181, true, dlc, &data);
+            if dlc <= 8 {
+                assert_eq!(frame.unwrap().data(), &data[..usize::from(dlc)]);
+                assert!(remote.is_some_and(|r| r.is_remote() && r.dlc() == dlc));
+            } else {
+                assert!(frame.is_none() && remote.is_none(), "length {dlc}");
+            }
+        }
+        assert!(CanFrame::received(0x800, false, 1, &data).is_none());
     }
 
     #[test]

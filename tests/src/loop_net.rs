@@ -34,8 +34,8 @@ pub const FIFO_DEPTH: usize = 3;
 
 /// The device's pins, as the firmware images have them.
 pub const PINS: Pins = Pins {
-    inputs: &dual_channel::device::INPUT_PINS,
-    outputs: &dual_channel::device::OUTPUT_PINS,
+    inputs: &safety_device::INPUT_PINS,
+    outputs: &safety_device::OUTPUT_PINS,
 };
 
 /// What the simulated controller's filters do.

@@ -21,11 +21,11 @@ use std::fmt::Write as _;
 /// The node type of the simulated devices: up to 4 SRDOs, 8 KiB per storage slot.
 pub type DeviceNode = Node<RamFlash<8192>, 4>;
 
-pub use dual_channel::device::{INPUT, INPUT_INVERTED, OBJECTS, OUTPUT};
+pub use safety_device::{INPUT, INPUT_INVERTED, OBJECTS, OUTPUT};
 
 /// The device description for node `id`.
 pub fn device_config(id: u8, name: &'static str) -> NodeConfig {
-    dual_channel::device::config(NodeId::new(id).expect("node-ID 1..=127"), name)
+    safety_device::config(NodeId::new(id).expect("node-ID 1..=127"), name)
 }
 
 /// Something that happened on the network, for the log and the assertions.
@@ -109,7 +109,7 @@ impl Network {
     /// `count` devices on a bus at `bit_rate` whose LSS slave is enabled (CiA 305, the
     /// `shared` feature `lss`) with their node-ID switches open and nothing stored: each is
     /// unconfigured (node-ID FFh) and silent but for LSS until a master gives it a node-ID.
-    /// Their identities are the device's (`dual_channel::device::config`) with serial
+    /// Their identities are the device's (`safety_device::config`) with serial
     /// numbers 1 to `count`; each can be set to every bit rate of the bus model.
     pub fn unconfigured_lss(bit_rate: u32, count: u8) -> Self {
         use shared::canopen::lss::{BitRate, BitRates};

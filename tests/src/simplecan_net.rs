@@ -175,9 +175,9 @@ impl ReceiveLoss {
 
 /// The device description of node `id`.
 pub fn device_config(id: u8) -> NodeConfig {
-    dual_channel::device::config(
+    safety_device::config(
         NodeId::new(id).expect("node-ID 1..=127"),
-        dual_channel::device::CHANNEL_A_NAME,
+        safety_device::CHANNEL_A_NAME,
     )
 }
 

@@ -43,7 +43,7 @@ mapping = ["output", "output_inverted"]
 
 /// Nodes 1 and 33 as channel A's image describes them (its device name included).
 fn simulated() -> Client<SimulatedBus> {
-    let name = dual_channel::device::CHANNEL_A_NAME;
+    let name = safety_device::CHANNEL_A_NAME;
     let mut net = Network::new(500_000, &[(1, name), (33, name)]);
     net.run_for(Duration::from_millis(50));
     Client::new(SimulatedBus::new(net), StdDuration::from_millis(200))
@@ -463,10 +463,7 @@ fn sc_req_16_the_simplecan_images_eds_lists_exactly_what_their_node_serves() {
         fn event(&mut self, _: Event) {}
     }
     const NODE: u8 = 33;
-    let config = dual_channel::device::config(
-        NodeId::new(NODE).unwrap(),
-        dual_channel::device::CHANNEL_A_NAME,
-    );
+    let config = safety_device::config(NodeId::new(NODE).unwrap(), safety_device::CHANNEL_A_NAME);
     let protocol = Images::new(&config).unwrap();
     let node = std::cell::RefCell::new(
         Device::with_protocol(config, RamFlash::<8192>::new(), protocol).unwrap(),

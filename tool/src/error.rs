@@ -72,7 +72,7 @@ pub fn object_name(address: Address) -> Option<String> {
         0x5C13 => Some(format!(
             "signature of SRDO {sub} after the last validated change"
         )),
-        _ => dual_channel::device::OBJECT_NAMES
+        _ => safety_device::OBJECT_NAMES
             .iter()
             .find(|(_, object)| *object == address)
             .map(|(name, _)| (*name).to_owned()),

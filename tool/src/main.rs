@@ -1,23 +1,24 @@
 //! `safety-config`: configure, verify and inspect CANopen Safety nodes (EN 50325-5) from a
 //! network file, over socketcand, an SLCAN adapter or SocketCAN.
 
+mod subcommand;
+
 use clap::{Parser, Subcommand, ValueEnum};
-use safety_config::access::{self, NEW_SECRET_VARIABLE, SECRET_VARIABLE, Secret, SecretSource};
-use safety_config::calc::budget::{self, Plan};
+use safety_config::access::{SECRET_VARIABLE, Secret, SecretSource};
 use safety_config::calc::bus::Stream;
-use safety_config::calc::report;
-use safety_config::calc::residual::Sil;
-use safety_config::calc::sfrt::{self, DeviceTiming};
-use safety_config::calc::simplecan as calc_simplecan;
+use safety_config::calc::sfrt::DeviceTiming;
 use safety_config::client::Client;
 use safety_config::network_file::{self, NodeSpec};
-use safety_config::procedure::{self, NodeResult, Operator, Verdict};
+use safety_config::procedure::{self, Operator};
 use safety_config::{ToolError, Transport};
-use shared::canopen::nmt::NmtCommand;
 use shared::canopen::od::Address;
 use std::io::{IsTerminal, Write};
 use std::process::ExitCode;
 use std::time::Duration;
+use subcommand::configuration;
+use subcommand::monitor::MonitorArgs;
+use subcommand::node::WriteArgs;
+use subcommand::offline::{self, TimingArgs};
 
 /// Configure, verify and inspect CANopen Safety nodes (EN 50325-5 / CiA 304).
 ///
@@ -281,7 +282,7 @@ enum Command {
 #[derive(clap::Args)]
 struct PlanArgs {
     /// The bit rate the network runs at (bit/s).
-    #[arg(long, default_value_t = dual_channel::device::BIT_RATE)]
+    #[arg(long, default_value_t = safety_device::BIT_RATE)]
     bit_rate: u32,
     /// Other traffic on the bus, as ID:LEN:PERIOD_MS (e.g. 0x181:8:10; repeat for more).
     #[arg(long = "traffic")]
@@ -569,228 +570,62 @@ fn json(value: &impl serde::Serialize) -> Result<String, ToolError> {
     serde_json::to_string_pretty(value).map_err(ToolError::Json)
 }
 
-/// The budget's own fields, SimpleCAN's residual error rate beside them when the network
-/// file has SimpleCAN.
-#[derive(serde::Serialize)]
-struct BudgetReport<'a, B, S> {
-    #[serde(flatten)]
-    budget: &'a B,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    simplecan: Option<&'a S>,
-}
-
-/// One SRDO's signature, as `sign --json` lists it.
-#[derive(serde::Serialize)]
-struct SrdoSignature {
-    node: u8,
-    srdo: u8,
-    signature: u16,
-}
-
-/// One node's SimpleCAN signature with the configuration it covers.
-#[derive(serde::Serialize)]
-struct SimpleCanSignature<'a, C> {
-    node: u8,
-    signature: u32,
-    configuration: &'a C,
-}
-
+/// Runs the subcommand: `Ok(false)` when it ran but found something wrong (a node not
+/// configured or not matching, a limit exceeded). The commands that need no bus run first;
+/// for the others the arguments are checked before the bus is opened, so that a mistyped
+/// object is named as such, not hidden behind a bus that is not there.
 fn run(cli: Cli) -> Result<bool, ToolError> {
-    let timeout = Duration::from_millis(cli.sdo_timeout_ms);
-    if let Command::Sign { file } = &cli.command {
-        let network = load(file)?;
-        let signatures = procedure::offline_signatures(&network);
-        let simplecan = procedure::offline_simplecan(&network);
-        if cli.json {
-            #[derive(serde::Serialize)]
-            struct Signatures<'a, C> {
-                srdo: Vec<SrdoSignature>,
-                simplecan: Vec<SimpleCanSignature<'a, C>>,
-            }
-            let report = Signatures {
-                srdo: signatures
-                    .iter()
-                    .map(|&(node, srdo, signature)| SrdoSignature {
-                        node,
-                        srdo,
-                        signature,
-                    })
-                    .collect(),
-                simplecan: simplecan
-                    .iter()
-                    .map(|(config, signature)| SimpleCanSignature {
-                        node: config.node_id,
-                        signature: *signature,
-                        configuration: config,
-                    })
-                    .collect(),
+    let Cli {
+        bus,
+        sdo_timeout_ms,
+        json: as_json,
+        command,
+    } = cli;
+    match &command {
+        Command::Sign { file } => return offline::sign(file, as_json),
+        Command::Dissector { file } => return offline::dissector(file),
+        Command::Eds { simplecan, srdos } => return offline::eds(*simplecan, *srdos),
+        Command::Monitor {
+            file,
+            record,
+            replay,
+            fast,
+            stop_after,
+            plain,
+        } => {
+            let given = MonitorArgs {
+                bus: bus.as_deref(),
+                file: file.as_deref(),
+                record: record.as_deref(),
+                replay: replay.as_deref(),
+                fast: *fast,
+                stop_after: *stop_after,
+                plain: *plain,
             };
-            println!("{}", json(&report)?);
-        } else {
-            for (node, srdo, value) in signatures {
-                println!("node {node} SRDO {srdo}: signature {value:04X}h (0x13FF:{srdo:02X})");
-            }
-            for (config, value) in simplecan {
-                let node = config.node_id;
-                let state = if config.enabled == 1 { "on" } else { "off" };
-                println!(
-                    "node {node} SimpleCAN ({state}, {} SDD entries): signature {value:08X}h (0x5EFF:00)",
-                    config.entries.len()
-                );
-                for entry in &config.entries {
-                    println!(
-                        "  SC-ID {:02X}h {}: node hash {:08X}h",
-                        entry.sc_id,
-                        safety_config::simplecan::role_name(entry.role),
-                        entry.hash
-                    );
-                }
-            }
+            return subcommand::monitor::monitor(&given, as_json);
         }
-        return Ok(true);
-    }
-    if let Command::Dissector { file } = &cli.command {
-        print!("{}", safety_config::dissector::lua(&load(file)?, file));
-        return Ok(true);
-    }
-    if let Command::Eds { simplecan, srdos } = &cli.command {
-        match simplecan {
-            Some(entries) => {
-                let srdos = srdos.unwrap_or(dual_channel::device::SRDO_COUNT as u8);
-                let Some(text) = safety_config::eds::simplecan_eds(*entries, srdos) else {
-                    return Err(ToolError::Usage(format!(
-                        "--srdos {srdos}: a node with SimpleCAN has no SRDOs or 2 to 4 \
-                         (shared::node::SrdoAndSimpleCan)"
-                    )));
-                };
-                print!("{text}");
-            }
-            None => print!("{}", safety_config::eds::eds()),
-        }
-        return Ok(true);
-    }
-    if let Command::Monitor {
-        file,
-        record,
-        replay,
-        fast,
-        stop_after,
-        plain,
-    } = &cli.command
-    {
-        if cli.json {
-            return Err(ToolError::Usage(
-                "monitor prints no JSON: record the bus with --record LOG (candump format) \
-                 for scripts"
-                    .into(),
-            ));
-        }
-        return monitor(
-            cli.bus.as_deref(),
-            file.as_deref(),
-            record.as_deref(),
-            replay.as_deref(),
-            *fast,
-            *stop_after,
-            *plain,
-        );
-    }
-    if let Command::Sfrt {
-        file,
-        plan,
-        input_sample_us,
-        contact_skew_us,
-        processing_us,
-        output_us,
-    } = &cli.command
-    {
-        let network = load(file)?;
-        let timing = DeviceTiming {
-            input_sample_us: *input_sample_us,
-            contact_skew_us: *contact_skew_us,
-            processing_us: processing_us.unwrap_or(DeviceTiming::HARDWARE.processing_us),
-            output_us: *output_us,
-            ..DeviceTiming::HARDWARE
-        };
-        let simplecan_timing = DeviceTiming {
-            processing_us: processing_us.unwrap_or(DeviceTiming::HARDWARE_SIMPLECAN.processing_us),
-            ..timing
-        };
-        let streams = sfrt::planned_streams(
-            &network,
-            plan.event_interval_ms.map(|ms| ms * 1000),
-            &plan.traffic,
-        );
-        let reactions = sfrt::reactions(&network, &streams, plan.bit_rate, &timing)?;
-        let simplecan = match &network.simplecan {
-            Some(simplecan) => {
-                calc_simplecan::reactions(simplecan, plan.bit_rate, &simplecan_timing)
-                    .map_err(|error| ToolError::Usage(format!("{file}: {error}")))?
-            }
-            None => Vec::new(),
-        };
-        if cli.json {
-            #[derive(serde::Serialize)]
-            struct Reactions<'a, T, R, S> {
-                timing: &'a T,
-                reactions: &'a R,
-                simplecan_timing: &'a T,
-                simplecan: &'a S,
-            }
-            let report = Reactions {
-                timing: &timing,
-                reactions: &reactions,
-                simplecan_timing: &simplecan_timing,
-                simplecan: &simplecan,
+        Command::Sfrt {
+            file,
+            plan,
+            input_sample_us,
+            contact_skew_us,
+            processing_us,
+            output_us,
+        } => {
+            let given = TimingArgs {
+                input_sample_us: *input_sample_us,
+                contact_skew_us: *contact_skew_us,
+                processing_us: *processing_us,
+                output_us: *output_us,
             };
-            println!("{}", json(&report)?);
-        } else {
-            print!("{}", report::reactions(&reactions, plan.bit_rate, &timing));
-            print!(
-                "{}",
-                report::simplecan_reactions(&simplecan, plan.bit_rate, &simplecan_timing)
-            );
+            return offline::sfrt(file, plan, &given, as_json);
         }
-        return Ok(true);
-    }
-    if let Command::Budget {
-        file,
-        plan,
-        sil,
-        devices,
-    } = &cli.command
-    {
-        let network = load(file)?;
-        let sil = Sil::from_level(*sil)
-            .ok_or_else(|| ToolError::Usage(format!("SIL {sil} is not 1, 2 or 3")))?;
-        let plan_of = Plan {
+        Command::Budget {
+            file,
+            plan,
             sil,
-            devices: *devices,
-            event_interval_us: plan.event_interval_ms.map(|ms| ms * 1000),
-            traffic: plan.traffic.clone(),
-        };
-        let budget = budget::budget(&network, &plan_of, plan.bit_rate);
-        let simplecan = network
-            .simplecan
-            .as_ref()
-            .map(|simplecan| calc_simplecan::residual(simplecan, sil));
-        if cli.json {
-            let report = BudgetReport {
-                budget: &budget,
-                simplecan: simplecan.as_ref(),
-            };
-            println!("{}", json(&report)?);
-        } else {
-            print!("{}", report::budget(&budget, sil));
-            if let Some(simplecan) = &simplecan {
-                print!("{}", report::simplecan_residual(simplecan, sil));
-            }
-        }
-        return Ok(budget.warnings.is_empty() && simplecan.is_none_or(|s| s.within()));
-    }
-    // The arguments are checked before the bus is opened: a mistyped object is named as
-    // such, not hidden behind a bus that is not there.
-    match &cli.command {
+            devices,
+        } => return offline::budget(file, plan, *sil, *devices, as_json),
         Command::Read { object, sub, .. } => {
             parse_object(object, sub.as_deref())?;
         }
@@ -806,8 +641,9 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         }
         _ => {}
     }
-    let mut client = Client::new(open_bus(&bus(cli.bus.as_deref())?)?, timeout);
-    match cli.command {
+    let timeout = Duration::from_millis(sdo_timeout_ms);
+    let mut client = Client::new(open_bus(&self::bus(bus.as_deref())?)?, timeout);
+    match command {
         Command::Sign { .. }
         | Command::Dissector { .. }
         | Command::Eds { .. }
@@ -817,98 +653,14 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
         Command::Lss {
             action,
             lss_timeout_ms,
-        } => {
-            let network = match &action {
-                safety_config::lss::LssCommand::Fastscan { file, .. } => Some(load(file)?),
-                _ => None,
-            };
-            let timeout = Duration::from_millis(lss_timeout_ms);
-            let output =
-                safety_config::lss::run(client.transport, &action, network.as_ref(), timeout)?;
-            if cli.json {
-                println!("{}", json(&output.json)?);
-            } else {
-                print!("{}", output.text);
-            }
-            Ok(output.complete)
-        }
-        Command::Dcf { node, name } => {
-            print!(
-                "{}",
-                procedure::read_dcf(&mut client, node, name.as_deref())?
-            );
-            Ok(true)
-        }
-        Command::Scan { listen_ms } => {
-            let found = procedure::scan(&mut client, Duration::from_millis(listen_ms))?;
-            if cli.json {
-                println!("{}", json(&found)?);
-            } else if found.is_empty() {
-                println!("no node sent a boot-up or heartbeat message in {listen_ms} ms");
-            } else {
-                for node in &found {
-                    match &node.identity {
-                        Ok(identity) => {
-                            println!("node {:3}: {}, {identity}", node.node, node.state)
-                        }
-                        Err(error) => println!(
-                            "node {:3}: {}, identity not read: {error}",
-                            node.node, node.state
-                        ),
-                    }
-                }
-            }
-            Ok(true)
-        }
+        } => subcommand::node::lss(client, &action, lss_timeout_ms, as_json),
+        Command::Dcf { node, name } => subcommand::node::dcf(&mut client, node, name.as_deref()),
+        Command::Scan { listen_ms } => subcommand::node::scan(&mut client, listen_ms, as_json),
         Command::Nmt { command, target } => {
-            let node = if target == "all" {
-                0
-            } else {
-                target
-                    .parse::<u8>()
-                    .ok()
-                    .filter(|id| (1..=127).contains(id))
-                    .ok_or_else(|| {
-                        ToolError::Usage(format!("{target:?} is not a node-ID 1..=127 or `all`"))
-                    })?
-            };
-            let command = match command {
-                Nmt::Start => NmtCommand::Start,
-                Nmt::Stop => NmtCommand::Stop,
-                Nmt::PreOperational => NmtCommand::EnterPreOperational,
-                Nmt::ResetNode => NmtCommand::ResetNode,
-                Nmt::ResetCommunication => NmtCommand::ResetCommunication,
-            };
-            client.nmt(command, node)?;
-            if cli.json {
-                println!(
-                    "{}",
-                    json(&serde_json::json!({"sent": true, "target": node}))?
-                );
-            }
-            Ok(true)
+            subcommand::node::nmt(&mut client, command, &target, as_json)
         }
         Command::Read { node, object, sub } => {
-            let address = parse_object(&object, sub.as_deref())?;
-            let value = client.read(node, address)?;
-            if cli.json {
-                let entry = safety_config::eds::entry_at(address);
-                let data_type = entry
-                    .as_ref()
-                    .and_then(|entry| safety_config::eds::type_name(entry.data_type));
-                let decoded = entry
-                    .as_ref()
-                    .and_then(|entry| safety_config::eds::json_value(entry, &value));
-                println!(
-                    "{}",
-                    json(
-                        &serde_json::json!({"node": node, "index": address.index, "sub": address.sub, "bytes": value, "type": data_type, "value": decoded})
-                    )?
-                );
-            } else {
-                println!("{}", read_line(address, &value));
-            }
-            Ok(true)
+            subcommand::node::read(&mut client, node, &object, sub.as_deref(), as_json)
         }
         Command::Write {
             node,
@@ -918,221 +670,37 @@ fn run(cli: Cli) -> Result<bool, ToolError> {
             bytes,
             unlock,
         } => {
-            let (address, value) = parse_write(&object, &rest)?;
-            let data = parse_value(&value, len, bytes)?;
-            let mut person = Person {
-                accept_identity: false,
-                quiet: cli.json,
-                secret: unlock.source(),
+            let given = WriteArgs {
+                node,
+                object: &object,
+                rest: &rest,
+                len,
+                bytes,
+                unlock: &unlock,
             };
-            procedure::unlock_for_configuration(&mut client, node, &mut person)?;
-            client
-                .write(node, address, &data)
-                .map_err(access::explain_refusal)?;
-            if cli.json {
-                println!(
-                    "{}",
-                    json(&serde_json::json!({"node": node, "written": true}))?
-                );
-            }
-            Ok(true)
+            subcommand::node::write(&mut client, &given, as_json)
         }
         Command::Configure {
             file,
             start,
             accept_identity,
             unlock,
-        } => {
-            let network = load(&file)?;
-            client.sdo_timeout = network.sdo_timeout;
-            let mut person = Person {
-                accept_identity,
-                quiet: cli.json,
-                secret: unlock.source(),
-            };
-            let report = procedure::configure(&mut client, &network, start, &mut person)?;
-            if cli.json {
-                println!("{}", json(&report)?);
-            } else {
-                for result in &report.nodes {
-                    match result {
-                        NodeResult::Done(done) => println!(
-                            "node {}: configured and valid; signatures {}",
-                            done.node,
-                            done.signatures_in_words()
-                        ),
-                        NodeResult::Failed { node, error } => {
-                            println!("node {node}: NOT configured: {error}")
-                        }
-                    }
-                }
-                if report.started {
-                    println!("all nodes started");
-                } else if start {
-                    println!("no node was started, because not every node was configured");
-                }
-            }
-            Ok(report.success())
-        }
-        Command::Verify { file } => {
-            let network = load(&file)?;
-            client.sdo_timeout = network.sdo_timeout;
-            let verdicts = procedure::verify(&mut client, &network)?;
-            if cli.json {
-                println!("{}", json(&verdicts)?);
-            } else {
-                for verdict in &verdicts {
-                    match verdict {
-                        Verdict::Matches { node } => {
-                            println!("node {node}: matches the file, valid (0x13FE = A5h)")
-                        }
-                        Verdict::Differs { node, diff } => {
-                            println!("node {node}: DIFFERS from the file (file vs node):");
-                            for line in diff {
-                                println!("  {line}");
-                            }
-                        }
-                        Verdict::NotValidated {
-                            node,
-                            configuration_valid,
-                        } => println!(
-                            "node {node}: matches the file but is NOT validated (0x13FE = {configuration_valid:02X}h)"
-                        ),
-                        Verdict::SimpleCanNotValidated {
-                            node,
-                            configuration_valid,
-                        } => println!(
-                            "node {node}: matches the file but its SimpleCAN configuration is NOT validated (0x5EFE = {configuration_valid:02X}h)"
-                        ),
-                        Verdict::Unreachable { node, error } => {
-                            println!("node {node}: not verified: {error}")
-                        }
-                    }
-                }
-            }
-            Ok(verdicts
-                .iter()
-                .all(|verdict| matches!(verdict, Verdict::Matches { .. })))
-        }
+        } => configuration::configure(&mut client, &file, start, accept_identity, &unlock, as_json),
+        Command::Verify { file } => configuration::verify(&mut client, &file, as_json),
         Command::SetSecret {
             node,
             unlock,
             new_secret_file,
-        } => {
-            let mut person = Person {
-                accept_identity: false,
-                quiet: cli.json,
-                secret: unlock.source(),
-            };
-            procedure::unlock_for_configuration(&mut client, node, &mut person)?;
-            let new = SecretSource::choose(new_secret_file.as_deref(), NEW_SECRET_VARIABLE)
-                .read_new(&format!("new secret of node {node}"))?;
-            access::set_secret(&mut client, node, &new)?;
-            if cli.json {
-                println!(
-                    "{}",
-                    json(&serde_json::json!({"node": node, "secret_set": true}))?
-                );
-            } else {
-                println!("node {node}: secret set and stored");
-            }
-            Ok(true)
-        }
-        Command::Audit { node } => {
-            #[derive(serde::Serialize)]
-            struct Audit<'a, A> {
-                state: String,
-                audit: &'a A,
-            }
-            let state = access::state(&mut client, node)?;
-            let audit = access::read_audit(&mut client, node)?;
-            if cli.json {
-                println!(
-                    "{}",
-                    json(&Audit {
-                        state: format!("{state:?}"),
-                        audit: &audit,
-                    })?
-                );
-            } else {
-                let list = |signatures: &[u16]| {
-                    signatures
-                        .iter()
-                        .zip(1..)
-                        .map(|(s, n)| format!("SRDO {n} {s:04X}h"))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                };
-                println!(
-                    "node {node}: access {state:?}; {} validated change(s)",
-                    audit.changes
-                );
-                println!("  before the last: {}", list(&audit.before));
-                println!("  after the last:  {}", list(&audit.after));
-            }
-            Ok(true)
-        }
-        Command::Gfc => {
-            client.transport.send(&shared::safety::gfc::frame())?;
-            if cli.json {
-                println!("{}", json(&serde_json::json!({"sent": "gfc"}))?);
-            }
-            Ok(true)
-        }
-    }
-}
-
-/// `safety-config monitor`: the live view, or plain lines and a summary.
-fn monitor(
-    bus: Option<&str>,
-    file: Option<&str>,
-    record: Option<&str>,
-    replay: Option<&str>,
-    fast: bool,
-    stop_after: Option<f64>,
-    plain: bool,
-) -> Result<bool, ToolError> {
-    use safety_config::monitor::{self, Options, Source, model::Monitor};
-    let model = match file {
-        Some(file) => Monitor::for_network(&load(file)?),
-        None => Monitor::default(),
-    };
-    let stop_after = stop_after
-        .map(|seconds| {
-            Duration::try_from_secs_f64(seconds).map_err(|_| {
-                ToolError::Usage(format!("--stop-after {seconds} is not a number of seconds"))
-            })
-        })
-        .transpose()?;
-    let (source, title) = match replay {
-        Some(log) => (
-            Source::replay(std::path::Path::new(log), fast)?,
-            format!("safety-config monitor: replay of {log}"),
+        } => configuration::set_secret(
+            &mut client,
+            node,
+            &unlock,
+            new_secret_file.as_deref(),
+            as_json,
         ),
-        None => {
-            let bus = self::bus(bus)?;
-            (
-                Source::Bus(open_bus(&bus)?),
-                format!("safety-config monitor: {bus}"),
-            )
-        }
-    };
-    let live = !plain && std::io::stdout().is_terminal();
-    let options = Options {
-        title,
-        record: record.map(Into::into),
-        stop_after,
-        live,
-        interrupt: Some(monitor::interrupt_on_ctrl_c()?),
-    };
-    let model = monitor::run(source, model, options)?;
-    if !live {
-        println!("## Summary");
-        for line in monitor::view::summary(&model) {
-            println!("{line}");
-        }
+        Command::Audit { node } => configuration::audit(&mut client, node, as_json),
+        Command::Gfc => subcommand::node::gfc(&mut client, as_json),
     }
-    Ok(true)
 }
 
 fn main() -> ExitCode {
@@ -1165,6 +733,7 @@ fn main() -> ExitCode {
 mod tests {
     use super::*;
     use std::collections::BTreeMap;
+    use subcommand::offline::BudgetReport;
 
     fn usage(result: Result<impl std::fmt::Debug, ToolError>) -> String {
         match result {

@@ -415,17 +415,17 @@ fn mapping_entry(
 ) -> Result<u32, FileError> {
     let text = entry.get_ref().trim();
     let names = || {
-        dual_channel::device::OBJECT_NAMES
+        safety_device::OBJECT_NAMES
             .iter()
             .map(|(name, _)| *name)
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let (address, bits) = if let Some((_, address)) = dual_channel::device::OBJECT_NAMES
+    let (address, bits) = if let Some((_, address)) = safety_device::OBJECT_NAMES
         .iter()
         .find(|(name, _)| *name == text)
     {
-        let object = dual_channel::device::OBJECTS
+        let object = safety_device::OBJECTS
             .iter()
             .find(|object| object.address == *address);
         (
@@ -462,7 +462,7 @@ fn mapping_entry(
         }
     };
     // The device description says what may be mapped in which direction.
-    match dual_channel::device::OBJECTS
+    match safety_device::OBJECTS
         .iter()
         .find(|object| object.address == address)
     {

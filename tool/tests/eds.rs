@@ -1,8 +1,8 @@
 //! The node's EDS (CiA 306): the committed file is the generated one, and it carries the
 //! CANopen Safety keys of CiA 306 Annex A for every object of the device description.
 
-use dual_channel::device;
 use safety_config::eds;
+use safety_device as device;
 
 /// The committed EDS, as the repository holds it.
 fn committed() -> String {

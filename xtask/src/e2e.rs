@@ -300,7 +300,7 @@ fn simplecan_bounds() -> Result<(u64, u64)> {
     };
     let reactions = safety_config::calc::simplecan::reactions(
         &simplecan,
-        dual_channel::device::BIT_RATE,
+        safety_device::BIT_RATE,
         &DeviceTiming::HARDWARE,
     )?;
     let Some(reaction) = reactions
@@ -616,7 +616,7 @@ pub fn load_trace(log: &str) -> LoadTrace {
     // The window runs from the start of the first load frame (it ends at its stamp) to the
     // end of the last.
     let first_bits = f64::from(can_hub::bus::frame_bits(&window[0].1));
-    let bit_rate = f64::from(dual_channel::device::BIT_RATE);
+    let bit_rate = f64::from(safety_device::BIT_RATE);
     let seconds = window[window.len() - 1].0 - window[0].0 + first_bits / bit_rate;
     trace.load = bits / bit_rate / seconds.max(1e-9);
     trace.other = other_bits / bit_rate / seconds.max(1e-9);
@@ -780,7 +780,7 @@ mod tests {
             + bits(0x621, &[0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0])
             + bits(0x5A1, &[0x43, 0x18, 0x10, 0x01, 0xBC, 0x0A, 0, 0]);
         let srdo = bits(0x101, &[1]) + bits(0x102, &[0xFE]);
-        let rate = f64::from(dual_channel::device::BIT_RATE);
+        let rate = f64::from(safety_device::BIT_RATE);
         let seconds = 0.100 + load_frame / rate;
         assert!((trace.other - other / rate / seconds).abs() < 1e-12);
         assert!((trace.load - (other + srdo) / rate / seconds).abs() < 1e-12);

@@ -237,7 +237,7 @@ fn rule(index: u16, sub: u8) -> Option<String> {
 /// The safety objects' table (SRDO 1 standing for 2..N, which the EDS must describe alike).
 fn safety_objects(eds: &str) -> Result<String> {
     let sections = eds_sections(eds);
-    let srdos = dual_channel::device::SRDO_COUNT;
+    let srdos = safety_device::SRDO_COUNT;
     let variable = |name: &str| {
         sections
             .get(name)
@@ -320,13 +320,13 @@ fn safety_objects(eds: &str) -> Result<String> {
     if rows == 0 {
         bail!("the EDS lists no safety object (1300h..13FFh)");
     }
-    out.push_str("\nObjects an SRDO may map (the device description, `dual_channel::device`):\n\n| object | name | SRDO direction | its copy |\n|---|---|---|---|\n");
-    for object in &dual_channel::device::OBJECTS {
-        let name = dual_channel::device::OBJECT_NAMES
+    out.push_str("\nObjects an SRDO may map (the device description, `safety_device`):\n\n| object | name | SRDO direction | its copy |\n|---|---|---|---|\n");
+    for object in &safety_device::OBJECTS {
+        let name = safety_device::OBJECT_NAMES
             .iter()
             .find(|(_, address)| *address == object.address)
             .map_or("", |(name, _)| name);
-        let copy = dual_channel::device::INVERTED_PAIRS
+        let copy = safety_device::INVERTED_PAIRS
             .iter()
             .find_map(|(plain, inverted)| {
                 if *plain == object.address {
@@ -362,7 +362,7 @@ fn default(keys: &Section, second: Option<&Section>, index: u16) -> String {
         (first, Some(other)) if srdo && first != Some(other) => format!(
             "SRDO 1: {}; SRDO 2..{}: {other}",
             first.map_or("by node-ID", String::as_str),
-            dual_channel::device::SRDO_COUNT
+            safety_device::SRDO_COUNT
         ),
         (Some(first), _) => first.clone(),
         (None, _) => "by node-ID".into(),
@@ -549,7 +549,7 @@ fn block<'a>(text: &'a str, name: &str) -> Result<&'a str> {
 fn sfrt_part(performance: &str) -> Result<String> {
     let (refresh, sct, srvt) = DEMO;
     let network = network_file::parse(&sfrt::example_network(refresh, sct, srvt), "example")?;
-    let bit_rate = dual_channel::device::BIT_RATE;
+    let bit_rate = safety_device::BIT_RATE;
     let streams = sfrt::planned_streams(&network, None, &[]);
     let hardware = sfrt::reactions(&network, &streams, bit_rate, &DeviceTiming::HARDWARE)?;
     let mut out = header("`safety_config::calc::sfrt` and `docs/network-performance.md`");
@@ -633,7 +633,7 @@ fn simplecan_part(root: &Path) -> Result<String> {
     let Some(simplecan) = file.simplecan.as_ref() else {
         bail!("{SIMPLECAN_EXAMPLE} has no [simplecan] section");
     };
-    let bit_rate = dual_channel::device::BIT_RATE;
+    let bit_rate = safety_device::BIT_RATE;
     // SimpleCAN's processing step, measured in the images with SimpleCAN, as
     // `docs/performance.md`'s block of the same run states it.
     let step = target::MEASURED_SIMPLECAN.processing_us();
@@ -813,7 +813,7 @@ fn residual_part() -> Result<String> {
         event_interval_us: None,
         traffic: Vec::new(),
     };
-    let budget = budget::budget(&network, &plan, dual_channel::device::BIT_RATE);
+    let budget = budget::budget(&network, &plan, safety_device::BIT_RATE);
     out.push_str("\nThe example network (`safety-config budget example.toml --sil 3`):\n\n");
     out.push_str(&report::budget(&budget, Sil::Sil3));
     Ok(out)

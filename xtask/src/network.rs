@@ -196,7 +196,7 @@ const SDO_TIMEOUT: Duration = Duration::from_millis(5000);
 
 /// The network file of the emulated network: node 1's SRDO 1 transmits on 101h/102h every
 /// [`REFRESH_MS`]; node 33's SRDO 1 consumes it with [`SCT_MS`] and [`SRVT_MS`]. The
-/// identities are the device description's (`dual_channel::device::config`: vendor ABCh,
+/// identities are the device description's (`safety_device::config`: vendor ABCh,
 /// product 304h, revision 1, serial number = node-ID).
 pub fn network_file() -> String {
     format!(

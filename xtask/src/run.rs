@@ -781,11 +781,11 @@ fn ending_for(
 }
 
 /// The heartbeat consumer time the run's monitor judges both nodes' heartbeats by: twice
-/// the emulated devices' producer heartbeat time (`dual_channel::device::config`), one
+/// the emulated devices' producer heartbeat time (`safety_device::config`), one
 /// heartbeat missed, as a consumer would be set up (CiA 301 7.2.8.3.2.2).
 fn heartbeat_consumer_time() -> Duration {
     let producer = shared::canopen::node_id::NodeId::new(1)
-        .map_or(100, |id| dual_channel::device::config(id, "").heartbeat_ms);
+        .map_or(100, |id| safety_device::config(id, "").heartbeat_ms);
     Duration::from_millis(2 * u64::from(producer))
 }
 
@@ -1666,7 +1666,7 @@ mod tests {
     #[test]
     fn cia301_7_2_8_3_2_2_the_runs_heartbeat_consumer_time_is_twice_the_producer_time() {
         let id = shared::canopen::node_id::NodeId::new(33).unwrap();
-        let producer = dual_channel::device::config(id, "").heartbeat_ms;
+        let producer = safety_device::config(id, "").heartbeat_ms;
         assert_eq!(
             heartbeat_consumer_time(),
             Duration::from_millis(2 * u64::from(producer))

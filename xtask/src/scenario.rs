@@ -90,7 +90,7 @@ fn trace_offset(network: &mut Network) -> Result<f64> {
             .find(|(_, frame)| frame.id().raw() == MARKER)
         {
             let bits = f64::from(can_hub::bus::frame_bits(&marker));
-            return Ok(stamp - taken - bits / f64::from(dual_channel::device::BIT_RATE));
+            return Ok(stamp - taken - bits / f64::from(safety_device::BIT_RATE));
         }
     }
     bail!(
@@ -234,7 +234,7 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
     let mut scenarios = Vec::new();
     for path in &files {
         let scenario = file::load(path)?;
-        player::check_playable(&scenario, &expected, dual_channel::device::BIT_RATE)
+        player::check_playable(&scenario, &expected, safety_device::BIT_RATE)
             .map_err(|why| anyhow!(why))?;
         scenarios.push(scenario);
     }
@@ -373,7 +373,7 @@ mod tests {
         let expected = emulated_network().expect("parses");
         for path in &files {
             let scenario = file::load(path).unwrap_or_else(|error| panic!("{error}"));
-            player::check_playable(&scenario, &expected, dual_channel::device::BIT_RATE)
+            player::check_playable(&scenario, &expected, safety_device::BIT_RATE)
                 .unwrap_or_else(|why| panic!("{why}"));
         }
     }

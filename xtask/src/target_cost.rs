@@ -60,9 +60,9 @@ const TRACE_HOST_LIMIT: Duration = Duration::from_secs(1200);
 const LINK_PERIOD_MS: u64 = 10;
 /// The loop runs at least every input sample period (`dual_channel::channel_loop`).
 const SAMPLE_PERIOD_MS: u64 = 1;
-/// SRDOs of the images ([`dual_channel::device::SRDO_COUNT`]) and of the node the load is
+/// SRDOs of the images ([`safety_device::SRDO_COUNT`]) and of the node the load is
 /// estimated for, at its refresh time.
-const IMAGE_SRDOS: u64 = dual_channel::device::SRDO_COUNT as u64;
+const IMAGE_SRDOS: u64 = safety_device::SRDO_COUNT as u64;
 const LOAD_SRDOS: u64 = 64;
 const LOAD_REFRESH_MS: u64 = 10;
 

@@ -422,7 +422,7 @@ fn raw_id(frame: &Frame) -> u16 {
     }
 }
 
-/// A standard data or remote frame from the bxCAN ([`crate::received_frame`] has the rules).
+/// A standard data or remote frame from the bxCAN ([`CanFrame::received`] has the rules).
 /// A length code over 8 is refused before the data is touched: bxcan's `Data` would panic
 /// on it (its slice is as long as the length code).
 fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
@@ -437,7 +437,7 @@ fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
     if let Some(received) = frame.data() {
         data.get_mut(..received.len())?.copy_from_slice(received);
     }
-    crate::received_frame(id.as_raw(), frame.is_remote_frame(), dlc, &data)
+    CanFrame::received(id.as_raw(), frame.is_remote_frame(), dlc, &data)
 }
 
 fn to_bxcan(frame: &CanFrame) -> Option<Frame> {

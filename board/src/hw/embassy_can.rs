@@ -341,7 +341,7 @@ fn raw_id(frame: &Frame) -> u16 {
     }
 }
 
-/// A standard data or remote frame from the bxCAN ([`crate::received_frame`] has the rules).
+/// A standard data or remote frame from the bxCAN ([`CanFrame::received`] has the rules).
 /// The length is taken from the header and the data from the raw registers: embassy-stm32's
 /// `Frame::data` would panic on a length code over 8.
 fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
@@ -350,7 +350,7 @@ fn from_bxcan(frame: &Frame) -> Option<CanFrame> {
     };
     let mut data = [0u8; 8];
     data.copy_from_slice(frame.raw_data().get(..8)?);
-    crate::received_frame(
+    CanFrame::received(
         id.as_raw(),
         frame.header().rtr(),
         frame.header().len(),

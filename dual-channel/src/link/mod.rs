@@ -49,14 +49,21 @@ const MAX_RAW: usize = 2 + layout::MAX_BODY + 4;
 /// Largest frame on the wire: COBS adds at most one byte per 254, plus the delimiter.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
 
-/// One byte on the link at the boards' rate: the USART at 1 Mbit/s, ten bits a byte (the
-/// baud rate of `board::hw`).
-pub const BYTE_TIME: Duration = Duration::from_micros(10);
+// The device's timing (the tool's response-time calculation) counts frames of the length the
+// device description states; a longer message must raise it there.
+const _: () = assert!(
+    MAX_WIRE == safety_device::timing::LINK_LONGEST_FRAME,
+    "the longest link frame is not the device description's LINK_LONGEST_FRAME"
+);
+
+/// One byte on the link at the boards' rate: the device's link baud rate, ten bits a byte.
+pub use safety_device::timing::LINK_BYTE_TIME as BYTE_TIME;
 
 /// Link messages that may be ahead of one message in a channel's link transmit queue, and
-/// the message itself: a heartbeat and the probe sent with it, the echo of the other
-/// channel's probe, an input digest sent at an input change, a verdict on a received pair.
-pub const MESSAGES_AHEAD: u64 = 6;
+/// the message itself: the device's count (a heartbeat and the probe sent with it, the echo
+/// of the other channel's probe, an input digest sent at an input change, a verdict on a
+/// received pair).
+pub use safety_device::timing::LINK_MESSAGES_AHEAD as MESSAGES_AHEAD;
 
 /// The longest one message takes through its sender's queue and onto the line:
 /// [`MESSAGES_AHEAD`] frames of [`MAX_WIRE`] bytes at [`BYTE_TIME`].

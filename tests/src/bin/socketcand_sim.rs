@@ -81,7 +81,7 @@ fn run() -> Result<(), String> {
                 .ok()
                 .filter(|count| (1..=127).contains(count))
                 .ok_or("--lss takes a number of nodes, 1 to 127")?;
-            let mut net = Network::unconfigured_lss(500_000, count);
+            let mut net = Network::unconfigured_lss(safety_device::BIT_RATE, count);
             net.run_for(Duration::from_millis(50));
             eprintln!("socketcand_sim: {count} unconfigured LSS nodes");
             net
@@ -93,8 +93,8 @@ fn run() -> Result<(), String> {
 
 /// Nodes 1 and 33 configured by the tool library from [`FILE`], Operational.
 fn configured() -> Result<Network, String> {
-    let name = dual_channel::device::CHANNEL_A_NAME;
-    let mut net = Network::new(500_000, &[(1, name), (33, name)]);
+    let name = safety_device::CHANNEL_A_NAME;
+    let mut net = Network::new(safety_device::BIT_RATE, &[(1, name), (33, name)]);
     net.run_for(Duration::from_millis(50));
     let file = network_file::parse(FILE, "socketcand_sim").map_err(|e| e.to_string())?;
     let mut quiet = Quiet {

@@ -48,7 +48,7 @@ struct OneNode {
 impl OneNode {
     fn new() -> Result<Self, String> {
         let id = NodeId::new(NODE).map_err(|_| "node-ID".to_owned())?;
-        let config = dual_channel::device::config(id, dual_channel::device::CHANNEL_A_NAME);
+        let config = safety_device::config(id, safety_device::CHANNEL_A_NAME);
         let node = BenchNode::new(config, RamFlash::new())
             .map_err(|error| format!("the node refused its description: {error:?}"))?;
         Ok(OneNode {

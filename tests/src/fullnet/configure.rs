@@ -88,7 +88,7 @@ impl Transport for Alone {
     }
 }
 
-/// The identity the device reports for node `id` (0x1018, as `dual_channel::device::config`
+/// The identity the device reports for node `id` (0x1018, as `safety_device::config`
 /// sets it).
 pub fn identity(id: u8) -> Identity {
     let config = device_config(id, "");
@@ -122,7 +122,7 @@ pub fn transmit(number: u8, pair: u8, refresh_ms: u16, srvt_ms: u8) -> SrdoSpec 
             srvt: srvt_ms,
             cob_id_1: 0xFF + 2 * u32::from(pair),
             cob_id_2: 0x100 + 2 * u32::from(pair),
-            mapping: dual_channel::device::config(
+            mapping: safety_device::config(
                 shared::canopen::NodeId::new(1).expect("1 is a node-ID"),
                 "",
             )
@@ -143,7 +143,7 @@ pub fn receive(number: u8, pair: u8, sct_ms: u16, srvt_ms: u8) -> SrdoSpec {
             srvt: srvt_ms,
             cob_id_1: 0xFF + 2 * u32::from(pair),
             cob_id_2: 0x100 + 2 * u32::from(pair),
-            mapping: dual_channel::device::config(
+            mapping: safety_device::config(
                 shared::canopen::NodeId::new(1).expect("1 is a node-ID"),
                 "",
             )

@@ -28,7 +28,7 @@ use shared::Duration;
 /// identifier, see the background only as one frame of blocking.
 pub const UTILISATION_LIMIT: f64 = 1.0;
 
-/// The heartbeat period of every node (`dual_channel::device::config`).
+/// The heartbeat period of every node (`safety_device::config`).
 pub const HEARTBEAT: Duration = Duration::from_millis(100);
 
 /// The PDO-like background load: this many streams of 8-byte frames, each every

@@ -8,7 +8,7 @@
 //! 1. **Input sampling**: each channel samples its contact every [`DeviceTiming::input_sample_us`].
 //! 2. **Sample window**: channel A holds a frame with changed data until channel B's input
 //!    digest says B sampled the same (the symmetric sample window,
-//!    [`dual_channel::runtime::SAMPLE_WINDOW`]): the skew between the two contacts, then B's
+//!    [`SAMPLE_WINDOW`]): the skew between the two contacts, then B's
 //!    digest over the link behind the link messages that may be ahead of it.
 //! 3. **Producer**: this device sends a changed SRDO at once (event-driven); one step of
 //!    processing.
@@ -35,8 +35,9 @@
 
 use super::bus::{Stream, frame_micros, queuing_delay};
 use crate::network_file::Network;
-use dual_channel::link::MAX_WIRE;
-use dual_channel::runtime::SAMPLE_WINDOW;
+use safety_device::timing::{
+    INPUT_SAMPLE_PERIOD, LINK_BYTE_TIME, LINK_LONGEST_FRAME, SAMPLE_WINDOW,
+};
 use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 use shared::safety::gfc::GFC_ID;
@@ -49,17 +50,17 @@ const DESCRIBED: NodeId = match NodeId::new(1) {
 
 /// The device description the firmware images are built from.
 fn description() -> NodeConfig {
-    dual_channel::device::config(DESCRIBED, dual_channel::device::CHANNEL_A_NAME)
+    safety_device::config(DESCRIBED, safety_device::CHANNEL_A_NAME)
 }
 
 /// Link messages that may be ahead of one message in a channel's link transmit queue, and
 /// the message itself: a heartbeat (which carries the configuration and input digests) and
 /// the probe of the link's round trip sent with it, the echo of the other channel's probe, an
 /// input digest sent at an input change, a verdict on a received pair
-/// ([`dual_channel::link::MESSAGES_AHEAD`]). The latency supervision's probe and echo made
-/// it two more than before (2026-12-07); the same count bounds the round trip
+/// ([`safety_device::timing::LINK_MESSAGES_AHEAD`]). The latency supervision's probe and
+/// echo made it two more than before (2026-12-07); the same count bounds the round trip
 /// (`dual_channel::link::round_trip_bound`).
-pub const LINK_MESSAGES_AHEAD: u64 = dual_channel::link::MESSAGES_AHEAD;
+pub const LINK_MESSAGES_AHEAD: u64 = safety_device::timing::LINK_MESSAGES_AHEAD;
 
 /// The device's own timing, which the network file does not give.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -79,18 +80,18 @@ pub struct DeviceTiming {
 }
 
 impl DeviceTiming {
-    /// The hardware: the 1 ms input sample and the link USART at 1 Mbit/s (10 bits a byte) of
-    /// `board::hw` (`SAMPLE_PERIOD`, `LINK_BAUD`); the contacts' skew up to the whole sample
-    /// window. Processing: the step measured on the target ([`super::target::MEASURED`],
+    /// The hardware: the device description's input sample period and link byte time
+    /// ([`INPUT_SAMPLE_PERIOD`], [`LINK_BYTE_TIME`], which the channel loop and `board::hw`
+    /// run with); the contacts' skew up to the whole sample window. Processing: the step measured on the target ([`super::target::MEASURED`],
     /// instructions counted by `cargo xtask bench --target-cost` in the real images under
     /// QEMU, at the bounded cycles per instruction of [`super::target::CPI_BOUND`] on
     /// 168 MHz, doubled for interrupts). The output pin is written in the channel's step; the
     /// output stage beyond the pin (relay, contactor) is the machine builder's and not
     /// included.
     pub const HARDWARE: DeviceTiming = DeviceTiming {
-        input_sample_us: 1000,
+        input_sample_us: INPUT_SAMPLE_PERIOD.as_micros(),
         contact_skew_us: SAMPLE_WINDOW.as_micros(),
-        link_byte_us: dual_channel::link::BYTE_TIME.as_micros(),
+        link_byte_us: LINK_BYTE_TIME.as_micros(),
         processing_us: super::target::MEASURED.processing_us(),
         output_us: 0,
     };
@@ -241,7 +242,7 @@ pub fn reactions(
             window_us,
         });
     }
-    let link_latency = LINK_MESSAGES_AHEAD * MAX_WIRE as u64 * timing.link_byte_us;
+    let link_latency = LINK_MESSAGES_AHEAD * LINK_LONGEST_FRAME as u64 * timing.link_byte_us;
     let mut out = Vec::new();
     for consumer in &network.nodes {
         for receive in consumer.srdos.iter().filter(|s| s.settings.direction == 2) {

@@ -8,7 +8,7 @@ use super::bus::frame_micros;
 use super::residual::Sil;
 use super::sfrt::{DeviceTiming, LINK_MESSAGES_AHEAD, Part};
 use crate::simplecan::SimpleCanNetwork;
-use dual_channel::link::MAX_WIRE;
+use safety_device::timing::LINK_LONGEST_FRAME;
 use shared::simplecan::SLOT;
 use shared::simplecan::residual::rate_per_hour;
 
@@ -80,8 +80,8 @@ pub fn reactions(
         return Err(ScCalcError::FrameLongerThanSlot { frame_us, bit_rate });
     }
     let cycle_us = u64::from(network.slots_per_cycle) * slot_us;
-    let cross_check_us =
-        LINK_MESSAGES_AHEAD * MAX_WIRE as u64 * timing.link_byte_us + timing.processing_us;
+    let cross_check_us = LINK_MESSAGES_AHEAD * LINK_LONGEST_FRAME as u64 * timing.link_byte_us
+        + timing.processing_us;
     let mut reactions = Vec::new();
     for (&consumer, node) in &network.nodes {
         for consumed in &node.consumed {

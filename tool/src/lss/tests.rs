@@ -128,7 +128,7 @@ fn unconfigured(identity: [u32; 4]) -> Slave {
 /// A whole device with LSS enabled on `flash`, its switches open, polled once: with the
 /// frames it sent.
 fn device(identity: [u32; 4], flash: RamFlash<8192>) -> (Device, Vec<CanFrame>) {
-    let mut config = dual_channel::device::config(NodeId::new(1).unwrap(), "LSS test node");
+    let mut config = safety_device::config(NodeId::new(1).unwrap(), "LSS test node");
     config.identity = identity;
     let mut device = Device::new(config, flash).unwrap();
     assert!(device.enable_lss(None, RATES));

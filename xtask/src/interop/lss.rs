@@ -14,6 +14,7 @@ use crate::child::Guarded;
 use anyhow::{Context, Result, bail};
 use safety_config::lss::{LssMaster, parts};
 use safety_config::socketcand::SocketcandClient;
+use shared::canopen::NodeId;
 use shared::{CanFrame, CanId};
 use std::path::Path;
 use std::process::Command;
@@ -21,8 +22,8 @@ use std::time::Duration;
 use system_tests::network::Network;
 use system_tests::tool_bus::SimulatedBus;
 
-/// The bus's bit rate, the host simulation's (`socketcand_sim`).
-const BIT_RATE: u32 = 500_000;
+/// The bus's bit rate, the host simulation's (`socketcand_sim`): the device's.
+const BIT_RATE: u32 = safety_device::BIT_RATE;
 
 /// Each node is given its serial number plus this as its node-ID.
 const OFFSET: u8 = 10;
@@ -39,9 +40,17 @@ const SHORT_TIMEOUT: Duration = Duration::from_millis(10);
 /// The heading of the generated block in docs/tool.md.
 const BLOCK: &str = "lss-bench";
 
-/// The identity of simulated node `serial` (`dual_channel::device::config`).
+/// The identity of simulated node `serial`: the device description's (`safety_device::config`)
+/// with `serial` as its serial number.
 fn identity(serial: u8) -> [u32; 4] {
-    [0x0ABC, 0x0304, 1, u32::from(serial)]
+    // Checked when compiled: node-ID 1 is valid; the identity but for its serial number does
+    // not depend on the node-ID.
+    const DESCRIBED: NodeId = match NodeId::new(1) {
+        Ok(id) => id,
+        Err(_) => panic!("node-ID 1 is valid"),
+    };
+    let [vendor, product, revision, _] = safety_device::config(DESCRIBED, "").identity;
+    [vendor, product, revision, u32::from(serial)]
 }
 
 /// A network file that gives nodes 1 to `count` (by serial number) the node-ID serial +

@@ -1,7 +1,7 @@
-//! Why the MCU started, from the reset flags in RCC_CSR (RM0090 7.3.21), in words for the
-//! start-up log: after a watchdog reset the channel comes back in its safe state (outputs
-//! low, pre-operational) and says that its loop stalled. Hardware-free, so it is tested on
-//! the host.
+//! Why a channel's MCU (the device's STM32F405) started, from the reset flags in RCC_CSR
+//! (RM0090 7.3.21), in words for the start-up log: after a watchdog reset the channel comes
+//! back in its safe state (outputs low, pre-operational) and says that its loop stalled. The
+//! board layer only reads the register (and clears its flags) and logs these words.
 
 /// RCC_CSR's reset flags (RM0090 7.3.21).
 pub mod flags {

@@ -1,5 +1,27 @@
-//! The device this node is: its application objects and its description for the protocol
-//! core. Both channels, the firmware images and the host simulations use this one table.
+//! The device this node is: its application objects, their names and pins, and its
+//! description for the protocol core. Both channels, the firmware images, the host
+//! simulations, the tool and xtask use this one description.
+//!
+//! - the application objects ([`OBJECTS`]), their names ([`OBJECT_NAMES`]) and inverted
+//!   pairs ([`INVERTED_PAIRS`]), and the pins they are sampled from or drive ([`INPUT_PINS`],
+//!   [`OUTPUT_PINS`]);
+//! - the SRDO count ([`SRDO_COUNT`]), the CAN bit rate ([`BIT_RATE`]), the channels' device
+//!   names and the description for the protocol core ([`config`]);
+//! - [`timing`]: the device's own timing (input sampling, the channels' sample window, the
+//!   link between the channels), which the channels run with and the tool's response-time
+//!   calculation adds up;
+//! - [`switches`]: what the node-ID switches' readings at start-up mean;
+//! - [`reset_cause`]: why a channel's MCU started, from its reset flags, in words.
+//!
+//! Only descriptions and the pure functions that read the device's own values: no runtime,
+//! no I/O, no heap. The board layers read the pins and registers and hand the values here.
+
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod reset_cause;
+pub mod switches;
+pub mod timing;
 
 use shared::Duration;
 use shared::canopen::NodeId;
