@@ -16,11 +16,13 @@
 
 pub mod cases;
 pub mod cpu;
+pub mod figures;
 pub mod image;
 pub mod log;
 pub mod memory;
 pub mod network;
 pub mod peripherals;
+pub mod profile;
 pub mod rtt;
 pub mod stop;
 pub mod system;
