@@ -27,8 +27,9 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use core::task::Poll;
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
+use dual_channel::link;
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
-use embassy_futures::select::{Either3, select3};
+use embassy_futures::select::select3;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals::USART3;
 use embassy_stm32::time::Hertz;
@@ -380,7 +381,7 @@ impl Driver for HwDriver<'_> {
         match embassy_futures::poll_once(self.link.read(buf)) {
             core::task::Poll::Ready(Ok(count)) => count,
             core::task::Poll::Ready(Err(_)) => {
-                defmt::warn!("link read error");
+                link_read_error();
                 0
             }
             core::task::Poll::Pending => 0,
@@ -603,20 +604,51 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         if let Some(stack) = stack_mark.poll() {
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
-        // What the wait takes (a frame, some link bytes) is kept for the next service.
-        match select3(
+        // What the wait takes (a frame, link bytes) is kept for the next service.
+        let _ = select3(
             driver.can.wait(),
-            driver.link.read(&mut driver.link_bytes),
+            link_message(
+                &mut driver.link,
+                &mut driver.link_bytes,
+                &mut driver.link_count,
+            ),
             Timer::at(embassy_instant(wake)),
         )
-        .await
-        {
-            Either3::First(()) => {}
-            Either3::Second(Ok(count)) => driver.link_count = count,
-            Either3::Second(Err(_)) => defmt::warn!("link read error"),
-            Either3::Third(()) => {}
+        .await;
+    }
+}
+
+/// Reads link bytes into `stash` after the `count` it holds, until a message's end (its
+/// delimiter) is among them or the stash is full. Taken as they came, a message's bytes
+/// arriving while the loop ran made a loop iteration each, every iteration outlasting a byte
+/// on the line; a wait ended by something else leaves what it read in the stash.
+async fn link_message(link: &mut BufferedUartRx<'static>, stash: &mut [u8; 64], count: &mut usize) {
+    loop {
+        let Some(free) = stash.get_mut(*count..) else {
+            return;
+        };
+        // An empty buffer reads nothing: a full stash ends the wait.
+        match link.read(free).await {
+            Ok(read) if read > 0 => {
+                *count += read;
+                if free
+                    .get(..read)
+                    .is_some_and(|bytes| bytes.contains(&link::DELIMITER))
+                {
+                    return;
+                }
+            }
+            Ok(_) => return,
+            Err(_) => return link_read_error(),
         }
     }
+}
+
+/// The link USART reported a receive error (overrun, framing, noise): the bytes it lost fail
+/// the message's check, which the runtime reports; this says why.
+#[inline(never)]
+fn link_read_error() {
+    defmt::warn!("link read error");
 }
 
 /// The start-up's housekeeping of the parameter slots ([`storage::erase_ahead`]): erases the

@@ -1666,8 +1666,9 @@ impl Machine {
             st.sleep = None;
             st.attention = true;
             st.wake_ups += 1;
+            let now = st.clock.now();
             if let Some(profile) = st.profile.as_mut() {
-                profile.woke();
+                profile.woke(now);
             }
             return;
         }

@@ -110,6 +110,8 @@ pub fn bit(label: &str) -> u32 {
 /// One activation: what ran from one wake-up to the next.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Activation {
+    /// When the core woke for it (virtual time, ns).
+    pub at: u64,
     /// Instructions executed.
     pub instructions: u64,
     /// The [`MARKERS`] entered, one bit each in their order.
@@ -192,9 +194,15 @@ impl Profile {
         self.lowest_sp = self.lowest_sp.min(sp);
     }
 
-    /// The core woke: the activation before ends here.
-    pub fn woke(&mut self) {
-        let ended = std::mem::take(&mut self.current);
+    /// The core woke at `at` (virtual time): the activation before ends here.
+    pub fn woke(&mut self, at: u64) {
+        let ended = std::mem::replace(
+            &mut self.current,
+            Activation {
+                at,
+                ..Activation::default()
+            },
+        );
         if ended.instructions > 0 {
             self.activations.push(ended);
         }
@@ -293,15 +301,15 @@ mod tests {
         ]);
         let mut profile = Profile::new(&symbols);
         profile.block(0x200, 5, 0x2000_1000);
-        profile.woke();
+        profile.woke(1_000);
         profile.block(0x100, 10, 0x2000_0F00);
         profile.block(0x110, 3, 0x2000_0F00);
-        profile.woke();
+        profile.woke(2_000);
         let [byte, iteration] = profile.activations() else {
             panic!("two activations: {:?}", profile.activations());
         };
         assert_eq!((byte.instructions, byte.describe().as_str()), (5, "USART3"));
-        assert_eq!(iteration.instructions, 13);
+        assert_eq!((iteration.at, iteration.instructions), (1_000, 13));
         assert!(iteration.has("loop") && !iteration.has("USART3"));
         assert_eq!(profile.lowest_sp(), 0x2000_0F00);
         let functions = profile.functions(&symbols);

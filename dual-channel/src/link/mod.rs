@@ -49,6 +49,10 @@ const MAX_RAW: usize = 2 + layout::MAX_BODY + 4;
 /// Largest frame on the wire: COBS adds at most one byte per 254, plus the delimiter.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_RAW) + 1;
 
+/// The byte that ends every message on the wire: COBS leaves it out of the frame, so a
+/// board can tell a message's end from its bytes without decoding them.
+pub const DELIMITER: u8 = 0x00;
+
 /// One byte on the link at the boards' rate: the USART at 1 Mbit/s, ten bits a byte (the
 /// baud rate of `board::hw`).
 pub const BYTE_TIME: Duration = Duration::from_micros(10);
