@@ -627,19 +627,17 @@ async fn link_message(link: &mut BufferedUartRx<'static>, stash: &mut [u8; 64], 
         let Some(free) = stash.get_mut(*count..) else {
             return;
         };
+        let Ok(read) = link.read(free).await else {
+            return link_read_error();
+        };
+        *count += read;
         // An empty buffer reads nothing: a full stash ends the wait.
-        match link.read(free).await {
-            Ok(read) if read > 0 => {
-                *count += read;
-                if free
-                    .get(..read)
-                    .is_some_and(|bytes| bytes.contains(&link::DELIMITER))
-                {
-                    return;
-                }
-            }
-            Ok(_) => return,
-            Err(_) => return link_read_error(),
+        if read == 0
+            || free
+                .get(..read)
+                .is_some_and(|bytes| bytes.contains(&link::DELIMITER))
+        {
+            return;
         }
     }
 }

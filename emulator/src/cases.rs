@@ -76,6 +76,9 @@ pub struct Window {
     pub frames: Vec<(u16, u64)>,
     /// Instructions per block start address, most first ([`crate::profile::Profile::blocks`]).
     pub blocks: Vec<(u32, u64)>,
+    /// An idle loop iteration, function by function
+    /// ([`crate::profile::Profile::timer_iteration`]).
+    pub idle_iteration: Vec<(String, u64)>,
 }
 
 /// Starts a new profiling window on every MCU.
@@ -90,15 +93,17 @@ fn windows(network: &Network, pairs: u64, frames: &[(u16, u64)]) -> Vec<Window> 
     (0..network.names().count())
         .map(|mcu| {
             let machine = network.machine(mcu);
-            let (activations, functions, blocks) =
+            let (activations, functions, blocks, idle_iteration) =
                 machine.profile().map_or_else(Default::default, |p| {
                     (
                         p.activations().to_vec(),
                         p.functions(machine.symbols()),
                         p.blocks(),
+                        p.timer_iteration(machine.symbols()),
                     )
                 });
             Window {
+                idle_iteration,
                 activations,
                 functions,
                 blocks,

@@ -124,8 +124,9 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
     out.push("## Where the instructions go (profiled by the emulator)".to_owned());
     out.push(String::new());
     out.push(format!(
-        "Each MCU profiled over the same two windows of one second as above ({pairs} pairs of \
-         SRDO 1 in the Operational one, no bus load): every translated block counted with its \
+        "Each MCU profiled over two windows of one second before the bus load: \
+         pre-operational (unconfigured, before the configuration) and Operational ({pairs} \
+         pairs of SRDO 1): every translated block counted with its \
          instructions, an *activation* being everything from one wake-up of the core (WFI/WFE) \
          to the next (the interrupt handlers, embassy's executor, the channel loop's iteration \
          when the loop task ran, the wait it sets up), classed by the functions it entered \
@@ -267,6 +268,28 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
                 "| {name} | `{function}` | {instructions} | {:.1} % |",
                 100.0 * *instructions as f64 / total.max(1) as f64
             ));
+        }
+    }
+    out.push(String::new());
+    out.push(
+        "### One idle loop iteration of the Operational window, function by function".to_owned(),
+    );
+    out.push(String::new());
+    out.push(
+        "The last activation of the window that was one loop iteration woken by the timer \
+         alone (the input sample's), its functions in the order they were first entered, \
+         each with its own instructions."
+            .to_owned(),
+    );
+    out.push(String::new());
+    out.push("| MCU | function | instructions |".to_owned());
+    out.push("|---|---|---:|".to_owned());
+    for (mcu, name) in names.iter().enumerate() {
+        let Some(window) = nominal.operational.get(mcu) else {
+            continue;
+        };
+        for (function, instructions) in &window.idle_iteration {
+            out.push(format!("| {name} | `{function}` | {instructions} |"));
         }
     }
     if let Some(window) = nominal.operational.first() {

@@ -157,6 +157,11 @@ pub struct Profile {
     /// Function entries of the markers: address (Thumb bit clear) to marker bits.
     entries: HashMap<u32, u32>,
     current: Activation,
+    /// The blocks of the current activation, in order, with their instructions.
+    current_blocks: Vec<(u32, u32)>,
+    /// The blocks of the last activation that was a loop iteration woken by the timer alone
+    /// ([`Profile::timer_iteration`]).
+    timer_iteration: Vec<(u32, u32)>,
     activations: Vec<Activation>,
     lowest_sp: u32,
 }
@@ -174,6 +179,8 @@ impl Profile {
             blocks: HashMap::new(),
             entries,
             current: Activation::default(),
+            current_blocks: Vec::new(),
+            timer_iteration: Vec::new(),
             activations: Vec::new(),
             lowest_sp: u32::MAX,
         }
@@ -191,6 +198,7 @@ impl Profile {
         self.current.instructions += u64::from(instructions);
         self.current.marks |= count.marks;
         self.current.iterations += count.marks & 1;
+        self.current_blocks.push((address, instructions));
         self.lowest_sp = self.lowest_sp.min(sp);
     }
 
@@ -203,9 +211,30 @@ impl Profile {
                 ..Activation::default()
             },
         );
+        if ended.marks == bit("loop") | bit("timer") && ended.iterations == 1 {
+            std::mem::swap(&mut self.timer_iteration, &mut self.current_blocks);
+        }
+        self.current_blocks.clear();
         if ended.instructions > 0 {
             self.activations.push(ended);
         }
+    }
+
+    /// The last activation that was one loop iteration woken by the timer and nothing else
+    /// (the input sample's: an idle iteration), as instructions per function in the order
+    /// the functions were first entered.
+    pub fn timer_iteration(&self, symbols: &Symbols) -> Vec<(String, u64)> {
+        let mut functions: Vec<(String, u64)> = Vec::new();
+        for &(address, instructions) in &self.timer_iteration {
+            let name = symbols
+                .function(address)
+                .map_or_else(|| format!("{address:#010x}"), short_name);
+            match functions.iter_mut().find(|(known, _)| *known == name) {
+                Some((_, sum)) => *sum += u64::from(instructions),
+                None => functions.push((name, u64::from(instructions))),
+            }
+        }
+        functions
     }
 
     /// The activations ended so far, oldest first.
@@ -251,6 +280,8 @@ impl Profile {
         self.blocks.clear();
         self.activations.clear();
         self.current = Activation::default();
+        self.current_blocks.clear();
+        self.timer_iteration.clear();
     }
 }
 

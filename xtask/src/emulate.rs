@@ -164,6 +164,13 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
             Case::Run => {}
         }
     }
+    if case == Case::Nominal {
+        // The measuring run: the same as `cargo xtask test`'s, which writes the figures.
+        build_network_emulator(root)?;
+        let file = write_network_file(root)?;
+        let emulate = root.join("target/release/emulate-network");
+        return nominal_check(root, &cross, &emulate, &file);
+    }
     crate::run(
         cargo()
             .current_dir(root)
@@ -182,6 +189,19 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
             .args(["--for", duration, "--inputs-closed"])
             .args(arguments),
     )
+}
+
+/// Builds the `emulate-network` program (release), as the checks and the measuring run use it.
+fn build_network_emulator(root: &Path) -> Result<()> {
+    crate::run(cargo().current_dir(root).args([
+        "build",
+        "--quiet",
+        "--release",
+        "-p",
+        "emulator",
+        "--bin",
+        "emulate-network",
+    ]))
 }
 
 /// Writes `cargo xtask run`'s network file for the emulated network's cases; returns its path.
@@ -280,15 +300,7 @@ fn check_start_up_trace(trace: &str, nodes: &[u16], period_ms: u64) -> Result<()
 /// linked, each node announces itself and keeps its heartbeat, no channel logs a fault or a
 /// safe state, none stops; and the same images give the same trace and the same logs twice.
 pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
-    crate::run(cargo().current_dir(root).args([
-        "build",
-        "--quiet",
-        "--release",
-        "-p",
-        "emulator",
-        "--bin",
-        "emulate-network",
-    ]))?;
+    build_network_emulator(root)?;
     let emulate = root.join("target/release/emulate-network");
     let period_ms = default_heartbeat_ms()?;
     let scratch = root.join("target/emulate-network");
@@ -407,7 +419,8 @@ const FIGURES: &str = "docs/emulated-figures.md";
 
 /// Both nodes' shipped images configured by the tool's library, started, under bus load,
 /// then the emergency stop (`emulator::cases::nominal`); writes what it measured to
-/// [`FIGURES`].
+/// [`FIGURES`]: the case's verdicts and timings, and where each MCU's instructions go
+/// (`emulator::figures`: per idle loop iteration, per pair, per function, the deepest stack).
 fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &Path) -> Result<()> {
     let layer = Protocol::CanopenSafety.hardware_layer();
     let output = std::process::Command::new(emulate)
@@ -435,30 +448,29 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
         .filter(|line| !line.contains("sealed image"))
         .collect();
     for line in &lines {
-        if !line.starts_with("cost ") {
+        if !line.starts_with("cost ") && !line.starts_with("figures") {
             println!("xtask: {line}");
         }
     }
     let mut report = String::from(
         "# Figures of the shipped images on the emulated network\n\n\
-         Written by `cargo xtask test` (`xtask/src/emulate.rs`, `nominal_check`) from \
-         `emulate-network --nominal` on the four shipped CANopen Safety images, with \
-         the bus under load; do not edit by hand. Virtual time is exact; instructions are \
-         counted by the emulator (one per executed Thumb instruction, not cycles); an \
-         iteration is a wake-up of the core from WFI (docs/emulator.md).\n\n",
+         Written by `cargo xtask test` and `cargo xtask emulate --network --nominal` \
+         (`xtask/src/emulate.rs`, `nominal_check`) from `emulate-network --nominal` on the \
+         four shipped CANopen Safety images, with the bus under load; do not edit by hand. \
+         Virtual time is exact; instructions are counted by the emulator (one per executed \
+         Thumb instruction, not cycles; docs/emulator.md).\n\n",
     );
-    for line in lines.iter().filter(|line| !line.starts_with("cost ")) {
+    for line in lines
+        .iter()
+        .filter(|line| !line.starts_with("cost ") && !line.starts_with("figures"))
+    {
         report.push_str(&format!("- {line}\n"));
     }
-    report.push_str(
-        "\nPer MCU, over one second pre-operational (unconfigured, before the \
-                     configuration) and one second Operational (SRDO 1 every 100 ms):\n\n```json\n",
-    );
-    for line in lines.iter().filter_map(|line| line.strip_prefix("cost ")) {
-        report.push_str(line);
+    report.push('\n');
+    for line in lines.iter().filter_map(|line| line.strip_prefix("figures")) {
+        report.push_str(line.strip_prefix(' ').unwrap_or(line));
         report.push('\n');
     }
-    report.push_str("```\n");
     std::fs::write(root.join(FIGURES), report)?;
     println!("xtask: the nominal case passed on the shipped images; figures in {FIGURES}");
     Ok(())
