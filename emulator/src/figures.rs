@@ -10,9 +10,12 @@ use crate::profile::{Activation, bit};
 /// How many functions each MCU's table lists.
 const TOP_FUNCTIONS: usize = 12;
 
+/// A test on an activation's markers.
+type Test = fn(&Activation) -> bool;
+
 /// The kinds of activation, in the order the tables list them: a label and a test on the
 /// markers entered.
-const KINDS: [(&str, fn(&Activation) -> bool); 7] = [
+const KINDS: [(&str, Test); 7] = [
     (
         "idle loop iteration (nothing received, nothing sent)",
         is_idle,
@@ -168,14 +171,13 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
                 .filter(|a| is_idle(a))
                 .map(|a| a.instructions)
                 .sum();
-            let (per_pair, all_but_idle) = if window.pairs == 0 {
-                ("–".to_owned(), "–".to_owned())
-            } else {
-                (
-                    (t.pair_instructions / window.pairs).to_string(),
-                    ((t.instructions - idle_total) / window.pairs).to_string(),
-                )
+            let per = |instructions: u64| {
+                instructions
+                    .checked_div(window.pairs)
+                    .map_or_else(|| "–".to_owned(), |each| each.to_string())
             };
+            let (per_pair, all_but_idle) =
+                (per(t.pair_instructions), per(t.instructions - idle_total));
             let stack = if label == "Operational" {
                 nominal
                     .deepest_stack

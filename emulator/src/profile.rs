@@ -304,7 +304,9 @@ fn short_name(name: &str) -> String {
                 open.push(generic);
             }
             '>' => {
-                if open.pop() == Some(false) && !open.iter().any(|&generic| generic) {
+                let generic = open.pop().unwrap_or(true);
+                let shown = !generic && !open.iter().any(|&generic| generic);
+                if shown {
                     out.push(c);
                 }
             }
