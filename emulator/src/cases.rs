@@ -88,6 +88,13 @@ fn start_windows(network: &mut Network) {
     }
 }
 
+/// Ends the profiling window on every MCU: the deepest stack is still followed.
+fn pause_windows(network: &mut Network) {
+    for mcu in 0..network.names().count() {
+        network.machine_mut(mcu).pause_profile();
+    }
+}
+
 /// Every MCU's profile of the window since [`start_windows`].
 fn windows(network: &Network, pairs: u64, frames: &[(u16, u64)]) -> Vec<Window> {
     (0..network.names().count())
@@ -272,6 +279,7 @@ pub fn nominal(
     let stopped = |event: &Event| matches!(event, Event::Stopped { .. });
     // From power-on: the deepest stack counts every step of the case.
     start_windows(network);
+    pause_windows(network);
     wait_for_boot_ups(network, &[1, 33], seen)?;
     let idle_from = counters(network);
     start_windows(network);
@@ -283,6 +291,7 @@ pub fn nominal(
         return Err(format!("an MCU stopped at {:.3} ms", at as f64 / 1e6));
     }
     let pre_operational = windows(network, 0, &idle_frames);
+    pause_windows(network);
     let idle: Vec<(u64, u64)> = counters(network)
         .iter()
         .zip(&idle_from)
@@ -361,6 +370,7 @@ pub fn nominal(
         })
         .collect();
     let operational = windows(network, pairs, &operational_frames);
+    pause_windows(network);
     if let Some(at) = steady {
         return Err(format!(
             "node 33's outputs went off at {:.3} ms with node 1's contacts closed",

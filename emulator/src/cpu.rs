@@ -1709,6 +1709,14 @@ impl Machine {
         }
     }
 
+    /// Stops counting blocks and activations; the deepest stack is still followed
+    /// ([`Profile::pause`]). [`Machine::start_profile`] starts a new window.
+    pub fn pause_profile(&mut self) {
+        if let Some(profile) = self.uc.get_data_mut().profile.as_mut() {
+            profile.pause();
+        }
+    }
+
     /// The profile since [`Machine::start_profile`] (`None`: not profiling).
     pub fn profile(&self) -> Option<&Profile> {
         self.uc.get_data().profile.as_deref()

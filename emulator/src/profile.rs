@@ -164,6 +164,9 @@ pub struct Profile {
     timer_iteration: Vec<(u32, u32)>,
     activations: Vec<Activation>,
     lowest_sp: u32,
+    /// Whether blocks and activations are counted ([`Profile::pause`]); the deepest stack
+    /// always is.
+    counting: bool,
 }
 
 impl Profile {
@@ -183,12 +186,17 @@ impl Profile {
             timer_iteration: Vec::new(),
             activations: Vec::new(),
             lowest_sp: u32::MAX,
+            counting: true,
         }
     }
 
     /// Counts a block of `instructions` starting at `address`, entered with the stack pointer
     /// at `sp`.
     pub fn block(&mut self, address: u32, instructions: u32, sp: u32) {
+        self.lowest_sp = self.lowest_sp.min(sp);
+        if !self.counting {
+            return;
+        }
         let entries = &self.entries;
         let count = self.blocks.entry(address).or_insert_with(|| BlockCount {
             instructions: 0,
@@ -199,11 +207,13 @@ impl Profile {
         self.current.marks |= count.marks;
         self.current.iterations += count.marks & 1;
         self.current_blocks.push((address, instructions));
-        self.lowest_sp = self.lowest_sp.min(sp);
     }
 
     /// The core woke at `at` (virtual time): the activation before ends here.
     pub fn woke(&mut self, at: u64) {
+        if !self.counting {
+            return;
+        }
         let ended = std::mem::replace(
             &mut self.current,
             Activation {
@@ -274,9 +284,16 @@ impl Profile {
         blocks
     }
 
-    /// Forgets the blocks and activations counted so far (the deepest stack is kept): the
-    /// start of a new window.
+    /// Stops counting blocks and activations (what was counted stays readable); the deepest
+    /// stack is still followed. [`Profile::restart`] counts again.
+    pub fn pause(&mut self) {
+        self.counting = false;
+    }
+
+    /// Forgets the blocks and activations counted so far (the deepest stack is kept) and
+    /// counts again: the start of a new window.
     pub fn restart(&mut self) {
+        self.counting = true;
         self.blocks.clear();
         self.activations.clear();
         self.current = Activation::default();
@@ -353,6 +370,22 @@ mod tests {
                 13
             )
         );
+    }
+
+    #[test]
+    fn a_paused_profile_counts_nothing_but_still_follows_the_stack() {
+        let symbols = Symbols::from_functions(&[(0x100, 0x40, "USART3")]);
+        let mut profile = Profile::new(&symbols);
+        profile.pause();
+        profile.block(0x100, 5, 0x2000_0800);
+        profile.woke(1_000);
+        assert!(profile.activations().is_empty() && profile.blocks().is_empty());
+        assert_eq!(profile.lowest_sp(), 0x2000_0800);
+        profile.restart();
+        profile.block(0x100, 5, 0x2000_1000);
+        profile.woke(2_000);
+        assert_eq!(profile.activations().len(), 1);
+        assert_eq!(profile.lowest_sp(), 0x2000_0800);
     }
 
     #[test]
