@@ -27,7 +27,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
-use embassy_futures::select::{Either3, select3};
+use embassy_futures::select::select3;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart;
@@ -565,7 +565,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
             defmt::info!("stack high-water mark: {=usize} bytes", stack);
         }
         // The next service takes what woke it (a frame, link bytes, the instant).
-        let _: Either3<(), (), ()> = select3(
+        let _ = select3(
             driver.can.wait(),
             link_usart::readable(),
             Timer::at(embassy_instant(wake)),

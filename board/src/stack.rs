@@ -10,8 +10,13 @@
 //! iteration, so that no iteration pays for the whole stack: the loop's longest iteration is
 //! the processing step the safety manual's response time is built on.
 
-/// Words of the stack one loop iteration reads at most (1 KiB).
-pub const WORDS_PER_STEP: usize = 256;
+/// Words of the stack one loop iteration reads at most. Few: the loop runs at every wake-up
+/// (every link message, every frame, the input sample every millisecond), and the search
+/// is paid at each of them; enough that a pass over the region (all the RAM above the
+/// statics, not only the stack's reserve) takes about a second of the loop's iterations, so
+/// that a new mark comes that much later, never lost (`docs/emulated-figures.md` has what an
+/// iteration costs with it).
+pub const WORDS_PER_STEP: usize = 32;
 
 /// The search for the deepest word no longer painted, a few words per call.
 ///
@@ -157,14 +162,15 @@ mod tests {
         let words = 3000;
         let mut stack = vec![true; words];
         let mut sweep = Sweep::new(words);
-        assert_eq!(sweep_until_found(&mut sweep, &stack, 100).0, None);
+        let pass = words / WORDS_PER_STEP + 1;
+        assert_eq!(sweep_until_found(&mut sweep, &stack, 2 * pass).0, None);
         // Used from the top down to word 2000, with a gap of untouched words in a frame.
         for (word, painted) in stack.iter_mut().enumerate().skip(2000) {
             *painted = word % 7 == 0 || word > 2100;
         }
         stack[2000] = false;
         let mut sweep = Sweep::new(words);
-        let (found, calls) = sweep_until_found(&mut sweep, &stack, 100);
+        let (found, calls) = sweep_until_found(&mut sweep, &stack, 2 * pass);
         assert_eq!(found, Some((words - 2000) * 4));
         assert_eq!(calls, 2000 / WORDS_PER_STEP + 1);
     }
@@ -178,7 +184,7 @@ mod tests {
         stack[900] = false;
         let mut sweep = Sweep::new(words);
         let mut highest = 0;
-        for _ in 0..50 {
+        for _ in 0..3 * words / WORDS_PER_STEP {
             let mut read = 0;
             sweep.step(|word| {
                 assert!(word < words);

@@ -203,6 +203,9 @@ pub struct ChannelLoop {
     /// When the runtime wants to be polled.
     runtime_deadline: Instant,
     dropped: Dropped,
+    /// Where link bytes are read into: kept from one iteration to the next, so that no
+    /// iteration clears a buffer first (the bytes read are the only ones used).
+    link: [u8; 64],
 }
 
 impl ChannelLoop {
@@ -219,6 +222,7 @@ impl ChannelLoop {
             driven: false,
             runtime_deadline: Instant::ZERO,
             dropped: Dropped::default(),
+            link: [0; 64],
         }
     }
 
@@ -276,14 +280,13 @@ impl ChannelLoop {
             }
             io.driver.link_restarted(restarted);
         }
-        let mut link = [0u8; 64];
-        let count = io.driver.link_read(&mut link);
-        if count > 0 {
+        let count = io.driver.link_read(&mut self.link);
+        if let Some(bytes) = self.link.get(..count).filter(|bytes| !bytes.is_empty()) {
             let at = io.driver.now();
-            runtime.on_link_bytes(at, &link[..count], &mut io);
+            runtime.on_link_bytes(at, bytes, &mut io);
             handed = true;
             // The link may have more than one buffer's worth: come back at once.
-            more |= count == link.len();
+            more |= count == self.link.len();
         }
         // The pins are read on every wake-up; the period only bounds the gap between two.
         let now = io.driver.now();

@@ -54,6 +54,82 @@ pub struct Nominal {
     pub costs: Vec<Cost>,
     /// The bus-load part, when asked for.
     pub load: Option<LoadReport>,
+    /// Each MCU's profile of the pre-operational window (names in the network's order).
+    pub pre_operational: Vec<Window>,
+    /// Each MCU's profile of the Operational window.
+    pub operational: Vec<Window>,
+    /// Each MCU's deepest stack over the whole case, in bytes below its initial stack
+    /// pointer ([`crate::profile::Profile::lowest_sp`]).
+    pub deepest_stack: Vec<u32>,
+}
+
+/// One MCU's profile over one measuring window ([`crate::profile`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Window {
+    /// The activations (wake-up to wake-up), oldest first.
+    pub activations: Vec<crate::profile::Activation>,
+    /// Instructions per function, most first.
+    pub functions: Vec<(String, u64)>,
+    /// SRDO 1 pairs on the bus in the window.
+    pub pairs: u64,
+    /// Frames on the bus in the window, by identifier (every sender's), in order of identifier.
+    pub frames: Vec<(u16, u64)>,
+    /// Instructions per block start address, most first ([`crate::profile::Profile::blocks`]).
+    pub blocks: Vec<(u32, u64)>,
+    /// An idle loop iteration, function by function
+    /// ([`crate::profile::Profile::timer_iteration`]).
+    pub idle_iteration: Vec<(String, u64)>,
+}
+
+/// Starts a new profiling window on every MCU.
+fn start_windows(network: &mut Network) {
+    for mcu in 0..network.names().count() {
+        network.machine_mut(mcu).start_profile();
+    }
+}
+
+/// Ends the profiling window on every MCU: the deepest stack is still followed.
+fn pause_windows(network: &mut Network) {
+    for mcu in 0..network.names().count() {
+        network.machine_mut(mcu).pause_profile();
+    }
+}
+
+/// Every MCU's profile of the window since [`start_windows`].
+fn windows(network: &Network, pairs: u64, frames: &[(u16, u64)]) -> Vec<Window> {
+    (0..network.names().count())
+        .map(|mcu| {
+            let machine = network.machine(mcu);
+            let (activations, functions, blocks, idle_iteration) =
+                machine.profile().map_or_else(Default::default, |p| {
+                    (
+                        p.activations().to_vec(),
+                        p.functions(machine.symbols()),
+                        p.blocks(),
+                        p.timer_iteration(machine.symbols()),
+                    )
+                });
+            Window {
+                idle_iteration,
+                activations,
+                functions,
+                blocks,
+                pairs,
+                frames: frames.to_vec(),
+            }
+        })
+        .collect()
+}
+
+/// Counts `event`'s frame by identifier into `frames`.
+fn count_frame(frames: &mut Vec<(u16, u64)>, event: &Event) {
+    if let Event::Frame { frame, .. } = event {
+        let id = frame.id().raw();
+        match frames.binary_search_by_key(&id, |(known, _)| *known) {
+            Ok(index) => frames[index].1 += 1,
+            Err(index) => frames.insert(index, (id, 1)),
+        }
+    }
 }
 
 /// The bus-load part of the nominal case: frames on a free identifier of higher priority
@@ -201,11 +277,21 @@ pub fn nominal(
         .map(|srdo| Nanos::from(srdo.settings.cycle_time) * MS)
         .ok_or("the network file gives node 1 no SRDO")?;
     let stopped = |event: &Event| matches!(event, Event::Stopped { .. });
+    // From power-on: the deepest stack counts every step of the case.
+    start_windows(network);
+    pause_windows(network);
     wait_for_boot_ups(network, &[1, 33], seen)?;
     let idle_from = counters(network);
-    if let Some(at) = run_until_event(network, WINDOW, seen, |_, event| stopped(event)) {
+    start_windows(network);
+    let mut idle_frames = Vec::new();
+    if let Some(at) = run_until_event(network, WINDOW, seen, |_, event| {
+        count_frame(&mut idle_frames, event);
+        stopped(event)
+    }) {
         return Err(format!("an MCU stopped at {:.3} ms", at as f64 / 1e6));
     }
+    let pre_operational = windows(network, 0, &idle_frames);
+    pause_windows(network);
     let idle: Vec<(u64, u64)> = counters(network)
         .iter()
         .zip(&idle_from)
@@ -258,7 +344,10 @@ pub fn nominal(
         .map(|srdo| srdo.settings.cob_id_1 & 0x7FF)
         .unwrap_or_default();
     let mut pairs = 0;
+    start_windows(network);
+    let mut operational_frames = Vec::new();
     let steady = run_until_event(network, WINDOW, seen, |network, event| {
+        count_frame(&mut operational_frames, event);
         if let Event::Frame { frame, .. } = event
             && u32::from(frame.id().raw()) == plain
         {
@@ -280,6 +369,8 @@ pub fn nominal(
             pairs,
         })
         .collect();
+    let operational = windows(network, pairs, &operational_frames);
+    pause_windows(network);
     if let Some(at) = steady {
         return Err(format!(
             "node 33's outputs went off at {:.3} ms with node 1's contacts closed",
@@ -300,6 +391,16 @@ pub fn nominal(
     })
     .filter(|_| consumer.iter().all(|&mcu| !network.output(mcu)))
     .ok_or("node 33's outputs did not go off within a second after node 1's contacts opened")?;
+    let deepest_stack = (0..network.names().count())
+        .map(|mcu| {
+            let machine = network.machine(mcu);
+            let top = machine
+                .read_memory(crate::image::FLASH_ORIGIN, 4)
+                .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+            let lowest = machine.profile().map_or(top, |p| p.lowest_sp().min(top));
+            top - lowest
+        })
+        .collect();
     Ok(Nominal {
         configured_in,
         sdo_requests: requests,
@@ -307,6 +408,9 @@ pub fn nominal(
         bound: refresh,
         costs,
         load,
+        pre_operational,
+        operational,
+        deepest_stack,
     })
 }
 

@@ -56,6 +56,7 @@ use crate::peripherals::rcc::{self, Hse, Rcc, ResetCause};
 use crate::peripherals::tim2::{self, Tim2};
 use crate::peripherals::usart::{self, Transmitted, Usart};
 use crate::peripherals::{AccessError, Context, Peripheral};
+use crate::profile::Profile;
 use crate::stop::{Access, Fault, Outcome, Stop};
 use crate::system::exceptions::{FIRST_IRQ, Masks, number};
 use crate::system::{self, CoreState, SystemControl};
@@ -206,6 +207,8 @@ pub struct State {
     flash_dirty: bool,
     /// When the flash operation in progress ends: fetches from flash stall until then.
     flash_busy_until: Option<Nanos>,
+    /// Where the instructions go, when asked for ([`Machine::start_profile`]).
+    profile: Option<Box<Profile>>,
 }
 
 impl State {
@@ -761,6 +764,12 @@ fn on_block(uc: &mut Uc<'_>, address: u64, size: u32) {
     if (attention || uc.get_data().attention) && take_pending(uc, address) {
         return;
     }
+    if uc.get_data().profile.is_some() {
+        let sp = reg(uc, RegisterARM::SP);
+        if let Some(profile) = uc.get_data_mut().profile.as_mut() {
+            profile.block(address, count, sp);
+        }
+    }
     let st = uc.get_data_mut();
     st.clock.add(u64::from(count));
     st.instructions += u64::from(count);
@@ -1237,6 +1246,7 @@ impl Machine {
             flash_shadow: vec![0xFF; memory::FLASH_SIZE as usize],
             flash_dirty: false,
             flash_busy_until: None,
+            profile: None,
         };
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB | Mode::LITTLE_ENDIAN, state)
             .map_err(engine("start"))?;
@@ -1656,6 +1666,10 @@ impl Machine {
             st.sleep = None;
             st.attention = true;
             st.wake_ups += 1;
+            let now = st.clock.now();
+            if let Some(profile) = st.profile.as_mut() {
+                profile.woke(now);
+            }
             return;
         }
         let next = st.deadline.min(st.end);
@@ -1682,6 +1696,35 @@ impl Machine {
     /// an image whose loop sleeps when it has nothing to do (embassy's executor).
     pub fn wake_ups(&self) -> u64 {
         self.uc.get_data().wake_ups
+    }
+
+    /// Starts profiling ([`crate::profile`]): the instructions per block and per activation
+    /// and the deepest stack from now on; a profile already running starts a new window
+    /// ([`Profile::restart`]) and keeps its deepest stack.
+    pub fn start_profile(&mut self) {
+        let st = self.uc.get_data_mut();
+        match st.profile.as_mut() {
+            Some(profile) => profile.restart(),
+            None => st.profile = Some(Box::new(Profile::new(&st.symbols))),
+        }
+    }
+
+    /// Stops counting blocks and activations; the deepest stack is still followed
+    /// ([`Profile::pause`]). [`Machine::start_profile`] starts a new window.
+    pub fn pause_profile(&mut self) {
+        if let Some(profile) = self.uc.get_data_mut().profile.as_mut() {
+            profile.pause();
+        }
+    }
+
+    /// The profile since [`Machine::start_profile`] (`None`: not profiling).
+    pub fn profile(&self) -> Option<&Profile> {
+        self.uc.get_data().profile.as_deref()
+    }
+
+    /// The image's function symbols, to read a profile with.
+    pub fn symbols(&self) -> &Symbols {
+        &self.uc.get_data().symbols
     }
 
     /// Whether the core is asleep (WFI or WFE) at the end of the last run.

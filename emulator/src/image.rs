@@ -147,6 +147,36 @@ impl Symbols {
         Symbols { functions }
     }
 
+    /// A table of functions given as (start, size, name), for tests.
+    pub fn from_functions(functions: &[(u32, u32, &str)]) -> Symbols {
+        let mut functions: Vec<Function> = functions
+            .iter()
+            .map(|&(start, size, name)| Function {
+                start,
+                size,
+                name: name.to_owned(),
+            })
+            .collect();
+        functions.sort_by_key(|function| function.start);
+        Symbols { functions }
+    }
+
+    /// The start addresses of the functions named `name` (`whole`), or whose names contain
+    /// it.
+    pub fn starts_of(&self, name: &str, whole: bool) -> Vec<u32> {
+        self.functions
+            .iter()
+            .filter(|function| {
+                if whole {
+                    function.name == name
+                } else {
+                    function.name.contains(name)
+                }
+            })
+            .map(|function| function.start)
+            .collect()
+    }
+
     /// The function that holds `address`, if the symbol table knows one.
     pub fn function(&self, address: u32) -> Option<&str> {
         let index = self

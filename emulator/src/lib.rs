@@ -20,11 +20,13 @@
 pub mod cases;
 pub mod cpu;
 pub mod e2e;
+pub mod figures;
 pub mod image;
 pub mod log;
 pub mod memory;
 pub mod network;
 pub mod peripherals;
+pub mod profile;
 pub mod rtt;
 pub mod scenario;
 pub mod socketcand;

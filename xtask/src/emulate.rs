@@ -177,26 +177,21 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         }
         let file = write_network_file(root)?.into_os_string();
         match case {
-            Case::Nominal { load_seconds } => {
-                arguments.extend(["--nominal".into(), file, "--e2e".into()]);
-                arguments.extend(scenario_arguments(root)?);
-                if let Some(seconds) = load_seconds {
-                    arguments.extend([
-                        "--load".into(),
-                        crate::e2e::LOAD_PERCENT.to_string().into(),
-                        "--load-for".into(),
-                        format!("{}ms", (seconds * 1000.0).round()).into(),
-                    ]);
-                }
-            }
             Case::PowerCutSweep { every } => arguments.extend([
                 "--power-cut-sweep".into(),
                 file,
                 "--every".into(),
                 every.to_string().into(),
             ]),
-            Case::Run | Case::Serve { .. } => {}
+            Case::Run | Case::Serve { .. } | Case::Nominal { .. } => {}
         }
+    }
+    if let Case::Nominal { load_seconds } = case {
+        // The measuring run: the same as `cargo xtask test`'s, which writes the figures.
+        let emulate = build_emulate_network(root)?;
+        let file = write_network_file(root)?;
+        let seconds = load_seconds.unwrap_or(NOMINAL_LOAD_SECONDS);
+        return nominal_check(root, &cross, &emulate, &file, seconds);
     }
     crate::run(
         cargo()
@@ -434,7 +429,7 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
         println!("xtask: {line}");
     }
     socketcand_check(root, cross, &emulate)?;
-    nominal_check(root, cross, &emulate, &file)
+    nominal_check(root, cross, &emulate, &file, NOMINAL_LOAD_SECONDS)
 }
 
 /// The shipped images joined from outside (`emulate-network --socketcand`): the tool
@@ -493,18 +488,24 @@ fn socketcand_check(root: &Path, cross: &toolchain::Cross, emulate: &Path) -> Re
     Ok(())
 }
 
-/// The nominal case with the bus under load, in `cargo xtask test`: [`NOMINAL_LOAD_PERCENT`]
-/// of the bus beside the SRDOs for [`NOMINAL_LOAD_FOR`].
-const NOMINAL_LOAD_PERCENT: &str = "30";
-const NOMINAL_LOAD_FOR: &str = "10s";
+/// How long the nominal case keeps the bus under load in `cargo xtask test` (seconds of
+/// virtual time), at `e2e::LOAD_PERCENT` of the bus beside the SRDOs.
+const NOMINAL_LOAD_SECONDS: f64 = crate::e2e::CI_LOAD_SECONDS;
 
 /// Where the nominal case's figures are written.
 const FIGURES: &str = "docs/emulated-figures.md";
 
 /// Both nodes' shipped images configured by the tool's library, started, under bus load,
 /// then the emergency stop (`emulator::cases::nominal`); writes what it measured to
-/// [`FIGURES`].
-fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &Path) -> Result<()> {
+/// [`FIGURES`]: the case's verdicts and timings, and where each MCU's instructions go
+/// (`emulator::figures`: per idle loop iteration, per pair, per function, the deepest stack).
+fn nominal_check(
+    root: &Path,
+    cross: &toolchain::Cross,
+    emulate: &Path,
+    file: &Path,
+    load_seconds: f64,
+) -> Result<()> {
     let layer = Protocol::CanopenSafety.hardware_layer();
     let output = std::process::Command::new(emulate)
         .arg(images::image(cross, root, layer, "a"))
@@ -514,10 +515,10 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
         .args(scenario_arguments(root)?)
         .args([
             "--load",
-            NOMINAL_LOAD_PERCENT,
+            &crate::e2e::LOAD_PERCENT.to_string(),
             "--load-for",
-            NOMINAL_LOAD_FOR,
         ])
+        .arg(format!("{}ms", (load_seconds * 1000.0).round()))
         .output()?;
     let log = String::from_utf8_lossy(&output.stdout);
     if !output.status.success() {
@@ -532,32 +533,32 @@ fn nominal_check(root: &Path, cross: &toolchain::Cross, emulate: &Path, file: &P
         .filter(|line| !line.contains("sealed image"))
         .collect();
     for line in &lines {
-        if !line.starts_with("cost ") {
+        if !line.starts_with("cost ") && !line.starts_with("figures") {
             println!("xtask: {line}");
         }
     }
     let mut report = String::from(
         "# Figures of the shipped images on the emulated network\n\n\
-         Written by `cargo xtask test` (`xtask/src/emulate.rs`, `nominal_check`) from \
-         `emulate-network --nominal --e2e` on the four shipped CANopen Safety images, with \
-         the bus under load, then the end-to-end fault cases (`emulator::e2e`, each bound the \
-         standard's time plus the devices' own allowance) and the scenarios of \
-         `scenarios/emulated/` (`emulator::scenario`); do not edit by hand. Virtual time is exact; instructions are \
-         counted by the emulator (one per executed Thumb instruction, not cycles); an \
-         iteration is a wake-up of the core from WFI (docs/emulator.md).\n\n",
+         Written by `cargo xtask test`, `cargo xtask e2e` and `cargo xtask emulate --network \
+         --nominal` (`xtask/src/emulate.rs`, `nominal_check`) from `emulate-network --nominal \
+         --e2e` on the four shipped CANopen Safety images, with the bus under load, then the \
+         end-to-end fault cases (`emulator::e2e`, each bound the standard's time plus the \
+         devices' own allowance) and the scenarios of `scenarios/emulated/` \
+         (`emulator::scenario`); do not edit by hand. Virtual time is exact; instructions are \
+         counted by the emulator (one per executed Thumb instruction, not cycles; \
+         docs/emulator.md).\n\n",
     );
-    for line in lines.iter().filter(|line| !line.starts_with("cost ")) {
+    for line in lines
+        .iter()
+        .filter(|line| !line.starts_with("cost ") && !line.starts_with("figures"))
+    {
         report.push_str(&format!("- {line}\n"));
     }
-    report.push_str(
-        "\nPer MCU, over one second pre-operational (unconfigured, before the \
-                     configuration) and one second Operational (SRDO 1 every 100 ms):\n\n```json\n",
-    );
-    for line in lines.iter().filter_map(|line| line.strip_prefix("cost ")) {
-        report.push_str(line);
+    report.push('\n');
+    for line in lines.iter().filter_map(|line| line.strip_prefix("figures")) {
+        report.push_str(line.strip_prefix(' ').unwrap_or(line));
         report.push('\n');
     }
-    report.push_str("```\n");
     std::fs::write(root.join(FIGURES), report)?;
     println!("xtask: the nominal case passed on the shipped images; figures in {FIGURES}");
     Ok(())

@@ -121,8 +121,9 @@ enum Task {
         network: bool,
         /// With `--network`: the nominal end-to-end case instead of a fixed time (configure
         /// both nodes with the tool's library from `cargo xtask run`'s network file, start
-        /// them, open node 1's contacts and time node 33's outputs going off), then the
-        /// end-to-end fault cases on the shipped images (`emulator::e2e`).
+        /// them, load the bus, open node 1's contacts and time node 33's outputs going off),
+        /// then the end-to-end fault cases and the emulated scenarios on the shipped images
+        /// (`emulator::e2e`, `emulator::scenario`); writes docs/emulated-figures.md.
         #[arg(long, requires = "network")]
         nominal: bool,
         /// With `--network`: cut node 1's power at every flash program and erase step of its

@@ -36,8 +36,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::waitqueue::AtomicWaker;
 use heapless::Deque;
 
-/// The byte that ends every link frame (COBS, `cobs-frames`).
-pub const DELIMITER: u8 = 0x00;
+use dual_channel::link::DELIMITER;
 /// Receive queue, bytes: what arrives while the loop is busy.
 const RX_BYTES: usize = 256;
 /// Transmit queue, bytes (the link's transmit queue: `super::LINK_TX_BYTES`).

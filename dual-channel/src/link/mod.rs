@@ -59,6 +59,10 @@ const _: () = assert!(
 /// One byte on the link at the boards' rate: the device's link baud rate, ten bits a byte.
 pub use safety_device::timing::LINK_BYTE_TIME as BYTE_TIME;
 
+/// The byte that ends every message on the wire: COBS leaves it out of the frame, so a
+/// board can tell a message's end from its bytes without decoding them.
+pub const DELIMITER: u8 = 0x00;
+
 /// Link messages that may be ahead of one message in a channel's link transmit queue, and
 /// the message itself: the device's count (a heartbeat and the probe sent with it, the echo
 /// of the other channel's probe, an input digest sent at an input change, a verdict on a

@@ -70,6 +70,12 @@ struct Cli {
     /// With `--load`: for this long (virtual time).
     #[arg(long, default_value = "10s", value_parser = emulator::time::parse_duration)]
     load_for: Nanos,
+    /// With `--nominal`: write each MCU's instructions per translated block in the
+    /// Operational window into this directory (`NAME.blocks`: address and instructions per
+    /// line, most first; `llvm-addr2line -f -i -e IMAGE` names their source lines), and its
+    /// activations (`NAME.activations`: when, instructions, loop iterations, markers).
+    #[arg(long, requires = "nominal", value_name = "DIR")]
+    profile_blocks: Option<PathBuf>,
     /// Hang an MCU's core (no instruction, no interrupt; its watchdog runs on), as
     /// `NAME@AT/FOR`: `node33a@1200ms/300ms`. Repeatable.
     #[arg(long, value_parser = parse_hang)]
@@ -327,6 +333,30 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                         cost.pairs,
                         cost.per_pair()
                     );
+                }
+                if let Some(dir) = &cli.profile_blocks {
+                    std::fs::create_dir_all(dir)?;
+                    for (name, window) in names.iter().zip(&nominal.operational) {
+                        let mut text = String::new();
+                        for (address, instructions) in &window.blocks {
+                            text.push_str(&format!("{address:#010x} {instructions}\n"));
+                        }
+                        std::fs::write(dir.join(format!("{name}.blocks")), text)?;
+                        let mut text = String::new();
+                        for activation in &window.activations {
+                            text.push_str(&format!(
+                                "{:.6} ms {} instructions {} iterations {}\n",
+                                activation.at as f64 / 1e6,
+                                activation.instructions,
+                                activation.iterations,
+                                activation.describe()
+                            ));
+                        }
+                        std::fs::write(dir.join(format!("{name}.activations")), text)?;
+                    }
+                }
+                for line in emulator::figures::markdown(&nominal, &names) {
+                    println!("emulate-network: figures {line}");
                 }
                 Ok(!stopped && nominal.reaction <= nominal.bound)
             }

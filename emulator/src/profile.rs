@@ -1,0 +1,410 @@
+//! Where an emulated MCU's instructions go: a profile kept while it runs, counted at each
+//! translated block's start with the block's instruction count (the count virtual time uses),
+//! and read afterwards against the image's function symbols.
+//!
+//! Three things are kept:
+//!
+//! - **Per block**: the instructions executed in each translated block, by its first address;
+//!   [`Profile::functions`] sums them by the function symbol that holds the block (a flat
+//!   profile: a function's own instructions, not its callees').
+//! - **Per activation**: the instructions from one wake-up of the core (from WFI or WFE) to
+//!   the next, with the [`Marker`]s whose function was entered meanwhile. An activation is the
+//!   whole cost of what woke the core: the interrupt handlers, embassy's executor, the channel
+//!   loop's iteration if the loop task ran, and the wait it then sets up. One that entered no
+//!   marker ran interrupt handlers only (a link byte into or out of the USART's ring, say).
+//! - **The deepest stack**: the lowest main stack pointer seen at a block's start since the
+//!   profile began (a leaf function's own frame below it is not seen; exception frames are,
+//!   at their handler's first block).
+//!
+//! A profile costs a hash-map look-up per block; a machine keeps none unless asked
+//! ([`crate::cpu::Machine::start_profile`]).
+
+use std::collections::HashMap;
+
+use crate::image::Symbols;
+
+/// A function whose entry tells what an activation did, found in the image's symbols by a
+/// part of its demangled name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Marker {
+    /// Its name in reports.
+    pub label: &'static str,
+    /// The demangled function name (the hash left out), or a part of it that only it has.
+    pub symbol: &'static str,
+    /// Whether [`Marker::symbol`] is the whole name (an interrupt handler's), not a part.
+    pub whole: bool,
+}
+
+/// The markers of the shipped images (`board::hw`, `dual_channel`), in bit order.
+pub const MARKERS: [Marker; 12] = [
+    Marker {
+        label: "loop",
+        symbol: "dual_channel::channel_loop::ChannelLoop::service",
+        whole: false,
+    },
+    Marker {
+        label: "frame",
+        symbol: "dual_channel::channel_loop::hand",
+        whole: false,
+    },
+    Marker {
+        label: "link message",
+        symbol: "cobs_frames::Reassembler<_>::collect",
+        whole: false,
+    },
+    Marker {
+        label: "link sent",
+        symbol: "dual_channel::runtime::Runtime<F,R,_,P>::send",
+        whole: false,
+    },
+    Marker {
+        label: "heartbeat",
+        symbol: "dual_channel::runtime::Runtime<F,R,_,P>::heartbeat",
+        whole: false,
+    },
+    Marker {
+        label: "CAN sent",
+        symbol: "board::hw::HwDriver as dual_channel::channel_loop::Driver>::transmit",
+        whole: false,
+    },
+    Marker {
+        label: "SRDO produced",
+        symbol: "dual_channel::runtime::Runtime<F,R,_,P>::core_frame",
+        whole: false,
+    },
+    Marker {
+        label: "pair validated",
+        symbol: "shared::safety::srdo::deliver_clamped",
+        whole: false,
+    },
+    Marker {
+        label: "verdict",
+        symbol: "dual_channel::crosscheck::VerdictCheck<_,S>::arrive",
+        whole: false,
+    },
+    Marker {
+        label: "USART3",
+        symbol: "USART3",
+        whole: true,
+    },
+    Marker {
+        label: "CAN interrupt",
+        symbol: "CAN1_",
+        whole: false,
+    },
+    Marker {
+        label: "timer",
+        symbol: "TIM2",
+        whole: true,
+    },
+];
+
+/// The bit of marker `label` in [`Activation::marks`] (`0` when no marker has that label).
+pub fn bit(label: &str) -> u32 {
+    MARKERS
+        .iter()
+        .position(|marker| marker.label == label)
+        .map_or(0, |index| 1 << index)
+}
+
+/// One activation: what ran from one wake-up to the next.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Activation {
+    /// When the core woke for it (virtual time, ns).
+    pub at: u64,
+    /// Instructions executed.
+    pub instructions: u64,
+    /// The [`MARKERS`] entered, one bit each in their order.
+    pub marks: u32,
+    /// Times the first marker (the channel loop's iteration) was entered.
+    pub iterations: u32,
+}
+
+impl Activation {
+    /// Whether marker `label` was entered.
+    pub fn has(&self, label: &str) -> bool {
+        self.marks & bit(label) != 0
+    }
+
+    /// The labels of the markers entered, joined by `+` (`interrupts only` when the loop did
+    /// not run and no marker was entered).
+    pub fn describe(&self) -> String {
+        let labels: Vec<&str> = MARKERS
+            .iter()
+            .enumerate()
+            .filter(|(index, _)| self.marks & (1 << index) != 0)
+            .map(|(_, marker)| marker.label)
+            .collect();
+        if labels.is_empty() {
+            "nothing marked".to_owned()
+        } else {
+            labels.join("+")
+        }
+    }
+}
+
+/// What one block start holds: instructions counted there and the markers it is the entry of.
+#[derive(Clone, Copy, Debug, Default)]
+struct BlockCount {
+    instructions: u64,
+    marks: u32,
+}
+
+/// The profile of one machine since [`crate::cpu::Machine::start_profile`].
+#[derive(Clone, Debug)]
+pub struct Profile {
+    blocks: HashMap<u32, BlockCount>,
+    /// Function entries of the markers: address (Thumb bit clear) to marker bits.
+    entries: HashMap<u32, u32>,
+    current: Activation,
+    /// The blocks of the current activation, in order, with their instructions.
+    current_blocks: Vec<(u32, u32)>,
+    /// The blocks of the last activation that was a loop iteration woken by the timer alone
+    /// ([`Profile::timer_iteration`]).
+    timer_iteration: Vec<(u32, u32)>,
+    activations: Vec<Activation>,
+    lowest_sp: u32,
+    /// Whether blocks and activations are counted ([`Profile::pause`]); the deepest stack
+    /// always is.
+    counting: bool,
+}
+
+impl Profile {
+    /// A profile that finds [`MARKERS`] in `symbols`.
+    pub fn new(symbols: &Symbols) -> Profile {
+        let mut entries: HashMap<u32, u32> = HashMap::new();
+        for (index, marker) in MARKERS.iter().enumerate() {
+            for start in symbols.starts_of(marker.symbol, marker.whole) {
+                *entries.entry(start).or_default() |= 1 << index;
+            }
+        }
+        Profile {
+            blocks: HashMap::new(),
+            entries,
+            current: Activation::default(),
+            current_blocks: Vec::new(),
+            timer_iteration: Vec::new(),
+            activations: Vec::new(),
+            lowest_sp: u32::MAX,
+            counting: true,
+        }
+    }
+
+    /// Counts a block of `instructions` starting at `address`, entered with the stack pointer
+    /// at `sp`.
+    pub fn block(&mut self, address: u32, instructions: u32, sp: u32) {
+        self.lowest_sp = self.lowest_sp.min(sp);
+        if !self.counting {
+            return;
+        }
+        let entries = &self.entries;
+        let count = self.blocks.entry(address).or_insert_with(|| BlockCount {
+            instructions: 0,
+            marks: entries.get(&address).copied().unwrap_or(0),
+        });
+        count.instructions += u64::from(instructions);
+        self.current.instructions += u64::from(instructions);
+        self.current.marks |= count.marks;
+        self.current.iterations += count.marks & 1;
+        self.current_blocks.push((address, instructions));
+    }
+
+    /// The core woke at `at` (virtual time): the activation before ends here.
+    pub fn woke(&mut self, at: u64) {
+        if !self.counting {
+            return;
+        }
+        let ended = std::mem::replace(
+            &mut self.current,
+            Activation {
+                at,
+                ..Activation::default()
+            },
+        );
+        if ended.marks == bit("loop") | bit("timer") && ended.iterations == 1 {
+            std::mem::swap(&mut self.timer_iteration, &mut self.current_blocks);
+        }
+        self.current_blocks.clear();
+        if ended.instructions > 0 {
+            self.activations.push(ended);
+        }
+    }
+
+    /// The last activation that was one loop iteration woken by the timer and nothing else
+    /// (the input sample's: an idle iteration), as instructions per function in the order
+    /// the functions were first entered.
+    pub fn timer_iteration(&self, symbols: &Symbols) -> Vec<(String, u64)> {
+        let mut functions: Vec<(String, u64)> = Vec::new();
+        for &(address, instructions) in &self.timer_iteration {
+            let name = symbols
+                .function(address)
+                .map_or_else(|| format!("{address:#010x}"), short_name);
+            match functions.iter_mut().find(|(known, _)| *known == name) {
+                Some((_, sum)) => *sum += u64::from(instructions),
+                None => functions.push((name, u64::from(instructions))),
+            }
+        }
+        functions
+    }
+
+    /// The activations ended so far, oldest first.
+    pub fn activations(&self) -> &[Activation] {
+        &self.activations
+    }
+
+    /// The lowest stack pointer seen at a block's start (`u32::MAX`: no block yet).
+    pub fn lowest_sp(&self) -> u32 {
+        self.lowest_sp
+    }
+
+    /// Instructions per function (by `symbols`; blocks outside every symbol under their
+    /// address), most first.
+    pub fn functions(&self, symbols: &Symbols) -> Vec<(String, u64)> {
+        let mut sums: HashMap<String, u64> = HashMap::new();
+        for (&address, count) in &self.blocks {
+            let name = symbols
+                .function(address)
+                .map_or_else(|| format!("{address:#010x}"), short_name);
+            *sums.entry(name).or_default() += count.instructions;
+        }
+        let mut functions: Vec<(String, u64)> = sums.into_iter().collect();
+        functions.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+        functions
+    }
+
+    /// Instructions per block start address, most first (for a finer look than
+    /// [`Profile::functions`]: `llvm-addr2line` names the source lines).
+    pub fn blocks(&self) -> Vec<(u32, u64)> {
+        let mut blocks: Vec<(u32, u64)> = self
+            .blocks
+            .iter()
+            .map(|(&address, count)| (address, count.instructions))
+            .collect();
+        blocks.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        blocks
+    }
+
+    /// Stops counting blocks and activations (what was counted stays readable); the deepest
+    /// stack is still followed. [`Profile::restart`] counts again.
+    pub fn pause(&mut self) {
+        self.counting = false;
+    }
+
+    /// Forgets the blocks and activations counted so far (the deepest stack is kept) and
+    /// counts again: the start of a new window.
+    pub fn restart(&mut self) {
+        self.counting = true;
+        self.blocks.clear();
+        self.activations.clear();
+        self.current = Activation::default();
+        self.current_blocks.clear();
+        self.timer_iteration.clear();
+    }
+}
+
+/// A function's name without its generic parameters (`Runtime<F,R,_,P>::send` is
+/// `Runtime::send`), short enough for a table; a qualified path's angle brackets
+/// (`<HwDriver as Driver>::transmit`) stay.
+fn short_name(name: &str) -> String {
+    let mut out = String::with_capacity(name.len());
+    // Per open bracket: whether it opens generic parameters (left out).
+    let mut open: Vec<bool> = Vec::new();
+    let mut previous = ' ';
+    for c in name.chars() {
+        let hidden = open.iter().any(|&generic| generic);
+        match c {
+            '<' => {
+                let generic = previous.is_alphanumeric() || previous == '_';
+                if !hidden && !generic {
+                    out.push(c);
+                }
+                open.push(generic);
+            }
+            '>' => {
+                let generic = open.pop().unwrap_or(true);
+                let shown = !generic && !open.iter().any(|&generic| generic);
+                if shown {
+                    out.push(c);
+                }
+            }
+            _ if !hidden => out.push(c),
+            _ => {}
+        }
+        previous = c;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_activation_sums_its_blocks_and_keeps_the_markers_entered() {
+        let symbols = Symbols::from_functions(&[
+            (
+                0x100,
+                0x40,
+                "dual_channel::channel_loop::ChannelLoop::service",
+            ),
+            (0x200, 0x40, "USART3"),
+        ]);
+        let mut profile = Profile::new(&symbols);
+        profile.block(0x200, 5, 0x2000_1000);
+        profile.woke(1_000);
+        profile.block(0x100, 10, 0x2000_0F00);
+        profile.block(0x110, 3, 0x2000_0F00);
+        profile.woke(2_000);
+        let [byte, iteration] = profile.activations() else {
+            panic!("two activations: {:?}", profile.activations());
+        };
+        assert_eq!((byte.instructions, byte.describe().as_str()), (5, "USART3"));
+        assert_eq!((iteration.at, iteration.instructions), (1_000, 13));
+        assert!(iteration.has("loop") && !iteration.has("USART3"));
+        assert_eq!(profile.lowest_sp(), 0x2000_0F00);
+        let functions = profile.functions(&symbols);
+        assert_eq!(
+            functions[0],
+            (
+                "dual_channel::channel_loop::ChannelLoop::service".to_owned(),
+                13
+            )
+        );
+    }
+
+    #[test]
+    fn a_paused_profile_counts_nothing_but_still_follows_the_stack() {
+        let symbols = Symbols::from_functions(&[(0x100, 0x40, "USART3")]);
+        let mut profile = Profile::new(&symbols);
+        profile.pause();
+        profile.block(0x100, 5, 0x2000_0800);
+        profile.woke(1_000);
+        assert!(profile.activations().is_empty() && profile.blocks().is_empty());
+        assert_eq!(profile.lowest_sp(), 0x2000_0800);
+        profile.restart();
+        profile.block(0x100, 5, 0x2000_1000);
+        profile.woke(2_000);
+        assert_eq!(profile.activations().len(), 1);
+        assert_eq!(profile.lowest_sp(), 0x2000_0800);
+    }
+
+    #[test]
+    fn generic_parameters_are_left_out_of_a_function_name() {
+        assert_eq!(
+            short_name("dual_channel::runtime::Runtime<F,R,_,P>::send"),
+            "dual_channel::runtime::Runtime::send"
+        );
+        assert_eq!(
+            short_name("<board::hw::HwDriver as dual_channel::channel_loop::Driver>::transmit"),
+            "<board::hw::HwDriver as dual_channel::channel_loop::Driver>::transmit"
+        );
+        assert_eq!(
+            short_name("<embassy_time::Timer as core::future::Future>::poll"),
+            "<embassy_time::Timer as core::future::Future>::poll"
+        );
+        assert_eq!(
+            short_name("embassy_executor::raw::TaskStorage<F>::poll"),
+            "embassy_executor::raw::TaskStorage::poll"
+        );
+    }
+}
