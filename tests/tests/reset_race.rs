@@ -8,8 +8,8 @@
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use shared::canopen::nmt::{self, NmtCommand};
 use shared::safety::types::SrdoNumber;
-use shared::{Duration, Instant};
-use system_tests::bus::{Fault, Match};
+use shared::{CanFrame, CanId, Duration, Instant};
+use system_tests::bus::{Fault, Injection, Match, frame_time};
 use system_tests::dual::{DualNetwork, Side};
 
 /// Node 1's refresh time in [`system_tests::dual::NETWORK_FILE`]: the cycle the sweep covers.
@@ -254,4 +254,212 @@ fn en50325_5_7_2_1_an_input_change_after_reset_and_start_at_any_phase_is_not_a_f
         "{} resets failed: {failed:?}",
         failed.len()
     );
+}
+
+/// Node 1's channel A on the bus (node 1 is the network's first node: participant 1).
+const NODE_1_A: usize = 1;
+
+/// The bus's bit rate in [`running`].
+const BIT_RATE: u32 = 500_000;
+
+/// A frame no node follows (an SDO request to node 127, which is not on the bus), with eight
+/// data bytes: it keeps the bus busy.
+fn filler() -> CanFrame {
+    CanFrame::new(CanId::new(0x67F).expect("identifier"), &[0x55; 8]).expect("frame")
+}
+
+/// Where the log and the bus trace stood before an NMT command, and when node 1's plain frame
+/// of the ended epoch reached the bus.
+struct Overtaken {
+    log: usize,
+    trace: usize,
+    plain_at: Instant,
+}
+
+/// Node 1's channel A hands its next plain frame to its controller (announcing it to channel
+/// B over the link) while the tool's frames keep the bus busy, and the tool queues `command`
+/// to all nodes right after: the NMT frame wins arbitration, and the plain frame, announced
+/// before the reset, reaches the bus after it. Asserts that order on the bus.
+fn reset_overtaking_a_queued_plain_frame(net: &mut DualNetwork, command: NmtCommand) -> Overtaken {
+    until_on_bus(net, PLAIN);
+    let (at, frame, _) = *net.trace.last().expect("the plain frame");
+    // A hands out its plain frames every refresh time; the bus was idle for the last one.
+    let handed = Instant::from_micros(at.as_micros() - frame_time(&frame, BIT_RATE).as_micros());
+    let next = handed + REFRESH;
+    net.run_until(Instant::from_micros(next.as_micros() - 300));
+    net.send_foreign(filler());
+    net.send_foreign(filler());
+    net.run_until(next);
+    assert!(
+        net.bus.queued(NODE_1_A) > 0 && net.on_the_bus().any(|(_, f, _)| f == filler()),
+        "node 1's plain frame waits in channel A's queue behind the tool's frames"
+    );
+    let since = (net.log.len(), net.trace.len());
+    net.send_foreign(nmt::command_frame(command, 0));
+    until_on_bus(net, PLAIN);
+    let frames = &net.trace[since.1..];
+    let reset = frames
+        .iter()
+        .position(|(_, f, _)| f.id().raw() == 0)
+        .expect("the NMT command on the bus");
+    let plain = frames
+        .iter()
+        .position(|(_, f, _)| f.id().raw() == PLAIN)
+        .expect("the plain frame on the bus");
+    assert!(reset < plain, "the NMT command overtook the plain frame: {frames:?}");
+    Overtaken {
+        log: since.0,
+        trace: since.1,
+        plain_at: frames[plain].0,
+    }
+}
+
+/// The faults node 1 reported since log position `since`.
+fn node_1_faults(net: &DualNetwork, since: usize) -> Vec<(Instant, u8, Side, ChannelFault)> {
+    faults(net, since)
+        .into_iter()
+        .filter(|(_, id, ..)| *id == 1)
+        .collect()
+}
+
+/// CiA 304 9.5, CiA 301 7.2.8.3.1 (the model's first finding, `docs/model-checking.md`): the
+/// NMT reset communication overtakes node 1's plain frame in channel A's transmit queue (A
+/// announced it before the reset); channel A's heartbeat of the new epoch reaches channel B
+/// before the plain frame does, and the master's start follows anywhere from at once to past
+/// channel B's window after the plain frame. The plain frame of the ended epoch is channel
+/// A's own, of a pair A cut: channel B neither co-signs it nor reports it as foreign, and both
+/// nodes work after the start. Before channel B kept the announcements of A's ended epoch for
+/// the frames still to come, the frame found no announcement: foreign at the end of B's
+/// window when A's first plain frame of the new epoch came later (a start from 4.3 ms after
+/// the plain frame on), and a copy of that frame otherwise (B then co-signed the new frame
+/// against the old one's arrival).
+#[test]
+fn cia304_9_5_a_plain_frame_overtaken_by_nmt_reset_is_neither_co_signed_nor_foreign() {
+    let mut failed = Vec::new();
+    for step in 0..=60 {
+        let mut net = running(Duration::ZERO);
+        let reset = reset_overtaking_a_queued_plain_frame(&mut net, NmtCommand::ResetCommunication);
+        net.run_until(reset.plain_at + Duration::from_micros(step * STEP.as_micros()));
+        start(&mut net);
+        net.run_for(Duration::from_millis(100));
+        let faults = node_1_faults(&net, reset.log);
+        // Nothing co-signs the ended epoch's frame: the first inverted frame on the bus after
+        // the NMT frame follows a plain frame of the new epoch, sent after the start.
+        let frames = &net.trace[reset.trace..];
+        let started = frames
+            .iter()
+            .position(|(_, f, _)| f.id().raw() == 0 && f.data()[0] == 0x01)
+            .expect("the start on the bus");
+        let first_inverted = frames.iter().position(|(_, f, _)| f.id().raw() == INVERTED);
+        let co_signed_old = first_inverted.is_none_or(|inverted| inverted < started);
+        if !faults.is_empty() || net.output(33) != 1 || co_signed_old {
+            failed.push((step, faults, net.output(33), co_signed_old));
+        }
+    }
+    assert!(failed.is_empty(), "{} starts failed: {failed:?}", failed.len());
+}
+
+/// While node 1's plain frame is on the bus, the tool queues NMT reset communication and start
+/// to all nodes, back to back: they follow the plain frame at once. Returns where the log and
+/// the trace stood before, and when the reset reached the bus.
+fn reset_and_start_behind_a_plain_frame(net: &mut DualNetwork) -> (usize, usize, Instant) {
+    let give_up = net.now + Duration::from_millis(200);
+    while !net.on_the_bus().any(|(_, f, _)| f.id().raw() == PLAIN) {
+        assert!(net.now < give_up, "no plain frame on the bus");
+        net.run_for(Duration::from_micros(10));
+    }
+    let since = (net.log.len(), net.trace.len());
+    net.send_foreign(nmt::command_frame(NmtCommand::ResetCommunication, 0));
+    start(net);
+    until_on_bus(net, 0);
+    let reset_at = net.trace.last().expect("the reset").0;
+    (since.0, since.1, reset_at)
+}
+
+/// The model's second finding (`docs/model-checking.md`, with an input change), CiA 304 9.5:
+/// the master resets and starts the network right behind node 1's plain frame, with the link
+/// between the channels up to 1 ms late (as under emulation), and both contacts open
+/// anywhere from the reset to 1 ms after it: channel B may take the plain frame of the ended
+/// epoch before its announcement and reset before the announcement comes, and A's first plain
+/// frame of the new epoch, carrying the new sample, may reach B before A's heartbeat of the
+/// new epoch. Node 1 reports no fault, and node 33's output follows the press and the release.
+#[test]
+fn cia304_9_5_an_input_change_right_after_reset_and_start_behind_a_plain_frame_is_not_foreign() {
+    let mut failed = Vec::new();
+    for latency in (0..=4).map(|quarter| Duration::from_micros(quarter * 250)) {
+        for step in 0..=10 {
+            let mut net = running(latency);
+            let (log, _, reset_at) = reset_and_start_behind_a_plain_frame(&mut net);
+            net.run_until(reset_at + Duration::from_micros(step * STEP.as_micros()));
+            net.set_inputs(1, 0, 0);
+            net.run_for(Duration::from_millis(100));
+            let pressed = net.output(33);
+            net.set_inputs(1, 1, 1);
+            net.run_for(Duration::from_millis(100));
+            let faults = node_1_faults(&net, log);
+            if !faults.is_empty() || pressed != 0 || net.output(33) != 1 {
+                failed.push((latency, step, faults, pressed, net.output(33)));
+            }
+        }
+    }
+    assert!(failed.is_empty(), "{} resets failed: {failed:?}", failed.len());
+}
+
+/// The model's third finding (`docs/model-checking.md`, channel B's loop late), CiA 304 9.5:
+/// the master resets and starts the network right behind node 1's plain frame while channel
+/// B's loop handles its bus frames late (0.25 to 3 ms), so that it takes A's heartbeat of the
+/// new epoch and A's first announcement of the new epoch before the plain frame of the ended
+/// epoch. B must not co-sign the old frame against the new announcement, nor find the new
+/// frame unannounced: node 1 reports no fault, and node 33's output follows node 1.
+#[test]
+fn cia304_9_5_a_late_channel_b_does_not_co_sign_the_ended_epochs_plain_frame() {
+    let mut failed = Vec::new();
+    for quarter in 1..=12 {
+        let delay = Duration::from_micros(quarter * 250);
+        let mut net = running(Duration::ZERO);
+        let give_up = net.now + Duration::from_millis(200);
+        while !net.on_the_bus().any(|(_, f, _)| f.id().raw() == PLAIN) {
+            assert!(net.now < give_up, "no plain frame on the bus");
+            net.run_for(Duration::from_micros(10));
+        }
+        let now = net.now;
+        net.node_mut(1).receive_faults.push((
+            Side::B,
+            Injection::new(
+                Match {
+                    id: None,
+                    from: None,
+                    after: now,
+                    count: None,
+                },
+                Fault::Delay(delay),
+            ),
+        ));
+        let (log, trace, _) = reset_and_start_behind_a_plain_frame(&mut net);
+        net.run_for(Duration::from_millis(100));
+        let faults = node_1_faults(&net, log);
+        // Channel B's first inverted frame after the reset co-signs a plain frame sent after
+        // the start: it follows one on the bus.
+        let frames = &net.trace[trace..];
+        let started = frames
+            .iter()
+            .position(|(_, f, _)| f.id().raw() == 0 && f.data()[0] == 0x01)
+            .expect("the start on the bus");
+        let new_plain = frames[started..]
+            .iter()
+            .position(|(_, f, _)| f.id().raw() == PLAIN)
+            .map(|at| started + at);
+        let first_inverted = frames[started..]
+            .iter()
+            .position(|(_, f, _)| f.id().raw() == INVERTED)
+            .map(|at| started + at);
+        let co_signed_old = match (new_plain, first_inverted) {
+            (Some(plain), Some(inverted)) => inverted < plain,
+            _ => true,
+        };
+        if !faults.is_empty() || net.output(33) != 1 || co_signed_old {
+            failed.push((delay, faults, net.output(33), co_signed_old));
+        }
+    }
+    assert!(failed.is_empty(), "{} delays failed: {failed:?}", failed.len());
 }
