@@ -86,6 +86,15 @@ pub struct ChannelB {
     unannounced: Option<Held>,
     /// Channel A's announced plain frame per SRDO not seen on the bus yet.
     announced: FrameSlots<4>,
+    /// Channel A's announcements of its ended epoch (made before its NMT reset) whose plain
+    /// frame this channel has not seen yet: the frame was still in A's transmit queue at the
+    /// reset, and reaches the bus after the NMT frame ([`Role::peer_reset`]).
+    ended: FrameSlots<4>,
+    /// Until when [`ChannelB::ended`] is kept: the window from A's heartbeat of the new epoch.
+    ended_until: Instant,
+    /// A plain frame this channel saw before its own NMT reset, not announced yet: its
+    /// announcement, still on the link, is of the ended epoch ([`Role::reset`]).
+    ended_unannounced: Option<Held>,
     /// The last plain frame seen on the bus, and when (its copy within the window is a double
     /// reception).
     last_plain: Option<(CanFrame, Instant)>,
@@ -110,6 +119,9 @@ impl ChannelB {
             held: None,
             unannounced: None,
             announced: FrameSlots::default(),
+            ended: FrameSlots::default(),
+            ended_until: Instant::NEVER,
+            ended_unannounced: None,
             last_plain: None,
             window: DEFAULT_WINDOW,
             #[cfg(feature = "simplecan")]
@@ -202,6 +214,16 @@ impl ChannelB {
     /// foreign (its copy is dropped), one held past the window is a discrepancy. Every entry
     /// point runs this first, so nothing that arrives at or after a wait's end acts on it.
     fn expire(&mut self, now: Instant) -> Result<(), ChannelFault> {
+        self.expire_ended(now);
+        if self
+            .ended_unannounced
+            .is_some_and(|seen| shared::time::expired(seen.since + self.window, now))
+        {
+            // Of this channel's ended epoch, never co-signed: a foreign frame then is channel
+            // A's to find (it receives every plain frame but its own), a copy is a double
+            // reception.
+            self.ended_unannounced = None;
+        }
         if let Some(seen) = self
             .unannounced
             .filter(|seen| shared::time::expired(seen.since + self.window, now))
@@ -219,6 +241,17 @@ impl ChannelB {
                 Err(ChannelFault::TransmitMismatch { srdo: held.srdo })
             }
             _ => Ok(()),
+        }
+    }
+
+    /// Forgets the announcements of A's ended epoch at the end of their window
+    /// ([`ChannelB::ended_until`]): a frame of that epoch not on the bus a window after A's
+    /// heartbeat of the new epoch was lost on the way (or its controller gave it up), and its
+    /// announcement must not let a later frame with the same data go by unsigned.
+    fn expire_ended(&mut self, now: Instant) {
+        if shared::time::expired(self.ended_until, now) {
+            self.ended.clear();
+            self.ended_until = Instant::NEVER;
         }
     }
 
@@ -304,6 +337,16 @@ impl<const N: usize> Role<N> for ChannelB {
             .last_plain
             .is_some_and(|(last, at)| last == *frame && now.saturating_since(at) < self.window);
         self.last_plain = Some((*frame, seen));
+        if let Some(ended) = self.ended.take(frame.id()) {
+            if ended == *frame {
+                // Channel A's frame of its ended epoch: A cut that pair at its reset, and no
+                // announcement of the new epoch is for it (A's frames of one identifier reach
+                // the bus in the order A handed them out, so it comes before any of them).
+                return Ok(None);
+            }
+            // Not that frame, so that frame was lost on the way: the announcement goes, and
+            // this frame is judged like any other.
+        }
         match (self.announced.take(frame.id()), self.unannounced) {
             (Some(announced), _) if announced == *frame => {
                 self.co_sign(now, seen, frame, srdo, record)
@@ -340,6 +383,22 @@ impl<const N: usize> Role<N> for ChannelB {
             // not ours (the configuration cross-check reports that too).
             return Err(ChannelFault::ConfigurationMismatch);
         };
+        if let Some(seen) = self
+            .ended_unannounced
+            .take_if(|seen| seen.frame.id() == frame.id())
+        {
+            // The announcement of the frame this channel saw before its own reset comes first
+            // (the link keeps the order): the pair was cut by that reset, nothing is
+            // co-signed. Announced otherwise than it came on the bus, the frame was foreign; a
+            // copy of the frame before it (a double reception) has no announcement of its own,
+            // and this one is for the next frame.
+            if seen.frame == *frame {
+                return Ok(None);
+            }
+            if !seen.copy {
+                return Err(ChannelFault::ForeignFrame { id });
+            }
+        }
         match self.unannounced.take() {
             Some(seen) if seen.frame.id() == frame.id() => {
                 if seen.frame == *frame {
@@ -446,23 +505,56 @@ impl<const N: usize> Role<N> for ChannelB {
         // and neither are channel A's announcements: one may have arrived just before this
         // channel's own reset, for A's first plain frame after it (A handled the NMT frames
         // first). An announcement only ever lets through a bus frame equal to it, and a newer
-        // one for the same SRDO replaces it; those A made before its own reset go when its
-        // heartbeat names the new epoch (`peer_reset`).
+        // one for the same SRDO replaces it; those A made before its own reset are set apart
+        // when its heartbeat names the new epoch (`peer_reset`).
+        //
+        // A plain frame seen before this reset and not announced yet is never co-signed, but
+        // its announcement is still on the link, and comes before any later one: kept, it
+        // takes that announcement away with it (for the window of its arrival). Forgotten, the
+        // announcement would wait in its slot for the next plain frame, A's first of the new
+        // epoch, and find it foreign when it carries another sample.
         self.held = None;
-        self.unannounced = None;
+        self.ended_unannounced = self.unannounced.take();
         self.last_plain = None;
     }
 
-    fn peer_reset(&mut self) {
-        // What channel A announced before its reset is about frames of the ending epoch: a
-        // plain frame this channel saw before its own reset (its wait cleared there), or one
-        // still in A's transmit queue at the reset, which reaches the bus after the NMT frame
-        // and is co-signed by nobody (A cut that pair). Kept, such an announcement would wait
-        // in its slot for ever and be taken for the next plain frame on the bus that comes
-        // before its own announcement (a slow link): from then on each frame is compared with
-        // the announcement before its own, and the first changed data is a foreign frame
-        // (34h). Announcements made after A's reset come after this heartbeat, and are kept.
-        self.announced.clear();
+    fn peer_reset(&mut self, now: Instant) {
+        // What channel A announced before its reset and this channel has not seen on the bus
+        // is a plain frame still in A's transmit queue at the reset: it reaches the bus after
+        // the NMT frame, before any frame A sends in its new epoch on that identifier, and is
+        // co-signed by nobody (A cut that pair). Set apart, its announcement lets that frame
+        // go by, neither co-signed nor foreign (`observe_seen`). Left in its slot, it would
+        // be taken for the next plain frame on the bus that comes before its own announcement
+        // (a slow link): from then on each frame is compared with the announcement before its
+        // own, and the first changed data is a foreign frame (34h). Forgotten, the frame of
+        // the ended epoch would be unannounced: foreign at the end of the window, or, with
+        // A's first frame of the new epoch on the bus before that, co-signed against the new
+        // announcement. Announcements made after A's reset come after this heartbeat.
+        //
+        // Kept for the window from now: the frame was queued before A's reset, so before
+        // this heartbeat left A, and only the NMT frames and frames of higher priority go
+        // before it. Kept longer, an announcement whose frame was lost (a controller cut off
+        // the bus, then the master's reset and start) would let A's first frame of the new
+        // epoch go by unsigned when it carries the same data.
+        self.ended_until = now + self.window;
+        while let Some(frame) = self.announced.take_any() {
+            // As many slots as `announced`: it fits unless frames of four other identifiers
+            // are still set apart from an earlier reset, and then the oldest are kept (this
+            // frame is then reported as foreign: the safe side).
+            let _ = self.ended.keep(frame);
+        }
+    }
+
+    fn ended_frame(&mut self, now: Instant, frame: &CanFrame) -> bool {
+        // Seen before this channel's entry into Operational (or kept since): channel A's
+        // frame of its ended epoch goes with its announcement, as in `observe_seen`, however
+        // late the master's start comes (the frame is not kept past the window).
+        self.expire_ended(now);
+        if self.ended.get(frame.id()) == Some(frame) {
+            let _ = self.ended.take(frame.id());
+            return true;
+        }
+        false
     }
 
     fn poll(&mut self, now: Instant) -> Result<(), ChannelFault> {
@@ -798,6 +890,112 @@ mod tests {
         one.declare(0x6000, 1, 1).unwrap();
         one.set(0x6000, 1, 1).unwrap();
         assert_eq!(b.inputs, one);
+    }
+
+    /// CiA 304 9.5: a plain frame channel A announced before its NMT reset and that reached the
+    /// bus after it (it waited in A's transmit queue) is A's own, of a pair A cut: once A's
+    /// heartbeat named the new epoch, B lets it go by, neither co-signed nor foreign, in
+    /// Operational or before, and co-signs A's first frame of the new epoch against its own
+    /// announcement, whichever of the two comes first.
+    #[test]
+    fn cia304_9_5_the_ended_epochs_plain_frame_is_neither_co_signed_nor_foreign() {
+        let old = frame(0x101, &[0x01]);
+        let new = frame(0x101, &[0x00]);
+        let inverted = Ok(Some(frame(0x102, &[0xFF])));
+        // In Operational, the new announcement before the old frame (B's bus frames late).
+        let mut b = b_with(0x00);
+        assert_eq!(b.announced(T, &old, &config()), Ok(None));
+        Role::<1>::peer_reset(&mut b, T);
+        let later = after(T, 1000);
+        assert_eq!(b.announced(later, &new, &config()), Ok(None));
+        assert_eq!(b.observe(later, &old, &config()), Ok(None));
+        assert_eq!(Role::<1>::deadline(&b), Instant::NEVER, "nothing waits");
+        assert_eq!(b.observe(later, &new, &config()), inverted);
+        // Before Operational: the runtime does not keep it for the entry into Operational, and
+        // the new frame before its announcement is co-signed when the announcement comes.
+        let mut b = b_with(0x00);
+        assert_eq!(b.announced(T, &old, &config()), Ok(None));
+        Role::<1>::reset(&mut b);
+        Role::<1>::peer_reset(&mut b, T);
+        assert!(Role::<1>::ended_frame(&mut b, later, &old));
+        assert!(
+            !Role::<1>::ended_frame(&mut b, later, &old),
+            "one frame per announcement"
+        );
+        assert_eq!(b.observe(later, &new, &config()), Ok(None));
+        assert_eq!(b.announced(later, &new, &config()), inverted);
+        // Kept for the window from A's heartbeat: after it, a frame with the same data is A's
+        // first of the new epoch (the old one was lost on the way), co-signed against its own
+        // announcement.
+        let mut b = b_with(0x01);
+        assert_eq!(b.announced(T, &old, &config()), Ok(None));
+        Role::<1>::peer_reset(&mut b, T);
+        let next = T + DEFAULT_WINDOW;
+        assert_eq!(read(&mut b, next), Ok(None));
+        assert_eq!(b.observe(next, &old, &config()), Ok(None));
+        assert_eq!(
+            b.announced(next, &old, &config()),
+            Ok(Some(frame(0x102, &[0xFE])))
+        );
+        // A replay of the old frame after it (past the window: within it, an exact copy is a
+        // double reception) is judged like any frame: never announced, it is foreign at the
+        // end of the window.
+        let mut b = b_with(0x00);
+        assert_eq!(b.announced(T, &old, &config()), Ok(None));
+        Role::<1>::peer_reset(&mut b, T);
+        assert_eq!(b.observe(later, &old, &config()), Ok(None));
+        let replay = later + DEFAULT_WINDOW;
+        assert_eq!(b.observe(replay, &old, &config()), Ok(None));
+        assert_eq!(
+            Role::<1>::poll(&mut b, replay + DEFAULT_WINDOW),
+            Err(ChannelFault::ForeignFrame { id: 0x101 })
+        );
+    }
+
+    /// CiA 304 9.5: a plain frame B saw before its own NMT reset, whose announcement comes
+    /// after it, goes with that announcement, co-signed by nobody; the next announcement, of A's
+    /// first frame after the reset with another sample, is that frame's, not foreign. An
+    /// announcement of other data is still foreign to the frame B saw, and B keeps the frame
+    /// no longer than the window of its arrival.
+    #[test]
+    fn cia304_9_5_a_frame_seen_before_bs_reset_goes_with_its_late_announcement() {
+        let old = frame(0x101, &[0x01]);
+        let new = frame(0x101, &[0x00]);
+        let mut b = b_with(0x00);
+        assert_eq!(b.observe(T, &old, &config()), Ok(None));
+        Role::<1>::reset(&mut b);
+        assert_eq!(
+            Role::<1>::deadline(&b),
+            Instant::NEVER,
+            "B's wait ends at its reset"
+        );
+        let later = after(T, 1000);
+        assert_eq!(b.observe(later, &new, &config()), Ok(None));
+        assert_eq!(b.announced(later, &old, &config()), Ok(None));
+        assert_eq!(
+            b.announced(later, &new, &config()),
+            Ok(Some(frame(0x102, &[0xFF])))
+        );
+        // Announced otherwise than it came on the bus: foreign.
+        let mut b = b_with(0x00);
+        assert_eq!(b.observe(T, &old, &config()), Ok(None));
+        Role::<1>::reset(&mut b);
+        assert_eq!(
+            b.announced(later, &new, &config()),
+            Err(ChannelFault::ForeignFrame { id: 0x101 })
+        );
+        // Its announcement later than the window: the frame is gone, the announcement waits
+        // for its own frame.
+        let mut b = b_with(0x01);
+        assert_eq!(b.observe(T, &old, &config()), Ok(None));
+        Role::<1>::reset(&mut b);
+        let late = T + DEFAULT_WINDOW;
+        assert_eq!(read(&mut b, late), Ok(None));
+        assert_eq!(b.announced(late, &old, &config()), Ok(None));
+        assert_eq!(
+            b.observe(late, &old, &config()),
+            Ok(Some(frame(0x102, &[0xFE])))
+        );
     }
 
     /// Both channels fold the same signatures, each computed its own way.

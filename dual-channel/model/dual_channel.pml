@@ -68,9 +68,9 @@
 #define START_AFTER_RESET_T 0   /* ticks the NMT master waits after a reset before a start */
 #endif
 /* -DRESET_NOT_OVERTAKING: the master's NMT commands never reach the bus while channel A's
- * plain frame waits in its transmit queue (excludes the finding of docs/model-checking.md:
- * such a frame reaches the bus after the reset, its announcement is forgotten, and channel B
- * reports it as foreign): the master queues none then, and one it queued before waits. */
+ * plain frame waits in its transmit queue (such a frame reaches the bus after the reset: the
+ * reset trails of docs/model-checking.md, fixed in channel B, and the consumer-side finding
+ * there with an input change): the master queues none then, and one it queued before waits. */
 #ifdef RESET_NOT_OVERTAKING
 #define MASTER_MAY_SEND empty(tx_a)
 #define M_READY (nempty(tx_m) && empty(tx_a))   /* the master's frame goes on the bus */
@@ -201,7 +201,14 @@ byte held_cd = NONE;
 byte unann = NONE;        /* ChannelB::unannounced (frame) */
 byte unann_cd = NONE;
 byte announced = NONE;    /* ChannelB::announced (frame, SRDO 1's slot) */
+byte ended = NONE;        /* ChannelB::ended (A's announcement of its ended epoch, SRDO 1's slot) */
+byte ended_cd = NONE;     /* ChannelB::ended_until: at least a window (W_T + 1 ticks) */
+byte ended_unann = NONE;  /* ChannelB::ended_unannounced (frame seen before B's own reset) */
+byte ended_unann_cd = NONE;
 byte prev = NONE;         /* ChannelB::previous (sample) */
+byte gseen_ep;            /* ghost: B's epoch when it saw the frame being co-signed */
+byte held_ep;             /* ghost: ... for the held frame */
+byte unann_ep;            /* ghost: ... for the unannounced frame */
 byte prev_age;            /* ticks since it was replaced, saturating at W_T */
 
 /* Consumer channels (index: c - CA): core, runtime, verdict check. */
@@ -449,15 +456,25 @@ inline co_sign(f, left) {
      :: FDATA(f) == sampled[PB] || (prev != NONE && prev_age < W_T && prev == FDATA(f)) ->
         /* Only a value B's own inputs read within the window, so both channels agreed. */
         assert(FDATA(f) == sampled[PB] || (prev == FDATA(f) && prev_age < W_T));
-        send_inverted(f)
+        send_inverted(f, gseen_ep)
      :: else ->
         printf("@%d B: holds plain %d for its next sample\n", tick_count, FDATA(f));
-        held = f; held_cd = left
+        held = f; held_cd = left; held_ep = gseen_ep
      fi
-  fi
+  fi;
+  gseen_ep = 0
 }
 
-inline send_inverted(f) {
+/* `ep`: B's epoch when it saw the frame on the bus. The reset property: B never co-signs a
+ * frame it saw before its own last NMT reset (after reset communication nothing from before
+ * acts; channel A cut that pair). */
+inline send_inverted(f, ep) {
+  if
+  :: ep != epoch[PB] ->
+     printf("@%d PROPERTY reset: B co-signs a frame it saw before its own reset\n", tick_count)
+  :: else -> skip
+  fi;
+  assert(ep == epoch[PB]);
   if
   :: fault[PB] == 0 ->
      printf("@%d B: co-signs plain %d\n", tick_count, FDATA(f));
@@ -483,15 +500,27 @@ inline cosign_property(f, a) {
   assert(FSRC(f) == S_A || injected)
 }
 
+/* A plain frame equal to A's announcement of its ended epoch (ChannelB::ended): A's frame of
+ * that epoch, which reached the bus after A's reset; nobody co-signs it, and it is not foreign.
+ * The frame let go is the one announced (A's frames of one identifier keep their order). */
+#define ENDED_MATCH(f) (ended != NONE && FID(f) == ID_PLAIN && FDATA(f) == FDATA(ended))
+inline let_ended_go(f) {
+  printf("@%d B: lets A's plain %d of the ended epoch go by\n", tick_count, FDATA(f));
+  assert(FSRC(f) != S_A || FNUM(f) == FNUM(ended));
+  ended = NONE; ended_cd = NONE
+}
+
 inline observe_b(f) {
   if
   :: FID(f) == ID_INV -> reply_foreign(PB)
-  :: FID(f) == ID_PLAIN ->
+  :: FID(f) == ID_PLAIN && ENDED_MATCH(f) -> let_ended_go(f)
+  :: FID(f) == ID_PLAIN && !ENDED_MATCH(f) ->
+     ended = NONE; ended_cd = NONE;    /* not that frame: it was lost, the announcement goes */
      if
      :: announced != NONE ->
         tmp = announced; announced = NONE;
         if
-        :: FDATA(tmp) == FDATA(f) -> cosign_property(f, tmp); co_sign(f, W_T)
+        :: FDATA(tmp) == FDATA(f) -> cosign_property(f, tmp); gseen_ep = epoch[PB]; co_sign(f, W_T)
         :: else -> reply_foreign(PB)
         fi
      :: announced == NONE && unann != NONE ->
@@ -499,7 +528,7 @@ inline observe_b(f) {
         :: FDATA(unann) == FDATA(f) -> skip     /* the same frame twice before its announcement */
         :: else -> reply_foreign(PB)
         fi
-     :: else -> unann = f; unann_cd = W_T
+     :: else -> unann = f; unann_cd = W_T; unann_ep = epoch[PB]
      fi
   :: else -> skip
   fi
@@ -508,14 +537,25 @@ inline observe_b(f) {
 /* ChannelB::announced; `a` is the announcement as a frame. */
 inline announced_b(a) {
   if
-  :: unann != NONE ->
+  :: ended_unann != NONE && ended_unann_cd > 0 ->
+     /* The announcement of the frame B saw before its own reset (ended_unannounced): the pair
+      * was cut by that reset, nothing is co-signed; otherwise than it came, it was foreign. */
+     tmp = ended_unann; ended_unann = NONE; ended_unann_cd = NONE;
+     if
+     :: FDATA(tmp) == FDATA(a) ->
+        printf("@%d B: announcement of plain %d seen before its reset, not co-signed\n", tick_count, FDATA(a));
+        assert(FSRC(tmp) != S_A || FNUM(tmp) == FNUM(a))
+     :: else -> reply_foreign(PB)
+     fi
+  :: unann != NONE && !(ended_unann != NONE && ended_unann_cd > 0) ->
+     ended_unann = NONE; ended_unann_cd = NONE;
      tmp = unann; unann = NONE;
      if
-     :: FDATA(tmp) == FDATA(a) -> cosign_property(tmp, a); co_sign(tmp, unann_cd)
+     :: FDATA(tmp) == FDATA(a) -> cosign_property(tmp, a); gseen_ep = unann_ep; co_sign(tmp, unann_cd)
      :: else -> reply_foreign(PB)
      fi;
      unann_cd = NONE
-  :: else -> announced = a
+  :: else -> ended_unann = NONE; ended_unann_cd = NONE; announced = a
   fi
 }
 
@@ -526,25 +566,44 @@ inline input_b(v) {
   if
   :: held != NONE && FDATA(held) == v ->
      tmp = held; held = NONE; held_cd = NONE;
-     send_inverted(tmp)
+     send_inverted(tmp, held_ep)
   :: else -> skip
   fi
 }
 
+/* ChannelB::reset: the held frame is forgotten; one not announced yet is kept for its
+ * announcement (ended_unannounced), never co-signed. */
 inline reset_b() {
 #ifdef MUTATION_COSIGN_BEFORE_RESET
   skip
 #else
   held = NONE; held_cd = NONE;
+#ifdef MUTATION_FORGET_ENDED_EPOCH
   unann = NONE; unann_cd = NONE
+#else
+  if
+  :: unann != NONE -> ended_unann = unann; ended_unann_cd = unann_cd; unann = NONE; unann_cd = NONE
+  :: else -> skip
+  fi
+#endif
 #endif
 }
 
+/* ChannelB::peer_reset: A's announcements of its ended epoch set apart (ended), and
+ * Runtime::on_message's offer of the frames kept before Operational (Role::ended_frame). */
 inline peer_reset_b() {
 #ifdef MUTATION_KEEP_ANNOUNCEMENTS
   skip
-#else
+#elif defined(MUTATION_FORGET_ENDED_EPOCH)
   announced = NONE
+#else
+  if :: announced != NONE -> ended = announced; announced = NONE :: else -> skip fi;
+  if :: ended != NONE -> ended_cd = W_T + 1 :: else -> skip fi;
+  if
+  :: early[PB] != NONE && ENDED_MATCH(early[PB]) ->
+     tmp2 = early[PB]; early[PB] = NONE; early_cd[PB] = NONE; let_ended_go(tmp2)
+  :: else -> skip
+  fi
 #endif
 }
 
@@ -616,8 +675,9 @@ inline nmt_reset(c) {
   if
   :: c == PA ->
 #ifdef WITHDRAW_AT_RESET
-     /* A candidate fix of the finding (docs/model-checking.md), not the Rust: channel A
-      * withdraws its plain frames not yet on the bus at NMT reset. */
+     /* A candidate fix of the first reset trail (docs/model-checking.md), not the Rust
+      * (channel B sets such a frame apart instead): channel A withdraws its plain frames not
+      * yet on the bus at NMT reset. */
      do :: nempty(tx_a) -> tx_a?_ :: empty(tx_a) -> break od;
 #endif
      reset_a(); waiting = NONE; handed = NONE; refresh_cd = NONE; changed = 0
@@ -772,7 +832,8 @@ inline on_frame(c, f) {
   if
   :: c < CA && nmt[c] == OPER && IS_SRDO(f) ->
      if :: c == PA -> observe_a(f) :: else -> observe_b(f) fi
-  :: c < CA && nmt[c] != OPER && IS_SRDO(f) ->
+  :: c == PB && nmt[c] != OPER && ENDED_MATCH(f) -> let_ended_go(f)   /* Role::ended_frame */
+  :: c < CA && nmt[c] != OPER && IS_SRDO(f) && !(c == PB && ENDED_MATCH(f)) ->
      early[c] = f; early_cd[c] = W_T
   :: else -> skip
   fi;
@@ -1012,6 +1073,21 @@ proctype Clock() {
        :: else -> break
        od;
        DEC(refresh_cd); DEC(awaited_cd); DEC(cut_cd); DEC(held_cd); DEC(unann_cd);
+       /* Ghosts of frames B no longer keeps (fewer states). */
+       if :: unann == NONE -> unann_ep = 0 :: else -> skip fi;
+       if :: held == NONE -> held_ep = 0 :: else -> skip fi;
+       /* ChannelB::expire_ended: A's announcement of its ended epoch goes at least a window
+        * after A's heartbeat of the new epoch (Rust: exactly the window; the model's timers
+        * fire up to a tick early, so it keeps it a tick more). */
+       if
+       :: ended_cd != NONE && ended_cd <= 1 -> ended = NONE; ended_cd = NONE
+       :: else -> DEC(ended_cd)
+       fi;
+       /* ChannelB::expire: the frame seen before B's reset goes at the window's end. */
+       if
+       :: ended_unann_cd != NONE && ended_unann_cd <= 1 -> ended_unann = NONE; ended_unann_cd = NONE
+       :: else -> DEC(ended_unann_cd)
+       fi;
        if :: prev_age < W_T -> prev_age++ :: else -> skip fi;
        DEC(gap_cd);
 #ifdef LIVENESS

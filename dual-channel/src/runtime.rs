@@ -245,10 +245,22 @@ pub trait Role<const N: usize> {
     /// (`channel_a::role`).
     fn reset(&mut self) {}
 
-    /// The other channel went through an NMT reset (its heartbeat names a new epoch; the
-    /// link keeps the order, so every message before it was sent before that reset). A role
-    /// that keeps what the other channel announced forgets it here (`channel_b::role`).
-    fn peer_reset(&mut self) {}
+    /// The other channel went through an NMT reset (its heartbeat, which names a new epoch,
+    /// arrived at `now`; the link keeps the order, so every message before it was sent before
+    /// that reset). A role that keeps what the other channel announced sets it apart here
+    /// (`channel_b::role`).
+    fn peer_reset(&mut self, now: Instant) {
+        let _ = now;
+    }
+
+    /// A frame seen at `now` while this channel is not Operational, or kept since
+    /// ([`Runtime::on_frame`] keeps SRDO frames for the entry into Operational): `true` when
+    /// the role accounts for it already, so that it is not kept (channel B: channel A's plain
+    /// frame of its ended epoch, which nobody co-signs, `channel_b::role`).
+    fn ended_frame(&mut self, now: Instant, frame: &CanFrame) -> bool {
+        let _ = (now, frame);
+        false
+    }
 
     /// `true` for the channel whose frames other than SRDOs go on the bus (channel A): its
     /// core boots only after the other channel's has.
@@ -763,7 +775,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             let window = self.role.window();
             self.early
                 .retain(|(at, _)| !shared::time::expired(*at + window, now));
-            let _ = self.early.push((now, *frame)); // Full: the oldest ones are kept.
+            if !self.role.ended_frame(now, frame) {
+                let _ = self.early.push((now, *frame)); // Full: the oldest ones are kept.
+            }
         }
         collect!(collect);
         self.node.handle_frame(now, frame, &mut collect);
@@ -1342,7 +1356,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             let before = self.nmt.peer_epoch();
             self.nmt.peer(now, nmt, epoch, self.node.nmt_state());
             if before.is_some_and(|before| before != epoch) {
-                self.role.peer_reset();
+                self.role.peer_reset(now);
+                // A frame of the other channel's ended epoch kept before this heartbeat came.
+                let role = &mut self.role;
+                self.early
+                    .retain(|(_, frame)| !role.ended_frame(now, frame));
             }
             if self.nmt.same_epoch() {
                 // The digests as of the sender's heartbeat, in the order the checks took them

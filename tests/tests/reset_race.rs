@@ -8,8 +8,8 @@
 use dual_channel::runtime::{ChannelEvent, ChannelFault};
 use shared::canopen::nmt::{self, NmtCommand};
 use shared::safety::types::SrdoNumber;
-use shared::{Duration, Instant};
-use system_tests::bus::{Fault, Match};
+use shared::{CanFrame, CanId, Duration, Instant};
+use system_tests::bus::{Fault, Injection, Match, frame_time};
 use system_tests::dual::{DualNetwork, Side};
 
 /// Node 1's refresh time in [`system_tests::dual::NETWORK_FILE`]: the cycle the sweep covers.
@@ -254,4 +254,291 @@ fn en50325_5_7_2_1_an_input_change_after_reset_and_start_at_any_phase_is_not_a_f
         "{} resets failed: {failed:?}",
         failed.len()
     );
+}
+
+/// Node 1's channel A on the bus (node 1 is the network's first node: participant 1).
+const NODE_1_A: usize = 1;
+
+/// The bus's bit rate in [`running`].
+const BIT_RATE: u32 = 500_000;
+
+/// A frame no node follows (an SDO request to node 127, which is not on the bus), with eight
+/// data bytes: it keeps the bus busy.
+fn filler() -> CanFrame {
+    CanFrame::new(CanId::new(0x67F).expect("identifier"), &[0x55; 8]).expect("frame")
+}
+
+/// [`filler`] on an identifier below node 1's plain frame's (an emergency message of node 127,
+/// which is not on the bus): it goes on the bus before that frame.
+fn high_priority_filler() -> CanFrame {
+    CanFrame::new(CanId::new(0x0FF).expect("identifier"), &[0x55; 8]).expect("frame")
+}
+
+/// Where the log stood before an NMT command, and when node 1's plain frame of the ended epoch
+/// reached the bus.
+struct Overtaken {
+    log: usize,
+    plain_at: Instant,
+}
+
+/// Node 1's channel A hands its next plain frame to its controller (announcing it to channel
+/// B over the link) while the tool's frames keep the bus busy, and the tool queues NMT reset
+/// communication to all nodes right after, with `hold` frames of its own behind it on an
+/// identifier below the plain frame's: the NMT frame wins arbitration, and the plain frame,
+/// announced before the reset, reaches the bus after it and after the `hold` frames. Asserts
+/// that order on the bus.
+fn reset_overtaking_a_queued_plain_frame(net: &mut DualNetwork, hold: usize) -> Overtaken {
+    until_on_bus(net, PLAIN);
+    let (at, frame, _) = *net.trace.last().expect("the plain frame");
+    // A hands out its plain frames every refresh time; the bus was idle for the last one.
+    let handed = Instant::from_micros(at.as_micros() - frame_time(&frame, BIT_RATE).as_micros());
+    let next = handed + REFRESH;
+    net.run_until(Instant::from_micros(next.as_micros() - 300));
+    net.send_foreign(filler());
+    net.send_foreign(filler());
+    net.run_until(next);
+    assert!(
+        net.bus.queued(NODE_1_A) > 0 && net.on_the_bus().any(|(_, f, _)| f == filler()),
+        "node 1's plain frame waits in channel A's queue behind the tool's frames"
+    );
+    let since = (net.log.len(), net.trace.len());
+    net.send_foreign(nmt::command_frame(NmtCommand::ResetCommunication, 0));
+    for _ in 0..hold {
+        net.send_foreign(high_priority_filler());
+    }
+    until_on_bus(net, PLAIN);
+    let frames = &net.trace[since.1..];
+    let reset = frames
+        .iter()
+        .position(|(_, f, _)| f.id().raw() == 0)
+        .expect("the NMT command on the bus");
+    let plain = frames
+        .iter()
+        .position(|(_, f, _)| f.id().raw() == PLAIN)
+        .expect("the plain frame on the bus");
+    assert!(
+        reset < plain,
+        "the NMT command overtakes the plain frame: {frames:?}"
+    );
+    let held = frames[reset..plain]
+        .iter()
+        .filter(|(_, f, _)| *f == high_priority_filler())
+        .count();
+    assert_eq!(held, hold, "the tool's frames between: {frames:?}");
+    Overtaken {
+        log: since.0,
+        plain_at: frames[plain].0,
+    }
+}
+
+/// The faults node 1 reported since log position `since`.
+fn node_1_faults(net: &DualNetwork, since: usize) -> Vec<(Instant, u8, Side, ChannelFault)> {
+    faults(net, since)
+        .into_iter()
+        .filter(|(_, id, ..)| *id == 1)
+        .collect()
+}
+
+/// CiA 304 9.5, CiA 301 7.2.8.3.1 (the model's first finding, `docs/model-checking.md`): the
+/// NMT reset communication overtakes node 1's plain frame in channel A's transmit queue (A
+/// announced it before the reset), right behind the plain frame or held off the bus by two of
+/// the tool's frames (so that channel A's heartbeat of the new epoch reaches channel B first),
+/// and the master's start follows anywhere from at once to past channel B's window after the
+/// plain frame (0 to 6 ms in 100 us steps). The plain frame of the ended epoch is channel A's
+/// own, of a pair A cut: channel B neither co-signs it nor reports it as foreign, and both
+/// nodes work after the start. Before channel B kept the announcements of A's ended epoch for
+/// the frames still to come, the frame found no announcement: foreign (34h) at the end of B's
+/// window when A's first plain frame of the new epoch came later (a start from 4.2 ms after
+/// the plain frame on), and taken for a copy of that frame otherwise (B then co-signed the
+/// new frame against the old one's arrival). Kept only until the entry into Operational, with
+/// a start past the window the announcement let A's first frame of the new epoch go by
+/// unsigned: a transmit mismatch (30h).
+#[test]
+fn cia304_9_5_a_plain_frame_overtaken_by_nmt_reset_is_neither_co_signed_nor_foreign() {
+    let mut failed = Vec::new();
+    for hold in [0, 2] {
+        for step in 0..=60 {
+            let mut net = running(Duration::ZERO);
+            let reset = reset_overtaking_a_queued_plain_frame(&mut net, hold);
+            net.run_until(reset.plain_at + Duration::from_micros(step * STEP.as_micros()));
+            start(&mut net);
+            net.run_for(Duration::from_millis(100));
+            let faults = node_1_faults(&net, reset.log);
+            if !faults.is_empty() || net.output(33) != 1 {
+                failed.push((hold, step, faults, net.output(33)));
+            }
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} starts failed: {failed:?}",
+        failed.len()
+    );
+}
+
+/// While node 1's plain frame is on the bus, the tool queues NMT reset communication and start
+/// to all nodes, back to back: they follow the plain frame at once. Returns where the log stood
+/// before, and when the reset reached the bus.
+fn reset_and_start_behind_a_plain_frame(net: &mut DualNetwork) -> (usize, Instant) {
+    let give_up = net.now + Duration::from_millis(200);
+    while !net.on_the_bus().any(|(_, f, _)| f.id().raw() == PLAIN) {
+        assert!(net.now < give_up, "no plain frame on the bus");
+        net.run_for(Duration::from_micros(10));
+    }
+    let since = net.log.len();
+    net.send_foreign(nmt::command_frame(NmtCommand::ResetCommunication, 0));
+    start(net);
+    until_on_bus(net, 0);
+    let reset_at = net.trace.last().expect("the reset").0;
+    (since, reset_at)
+}
+
+/// The model's second finding (`docs/model-checking.md`, with an input change), CiA 304 9.5:
+/// the master resets and starts the network right behind node 1's plain frame, with the link
+/// between the channels up to 1 ms late (as under emulation), and both contacts open anywhere
+/// from the reset to 1 ms after it: channel B may take the plain frame of the ended epoch
+/// before its announcement and reset before the announcement comes, and A's first plain frame
+/// of the new epoch, carrying the new sample, may reach B before that announcement or before
+/// A's heartbeat of the new epoch. Node 1 reports no fault, and node 33's output follows the
+/// press and the release. Before channel B kept the frame it saw before its own reset for the
+/// announcement still on the link, that announcement was compared with A's first plain frame
+/// of the new epoch, and found it foreign (34h), with the link 0.75 ms late or more and the
+/// contacts opened 0.7 ms after the reset or later.
+#[test]
+fn cia304_9_5_an_input_change_right_after_reset_and_start_behind_a_plain_frame_is_not_foreign() {
+    let mut failed = Vec::new();
+    for latency in (0..=4).map(|quarter| Duration::from_micros(quarter * 250)) {
+        for step in 0..=10 {
+            let mut net = running(latency);
+            let (log, reset_at) = reset_and_start_behind_a_plain_frame(&mut net);
+            net.run_until(reset_at + Duration::from_micros(step * STEP.as_micros()));
+            net.set_inputs(1, 0, 0);
+            net.run_for(Duration::from_millis(100));
+            let pressed = net.output(33);
+            net.set_inputs(1, 1, 1);
+            net.run_for(Duration::from_millis(100));
+            let faults = node_1_faults(&net, log);
+            if !faults.is_empty() || pressed != 0 || net.output(33) != 1 {
+                failed.push((latency, step, faults, pressed, net.output(33)));
+            }
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} resets failed: {failed:?}",
+        failed.len()
+    );
+}
+
+/// The model's third finding (`docs/model-checking.md`, channel B's loop late), CiA 304 9.5:
+/// the master resets and starts the network right behind node 1's plain frame while channel
+/// B's loop handles its bus frames late (0.25 to 3 ms), so that it takes A's heartbeat of the
+/// new epoch and A's first announcement of the new epoch before the plain frame of the ended
+/// epoch. B must not co-sign the old frame against the new announcement, nor find the new
+/// frame unannounced: node 1 reports no fault, and node 33's output follows node 1. Before
+/// channel B kept the announcements of A's ended epoch for the frames still to come, B did
+/// both from a delay of 1 ms on, and reported A's first plain frame of the new epoch as
+/// foreign (34h) at the end of its window.
+#[test]
+fn cia304_9_5_a_late_channel_b_does_not_co_sign_the_ended_epochs_plain_frame() {
+    let mut failed = Vec::new();
+    for quarter in 1..=12 {
+        let delay = Duration::from_micros(quarter * 250);
+        let mut net = running(Duration::ZERO);
+        let now = net.now;
+        net.node_mut(1).receive_faults.push((
+            Side::B,
+            Injection::new(
+                Match {
+                    id: None,
+                    from: None,
+                    after: now,
+                    count: None,
+                },
+                Fault::Delay(delay),
+            ),
+        ));
+        let (log, _) = reset_and_start_behind_a_plain_frame(&mut net);
+        net.run_for(Duration::from_millis(100));
+        let faults = node_1_faults(&net, log);
+        if !faults.is_empty() || net.output(33) != 1 {
+            failed.push((delay, faults, net.output(33)));
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} delays failed: {failed:?}",
+        failed.len()
+    );
+}
+
+/// EN 50325-5 7.2.1, CiA 304 9.5: setting the ended epoch's frame apart lets only that frame go
+/// by. In the order of the model's first finding (the reset overtaking node 1's queued plain
+/// frame), a foreign device sends on node 1's plain identifier right after that frame, before
+/// the start 1 ms later: its copy of the frame, or other data. Node 1 reports the foreign
+/// frame (34h) on its plain identifier, and node 33 is in its safe state.
+#[test]
+fn en50325_5_7_2_1_a_foreign_frame_behind_the_ended_epochs_plain_frame_is_detected() {
+    for data in [0x01u8, 0x00] {
+        let mut net = running(Duration::ZERO);
+        let reset = reset_overtaking_a_queued_plain_frame(&mut net, 0);
+        net.send_foreign(
+            CanFrame::new(CanId::new(PLAIN).expect("identifier"), &[data]).expect("frame"),
+        );
+        net.run_until(reset.plain_at + Duration::from_millis(1));
+        start(&mut net);
+        net.run_for(Duration::from_millis(100));
+        let faults = node_1_faults(&net, reset.log);
+        assert!(
+            faults
+                .iter()
+                .any(|(.., fault)| *fault == ChannelFault::ForeignFrame { id: PLAIN }),
+            "data {data:02X}h: {faults:?}"
+        );
+        assert_eq!(net.output(33), 0, "node 33 is in its safe state");
+    }
+}
+
+/// CiA 304 9.5: what channel B's keeping of the ended epoch's announcements costs. Node 1's
+/// plain frame is lost on the bus (all receivers miss it: a fault), and the master resets the
+/// network 0.5 ms later and starts it after `gap`. The announcement of the lost frame is set
+/// apart for a window from A's heartbeat of the new epoch: A's first plain frame after a start
+/// within that window carries the same data and goes by unsigned, a transmit mismatch (30h,
+/// the safe side: without the reset the lost frame is one too); after a start past it both
+/// nodes work. Never a foreign frame.
+#[test]
+fn cia304_9_5_a_plain_frame_lost_just_before_reset_and_start_is_never_a_foreign_frame() {
+    for (gap, works) in [
+        (1_000, false),
+        (3_000, false),
+        (6_000, true),
+        (20_000, true),
+    ] {
+        let mut net = running(Duration::ZERO);
+        until_on_bus(&mut net, PLAIN);
+        let (at, frame, _) = *net.trace.last().expect("the plain frame");
+        let handed =
+            Instant::from_micros(at.as_micros() - frame_time(&frame, BIT_RATE).as_micros());
+        let now = net.now;
+        net.inject(Match::next_with_id(PLAIN, now), Fault::Drop);
+        net.run_until(handed + REFRESH + Duration::from_micros(500));
+        let since = net.log.len();
+        net.send_foreign(nmt::command_frame(NmtCommand::ResetCommunication, 0));
+        net.run_for(Duration::from_micros(gap));
+        start(&mut net);
+        net.run_for(Duration::from_millis(100));
+        let faults = node_1_faults(&net, since);
+        let mismatch = ChannelFault::TransmitMismatch {
+            srdo: SrdoNumber::FIRST,
+        };
+        if works {
+            assert!(faults.is_empty(), "start {gap} us after: {faults:?}");
+            assert_eq!(net.output(33), 1, "start {gap} us after");
+        } else {
+            assert!(
+                !faults.is_empty() && faults.iter().all(|(.., fault)| *fault == mismatch),
+                "start {gap} us after: {faults:?}"
+            );
+        }
+    }
 }
