@@ -44,8 +44,24 @@ const TX_BYTES: usize = super::LINK_TX_BYTES;
 
 type Shared<T> = Mutex<CriticalSectionRawMutex, RefCell<T>>;
 
-/// Bytes received, oldest first.
-static RX: Shared<Deque<u8, RX_BYTES>> = Mutex::new(RefCell::new(Deque::new()));
+/// Bytes received, oldest first, and how many frame delimiters are among them.
+struct Received {
+    bytes: Deque<u8, RX_BYTES>,
+    delimiters: usize,
+}
+
+impl Received {
+    /// Whether the loop has something worth an iteration: a whole frame, or a queue half full.
+    fn worth_reading(&self) -> bool {
+        self.delimiters > 0 || self.bytes.len() >= RX_BYTES / 2
+    }
+}
+
+/// Bytes received.
+static RX: Shared<Received> = Mutex::new(RefCell::new(Received {
+    bytes: Deque::new(),
+    delimiters: 0,
+}));
 /// Bytes to send, oldest first.
 static TX: Shared<Deque<u8, TX_BYTES>> = Mutex::new(RefCell::new(Deque::new()));
 /// The loop, waiting for link bytes.
@@ -67,8 +83,11 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
             let byte = usart.dr().read().dr() as u8;
             let (kept, wake) = RX.lock(|rx| {
                 let mut rx = rx.borrow_mut();
-                let kept = rx.push_back(byte).is_ok();
-                (kept, byte == DELIMITER || rx.len() >= RX_BYTES / 2)
+                let kept = rx.bytes.push_back(byte).is_ok();
+                if kept && byte == DELIMITER {
+                    rx.delimiters += 1;
+                }
+                (kept, rx.worth_reading())
             });
             if !kept || status.ore() {
                 LOST.store(true, Ordering::Relaxed);
@@ -90,7 +109,11 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
 /// Starts the driver on a USART3 that embassy-stm32 set up (clock, pins, BRR, TE and RE):
 /// empties the queues, enables RXNEIE and the interrupt in the NVIC.
 pub fn start() {
-    RX.lock(|rx| rx.borrow_mut().clear());
+    RX.lock(|rx| {
+        let mut rx = rx.borrow_mut();
+        rx.bytes.clear();
+        rx.delimiters = 0;
+    });
     TX.lock(|tx| tx.borrow_mut().clear());
     LOST.store(false, Ordering::Relaxed);
     pac::USART3.cr1().modify(|w| {
@@ -128,8 +151,13 @@ pub fn read(buf: &mut [u8]) -> usize {
         let mut rx = rx.borrow_mut();
         let mut count = 0;
         for slot in buf.iter_mut() {
-            match rx.pop_front() {
-                Some(byte) => *slot = byte,
+            match rx.bytes.pop_front() {
+                Some(byte) => {
+                    *slot = byte;
+                    if byte == DELIMITER {
+                        rx.delimiters = rx.delimiters.saturating_sub(1);
+                    }
+                }
                 None => break,
             }
             count += 1;
@@ -143,15 +171,17 @@ pub fn take_lost() -> bool {
     LOST.swap(false, Ordering::Relaxed)
 }
 
-/// Completes when bytes wait in the receive queue: at once when some do, else when the
-/// handler wakes the loop (a frame delimiter, or the queue half full).
+/// Completes when a whole frame waits in the receive queue (its delimiter came) or the queue
+/// is half full: at once when it does, else when the handler wakes the loop. The bytes of a
+/// frame still arriving wait for its delimiter: the loop reads them with the next wake-up,
+/// and does not iterate once per byte (an iteration outlasts a byte on the line).
 pub async fn readable() {
     poll_fn(|cx| {
         RX_WAKER.register(cx.waker());
-        if RX.lock(|rx| rx.borrow().is_empty()) {
-            Poll::Pending
-        } else {
+        if RX.lock(|rx| rx.borrow().worth_reading()) {
             Poll::Ready(())
+        } else {
+            Poll::Pending
         }
     })
     .await;
