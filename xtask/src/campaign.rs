@@ -7,8 +7,9 @@
 //! ones (`simplecan-dual-…`: the contacts apart, one channel's clock off) on two dual-channel
 //! nodes at 500 or 1000 kbit/s (`tests/src/campaign/simplecan_dual.rs`), one class per
 //! thread. Without `--protocol`, both run.
-//! The full size (10,000 scenarios per class and rate, the default) writes `docs/campaigns.md` and
-//! the plots in `docs/campaigns/`; a smaller run writes its report to `target/campaign/`,
+//! The full size (10,000 scenarios per class and rate, the default) writes `docs/campaigns.md`;
+//! a smaller run writes its report to `target/campaign/`; every run writes its plots to
+//! `target/campaign/plots/` (generated, not committed),
 //! so that CI's short run never replaces the measured full run. Fails when any scenario
 //! was unsafe, late, or could not be run.
 
@@ -37,7 +38,8 @@ pub struct Options {
 /// Runs the campaign binary with `options`.
 pub fn task(root: &Path, options: &Options) -> Result<()> {
     let mut command = super::cargo();
-    command.args(["run", "--quiet"]);
+    // From the repository's root: the plots' directory is named relative to it in the report.
+    command.current_dir(root).args(["run", "--quiet"]);
     // The full size optimised (2.1 to 4.6 ms per scenario and thread in two full runs,
     // against 42 ms unoptimised in a run of 200 per class, both on the loaded 2-core
     // development machine); a smaller run uses the unoptimised build `cargo xtask test` has just
@@ -85,9 +87,11 @@ pub fn task(root: &Path, options: &Options) -> Result<()> {
     if options.seed != 0 {
         line.push_str(&format!(" --seed {}", options.seed));
     }
+    // The plots are generated artefacts: always under target/, never committed.
     command
         .arg("--report")
         .arg(&report)
+        .args(["--plots", "target/campaign/plots"])
         .args(["--command", &line]);
     super::run(&mut command)
 }

@@ -326,8 +326,8 @@ enum Task {
     /// The seeded fault campaigns on the host simulation (every IEC 61784-3 error class and
     /// every single-channel fault), judged by an oracle that does not reuse the
     /// implementation, at 125, 250, 500 and 1000 kbit/s; 10,000 scenarios per class and
-    /// rate write docs/campaigns.md and docs/campaigns/*.svg, a smaller run
-    /// target/campaign/. Fails on any unsafe or late scenario.
+    /// rate write docs/campaigns.md, a smaller run target/campaign/; every run writes its plots
+    /// to target/campaign/plots/ (not committed). Fails on any unsafe or late scenario.
     Campaign {
         /// Scenarios per class.
         #[arg(long, default_value_t = campaign::FULL)]

@@ -35,9 +35,13 @@ struct Args {
     /// Run only the scenario with this seed (with `--class`) and print its timeline.
     #[arg(long)]
     replay: Option<u64>,
-    /// Write the report (`campaigns.md`) and the plots (`campaigns/<class>.svg`) here.
+    /// Write the report (`campaigns.md`) here.
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Write the plots (`<class>.svg`) here: generated artefacts, not committed (with
+    /// `--report` and without this, `campaigns/` beside the report).
+    #[arg(long)]
+    plots: Option<PathBuf>,
     /// The command line to name in the report.
     #[arg(long, default_value = "cargo xtask campaign")]
     command: String,
@@ -124,7 +128,7 @@ fn simplecan_run(args: &Args, names: &[&String]) -> Result<(), String> {
         std::fs::create_dir_all(dir).map_err(|error| format!("{}: {error}", dir.display()))?;
         std::fs::write(&path, simplecan::with_section(&report, &section))
             .map_err(|error| format!("{}: {error}", path.display()))?;
-        let plots = dir.join("campaigns");
+        let plots = plots_dir(args, dir);
         std::fs::create_dir_all(&plots).map_err(|error| format!("{}: {error}", plots.display()))?;
         for (class, summary) in &rows {
             simplecan::plot(&plots, *class, summary)?;
@@ -325,6 +329,13 @@ fn main() -> ExitCode {
     }
 }
 
+/// Where the plots go: `--plots`, else `campaigns/` beside the report.
+fn plots_dir(args: &Args, report: &std::path::Path) -> PathBuf {
+    args.plots
+        .clone()
+        .unwrap_or_else(|| report.join("campaigns"))
+}
+
 fn write_report(
     dir: &std::path::Path,
     args: &Args,
@@ -332,7 +343,7 @@ fn write_report(
     elapsed: std::time::Duration,
     threads: usize,
 ) -> Result<(), String> {
-    let plots = dir.join("campaigns");
+    let plots = plots_dir(args, dir);
     std::fs::create_dir_all(&plots).map_err(|error| format!("{}: {error}", plots.display()))?;
     for (class, bit_rate, summary) in results {
         report::plot(&plots, *class, *bit_rate, summary)?;
@@ -353,10 +364,16 @@ fn write_report(
     text.push_str("\n## Bounds, and how they follow from the configuration\n\n");
     text.push_str(&report::bounds(results));
     text.push_str("\n## Plots\n\n");
+    text.push_str(&format!(
+        "The run writes each class's latency histogram against its bound to `{}` (generated, \
+         not committed: `{}` writes them again):\n\n",
+        plots.display(),
+        args.command
+    ));
     for (class, bit_rate, _) in results {
         let name = report::plot_name(*class, *bit_rate);
         text.push_str(&format!(
-            "- [{} at {} kbit/s](campaigns/{name})\n",
+            "- {} at {} kbit/s: `{name}`\n",
             class.name(),
             bit_rate / 1000,
         ));

@@ -785,7 +785,7 @@ fn max_latency(summary: &ScSummary) -> String {
         .map_or("–".to_string(), |latency| latency.as_micros().to_string())
 }
 
-/// The plot's file name for `class` (`docs/campaigns/<class>.svg`).
+/// The plot's file name for `class` (`<class>.svg` in the run's plots directory).
 pub fn plot_name(class: ScClass) -> String {
     format!("{}.svg", class.name())
 }
@@ -886,7 +886,8 @@ pub fn section(
          no rule required it, counted only for babbling, sync loss, two masters and the leaky \
          counter, whose outcome the oracle predicts exactly (must be 0). *Late*: a detection \
          beyond the bound (must be 0).\n\n\
-         Each class's latencies against its bound: `docs/campaigns/<class>.svg`. \
+         Each class's latencies against its bound: `<class>.svg` in the run's plots directory \
+         (`target/campaign/plots/`, generated). \
          The `simplecan-dual-…` classes run on dual-channel nodes (both channel runtimes, \
          their link, Model A; `tests/src/campaign/simplecan_dual.rs`): node 1 produces 30h \
          and is the master, node 33 consumes it (50 ms), at 500 or 1000 kbit/s (seeded). \
