@@ -414,7 +414,7 @@ mod tests {
     /// An EMCY names its node and the cause in its second manufacturer-specific byte; an
     /// error reset (0000h) and every other frame name none.
     #[test]
-    fn cia301_7_2_7_an_emcy_frame_names_the_node_and_the_cause() {
+    fn cia301_7_2_7_3_an_emcy_frame_names_the_node_and_the_cause() {
         let frame =
             |id: u16, data: &[u8]| CanFrame::new(shared::CanId::new(id).unwrap(), data).unwrap();
         assert_eq!(
