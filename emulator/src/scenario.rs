@@ -375,3 +375,40 @@ pub fn play_all(
     );
     Ok(passed_count == scenarios.len())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use system_tests::scenario_runner::file;
+
+    fn scenario(steps: &str) -> Scenario {
+        let base = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/emulated");
+        let text = format!(
+            "name = \"test\"\ncovers = \"test\"\nnetwork = \"../networks/emulated.toml\"\n\
+             run_ms = 100\n{steps}[[expect]]\noutput = 33\nat_ms = 50\nequals = 1\n"
+        );
+        file::parse(&text, "test.toml", &base).expect("the test's scenario parses")
+    }
+
+    /// A step the shipped images cannot play is refused with its line, before the network is
+    /// touched: an input value other than 0 or 1 (one contact per channel), a fault that is
+    /// not on the bus, a contact or the link wire.
+    #[test]
+    fn a_step_the_shipped_images_cannot_play_is_refused_with_its_line() {
+        let input = scenario("[[step]]\nat_ms = 10\ninput = { node = 1, value = 0x5A }\n");
+        let why = check_playable(&input).expect_err("0x5A is no contact state");
+        assert!(why.contains("test.toml:5") && why.contains("0x5a"), "{why}");
+
+        let clock = scenario(
+            "[[step]]\nat_ms = 10\nfault = { kind = \"clock\", node = 1, channel = \"A\", percent = 1 }\n",
+        );
+        let why = check_playable(&clock).expect_err("the clock is not the emulated network's");
+        assert!(
+            why.contains("test.toml:5") && why.contains("clock"),
+            "{why}"
+        );
+
+        let fine = scenario("[[step]]\nat_ms = 10\ninput = { node = 1, value = 0 }\n");
+        assert_eq!(check_playable(&fine), Ok(()));
+    }
+}
