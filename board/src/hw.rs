@@ -75,8 +75,8 @@ const ERASE_AHEAD_LONGEST: Duration = Duration::from_millis(4000);
 pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
 /// The time base of the protocol core: embassy's clock in microseconds. Kept out of line: it
-/// was inlined at nine call sites, with embassy's time driver under it (−184 / −212 bytes,
-/// docs/footprint.md).
+/// was inlined at nine call sites, with embassy's time driver under it (the measured step is
+/// in docs/footprint.md).
 #[inline(never)]
 fn now() -> Instant {
     Instant::from_micros(embassy_time::Instant::now().as_micros())
@@ -533,9 +533,9 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     link_usart::start();
 
     let config = (device.describe)(node_id);
-    // Kept as built and borrowed, not moved out of its `Ok`: the move took the runtime
-    // (3,584 bytes) through this task's stack frame; the parameters restored where it is
-    // kept, for the same reason (`docs/footprint.md`).
+    // Kept as built and borrowed, not moved out of its `Ok`: the move took the whole runtime
+    // through this task's stack frame; the parameters restored where it is kept, for the
+    // same reason (`docs/footprint.md`).
     let mut built = Runtime::<_, _, N, crate::Protocol<N>>::around(
         config,
         parameters,

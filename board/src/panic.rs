@@ -11,8 +11,8 @@
 //! The handler reads nothing of the [`PanicInfo`]: neither the message nor the location. Reading
 //! either keeps every panic site's location (a 16-byte record and its file name in flash) and
 //! the standard library's formatting (`core::fmt`: the bounds-check panics store
-//! `<usize as Display>::fmt` in their arguments) in the image, 5,796 bytes of channel B's flash
-//! (`docs/footprint.md`). The log line names the panic's place by the return addresses of the
+//! `<usize as Display>::fmt` in their arguments) in the image (measured in
+//! `docs/footprint.md`). The log line names the panic's place by the return addresses of the
 //! calls that led to the handler instead, found by the frame records the target keeps
 //! (`thumbv7em-none-eabihf` forces frame pointers: every function starts with `push {…, r7,
 //! lr}` and points r7 at the saved r7, the saved lr above it). `cargo xtask where a|b ADDRESS…`

@@ -29,8 +29,8 @@ pub const WORDS_PER_STEP: usize = 32;
 /// the pass went by it is found on the next pass: the mark comes late by at most two passes
 /// (a pass over `n` painted words takes `n / WORDS_PER_STEP` calls), it is never lost, and it
 /// is never deeper than what was used. (A scan of the whole region at once, every 64th
-/// iteration as the layers did before, cost about 30,000 instructions under QEMU in the
-/// iteration that ran it.)
+/// iteration as the layers did before, made that iteration many times longer than the
+/// others; `docs/emulated-figures.md` has what an iteration costs now.)
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sweep {
     /// Words in the region.

@@ -2,9 +2,9 @@
 //!
 //! `main` builds the channel's role and hands it to the board layer's `run`, which
 //! initialises the board, runs the self-tests and then runs the channel loop in the main task
-//! itself, the image's only task (interrupts fill and empty the link USART's rings). A separate channel task was tried and
+//! itself, the image's only task (interrupts fill and empty the link USART's queues). A separate channel task was tried and
 //! measured: its future was moved through the stack once more, and the deepest stack grew
-//! from 14,940 to 21,596 bytes, past the 16 KiB reserve.
+//! past the stack reserve (`docs/footprint.md`).
 //!
 //! Built for `thumbv7em-none-eabihf` by `cargo xtask build`; on the host this binary only
 //! says so, so that `cargo clippy --workspace` covers the crate. On hardware the node-ID comes

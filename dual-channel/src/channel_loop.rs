@@ -183,8 +183,8 @@ pub struct Pins {
 
 /// One channel's loop around its runtime: the filters it applied, its pins' last values. The
 /// runtime stays the board's ([`ChannelLoop::service`] borrows it): built where the board
-/// keeps it, it is not moved again (moved into the loop, it went through the stack once more:
-/// 22,280 bytes deepest under QEMU, over the 18 KiB reserve).
+/// keeps it, it is not moved again (moved into the loop, it went through the stack once more,
+/// deeper than the stack reserve: `docs/footprint.md`).
 #[derive(Clone)]
 pub struct ChannelLoop {
     pins: Pins,

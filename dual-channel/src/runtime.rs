@@ -628,9 +628,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// The firmware images keep the runtime in the `Result` this returns, in their task's
     /// state, and restore the parameters there ([`Runtime::restore_parameters`]): built and
     /// restored in one function, the runtime was copied through that function's stack frame
-    /// on its way out, with the restore's frame under it (in channel B's SimpleCAN QEMU
-    /// image, estimated from its code: 10,616 bytes, then the restore's 2,856; this
-    /// function's frame is 6,112, the restore's beside it, `docs/footprint.md`). Out of line,
+    /// on its way out, with the restore's frame under it (the frames measured in
+    /// `docs/footprint.md`). Out of line,
     /// so that the construction's temporaries are in this frame only, never under the
     /// channel loop.
     #[inline(never)]

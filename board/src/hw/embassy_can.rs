@@ -368,8 +368,8 @@ fn to_bxcan(frame: &CanFrame) -> Option<Frame> {
 }
 
 /// embassy-stm32's [`BusError`] for the log, named by our own type: embassy's crates are
-/// built without their `defmt` feature, whose log and panic sites took 788 bytes of channel
-/// B's flash; this name costs 128 of them back (`docs/footprint.md`).
+/// built without their `defmt` feature, whose log and panic sites took far more flash than
+/// this name costs back (both measured in `docs/footprint.md`).
 #[derive(defmt::Format)]
 enum LastError {
     Stuff,
