@@ -968,10 +968,18 @@ inline output_invariant(k) {
  * ==================================================================================== */
 /* One channel's loop (dual_channel::channel_loop::ChannelLoop::service): a frame from its
  * receive queue, a link message, a changed input pin, or what is due. */
+#ifdef LIVENESS
+/* A frame's handling with the liveness run's ghost code is longer than SPIN allows a d_step
+ * ("d_step sequence too long"): atomic there, which explores the same behaviours (the body
+ * neither blocks nor branches on another process) with its inner states stored. */
+#define FRAME_STEP atomic
+#else
+#define FRAME_STEP d_step
+#endif
 proctype Channel(byte c) {
   byte f, m, tmp, tmp2, tmp3, tmp4, d;
   do
-  :: d_step { !env_turn && nempty(rx[c]) -> rx[c]?f;
+  :: FRAME_STEP { !env_turn && nempty(rx[c]) -> rx[c]?f;
        if
        :: rx_late[c] > 0 -> rx_late[c]--; printf("@%d ch%d: (late) a frame of the last tick\n", tick_count, c)
        :: else -> skip
