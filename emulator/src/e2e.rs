@@ -144,7 +144,7 @@ impl<'a> Rig<'a> {
                     return None;
                 }
                 if until(self.network, &self.causes) {
-                    return Some(event_time(&event).max(self.network.now() - MS));
+                    return Some(event_time(&event));
                 }
             }
             if until(self.network, &self.causes) {
@@ -320,7 +320,13 @@ pub fn faults(
     let at = rig.outputs_become(false, patience(timing.refresh));
     record(&mut rig, case, from, at, timing.refresh)?;
     rig.contacts(true);
-    rig.outputs_become(true, patience(timing.refresh));
+    if rig.outputs_become(true, patience(timing.refresh)).is_none() {
+        return Err(format!(
+            "node 33's outputs did not come on again when node 1's contacts closed after the \
+             second emergency stop (EMCY causes seen {:?})",
+            rig.causes
+        ));
+    }
     rig.causes.clear();
 
     let after = |from: Nanos| Instant::from_micros(from / 1_000);
