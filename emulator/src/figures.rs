@@ -120,6 +120,41 @@ fn totals(window: &Window) -> Totals {
     }
 }
 
+/// The same figures machine-readable, one JSON object: per MCU and window, the instructions,
+/// the loop iterations, the idle iteration (fewest, median, most), the instructions per pair
+/// (the lower bound of [`markdown`]'s *per pair*) and the pairs; per MCU, the deepest stack;
+/// the goals per channel.
+pub fn json(nominal: &Nominal, names: &[String]) -> serde_json::Value {
+    let window = |window: &Window| {
+        let t = totals(window);
+        serde_json::json!({
+            "instructions": t.instructions,
+            "loop_iterations": t.iterations,
+            "idle_iteration": {"fewest": t.idle.0, "median": t.idle.1, "most": t.idle.2},
+            "per_pair": t.pair_instructions.checked_div(window.pairs),
+            "pairs": window.pairs,
+            "link_usart_interrupts": t.link_interrupts,
+        })
+    };
+    let mcus: Vec<serde_json::Value> = names
+        .iter()
+        .enumerate()
+        .map(|(mcu, name)| {
+            serde_json::json!({
+                "mcu": name,
+                "pre_operational": nominal.pre_operational.get(mcu).map(window),
+                "operational": nominal.operational.get(mcu).map(window),
+                "deepest_stack_bytes": nominal.deepest_stack.get(mcu),
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "unit": "Thumb instructions executed, counted by the emulator; windows of one second",
+        "goals_per_channel": {"per_pair": 2000, "idle_iteration": 200},
+        "mcus": mcus,
+    })
+}
+
 /// The Markdown of the profiles (no trailing blank line).
 pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
     let mut out = Vec::new();

@@ -494,6 +494,8 @@ const NOMINAL_LOAD_SECONDS: f64 = crate::e2e::CI_LOAD_SECONDS;
 
 /// Where the nominal case's figures are written.
 const FIGURES: &str = "docs/emulated-figures.md";
+/// The same figures machine-readable (`emulator::figures::json`).
+const FIGURES_JSON: &str = "docs/emulated-figures.json";
 
 /// Both nodes' shipped images configured by the tool's library, started, under bus load,
 /// then the emergency stop (`emulator::cases::nominal`); writes what it measured to
@@ -555,12 +557,42 @@ fn nominal_check(
         report.push_str(&format!("- {line}\n"));
     }
     report.push('\n');
-    for line in lines.iter().filter_map(|line| line.strip_prefix("figures")) {
-        report.push_str(line.strip_prefix(' ').unwrap_or(line));
+    for line in lines
+        .iter()
+        .filter_map(|line| line.strip_prefix("figures "))
+    {
+        report.push_str(line);
         report.push('\n');
     }
     std::fs::write(root.join(FIGURES), report)?;
-    println!("xtask: the nominal case passed on the shipped images; figures in {FIGURES}");
+    let json = lines
+        .iter()
+        .find_map(|line| line.strip_prefix("figures-json "))
+        .ok_or_else(|| anyhow::anyhow!("emulate-network printed no figures-json line"))?;
+    let value: serde_json::Value = serde_json::from_str(json)
+        .map_err(|error| anyhow::anyhow!("emulate-network's figures-json line: {error}"))?;
+    std::fs::write(
+        root.join(FIGURES_JSON),
+        serde_json::to_string_pretty(&value)? + "\n",
+    )?;
+    println!(
+        "xtask: the nominal case passed on the shipped images; figures in {FIGURES} and \
+         {FIGURES_JSON}"
+    );
+    Ok(())
+}
+
+/// `cargo xtask bench --target-cost --json`: the shipped images' figures as the nominal case
+/// measures them on the emulated STM32F405 (`cargo xtask emulate --network --nominal`), the
+/// JSON of [`FIGURES_JSON`] printed.
+pub fn target_cost_json(root: &Path) -> Result<()> {
+    network_task(
+        root,
+        "1s",
+        Protocol::CanopenSafety,
+        Case::Nominal { load_seconds: None },
+    )?;
+    print!("{}", std::fs::read_to_string(root.join(FIGURES_JSON))?);
     Ok(())
 }
 

@@ -243,6 +243,11 @@ enum Task {
         /// (the default) or `simplecan` (SimpleCAN's processing step, its own block).
         #[arg(long, value_enum, default_value_t, requires = "target_cost")]
         protocol: network::Protocol,
+        /// With `--target-cost`: instead, the shipped CANopen Safety images on the emulated
+        /// STM32F405 (per idle iteration, per pair, per MCU, the deepest stack), printed as
+        /// JSON and written to docs/emulated-figures.json (with docs/emulated-figures.md).
+        #[arg(long, requires = "target_cost")]
+        json: bool,
     },
     /// The full network by simulation: 64 producers and 64 consumers (127 dual-channel nodes)
     /// at 1 Mbit/s with background traffic; bus load, SCT and SRVT margins per SRDO, reaction
@@ -518,8 +523,11 @@ fn task() -> Result<()> {
             check,
             target_cost,
             protocol,
+            json,
         } => {
-            if target_cost {
+            if json {
+                emulate::target_cost_json(&root)
+            } else if target_cost {
                 target_cost::run(&root, protocol)
             } else {
                 bench::run(&root, check)

@@ -358,6 +358,10 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                 for line in emulator::figures::markdown(&nominal, &names) {
                     println!("emulate-network: figures {line}");
                 }
+                println!(
+                    "emulate-network: figures-json {}",
+                    emulator::figures::json(&nominal, &names)
+                );
                 Ok(!stopped && nominal.reaction <= nominal.bound)
             }
             Err(why) => {
