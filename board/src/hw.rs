@@ -12,9 +12,10 @@
 //! itself, behind the acceptance filters it derives from the configuration (SRDO identifiers
 //! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun or a bus-off is the safe
 //! state, each with its own cause ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`],
-//! [`dual_channel::runtime::ChannelFault::BusOff`]). Link messages go whole into the buffered
-//! USART's transmit ring, which its interrupt empties. The independent watchdog is fed by the
-//! channel loop only.
+//! [`dual_channel::runtime::ChannelFault::BusOff`]). The link USART has a driver of its own
+//! ([`link_usart`]): link messages go whole into its transmit queue, which its interrupt
+//! empties, and the loop is woken when a whole message has arrived. The independent watchdog
+//! is fed by the channel loop only.
 //!
 //! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
 //! (`embassy_can`, the default) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
