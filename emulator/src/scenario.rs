@@ -333,7 +333,7 @@ fn play(
 }
 
 /// Plays `scenarios` one after the other on `network` after the nominal case (nodes 1 and 33
-/// configured and stored), each after an NMT reset and start of both nodes ([`Rig::reset`]);
+/// configured and stored), each after an NMT reset and start of both nodes (`Rig::reset`);
 /// prints each report as the QEMU runs print it. `seen` receives every event. Returns
 /// whether every scenario passed, or why one could not be played.
 pub fn play_all(
