@@ -307,15 +307,7 @@ pub fn nominal(
     let mut operational = [false; 2];
     run_until_event(network, 2_000 * MS, seen, |network, event| {
         if let Event::Frame { frame, .. } = event {
-            let state = frame
-                .data()
-                .first()
-                .and_then(|&code| NmtState::from_heartbeat_code(code));
-            match (frame.id().raw(), state) {
-                (0x701, Some(NmtState::Operational)) => operational[0] = true,
-                (0x721, Some(NmtState::Operational)) => operational[1] = true,
-                _ => {}
-            }
+            note_operational(&mut operational, frame);
         }
         stopped(event)
             || (operational == [true, true] && consumer.iter().all(|&mcu| network.output(mcu)))
@@ -412,6 +404,20 @@ pub fn nominal(
         operational,
         deepest_stack,
     })
+}
+
+/// Notes in `operational` (nodes 1 and 33) a heartbeat that says Operational (CiA 301
+/// 7.2.8.3.2.2: 700h + node-ID, the state 05h).
+pub(crate) fn note_operational(operational: &mut [bool; 2], frame: &CanFrame) {
+    let state = frame
+        .data()
+        .first()
+        .and_then(|&code| NmtState::from_heartbeat_code(code));
+    match (frame.id().raw(), state) {
+        (0x701, Some(NmtState::Operational)) => operational[0] = true,
+        (0x721, Some(NmtState::Operational)) => operational[1] = true,
+        _ => {}
+    }
 }
 
 /// Runs until every node of `nodes` has sent its boot-up message (CiA 301 7.2.8.3.2.2:

@@ -27,11 +27,11 @@ use can_hub::bus::{Fault, Injection, Match};
 use safety_config::calc::sfrt::DeviceTiming;
 use safety_config::network_file::Network as NetworkFile;
 use shared::canopen::emcy::{self, Emergency};
-use shared::canopen::nmt::{self, NmtCommand, NmtState};
+use shared::canopen::nmt::{self, NmtCommand};
 use shared::safety::cause::Cause;
 use shared::{CanFrame, Instant};
 
-use crate::cases::{MS, event_time, mcu_indices, wait_for_boot_ups};
+use crate::cases::{MS, event_time, mcu_indices, note_operational, wait_for_boot_ups};
 use crate::network::{Event, Network};
 use crate::time::Nanos;
 
@@ -205,17 +205,6 @@ impl<'a> Rig<'a> {
             consumer.iter().all(|&mcu| network.output(mcu))
         });
         // The heartbeats after the outputs came on say Operational.
-        let heartbeat = |operational: &mut [bool; 2], frame: &CanFrame| {
-            let state = frame
-                .data()
-                .first()
-                .and_then(|&code| NmtState::from_heartbeat_code(code));
-            match (frame.id().raw(), state) {
-                (0x701, Some(NmtState::Operational)) => operational[0] = true,
-                (0x721, Some(NmtState::Operational)) => operational[1] = true,
-                _ => {}
-            }
-        };
         if nominal.is_some() {
             let end = self.network.now() + 1_100 * MS;
             while self.network.now() < end && operational != [true, true] {
@@ -223,7 +212,7 @@ impl<'a> Rig<'a> {
                 for event in self.network.take_events() {
                     (self.seen)(&event);
                     if let Event::Frame { frame, .. } = &event {
-                        heartbeat(&mut operational, frame);
+                        note_operational(&mut operational, frame);
                     }
                 }
             }
