@@ -762,6 +762,15 @@ impl Network {
         if booted != [true, true] {
             bail!("after NMT reset node, no boot-up from both nodes within 10 s");
         }
+        // Channel B sets the announcements of channel A's frames that were not on the bus at
+        // the reset apart for a window after A's first link heartbeat of the new epoch
+        // (docs/model-checking.md, the reset trails): a start inside that time, with a frame
+        // lost just before the reset (a muted node), makes the first pair a transmit mismatch,
+        // the safe side. On a board the boot-up alone outlasts the hardware's 5 ms window;
+        // under QEMU the window is `QEMU_SAMPLE_WINDOW` and the link period
+        // `LINK_PERIOD_MS`, so the start waits for both, on the network's time.
+        let settle = LINK_PERIOD_MS + dual_channel::runtime::QEMU_SAMPLE_WINDOW.as_micros() / 1000;
+        self.wait_for(Duration::from_millis(settle), |_| false)?;
         self.start_nodes()
     }
 
