@@ -355,7 +355,7 @@ mod tests {
             for srdo in 0..count as u16 {
                 assert_eq!(register_fifo(&registers, 0x101 + 2 * srdo, false), Some(0));
             }
-            for service in [0x000, 0x001, 0x621] {
+            for service in [0x000, 0x001, 0x621, 0x7E5] {
                 assert_eq!(register_fifo(&registers, service, false), Some(1));
             }
         }
@@ -376,7 +376,7 @@ mod tests {
             let fifo = register_fifo(&registers, id, false);
             assert_eq!(fifo, expected_fifo(&layout, id, false), "{id:#x}");
             let srdo_range = (0x100..=0x180).contains(&id);
-            let service = [0x000, 0x001, 0x621].contains(&id);
+            let service = [0x000, 0x001, 0x621, 0x7E5].contains(&id);
             assert_eq!(fifo.is_some(), srdo_range || service, "{id:#x}");
         }
     }

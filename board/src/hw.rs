@@ -481,7 +481,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // Before the link: nothing was lost on it.
     LINK_DEAF.store(false, Ordering::Relaxed);
 
-    let switches = [
+    let switch_pins = [
         Input::new(p.PC2, Pull::Down),
         Input::new(p.PC3, Pull::Down),
         Input::new(p.PC4, Pull::Down),
@@ -491,24 +491,29 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         Input::new(p.PC8, Pull::Down),
     ];
     let read_switches = || {
-        switches
+        switch_pins
             .iter()
             .enumerate()
             .fold(0u8, |id, (bit, pin)| id | (u8::from(pin.is_high()) << bit))
     };
     let first = read_switches();
     Timer::after_millis(1).await;
-    let node_id = match safety_device::switches::node_id_from_switches(first, read_switches()) {
-        Ok(id) => {
+    // All switches open: the node-ID is LSS's (CiA 305), set when LSS is enabled below.
+    let switches = match safety_device::switches::node_id_or_lss(first, read_switches()) {
+        Ok(Some(id)) => {
             defmt::info!("node-ID {=u8} from the switches", id.raw());
-            id
+            Some(id)
+        }
+        Ok(None) => {
+            defmt::info!("node-ID switches all open: the node-ID is set by LSS (CiA 305)");
+            None
         }
         Err(fault) => {
             defmt::error!("node-ID switches refused: {}", fault);
             halt_safe("no valid node-ID");
         }
     };
-    drop(switches);
+    drop(switch_pins);
 
     // `Can::set_bitrate` unwraps the timing calculation, which links the `Debug` formatting of
     // its error into the image (`docs/footprint.md`); the same calculation, refused by name.
@@ -533,7 +538,9 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     let _ = Irqs;
     link_usart::start();
 
-    let config = (device.describe)(node_id);
+    // Without switches the description's default stands in until LSS sets the node-ID in
+    // force (`Runtime::enable_lss`): the node sends nothing but LSS answers until it has one.
+    let config = (device.describe)(switches.unwrap_or(device.default_id));
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the whole runtime
     // through this task's stack frame; the parameters restored where it is kept, for the
     // same reason (`docs/footprint.md`).
@@ -551,6 +558,9 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // The other channel may be erasing ahead while this one was not, or for longer.
     runtime.allow_longer_start_up(ERASE_AHEAD_LONGEST);
     runtime.restore_parameters();
+    if !runtime.enable_lss(switches, safety_device::LSS_BIT_RATES) {
+        halt_safe("LSS not enabled before the first poll");
+    }
     let mut channel = ChannelLoop::new(device.pins);
     let mut driver = HwDriver {
         can,

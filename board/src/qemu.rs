@@ -607,6 +607,13 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         exit(false);
     };
     runtime.restore_parameters();
+    // The node-ID in use (`node=N`, else the build's) stands for set switches, which win
+    // over LSS (CiA 305): a QEMU node answers LSS but keeps its node-ID. The emulated
+    // STM32F405 runs the hardware images, whose switches may be all open.
+    if !runtime.enable_lss(Some(id), safety_device::LSS_BIT_RATES) {
+        defmt::error!("LSS not enabled before the first poll");
+        exit(false);
+    }
     let mut channel = ChannelLoop::new(device.pins);
     let mut woke = now();
     let mut stack_mark = crate::stack::Sampled::new();

@@ -10,7 +10,6 @@
 pub const CHANNEL: char = 'B';
 
 pub mod diverse;
-pub mod lss_mirror;
 pub mod role;
 pub mod signature;
 pub mod simplecan;

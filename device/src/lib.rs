@@ -83,6 +83,23 @@ pub const SRDO_COUNT: usize = 4;
 /// The CAN bit rate of the hardware (CiA 301 Table 1; the EDS's `BaudRate_500`).
 pub const BIT_RATE: u32 = 500_000;
 
+/// The bit rates LSS may configure on the boards (CiA 305 configure bit timing, Fig. 34):
+/// the hardware's own only. The boards do not reprogram the CAN controller's bit timing while
+/// running, so configure bit timing to any other rate of the table is refused with error
+/// code 1 (CiA 305: bit timing not supported) and changes nothing; activate bit timing then
+/// keeps the bus's rate.
+pub const LSS_BIT_RATES: shared::canopen::lss::BitRates =
+    shared::canopen::lss::BitRates::of(&[shared::canopen::lss::BitRate::Kbit500]);
+
+// The one rate LSS may configure is the hardware's.
+const _: () = assert!(
+    matches!(
+        shared::canopen::lss::BitRate::Kbit500.bits_per_second(),
+        Some(BIT_RATE)
+    ),
+    "LSS_BIT_RATES names another rate than BIT_RATE"
+);
+
 /// The device name (0x1008) channel A's image reports; channel A answers SDO for the node.
 pub const CHANNEL_A_NAME: &str = "safety node, channel A";
 /// The device name (0x1008) channel B's image holds.

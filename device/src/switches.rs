@@ -15,7 +15,7 @@ pub enum SwitchFault {
         /// The second reading.
         second: u8,
     },
-    /// The reading is not a node-ID (CiA 301 7.5.2: 1 to 127): all switches open.
+    /// The reading is not a node-ID (CiA 301 7.5.2: 1 to 127) nor all switches open.
     Invalid(u8),
 }
 
@@ -33,9 +33,38 @@ pub fn node_id_from_switches(first: u8, second: u8) -> Result<NodeId, SwitchFaul
     NodeId::new(first).map_err(|_| SwitchFault::Invalid(first))
 }
 
+/// The node-ID switches as the boards use them with LSS (CiA 305): a node-ID where set
+/// (the switches win over a node-ID LSS stored), `None` where all seven are open ("use
+/// LSS": the node-ID LSS stored, or none, node-ID FFh, until a master gives it one).
+/// Readings that differ are refused as by [`node_id_from_switches`].
+pub fn node_id_or_lss(first: u8, second: u8) -> Result<Option<NodeId>, SwitchFault> {
+    match node_id_from_switches(first, second) {
+        Ok(id) => Ok(Some(id)),
+        Err(SwitchFault::Invalid(0)) => Ok(None),
+        Err(fault) => Err(fault),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cia305_all_switches_open_means_use_lss_and_set_switches_win() {
+        assert_eq!(node_id_or_lss(0, 0), Ok(None));
+        assert_eq!(
+            node_id_or_lss(33, 33).map(|id| id.map(NodeId::raw)),
+            Ok(Some(33))
+        );
+        assert_eq!(
+            node_id_or_lss(0, 4),
+            Err(SwitchFault::Unsettled {
+                first: 0,
+                second: 4
+            })
+        );
+        assert_eq!(node_id_or_lss(200, 200), Err(SwitchFault::Invalid(200)));
+    }
 
     #[test]
     fn cia301_7_5_2_node_id_from_switches() {

@@ -2,7 +2,8 @@
 //! layout in the bxCAN's filter banks.
 //!
 //! A channel follows exactly these identifiers (EN 50325-5 7.1, CiA 301 7.2): NMT 000h, GFC
-//! 001h, its node's SDO requests 600h + node-ID, and both COB-IDs of every configured SRDO,
+//! 001h, its node's SDO requests 600h + node-ID, LSS requests 7E5h (CiA 305: both channels
+//! run the LSS slave, `crate::lss`), and both COB-IDs of every configured SRDO,
 //! transmit and receive (a channel sees its own node's SRDO frames: channel B builds the
 //! inverted frame from channel A's plain one, channel A checks that the inverted one follows,
 //! and both report a foreign sender on their identifiers). Every other frame is rejected by
@@ -27,6 +28,8 @@ pub const NMT: u16 = 0x000;
 pub const GFC: u16 = 0x001;
 /// The SDO request identifier of node-ID 0 (CiA 301 7.3.5: 600h + node-ID).
 pub const SDO_REQUEST_BASE: u16 = 0x600;
+/// LSS master to slave (CiA 305): the requests both channels' LSS slaves follow.
+pub const LSS_REQUEST: u16 = shared::canopen::lss::MASTER_TO_SLAVE.raw();
 
 /// The most SRDOs a node has (0x1301..=0x1340, EN 50325-5 Table 5).
 pub const MAX_SRDOS: usize = 64;
@@ -38,8 +41,9 @@ pub const SIMPLECAN_ACCEPTED: usize = 1 + crate::simplecan::ENTRIES;
 /// `simplecan`.
 #[cfg(not(feature = "simplecan"))]
 pub const SIMPLECAN_ACCEPTED: usize = 0;
-/// The most identifiers a channel accepts: two per SRDO, NMT, GFC, SDO and the SimpleCAN ones.
-pub const MAX_ACCEPTED: usize = 2 * MAX_SRDOS + 3 + SIMPLECAN_ACCEPTED;
+/// The most identifiers a channel accepts: two per SRDO, NMT, GFC, SDO, LSS and the SimpleCAN
+/// ones.
+pub const MAX_ACCEPTED: usize = 2 * MAX_SRDOS + 4 + SIMPLECAN_ACCEPTED;
 
 /// Filter banks CAN1 of the STM32F405 owns: the 28 banks are shared with CAN2, and the reset
 /// value of CAN_FMR.CAN2SB (14), which the board keeps, gives CAN1 banks 0 to 13 (RM0090
@@ -58,7 +62,7 @@ pub struct AcceptanceList {
 }
 
 impl AcceptanceList {
-    /// The list for node `node_id` with `config`: NMT, GFC, SDO 600h + node-ID and both
+    /// The list for node `node_id` with `config`: NMT, GFC, SDO 600h + node-ID, LSS 7E5h and both
     /// COB-IDs of every SRDO that exists (direction not 0) and names a valid identifier pair.
     /// A record whose identifiers are not a valid pair cannot reach Operational (the
     /// Operational-entry check refuses it), so nothing is lost by not following them.
@@ -82,10 +86,11 @@ impl AcceptanceList {
             }
         }
         add(SDO_REQUEST_BASE + u16::from(node_id.raw()));
+        add(LSS_REQUEST);
         AcceptanceList { ids }
     }
 
-    /// The identifiers: NMT, GFC, the SRDO identifiers in the order of the records, SDO,
+    /// The identifiers: NMT, GFC, the SRDO identifiers in the order of the records, SDO, LSS,
     /// then the SimpleCAN ones ([`AcceptanceList::add_simplecan`]).
     pub fn ids(&self) -> &[CanId] {
         &self.ids
@@ -297,8 +302,9 @@ mod tests {
         CanFrame::new(CanId::new(id).unwrap(), &[0]).unwrap()
     }
 
-    /// EN 50325-5 7.1.1 (both frames received), 7.2.1, CiA 301 7.3.5: NMT, GFC, SDO 600h + node-ID and both COB-IDs of
-    /// each configured SRDO, and nothing else; a deleted SRDO adds nothing.
+    /// EN 50325-5 7.1.1 (both frames received), 7.2.1, CiA 301 7.3.5, CiA 305: NMT, GFC, SDO
+    /// 600h + node-ID, LSS 7E5h and both COB-IDs of each configured SRDO, and nothing else
+    /// (not the LSS answers 7E4h of other nodes); a deleted SRDO adds nothing.
     #[test]
     fn en50325_5_7_1_1_a_channel_accepts_both_cob_ids_of_each_srdo_nmt_gfc_and_its_sdo_only() {
         let mut config = config::<4>(2);
@@ -312,14 +318,14 @@ mod tests {
         assert_eq!(
             raw(&list),
             [
-                0x000, 0x001, 0x101, 0x102, 0x103, 0x104, 0x141, 0x142, 0x621
+                0x000, 0x001, 0x101, 0x102, 0x103, 0x104, 0x141, 0x142, 0x621, 0x7E5
             ]
         );
-        for id in [0x000, 0x001, 0x101, 0x104, 0x142, 0x621] {
+        for id in [0x000, 0x001, 0x101, 0x104, 0x142, 0x621, 0x7E5] {
             assert!(list.accepts(&data(id)), "{id:#x}");
         }
         for id in [
-            0x080, 0x0A1, 0x105, 0x151, 0x5A1, 0x601, 0x622, 0x701, 0x7FF,
+            0x080, 0x0A1, 0x105, 0x151, 0x5A1, 0x601, 0x622, 0x701, 0x7E4, 0x7FF,
         ] {
             assert!(!list.accepts(&data(id)), "{id:#x}");
         }
@@ -336,7 +342,7 @@ mod tests {
         config.srdos[1].cob_id_2 = 0x182;
         assert_eq!(
             raw(&AcceptanceList::of(node(1), &config)),
-            [0x000, 0x001, 0x101, 0x102, 0x601]
+            [0x000, 0x001, 0x101, 0x102, 0x601, 0x7E5]
         );
     }
 
@@ -347,7 +353,7 @@ mod tests {
         let list = AcceptanceList::of(node(33), &config::<4>(4));
         let layout = bank_layout(&list, CAN1_BANKS).unwrap();
         assert!(layout.exact);
-        // 8 SRDO identifiers in two banks, NMT, GFC and SDO in the third.
+        // 8 SRDO identifiers in two banks, NMT, GFC, SDO and LSS in the third.
         assert_eq!(layout.banks.len(), 3);
         for id in 0..=0x7FF {
             assert_eq!(
@@ -360,38 +366,38 @@ mod tests {
         for id in [0x101, 0x108] {
             assert_eq!(layout.fifo(id, false), Some(Fifo::Srdo));
         }
-        for id in [0x000, 0x001, 0x621] {
+        for id in [0x000, 0x001, 0x621, 0x7E5] {
             assert_eq!(layout.fifo(id, false), Some(Fifo::Services));
         }
     }
 
     /// 14 banks hold 56 identifiers in 16-bit list mode, twice the 28 of 32-bit list mode;
     /// with the SRDO identifiers in banks of their own (FIFO 0), 26 SRDOs fit (52 in 13
-    /// banks, NMT, GFC and SDO in the 14th), 27 do not. Beyond, the fallback: one mask bank
-    /// for the SRDO range, NMT, GFC and SDO still exact, everything else rejected.
+    /// banks, NMT, GFC, SDO and LSS in the 14th), 27 do not. Beyond, the fallback: one mask
+    /// bank for the SRDO range, NMT, GFC, SDO and LSS still exact, everything else rejected.
     #[test]
     fn sixteen_bit_list_mode_holds_56_identifiers_then_the_srdo_range_is_masked() {
         assert_eq!(IDS_PER_LIST16_BANK * CAN1_BANKS, 56);
         assert_eq!(IDS_PER_LIST32_BANK * CAN1_BANKS, 28);
         let fits = AcceptanceList::of(node(5), &config::<64>(26));
-        assert_eq!(fits.ids().len(), 55);
+        assert_eq!(fits.ids().len(), 56);
         let layout = bank_layout(&fits, CAN1_BANKS).unwrap();
         assert!(layout.exact);
         assert_eq!(layout.banks.len(), 14);
 
         let beyond = AcceptanceList::of(node(5), &config::<64>(64));
-        assert_eq!(beyond.ids().len(), 131);
+        assert_eq!(beyond.ids().len(), 132);
         let layout = bank_layout(&beyond, CAN1_BANKS).unwrap();
         assert!(!layout.exact);
         assert_eq!(layout.banks.len(), 2);
         for id in 0..=0x7FF {
             let in_range = (0x100..=0x180).contains(&id);
-            let expected = in_range || [0x000, 0x001, 0x605].contains(&id);
+            let expected = in_range || [0x000, 0x001, 0x605, 0x7E5].contains(&id);
             assert_eq!(layout.accepts(id, false), expected, "{id:#x}");
         }
         // The software filter narrows the range to the configured identifiers.
         let partial = AcceptanceList::of(node(5), &config::<64>(27));
-        assert_eq!(partial.ids().len(), 57);
+        assert_eq!(partial.ids().len(), 58);
         let layout = bank_layout(&partial, CAN1_BANKS).unwrap();
         assert!(!layout.exact && layout.accepts(0x171, false));
         assert!(!partial.accepts(&data(0x171)));
@@ -407,7 +413,7 @@ mod tests {
             Err(FilterError::TooFewBanks { banks: 1 })
         );
         let small = AcceptanceList::of(node(5), &config::<4>(0));
-        // No SRDO: one bank, NMT, GFC and SDO.
+        // No SRDO: one bank, NMT, GFC, SDO and LSS.
         assert_eq!(bank_layout(&small, 1).unwrap().banks.len(), 1);
         assert_eq!(
             bank_layout(&small, 0),

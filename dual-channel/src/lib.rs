@@ -28,6 +28,7 @@ pub mod clock;
 pub mod crosscheck;
 pub mod filters;
 pub mod link;
+pub mod lss;
 pub mod runtime;
 pub mod selftest;
 #[cfg(feature = "simplecan")]

@@ -80,7 +80,10 @@
 use crate::clock::PeerClock;
 use crate::crosscheck::{CrossFault, Verdict, VerdictCheck};
 use crate::link::{LinkFault, Message, Receiver, RoundTrip, Sender, round_trip_bound};
+use crate::lss::{AnswerPairing, LssMismatch, Settings};
 use crate::supervision::{ConfigurationCheck, InputCheck, NmtCheck};
+use shared::canopen::NodeId;
+use shared::canopen::lss::BitRates;
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::{AbortCode, Address};
 use shared::canopen::storage::Flash;
@@ -362,6 +365,9 @@ pub enum ChannelFault {
     /// The channel's CAN controller went bus-off, so frames the channel follows may have gone
     /// unseen ([`crate::channel_loop::Received::BusOff`]).
     BusOff,
+    /// The channels' LSS differ (CiA 305 on both channels, [`crate::lss`]): an answer, the
+    /// node-ID in force or the bit rate.
+    Lss(LssMismatch),
     /// The other channel went to its safe state.
     PeerSafeState {
         /// The other channel's cause code.
@@ -399,6 +405,7 @@ impl ChannelFault {
             ChannelFault::ClockDrift => Cause::ClockDrift,
             ChannelFault::ReceiveOverrun => Cause::ReceiveOverrun,
             ChannelFault::BusOff => Cause::BusOff,
+            ChannelFault::Lss(mismatch) => mismatch.cause(),
             ChannelFault::PeerSafeState { .. } => Cause::PeerSafeState,
             #[cfg(feature = "simplecan")]
             ChannelFault::SimpleCan(fault) => fault.cause(),
@@ -596,6 +603,8 @@ pub struct Runtime<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N> =
     early: heapless::Vec<(Instant, CanFrame), 4>,
     /// The last transmit SRDO frame per identifier this channel's core handed on.
     handed_on: FrameSlots<N>,
+    /// Channel B's pairing of its LSS answers with channel A's announcements.
+    lss: AnswerPairing,
     /// The channels' SimpleCAN checks (forwarding, verdicts, Model A transmission).
     #[cfg(feature = "simplecan")]
     simplecan: crate::simplecan::Checks,
@@ -667,6 +676,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             waiting: FrameSlots::default(),
             early: heapless::Vec::new(),
             handed_on: FrameSlots::default(),
+            lss: AnswerPairing::default(),
             #[cfg(feature = "simplecan")]
             simplecan: crate::simplecan::Checks::new(window, timeout, bounds),
         })
@@ -688,6 +698,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         self.receiver.restart(now);
         self.round_trip.forget();
+        self.lss.forget();
         true
     }
 
@@ -697,6 +708,25 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     /// only (see [`Receiver::extend_startup`]).
     pub fn allow_longer_start_up(&mut self, longer: Duration) {
         self.receiver.extend_startup(longer);
+    }
+
+    /// Enables the core's LSS slave (CiA 305, `Device::enable_lss`) after
+    /// [`Runtime::restore_parameters`], before the first poll: `switches` is the node-ID the
+    /// board's switches set (`None`: all open, "use LSS"), `supported` the bit rates the board
+    /// can switch to. Both channels enable it alike; channel A answers for the node and
+    /// channel B checks its answers ([`crate::lss`]). `false` when the core refused (polled
+    /// already, or enabled before).
+    #[must_use = "`false` means LSS was not enabled"]
+    pub fn enable_lss(&mut self, switches: Option<NodeId>, supported: BitRates) -> bool {
+        self.node.enable_lss(switches, supported)
+    }
+
+    /// This channel's node-ID in force and LSS bit rate, as its heartbeat carries them.
+    pub fn lss_settings(&self) -> Settings {
+        Settings {
+            node_id: self.node.configured_node_id(),
+            bit_rate: self.node.lss().and_then(|lss| lss.bit_rate()),
+        }
     }
 
     /// The second step of [`Runtime::new`]: the core's stored parameters loaded in place
@@ -832,8 +862,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                     // The silent channel's core boots as soon as it hears the other; the
                     // channel that speaks for the node waits until the other's core has
                     // booted, so that its boot-up message means both channels follow the bus.
-                    let peer_booted = matches!(message, Message::Heartbeat { nmt, .. }
-                        if nmt != NmtState::Initialising.heartbeat_code());
+                    // An unconfigured node (node-ID FFh, CiA 305) stays in Initialising,
+                    // serving LSS: the other's core runs when its heartbeat says so.
+                    let peer_booted = matches!(message, Message::Heartbeat { nmt, node, .. }
+                        if nmt != NmtState::Initialising.heartbeat_code()
+                            || node == shared::canopen::lss::UNCONFIGURED);
                     self.link_up = !self.role.speaks_for_the_node() || peer_booted;
                 }
                 self.on_message(now, message, io);
@@ -939,6 +972,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         if let Err(fault) = self.input_check.poll(now) {
             self.latch(fault, io);
         }
+        if let Err(mismatch) = self.lss.poll(now) {
+            self.latch(ChannelFault::Lss(mismatch), io);
+        }
         if shared::time::expired(self.next_heartbeat, now) {
             self.heartbeat(io);
             if self.link_up {
@@ -957,6 +993,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             self.nmt.deadline(),
             self.input_check.deadline(),
             self.waiting_deadline(),
+            self.lss.deadline(),
         ];
         #[cfg(feature = "simplecan")]
         let node_deadline = node_deadline.min(self.simplecan_poll(now, io));
@@ -1162,10 +1199,27 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             })
     }
 
+    /// An LSS answer of this channel's core (CiA 305): channel A announces it to channel B
+    /// and puts it on the bus; channel B pairs it with A's announcement ([`crate::lss`]).
+    fn lss_answer(&mut self, now: Instant, answer: &CanFrame, io: &mut impl Io) {
+        if self.role.speaks_for_the_node() {
+            self.send(
+                &Message::LssAnswer {
+                    data: crate::lss::answer_bytes(answer),
+                },
+                io,
+            );
+            io.transmit(*answer);
+        } else if let Err(mismatch) = self.lss.own(now, answer) {
+            self.latch(ChannelFault::Lss(mismatch), io);
+        }
+    }
+
     fn heartbeat(&mut self, io: &mut impl Io) {
         let config = self.node.safety_config();
         let signatures = self.role.signature_digest(config);
         self.own_digest = Some(signatures);
+        let settings = self.lss_settings();
         let heartbeat = Message::Heartbeat {
             nmt: self.node.nmt_state().heartbeat_code(),
             working: self.is_working(),
@@ -1173,6 +1227,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             valid: config.configuration_valid,
             signatures,
             inputs: self.input_digest(),
+            node: settings.node_byte(),
+            bit_rate: settings.bit_rate_byte(),
         };
         self.send(&heartbeat, io);
     }
@@ -1198,7 +1254,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             } else {
                 #[cfg(feature = "simplecan")]
                 self.simplecan_own(now, &frame, io);
-                if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
+                if crate::lss::is_answer(&frame) {
+                    self.lss_answer(now, &frame, io);
+                } else if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
                     io.transmit(frame);
                 }
             }
@@ -1346,6 +1404,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
             valid,
             signatures,
             inputs,
+            node,
+            bit_rate,
             ..
         } = message
         {
@@ -1362,6 +1422,14 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                     .retain(|(_, frame)| !role.ended_frame(now, frame));
             }
             if self.nmt.same_epoch() {
+                // The node-ID in force changes only at an NMT reset, a new epoch on both
+                // channels; the bit rate not in Operational ([`crate::lss`]).
+                let operational = nmt == NmtState::Operational.heartbeat_code()
+                    && self.node.nmt_state() == NmtState::Operational;
+                let peer = Settings::from_bytes(node, bit_rate);
+                if let Err(mismatch) = peer.compare(&self.lss_settings(), operational) {
+                    self.latch(ChannelFault::Lss(mismatch), io);
+                }
                 // The digests as of the sender's heartbeat, in the order the checks took them
                 // when they came as messages of their own: configuration, then inputs.
                 self.peer_configuration(nmt, valid, signatures, io);
@@ -1375,7 +1443,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         // NMT frames (each channel runs its own loop); dropping it would make A's first plain
         // frame look foreign to B. A replay of an announced frame by another device is still
         // caught by A, which never receives its own frames.
-        let announcement = matches!(message, Message::PlainFrame { .. });
+        // So does an LSS answer: LSS lives across NMT resets, and answers pair in order.
+        let announcement = matches!(
+            message,
+            Message::PlainFrame { .. } | Message::LssAnswer { .. }
+        );
         if !announcement && !self.nmt.same_epoch() {
             // Sent before a reset that one of us has been through and the other not yet (the
             // link may lag the bus): not about the present. Epochs that stay apart are an NMT
@@ -1441,6 +1513,17 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 }
             }
             Message::ForeignFrame { id } => self.foreign_frame(now, id, io),
+            Message::LssAnswer { data } => {
+                // Only channel A announces; the one that speaks for the node never gets one.
+                let paired = if self.role.speaks_for_the_node() {
+                    Err(ChannelFault::Link(LinkFault::Malformed))
+                } else {
+                    self.lss.announced(now, data).map_err(ChannelFault::Lss)
+                };
+                if let Err(fault) = paired {
+                    self.latch(fault, io);
+                }
+            }
             #[cfg(feature = "simplecan")]
             message @ (Message::SimpleCanPacket { .. }
             | Message::SimpleCanVerdict { .. }
@@ -1620,8 +1703,11 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         };
         self.node
             .enter_safe_state_with(fault.cause_code(), named, &mut collect);
+        // An unconfigured node (no node-ID, CiA 305) sends nothing but LSS answers: its
+        // cause is in the event and on the link, not in an EMCY.
+        let configured = self.node.configured_node_id().is_some();
         for &frame in collect.frames.iter() {
-            if !is_srdo(&frame) {
+            if configured && !is_srdo(&frame) {
                 if let Some(frame) = self.role.outgoing(frame, self.node.safety_config()) {
                     if let Err(frame) = held.push(frame) {
                         // More than the core sends on entering the safe state (one EMCY):

@@ -555,9 +555,10 @@ fn the_status_report_goes_out_on_change_and_every_period() {
 }
 
 /// The two channels of node 33 read different node-IDs from their switches (33 and 34): the
-/// node never drives its outputs. Channel B does not follow the tool's requests for node 33,
-/// so it keeps unvalidated defaults and refuses Operational; channel A, Operational alone,
-/// sees the NMT states differ, and both channels go to the safe state.
+/// node never drives its outputs. Each channel's link heartbeat names its node-ID in force,
+/// so the first heartbeats already put both channels in the safe state with the cause in
+/// words (`dual_channel::lss::Settings`); channel B, which does not follow the tool's
+/// requests for node 33, also keeps unvalidated defaults and refuses Operational.
 #[test]
 fn channels_with_different_node_ids_never_leave_the_safe_state() {
     use channel_b::role::ChannelB;
@@ -603,7 +604,9 @@ fn channels_with_different_node_ids_never_leave_the_safe_state() {
     )));
     assert!(said(Side::A, &|e| matches!(
         e,
-        ChannelEvent::Fault(ChannelFault::NmtMismatch)
+        ChannelEvent::Fault(ChannelFault::Lss(
+            dual_channel::lss::LssMismatch::NodeIdDiffers { other, own }
+        )) if other.map(|id| id.raw()) == Some(34) && own.map(|id| id.raw()) == Some(33)
     )));
     // Node 1 runs normally: the fault is node 33's alone.
     assert!(net.node(1).a.is_working() && net.node(1).b.is_working());

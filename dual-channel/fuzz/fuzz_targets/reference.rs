@@ -94,13 +94,14 @@ pub fn serial_raw(word_and_body: &[u8]) -> Vec<u8> {
 /// crate builds `dual-channel` without its feature `simplecan`, as the shipped images are.
 fn widths(tag: u8) -> Option<&'static [usize]> {
     Some(match tag {
-        0x01 => &[1, 1, 1, 1, 4, 4],
+        0x01 => &[1, 1, 1, 1, 4, 4, 1, 1],
         0x02 => &[4],
         0x03 => &[1, 4, 8, 1],
         0x04 | 0x05 => &[1],
         0x06 => &[2, 1, 8],
         0x07 => &[2],
         0x0B | 0x0C => &[4],
+        0x0D => &[8],
         _ => return None,
     })
 }
@@ -144,6 +145,8 @@ pub fn link_message(body: &[u8]) -> Option<Message> {
             valid: f[3] as u8,
             signatures: f[4] as u32,
             inputs: f[5] as u32,
+            node: f[6] as u8,
+            bit_rate: f[7] as u8,
         },
         0x02 => Message::Inputs { sample: f[0] as u32 },
         0x03 => Message::Verdict {
@@ -162,14 +165,17 @@ pub fn link_message(body: &[u8]) -> Option<Message> {
         0x07 => Message::ForeignFrame { id: f[0] as u16 },
         0x0B => Message::Probe { stamp: f[0] as u32 },
         0x0C => Message::Echo { stamp: f[0] as u32 },
+        0x0D => Message::LssAnswer {
+            data: f[0].to_le_bytes(),
+        },
         _ => return None,
     })
 }
 
-/// A body of a known tag made from any bytes: the tag from the first (01h..07h, 0Bh, 0Ch),
+/// A body of a known tag made from any bytes: the tag from the first (01h..07h, 0Bh..0Dh),
 /// the fields from the rest, cut or padded with zeros to the tag's length.
 pub fn link_body_from(bytes: &[u8]) -> Vec<u8> {
-    const TAGS: [u8; 9] = [0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0B, 0x0C];
+    const TAGS: [u8; 10] = [0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0B, 0x0C, 0x0D];
     let tag = TAGS[usize::from(bytes.first().copied().unwrap_or(0)) % TAGS.len()];
     let len = widths(tag).map_or(0, |widths| widths.iter().sum());
     let mut body = vec![tag];
@@ -187,6 +193,8 @@ pub fn link_body(message: &Message) -> Vec<u8> {
             valid,
             signatures,
             inputs,
+            node,
+            bit_rate,
         } => (
             0x01,
             vec![
@@ -196,6 +204,8 @@ pub fn link_body(message: &Message) -> Vec<u8> {
                 valid.into(),
                 signatures.into(),
                 inputs.into(),
+                node.into(),
+                bit_rate.into(),
             ],
         ),
         Message::Inputs { sample } => (0x02, vec![sample.into()]),
@@ -211,6 +221,7 @@ pub fn link_body(message: &Message) -> Vec<u8> {
         Message::ForeignFrame { id } => (0x07, vec![id.into()]),
         Message::Probe { stamp } => (0x0B, vec![stamp.into()]),
         Message::Echo { stamp } => (0x0C, vec![stamp.into()]),
+        Message::LssAnswer { data } => (0x0D, vec![u64::from_le_bytes(data)]),
     };
     let mut body = vec![tag];
     for (&width, value) in widths(tag).unwrap_or_default().iter().zip(values) {

@@ -6,8 +6,8 @@
 //!
 //! ```text
 //! tag  variant            fields (octets)                                       body
-//! 01h  Heartbeat          nmt 1 | working 1 | epoch 1 | valid 1 |                 13
-//!                         signatures 4 | inputs 4
+//! 01h  Heartbeat          nmt 1 | working 1 | epoch 1 | valid 1 |                 15
+//!                         signatures 4 | inputs 4 | node 1 | bit_rate 1
 //! 02h  Inputs             sample 4                                                 5
 //! 03h  Verdict            srdo 1 | pair 4 | data 8 | valid 1                      15
 //! 04h  TransmitMismatch   srdo 1                                                   2
@@ -19,6 +19,7 @@
 //! 0Ah  SimpleCanFault     cause 1 | id 2 | other 2                                 6
 //! 0Bh  Probe              stamp 4                                                  5
 //! 0Ch  Echo               stamp 4                                                  5
+//! 0Dh  LssAnswer          data 8                                                   9
 //! ```
 //!
 //! The tags are constants, not the variants' order: a variant behind a feature (the
@@ -32,7 +33,7 @@
 
 use super::Message;
 
-/// The longest body: [`Message::Verdict`].
+/// The longest body: [`Message::Verdict`] and [`Message::Heartbeat`].
 pub const MAX_BODY: usize = 15;
 
 const HEARTBEAT: u8 = 0x01;
@@ -50,6 +51,7 @@ const SIMPLECAN_VERDICT: u8 = 0x09;
 const SIMPLECAN_FAULT: u8 = 0x0A;
 const PROBE: u8 = 0x0B;
 const ECHO: u8 = 0x0C;
+const LSS_ANSWER: u8 = 0x0D;
 
 /// Writes fields one after the other into a body.
 struct Put<'a> {
@@ -145,6 +147,8 @@ impl Message {
                 valid,
                 signatures,
                 inputs,
+                node,
+                bit_rate,
             } => put
                 .u8(HEARTBEAT)
                 .u8(nmt)
@@ -152,7 +156,9 @@ impl Message {
                 .u8(epoch)
                 .u8(valid)
                 .u32(signatures)
-                .u32(inputs),
+                .u32(inputs)
+                .u8(node)
+                .u8(bit_rate),
             Message::Inputs { sample } => put.u8(INPUTS).u32(sample),
             Message::Verdict {
                 srdo,
@@ -166,6 +172,7 @@ impl Message {
             Message::ForeignFrame { id } => put.u8(FOREIGN_FRAME).u16(id),
             Message::Probe { stamp } => put.u8(PROBE).u32(stamp),
             Message::Echo { stamp } => put.u8(ECHO).u32(stamp),
+            Message::LssAnswer { data } => put.u8(LSS_ANSWER).bytes(&data),
             #[cfg(feature = "simplecan")]
             Message::SimpleCanPacket { id, len, data } => {
                 put.u8(SIMPLECAN_PACKET).u16(id).u8(len).bytes(&data)
@@ -205,6 +212,8 @@ impl Message {
                 valid: take.u8()?,
                 signatures: take.u32()?,
                 inputs: take.u32()?,
+                node: take.u8()?,
+                bit_rate: take.u8()?,
             },
             INPUTS => Message::Inputs {
                 sample: take.u32()?,
@@ -225,6 +234,9 @@ impl Message {
             FOREIGN_FRAME => Message::ForeignFrame { id: take.u16()? },
             PROBE => Message::Probe { stamp: take.u32()? },
             ECHO => Message::Echo { stamp: take.u32()? },
+            LSS_ANSWER => Message::LssAnswer {
+                data: take.array()?,
+            },
             #[cfg(feature = "simplecan")]
             SIMPLECAN_PACKET => Message::SimpleCanPacket {
                 id: take.u16()?,

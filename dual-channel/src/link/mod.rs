@@ -100,6 +100,12 @@ pub enum Message {
         signatures: u32,
         /// The sender's input digest, as [`Message::Inputs`] carries it.
         inputs: u32,
+        /// The sender's node-ID in force, FFh when unconfigured (CiA 305; compared in the
+        /// same epoch, [`crate::lss::Settings`]).
+        node: u8,
+        /// The sender's LSS bit rate, the CiA 305 table index, FFh for the board's own
+        /// (compared in Operational, [`crate::lss::Settings`]).
+        bit_rate: u8,
     },
     /// The sender's own sample of its safety inputs, for the input cross-check: sent when
     /// they change (and with every heartbeat, in [`Message::Heartbeat`]).
@@ -155,6 +161,12 @@ pub enum Message {
     Echo {
         /// The probe's stamp, unchanged.
         stamp: u32,
+    },
+    /// Channel A puts this LSS answer on the bus (7E4h, sent before the frame itself):
+    /// channel B pairs it with its own slave's answer ([`crate::lss::AnswerPairing`]).
+    LssAnswer {
+        /// The answer's 8 data bytes (every LSS frame is 8 bytes, CiA 305).
+        data: [u8; 8],
     },
     /// Channel A received this SimpleCAN frame (data or sync) and forwards it to channel B
     /// as it came off the bus, not unpacked (SC_REQ_24): B decodes and checks it with its

@@ -15,6 +15,8 @@ fn messages() -> Vec<Message> {
             valid: 0xA5,
             signatures: 0x1234_5678,
             inputs: u32::MAX,
+            node: 0xFF,
+            bit_rate: 0xFF,
         },
         Message::Inputs {
             sample: 0xDEAD_BEEF,
@@ -35,6 +37,7 @@ fn messages() -> Vec<Message> {
         Message::ForeignFrame { id: 0x7FF },
         Message::Probe { stamp: u32::MAX },
         Message::Echo { stamp: 0 },
+        Message::LssAnswer { data: [0xFF; 8] },
         #[cfg(feature = "simplecan")]
         Message::SimpleCanPacket {
             id: u16::MAX,
@@ -74,6 +77,8 @@ fn a_lost_message_is_reported_once_then_the_link_resynchronises() {
         valid: 0xA5,
         signatures: 0,
         inputs: 0,
+        node: 33,
+        bit_rate: 0xFF,
     };
     feed(
         &mut receiver,
@@ -434,9 +439,12 @@ fn every_variant_has_the_layout_of_the_table() {
                 valid: 0xA5,
                 signatures: 0x1234_5678,
                 inputs: 0x9ABC_DEF0,
+                node: 0x21,
+                bit_rate: 0x02,
             },
             vec![
-                0x01, 0x05, 0x01, 0x21, 0xA5, 0x78, 0x56, 0x34, 0x12, 0xF0, 0xDE, 0xBC, 0x9A,
+                0x01, 0x05, 0x01, 0x21, 0xA5, 0x78, 0x56, 0x34, 0x12, 0xF0, 0xDE, 0xBC, 0x9A, 0x21,
+                0x02,
             ],
         ),
         (
@@ -474,6 +482,12 @@ fn every_variant_has_the_layout_of_the_table() {
         (
             Message::Echo { stamp: 0xFFFF_FFFE },
             vec![0x0C, 0xFE, 0xFF, 0xFF, 0xFF],
+        ),
+        (
+            Message::LssAnswer {
+                data: [0x4F, 1, 2, 3, 4, 5, 6, 7],
+            },
+            vec![0x0D, 0x4F, 1, 2, 3, 4, 5, 6, 7],
         ),
         #[cfg(feature = "simplecan")]
         (

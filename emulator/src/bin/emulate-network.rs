@@ -31,7 +31,9 @@ struct Cli {
     /// until killed).
     #[arg(long = "for", value_parser = emulator::time::parse_duration)]
     duration: Option<Nanos>,
-    /// The node-IDs of the nodes (their switches), comma-separated.
+    /// The node-IDs of the nodes (their switches), comma-separated; 0 leaves a node's
+    /// switches all open, so that LSS sets its node-ID (CiA 305; its MCUs are then named
+    /// `lss1a`, `lss1b`, numbered in the order given).
     #[arg(long, value_delimiter = ',', default_values_t = [1u8, 33u8])]
     nodes: Vec<u8>,
     /// The bus's bit rate.
@@ -169,15 +171,25 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         LogTable::from_elf(&image_b.elf)?,
     ];
     let mut members = Vec::new();
+    let mut unconfigured = 0;
     for &node in &cli.nodes {
-        if !(1..=127).contains(&node) {
-            return Err(format!("node-ID {node} is not one of 1 to 127").into());
+        if node > 127 {
+            return Err(format!(
+                "node-ID {node} is not one of 1 to 127 (or 0: switches open, LSS)"
+            )
+            .into());
         }
+        let (name, switches) = if node == 0 {
+            unconfigured += 1;
+            (format!("lss{unconfigured}"), None)
+        } else {
+            (format!("node{node}"), Some(node))
+        };
         for (channel, image) in [("a", &image_a), ("b", &image_b)] {
             members.push(Member {
-                name: format!("node{node}{channel}"),
+                name: format!("{name}{channel}"),
                 image: image.clone(),
-                node_id: Some(node),
+                node_id: switches,
                 input_closed: cli.inputs_closed,
                 hse: rcc::BOARD_HSE,
             });

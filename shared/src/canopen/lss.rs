@@ -27,10 +27,9 @@
 //! pending values are replaced whole or not at all.
 //!
 //! The device's use of this slave (`Device::enable_lss` in [`crate::node`], the LSS settings
-//! in the stored image) is behind the crate's `lss` feature, off by default: the firmware
-//! images do not carry LSS until the boards wire it. This module itself is always built (the
-//! tool's LSS master frames its requests with it); code no device calls is not linked into an
-//! image.
+//! in the stored image) is behind the crate's `lss` feature, off by default and on in the
+//! firmware images, whose two channels both run the slave (`dual_channel::lss`). This module
+//! itself is always built (the tool's LSS master frames its requests with it).
 //!
 //! # Safety rules
 //!

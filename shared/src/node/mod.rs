@@ -39,8 +39,8 @@
 //! writes the LSS settings into the same stored record as the parameters, atomically,
 //! leaving the parameters as they were. Without the feature the device has no LSS slave,
 //! keeps no LSS state and stores no LSS settings (its stored image is byte for byte the one
-//! of a device that never had LSS, and one holding LSS settings is rejected as malformed):
-//! the firmware images do not carry LSS until the boards wire it.
+//! of a device that never had LSS, and one holding LSS settings is rejected as malformed).
+//! The firmware images carry it: both channels enable it (`dual_channel::lss`).
 
 pub mod access;
 mod both;

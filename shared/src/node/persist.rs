@@ -375,7 +375,16 @@ fn with_lss(image: &mut [u8], len: usize, lss: LssSettings) -> Result<usize, Sto
     if new_len > image.len() {
         return Err(StorageError::TooLarge);
     }
-    image.copy_within(HEADER..len, HEADER + LSS_LEN);
+    // Moved up a byte at a time from the end, not by `copy_within`: that links the general
+    // `memmove` into the images for this one copy, made once per LSS store
+    // (`docs/footprint.md`).
+    for index in (HEADER..len).rev() {
+        let byte = image.get(index).copied().ok_or(StorageError::Corrupt)?;
+        let moved = image
+            .get_mut(index + LSS_LEN)
+            .ok_or(StorageError::TooLarge)?;
+        *moved = byte;
+    }
     image
         .get_mut(HEADER..HEADER + LSS_LEN)
         .ok_or(StorageError::TooLarge)?

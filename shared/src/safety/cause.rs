@@ -80,6 +80,15 @@ pub enum Cause {
     /// until its automatic recovery it neither sends nor receives, so the channel cannot know
     /// that it saw every safety frame.
     BusOff = 0x3B,
+    /// The channels' LSS slaves answered a request differently, or one answered a request
+    /// the other did not answer within the window (CiA 305, both channels of the node).
+    LssAnswerMismatch = 0x3C,
+    /// The channels' node-IDs in force differ in the same NMT epoch (the switches read
+    /// differently, or LSS configured one channel only).
+    NodeIdMismatch = 0x3D,
+    /// The channels' LSS bit rates differ in Operational (CiA 305 configure bit timing
+    /// reached one channel only).
+    BitRateMismatch = 0x3E,
     /// The other channel went to its safe state.
     PeerSafeState = 0x40,
     /// A GFC was received (EN 50325-5 7.2.1).
@@ -141,7 +150,7 @@ pub enum Cause {
 
 impl Cause {
     /// Every cause, in the order of their codes.
-    pub const ALL: [Cause; 51] = [
+    pub const ALL: [Cause; 54] = [
         Cause::None,
         Cause::SctElapsed,
         Cause::SrvtElapsed,
@@ -171,6 +180,9 @@ impl Cause {
         Cause::ClockDrift,
         Cause::ReceiveOverrun,
         Cause::BusOff,
+        Cause::LssAnswerMismatch,
+        Cause::NodeIdMismatch,
+        Cause::BitRateMismatch,
         Cause::PeerSafeState,
         Cause::Gfc,
         Cause::SimpleCanNotValidated,
@@ -238,6 +250,9 @@ impl Cause {
             Cause::ClockDrift => "clock of one channel drifts",
             Cause::ReceiveOverrun => "CAN receive queue overrun",
             Cause::BusOff => "CAN controller bus-off",
+            Cause::LssAnswerMismatch => "LSS answers of the channels differ",
+            Cause::NodeIdMismatch => "node-IDs of the channels differ",
+            Cause::BitRateMismatch => "LSS bit rates of the channels differ",
             Cause::PeerSafeState => "other channel safe",
             Cause::Gfc => "GFC",
             Cause::SimpleCanNotValidated => "SimpleCAN configuration not declared valid",
@@ -298,7 +313,7 @@ mod tests {
 
     #[test]
     fn a_number_that_is_no_cause_code_is_none_and_reads_other() {
-        for code in [0x03, 0x08, 0x16, 0x24, 0x3C, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
+        for code in [0x03, 0x08, 0x16, 0x24, 0x3F, 0x41, 0x51, 0xF1, 0xF6, 0xFF] {
             assert_eq!(Cause::from_code(code), None, "{code:#04x}");
             assert_eq!(Cause::describe_code(code), "other");
         }

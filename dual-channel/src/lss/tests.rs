@@ -1,8 +1,11 @@
-//! Tests of channel B's LSS mirror: channel A is the node's LSS slave itself, fed the same
-//! requests; each test names the CiA 305 figure or the fault it is about.
+//! Tests of the two channels' LSS: two slaves of one node (channel A's and channel B's),
+//! fed the same requests, and channel B's pairing of their answers; each test names the
+//! CiA 305 figure or the fault it is about.
 
 use super::*;
-use shared::canopen::lss::{FASTSCAN_CONFIRM, specifier};
+use shared::canopen::lss::{
+    BitRates, FASTSCAN_CONFIRM, Lss, MASTER_TO_SLAVE, StoreFailure, specifier,
+};
 
 const IDENTITY: [u32; 4] = [0x0ABC, 0x0304, 1, 0x8000_0042];
 const RATES: BitRates = BitRates::of(&[BitRate::Kbit500, BitRate::Kbit250]);
@@ -16,17 +19,19 @@ fn request(data: [u8; 8]) -> CanFrame {
     CanFrame::new(MASTER_TO_SLAVE, &data).unwrap()
 }
 
-/// Channel A's slave and channel B's mirror of one unconfigured node.
+/// Channel A's and channel B's slaves of one unconfigured node, and B's pairing.
 struct Pair {
     a: Lss,
-    b: LssMirror,
+    b: Lss,
+    pairing: AnswerPairing,
 }
 
 impl Pair {
     fn unconfigured() -> Self {
         Pair {
             a: Lss::new(IDENTITY, None, None, RATES),
-            b: LssMirror::new(IDENTITY, None, None, RATES, WINDOW),
+            b: Lss::new(IDENTITY, None, None, RATES),
+            pairing: AnswerPairing::new(WINDOW),
         }
     }
 
@@ -34,24 +39,34 @@ impl Pair {
     fn both(&mut self, at: u64, data: [u8; 8]) -> Result<Option<[u8; 8]>, LssMismatch> {
         let frame = request(data);
         let outcome = self.a.on_frame(ms(at), &frame, false, |_| Ok(()));
-        let reset_b = self.b.on_request(ms(at), &frame, false, |_| Ok(()))?;
-        assert_eq!(reset_b, outcome.reset_communication, "{data:02X?}");
+        let own = self.b.on_frame(ms(at), &frame, false, |_| Ok(()));
+        assert_eq!(
+            own.reset_communication, outcome.reset_communication,
+            "{data:02X?}"
+        );
         if outcome.reset_communication {
             self.a.reset_communication();
             self.b.reset_communication();
         }
-        if let Some(answer) = outcome.response {
-            self.b.on_announced(ms(at + 1), &answer)?;
+        if let Some(answer) = own.response {
+            self.pairing.own(ms(at), &answer)?;
         }
-        self.b.poll(ms(at + 1))?;
-        Ok(outcome
-            .response
-            .map(|answer| <[u8; 8]>::try_from(answer.data()).unwrap()))
+        if let Some(answer) = outcome.response {
+            self.pairing.announced(ms(at + 1), answer_bytes(&answer))?;
+        }
+        self.pairing.poll(ms(at + 1))?;
+        Ok(outcome.response.map(|answer| answer_bytes(&answer)))
+    }
+
+    fn settings(lss: &Lss) -> Settings {
+        Settings {
+            node_id: lss.active(),
+            bit_rate: lss.bit_rate(),
+        }
     }
 
     fn settings_agree(&self) -> Result<(), LssMismatch> {
-        self.b
-            .check_settings(self.a.active(), self.a.pending(), self.a.bit_rate())
+        Self::settings(&self.a).compare(&Self::settings(&self.b), true)
     }
 }
 
@@ -61,7 +76,7 @@ fn scan(value: u32, bit_check: u8, sub: u8, next: u8) -> [u8; 8] {
 }
 
 #[test]
-fn cia305_fig46_fig33_fig36_the_mirror_follows_a_fastscan_and_configuration_without_a_mismatch() {
+fn cia305_fig46_fig33_fig36_both_channels_follow_a_fastscan_and_configuration_without_a_mismatch() {
     let mut pair = Pair::unconfigured();
     let mut at = 0;
     let mut step = |pair: &mut Pair, data| {
@@ -98,9 +113,9 @@ fn cia305_fig46_fig33_fig36_the_mirror_follows_a_fastscan_and_configuration_with
     pair.settings_agree().unwrap();
     // Back to waiting: the unconfigured node takes node-ID 7 on both channels.
     step(&mut pair, [specifier::SWITCH_GLOBAL, 0, 0, 0, 0, 0, 0, 0]);
-    assert_eq!(pair.b.lss().active().map(NodeId::raw), Some(7));
+    assert_eq!(pair.b.active().map(NodeId::raw), Some(7));
     pair.settings_agree().unwrap();
-    assert_eq!(pair.b.deadline(), Instant::NEVER, "nothing waits");
+    assert_eq!(pair.pairing.deadline(), Instant::NEVER, "nothing waits");
 }
 
 #[test]
@@ -121,6 +136,7 @@ fn cia305_fig33_an_answer_of_channel_a_that_differs_is_a_mismatch_in_words() {
             channel_b: [0x11, 0, 0, 0, 0, 0, 0, 0],
         }
     );
+    assert_eq!(error.cause(), Cause::LssAnswerMismatch);
     assert_eq!(
         error.to_string(),
         "channel A announced an LSS answer that differs from channel B's own \
@@ -135,13 +151,12 @@ fn cia305_fig36_a_store_that_fails_on_one_channel_only_is_a_mismatch() {
         .unwrap();
     let store = request([specifier::STORE_CONFIGURATION, 0, 0, 0, 0, 0, 0, 0]);
     let failed = StoreFailure::Failed(shared::canopen::storage::StorageError::VerifyFailed);
-    let outcome = pair.a.on_frame(ms(10), &store, false, |_| Err(failed));
-    pair.b
-        .on_request(ms(10), &store, false, |_| Ok(()))
-        .unwrap();
+    let a = pair.a.on_frame(ms(10), &store, false, |_| Err(failed));
+    let b = pair.b.on_frame(ms(10), &store, false, |_| Ok(()));
+    pair.pairing.own(ms(10), &b.response.unwrap()).unwrap();
     let error = pair
-        .b
-        .on_announced(ms(11), &outcome.response.unwrap())
+        .pairing
+        .announced(ms(11), answer_bytes(&a.response.unwrap()))
         .unwrap_err();
     assert!(matches!(
         error,
@@ -159,12 +174,11 @@ fn cia305_a_request_channel_a_missed_is_found_when_the_window_ends() {
         .unwrap();
     // Only channel B received the inquiry.
     let inquiry = request([specifier::INQUIRE_NODE_ID, 0, 0, 0, 0, 0, 0, 0]);
-    pair.b
-        .on_request(ms(10), &inquiry, false, |_| Ok(()))
-        .unwrap();
-    assert_eq!(pair.b.deadline(), ms(15));
-    assert_eq!(pair.b.poll(ms(14)), Ok(()), "within the window");
-    let error = pair.b.poll(ms(15)).unwrap_err();
+    let own = pair.b.on_frame(ms(10), &inquiry, false, |_| Ok(()));
+    pair.pairing.own(ms(10), &own.response.unwrap()).unwrap();
+    assert_eq!(pair.pairing.deadline(), ms(15));
+    assert_eq!(pair.pairing.poll(ms(14)), Ok(()), "within the window");
+    let error = pair.pairing.poll(ms(15)).unwrap_err();
     assert_eq!(
         error,
         LssMismatch::Unanswered {
@@ -181,69 +195,88 @@ fn cia305_an_answer_announced_first_waits_for_channel_b_within_the_window() {
     let mut pair = Pair::unconfigured();
     let reset = request(scan(0, FASTSCAN_CONFIRM, 0, 0));
     let outcome = pair.a.on_frame(ms(0), &reset, false, |_| Ok(()));
-    let answer = outcome.response.unwrap();
-    pair.b.on_announced(ms(0), &answer).unwrap();
-    pair.b.on_request(ms(3), &reset, false, |_| Ok(())).unwrap();
-    assert_eq!(pair.b.deadline(), Instant::NEVER);
+    let answer = answer_bytes(&outcome.response.unwrap());
+    pair.pairing.announced(ms(0), answer).unwrap();
+    let own = pair.b.on_frame(ms(3), &reset, false, |_| Ok(()));
+    pair.pairing.own(ms(3), &own.response.unwrap()).unwrap();
+    assert_eq!(pair.pairing.deadline(), Instant::NEVER);
     // An announcement B never has an answer for: a mismatch once the window ends.
-    pair.b.on_announced(ms(10), &answer).unwrap();
+    pair.pairing.announced(ms(10), answer).unwrap();
     assert_eq!(
-        pair.b.poll(ms(15)),
+        pair.pairing.poll(ms(15)),
         Err(LssMismatch::Unexpected {
             channel_a: [0x4F, 0, 0, 0, 0, 0, 0, 0]
         })
     );
-    // An announcement on another identifier is never A's LSS answer.
-    let foreign = CanFrame::new(MASTER_TO_SLAVE, &[0x4F, 0, 0, 0, 0, 0, 0, 0]).unwrap();
-    assert!(matches!(
-        pair.b.on_announced(ms(20), &foreign),
-        Err(LssMismatch::Unexpected { .. })
-    ));
 }
 
 #[test]
-fn cia305_fig33_fig34_node_id_and_bit_rate_are_compared_with_channel_a() {
+fn cia305_an_answer_lost_while_the_link_was_deaf_is_forgotten_not_a_fault() {
+    let mut pair = AnswerPairing::new(WINDOW);
+    let answer = CanFrame::new(SLAVE_TO_MASTER, &[0x17, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+    pair.own(ms(0), &answer).unwrap();
+    pair.forget();
+    assert_eq!(pair.deadline(), Instant::NEVER);
+    assert_eq!(pair.poll(ms(100)), Ok(()));
+}
+
+#[test]
+fn cia305_fig33_fig34_node_id_and_bit_rate_are_compared_between_the_channels() {
     let mut pair = Pair::unconfigured();
     pair.both(0, [specifier::SWITCH_GLOBAL, 1, 0, 0, 0, 0, 0, 0])
         .unwrap();
     pair.both(10, [specifier::CONFIGURE_NODE_ID, 9, 0, 0, 0, 0, 0, 0])
         .unwrap();
     pair.settings_agree().unwrap();
-    let nine = NodeId::new(9).ok();
-    let error = pair
-        .b
-        .check_settings(None, NodeId::new(8).ok(), None)
-        .unwrap_err();
+    let own = Pair::settings(&pair.b);
+    let eight = Settings::from_bytes(8, 0xFF);
+    let error = eight.compare(&own, false).unwrap_err();
     assert_eq!(
         error,
         LssMismatch::NodeIdDiffers {
-            channel_a: (None, NodeId::new(8).ok()),
-            channel_b: (None, nine),
+            other: NodeId::new(8).ok(),
+            own: None,
         }
     );
+    assert_eq!(error.cause(), Cause::NodeIdMismatch);
     assert!(
         error
             .to_string()
-            .starts_with("the LSS node-ID in force or pending differs between the channels")
+            .starts_with("the node-ID in force differs between the channels")
     );
+    // The bit rate only in Operational, where LSS cannot change it.
+    let faster = Settings {
+        node_id: None,
+        bit_rate: Some(BitRate::Kbit250),
+    };
+    assert_eq!(faster.compare(&own, false), Ok(()));
+    let error = faster.compare(&own, true).unwrap_err();
     assert_eq!(
-        pair.b.check_settings(None, nine, Some(BitRate::Kbit250)),
-        Err(LssMismatch::BitRateDiffers {
-            channel_a: Some(BitRate::Kbit250),
-            channel_b: None
-        })
+        error,
+        LssMismatch::BitRateDiffers {
+            other: Some(BitRate::Kbit250),
+            own: None
+        }
     );
+    assert_eq!(error.cause(), Cause::BitRateMismatch);
+    // The link bytes read back as they were written.
+    let settings = Settings {
+        node_id: NodeId::new(9).ok(),
+        bit_rate: Some(BitRate::Kbit250),
+    };
+    assert_eq!(
+        Settings::from_bytes(settings.node_byte(), settings.bit_rate_byte()),
+        settings
+    );
+    assert_eq!(Settings::from_bytes(0xFF, 0xFF), own);
 }
 
 #[test]
-fn the_mirror_holds_a_bounded_number_of_waiting_answers() {
-    let mut pair = Pair::unconfigured();
-    let answer = CanFrame::new(SLAVE_TO_MASTER, &[0x4F, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+fn channel_b_holds_a_bounded_number_of_waiting_answers() {
+    let mut pair = AnswerPairing::new(WINDOW);
+    let answer = [0x4F, 0, 0, 0, 0, 0, 0, 0];
     for _ in 0..PENDING {
-        pair.b.on_announced(ms(0), &answer).unwrap();
+        pair.announced(ms(0), answer).unwrap();
     }
-    assert_eq!(
-        pair.b.on_announced(ms(0), &answer),
-        Err(LssMismatch::Overrun)
-    );
+    assert_eq!(pair.announced(ms(0), answer), Err(LssMismatch::Overrun));
 }

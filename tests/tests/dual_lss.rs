@@ -1,0 +1,160 @@
+//! LSS (CiA 305) on a dual-channel node: both channels' slaves follow the tool's LSS master,
+//! channel A answers for the node, channel B pairs every answer with its own, and the two
+//! channels' node-IDs are compared over the link (`dual_channel::lss`). A difference is the
+//! safe state with its cause in words.
+
+use dual_channel::lss::LssMismatch;
+use dual_channel::runtime::{ChannelEvent, ChannelFault};
+use safety_config::lss::LssMaster;
+use safety_config::network_file;
+use shared::canopen::NodeId;
+use shared::canopen::lss::{BitRate, BitRates, MASTER_TO_SLAVE, SLAVE_TO_MASTER};
+use shared::canopen::nmt::NmtState;
+use shared::safety::cause::Cause;
+use shared::{Duration, Instant};
+use system_tests::bus::{Fault, Injection, Match};
+use system_tests::dual::{DualNetwork, Side};
+use system_tests::tool_bus::SimulatedBus;
+
+const RATES: BitRates = BitRates::of(&[BitRate::Kbit500]);
+
+/// The node's identity as `safety_device::config` gives node-ID 5 (serial number 5), to be
+/// given node-ID 40 by LSS.
+const NETWORK: &str = r#"
+[[node]]
+id = 40
+name = "LSS node"
+identity = { vendor = 0xABC, product = 0x304, revision = 1, serial = 5 }
+"#;
+
+/// Node 5 of a dual-channel network with both channels' switches as given (`None`: all
+/// open), LSS enabled before the first poll.
+fn lss_node(a: Option<u8>, b: Option<u8>) -> DualNetwork {
+    let mut net = DualNetwork::new(500_000, &[5]);
+    let node = net.node_mut(5);
+    let id = |raw: Option<u8>| raw.map(|raw| NodeId::new(raw).unwrap());
+    assert!(node.a.enable_lss(id(a), RATES));
+    assert!(node.b.enable_lss(id(b), RATES));
+    net
+}
+
+fn faults(net: &DualNetwork) -> Vec<(Instant, Side, ChannelFault)> {
+    net.log
+        .iter()
+        .filter_map(|(at, _, side, event)| match event {
+            ChannelEvent::Fault(fault) => Some((*at, *side, *fault)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn cia305_fig46_an_unconfigured_dual_channel_node_is_found_and_configured_on_both_channels() {
+    let mut net = lss_node(None, None);
+    net.run_for(Duration::from_millis(100));
+    assert_eq!(net.node(5).a.node().configured_node_id(), None);
+    assert_eq!(net.node(5).a.node().nmt_state(), NmtState::Initialising);
+    assert!(
+        net.trace.is_empty(),
+        "an unconfigured node sends nothing: {:?}",
+        net.trace
+    );
+    let file = network_file::parse(NETWORK, "NETWORK").unwrap();
+    let report = LssMaster::new(
+        SimulatedBus::new(&mut net),
+        std::time::Duration::from_millis(100),
+    )
+    .fastscan_assign(&file, true)
+    .unwrap();
+    assert_eq!(report.assigned.len(), 1, "{report:?}");
+    net.run_for(Duration::from_millis(100));
+    let forty = NodeId::new(40).ok();
+    assert_eq!(net.node(5).a.node().configured_node_id(), forty);
+    assert_eq!(net.node(5).b.node().configured_node_id(), forty);
+    assert_eq!(net.node(5).a.lss_settings(), net.node(5).b.lss_settings());
+    assert_eq!(faults(&net), [], "no mismatch between the channels");
+    // Only channel A answered: every answer on the bus is A's (participant 1).
+    let answers: Vec<usize> = net
+        .trace
+        .iter()
+        .filter(|(_, frame, _)| frame.id() == SLAVE_TO_MASTER)
+        .map(|(_, _, from)| *from)
+        .collect();
+    assert!(!answers.is_empty());
+    assert!(answers.iter().all(|&from| from == 1), "{answers:?}");
+    assert!(
+        net.trace
+            .iter()
+            .any(|(_, frame, _)| frame.id().raw() == 0x700 + 40 && frame.data() == [0]),
+        "boots on node-ID 40"
+    );
+    assert_eq!(net.node(5).a.node().nmt_state(), NmtState::PreOperational);
+}
+
+#[test]
+fn cia305_and_cia304_9_5_an_lss_request_channel_b_missed_is_a_mismatch_in_words() {
+    let mut net = lss_node(None, None);
+    net.run_for(Duration::from_millis(100));
+    let now = net.now;
+    // Channel B's controller loses the first LSS request: A answers it alone.
+    net.node_mut(5).receive_faults.push((
+        Side::B,
+        Injection::new(Match::next_with_id(MASTER_TO_SLAVE.raw(), now), Fault::Drop),
+    ));
+    let file = network_file::parse(NETWORK, "NETWORK").unwrap();
+    let _ = LssMaster::new(
+        SimulatedBus::new(&mut net),
+        std::time::Duration::from_millis(100),
+    )
+    .fastscan_assign(&file, true);
+    net.run_for(Duration::from_millis(500));
+    let faults = faults(&net);
+    let (_, side, fault) = faults.first().copied().expect("a fault");
+    assert_eq!(side, Side::B, "{faults:?}");
+    let ChannelFault::Lss(mismatch) = fault else {
+        panic!("{fault:?}");
+    };
+    // A's unpaired answer meets B's next one (or waits out the window): either way, B says
+    // that the channels' LSS answers differ.
+    assert_eq!(fault.cause(), Cause::LssAnswerMismatch);
+    assert!(
+        matches!(
+            mismatch,
+            LssMismatch::Unexpected { .. } | LssMismatch::AnswerDiffers { .. }
+        ),
+        "{mismatch}"
+    );
+    assert!(!net.node(5).a.is_working() && !net.node(5).b.is_working());
+}
+
+#[test]
+fn cia305_rule_3_channels_whose_switches_read_differently_never_leave_the_safe_state() {
+    // Channel A reads node-ID 5 on its switches, channel B reads them all open.
+    let mut net = lss_node(Some(5), None);
+    net.run_for(Duration::from_millis(200));
+    let faults = faults(&net);
+    assert!(
+        faults.iter().any(|(_, _, fault)| matches!(
+            fault,
+            ChannelFault::Lss(LssMismatch::NodeIdDiffers { .. })
+        )),
+        "{faults:?}"
+    );
+    let fault = faults
+        .iter()
+        .find_map(|(_, _, fault)| match fault {
+            ChannelFault::Lss(mismatch) => Some(*mismatch),
+            _ => None,
+        })
+        .unwrap();
+    assert_eq!(fault.cause(), Cause::NodeIdMismatch);
+    // Whichever channel's check came first names the other's and its own.
+    let text = fault.to_string();
+    assert!(
+        text.starts_with("the node-ID in force differs between the channels (other ")
+            && text.contains("Some(NodeId(5))")
+            && text.contains("None"),
+        "{text}"
+    );
+    assert!(!net.node(5).a.is_working() && !net.node(5).b.is_working());
+}
