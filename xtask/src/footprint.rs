@@ -407,6 +407,38 @@ fn added(
     Ok(())
 }
 
+/// The shipped images against their budgets (`images::SHIPPED`, `images::RAM_BUDGET`, of
+/// which `images::STACK_RESERVE` is the stack's): what `cargo xtask build` checks, with the
+/// margin each image has left.
+fn budgets(shipped: &[(Layer, u64, &[(&str, Footprint)])], out: &mut String) -> Result<()> {
+    writeln!(out, "### The shipped images against their budgets\n")?;
+    writeln!(
+        out,
+        "The stack reserve, part of the RAM budget, is {} bytes (`images::STACK_RESERVE`).\n",
+        images::STACK_RESERVE
+    )?;
+    writeln!(
+        out,
+        "| image | flash | flash budget | flash left | RAM with the stack reserve | RAM budget | RAM left |"
+    )?;
+    writeln!(out, "|---|---:|---:|---:|---:|---:|---:|")?;
+    for (layer, flash_budget, measured) in shipped {
+        for (name, footprint) in *measured {
+            let (flash, ram) = (footprint.sizes.flash(), footprint.sizes.ram());
+            let left = |budget: u64, used: u64| i128::from(budget) - i128::from(used);
+            writeln!(
+                out,
+                "| {name} ({layer:?}) | {flash} | {flash_budget} | {} | {ram} | {} | {} |",
+                left(*flash_budget, flash),
+                images::RAM_BUDGET,
+                left(images::RAM_BUDGET, ram)
+            )?;
+        }
+    }
+    writeln!(out)?;
+    Ok(())
+}
+
 const BEGIN: &str = "<!-- cargo xtask footprint: begin -->";
 const END: &str = "<!-- cargo xtask footprint: end -->";
 
@@ -446,6 +478,13 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
             .map(|(_, measured)| measured.as_slice())
             .unwrap_or_default()
     };
+    let mut shipped = String::new();
+    let with_budgets: Vec<(Layer, u64, &[(&str, Footprint)])> = images::SHIPPED
+        .iter()
+        .map(|&(layer, budget)| (layer, budget, of(layer)))
+        .collect();
+    budgets(&with_budgets, &mut shipped)?;
+    tables.insert_str(tables.find("### ").unwrap_or(tables.len()), &shipped);
     for (base, with) in [
         (Layer::Hw, Layer::HwSimpleCan),
         (Layer::Qemu, Layer::QemuSimpleCan),
