@@ -45,11 +45,11 @@ enum Task {
     /// Install what the other tasks need: the thumbv7em-none-eabihf target (rustup, or
     /// Debian's rust-web packages as a fallback), clippy and rustfmt. Idempotent.
     Setup {
-        /// Also install probe-rs-tools and defmt-print (about 7 minutes of compiling).
+        /// Also install probe-rs-tools and defmt-print (several minutes of compiling).
         #[arg(long)]
         probe_rs: bool,
         /// Also install what `cargo xtask fuzz` needs: the nightly toolchain (rustup) and
-        /// cargo-fuzz (about 2 minutes of compiling).
+        /// cargo-fuzz (a few minutes of compiling).
         #[arg(long)]
         fuzz: bool,
     },
@@ -77,8 +77,8 @@ enum Task {
     /// reads otherwise, a cut link. `--qemu`: on the QEMU images with the hub instead.
     E2e {
         /// Also 60 s of SDO and non-safety traffic on 30 % of the bus beside the SRDOs
-        /// (opt-in; on the QEMU images it takes 11 to 19 minutes of host time on a loaded
-        /// 2-core machine).
+        /// (opt-in; on the QEMU images it takes many minutes of host time on a loaded 2-core
+        /// machine, docs/can-receive.md).
         #[arg(long)]
         bus_load: bool,
         /// The case under bus load for this many seconds of the network's time instead
