@@ -439,6 +439,29 @@ fn budgets(shipped: &[(Layer, u64, &[(&str, Footprint)])], out: &mut String) -> 
     Ok(())
 }
 
+/// The commit the images were built from, abbreviated, and whether files outside `docs/`
+/// differed from it; "unknown" when git cannot say.
+fn source_commit(root: &Path) -> String {
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .current_dir(root)
+            .args(args)
+            .output()
+            .ok()
+            .filter(|output| output.status.success())
+            .map(|output| String::from_utf8_lossy(&output.stdout).trim().to_owned())
+    };
+    match git(&["rev-parse", "--short=10", "HEAD"]) {
+        Some(commit) => match git(&["status", "--porcelain", "--", ".", ":!docs"]) {
+            Some(changes) if !changes.is_empty() => {
+                format!("{commit} with changes not committed")
+            }
+            _ => commit,
+        },
+        None => "unknown".to_owned(),
+    }
+}
+
 const BEGIN: &str = "<!-- cargo xtask footprint: begin -->";
 const END: &str = "<!-- cargo xtask footprint: end -->";
 
@@ -453,7 +476,8 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
         .unwrap_or_default();
     writeln!(
         tables,
-        "Measured by `cargo xtask footprint` ({}, `firmware` profile).\n",
+        "Measured by `cargo xtask footprint` on commit {} ({}, `firmware` profile).\n",
+        source_commit(root),
         rustc.trim()
     )?;
     let mut layers = Vec::new();
