@@ -407,10 +407,13 @@ fn added(
     Ok(())
 }
 
+/// A shipped layer, its flash budget and its images as measured (channel name, footprint).
+type Shipped<'a> = (Layer, u64, &'a [(&'a str, Footprint)]);
+
 /// The shipped images against their budgets (`images::SHIPPED`, `images::RAM_BUDGET`, of
 /// which `images::STACK_RESERVE` is the stack's): what `cargo xtask build` checks, with the
 /// margin each image has left.
-fn budgets(shipped: &[(Layer, u64, &[(&str, Footprint)])], out: &mut String) -> Result<()> {
+fn budgets(shipped: &[Shipped<'_>], out: &mut String) -> Result<()> {
     writeln!(out, "### The shipped images against their budgets\n")?;
     writeln!(
         out,
@@ -503,7 +506,7 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
             .unwrap_or_default()
     };
     let mut shipped = String::new();
-    let with_budgets: Vec<(Layer, u64, &[(&str, Footprint)])> = images::SHIPPED
+    let with_budgets: Vec<Shipped<'_>> = images::SHIPPED
         .iter()
         .map(|&(layer, budget)| (layer, budget, of(layer)))
         .collect();
