@@ -422,7 +422,7 @@ fn task() -> Result<()> {
             if qemu || protocol == network::Protocol::Simplecan {
                 if !qemu {
                     println!(
-                        "xtask: the SimpleCAN cases run on the QEMU images only so far                          (docs/emulator.md)"
+                        "xtask: the SimpleCAN cases run on the QEMU images only so far (docs/emulator.md)"
                     );
                 }
                 e2e::task_for(&root, load_seconds, protocol)
