@@ -61,8 +61,8 @@ struct Awaited {
 /// the CAN message path). Without it A would wait for ever and the node would fall silent
 /// without saying why.
 ///
-/// Both lists are fixed slots, never shifted (shifting pulls a 1.5 KiB `memmove` into the
-/// image; see [`FrameSlots`]).
+/// Both lists are fixed slots, never shifted (shifting pulls compiler-builtins' `memmove` into
+/// the image; see [`FrameSlots`]).
 #[derive(Clone, Debug, Default)]
 pub struct ChannelA {
     /// Plain frames whose inverted frame has not been seen on the bus yet.

@@ -116,9 +116,9 @@ pub use safety_device::timing::SAMPLE_WINDOW;
 /// the same bound ([`round_trip_bound`]). Under QEMU the link between the channels and the CAN
 /// bus are two separate paths through the hub on a shared host: channel A's announcement of a
 /// plain frame can reach channel B tens of milliseconds after the frame itself when the host is
-/// loaded (the channels measured stalls of 40 to 60 ms with other work beside them; a window of
-/// 20 ms made node 1 report its own plain frame as foreign). It leaves 40 ms of the emulated
-/// network's SRVT (100 ms) for the inverted frame. The hardware images keep [`SAMPLE_WINDOW`].
+/// loaded (the stalls measured, and the shorter window that made node 1 report its own plain
+/// frame as foreign: docs/emulation.md, "The QEMU images' sample window"). It leaves 40 ms of
+/// the emulated network's SRVT (100 ms) for the inverted frame. The hardware images keep [`SAMPLE_WINDOW`].
 pub const QEMU_SAMPLE_WINDOW: Duration = Duration::from_millis(60);
 
 /// How many safety inputs (plain objects) a channel samples and cross-checks; one more is
@@ -487,7 +487,7 @@ pub trait Io {
 /// Collects what the core hands out during one call, into lists on the caller's stack
 /// (declared by `collect!`). The lists are separate locals, not fields of one value built
 /// at once: built as one value, the empty lists were zeroed whole (a `memset`) at every core
-/// call, 2 % of the full-network simulation's instructions (callgrind).
+/// call (its share of the full-network simulation's instructions: docs/network-performance.md).
 struct Collect<'a> {
     frames: &'a mut heapless::Vec<CanFrame, 16>,
     events: &'a mut heapless::Vec<Event, 16>,
@@ -1729,8 +1729,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 type HeldFrames = heapless::Vec<CanFrame, 4>;
 
 /// At most one frame per identifier, in `C` fixed slots. Entries are never shifted: shifting
-/// (`retain`, `swap_remove`) compiles to a `memmove` call here, which pulls 1.5 KiB into the
-/// channel images.
+/// (`retain`, `swap_remove`) compiles to a `memmove` call here, which pulls compiler-builtins'
+/// `memmove` into the channel images (its size: docs/footprint.md).
 #[derive(Clone, Copy, Debug)]
 pub struct FrameSlots<const C: usize> {
     slots: [Option<CanFrame>; C],

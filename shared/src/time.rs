@@ -96,8 +96,8 @@ pub const fn expired(deadline: Instant, now: Instant) -> bool {
 /// `dividend / divisor` and `dividend % divisor`, for a divisor that fits 16 bits.
 ///
 /// The MCU divides 32 bits by 32 in hardware (UDIV) and has no 64-bit division: a `/` or `%` on
-/// `u64` links compiler-builtins' general routine (`u64_div_rem`, 864 bytes of flash, and its
-/// 68 bytes of wrappers). Every 64-bit division of microseconds the protocol core needs is by
+/// `u64` links compiler-builtins' general routine (`u64_div_rem` and its wrappers; what they
+/// cost in flash is in docs/footprint.md). Every 64-bit division of microseconds the protocol core needs is by
 /// a factor of at most 16 bits, taken one after the other (1000 µs per slot, then N slots per
 /// cycle; 1000 µs per millisecond, then 3600 ms per leak of the bad-CRC counter), so it is
 /// done here as schoolbook long division in base 2¹⁶: four 32-bit divisions, each of the

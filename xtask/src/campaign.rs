@@ -40,9 +40,8 @@ pub fn task(root: &Path, options: &Options) -> Result<()> {
     let mut command = super::cargo();
     // From the repository's root: the plots' directory is named relative to it in the report.
     command.current_dir(root).args(["run", "--quiet"]);
-    // The full size optimised (2.1 to 4.6 ms per scenario and thread in two full runs,
-    // against 42 ms unoptimised in a run of 200 per class, both on the loaded 2-core
-    // development machine); a smaller run uses the unoptimised build `cargo xtask test` has just
+    // The full size optimised (its wall time is in docs/campaigns.md; unoptimised, a scenario
+    // takes many times longer); a smaller run uses the unoptimised build `cargo xtask test` has just
     // made (nextest builds the package's binaries), so CI compiles nothing more for it.
     if options.scenarios >= FULL {
         command.arg("--release");

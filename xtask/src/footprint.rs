@@ -407,6 +407,64 @@ fn added(
     Ok(())
 }
 
+/// A shipped layer, its flash budget and its images as measured (channel name, footprint).
+type Shipped<'a> = (Layer, u64, &'a [(&'a str, Footprint)]);
+
+/// The shipped images against their budgets (`images::SHIPPED`, `images::RAM_BUDGET`, of
+/// which `images::STACK_RESERVE` is the stack's): what `cargo xtask build` checks, with the
+/// margin each image has left.
+fn budgets(shipped: &[Shipped<'_>], out: &mut String) -> Result<()> {
+    writeln!(out, "### The shipped images against their budgets\n")?;
+    writeln!(
+        out,
+        "The stack reserve, part of the RAM budget, is {} bytes (`images::STACK_RESERVE`).\n",
+        images::STACK_RESERVE
+    )?;
+    writeln!(
+        out,
+        "| image | flash | flash budget | flash left | RAM with the stack reserve | RAM budget | RAM left |"
+    )?;
+    writeln!(out, "|---|---:|---:|---:|---:|---:|---:|")?;
+    for (layer, flash_budget, measured) in shipped {
+        for (name, footprint) in *measured {
+            let (flash, ram) = (footprint.sizes.flash(), footprint.sizes.ram());
+            let left = |budget: u64, used: u64| i128::from(budget) - i128::from(used);
+            writeln!(
+                out,
+                "| {name} ({layer:?}) | {flash} | {flash_budget} | {} | {ram} | {} | {} |",
+                left(*flash_budget, flash),
+                images::RAM_BUDGET,
+                left(images::RAM_BUDGET, ram)
+            )?;
+        }
+    }
+    writeln!(out)?;
+    Ok(())
+}
+
+/// The commit the images were built from, abbreviated, and whether files outside `docs/`
+/// differed from it; "unknown" when git cannot say.
+fn source_commit(root: &Path) -> String {
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .current_dir(root)
+            .args(args)
+            .output()
+            .ok()
+            .filter(|output| output.status.success())
+            .map(|output| String::from_utf8_lossy(&output.stdout).trim().to_owned())
+    };
+    match git(&["rev-parse", "--short=10", "HEAD"]) {
+        Some(commit) => match git(&["status", "--porcelain", "--", ".", ":!docs"]) {
+            Some(changes) if !changes.is_empty() => {
+                format!("{commit} with changes not committed")
+            }
+            _ => commit,
+        },
+        None => "unknown".to_owned(),
+    }
+}
+
 const BEGIN: &str = "<!-- cargo xtask footprint: begin -->";
 const END: &str = "<!-- cargo xtask footprint: end -->";
 
@@ -421,7 +479,8 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
         .unwrap_or_default();
     writeln!(
         tables,
-        "Measured by `cargo xtask footprint` ({}, `firmware` profile).\n",
+        "Measured by `cargo xtask footprint` on commit {} ({}, `firmware` profile).\n",
+        source_commit(root),
         rustc.trim()
     )?;
     let mut layers = Vec::new();
@@ -446,6 +505,13 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
             .map(|(_, measured)| measured.as_slice())
             .unwrap_or_default()
     };
+    let mut shipped = String::new();
+    let with_budgets: Vec<Shipped<'_>> = images::SHIPPED
+        .iter()
+        .map(|&(layer, budget)| (layer, budget, of(layer)))
+        .collect();
+    budgets(&with_budgets, &mut shipped)?;
+    tables.insert_str(tables.find("### ").unwrap_or(tables.len()), &shipped);
     for (base, with) in [
         (Layer::Hw, Layer::HwSimpleCan),
         (Layer::Qemu, Layer::QemuSimpleCan),

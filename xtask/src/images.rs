@@ -7,93 +7,47 @@ use object::{Object, ObjectSection, SectionFlags, SectionKind};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Flash budget per image, bytes.
+/// Flash budget of the CANopen Safety hardware images ([`Layer::Hw`]), bytes.
 ///
-/// 58 KiB: channel A's hardware image measures 55,148 bytes and channel B's 54,892, a margin of
-/// 4,244 bytes (7.1 %) for the larger (2026-12-05, `cargo xtask footprint`; 55,356 and 55,168
-/// the day before, when the budget was set; on 2026-12-05 SimpleCAN's CRCs without their tables
-/// moved the inlining of the CRC code these images share, +152 / +156, and the channel's
-/// collector of the core's output and the hardware layer's clock reading went out of line,
-/// −176 / −220 and −184 / −212, docs/footprint.md), since the panic
-/// handler reads nothing of the panic (no location, no message: every panic site's location
-/// record and `core::fmt` left the images, −5,796 bytes on channel B; +148 for the trail of
-/// return addresses it logs instead), embassy's crates are built without their `defmt`
-/// feature (−788; +128 to name the CAN bus error ourselves) and the link's messages go
-/// straight into the USART's ring (−1,560). It was 64 KiB before these steps (channel B
-/// 63,036 bytes): 64,376 and 64,140 before the link's messages took a fixed layout of their own
-/// instead of postcard; 64,612 and 64,536 before the runtime was built where it is kept, the
-/// transmit path shared by both CAN drivers and the full network's second speed round; 64,744
-/// and 64,476 before the channel loop became generic over the protocol, with other changes
-/// between the measurements. The SimpleCAN images (`Layer::HwSimpleCan`) have a budget of
-/// their own, [`SIMPLECAN_FLASH_BUDGET`]. It was 67 KiB
-/// (channel B 68,016 bytes) until the second footprint steps of `docs/footprint.md`: LLVM's
-/// inlining threshold raised from opt-level `z`'s 5 to 45 (−2,492 bytes on channel B), three
-/// functions inlined several times kept out of line, EXTI left out of embassy-stm32. The
-/// threshold's effect is not smooth (neighbouring thresholds differ by up to 700 bytes), so a
-/// change may move the image by more than its own code: re-scan before raising this. 68 KiB
-/// (channel B 68,444 bytes) until the first footprint steps: identical code folded at link
-/// time, the runtime built out of line and kept where it is built. Before that: 64 KiB until
-/// the protection against unauthorised configuration (SC_REQ_43, `shared::node::access`,
-/// +3,604 bytes on channel B) landed, since a safety requirement is not left open for a size
-/// target; 72 KiB before the first footprint step (`opt-level = "z"`, no `core::fmt`
-/// rendering in the panic handler, checked calls for the `unwrap`s that linked `Debug`
-/// formatting, panic locations' source paths cut). The target is 48 KiB; what stands between
-/// is in `docs/footprint.md`. The device has 768 KiB for code (`memory.x`).
+/// 58 KiB. The images' sizes against it and the margin left are in the generated part of
+/// `docs/footprint.md` (`cargo xtask footprint`); when and why the budget moved, each step
+/// measured, in its "History" section. A budget is lowered as the images shrink and raised
+/// only for a safety requirement, never for a size step. The target is 48 KiB; what stands
+/// between is in `docs/footprint.md`. The device has 768 KiB for code (`memory.x`).
 pub const FLASH_BUDGET: u64 = 58 * 1024;
 /// Flash budget of the hardware images with SimpleCAN (`Layer::HwSimpleCan`), bytes.
 ///
-/// 64 KiB: channel A's image measures 59,172 bytes and channel B's 62,528, a margin of 3,008
-/// bytes (4.6 %) for the larger (2026-12-05, `cargo xtask footprint`). These images speak
-/// SimpleCAN instead of SRDOs (`board::SRDOS` = 0); with the SRDO table's code beside
-/// SimpleCAN's they measured 70,768 / 74,736. 64 KiB is the budget the images were held to
-/// when the second protocol was planned (the architecture step's 48 KiB target was to leave
-/// it room under 64 KiB); the CANopen Safety images' [`FLASH_BUDGET`] went down to 58 KiB
-/// since, as they shrank. Channel A fits that one too; channel B does not: it alone pairs
-/// what it hears with what A forwards (SC_REQ_24), checks the node's packets on the bus
-/// against its own (Model A, SC_REQ_10) and decodes with its own diverse code: SimpleCAN
-/// costs its image 3,612 bytes more than channel A's (docs/footprint.md, where what was
-/// measured on the way is). [`RAM_BUDGET`] holds for both.
+/// 64 KiB: the budget the images were held to when the second protocol was planned (the
+/// architecture step's 48 KiB target was to leave it room under 64 KiB); the CANopen Safety
+/// images' [`FLASH_BUDGET`] went down since, as they shrank. These images speak SimpleCAN
+/// instead of SRDOs (`board::SRDOS` = 0). Channel B's is the larger: it alone pairs what it
+/// hears with what A forwards (SC_REQ_24), checks the node's packets on the bus against its
+/// own (Model A, SC_REQ_10) and decodes with its own diverse code, requirements that stay
+/// whatever they cost. Sizes and margins: the generated part of `docs/footprint.md`; what was
+/// measured on the way: its "History". [`RAM_BUDGET`] holds for both.
 pub const SIMPLECAN_FLASH_BUDGET: u64 = 64 * 1024;
 
 /// RAM budget per image, bytes, including the stack reserve below.
 ///
-/// 21 KiB: channel A's hardware image measures 21,148 bytes (8,860 of static data, the rest
-/// the stack reserve) and channel B's 20,884, a margin of 356 bytes for the larger
-/// (2026-12-02); static data does not vary at run time, so the margin is what a change may
-/// add before it is looked at. It was 27 KiB with an 18 KiB stack
-/// reserve until the main task's stack frame shrank (below); before that 24 KiB, raised for
-/// the check of the other channel's time base (128 bytes), the transmit queue ordered by
-/// identifier (`board::transmit_queue`, 192 bytes), which the fault campaign's oracle showed is
-/// needed, and a deeper stack. The QEMU images hold more (`docs/footprint.md`) and are not
-/// held to it.
+/// 21 KiB. Static data does not vary at run time, so the margin the generated part of
+/// `docs/footprint.md` gives is what a change may add before it is looked at; the budget's
+/// earlier values and why they moved are in its "History". The QEMU images hold more
+/// (`docs/footprint.md`) and are not held to it.
 pub const RAM_BUDGET: u64 = 21 * 1024;
 /// RAM set aside for the stack in the budget. The linker places the stack at the top of RAM.
 /// The figure is checked against the measured high-water mark: the stack is painted at
 /// start-up (`board::stack`), every emulated channel reports its deepest use, which `cargo
 /// xtask e2e` fails on when it is above this, and both layers log it.
 ///
-/// 12 KiB. Every path of the channel runs on top of the main task's stack frame, which held
-/// the runtime's construction inlined with two copies of the runtime: 10,428 bytes in the
-/// QEMU image of channel B, 10,644 in the hardware one, now 1,460 and 1,828 (the runtime built
-/// by an out-of-line `Runtime::new` and kept in its `Result`, `docs/footprint.md`). Measured on
-/// channel B's QEMU image run alone (start-up with the parameters restored, then the link
-/// time-out to the safe state): 13,676 bytes deepest before, 9,092 to 9,136 after (channel
-/// A 8,528), at least 3,152 bytes (26 %) below the reserve. The whole end-to-end run measured 15,436 to 15,608 bytes before, its
-/// deepest path on top of the same 10 KiB frame; `cargo xtask e2e` holds it to this reserve,
-/// and measured 5,476 bytes deepest (channel B, 4,828 on A) once the runtime was built where
-/// it is kept (`Runtime::around`, below).
-///
-/// The SimpleCAN QEMU images (`Layer::QemuSimpleCan`) are held to the same reserve by `cargo
-/// xtask e2e --protocol simplecan`: 8,704 to 8,848 bytes deepest in three runs (channel B;
-/// channel A 7,824 to 7,968), at least 3,440 bytes (28 %) below it (2026-12-02). They used
-/// 24,868 bytes until the safety data dictionary held the layer's capacity instead of 80
-/// entries (15,508 after that step alone) and the runtime was built in place: `Runtime::around`
-/// and `Device::prepare` build it into the board's `Result`, the parameters restored there
-/// afterwards (`Runtime::restore_parameters`), instead of `Runtime::new` returning it by value
-/// with the restore under its frame (`docs/footprint.md`, the SimpleCAN variants).
-/// The hardware layer runs the same channel code but its own drivers; its figure comes from
-/// its log once it runs on a board (a static estimate of the hardware images' deepest call
-/// chain, `docs/footprint.md`: 6,588 bytes for channel B's, 9,772 with SimpleCAN).
+/// 12 KiB. Every path of the channel runs on top of the main task's stack frame, which once
+/// held the runtime's construction inlined with two copies of the runtime; the runtime is now
+/// built by an out-of-line `Runtime::new`, or in place by `Runtime::around` and
+/// `Device::prepare` into the board's `Result`, its parameters restored there afterwards
+/// (`Runtime::restore_parameters`). The SimpleCAN QEMU images are held to the same reserve by
+/// `cargo xtask e2e --protocol simplecan`. The deepest stack each emulated run measured is in
+/// `docs/emulated-figures.md` (the shipped images) and `docs/footprint.md` ("History": the
+/// QEMU images, the steps that moved it, and a static estimate of the hardware images'
+/// deepest call chain, whose own figure comes from their log once they run on a board).
 pub const STACK_RESERVE: u64 = 12 * 1024;
 
 /// The chip, as probe-rs names it.
@@ -237,8 +191,8 @@ pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
 /// The path prefixes cut from the source file names compiled into the images: each crates.io
 /// index's source directory and the standard library's `/rustc/<commit>`. A panic location's
 /// file name is a string in flash; cut, `embassy-stm32-0.6.0/src/can/util.rs` instead of the
-/// same behind `/root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/` (1,120 bytes of
-/// channel B's `.rodata`, `docs/footprint.md`). The names stay unambiguous: crate and version,
+/// same behind `/root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/` (what it saved
+/// of `.rodata`: `docs/footprint.md`). The names stay unambiguous: crate and version,
 /// then the file. Quoted for TOML; a prefix that does not exist cuts nothing.
 fn remapped_prefixes(cross: &Cross) -> Vec<String> {
     let mut prefixes = Vec::new();

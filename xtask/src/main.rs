@@ -11,6 +11,7 @@ mod e2e;
 mod emulate;
 mod footprint;
 mod fullnet;
+mod generated;
 mod images;
 mod interop;
 mod licences;
@@ -45,11 +46,11 @@ enum Task {
     /// Install what the other tasks need: the thumbv7em-none-eabihf target (rustup, or
     /// Debian's rust-web packages as a fallback), clippy and rustfmt. Idempotent.
     Setup {
-        /// Also install probe-rs-tools and defmt-print (about 7 minutes of compiling).
+        /// Also install probe-rs-tools and defmt-print (several minutes of compiling).
         #[arg(long)]
         probe_rs: bool,
         /// Also install what `cargo xtask fuzz` needs: the nightly toolchain (rustup) and
-        /// cargo-fuzz (about 2 minutes of compiling).
+        /// cargo-fuzz (a few minutes of compiling).
         #[arg(long)]
         fuzz: bool,
     },
@@ -77,8 +78,8 @@ enum Task {
     /// reads otherwise, a cut link. `--qemu`: on the QEMU images with the hub instead.
     E2e {
         /// Also 60 s of SDO and non-safety traffic on 30 % of the bus beside the SRDOs
-        /// (opt-in; on the QEMU images it takes 11 to 19 minutes of host time on a loaded
-        /// 2-core machine).
+        /// (opt-in; on the QEMU images it takes many minutes of host time on a loaded 2-core
+        /// machine, docs/can-receive.md).
         #[arg(long)]
         bus_load: bool,
         /// The case under bus load for this many seconds of the network's time instead
@@ -183,7 +184,8 @@ enum Task {
     },
     /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared`, the images,
     /// QEMU self-tests and the end-to-end tests on the emulated network, CANopen Safety's and
-    /// SimpleCAN's.
+    /// SimpleCAN's; last, that the committed traceability matrix (docs/traceability.md) is the
+    /// one this run writes.
     Test,
     /// The main job: the emulated safety network (two nodes, four QEMU instances, the bus
     /// hub), configured and started, shown live through the tool's monitor; single keys
@@ -316,6 +318,10 @@ enum Task {
         /// the tests.
         #[arg(long)]
         report_only: bool,
+        /// Also fail when the committed docs/traceability.md is not the matrix written now,
+        /// naming the lines that differ (as `cargo xtask test` does).
+        #[arg(long)]
+        check: bool,
     },
     /// Scenario files (scenarios/*.toml unless FILES are given: a network, a timeline of
     /// stimuli and faults, expected outcomes with bounds) on the dual-channel host
@@ -416,7 +422,7 @@ fn task() -> Result<()> {
             if qemu || protocol == network::Protocol::Simplecan {
                 if !qemu {
                     println!(
-                        "xtask: the SimpleCAN cases run on the QEMU images only so far                          (docs/emulator.md)"
+                        "xtask: the SimpleCAN cases run on the QEMU images only so far (docs/emulator.md)"
                     );
                 }
                 e2e::task_for(&root, load_seconds, protocol)
@@ -569,7 +575,7 @@ fn task() -> Result<()> {
             seconds,
             checked_seconds,
         } => fuzz(&root, seconds, checked_seconds),
-        Task::Trace { report_only } => trace::task(&root, report_only),
+        Task::Trace { report_only, check } => trace::task(&root, report_only, check),
         Task::Spin {
             full,
             liveness,
@@ -657,7 +663,9 @@ fn test(root: &Path) -> Result<()> {
     toolchain::ensure_tshark()?;
     if !trace::run_tests(root)? {
         step("traceability matrix");
-        trace::report(root)?;
+        if let Err(error) = trace::report(root, false) {
+            eprintln!("xtask: {error:#}");
+        }
         bail!("tests failed");
     }
     step("doc tests (nextest does not run them)");
@@ -742,8 +750,8 @@ fn test(root: &Path) -> Result<()> {
     scenario::emulated(root, &set)?;
     step("model check of the two channels' protocol (SPIN, CI bounds)");
     spin::check(root)?;
-    step("traceability matrix");
-    trace::report(root)?;
+    step("traceability matrix, and the committed one is this run's");
+    trace::report(root, true)?;
     step("all checks passed");
     Ok(())
 }

@@ -17,8 +17,7 @@
 //!   committed reports, not run again: `cargo xtask reaction` and `cargo xtask campaign`
 //!   write those reports and take minutes; reading them keeps this task within seconds and
 //!   the manual equal to them. The SimpleCAN example is the exception: its 21 short
-//!   simulated runs are deterministic and take less than two seconds (all committed parts
-//!   together took 1.7 s in the debug test), so it is measured here.
+//!   simulated runs are deterministic and quick, so it is measured here.
 //! - **Written at build time** into the staged copy of the book only
 //!   (`manual/src/generated/build-time/`, committed as placeholders): the toolchain and the
 //!   hardware images' CRCs (built and sealed by `images::build_layer`, which is incremental),

@@ -188,9 +188,9 @@ fn hub_port() -> u16 {
 }
 
 /// How long one SDO request of the tool waits over the emulated bus, in host time. Four
-/// emulated MCUs on two shared cores answer within milliseconds of virtual time, but at a
-/// load average of 20 to 30 the hub held virtual time for over a second, and network starts
-/// failed with 1000 ms (seen three times on 2026-12-01). A timeout only decides how long a
+/// emulated MCUs on two shared cores answer within milliseconds of virtual time, but on a
+/// heavily loaded host the hub held virtual time for longer than a timeout of one second,
+/// and network starts failed with it (`docs/emulation.md`). A timeout only decides how long a
 /// node that really does not answer takes to be reported, so it is generous.
 const SDO_TIMEOUT: Duration = Duration::from_millis(5000);
 
@@ -683,8 +683,8 @@ impl Network {
         if !failures.is_empty() {
             bail!("configuration failed:\n{}", failures.join("\n"));
         }
-        // An NMT start right after the store used to reach the two channels of a node up to
-        // 177 ms apart: each channel worked through the frames queued for it on QEMU's USART
+        // An NMT start right after the store used to reach the two channels of a node far
+        // apart (docs/emulation.md): each channel worked through the frames queued for it on QEMU's USART
         // at its own pace (docs/emulation.md). On the paced virtual time that cannot happen
         // any more; the start still waits for three status reports from every channel after
         // the store (a report comes only from a channel whose loop runs).

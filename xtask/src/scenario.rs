@@ -251,8 +251,8 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
         let (network, offset, judged_from) = match &mut running {
             Some((network, offset, judged_from)) => {
                 // The reset is not part of the scenario. Before channel A kept the pairs a
-                // reset cuts, 4 of 51 resets left node 1 safe with cause 34h (the inverted
-                // frame of a pair cut by the reset taken as foreign; docs/scenarios.md). A
+                // reset cuts, some resets left node 1 safe with cause 34h (the inverted frame
+                // of a pair cut by the reset taken as foreign; how often: docs/scenarios.md). A
                 // reset that does not bring both nodes back is still said, and done once
                 // more.
                 let reset = network

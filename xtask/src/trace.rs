@@ -6,7 +6,9 @@
 //! its name starts with (`en50325_5_7_1_2_…` → EN 50325-5 7.1.2, `cia304_9_5_…`,
 //! `cia301_table2_…`, `sc_req_05_…`, `iec61784_3_loss_…`; several joined by `_and_`), and every
 //! requirement that lists it under `tests`. The matrix is written to `docs/traceability.md`
-//! (committed) and `target/traceability/traceability.html` (an artefact of the run).
+//! (committed, so that it reads without a build; `cargo xtask test` fails when the committed
+//! one is not the one its run writes) and `target/traceability/traceability.html` (an artefact
+//! of the run).
 //!
 //! The gate fails, with one sentence per problem, when a test fails, when a test names a
 //! requirement that is not listed (or names a standard but no clause, and no requirement lists
@@ -664,9 +666,14 @@ pub fn run_tests(root: &Path) -> Result<bool> {
     Ok(status.success())
 }
 
+/// Where the matrix is committed, from the workspace root.
+const MATRIX: &str = "docs/traceability.md";
+
 /// Builds the matrix from the requirements and the JUnit report the last `run_tests` wrote,
-/// writes it, and fails with one sentence per problem.
-pub fn report(root: &Path) -> Result<()> {
+/// writes it, and fails with one sentence per problem. With `check` (`cargo xtask test`), it
+/// also fails when the matrix differs from the committed one, naming the lines that differ;
+/// the fresh matrix is written all the same, to be committed.
+pub fn report(root: &Path, check: bool) -> Result<()> {
     let documents = load(root, &root.join("requirements"))?;
     let junit = junit_path(root);
     let xml = std::fs::read_to_string(&junit).with_context(|| {
@@ -677,9 +684,10 @@ pub fn report(root: &Path) -> Result<()> {
     })?;
     let tests = parse_junit(&xml)?;
     let matrix = Matrix::build(&documents, &tests);
-    let docs = root.join("docs");
-    std::fs::create_dir_all(&docs)?;
-    std::fs::write(docs.join("traceability.md"), report::markdown(&matrix))?;
+    let markdown = report::markdown(&matrix);
+    let committed = check.then(|| crate::generated::committed(root, MATRIX));
+    std::fs::create_dir_all(root.join("docs"))?;
+    std::fs::write(root.join(MATRIX), &markdown)?;
     let html_dir = junit
         .parent()
         .and_then(Path::parent)
@@ -708,17 +716,34 @@ pub fn report(root: &Path) -> Result<()> {
             matrix.problems.len()
         );
     }
+    match committed {
+        Some(None) => {
+            bail!("{MATRIX} is not committed: the fresh matrix is written there, commit it")
+        }
+        Some(Some(committed)) => {
+            if let Some(difference) = crate::generated::difference(&committed, &markdown) {
+                bail!(
+                    "the committed {MATRIX} is not the matrix of this run, {difference}\n\
+                     The fresh matrix is written to {MATRIX}: commit it (`cargo xtask trace \
+                     --report-only` writes it again from this run's JUnit report)."
+                );
+            }
+            println!("xtask: traceability: the committed {MATRIX} is this run's matrix");
+        }
+        None => {}
+    }
     Ok(())
 }
 
-/// `cargo xtask trace`: run the tests (unless `report_only`), then write and check the matrix.
-pub fn task(root: &Path, report_only: bool) -> Result<()> {
+/// `cargo xtask trace`: run the tests (unless `report_only`), then write and check the matrix,
+/// and with `check` that the committed one is the one written.
+pub fn task(root: &Path, report_only: bool, check: bool) -> Result<()> {
     if report_only {
-        return report(root);
+        return report(root, check);
     }
     crate::toolchain::ensure_tshark()?;
     let passed = run_tests(root)?;
-    report(root)?;
+    report(root, check)?;
     if !passed {
         bail!("the test run failed");
     }

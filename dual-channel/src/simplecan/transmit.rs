@@ -542,7 +542,7 @@ fn sync_agrees(
 /// place: what `list.iter().position(..)` and `heapless::Vec::swap_remove` do together, but
 /// through a swap of two elements that are disjoint by construction (`split_at_mut`) and a
 /// `pop`. `swap_remove`'s `core::ptr::copy`, and the same move through `core::mem::replace`,
-/// compile to a call of compiler-builtins' `memmove` (1.5 KiB of the images,
+/// compile to a call of compiler-builtins' `memmove` (what it costs the images:
 /// docs/footprint.md).
 fn take_first<T, const N: usize>(
     list: &mut heapless::Vec<T, N>,

@@ -124,8 +124,9 @@ pub const MIN_SECRET: usize = 8;
 /// Most bytes of a secret.
 pub const MAX_SECRET: usize = 32;
 /// How long an unlock lasts: long enough for the tool to configure, verify and store every
-/// SRDO of the node over a slow bus (the whole procedure for 16 SRDOs takes 256 ms at
-/// 500 kbit/s), short enough that a forgotten unlock does not outlast the maintenance visit.
+/// SRDO of the node over a slow bus (the whole procedure for 16 SRDOs is timed in
+/// docs/performance.md), short enough that a forgotten unlock does not outlast the maintenance
+/// visit.
 pub const UNLOCK_PERIOD: Duration = Duration::from_millis(10 * 60 * 1000);
 /// The longest lockout after failed attempts.
 pub const MAX_LOCKOUT: Duration = Duration::from_millis(60 * 60 * 1000);
@@ -473,8 +474,9 @@ impl<S: Copy + Eq + AsRef<[u16]>> AccessControl<S> {
             AccessState::Open | AccessState::Locked => now,
         };
         // Both periods are below 2^32 µs (71 min), so the remainder fits a u32 and the
-        // division is a 32-bit one (a 64-bit division links 0.9 KiB of compiler_builtins on
-        // Cortex-M4); saturating at u32::MAX µs keeps a longer one readable as ~71 min.
+        // division is a 32-bit one (a 64-bit division links compiler_builtins' general routine
+        // on Cortex-M4, docs/footprint.md); saturating at u32::MAX µs keeps a longer one
+        // readable as ~71 min.
         let micros = u32::try_from(end.saturating_since(now).as_micros()).unwrap_or(u32::MAX);
         micros.div_ceil(1000)
     }

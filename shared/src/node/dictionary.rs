@@ -36,8 +36,8 @@ pub(super) fn exact<const L: usize>(data: &[u8]) -> Result<[u8; L], AbortCode> {
 
 /// Whether `data` is exactly `len` bytes, or the length abort code (CiA 301 0607 0012h /
 /// 0607 0013h): [`exact`] for a length known only at run time. `exact` keeps its own
-/// comparison: written through this one it is inlined larger at its many call sites (+56 /
-/// +60 bytes on the CANopen Safety images, `cargo xtask footprint`, 2026-12-05).
+/// comparison: written through this one it is inlined larger at its many call sites (measured
+/// by `cargo xtask footprint`: docs/footprint.md, "History").
 pub(super) fn length(data: &[u8], len: usize) -> Result<(), AbortCode> {
     match data.len().cmp(&len) {
         core::cmp::Ordering::Greater => Err(AbortCode::LengthTooHigh),

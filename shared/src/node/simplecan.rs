@@ -74,7 +74,7 @@ pub const ROLE_MASTER: u8 = 3;
 
 /// The configuration signature's CRC (section 11): CRC-32/MPEG-2, polynomial 04C11DB7h as
 /// SC_REQ_17 names it. The tool computes it with its own code; this is the device's. Bit by
-/// bit, without the crate's 1 KiB table: it runs when the configuration is checked, not per
+/// bit, without the crate's lookup table (its flash: docs/footprint.md): it runs when the configuration is checked, not per
 /// packet.
 const SIGNATURE_CRC: crc::Crc<u32, crc::NoTable> =
     crc::Crc::<u32, crc::NoTable>::new(&crc::CRC_32_MPEG_2);

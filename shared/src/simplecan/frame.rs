@@ -33,7 +33,7 @@ pub const CRC_ALGORITHM: crc::Algorithm<u32> = crc::Algorithm {
     residue: 0,
 };
 
-/// Bit by bit, without the crate's 1 KiB table: a packet feeds 11 octets, and the table cost
+/// Bit by bit, without the crate's lookup table: a packet feeds 11 octets, and the table cost
 /// more flash than the protocol's whole frame code (docs/footprint.md).
 const CRC: crc::Crc<u32, crc::NoTable> = crc::Crc::<u32, crc::NoTable>::new(&CRC_ALGORITHM);
 
