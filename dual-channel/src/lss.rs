@@ -184,15 +184,30 @@ impl Settings {
 /// Answers pair in order, request by request. Whichever of A's announcement and B's own
 /// answer comes first waits for the other up to the window; a request B answers and A does
 /// not announce within the window, or an announcement B has no answer for within it, is a
-/// mismatch, as is a pair that differs in any byte.
+/// mismatch, as is a pair that differs in any byte. A mismatch is reported once: the answers
+/// waiting are dropped with it.
+///
+/// A channel that programs its parameter flash (store configuration, on both channels at
+/// once) cannot receive link bytes meanwhile, so an announcement A made then may be lost
+/// without a fault of either slave ([`AnswerPairing::link_was_deaf`]). B's answers waiting at
+/// such a time are *uncertain*: one that A's next announcement does not equal, or whose window
+/// ends, is dropped rather than a mismatch. An announcement that does come still pairs with
+/// it, and one that differs from every uncertain answer still meets B's next answer.
 #[derive(Clone, Debug)]
 pub struct AnswerPairing {
     window: Duration,
     /// B's answers A has not announced yet, with when B made them.
-    ours: Deque<([u8; 8], Instant), PENDING>,
+    ours: Deque<Waiting, PENDING>,
+    /// How many of [`AnswerPairing::ours`], from the front, are uncertain (their pair may
+    /// have been lost on the link, [`AnswerPairing::link_was_deaf`]): the ones waiting when
+    /// the link was deaf, which are ahead of every answer made since.
+    uncertain: usize,
     /// A's announcements B has no answer for yet, with when they came.
-    theirs: Deque<([u8; 8], Instant), PENDING>,
+    theirs: Deque<Waiting, PENDING>,
 }
+
+/// An answer waiting for its pair, and since when.
+type Waiting = ([u8; 8], Instant);
 
 impl Default for AnswerPairing {
     fn default() -> Self {
@@ -206,59 +221,89 @@ impl AnswerPairing {
         AnswerPairing {
             window,
             ours: Deque::new(),
+            uncertain: 0,
             theirs: Deque::new(),
         }
     }
 
     /// Channel B's own core answered an LSS request with `answer` at `now`.
     pub fn own(&mut self, now: Instant, answer: &CanFrame) -> Result<(), LssMismatch> {
-        self.pair(now, answer_bytes(answer), Side::ChannelB)
+        let data = answer_bytes(answer);
+        let paired = self.poll(now).and_then(|()| match self.theirs.pop_front() {
+            Some((waiting, _)) if waiting == data => Ok(()),
+            Some((waiting, _)) => Err(LssMismatch::AnswerDiffers {
+                channel_a: waiting,
+                channel_b: data,
+            }),
+            None => self
+                .ours
+                .push_back((data, now))
+                .map_err(|_| LssMismatch::Overrun),
+        });
+        self.reported(paired)
     }
 
     /// Channel A announced over the link at `now` that it sends `answer` (its data).
     pub fn announced(&mut self, now: Instant, answer: [u8; 8]) -> Result<(), LssMismatch> {
-        self.pair(now, answer, Side::ChannelA)
+        let paired = self.poll(now).and_then(|()| {
+            // B's uncertain answers this announcement does not equal had theirs lost.
+            while self.uncertain > 0 && self.ours.front().is_some_and(|(data, _)| *data != answer) {
+                self.drop_own();
+            }
+            match self.ours.front().copied() {
+                Some((waiting, _)) => {
+                    self.drop_own();
+                    if waiting == answer {
+                        Ok(())
+                    } else {
+                        Err(LssMismatch::AnswerDiffers {
+                            channel_a: answer,
+                            channel_b: waiting,
+                        })
+                    }
+                }
+                None => self
+                    .theirs
+                    .push_back((answer, now))
+                    .map_err(|_| LssMismatch::Overrun),
+            }
+        });
+        self.reported(paired)
     }
 
-    /// Pairs `data` from `side` with the other side's oldest waiting answer, or leaves it
-    /// waiting.
-    fn pair(&mut self, now: Instant, data: [u8; 8], side: Side) -> Result<(), LssMismatch> {
-        self.poll(now)?;
-        let (own, other) = match side {
-            Side::ChannelA => (&mut self.theirs, &mut self.ours),
-            Side::ChannelB => (&mut self.ours, &mut self.theirs),
-        };
-        match other.pop_front() {
-            Some((waiting, _)) if waiting == data => Ok(()),
-            Some((waiting, _)) => Err(match side {
-                Side::ChannelA => LssMismatch::AnswerDiffers {
-                    channel_a: data,
-                    channel_b: waiting,
-                },
-                Side::ChannelB => LssMismatch::AnswerDiffers {
-                    channel_a: waiting,
-                    channel_b: data,
-                },
-            }),
-            None => own.push_back((data, now)).map_err(|_| LssMismatch::Overrun),
-        }
+    /// Drops B's oldest waiting answer.
+    fn drop_own(&mut self) {
+        self.ours.pop_front();
+        self.uncertain = self.uncertain.saturating_sub(1);
     }
 
-    /// An answer that waited longer than the window for its pair is a mismatch. Call at
-    /// [`AnswerPairing::deadline`].
+    /// An answer that waited longer than the window for its pair is a mismatch (an uncertain
+    /// one of B's is dropped). Call at [`AnswerPairing::deadline`].
     pub fn poll(&mut self, now: Instant) -> Result<(), LssMismatch> {
-        let late = |since: Instant| shared::time::expired(since + self.window, now);
-        if let Some(&(data, since)) = self.ours.front() {
-            if late(since) {
-                return Err(LssMismatch::Unanswered { channel_b: data });
-            }
+        let window = self.window;
+        let late = |since: Instant| shared::time::expired(since + window, now);
+        while self.uncertain > 0 && self.ours.front().is_some_and(|&(_, since)| late(since)) {
+            self.drop_own();
         }
-        if let Some(&(data, since)) = self.theirs.front() {
-            if late(since) {
-                return Err(LssMismatch::Unexpected { channel_a: data });
-            }
+        let expired = if let Some(&(data, _)) = self.ours.front().filter(|(_, since)| late(*since))
+        {
+            Err(LssMismatch::Unanswered { channel_b: data })
+        } else if let Some(&(data, _)) = self.theirs.front().filter(|(_, since)| late(*since)) {
+            Err(LssMismatch::Unexpected { channel_a: data })
+        } else {
+            Ok(())
+        };
+        self.reported(expired)
+    }
+
+    /// A mismatch drops every answer waiting, so that it is reported once.
+    fn reported(&mut self, result: Result<(), LssMismatch>) -> Result<(), LssMismatch> {
+        if result.is_err() {
+            self.ours.clear();
+            self.uncertain = 0;
+            self.theirs.clear();
         }
-        Ok(())
+        result
     }
 
     /// When [`AnswerPairing::poll`] must run next ([`Instant::NEVER`]: nothing waits).
@@ -272,13 +317,12 @@ impl AnswerPairing {
         oldest.unwrap_or(Instant::NEVER)
     }
 
-    /// Forgets every answer waiting: the link receiver started over (the channel could not
-    /// receive for a while, `Runtime::link_was_deaf`), so announcements of that time may be
-    /// lost without a fault of either slave. A difference they would have shown in the
-    /// node-ID or bit rate is still found by the heartbeat's [`Settings`].
-    pub fn forget(&mut self) {
-        self.ours.clear();
-        self.theirs.clear();
+    /// The link receiver started over: this channel could not receive for a while
+    /// (`Runtime::link_was_deaf`), so announcements of that time may be lost without a fault
+    /// of either slave. B's answers waiting now become uncertain. A difference they would
+    /// have shown in the node-ID or bit rate is still found by the heartbeat's [`Settings`].
+    pub fn link_was_deaf(&mut self) {
+        self.uncertain = self.ours.len();
     }
 }
 
@@ -296,13 +340,6 @@ pub fn answer_bytes(answer: &CanFrame) -> [u8; 8] {
 /// `true` for a frame the node's LSS slave sends (7E4h).
 pub fn is_answer(frame: &CanFrame) -> bool {
     frame.id() == SLAVE_TO_MASTER
-}
-
-/// Which channel an answer came from.
-#[derive(Clone, Copy)]
-enum Side {
-    ChannelA,
-    ChannelB,
 }
 
 #[cfg(test)]

@@ -698,7 +698,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
         self.receiver.restart(now);
         self.round_trip.forget();
-        self.lss.forget();
+        self.lss.link_was_deaf();
         true
     }
 
@@ -1697,6 +1697,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
                 let [low, high] = id.to_le_bytes();
                 [low, high, 0]
             }
+            // The other channel's own cause, which it cannot send on the bus itself.
+            ChannelFault::PeerSafeState { cause } => [cause, 0, 0],
             #[cfg(feature = "simplecan")]
             ChannelFault::SimpleCan(fault) => self.simplecan_named(fault),
             _ => [0; 3],

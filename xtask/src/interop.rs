@@ -25,10 +25,9 @@
 //!    `scenarios/networks/simplecan.toml`): the same sweep of every entry, with the SimpleCAN
 //!    images' EDS (`eds/safety-node-simplecan.eds`), on node 33.
 //! 5. (`--only mixed-load`) python-canopen beside python-can's bus load, below.
-//! 6. python-canopen's LSS master (CiA 305: fast scan, configure node-ID, store) on a
-//!    host-simulated unconfigured LSS node behind `socketcand_sim --lss 1` ([`lss`]: the
-//!    firmware images carry no LSS, so the emulated network's nodes cannot be configured by
-//!    it); `--only lss-bench` times the tool's fastscan and python-canopen's against the bus
+//! 6. python-canopen's LSS master (CiA 305: fast scan, configure node-ID, store) on the
+//!    shipped images of an unconfigured node, switches open, on the emulator's network
+//!    (`emulate-network --nodes 0 --socketcand`, [`lss`]); `--only lss-bench` times the tool's fastscan and python-canopen's against the bus
 //!    time of their frames, into docs/tool.md.
 //! 7. The shipped hardware images on the emulator's network (`emulate-network --socketcand`:
 //!    nodes 1 and 33, channels A and B, no QEMU), joined by separate programs
@@ -71,8 +70,9 @@ pub enum Part {
     /// python-can fills 30 % of the bus, for 60 s of the bus's time: the largest SDO response
     /// time and heartbeat gap. Only when asked for (`--only mixed-load`): it takes minutes.
     MixedLoad,
-    /// python-canopen's LSS master configures a host-simulated unconfigured LSS node (fast
-    /// scan, configure node-ID, store), the tool inquires it (no QEMU).
+    /// python-canopen's LSS master configures an unconfigured node of the shipped images on
+    /// the emulated network (fast scan, configure node-ID, store), the tool inquires it (no
+    /// QEMU).
     Lss,
     /// python-can, python-canopen and the configuration tool as separate programs on the
     /// shipped images' emulated network (`emulate-network --socketcand`, no QEMU).

@@ -211,13 +211,44 @@ fn cia305_an_answer_announced_first_waits_for_channel_b_within_the_window() {
 }
 
 #[test]
-fn cia305_an_answer_lost_while_the_link_was_deaf_is_forgotten_not_a_fault() {
+fn cia305_fig36_an_announcement_lost_while_both_channels_stored_is_not_a_fault() {
+    // Both channels store at once; channel A's announcement of its answer is lost while
+    // channel B programs its flash.
     let mut pair = AnswerPairing::new(WINDOW);
-    let answer = CanFrame::new(SLAVE_TO_MASTER, &[0x17, 0, 0, 0, 0, 0, 0, 0]).unwrap();
-    pair.own(ms(0), &answer).unwrap();
-    pair.forget();
+    let stored = CanFrame::new(SLAVE_TO_MASTER, &[0x17, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+    pair.own(ms(0), &stored).unwrap();
+    pair.link_was_deaf();
+    assert_eq!(pair.poll(ms(100)), Ok(()), "dropped when its window ends");
     assert_eq!(pair.deadline(), Instant::NEVER);
-    assert_eq!(pair.poll(ms(100)), Ok(()));
+    // Lost, and the next request's answers come before the window ends: the uncertain
+    // answer gives way to them.
+    pair.own(ms(200), &stored).unwrap();
+    pair.link_was_deaf();
+    let inquiry = CanFrame::new(SLAVE_TO_MASTER, &[0x5E, 11, 0, 0, 0, 0, 0, 0]).unwrap();
+    pair.own(ms(201), &inquiry).unwrap();
+    pair.announced(ms(202), answer_bytes(&inquiry)).unwrap();
+    assert_eq!(pair.deadline(), Instant::NEVER);
+}
+
+#[test]
+fn cia305_fig36_an_announcement_that_came_through_the_deaf_time_still_pairs() {
+    let mut pair = AnswerPairing::new(WINDOW);
+    let stored = CanFrame::new(SLAVE_TO_MASTER, &[0x17, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+    pair.own(ms(0), &stored).unwrap();
+    pair.link_was_deaf();
+    pair.announced(ms(2), answer_bytes(&stored)).unwrap();
+    assert_eq!(pair.deadline(), Instant::NEVER);
+    // An announcement B has no answer for at all is still found.
+    pair.announced(ms(10), [0x17, 2, 0, 0, 0, 0, 0, 0]).unwrap();
+    assert!(matches!(
+        pair.poll(ms(15)),
+        Err(LssMismatch::Unexpected { .. })
+    ));
+    assert_eq!(
+        pair.deadline(),
+        Instant::NEVER,
+        "reported once, then dropped"
+    );
 }
 
 #[test]

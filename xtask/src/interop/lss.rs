@@ -1,11 +1,11 @@
 //! LSS (CiA 305) in `cargo xtask interop`: python-canopen's `LssMaster` configures an
-//! unconfigured node (`--only lss`), and the tool's and python-canopen's fastscan are timed
-//! against the bus time of the frames they need (`--only lss-bench`).
+//! unconfigured node of the shipped images on the emulated network (`--only lss`), and the
+//! tool's and python-canopen's fastscan are timed against the bus time of the frames they
+//! need (`--only lss-bench`).
 //!
-//! The LSS nodes are host-simulated: the firmware images carry no LSS (the `shared` feature
-//! `lss` is off in them), so the emulated network's nodes cannot take part. They are whole
-//! devices of the protocol core with the LSS slave enabled (`shared::canopen::lss`, the code
-//! an image would carry), unconfigured, on the host simulation's bus model
+//! The benchmark's nodes are host-simulated, so that 8 of them run in simulated time for the
+//! tool: whole devices of the protocol core with the LSS slave enabled (`shared::canopen::lss`,
+//! the code the images carry), unconfigured, on the host simulation's bus model
 //! (`system_tests::network::Network::unconfigured_lss`): behind `socketcand_sim --lss N` in
 //! real time for python-canopen, and in simulated time for the tool.
 
@@ -133,13 +133,52 @@ fn recorded(entry: &serde_json::Value) -> Option<(f64, CanFrame)> {
 /// node by fast scan, gives it node-ID 11 and has it store it; the node boots on it, answers
 /// python-canopen's SDO upload of its identity at 11, and boots on 11 again after an NMT reset
 /// node; the tool's LSS master then selects it by identity and inquires node-ID 11 active.
+/// The node is the shipped hardware images (channels A and B) on the emulated STM32F405s,
+/// their node-ID switches all open (`emulate-network --nodes 0 --socketcand`): channel A
+/// answers, channel B checks each answer against its own (`dual_channel::lss`), and a
+/// difference would put the node in its safe state, which the check would see as a missing
+/// answer or boot-up.
 pub fn check(root: &Path, python: &Path) -> Result<()> {
     crate::step(
-        "interop 6: python-canopen's LSS master (fast scan, configure node-ID, store) on a \
-         host-simulated unconfigured LSS node behind socketcand (the images carry no LSS)",
+        "interop 6: python-canopen's LSS master (fast scan, configure node-ID, store) on the \
+         shipped images of an unconfigured node (switches open) on the emulated network",
     );
-    let (_server, address) = start_simulation(root, 1)?;
-    let result = python_canopen(root, python, &address, true, true)?;
+    let cross = crate::toolchain::ensure()?;
+    crate::toolchain::ensure_emulator_build_deps()?;
+    let layer = crate::network::Protocol::CanopenSafety.hardware_layer();
+    crate::images::build_layer(root, &cross, layer)?;
+    let emulate = crate::emulate::build_emulate_network(root)?;
+    let dir = root.join("target/interop/lss");
+    std::fs::create_dir_all(&dir)?;
+    let log_path = dir.join("emulate-network.log");
+    let log = std::fs::File::create(&log_path)?;
+    let port = free_port()?;
+    let address = format!("127.0.0.1:{port}");
+    let mut emulator = Guarded::spawn(
+        Command::new(emulate)
+            .arg(crate::images::image(&cross, root, layer, "a"))
+            .arg(crate::images::image(&cross, root, layer, "b"))
+            .args(["--nodes", "0", "--quiet", "--socketcand", &address])
+            .stdout(log.try_clone()?)
+            .stderr(log),
+    )
+    .context("starting emulate-network")?;
+    let give_up = std::time::Instant::now() + Duration::from_secs(60);
+    while SocketcandClient::connect(&address, "can0").is_err() {
+        if std::time::Instant::now() >= give_up {
+            emulator.end();
+            bail!("emulate-network did not listen on {address} within 60 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let result = check_at(root, python, &address);
+    emulator.end();
+    result.with_context(|| format!("the emulator's output is in {}", log_path.display()))
+}
+
+/// [`check`]'s steps against the server at `address`.
+fn check_at(root: &Path, python: &Path, address: &str) -> Result<()> {
+    let result = python_canopen(root, python, address, true, true)?;
     let serial = 1u8;
     let node_id = serial + OFFSET;
     let found: Vec<(Vec<u64>, u64)> = result["found"]
@@ -179,6 +218,21 @@ pub fn check(root: &Path, python: &Path) -> Result<()> {
         .iter()
         .filter_map(recorded)
         .collect();
+    // Channel B checks every answer of channel A's against its own: a difference would be
+    // the safe state, which an EMCY says (FF02h, the cause in byte 4).
+    if let Some((_, emcy)) = frames
+        .iter()
+        .find(|(_, frame)| (0x081..=0x0FF).contains(&frame.id().raw()))
+    {
+        bail!(
+            "the node sent an EMCY during the LSS configuration ({:03X}h {:02X?}): {}",
+            emcy.id().raw(),
+            emcy.data(),
+            emcy.data().get(4).map_or("no cause byte", |&code| {
+                shared::safety::cause::Cause::describe_code(code)
+            })
+        );
+    }
     let boot_ups = frames
         .iter()
         .filter(|(_, frame)| frame.id().raw() == 0x700 + u16::from(node_id) && frame.data() == [0])
@@ -207,8 +261,7 @@ pub fn check(root: &Path, python: &Path) -> Result<()> {
             "node {node_id} did not answer python-canopen's store configuration with error code 0"
         );
     }
-    let transport = SocketcandClient::connect(&address, "can0")
-        .context("the tool's connection to socketcand_sim")?;
+    let transport = SocketcandClient::connect(address, "can0").context("the tool's connection")?;
     let mut master = LssMaster::new(transport, TIMEOUT);
     let target = safety_config::lss::identity(identity(serial));
     master.select(target)?;
@@ -467,7 +520,7 @@ pub fn bench(root: &Path, python: &Path) -> Result<()> {
          `store_configuration`, `send_switch_state_global`, until `fast_scan` finds none; \
          `xtask/interop/python_canopen_lss.py`) behind `socketcand_sim --lss N`, where the \
          simulation runs in real time and the server's time stamps are the bus's. The nodes are \
-         host-simulated devices with the LSS slave (the firmware images carry none), on the \
+         host-simulated devices with the LSS slave (the protocol core the images carry), on the \
          bus model at {} kbit/s; both masters wait {} ms for an answer (the tool's default; \
          python-canopen's own is 500 ms), the tool also {} ms (`--lss-timeout-ms`); the \
          simulated nodes answer at once, python-canopen sleeps 10 ms after each fast-scan \
