@@ -158,3 +158,41 @@ fn cia305_rule_3_channels_whose_switches_read_differently_never_leave_the_safe_s
     );
     assert!(!net.node(5).a.is_working() && !net.node(5).b.is_working());
 }
+
+/// The tool's `configure` with `[bus] lss_fastscan = true`: the unconfigured dual-channel
+/// node is given its node-ID by LSS first, then configured on it by the whole procedure
+/// (EN 50325-5 8.3.1); both channels agree throughout.
+#[test]
+fn cia305_configure_starts_with_lss_when_the_network_file_asks_for_it() {
+    use safety_config::procedure::{self, Quiet};
+    let mut net = lss_node(None, None);
+    net.run_for(Duration::from_millis(100));
+    let file = network_file::parse(
+        &format!(
+            "[bus]\nlss_fastscan = true\n{NETWORK}\n[[node.srdo]]\nnumber = 1\n\
+             direction = \"transmit\"\nrefresh_time_ms = 25\nsrvt_ms = 20\n\
+             cob_ids = [0x101, 0x102]\nmapping = [\"input\", \"input_inverted\"]\n"
+        ),
+        "NETWORK",
+    )
+    .unwrap();
+    assert!(file.lss_fastscan);
+    let mut quiet = Quiet {
+        accept_identity: false,
+    };
+    let report = procedure::configure(
+        &mut system_tests::tool_bus::client(&mut net),
+        &file,
+        false,
+        &mut quiet,
+    )
+    .unwrap();
+    let lss = report.lss.as_ref().expect("the fastscan ran first");
+    assert_eq!(lss.assigned.len(), 1, "{lss:?}");
+    assert!(report.success(), "{:?}", report.nodes);
+    let forty = NodeId::new(40).ok();
+    assert_eq!(net.node(5).a.node().configured_node_id(), forty);
+    assert_eq!(net.node(5).b.node().configured_node_id(), forty);
+    net.run_for(Duration::from_millis(100));
+    assert_eq!(faults(&net), [], "no mismatch between the channels");
+}

@@ -3,6 +3,9 @@
 //! ```toml
 //! [bus]
 //! sdo_timeout_ms = 500          # optional
+//! lss_fastscan = true           # optional: `configure` first gives every unconfigured node
+//!                               # (node-ID FFh) the node-ID below for its identity by LSS
+//!                               # fastscan (CiA 305), stored, and waits for its boot-up
 //!
 //! [[node]]
 //! id = 1
@@ -95,6 +98,9 @@ pub struct Network {
     pub sdo_timeout: Duration,
     /// The nodes, in file order.
     pub nodes: Vec<NodeSpec>,
+    /// `configure` starts with an LSS fastscan (CiA 305) that gives every unconfigured node
+    /// the node-ID of its identity in this file, stored (`[bus] lss_fastscan = true`).
+    pub lss_fastscan: bool,
     /// The SimpleCAN part (`[simplecan]` and each `[node.simplecan]`), when the file has one
     /// ([`crate::simplecan`]); without it `configure` leaves the SimpleCAN objects alone.
     pub simplecan: Option<crate::simplecan::SimpleCanNetwork>,
@@ -118,6 +124,8 @@ struct RawFile {
 #[serde(deny_unknown_fields)]
 struct RawBus {
     sdo_timeout_ms: Option<Spanned<i64>>,
+    #[serde(default)]
+    lss_fastscan: bool,
 }
 
 #[derive(Deserialize)]
@@ -231,6 +239,7 @@ pub fn parse(text: &str, origin: &str) -> Result<Network, FileError> {
     Ok(Network {
         sdo_timeout,
         nodes,
+        lss_fastscan: raw.bus.lss_fastscan,
         simplecan,
     })
 }
@@ -682,6 +691,7 @@ pub fn parse_dcf(text: &str, origin: &str) -> Result<Network, FileError> {
             srdos,
             clear_gfc_indication: false,
         }],
+        lss_fastscan: false,
         simplecan: None,
     })
 }

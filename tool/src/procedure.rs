@@ -512,6 +512,8 @@ fn check_valid<T: Transport>(
 /// The outcome of `configure` for each node, in file order.
 #[derive(Debug, serde::Serialize)]
 pub struct ConfigureReport {
+    /// What the LSS fastscan did first, when the file asks for it (`[bus] lss_fastscan`).
+    pub lss: Option<crate::lss::FastscanReport>,
     /// Per node: what was done, or the error as a sentence.
     pub nodes: Vec<NodeResult<Configured>>,
     /// Whether the nodes were started.
@@ -542,21 +544,44 @@ impl ConfigureReport {
     }
 }
 
-/// Configures every node of `network`; starts them (NMT start, each node) only when `start`
-/// is set and every node was configured. A node that fails does not stop the others from
-/// being tried, but no node is started then.
+/// How long each LSS request of [`configure`]'s fastscan waits for its answers: the default
+/// of `safety-config lss --lss-timeout-ms`.
+pub const LSS_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(100);
+
+/// The LSS fastscan [`configure`] starts with when the file asks for it (`[bus]
+/// lss_fastscan`): every unconfigured node (node-ID FFh) is given the node-ID of its identity
+/// in the file, stored, and has booted on it when this returns (CiA 305); a node the file does
+/// not know stays unconfigured and is named in the report. An LSS error names the node
+/// (identity) and the step.
+fn lss_first<T: Transport>(
+    client: &mut Client<T>,
+    network: &Network,
+) -> Result<Option<crate::lss::FastscanReport>, ToolError> {
+    if !network.lss_fastscan {
+        return Ok(None);
+    }
+    let report = crate::lss::LssMaster::new(&mut client.transport, LSS_TIMEOUT)
+        .fastscan_assign(network, true)?;
+    Ok(Some(report))
+}
+
+/// Configures every node of `network`, after an LSS fastscan when the file asks for one
+/// ([`lss_first`]); starts them (NMT start, each node) only when `start` is set and every
+/// node was configured. A node that fails does not stop the others from being tried, but no
+/// node is started then.
 pub fn configure<T: Transport>(
     client: &mut Client<T>,
     network: &Network,
     start: bool,
     operator: &mut dyn Operator,
 ) -> Result<ConfigureReport, ToolError> {
+    let lss = lss_first(client, network)?;
     let mut nodes = Vec::new();
     for spec in &network.nodes {
         // A transport failure ends the whole run: the interface is gone for every node.
         nodes.push(configure_one(client, network, spec, operator)?);
     }
-    finish_configure(client, network, nodes, start)
+    finish_configure(client, network, lss, nodes, start)
 }
 
 /// [`configure`] with the nodes side by side: node `i` of the file over `clients[i]`, each on
@@ -577,6 +602,10 @@ pub fn configure_concurrently<T: Transport + Send>(
     start: bool,
     operator: &mut (dyn Operator + Send),
 ) -> Result<ConfigureReport, ToolError> {
+    let lss = match clients.first_mut() {
+        Some(first) => lss_first(first, network)?,
+        None => None,
+    };
     let shared = std::sync::Mutex::new(operator);
     let results = side_by_side(clients, network, |client, spec| {
         configure_one(client, network, spec, &mut SharedOperator(&shared))
@@ -585,7 +614,7 @@ pub fn configure_concurrently<T: Transport + Send>(
     let first = clients
         .first_mut()
         .ok_or_else(|| ToolError::Usage("no client to configure the nodes with".into()))?;
-    finish_configure(first, network, nodes, start)
+    finish_configure(first, network, lss, nodes, start)
 }
 
 /// [`verify`] with the nodes side by side, as [`configure_concurrently`] runs them: node `i`
@@ -701,10 +730,12 @@ fn configure_one<T: Transport>(
 fn finish_configure<T: Transport>(
     client: &mut Client<T>,
     network: &Network,
+    lss: Option<crate::lss::FastscanReport>,
     nodes: Vec<NodeResult<Configured>>,
     start: bool,
 ) -> Result<ConfigureReport, ToolError> {
     let mut report = ConfigureReport {
+        lss,
         nodes,
         started: false,
     };

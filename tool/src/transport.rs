@@ -78,6 +78,26 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
 }
 
+/// A transport borrowed: a step that takes a transport (an LSS master, say) uses the
+/// client's and leaves it to the next.
+impl<T: Transport + ?Sized> Transport for &mut T {
+    fn now(&mut self) -> Duration {
+        (**self).now()
+    }
+    fn send(&mut self, frame: &CanFrame) -> Result<(), TransportError> {
+        (**self).send(frame)
+    }
+    fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError> {
+        (**self).receive(deadline)
+    }
+    fn receive_stamped(
+        &mut self,
+        deadline: Duration,
+    ) -> Result<Option<(Duration, CanFrame)>, TransportError> {
+        (**self).receive_stamped(deadline)
+    }
+}
+
 /// A wall clock for real interfaces: the time since the adapter was opened.
 #[derive(Clone, Copy, Debug)]
 pub struct WallClock(std::time::Instant);

@@ -209,6 +209,7 @@ mod tests {
         Network {
             sdo_timeout: std::time::Duration::from_millis(500),
             nodes,
+            lss_fastscan: false,
             simplecan: None,
         }
     }

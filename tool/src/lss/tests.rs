@@ -531,19 +531,6 @@ fn the_lss_command_sets_a_node_id_by_identity_and_inquires_the_only_node() {
     );
 }
 
-/// The bus borrowed, so a test looks at it after an `lss` command took its transport.
-impl Transport for &mut Bus {
-    fn now(&mut self) -> Duration {
-        (**self).now()
-    }
-    fn send(&mut self, frame: &CanFrame) -> Result<(), TransportError> {
-        (**self).send(frame)
-    }
-    fn receive(&mut self, deadline: Duration) -> Result<Option<CanFrame>, TransportError> {
-        (**self).receive(deadline)
-    }
-}
-
 /// A node the file names whose node-ID is set already is selected, asked, and left alone
 /// (Fig. 41: it answers its active node-ID); the unconfigured one beside it gets its node-ID,
 /// and the named node that is absent costs only its selection.

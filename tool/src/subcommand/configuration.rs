@@ -29,6 +29,23 @@ pub(crate) fn configure(
     if as_json {
         println!("{}", json(&report)?);
     } else {
+        if let Some(lss) = &report.lss {
+            for node in &lss.assigned {
+                println!(
+                    "node {}: {} given node-ID {} by LSS, stored; it booted on it",
+                    node.node_id, node.identity, node.node_id
+                );
+            }
+            for identity in &lss.unknown {
+                println!("LSS: not in the network file, left unconfigured: {identity}");
+            }
+            for (identity, node_id) in &lss.duplicates {
+                println!(
+                    "LSS: matches node {node_id} of the file, whose node-ID another node took: \
+                     {identity}; left unconfigured (pin the revision in the file)"
+                );
+            }
+        }
         for result in &report.nodes {
             match result {
                 NodeResult::Done(done) => println!(
