@@ -439,6 +439,15 @@ fn advice(code: u8) -> Option<&'static str> {
         0x3B => Some(
             "The channel's CAN controller went bus-off: its own frames met so many errors that it left the bus, and frames the node follows may have gone unseen. Check the wiring, the termination and the bit rate of every device (a device at another bit rate destroys frames), and the transceiver's supply; if it recurs on a sound bus, replace the device.",
         ),
+        0x3C => Some(
+            "The node's two channels answered an LSS request differently (CiA 305), or one answered a request the other did not: one channel's LSS state or its stored settings differ from the other's, or one CAN controller missed the request. Reset the node (NMT reset node or a power cycle) and configure it by LSS again, with the device outside Operational; if it recurs, replace the device.",
+        ),
+        0x3D => Some(
+            "The node's two channels run on different node-IDs: their node-ID switches read differently (a switch between positions, a broken contact), or LSS gave one channel a node-ID the other does not have. Check the seven switches (all open means the node-ID is set by LSS), power the node off and on; if it recurs with the switches set firmly, replace the device.",
+        ),
+        0x3E => Some(
+            "The node's two channels hold different LSS bit rates: a configure bit timing or store reached one channel only. Configure the bit rate by LSS again, store it, and power the node off and on; if it recurs, replace the device.",
+        ),
         0x40 => Some(
             "The other channel entered its safe state first: read its own cause (the channel's status or log).",
         ),
