@@ -566,7 +566,7 @@ fn lss_first<T: Transport>(
 }
 
 /// Configures every node of `network`, after an LSS fastscan when the file asks for one
-/// ([`lss_first`]); starts them (NMT start, each node) only when `start` is set and every
+/// (`[bus] lss_fastscan`); starts them (NMT start, each node) only when `start` is set and every
 /// node was configured. A node that fails does not stop the others from being tried, but no
 /// node is started then.
 pub fn configure<T: Transport>(
