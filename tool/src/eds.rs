@@ -539,7 +539,7 @@ fn render_objects(
     let _ = write!(
         text,
         "SimpleBootUpMaster=0\nSimpleBootUpSlave=1\nGranularity=0\nDynamicChannelsSupported=0\n\
-         GroupMessaging=0\nNrOfRXPDO=0\nNrOfTXPDO=0\nLSS_Supported=0\nCANopenSafetySupported=1\n\n"
+         GroupMessaging=0\nNrOfRXPDO=0\nNrOfTXPDO=0\nLSS_Supported=1\nCANopenSafetySupported=1\n\n"
     );
     if let Some(commissioning) = commissioning {
         let _ = write!(
