@@ -60,8 +60,8 @@ fn sc_req_05_the_output_pins_follow_the_producers_input_pins_through_the_loop() 
 }
 
 /// EN 50325-5 7.1.1: with the filters the loop programs, a channel's controller takes only
-/// its node's identifiers: node 33's heartbeats, node 1's SDO answers and every other frame
-/// not for it never reach its FIFOs.
+/// its node's identifiers (and LSS requests, CiA 305): node 33's heartbeats, node 1's SDO
+/// answers and every other frame not for it never reach its FIFOs.
 #[test]
 fn en50325_5_7_1_1_the_controller_rejects_every_frame_the_node_does_not_follow() {
     let net = started(Filtering::Banks);
@@ -70,7 +70,7 @@ fn en50325_5_7_1_1_the_controller_rejects_every_frame_the_node_does_not_follow()
         let ids: Vec<u16> = list.ids().iter().map(|id| id.raw()).collect();
         assert_eq!(
             ids,
-            [0x000, 0x001, 0x101, 0x102, 0x600 + u16::from(node.id)],
+            [0x000, 0x001, 0x101, 0x102, 0x600 + u16::from(node.id), 0x7E5],
             "node {}",
             node.id
         );
