@@ -70,7 +70,14 @@ fn en50325_5_7_1_1_the_controller_rejects_every_frame_the_node_does_not_follow()
         let ids: Vec<u16> = list.ids().iter().map(|id| id.raw()).collect();
         assert_eq!(
             ids,
-            [0x000, 0x001, 0x101, 0x102, 0x600 + u16::from(node.id), 0x7E5],
+            [
+                0x000,
+                0x001,
+                0x101,
+                0x102,
+                0x600 + u16::from(node.id),
+                0x7E5
+            ],
             "node {}",
             node.id
         );
