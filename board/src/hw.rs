@@ -17,9 +17,10 @@
 //! empties, and the loop is woken when a whole message has arrived. The independent watchdog
 //! is fed by the channel loop only.
 //!
-//! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
-//! (`embassy_can`, the default) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
-//! In both the loop's task fills the transmit mailboxes from its queue through
+//! The bxCAN has three drivers here, all built (`docs/can-driver.md`): the board's own on the
+//! registers (`can1`, the default), embassy-stm32's (`embassy_can`, feature `can-embassy`)
+//! and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
+//! In each the loop's task fills the transmit mailboxes from its queue through
 //! [`crate::transmit_queue::Transmitter`], which also tells which frames went out and takes
 //! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
 //! gives [`HwDriver`] the same `CanPort`.
@@ -48,9 +49,15 @@ use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 mod bxcan_can;
 #[cfg(feature = "can-bxcan")]
 use bxcan_can::CanPort;
-#[cfg(not(feature = "can-bxcan"))]
+#[cfg(not(any(feature = "can-bxcan", feature = "can-embassy")))]
+mod can1;
+#[cfg(not(any(feature = "can-bxcan", feature = "can-embassy")))]
+use can1::CanPort;
+#[cfg(any(feature = "can-bxcan", not(feature = "can-embassy")))]
+mod can_wakeup;
+#[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
 mod embassy_can;
-#[cfg(not(feature = "can-bxcan"))]
+#[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
 use embassy_can::CanPort;
 mod link_usart;
 
