@@ -59,6 +59,7 @@ mod can_wakeup;
 mod embassy_can;
 #[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
 use embassy_can::CanPort;
+mod flash;
 mod link_usart;
 
 bind_interrupts!(struct Irqs {
@@ -182,29 +183,27 @@ fn flush_data_cache() {
 /// register overran). Taken by [`HwDriver`]'s `link_deaf`, which tells the runtime.
 static LINK_DEAF: AtomicBool = AtomicBool::new(false);
 
-/// embassy-stm32's blocking flash driver as the word-programmed medium of the parameter
-/// slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`]. The processor
-/// executes from this flash, so an erase stalls it: a store only programs words, and the
-/// free slot is erased ahead at start-up ([`erase_ahead`]).
-pub struct Stm32Sectors<'d> {
-    flash: embassy_stm32::flash::Flash<'d, embassy_stm32::flash::Blocking>,
+/// The flash interface ([`flash`], the board's own driver) as the word-programmed medium of
+/// the parameter slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`].
+/// The processor executes from this flash, so an erase stalls it: a store only programs
+/// words, and the free slot is erased ahead at start-up ([`erase_ahead`]).
+pub struct Stm32Sectors {
+    flash: flash::ParameterFlash,
 }
 
-impl Sectors for Stm32Sectors<'_> {
+impl Sectors for Stm32Sectors {
     fn erase_stalls(&self) -> bool {
         true
     }
 
     fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError> {
-        self.flash
-            .blocking_read(at, buf)
-            .map_err(|_| StorageError::Medium)
+        self.flash.read(at, buf).map_err(|_| StorageError::Medium)
     }
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), StorageError> {
         let window = EraseWindow::open().ok_or(StorageError::Medium)?;
         LINK_DEAF.store(true, Ordering::Relaxed);
-        let erased = self.flash.blocking_erase(from, to);
+        let erased = self.flash.erase(from, to);
         flush_data_cache();
         if window.close().is_none() {
             // The loop's watchdog is not back: stop feeding it, so the MCU resets (at most
@@ -216,7 +215,7 @@ impl Sectors for Stm32Sectors<'_> {
 
     fn program(&mut self, at: u32, word: [u8; 4]) -> Result<(), StorageError> {
         LINK_DEAF.store(true, Ordering::Relaxed);
-        let written = self.flash.blocking_write(at, &word);
+        let written = self.flash.program(at, word);
         flush_data_cache();
         written.map_err(|_| StorageError::Medium)
     }
@@ -480,7 +479,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // receive FIFO is a fault) and before the runtime and its link supervision exist.
     let mut parameters = SectorSlots::new(
         Stm32Sectors {
-            flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
+            flash: flash::ParameterFlash::new(p.FLASH),
         },
         STM32F405_SLOTS,
     );
@@ -588,7 +587,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
 /// supervision exist, with the output low and the watchdog widened ([`EraseWindow`]); the
 /// other channel waits for it ([`ERASE_AHEAD_LONGEST`]). A failure only leaves the next store
 /// refused ([`StorageError::NotErased`]): the record in force is never erased.
-fn erase_ahead(parameters: &mut SectorSlots<Stm32Sectors<'_>>) {
+fn erase_ahead(parameters: &mut SectorSlots<Stm32Sectors>) {
     match storage::erase_ahead(parameters) {
         Ok(None) => {}
         Ok(Some(slot)) => defmt::info!(
