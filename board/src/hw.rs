@@ -76,7 +76,7 @@ pub const LINK_BAUD: u32 = safety_device::timing::LINK_BAUD;
 /// 5.1 ms of the line at [`LINK_BAUD`].
 const LINK_TX_BYTES: usize = 512;
 /// The longest the erase ahead at start-up may take ([`erase_ahead`]): one 128 KiB sector at
-/// the reset value of the programming parallelism (x8, which embassy-stm32's erase keeps),
+/// the reset value of the programming parallelism (x8, which [`flash`]'s erase keeps),
 /// the STM32F405 datasheet's maximum (DS8626, t_ERASE128KB). The other channel waits this
 /// much longer for this one's first link message ([`Runtime::allow_longer_start_up`]).
 const ERASE_AHEAD_LONGEST: Duration = Duration::from_millis(4000);
