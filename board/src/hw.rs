@@ -32,14 +32,12 @@ use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_futures::select::select3;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_time::Timer;
 use shared::canopen::storage::{self, StorageError};
 use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
-use static_cell::StaticCell;
 
 use crate::Device;
 use crate::bxcan_adapter::ErrorState;
@@ -523,19 +521,10 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock");
     };
     let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
-    let mut link_config = usart::Config::default();
-    link_config.baudrate = LINK_BAUD;
-    // embassy-stm32 sets the USART up (clock, pins, BRR, TE and RE); the interrupt and the
-    // queues are the link driver's ([`link_usart`]). Kept for as long as the loop runs: its
-    // drop would switch the USART off.
-    static LINK: StaticCell<usart::Uart<'static, embassy_stm32::mode::Blocking>> =
-        StaticCell::new();
-    match usart::Uart::new_blocking(p.USART3, p.PB11, p.PB10, link_config) {
-        Ok(uart) => {
-            LINK.init(uart);
-        }
-        Err(_) => halt_safe("link USART configuration refused"),
-    }
+    // Kept for as long as the loop runs: the link's pins stay set up while it lives.
+    let Some(_link) = link_usart::set_up(p.USART3, p.PB11, p.PB10, LINK_BAUD) else {
+        halt_safe("link USART configuration refused");
+    };
     let _ = Irqs;
     link_usart::start();
 
