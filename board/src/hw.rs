@@ -32,7 +32,6 @@ use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_futures::select::select3;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
-use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_time::Timer;
 use shared::canopen::storage::{self, StorageError};
@@ -59,6 +58,8 @@ mod embassy_can;
 use embassy_can::CanPort;
 mod flash;
 mod link_usart;
+mod watchdog;
+use watchdog::Watchdog;
 
 bind_interrupts!(struct Irqs {
     USART3 => link_usart::LinkInterrupt;
@@ -428,16 +429,14 @@ struct HwStartUp {
 }
 
 impl dual_channel::selftest::StartUp for HwStartUp {
-    type Watchdog = IndependentWatchdog<'static, embassy_stm32::peripherals::IWDG>;
+    type Watchdog = Watchdog;
 
     fn self_test(&mut self, test: dual_channel::selftest::SelfTest) -> bool {
         crate::self_test(test)
     }
 
     fn arm_watchdog(self) -> Self::Watchdog {
-        let mut watchdog = IndependentWatchdog::new(self.iwdg, WATCHDOG_TIMEOUT_US);
-        watchdog.unleash();
-        watchdog
+        Watchdog::arm(self.iwdg)
     }
 }
 

@@ -17,8 +17,7 @@ use dual_channel::filters::BankLayout;
 use embassy_stm32::Peri;
 use embassy_stm32::can::{RxPin, TxPin};
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
-use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
-use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
 use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
@@ -111,7 +110,7 @@ impl CanPort {
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
         timing: embassy_stm32::can::util::NominalBitTiming,
-        watchdog: &mut IndependentWatchdog<'_, IWDG>,
+        watchdog: &mut super::Watchdog,
     ) -> CanPort {
         can_wakeup::bound(Irqs);
         let timing = BitTiming {
@@ -289,7 +288,7 @@ impl LoopbackController for Loopback<'_> {
 /// and enable it.
 async fn loopback_test(
     can: &mut Can<Can1>,
-    watchdog: &mut IndependentWatchdog<'_, IWDG>,
+    watchdog: &mut super::Watchdog,
 ) -> Result<(), LoopbackFault> {
     use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
     // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the

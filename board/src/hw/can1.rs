@@ -26,8 +26,7 @@ use embassy_stm32::Peri;
 use embassy_stm32::can::{RxPin, TxPin};
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
 use embassy_stm32::pac;
-use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
-use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
 use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
@@ -339,7 +338,7 @@ impl CanPort {
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
         timing: embassy_stm32::can::util::NominalBitTiming,
-        watchdog: &mut IndependentWatchdog<'_, IWDG>,
+        watchdog: &mut super::Watchdog,
     ) -> CanPort {
         can_wakeup::bound(Irqs);
         let timing = BitTiming {
@@ -517,7 +516,7 @@ impl LoopbackController for Loopback {
 /// before it joins the bus (plan, loop and verdict: [`dual_channel::can_loopback`]), on a
 /// controller in initialisation mode with loop-back, silent mode and TXFP set. Leaves it in
 /// loop-back, for [`CanPort::start`] to take it out.
-async fn loopback_test(watchdog: &mut IndependentWatchdog<'_, IWDG>) -> Result<(), LoopbackFault> {
+async fn loopback_test(watchdog: &mut super::Watchdog) -> Result<(), LoopbackFault> {
     use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
     set_filters(
         [
