@@ -17,9 +17,10 @@
 //! empties, and the loop is woken when a whole message has arrived. The independent watchdog
 //! is fed by the channel loop only.
 //!
-//! The bxCAN has two drivers here, both built (`docs/can-driver.md`): embassy-stm32's own
-//! (`embassy_can`, the default) and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
-//! In both the loop's task fills the transmit mailboxes from its queue through
+//! The bxCAN has three drivers here, all built (`docs/can-driver.md`): the board's own on the
+//! registers (`can1`, the default), embassy-stm32's (`embassy_can`, feature `can-embassy`)
+//! and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
+//! In each the loop's task fills the transmit mailboxes from its queue through
 //! [`crate::transmit_queue::Transmitter`], which also tells which frames went out and takes
 //! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
 //! gives [`HwDriver`] the same `CanPort`.
@@ -31,14 +32,11 @@ use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_futures::select::select3;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart;
-use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_time::Timer;
 use shared::canopen::storage::{self, StorageError};
 use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
-use static_cell::StaticCell;
 
 use crate::Device;
 use crate::bxcan_adapter::ErrorState;
@@ -48,11 +46,20 @@ use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 mod bxcan_can;
 #[cfg(feature = "can-bxcan")]
 use bxcan_can::CanPort;
-#[cfg(not(feature = "can-bxcan"))]
+#[cfg(not(any(feature = "can-bxcan", feature = "can-embassy")))]
+mod can1;
+#[cfg(not(any(feature = "can-bxcan", feature = "can-embassy")))]
+use can1::CanPort;
+#[cfg(any(feature = "can-bxcan", not(feature = "can-embassy")))]
+mod can_wakeup;
+#[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
 mod embassy_can;
-#[cfg(not(feature = "can-bxcan"))]
+#[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
 use embassy_can::CanPort;
+mod flash;
 mod link_usart;
+mod watchdog;
+use watchdog::Watchdog;
 
 bind_interrupts!(struct Irqs {
     USART3 => link_usart::LinkInterrupt;
@@ -68,7 +75,7 @@ pub const LINK_BAUD: u32 = safety_device::timing::LINK_BAUD;
 /// 5.1 ms of the line at [`LINK_BAUD`].
 const LINK_TX_BYTES: usize = 512;
 /// The longest the erase ahead at start-up may take ([`erase_ahead`]): one 128 KiB sector at
-/// the reset value of the programming parallelism (x8, which embassy-stm32's erase keeps),
+/// the reset value of the programming parallelism (x8, which [`flash`]'s erase keeps),
 /// the STM32F405 datasheet's maximum (DS8626, t_ERASE128KB). The other channel waits this
 /// much longer for this one's first link message ([`Runtime::allow_longer_start_up`]).
 const ERASE_AHEAD_LONGEST: Duration = Duration::from_millis(4000);
@@ -175,29 +182,27 @@ fn flush_data_cache() {
 /// register overran). Taken by [`HwDriver`]'s `link_deaf`, which tells the runtime.
 static LINK_DEAF: AtomicBool = AtomicBool::new(false);
 
-/// embassy-stm32's blocking flash driver as the word-programmed medium of the parameter
-/// slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`]. The processor
-/// executes from this flash, so an erase stalls it: a store only programs words, and the
-/// free slot is erased ahead at start-up ([`erase_ahead`]).
-pub struct Stm32Sectors<'d> {
-    flash: embassy_stm32::flash::Flash<'d, embassy_stm32::flash::Blocking>,
+/// The flash interface ([`flash`], the board's own driver) as the word-programmed medium of
+/// the parameter slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`].
+/// The processor executes from this flash, so an erase stalls it: a store only programs
+/// words, and the free slot is erased ahead at start-up ([`erase_ahead`]).
+pub struct Stm32Sectors {
+    flash: flash::ParameterFlash,
 }
 
-impl Sectors for Stm32Sectors<'_> {
+impl Sectors for Stm32Sectors {
     fn erase_stalls(&self) -> bool {
         true
     }
 
     fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError> {
-        self.flash
-            .blocking_read(at, buf)
-            .map_err(|_| StorageError::Medium)
+        self.flash.read(at, buf).map_err(|_| StorageError::Medium)
     }
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), StorageError> {
         let window = EraseWindow::open().ok_or(StorageError::Medium)?;
         LINK_DEAF.store(true, Ordering::Relaxed);
-        let erased = self.flash.blocking_erase(from, to);
+        let erased = self.flash.erase(from, to);
         flush_data_cache();
         if window.close().is_none() {
             // The loop's watchdog is not back: stop feeding it, so the MCU resets (at most
@@ -209,7 +214,7 @@ impl Sectors for Stm32Sectors<'_> {
 
     fn program(&mut self, at: u32, word: [u8; 4]) -> Result<(), StorageError> {
         LINK_DEAF.store(true, Ordering::Relaxed);
-        let written = self.flash.blocking_write(at, &word);
+        let written = self.flash.program(at, word);
         flush_data_cache();
         written.map_err(|_| StorageError::Medium)
     }
@@ -424,16 +429,14 @@ struct HwStartUp {
 }
 
 impl dual_channel::selftest::StartUp for HwStartUp {
-    type Watchdog = IndependentWatchdog<'static, embassy_stm32::peripherals::IWDG>;
+    type Watchdog = Watchdog;
 
     fn self_test(&mut self, test: dual_channel::selftest::SelfTest) -> bool {
         crate::self_test(test)
     }
 
     fn arm_watchdog(self) -> Self::Watchdog {
-        let mut watchdog = IndependentWatchdog::new(self.iwdg, WATCHDOG_TIMEOUT_US);
-        watchdog.unleash();
-        watchdog
+        Watchdog::arm(self.iwdg)
     }
 }
 
@@ -473,7 +476,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // receive FIFO is a fault) and before the runtime and its link supervision exist.
     let mut parameters = SectorSlots::new(
         Stm32Sectors {
-            flash: embassy_stm32::flash::Flash::new_blocking(p.FLASH),
+            flash: flash::ParameterFlash::new(p.FLASH),
         },
         STM32F405_SLOTS,
     );
@@ -522,19 +525,10 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock");
     };
     let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
-    let mut link_config = usart::Config::default();
-    link_config.baudrate = LINK_BAUD;
-    // embassy-stm32 sets the USART up (clock, pins, BRR, TE and RE); the interrupt and the
-    // queues are the link driver's ([`link_usart`]). Kept for as long as the loop runs: its
-    // drop would switch the USART off.
-    static LINK: StaticCell<usart::Uart<'static, embassy_stm32::mode::Blocking>> =
-        StaticCell::new();
-    match usart::Uart::new_blocking(p.USART3, p.PB11, p.PB10, link_config) {
-        Ok(uart) => {
-            LINK.init(uart);
-        }
-        Err(_) => halt_safe("link USART configuration refused"),
-    }
+    // Kept for as long as the loop runs: the link's pins stay set up while it lives.
+    let Some(_link) = link_usart::set_up(p.USART3, p.PB11, p.PB10, LINK_BAUD) else {
+        halt_safe("link USART configuration refused");
+    };
     let _ = Irqs;
     link_usart::start();
 
@@ -591,7 +585,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
 /// supervision exist, with the output low and the watchdog widened ([`EraseWindow`]); the
 /// other channel waits for it ([`ERASE_AHEAD_LONGEST`]). A failure only leaves the next store
 /// refused ([`StorageError::NotErased`]): the record in force is never erased.
-fn erase_ahead(parameters: &mut SectorSlots<Stm32Sectors<'_>>) {
+fn erase_ahead(parameters: &mut SectorSlots<Stm32Sectors>) {
     match storage::erase_ahead(parameters) {
         Ok(None) => {}
         Ok(Some(slot)) => defmt::info!(

@@ -1130,10 +1130,15 @@ fn device_write(uc: &mut Uc<'_>, address: u32, size: u32, value: u32, reported: 
                     && st.models.can.borrow().transmit_requests() != requests;
                 if yield_now {
                     // The bus model must see the request at this instant (arbitration
-                    // starts when the bus is idle): end the run here.
+                    // starts when the bus is idle): end the run at the next translated
+                    // block, whose hook stops it with the program counter exact. Stopped
+                    // here, inside a memory-mapped access, the run ended with the program
+                    // counter at the start of the block that holds the store (Unicorn does
+                    // not sync it for these accesses) and resumed there, running the
+                    // block's instructions before the store a second time on registers
+                    // they had already changed. The block's time was counted at its start.
                     st.yielded = true;
-                    st.stopping = true;
-                    let _ = uc.emu_stop();
+                    st.end = st.clock.cycles();
                 }
                 let st = uc.get_data_mut();
                 if base == flash::BASE {

@@ -7,12 +7,7 @@
 //!
 //! What bxcan decides is host-tested in [`crate::bxcan_adapter`] (filter banks, bit timing,
 //! mailbox records); this module moves it between the registers and the loop. Interrupts only
-//! wake the loop: each handler masks its own line in the NVIC and wakes the task, and the
-//! wait unmasks the lines again, so no handler touches the controller.
-
-use core::future::poll_fn;
-use core::sync::atomic::{AtomicBool, Ordering};
-use core::task::Poll;
+//! wake the loop ([`super::can_wakeup`], shared with the board's own driver).
 
 use bxcan::filter::ListEntry32;
 use bxcan::{Can, Data, Frame, Id, Interrupts, StandardId};
@@ -22,21 +17,13 @@ use dual_channel::filters::BankLayout;
 use embassy_stm32::Peri;
 use embassy_stm32::can::{RxPin, TxPin};
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
-use embassy_stm32::interrupt::typelevel::{self, Binding, Handler, Interrupt as _};
-use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
-use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_sync::waitqueue::AtomicWaker;
+use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
+use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
 use super::{embassy_instant, halt_safe, now};
 use crate::bxcan_adapter::{self, BitTiming};
 use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
-
-embassy_stm32::bind_interrupts!(struct Irqs {
-    CAN1_RX0 => WakeOnReceive;
-    CAN1_RX1 => WakeOnReceive;
-    CAN1_TX => WakeOnTransmit;
-});
 
 /// CAN1 and its two pins, owned for as long as bxcan drives them.
 pub struct Can1 {
@@ -60,87 +47,6 @@ unsafe impl bxcan::Instance for Can1 {
 // CAN2 (RM0090 32.7.4).
 unsafe impl bxcan::FilterOwner for Can1 {
     const NUM_FILTER_BANKS: u8 = 28;
-}
-
-/// An interrupt line's wake-up of the loop's task.
-struct Wakeup {
-    waker: AtomicWaker,
-    fired: AtomicBool,
-}
-
-impl Wakeup {
-    const fn new() -> Self {
-        Wakeup {
-            waker: AtomicWaker::new(),
-            fired: AtomicBool::new(false),
-        }
-    }
-
-    fn fire(&self) {
-        self.fired.store(true, Ordering::Release);
-        self.waker.wake();
-    }
-
-    /// Returns once a handler fired after the call; `unmask` puts the lines back into the
-    /// NVIC after the waker is registered, so a condition already pending fires at once and
-    /// none is missed (the lines are level-triggered: FIFO not empty, mailbox completed).
-    async fn wait(&self, unmask: impl Fn()) {
-        self.fired.store(false, Ordering::Relaxed);
-        poll_fn(|cx| {
-            self.waker.register(cx.waker());
-            if self.fired.load(Ordering::Acquire) {
-                Poll::Ready(())
-            } else {
-                unmask();
-                Poll::Pending
-            }
-        })
-        .await;
-    }
-}
-
-static RECEIVED: Wakeup = Wakeup::new();
-static MAILBOX_FREE: Wakeup = Wakeup::new();
-
-/// The receive FIFOs' handler (FMPIE0, FMPIE1): masks its line, wakes the loop.
-pub struct WakeOnReceive;
-
-impl Handler<typelevel::CAN1_RX0> for WakeOnReceive {
-    unsafe fn on_interrupt() {
-        typelevel::CAN1_RX0::disable();
-        RECEIVED.fire();
-    }
-}
-
-impl Handler<typelevel::CAN1_RX1> for WakeOnReceive {
-    unsafe fn on_interrupt() {
-        typelevel::CAN1_RX1::disable();
-        RECEIVED.fire();
-    }
-}
-
-/// The transmit mailboxes' handler (TMEIE): masks its line, wakes the loop.
-pub struct WakeOnTransmit;
-
-impl Handler<typelevel::CAN1_TX> for WakeOnTransmit {
-    unsafe fn on_interrupt() {
-        typelevel::CAN1_TX::disable();
-        MAILBOX_FREE.fire();
-    }
-}
-
-fn unmask_receive() {
-    // SAFETY: the handlers share nothing with the task but the `Wakeup` atomics, and no
-    // critical section of this program relies on these lines being masked.
-    unsafe {
-        typelevel::CAN1_RX0::enable();
-        typelevel::CAN1_RX1::enable();
-    }
-}
-
-fn unmask_transmit() {
-    // SAFETY: as `unmask_receive`.
-    unsafe { typelevel::CAN1_TX::enable() }
 }
 
 /// Frames waiting for a transmit mailbox, as [`crate::transmit_queue`] orders them.
@@ -204,9 +110,9 @@ impl CanPort {
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
         timing: embassy_stm32::can::util::NominalBitTiming,
-        watchdog: &mut IndependentWatchdog<'_, IWDG>,
+        watchdog: &mut super::Watchdog,
     ) -> CanPort {
-        bound(Irqs);
+        can_wakeup::bound(Irqs);
         let timing = BitTiming {
             prescaler: timing.prescaler.get(),
             seg1: timing.seg1.get(),
@@ -324,14 +230,6 @@ impl CanPort {
     }
 }
 
-/// The interrupts are bound to this module's handlers.
-fn bound(
-    _: impl Binding<typelevel::CAN1_RX0, WakeOnReceive>
-    + Binding<typelevel::CAN1_RX1, WakeOnReceive>
-    + Binding<typelevel::CAN1_TX, WakeOnTransmit>,
-) {
-}
-
 /// Leaves sleep mode onto the bus, once 11 recessive bits are seen (bxcan also sets
 /// automatic bus-off recovery, ABOM).
 async fn joined(can: &mut Can<Can1>) {
@@ -390,7 +288,7 @@ impl LoopbackController for Loopback<'_> {
 /// and enable it.
 async fn loopback_test(
     can: &mut Can<Can1>,
-    watchdog: &mut IndependentWatchdog<'_, IWDG>,
+    watchdog: &mut super::Watchdog,
 ) -> Result<(), LoopbackFault> {
     use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
     // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the

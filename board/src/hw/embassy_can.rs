@@ -23,8 +23,7 @@ use embassy_stm32::can::{
     Can, CanRx, CanTx, Fifo, Frame, Mailbox as EmbassyMailbox, Rx0InterruptHandler,
     Rx1InterruptHandler, SceInterruptHandler, StandardId, TxInterruptHandler,
 };
-use embassy_stm32::peripherals::{CAN1, IWDG, PB8, PB9};
-use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
 use super::{embassy_instant, halt_safe, now};
@@ -105,7 +104,7 @@ impl CanPort {
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
         timing: embassy_stm32::can::util::NominalBitTiming,
-        watchdog: &mut IndependentWatchdog<'_, IWDG>,
+        watchdog: &mut super::Watchdog,
     ) -> CanPort {
         let mut can = Can::new(can, rx, tx, Irqs);
         // `Can::set_bitrate` unwraps the timing calculation, which links the `Debug`
@@ -305,7 +304,7 @@ impl LoopbackController for Loopback<'_, '_> {
 /// the controller out of loop-back, for [`CanPort::start`] to clear its filters and enable it.
 async fn loopback_test(
     can: &mut Can<'_>,
-    watchdog: &mut IndependentWatchdog<'_, IWDG>,
+    watchdog: &mut super::Watchdog,
 ) -> Result<(), LoopbackFault> {
     use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
     // The plan's identifiers are 11-bit constants; an invalid one would become 0 and fail the

@@ -21,16 +21,22 @@
 //! IDLE flag is never cleared and never needs to be. Transmission: TXE with TXEIE (RM0090
 //! 30.6.4), one byte from the transmit queue per interrupt, TXEIE cleared when it is empty.
 //!
-//! embassy-stm32 still sets the USART up (clock, pins, BRR, TE/RE: `Uart::new_blocking`); only
-//! the interrupt handler and the queues are ours. The emulator's USART model (written from
-//! RM0090, `emulator/src/peripherals/usart.rs`) runs this driver in the shipped images.
+//! The set-up is ours too ([`set_up`]: clock, pins, BRR, TE and RE, RM0090 30.6), no longer
+//! embassy-stm32's `Uart::new_blocking`, whose general configuration (every parity, stop bit,
+//! oversampling and driver-enable choice of every STM32 family) the link does not use. The
+//! emulator's USART model (written from RM0090, `emulator/src/peripherals/usart.rs`) runs this
+//! driver in the shipped images.
 
 use core::cell::RefCell;
 use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, Ordering};
 use core::task::Poll;
+use embassy_stm32::Peri;
+use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
 use embassy_stm32::interrupt::typelevel::{self, Handler, Interrupt};
 use embassy_stm32::pac;
+use embassy_stm32::peripherals::{PB10, PB11, USART3};
+use embassy_stm32::usart::{RxPin, TxPin};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::waitqueue::AtomicWaker;
@@ -106,7 +112,54 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
     }
 }
 
-/// Starts the driver on a USART3 that embassy-stm32 set up (clock, pins, BRR, TE and RE):
+/// USART3 and the link's pins, set up by [`set_up`]: kept for as long as the link runs (a
+/// dropped pin returns to its reset state).
+pub struct LinkUsart {
+    _usart: Peri<'static, USART3>,
+    _rx: Flex<'static>,
+    _tx: Flex<'static>,
+}
+
+/// Sets USART3 up for the link (RM0090 30.6): its clock enabled and the block reset, PB11 as
+/// RX and PB10 as TX (their alternate function), 8 data bits, no parity, one stop bit (CR1 M,
+/// PCE, CR2 STOP at their reset values), oversampling by 16, `baud` from the APB1 clock
+/// (30.6.3: BRR holds USARTDIV in sixteenths, the clock over the baud rate, rounded), then
+/// UE, TE and RE. `None` when the baud rate is out of BRR's reach.
+pub fn set_up(
+    usart: Peri<'static, USART3>,
+    rx: Peri<'static, PB11>,
+    tx: Peri<'static, PB10>,
+    baud: u32,
+) -> Option<LinkUsart> {
+    let clock = embassy_stm32::rcc::frequency::<USART3>().0;
+    let divider = clock.checked_add(baud / 2)?.checked_div(baud)?;
+    // The mantissa is at least 1 (RM0090 30.6.3) and BRR has 16 bits.
+    let divider = u16::try_from(divider)
+        .ok()
+        .filter(|&divider| divider >= 16)?;
+    let (rx_af, tx_af) = (RxPin::<USART3>::af_num(&*rx), TxPin::<USART3>::af_num(&*tx));
+    let mut rx = Flex::new(rx);
+    rx.set_as_af_unchecked(rx_af, AfType::input(Pull::None));
+    let mut tx = Flex::new(tx);
+    tx.set_as_af_unchecked(tx_af, AfType::output(OutputType::PushPull, Speed::Medium));
+    embassy_stm32::rcc::enable_and_reset::<USART3>();
+    let registers = pac::USART3;
+    registers
+        .brr()
+        .write_value(pac::usart::regs::Brr(u32::from(divider)));
+    registers.cr1().write(|w| {
+        w.set_ue(true);
+        w.set_te(true);
+        w.set_re(true);
+    });
+    Some(LinkUsart {
+        _usart: usart,
+        _rx: rx,
+        _tx: tx,
+    })
+}
+
+/// Starts the driver on a USART3 that [`set_up`] set up (clock, pins, BRR, TE and RE):
 /// empties the queues, enables RXNEIE and the interrupt in the NVIC.
 pub fn start() {
     RX.lock(|rx| {

@@ -1,0 +1,115 @@
+//! The bxCAN's interrupts as wake-ups of the loop's task, for both drivers that leave the
+//! controller to the task (the board's own, [`super::can1`], and the `bxcan` crate's).
+//!
+//! Each handler masks its own line in the NVIC and wakes the task; the wait unmasks the lines
+//! again after registering the waker, so no handler touches the controller and a condition
+//! already pending wakes at once (the lines are level-triggered, RM0090 32.8: FIFO not empty
+//! with FMPIEx, a mailbox's request completed with TMEIE).
+
+use core::future::poll_fn;
+use core::sync::atomic::{AtomicBool, Ordering};
+use core::task::Poll;
+
+use embassy_stm32::interrupt::typelevel::{self, Binding, Handler, Interrupt as _};
+use embassy_sync::waitqueue::AtomicWaker;
+
+embassy_stm32::bind_interrupts!(
+    /// The bxCAN's receive and transmit lines, bound to this module's handlers.
+    pub struct Irqs {
+    CAN1_RX0 => WakeOnReceive;
+    CAN1_RX1 => WakeOnReceive;
+    CAN1_TX => WakeOnTransmit;
+});
+
+/// An interrupt line's wake-up of the loop's task.
+pub struct Wakeup {
+    waker: AtomicWaker,
+    fired: AtomicBool,
+}
+
+impl Wakeup {
+    const fn new() -> Self {
+        Wakeup {
+            waker: AtomicWaker::new(),
+            fired: AtomicBool::new(false),
+        }
+    }
+
+    fn fire(&self) {
+        self.fired.store(true, Ordering::Release);
+        self.waker.wake();
+    }
+
+    /// Returns once a handler fired after the call; `unmask` puts the lines back into the
+    /// NVIC after the waker is registered, so a condition already pending fires at once and
+    /// none is missed.
+    pub async fn wait(&self, unmask: impl Fn()) {
+        self.fired.store(false, Ordering::Relaxed);
+        poll_fn(|cx| {
+            self.waker.register(cx.waker());
+            if self.fired.load(Ordering::Acquire) {
+                Poll::Ready(())
+            } else {
+                unmask();
+                Poll::Pending
+            }
+        })
+        .await;
+    }
+}
+
+/// A frame is waiting in a receive FIFO.
+pub static RECEIVED: Wakeup = Wakeup::new();
+/// A transmit mailbox completed its request.
+pub static MAILBOX_FREE: Wakeup = Wakeup::new();
+
+/// The receive FIFOs' handler (FMPIE0, FMPIE1): masks its line, wakes the loop.
+pub struct WakeOnReceive;
+
+impl Handler<typelevel::CAN1_RX0> for WakeOnReceive {
+    unsafe fn on_interrupt() {
+        typelevel::CAN1_RX0::disable();
+        RECEIVED.fire();
+    }
+}
+
+impl Handler<typelevel::CAN1_RX1> for WakeOnReceive {
+    unsafe fn on_interrupt() {
+        typelevel::CAN1_RX1::disable();
+        RECEIVED.fire();
+    }
+}
+
+/// The transmit mailboxes' handler (TMEIE): masks its line, wakes the loop.
+pub struct WakeOnTransmit;
+
+impl Handler<typelevel::CAN1_TX> for WakeOnTransmit {
+    unsafe fn on_interrupt() {
+        typelevel::CAN1_TX::disable();
+        MAILBOX_FREE.fire();
+    }
+}
+
+/// Puts the receive lines back into the NVIC.
+pub fn unmask_receive() {
+    // SAFETY: the handlers share nothing with the task but the `Wakeup` atomics, and no
+    // critical section of this program relies on these lines being masked.
+    unsafe {
+        typelevel::CAN1_RX0::enable();
+        typelevel::CAN1_RX1::enable();
+    }
+}
+
+/// Puts the transmit line back into the NVIC.
+pub fn unmask_transmit() {
+    // SAFETY: as `unmask_receive`.
+    unsafe { typelevel::CAN1_TX::enable() }
+}
+
+/// The interrupts are bound to this module's handlers.
+pub fn bound(
+    _: impl Binding<typelevel::CAN1_RX0, WakeOnReceive>
+    + Binding<typelevel::CAN1_RX1, WakeOnReceive>
+    + Binding<typelevel::CAN1_TX, WakeOnTransmit>,
+) {
+}
