@@ -9,16 +9,17 @@ use std::process::Command;
 
 /// Flash budget of the CANopen Safety hardware images ([`Layer::Hw`]), bytes.
 ///
-/// 64 KiB, raised from 58 KiB when both channels took on LSS (CiA 305). The images' sizes
+/// 62 KiB: raised from 58 KiB when both channels took on LSS (CiA 305), by less than LSS
+/// costs, since the board's own drivers of the same day gave bytes back. The images' sizes
 /// against it and the margin left are in the generated part of `docs/footprint.md` (`cargo
 /// xtask footprint`); when and why the budget moved, each step measured, in its "History"
 /// section. A budget is lowered as the images shrink and raised only for a safety
 /// requirement or a function the product must have (LSS), never for a size step. The target is 48 KiB; what stands
 /// between is in `docs/footprint.md`. The device has 768 KiB for code (`memory.x`).
-pub const FLASH_BUDGET: u64 = 64 * 1024;
+pub const FLASH_BUDGET: u64 = 62 * 1024;
 /// Flash budget of the hardware images with SimpleCAN (`Layer::HwSimpleCan`), bytes.
 ///
-/// 70 KiB, raised from 64 KiB when both channels took on LSS (CiA 305), as
+/// 68 KiB, raised from 64 KiB when both channels took on LSS (CiA 305), as
 /// [`FLASH_BUDGET`] was. 64 KiB was the budget the images were held to when the second
 /// protocol was planned (the architecture step's 48 KiB target was to leave it room under
 /// 64 KiB). These images speak SimpleCAN
@@ -27,7 +28,7 @@ pub const FLASH_BUDGET: u64 = 64 * 1024;
 /// own (Model A, SC_REQ_10) and decodes with its own diverse code, requirements that stay
 /// whatever they cost. Sizes and margins: the generated part of `docs/footprint.md`; what was
 /// measured on the way: its "History". [`RAM_BUDGET`] holds for both.
-pub const SIMPLECAN_FLASH_BUDGET: u64 = 70 * 1024;
+pub const SIMPLECAN_FLASH_BUDGET: u64 = 68 * 1024;
 
 /// RAM budget per image, bytes, including the stack reserve below.
 ///
