@@ -1,7 +1,8 @@
 //! Board layers of the firmware images: everything that touches hardware, and nothing else.
 //!
-//! - `hw` (feature `hw`): embassy-stm32 on the STM32F405RG: bxCAN, the link USART, the
-//!   safety input and output pins and the independent watchdog.
+//! - `hw` (feature `hw`): the STM32F405RG: the board's own register-level drivers for the
+//!   bxCAN, the link USART, the parameter flash and the independent watchdog (RM0090), and
+//!   embassy-stm32 for the clock tree, the pins, the time driver and the interrupt vectors.
 //! - `qemu` (feature `qemu`): QEMU's `netduinoplus2`: a SysTick time driver, register-level
 //!   USARTs (CAN frames over serial, and the link), semihosting.
 //!
