@@ -730,3 +730,34 @@ fn cia304_9_5_an_inverted_frame_held_behind_reset_start_and_the_new_plain_frame_
         failed.len()
     );
 }
+
+/// EN 50325-5 7.2.1, CiA 304 9.5: a consumer that discards, before its first pair, an
+/// inverted frame that is not the inverse of its pending plain frame leaves no real fault
+/// unseen. After NMT reset and start, a foreign device sends a frame on node 1's inverted
+/// identifier with the wrong data while node 1's first plain frame of the new epoch is on the
+/// bus: node 1 reports the foreign frame (34h) on that identifier, and node 33 is in its safe
+/// state, whichever inverted frame it took first.
+#[test]
+fn en50325_5_7_2_1_a_wrong_inverted_frame_before_the_consumers_first_pair_is_still_detected() {
+    let mut net = running(Duration::ZERO);
+    let (since, _) = reset(&mut net, Duration::from_millis(20));
+    start(&mut net);
+    let give_up = net.now + Duration::from_millis(200);
+    while !net.on_the_bus().any(|(_, f, _)| f.id().raw() == PLAIN) {
+        assert!(net.now < give_up, "no plain frame after the start");
+        net.run_for(Duration::from_micros(10));
+    }
+    net.send_foreign(
+        CanFrame::new(CanId::new(INVERTED).expect("identifier"), &[0x00]).expect("frame"),
+    );
+    net.run_for(Duration::from_millis(100));
+    let faults = node_1_faults(&net, since);
+    assert!(
+        faults
+            .iter()
+            .any(|(.., fault)| *fault == ChannelFault::ForeignFrame { id: INVERTED }),
+        "{faults:?}"
+    );
+    assert!(!safe_states(&net, since, 33).is_empty(), "node 33 stops");
+    assert_eq!(net.output(33), 0, "node 33 is in its safe state");
+}
