@@ -606,7 +606,9 @@ fn reset_and_start_overtaking_a_queued_plain_frame(
 /// node 33 takes it: no node reports a fault, and node 33's output follows the press and the
 /// release. Before a consumer let a plain frame that no pair completed since its entry into
 /// Operational be replaced by a later one (SRVT still counted from the first), node 33 took
-/// the second plain frame for a sequence error and went to its safe state (SRDO fault 04h).
+/// the second plain frame for a sequence error and went to its safe state (SRDO fault 04h),
+/// from one of the tool's frames on (with none, channel B co-signed the ended epoch's frame,
+/// A's heartbeat not having reached it yet, and node 33 took that pair).
 #[test]
 fn cia304_9_5_a_plain_frame_overtaken_by_nmt_reset_and_start_does_not_stop_the_consumer() {
     let mut failed = Vec::new();
@@ -690,7 +692,7 @@ fn reset_and_start_holding_the_inverted_frame(net: &mut DualNetwork, hold: usize
 /// node reports a fault, and node 33's output follows node 1. Before a consumer left such an
 /// inverted frame undelivered until its first pair since entering Operational (the SRVT of
 /// the pending plain frame still running), node 33 went to its safe state (SRDO fault 05h,
-/// not inverted) from 4 of the tool's frames on.
+/// not inverted) from 3 of the tool's frames on.
 #[test]
 fn cia304_9_5_an_inverted_frame_held_behind_reset_start_and_the_new_plain_frame_does_not_stop_the_consumer()
  {
