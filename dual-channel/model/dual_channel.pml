@@ -69,8 +69,9 @@
 #endif
 /* -DRESET_NOT_OVERTAKING: the master's NMT commands never reach the bus while channel A's
  * plain frame waits in its transmit queue (such a frame reaches the bus after the reset: the
- * reset trails of docs/model-checking.md, fixed in channel B, and the consumer-side finding
- * there with an input change): the master queues none then, and one it queued before waits. */
+ * reset trails of docs/model-checking.md, fixed in channel B, and the open finding on
+ * channel B there with an input change): the master queues none then, and one it queued
+ * before waits. */
 #ifdef RESET_NOT_OVERTAKING
 #define MASTER_MAY_SEND empty(tx_a)
 #define M_READY (nempty(tx_m) && empty(tx_a))   /* the master's frame goes on the bus */
@@ -253,6 +254,7 @@ byte gpeer_data[2];
 bool gfc_sent;            /* a GFC was on the bus */
 byte foreign_cd = NONE;   /* ticks left for the node to reach the safe state */
 bool got_pair[2];         /* a pair was confirmed since the last NMT reset */
+bool paired[2];           /* srdo::Consumer::paired: the core took a pair since its start */
 byte rx_late[4];          /* frames at the head of rx[c] that came before the last tick */
 hidden int tick_count;           /* ticks since power-on, for the printed trail only */
 
@@ -715,7 +717,8 @@ inline nmt_start(c) {
      nmt[c] = OPER;
      if
      :: c == PA -> refresh_cd = TICKS(PRODUCER_START_US); changed = 0
-     :: c >= CA -> pend[c - CA] = NONE; sct_cd[c - CA] = SCT_T; srvt_cd[c - CA] = NONE
+     :: c >= CA -> pend[c - CA] = NONE; sct_cd[c - CA] = SCT_T; srvt_cd[c - CA] = NONE;
+        paired[c - CA] = 0
      :: else -> skip
      fi;
      follow_core(c);
@@ -803,6 +806,16 @@ inline local_pair(k, v) {
   verdict_arrive(k, pairs[k] * 2 + v, vloc[k], vrem[k])
 }
 
+/* Before the consumer's first pair since its start, a half that does not pair (of a pair the
+ * producer's reset cut, on the bus after the start) is discarded, and SRVT and SCT decide
+ * (srdo::Consumer::on_plain). -DMUTATION_FIRST_PAIR_STRICT: judged as strictly as after it
+ * (the Rust before the fix of the finding on the consumer's first pair). */
+#ifdef MUTATION_FIRST_PAIR_STRICT
+#define BEFORE_FIRST_PAIR(k) false
+#else
+#define BEFORE_FIRST_PAIR(k) (!paired[k])
+#endif
+
 /* The core's SRDO consumer (srdo::Consumer) on a frame of SRDO 1. */
 inline consumer_frame(k, f) {
   if
@@ -810,6 +823,10 @@ inline consumer_frame(k, f) {
      if
      :: pend[k] == NONE -> pend[k] = f; srvt_cd[k] = SRVT_T
      :: pend[k] != NONE && FDATA(pend[k]) == FDATA(f) -> skip    /* an exact repeat */
+     :: pend[k] != NONE && FDATA(pend[k]) != FDATA(f) && BEFORE_FIRST_PAIR(k) ->
+        printf("@%d ch%d: core replaces plain %d before its first pair\n", tick_count,
+               CA + k, FDATA(pend[k]));
+        pend[k] = f                                   /* SRVT runs on from the first */
      :: else -> core_fault(CA + k, F_SRDO)
      fi
   :: FID(f) == ID_INV ->
@@ -818,9 +835,12 @@ inline consumer_frame(k, f) {
      :: pend[k] != NONE && FDATA(pend[k]) == FDATA(f) ->
         gnew[k] = FDATA(f);
         gnew_genuine[k] = (FSRC(pend[k]) == S_A && FSRC(f) == S_B);
-        pend[k] = NONE; srvt_cd[k] = NONE; sct_cd[k] = SCT_T;
+        pend[k] = NONE; srvt_cd[k] = NONE; sct_cd[k] = SCT_T; paired[k] = 1;
         printf("@%d ch%d: core accepts a pair, data %d\n", tick_count, CA + k, FDATA(f));
         local_pair(k, FDATA(f))
+     :: pend[k] != NONE && FDATA(pend[k]) != FDATA(f) && BEFORE_FIRST_PAIR(k) ->
+        printf("@%d ch%d: core discards inverted %d before its first pair\n", tick_count,
+               CA + k, FDATA(f))                      /* the plain frame stays pending */
      :: else -> core_fault(CA + k, F_SRDO)
      fi
   fi

@@ -106,8 +106,8 @@ const LATE_B_FIRST_START: Bounds = Bounds {
 
 /// The master starts right after its reset (the cut pair's inverted frame reaches channel A
 /// in Operational only then); its NMT frames may overtake channel A's plain frame (the reset
-/// trails of docs/model-checking.md); no input change (with one, the consumer-side findings
-/// of docs/model-checking.md show).
+/// trails of docs/model-checking.md); no input change (with one, the open finding on channel B
+/// of docs/model-checking.md shows; [`START_AT_ONCE_INPUT_CHANGE`] has one).
 const START_AT_ONCE: Bounds = Bounds {
     name: "start-at-once",
     what: "one NMT reset and start at once, the NMT frames overtaking A's plain frame or not; \
@@ -117,6 +117,26 @@ const START_AT_ONCE: Bounds = Bounds {
         "-DINPUT_BUDGET=0",
         "-DSTART_AFTER_RESET_T=0",
         "-DFAULT_BUDGET=0",
+    ],
+};
+
+/// The master starts right after its reset, with an input change: the pair the reset cut
+/// meets the consumer's first pair after the start (the finding on the consumer's first pair
+/// in docs/model-checking.md: channel B's inverted frame of that pair waits in B's queue while
+/// A's first plain frame of the new epoch goes ahead). The NMT frames do not overtake A's
+/// plain frame, and the consumer's link delivers within the tick: with both, the search finds
+/// the open finding on channel B there (docs/model-checking.md) and passes the memory bound.
+const START_AT_ONCE_INPUT_CHANGE: Bounds = Bounds {
+    name: "start-at-once-input-change",
+    what: "one NMT reset and start at once, the NMT frames not overtaking A's plain frame, one \
+           input change, the consumer's link within the tick, no fault",
+    defines: &[
+        "-DNMT_BUDGET=2",
+        "-DINPUT_BUDGET=1",
+        "-DSTART_AFTER_RESET_T=0",
+        "-DFAULT_BUDGET=0",
+        "-DRESET_NOT_OVERTAKING",
+        "-DC_LATENCY_T=0",
     ],
 };
 
@@ -136,7 +156,7 @@ struct Mutation {
 }
 
 /// Each past race re-introduced, with the bounds it is found at and what shows it.
-const MUTATIONS: [Mutation; 6] = [
+const MUTATIONS: [Mutation; 7] = [
     Mutation {
         name: "mutation-cosign-before-reset",
         switch: "-DMUTATION_COSIGN_BEFORE_RESET",
@@ -184,6 +204,15 @@ const MUTATIONS: [Mutation; 6] = [
                differ)",
         bounds: &LATE_B,
         expect: "PROPERTY co-sign",
+    },
+    Mutation {
+        name: "mutation-first-pair-strict",
+        switch: "-DMUTATION_FIRST_PAIR_STRICT",
+        race: "the consumer's first pair after its start judged as strictly as later ones: the \
+               inverted frame of the pair the producer's reset cut, behind A's first plain \
+               frame of the new epoch, is not its inverse",
+        bounds: &START_AT_ONCE_INPUT_CHANGE,
+        expect: "safe, cause 9, no fault",
     },
 ];
 
