@@ -93,8 +93,15 @@ pub struct ChannelB {
     /// Until when [`ChannelB::ended`] is kept: the window from A's heartbeat of the new epoch.
     ended_until: Instant,
     /// A plain frame this channel saw before its own NMT reset, not announced yet: its
-    /// announcement, still on the link, is of the ended epoch ([`Role::reset`]).
+    /// announcement, still on the link, is of the ended epoch ([`Role::reset`]). Or one seen
+    /// after that reset, before channel A's heartbeat of the new epoch, and followed by a
+    /// plain frame with other data before its announcement ([`ChannelB::ahead_of_peer`]).
     ended_unannounced: Option<Held>,
+    /// NMT resets of this channel not yet matched by channel A's heartbeat of a new epoch
+    /// (positive: this channel reset first, and an announcement A made before its own reset
+    /// may still be on the link), or the other way round (negative). Both channels handle
+    /// every NMT reset, each in its own loop, so it returns to 0.
+    epoch_lead: i8,
     /// The last plain frame seen on the bus, and when (its copy within the window is a double
     /// reception).
     last_plain: Option<(CanFrame, Instant)>,
@@ -122,6 +129,7 @@ impl ChannelB {
             ended: FrameSlots::default(),
             ended_until: Instant::NEVER,
             ended_unannounced: None,
+            epoch_lead: 0,
             last_plain: None,
             window: DEFAULT_WINDOW,
             #[cfg(feature = "simplecan")]
@@ -145,6 +153,13 @@ impl ChannelB {
     #[cfg(feature = "simplecan")]
     pub fn set_simplecan_bounds(&mut self, bounds: dual_channel::simplecan::Bounds) {
         self.simplecan_bounds = bounds;
+    }
+
+    /// `true` between this channel's NMT reset and channel A's heartbeat of the new epoch
+    /// (the link keeps its order: A's announcements of before its reset come before that
+    /// heartbeat).
+    fn ahead_of_peer(&self) -> bool {
+        self.epoch_lead > 0
     }
 
     /// The inverted frame for `frame` if it matches `inputs`.
@@ -354,6 +369,28 @@ impl<const N: usize> Role<N> for ChannelB {
             (Some(_), _) => Err(ChannelFault::ForeignFrame { id }),
             // The same frame twice before its announcement: received twice.
             (None, Some(seen)) if seen.frame == *frame => Ok(None),
+            (None, Some(before))
+                if before.frame.id() == frame.id()
+                    && self.ahead_of_peer()
+                    && self.ended_unannounced.is_none() =>
+            {
+                // After this channel's reset and before A's heartbeat of the new epoch, the
+                // frame before may be A's of the ended epoch (queued at A's reset, overtaken
+                // by the reset and the start), its announcement still on the link ahead of
+                // that heartbeat, and this one A's first of the new epoch, its announcement
+                // behind. The one before takes its announcement away when it comes, as a
+                // frame seen before this channel's reset does (`announced`); a different
+                // announcement finds it foreign, and so does channel A, which receives every
+                // plain frame but its own.
+                self.ended_unannounced = Some(before);
+                self.unannounced = Some(Held {
+                    frame: *frame,
+                    srdo,
+                    since: seen,
+                    copy,
+                });
+                Ok(None)
+            }
             (None, Some(_)) => Err(ChannelFault::ForeignFrame { id }),
             (None, None) => {
                 // Channel A may send the same data twice in a row, and the announcement may
@@ -516,6 +553,7 @@ impl<const N: usize> Role<N> for ChannelB {
         self.held = None;
         self.ended_unannounced = self.unannounced.take();
         self.last_plain = None;
+        self.epoch_lead = self.epoch_lead.saturating_add(1).min(1);
     }
 
     fn peer_reset(&mut self, now: Instant) {
@@ -537,6 +575,7 @@ impl<const N: usize> Role<N> for ChannelB {
         // the bus, then the master's reset and start) would let A's first frame of the new
         // epoch go by unsigned when it carries the same data.
         self.ended_until = now + self.window;
+        self.epoch_lead = self.epoch_lead.saturating_sub(1).max(-1);
         while let Some(frame) = self.announced.take_any() {
             // As many slots as `announced`: it fits unless frames of four other identifiers
             // are still set apart from an earlier reset, and then the oldest are kept (this
@@ -1007,5 +1046,70 @@ mod tests {
             Role::<1>::signature_digest(&b, &config),
             fold_signatures(config.srdos.iter().map(shared::safety::signature::compute))
         );
+    }
+
+    /// CiA 304 9.5 (the model's trail after the consumer's first-pair fix,
+    /// `docs/model-checking.md`): B's contact opens, B handles the NMT reset and start, then
+    /// takes two plain frames before any announcement: A's frame of the ended epoch (queued
+    /// at A's reset, overtaken by the reset and the start; its announcement still on the link,
+    /// ahead of A's heartbeat of the new epoch) and A's first frame of the new epoch, with the
+    /// new sample. Neither is foreign: the ended epoch's frame goes with its announcement,
+    /// co-signed by nobody, and the new frame is co-signed against its own. Before B kept the
+    /// first frame for its announcement while A's heartbeat of the new epoch had not come, the
+    /// second frame was a foreign frame (34h) at once.
+    #[test]
+    fn cia304_9_5_the_ended_epochs_frame_and_as_first_new_frame_before_their_announcements() {
+        let old = frame(0x101, &[0x01]);
+        let new = frame(0x101, &[0x00]);
+        let mut b = b_with(0x01);
+        assert_eq!(read_as(&mut b, after(T, 100), 0x00), Ok(None));
+        Role::<1>::reset(&mut b);
+        assert_eq!(b.observe(after(T, 300), &old, &config()), Ok(None));
+        assert_eq!(b.observe(after(T, 500), &new, &config()), Ok(None));
+        assert_eq!(b.announced(after(T, 600), &old, &config()), Ok(None));
+        Role::<1>::peer_reset(&mut b, after(T, 700));
+        assert_eq!(
+            b.announced(after(T, 800), &new, &config()),
+            Ok(Some(frame(0x102, &[0xFF])))
+        );
+        assert_eq!(Role::<1>::deadline(&b), Instant::NEVER, "nothing waits");
+        assert_eq!(
+            Role::<1>::poll(&mut b, T + DEFAULT_WINDOW + DEFAULT_WINDOW),
+            Ok(())
+        );
+    }
+
+    /// EN 50325-5 7.2.1: keeping the first of two unannounced plain frames for its
+    /// announcement, between B's reset and A's heartbeat of the new epoch, hides no foreign
+    /// frame. A frame on A's plain identifier that A never announced, then A's first frame of
+    /// the new epoch: the announcement of A's frame finds the other foreign (34h). Outside
+    /// that interval (A's heartbeat of the new epoch came, or B was not reset), a second plain
+    /// frame with other data before the announcement of the first is foreign at once.
+    #[test]
+    fn en50325_5_7_2_1_a_foreign_frame_before_as_first_frame_after_the_reset_is_detected() {
+        let foreign = frame(0x101, &[0x03]);
+        let new = frame(0x101, &[0x00]);
+        let mut b = b_with(0x00);
+        Role::<1>::reset(&mut b);
+        assert_eq!(b.observe(after(T, 300), &foreign, &config()), Ok(None));
+        assert_eq!(b.observe(after(T, 500), &new, &config()), Ok(None));
+        Role::<1>::peer_reset(&mut b, after(T, 600));
+        assert_eq!(
+            b.announced(after(T, 800), &new, &config()),
+            Err(ChannelFault::ForeignFrame { id: 0x101 })
+        );
+        for reset in [true, false] {
+            let mut b = b_with(0x00);
+            if reset {
+                Role::<1>::reset(&mut b);
+                Role::<1>::peer_reset(&mut b, T);
+            }
+            assert_eq!(b.observe(after(T, 300), &foreign, &config()), Ok(None));
+            assert_eq!(
+                b.observe(after(T, 500), &new, &config()),
+                Err(ChannelFault::ForeignFrame { id: 0x101 }),
+                "reset and heartbeat: {reset}"
+            );
+        }
     }
 }

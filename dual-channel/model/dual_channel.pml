@@ -69,8 +69,9 @@
 #endif
 /* -DRESET_NOT_OVERTAKING: the master's NMT commands never reach the bus while channel A's
  * plain frame waits in its transmit queue (such a frame reaches the bus after the reset: the
- * reset trails of docs/model-checking.md, fixed in channel B, and the consumer-side finding
- * there with an input change): the master queues none then, and one it queued before waits. */
+ * reset trails of docs/model-checking.md, fixed in channel B, and the two findings after
+ * them there with an input change, fixed too): the master queues none then, and one it
+ * queued before waits. */
 #ifdef RESET_NOT_OVERTAKING
 #define MASTER_MAY_SEND empty(tx_a)
 #define M_READY (nempty(tx_m) && empty(tx_a))   /* the master's frame goes on the bus */
@@ -205,6 +206,7 @@ byte ended = NONE;        /* ChannelB::ended (A's announcement of its ended epoc
 byte ended_cd = NONE;     /* ChannelB::ended_until: at least a window (W_T + 1 ticks) */
 byte ended_unann = NONE;  /* ChannelB::ended_unannounced (frame seen before B's own reset) */
 byte ended_unann_cd = NONE;
+byte b_lead = 1;          /* ChannelB::epoch_lead + 1: 2 between B's reset and A's heartbeat */
 byte prev = NONE;         /* ChannelB::previous (sample) */
 byte gseen_ep;            /* ghost: B's epoch when it saw the frame being co-signed */
 byte held_ep;             /* ghost: ... for the held frame */
@@ -253,6 +255,7 @@ byte gpeer_data[2];
 bool gfc_sent;            /* a GFC was on the bus */
 byte foreign_cd = NONE;   /* ticks left for the node to reach the safe state */
 bool got_pair[2];         /* a pair was confirmed since the last NMT reset */
+bool paired[2];           /* srdo::Consumer::paired: the core took a pair since its start */
 byte rx_late[4];          /* frames at the head of rx[c] that came before the last tick */
 hidden int tick_count;           /* ticks since power-on, for the printed trail only */
 
@@ -510,6 +513,17 @@ inline let_ended_go(f) {
   ended = NONE; ended_cd = NONE
 }
 
+/* Between B's reset and A's heartbeat of the new epoch (b_lead 2), a plain frame B saw before
+ * its announcement and followed by one with other data may be A's of the ended epoch, its
+ * announcement ahead of that heartbeat on the link: kept for it (ended_unannounced, if free),
+ * and the new one waits for its own (ChannelB::observe_seen). -DMUTATION_SECOND_UNANNOUNCED_FOREIGN:
+ * the second frame is foreign at once (the Rust before that fix). */
+#ifdef MUTATION_SECOND_UNANNOUNCED_FOREIGN
+#define KEEP_FOR_ANNOUNCEMENT false
+#else
+#define KEEP_FOR_ANNOUNCEMENT (b_lead == 2 && !(ended_unann != NONE && ended_unann_cd > 0))
+#endif
+
 inline observe_b(f) {
   if
   :: FID(f) == ID_INV -> reply_foreign(PB)
@@ -523,12 +537,15 @@ inline observe_b(f) {
         :: FDATA(tmp) == FDATA(f) -> cosign_property(f, tmp); gseen_ep = epoch[PB]; co_sign(f, W_T)
         :: else -> reply_foreign(PB)
         fi
-     :: announced == NONE && unann != NONE ->
-        if
-        :: FDATA(unann) == FDATA(f) -> skip     /* the same frame twice before its announcement */
-        :: else -> reply_foreign(PB)
-        fi
-     :: else -> unann = f; unann_cd = W_T; unann_ep = epoch[PB]
+     :: announced == NONE && unann != NONE && FDATA(unann) == FDATA(f) ->
+        skip                                 /* the same frame twice before its announcement */
+     :: announced == NONE && unann != NONE && FDATA(unann) != FDATA(f) && !KEEP_FOR_ANNOUNCEMENT ->
+        reply_foreign(PB)
+     :: else ->
+        /* No frame waits for its announcement, or one is kept for it (KEEP_FOR_ANNOUNCEMENT). */
+        ended_unann_cd = (unann != NONE -> unann_cd : ended_unann_cd);
+        ended_unann = (unann != NONE -> unann : ended_unann);
+        unann = f; unann_cd = W_T; unann_ep = epoch[PB]
      fi
   :: else -> skip
   fi
@@ -543,7 +560,7 @@ inline announced_b(a) {
      tmp = ended_unann; ended_unann = NONE; ended_unann_cd = NONE;
      if
      :: FDATA(tmp) == FDATA(a) ->
-        printf("@%d B: announcement of plain %d seen before its reset, not co-signed\n", tick_count, FDATA(a));
+        printf("@%d B: announcement of plain %d kept for it, not co-signed\n", tick_count, FDATA(a));
         assert(FSRC(tmp) != S_A || FNUM(tmp) == FNUM(a))
      :: else -> reply_foreign(PB)
      fi
@@ -574,6 +591,7 @@ inline input_b(v) {
 /* ChannelB::reset: the held frame is forgotten; one not announced yet is kept for its
  * announcement (ended_unannounced), never co-signed. */
 inline reset_b() {
+  b_lead = b_lead + (b_lead < 2);
 #ifdef MUTATION_COSIGN_BEFORE_RESET
   skip
 #else
@@ -592,6 +610,7 @@ inline reset_b() {
 /* ChannelB::peer_reset: A's announcements of its ended epoch set apart (ended), and
  * Runtime::on_message's offer of the frames kept before Operational (Role::ended_frame). */
 inline peer_reset_b() {
+  b_lead = b_lead - (b_lead > 0);
 #ifdef MUTATION_KEEP_ANNOUNCEMENTS
   skip
 #elif defined(MUTATION_FORGET_ENDED_EPOCH)
@@ -715,7 +734,8 @@ inline nmt_start(c) {
      nmt[c] = OPER;
      if
      :: c == PA -> refresh_cd = TICKS(PRODUCER_START_US); changed = 0
-     :: c >= CA -> pend[c - CA] = NONE; sct_cd[c - CA] = SCT_T; srvt_cd[c - CA] = NONE
+     :: c >= CA -> pend[c - CA] = NONE; sct_cd[c - CA] = SCT_T; srvt_cd[c - CA] = NONE;
+        paired[c - CA] = 0
      :: else -> skip
      fi;
      follow_core(c);
@@ -803,6 +823,16 @@ inline local_pair(k, v) {
   verdict_arrive(k, pairs[k] * 2 + v, vloc[k], vrem[k])
 }
 
+/* Before the consumer's first pair since its start, a half that does not pair (of a pair the
+ * producer's reset cut, on the bus after the start) is discarded, and SRVT and SCT decide
+ * (srdo::Consumer::on_plain). -DMUTATION_FIRST_PAIR_STRICT: judged as strictly as after it
+ * (the Rust before the fix of the finding on the consumer's first pair). */
+#ifdef MUTATION_FIRST_PAIR_STRICT
+#define BEFORE_FIRST_PAIR(k) false
+#else
+#define BEFORE_FIRST_PAIR(k) (!paired[k])
+#endif
+
 /* The core's SRDO consumer (srdo::Consumer) on a frame of SRDO 1. */
 inline consumer_frame(k, f) {
   if
@@ -810,15 +840,18 @@ inline consumer_frame(k, f) {
      if
      :: pend[k] == NONE -> pend[k] = f; srvt_cd[k] = SRVT_T
      :: pend[k] != NONE && FDATA(pend[k]) == FDATA(f) -> skip    /* an exact repeat */
+     :: pend[k] != NONE && FDATA(pend[k]) != FDATA(f) && BEFORE_FIRST_PAIR(k) ->
+        pend[k] = f                        /* replaced; SRVT runs on from the first */
      :: else -> core_fault(CA + k, F_SRDO)
      fi
   :: FID(f) == ID_INV ->
      if
-     :: pend[k] == NONE -> skip                                   /* no plain frame pending */
+     :: pend[k] == NONE || (FDATA(pend[k]) != FDATA(f) && BEFORE_FIRST_PAIR(k)) ->
+        skip        /* no plain frame pending, or before the first pair not its inverse */
      :: pend[k] != NONE && FDATA(pend[k]) == FDATA(f) ->
         gnew[k] = FDATA(f);
         gnew_genuine[k] = (FSRC(pend[k]) == S_A && FSRC(f) == S_B);
-        pend[k] = NONE; srvt_cd[k] = NONE; sct_cd[k] = SCT_T;
+        pend[k] = NONE; srvt_cd[k] = NONE; sct_cd[k] = SCT_T; paired[k] = 1;
         printf("@%d ch%d: core accepts a pair, data %d\n", tick_count, CA + k, FDATA(f));
         local_pair(k, FDATA(f))
      :: else -> core_fault(CA + k, F_SRDO)

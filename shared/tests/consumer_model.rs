@@ -125,6 +125,10 @@ struct Model {
     plain_repeated: u32,
     /// Inverted frames with no plain frame pending, discarded.
     inverted_without_plain: u32,
+    /// A valid pair completed since the entry into Operational: before it, a half that does
+    /// not pair (of a pair the producer's NMT reset cut) is discarded, and SRVT and SCT
+    /// decide (EN 50325-5 7.1.2, 8.2.2; CiA 304 9.5 marks the old frame invalid).
+    paired: bool,
 }
 
 impl Model {
@@ -165,6 +169,9 @@ impl Model {
             // The same frame again before its inverted frame: a double reception, discarded;
             // SRVT keeps running from the first copy.
             Some((pending, _)) if pending == frame => self.plain_repeated += 1,
+            // Before the first pair, another plain frame (not too short) replaces the pending
+            // one; SRVT keeps running from the first.
+            Some((_, at)) if !self.paired && dlc >= 1 => self.pending = Some((frame, at)),
             // Another plain frame before the inverted one (CiA 304 9.5).
             Some(_) => self.fail(),
             // Too short (7.1.3).
@@ -183,7 +190,11 @@ impl Model {
                 self.output = plain[0];
                 self.last_pair = now;
                 self.pairs += 1;
+                self.paired = true;
             }
+            // Before the first pair, not the inverse (and not too short): not delivered, the
+            // plain frame stays pending with its SRVT.
+            Some(pending) if !self.paired && dlc >= 1 => self.pending = Some(pending),
             // No plain frame pending: a double reception of the last inverted frame, or
             // monitoring started after its plain frame; discarded, SCT keeps running.
             None => self.inverted_without_plain += 1,

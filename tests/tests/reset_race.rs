@@ -542,3 +542,224 @@ fn cia304_9_5_a_plain_frame_lost_just_before_reset_and_start_is_never_a_foreign_
         }
     }
 }
+
+/// Everything node `id` reported that takes it to its safe state since log position `since`:
+/// a channel's fault, or its core's SRDO fault (the consumer's pairing, EN 50325-5 7.1).
+fn safe_states(net: &DualNetwork, since: usize, id: u8) -> Vec<(Instant, Side, ChannelEvent)> {
+    net.log[since..]
+        .iter()
+        .filter(|(_, node, _, event)| {
+            *node == id
+                && matches!(
+                    event,
+                    ChannelEvent::Fault(_)
+                        | ChannelEvent::Node(shared::node::Event::SrdoFault(_))
+                        | ChannelEvent::Node(shared::node::Event::SafeState(_))
+                )
+        })
+        .map(|(at, _, side, event)| (*at, *side, *event))
+        .collect()
+}
+
+/// Node 1's channel A hands its next plain frame to its controller while the tool's frames
+/// keep the bus busy, and the tool queues NMT reset communication and start to all nodes
+/// right after, with `hold` frames of its own behind them on an identifier below the plain
+/// frame's: the NMT frames win arbitration over the plain frame, which reaches the bus after
+/// the start and the `hold` frames (the model's finding on the consumer's first pair, first
+/// variant). Both contacts of node 1 open between the reset and the start. Returns where the
+/// log stood before, with the bus trace from the reset to the plain frame.
+fn reset_and_start_overtaking_a_queued_plain_frame(
+    net: &mut DualNetwork,
+    hold: usize,
+) -> (usize, Vec<(Instant, CanFrame, usize)>) {
+    until_on_bus(net, PLAIN);
+    let (at, frame, _) = *net.trace.last().expect("the plain frame");
+    let handed = Instant::from_micros(at.as_micros() - frame_time(&frame, BIT_RATE).as_micros());
+    let next = handed + REFRESH;
+    net.run_until(Instant::from_micros(next.as_micros() - 300));
+    net.send_foreign(filler());
+    net.send_foreign(filler());
+    net.run_until(next);
+    assert!(
+        net.bus.queued(NODE_1_A) > 0 && net.on_the_bus().any(|(_, f, _)| f == filler()),
+        "node 1's plain frame waits in channel A's queue behind the tool's frames"
+    );
+    let since = (net.log.len(), net.trace.len());
+    net.send_foreign(nmt::command_frame(NmtCommand::ResetCommunication, 0));
+    net.send_foreign(nmt::command_frame(NmtCommand::Start, 0));
+    for _ in 0..hold {
+        net.send_foreign(high_priority_filler());
+    }
+    net.set_inputs(1, 0, 0);
+    until_on_bus(net, PLAIN);
+    (since.0, net.trace[since.1..].to_vec())
+}
+
+/// CiA 304 9.5, EN 50325-5 7.1.2 and 8.2.2 (the model's finding on the consumer's first pair,
+/// first variant, `docs/model-checking.md`): NMT reset communication and start both overtake
+/// node 1's plain frame in channel A's transmit queue, the tool's frames hold that frame off
+/// the bus for 0 to 3 frame times more, and both contacts of node 1 open between the reset
+/// and the start. Held long enough for channel A's heartbeat of the new epoch to reach
+/// channel B first, the ended epoch's plain frame goes by unsigned (B sets it apart), and
+/// node 33, Operational since the start, takes it, then node 1's first plain frame of the new
+/// epoch, which carries the open contacts. That pair is node 1's first after the start, and
+/// node 33 takes it: no node reports a fault, and node 33's output follows the press and the
+/// release. Before a consumer let a plain frame that no pair completed since its entry into
+/// Operational be replaced by a later one (SRVT still counted from the first), node 33 took
+/// the second plain frame for a sequence error and went to its safe state (SRDO fault 04h),
+/// from one of the tool's frames on (with none, channel B co-signed the ended epoch's frame,
+/// A's heartbeat not having reached it yet, and node 33 took that pair).
+#[test]
+fn cia304_9_5_a_plain_frame_overtaken_by_nmt_reset_and_start_does_not_stop_the_consumer() {
+    let mut failed = Vec::new();
+    let mut unpaired = 0;
+    for hold in 0..=3 {
+        let mut net = running(Duration::ZERO);
+        let (since, frames) = reset_and_start_overtaking_a_queued_plain_frame(&mut net, hold);
+        let ids: Vec<u16> = frames.iter().map(|(_, f, _)| f.id().raw()).collect();
+        let reset = ids.iter().position(|&id| id == 0).expect("the reset");
+        let plain = ids
+            .iter()
+            .position(|&id| id == PLAIN)
+            .expect("the plain frame");
+        assert!(
+            ids[reset + 1..plain].contains(&0) && frames[plain].1.data() == [1],
+            "the reset and the start both go before the ended epoch's plain frame: {frames:?}"
+        );
+        let trace = net.trace.len();
+        net.run_for(Duration::from_millis(100));
+        let order: Vec<(u16, Vec<u8>)> = net.trace[trace..]
+            .iter()
+            .filter(|(_, f, _)| [PLAIN, INVERTED].contains(&f.id().raw()))
+            .map(|(_, f, _)| (f.id().raw(), f.data().to_vec()))
+            .take(2)
+            .collect();
+        // The ended epoch's plain frame went by unsigned: the next is the new epoch's.
+        unpaired += usize::from(order.first() == Some(&(PLAIN, vec![0])));
+        let pressed = net.output(33);
+        net.set_inputs(1, 1, 1);
+        net.run_for(Duration::from_millis(100));
+        let stops: Vec<_> = [1, 33]
+            .into_iter()
+            .flat_map(|id| safe_states(&net, since, id))
+            .collect();
+        if !stops.is_empty() || (pressed, net.output(33)) != (0, 1) {
+            failed.push((hold, order, stops, pressed, net.output(33)));
+        }
+    }
+    assert!(
+        unpaired > 0,
+        "some hold lets the ended epoch's plain frame go by unsigned"
+    );
+    assert!(
+        failed.is_empty(),
+        "{} holds failed: {failed:#?}",
+        failed.len()
+    );
+}
+
+/// While node 1's plain frame is on the bus, the tool queues NMT reset communication and
+/// start to all nodes and, behind them, `hold` frames of its own on an identifier below both
+/// of node 1's; both contacts of node 1 open. Channel B co-signs the plain frame when it
+/// ends, but its inverted frame waits in B's queue behind the tool's frames, and behind
+/// channel A's first plain frame of the new epoch if that comes before they end. Returns
+/// where the log stood before.
+fn reset_and_start_holding_the_inverted_frame(net: &mut DualNetwork, hold: usize) -> usize {
+    let give_up = net.now + Duration::from_millis(200);
+    while !net.on_the_bus().any(|(_, f, _)| f.id().raw() == PLAIN) {
+        assert!(net.now < give_up, "no plain frame on the bus");
+        net.run_for(Duration::from_micros(10));
+    }
+    let since = net.log.len();
+    net.send_foreign(nmt::command_frame(NmtCommand::ResetCommunication, 0));
+    net.send_foreign(nmt::command_frame(NmtCommand::Start, 0));
+    for _ in 0..hold {
+        net.send_foreign(high_priority_filler());
+    }
+    net.set_inputs(1, 0, 0);
+    since
+}
+
+/// CiA 304 9.5, EN 50325-5 7.1.2 and 8.2.2 (the model's finding on the consumer's first pair,
+/// second variant, `docs/model-checking.md`): the master resets and starts the network right
+/// behind node 1's plain frame, which channel B co-signs before its reset, and frames of
+/// higher priority than node 1's (a tool's, or other devices' emergency messages) keep the
+/// bus busy for 0 to 2 ms after the start, so that B's inverted frame of the pair the reset
+/// cut waits in B's transmit queue. Both contacts of node 1 open meanwhile. With the bus busy
+/// past node 1's start delay, channel A's first plain frame of the new epoch (the open
+/// contacts) goes before that inverted frame, and node 33 sees the new plain frame, then the
+/// ended epoch's inverted frame, which is not its inverse, then the new inverted frame. No
+/// node reports a fault, and node 33's output follows node 1. Before a consumer left such an
+/// inverted frame undelivered until its first pair since entering Operational (the SRVT of
+/// the pending plain frame still running), node 33 went to its safe state (SRDO fault 05h,
+/// not inverted) from 3 of the tool's frames on.
+#[test]
+fn cia304_9_5_an_inverted_frame_held_behind_reset_start_and_the_new_plain_frame_does_not_stop_the_consumer()
+ {
+    let mut failed = Vec::new();
+    let mut overtaken = 0;
+    for hold in 0..=8 {
+        let mut net = running(Duration::ZERO);
+        let since = reset_and_start_holding_the_inverted_frame(&mut net, hold);
+        let trace = net.trace.len();
+        net.run_for(Duration::from_millis(100));
+        let order: Vec<(u16, Vec<u8>)> = net.trace[trace..]
+            .iter()
+            .filter(|(_, f, _)| [PLAIN, INVERTED].contains(&f.id().raw()))
+            .map(|(_, f, _)| (f.id().raw(), f.data().to_vec()))
+            .take(3)
+            .collect();
+        overtaken +=
+            usize::from(order == [(PLAIN, vec![1]), (PLAIN, vec![0]), (INVERTED, vec![0xFE])]);
+        let pressed = net.output(33);
+        net.set_inputs(1, 1, 1);
+        net.run_for(Duration::from_millis(100));
+        let stops: Vec<_> = [1, 33]
+            .into_iter()
+            .flat_map(|id| safe_states(&net, since, id))
+            .collect();
+        if !stops.is_empty() || (pressed, net.output(33)) != (0, 1) {
+            failed.push((hold, order, stops, pressed, net.output(33)));
+        }
+    }
+    assert!(
+        overtaken > 0,
+        "some hold puts node 1's new plain frame before the cut pair's inverted frame"
+    );
+    assert!(
+        failed.is_empty(),
+        "{} holds failed: {failed:#?}",
+        failed.len()
+    );
+}
+
+/// EN 50325-5 7.2.1, CiA 304 9.5: a consumer that discards, before its first pair, an
+/// inverted frame that is not the inverse of its pending plain frame leaves no real fault
+/// unseen. After NMT reset and start, a foreign device sends a frame on node 1's inverted
+/// identifier with the wrong data while node 1's first plain frame of the new epoch is on the
+/// bus: node 1 reports the foreign frame (34h) on that identifier, and node 33 is in its safe
+/// state, whichever inverted frame it took first.
+#[test]
+fn en50325_5_7_2_1_a_wrong_inverted_frame_before_the_consumers_first_pair_is_still_detected() {
+    let mut net = running(Duration::ZERO);
+    let (since, _) = reset(&mut net, Duration::from_millis(20));
+    start(&mut net);
+    let give_up = net.now + Duration::from_millis(200);
+    while !net.on_the_bus().any(|(_, f, _)| f.id().raw() == PLAIN) {
+        assert!(net.now < give_up, "no plain frame after the start");
+        net.run_for(Duration::from_micros(10));
+    }
+    net.send_foreign(
+        CanFrame::new(CanId::new(INVERTED).expect("identifier"), &[0x00]).expect("frame"),
+    );
+    net.run_for(Duration::from_millis(100));
+    let faults = node_1_faults(&net, since);
+    assert!(
+        faults
+            .iter()
+            .any(|(.., fault)| *fault == ChannelFault::ForeignFrame { id: INVERTED }),
+        "{faults:?}"
+    );
+    assert!(!safe_states(&net, since, 33).is_empty(), "node 33 stops");
+    assert_eq!(net.output(33), 0, "node 33 is in its safe state");
+}

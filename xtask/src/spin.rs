@@ -54,6 +54,8 @@ struct Bounds {
     what: &'static str,
     /// `-D` flags for spin.
     defines: &'static [&'static str],
+    /// The memory its verifier may use, in MB (pan's `-DMEMLIM`).
+    memory: u32,
 }
 
 /// The CI bounds: after the power-on start one NMT reset and one start (the master waits a
@@ -67,6 +69,7 @@ const FAULT_FREE: Bounds = Bounds {
         "-DSTART_AFTER_RESET_T=1",
         "-DFAULT_BUDGET=0",
     ],
+    memory: MEMORY_MB,
 };
 
 /// Channel B of the producer handles its bus frames up to a tick late (a slow loop), around
@@ -84,6 +87,7 @@ const LATE_B: Bounds = Bounds {
         "-DFAULT_BUDGET=0",
         "-DLATE_LOOPS=2",
     ],
+    memory: MEMORY_MB,
 };
 
 /// Channel B late as in [`LATE_B`], the nodes left Pre-operational at power-on and the master
@@ -102,12 +106,13 @@ const LATE_B_FIRST_START: Bounds = Bounds {
         "-DFAULT_BUDGET=0",
         "-DLATE_LOOPS=2",
     ],
+    memory: MEMORY_MB,
 };
 
 /// The master starts right after its reset (the cut pair's inverted frame reaches channel A
 /// in Operational only then); its NMT frames may overtake channel A's plain frame (the reset
-/// trails of docs/model-checking.md); no input change (with one, the consumer-side findings
-/// of docs/model-checking.md show).
+/// trails of docs/model-checking.md); no input change ([`START_AT_ONCE_INPUT_CHANGE`] has
+/// one).
 const START_AT_ONCE: Bounds = Bounds {
     name: "start-at-once",
     what: "one NMT reset and start at once, the NMT frames overtaking A's plain frame or not; \
@@ -118,6 +123,28 @@ const START_AT_ONCE: Bounds = Bounds {
         "-DSTART_AFTER_RESET_T=0",
         "-DFAULT_BUDGET=0",
     ],
+    memory: MEMORY_MB,
+};
+
+/// The master starts right after its reset, with an input change, its NMT frames
+/// overtaking channel A's plain frame or not: a half of the pair the reset cut meets the
+/// consumer's first pair after the start, and channel B may take A's frame of the ended epoch
+/// and A's first of the new one before their announcements (the two findings after the reset
+/// trails in docs/model-checking.md). The consumer's link delivers within the tick, and the
+/// search needs more memory than the other CI runs ([`MEMORY_WIDE_MB`]).
+const START_AT_ONCE_INPUT_CHANGE: Bounds = Bounds {
+    name: "start-at-once-input-change",
+    what: "one NMT reset and start at once, the NMT frames overtaking A's plain frame or not, \
+           one input change, the consumer's link within the tick, no fault (`-DMEMLIM=4000`, \
+           `-w26`)",
+    defines: &[
+        "-DNMT_BUDGET=2",
+        "-DINPUT_BUDGET=1",
+        "-DSTART_AFTER_RESET_T=0",
+        "-DFAULT_BUDGET=0",
+        "-DC_LATENCY_T=0",
+    ],
+    memory: MEMORY_WIDE_MB,
 };
 
 /// A past race, re-introduced by a switch of the model.
@@ -136,7 +163,7 @@ struct Mutation {
 }
 
 /// Each past race re-introduced, with the bounds it is found at and what shows it.
-const MUTATIONS: [Mutation; 6] = [
+const MUTATIONS: [Mutation; 8] = [
     Mutation {
         name: "mutation-cosign-before-reset",
         switch: "-DMUTATION_COSIGN_BEFORE_RESET",
@@ -185,6 +212,24 @@ const MUTATIONS: [Mutation; 6] = [
         bounds: &LATE_B,
         expect: "PROPERTY co-sign",
     },
+    Mutation {
+        name: "mutation-first-pair-strict",
+        switch: "-DMUTATION_FIRST_PAIR_STRICT",
+        race: "the consumer's first pair after its start judged as strictly as later ones: the \
+               inverted frame of the pair the producer's reset cut, behind A's first plain \
+               frame of the new epoch, is not its inverse",
+        bounds: &START_AT_ONCE_INPUT_CHANGE,
+        expect: "safe, cause 9, no fault",
+    },
+    Mutation {
+        name: "mutation-second-unannounced-foreign",
+        switch: "-DMUTATION_SECOND_UNANNOUNCED_FOREIGN",
+        race: "channel B, between its reset and A's heartbeat of the new epoch, takes a second \
+               plain frame with other data before the first one's announcement for foreign \
+               (A's frame of the ended epoch, then A's first of the new one)",
+        bounds: &START_AT_ONCE_INPUT_CHANGE,
+        expect: "PROPERTY availability: ch1 safe, cause 5",
+    },
 ];
 
 /// The bounds of `--full`: from Pre-operational with the contacts open, three NMT commands,
@@ -206,6 +251,10 @@ pub const LIVENESS_MINUTES: u32 = 20;
 /// The memory the verifier may use, in MB (pan's `-DMEMLIM`): within a CI runner's.
 const MEMORY_MB: u32 = 3000;
 
+/// The memory of the CI run whose search is larger than the others', in MB: the CI machine's
+/// has room for it.
+const MEMORY_WIDE_MB: u32 = 4000;
+
 /// The memory a `--full` or `--liveness` run may use, in MB.
 const MEMORY_FULL_MB: u32 = 6000;
 
@@ -222,6 +271,8 @@ struct Run {
     /// For a mutation: a line of the replayed counterexample that shows the race; `None`:
     /// the unmodified model, which must pass.
     expect: Option<&'static str>,
+    /// The memory its verifier may use, in MB, where it is not the mode's.
+    memory: Option<u32>,
 }
 
 /// What the verifier reported.
@@ -244,6 +295,7 @@ fn runs(mode: Mode) -> Vec<Run> {
         defines,
         ltl: None,
         expect: None,
+        memory: None,
     };
     // The full bounds with `extra`, each of which replaces the flag of its name.
     let full = |extra: &[&'static str]| {
@@ -273,11 +325,14 @@ fn runs(mode: Mode) -> Vec<Run> {
             let mut checked = BTreeSet::new();
             for bounds in std::iter::once(&FAULT_FREE).chain(MUTATIONS.iter().map(|m| m.bounds)) {
                 if checked.insert(bounds.name) {
-                    runs.push(check(
-                        bounds.name,
-                        &format!("no error, no safe state: {}", bounds.what),
-                        bounds.defines.to_vec(),
-                    ));
+                    runs.push(Run {
+                        memory: Some(bounds.memory),
+                        ..check(
+                            bounds.name,
+                            &format!("no error, no safe state: {}", bounds.what),
+                            bounds.defines.to_vec(),
+                        )
+                    });
                 }
             }
             for mutation in &MUTATIONS {
@@ -292,6 +347,7 @@ fn runs(mode: Mode) -> Vec<Run> {
                     defines,
                     ltl: None,
                     expect: Some(mutation.expect),
+                    memory: Some(mutation.bounds.memory),
                 });
             }
             runs
@@ -349,6 +405,7 @@ fn runs(mode: Mode) -> Vec<Run> {
                 ],
                 ltl: Some("recovers"),
                 expect: None,
+                memory: None,
             };
             vec![
                 recovery("recovery", "", "-DINPUT_BUDGET=0"),
@@ -379,7 +436,7 @@ pub fn task(root: &Path, mode: Mode, report: bool, minutes: Option<u32>) -> Resu
     let mut rows = Vec::new();
     let mut failures = Vec::new();
     for run in runs(mode) {
-        let result = verify(root, &run, memory, minutes);
+        let result = verify(root, &run, run.memory.unwrap_or(memory), minutes);
         match result {
             Ok(row) => rows.push(row),
             Err((row, error)) => {

@@ -198,8 +198,9 @@ pub enum Event {
         detail: u8,
     },
     /// A consumer discarded a frame as a CAN double reception (or an inverted frame seen
-    /// first after monitoring started); nothing was delivered and nothing failed. Counted in
-    /// [`SrdoTable::double_reception`].
+    /// first after monitoring started), or, before its first pair since entering Operational,
+    /// a half of a pair a producer's NMT reset cut; nothing was delivered and nothing failed.
+    /// Double receptions are counted in [`SrdoTable::double_reception`].
     FrameDiscarded {
         /// The SRDO.
         srdo: SrdoNumber,

@@ -328,8 +328,8 @@ impl<const N: usize> SrdoTable<N> {
         }
     }
 
-    /// Counts and reports a frame a consumer discarded as a double reception. Cold: kept out
-    /// of the receive hot path.
+    /// Reports a frame a consumer discarded, and counts it when it is a double reception.
+    /// Cold: kept out of the receive hot path.
     #[cold]
     #[inline(never)]
     fn discarded<S: Sink>(
@@ -339,10 +339,17 @@ impl<const N: usize> SrdoTable<N> {
         slot: &mut Slot<'_, S>,
     ) {
         let counter = match discarded {
-            Discarded::PlainRepeated => &mut self.double_reception.plain_repeated,
-            Discarded::InvertedWithoutPlain => &mut self.double_reception.inverted_without_plain,
+            Discarded::PlainRepeated => Some(&mut self.double_reception.plain_repeated),
+            Discarded::InvertedWithoutPlain => {
+                Some(&mut self.double_reception.inverted_without_plain)
+            }
+            // Not a double reception: reported by its event, not counted in 5C00h.
+            Discarded::PlainReplacedBeforeFirstPair
+            | Discarded::InvertedNotPairedBeforeFirstPair => None,
         };
-        *counter = counter.saturating_add(1);
+        if let Some(counter) = counter {
+            *counter = counter.saturating_add(1);
+        }
         slot.event(Event::FrameDiscarded { srdo, discarded });
     }
 

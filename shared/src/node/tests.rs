@@ -581,11 +581,13 @@ fn en50325_5_7_1_2_a_repeated_plain_frame_keeps_the_srvt_of_the_first() {
 }
 
 /// CiA 304 9.5: a second plain frame with *different* data (or another length) before the
-/// inverted one is a sequence error; it is no double reception.
+/// inverted one is a sequence error once a pair completed since the entry into Operational;
+/// it is no double reception.
 #[test]
 fn cia304_9_5_second_plain_frame_with_other_data_before_the_inverted_one_is_an_error() {
     for second in [&[2u8][..], &[1, 0][..]] {
         let (mut node, mut sink) = operational(33);
+        pair(&mut node, ms(5), 0x3C, &mut sink);
         node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
         node.handle_frame(ms(11), &frame(0x141, second), &mut sink);
         assert_safe(
@@ -602,6 +604,7 @@ fn cia304_9_5_second_plain_frame_with_other_data_before_the_inverted_one_is_an_e
 #[test]
 fn cia304_9_5_after_a_discarded_repeat_a_wrong_inverted_frame_is_still_a_fault() {
     let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(5), 0x3C, &mut sink);
     node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
     node.handle_frame(ms(11), &frame(0x141, &[1]), &mut sink);
     node.handle_frame(ms(12), &frame(0x142, &[0xFD]), &mut sink);
@@ -658,6 +661,7 @@ fn en50325_5_7_1_2_a_consumer_started_at_any_instant_of_a_running_producer_works
 #[test]
 fn cia304_9_5_data_compared_bit_by_bit() {
     let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(5), 0x3C, &mut sink);
     node.handle_frame(ms(10), &frame(0x141, &[0x0F]), &mut sink);
     node.handle_frame(ms(10), &frame(0x142, &[0xF1]), &mut sink);
     assert_safe(
@@ -665,6 +669,46 @@ fn cia304_9_5_data_compared_bit_by_bit() {
         &sink,
         SrdoFaultCause::NotInverted,
         code::PROTOCOL_ERROR,
+    );
+}
+
+/// EN 50325-5 7.1.2 and 8.2.2, CiA 304 9.5: before its first pair since entering
+/// Operational, a consumer discards the half of a pair a producer's NMT reset cut (it may
+/// reach the bus after the master's start): a plain frame replaced by one with other data, an
+/// inverted frame that is not the pending frame's inverse. Each is reported, neither is
+/// counted as a double reception (5C00h), nothing is delivered, and the SRVT event still ends
+/// a plain frame whose inverse never comes, at the same instant as without those frames.
+#[test]
+fn en50325_5_7_1_2_before_the_first_pair_an_unpaired_half_is_discarded_and_srvt_still_ends_it() {
+    let discarded = |discarded| Event::FrameDiscarded {
+        srdo: SrdoNumber::new(1).unwrap(),
+        discarded,
+    };
+    let (mut node, mut sink) = operational(33);
+    node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
+    node.handle_frame(ms(11), &frame(0x141, &[0]), &mut sink);
+    node.handle_frame(ms(12), &frame(0x142, &[0xFE]), &mut sink);
+    assert_eq!(
+        sink.events,
+        [
+            discarded(srdo::Discarded::PlainReplacedBeforeFirstPair),
+            discarded(srdo::Discarded::InvertedNotPairedBeforeFirstPair),
+        ]
+    );
+    assert_eq!(node.double_reception(), DoubleReception::default());
+    assert_eq!((output(&node, 0x6200, 1), output(&node, 0x6201, 1)), (0, 0));
+    assert!(node.fault().is_none());
+    node.poll(ms(29) + Duration::from_micros(999), &mut sink);
+    assert!(
+        node.fault().is_none(),
+        "SRVT counts from the first plain frame"
+    );
+    node.poll(ms(30), &mut sink);
+    assert_safe(
+        &node,
+        &sink,
+        SrdoFaultCause::SrvtElapsed,
+        code::RPDO_TIMEOUT,
     );
 }
 
@@ -735,6 +779,7 @@ fn en50325_5_8_2_2_leaving_operational_puts_outputs_in_the_safe_state() {
 #[test]
 fn safe_state_is_latched_until_nmt_resets_communication() {
     let (mut node, mut sink) = operational(33);
+    pair(&mut node, ms(5), 0x3C, &mut sink);
     node.handle_frame(ms(10), &frame(0x141, &[1]), &mut sink);
     node.handle_frame(ms(10), &frame(0x142, &[0xFF]), &mut sink);
     assert!(node.fault().is_some());
@@ -829,6 +874,7 @@ fn en50325_5_6_3_gfc_producer_on_request_and_on_a_detected_fault() {
     let (mut node, mut sink) = booted(33, |config| config.gfc_on_fault = true);
     validate(&mut node);
     start(&mut node, Instant::ZERO, &mut sink);
+    pair(&mut node, us(500), 0x3C, &mut sink);
     node.handle_frame(ms(1), &frame(0x141, &[1]), &mut sink);
     node.handle_frame(ms(1), &frame(0x142, &[0]), &mut sink);
     node.poll(ms(1), &mut sink);

@@ -12,8 +12,11 @@
 //!
 //! A consumer discards, without a fault, the two frames CAN produces on a healthy bus (see
 //! [`Discarded`]): an exact repeat of the pending plain frame and an inverted frame with no
-//! plain frame pending. Any other deviation from "plain, then its inverse within SRVT" is a
-//! fault.
+//! plain frame pending. Until its first pair since it entered Operational it also discards the
+//! half of a pair that a producer's NMT reset cut and that reached the bus after the start:
+//! frames that do not pair are not delivered, and SRVT and SCT decide (see
+//! [`Consumer::on_plain`]). Any other deviation from "plain, then its inverse within SRVT" is
+//! a fault.
 
 use super::config::ResolvedMapping;
 use super::types::SrdoNumber;
@@ -98,14 +101,16 @@ pub const fn is_inverse(plain: u64, inverted: u64, len: u8) -> bool {
 }
 
 /// A frame a consumer discarded without a fault, because CAN itself produces it on a healthy
-/// bus.
+/// bus, or an NMT reset and start do before the consumer's first pair.
 ///
 /// ISO 11898-1 lets a receiver accept a frame twice: it takes a frame as valid at the
 /// last-but-one bit of the end-of-frame field, and a transmitter that sees an error in the
 /// last bit repeats the frame. And a consumer that starts monitoring (enters Operational)
-/// between a producer's plain and inverted frames sees an inverted frame first. Neither
-/// delivers anything: only a plain frame and the inverted frame that follows it within SRVT
-/// make a pair.
+/// between a producer's plain and inverted frames sees an inverted frame first. Likewise, a
+/// frame a producer queued before its NMT reset (a CAN controller sends what it was handed)
+/// can reach the bus after the master's start, in the consumer's new epoch, where nothing
+/// completes its pair (the last two variants). None of them delivers anything: only a plain
+/// frame and the inverted frame that follows it within SRVT make a pair.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Discarded {
@@ -114,6 +119,17 @@ pub enum Discarded {
     PlainRepeated,
     /// An inverted frame with no plain frame pending. SCT keeps running.
     InvertedWithoutPlain,
+    /// Before the consumer's first pair since it entered Operational: the pending plain frame,
+    /// replaced by a later plain frame with other data or another length (the producer's
+    /// frame of its ended epoch, whose inverse nobody sends, then its first of the new one).
+    /// SRVT keeps running from the first.
+    PlainReplacedBeforeFirstPair,
+    /// Before the consumer's first pair since it entered Operational: an inverted frame that
+    /// is not the inverse of the pending plain frame (the inverted frame of a pair the
+    /// producer's reset cut, still in its transmit queue when the producer's first plain frame
+    /// of the new epoch went ahead of it). The plain frame stays pending; its SRVT keeps
+    /// running.
+    InvertedNotPairedBeforeFirstPair,
 }
 
 /// What a consumer made of a plain frame.
@@ -151,6 +167,8 @@ pub struct Consumer {
     pending: u64,
     /// The pending plain frame's data length code, to tell an exact repeat.
     pending_dlc: DataLength,
+    /// A pair completed since the consumer entered Operational ([`Consumer::start`]).
+    paired: bool,
 }
 
 /// A classic CAN data length code, 0..=8 (ISO 11898-1).
@@ -198,6 +216,7 @@ impl Consumer {
             srvt_deadline: Instant::NEVER,
             pending: 0,
             pending_dlc: DataLength::L0,
+            paired: false,
         }
     }
 
@@ -232,7 +251,23 @@ impl Consumer {
     /// `dlc` are 0, as in every [`CanFrame`](crate::CanFrame)).
     ///
     /// With a plain frame pending, an exact repeat of it is discarded (CAN double reception)
-    /// and any other plain frame is a sequence error (CiA 304 9.5).
+    /// and any other plain frame is a sequence error (CiA 304 9.5), once a pair has completed
+    /// since the consumer entered Operational.
+    ///
+    /// Before that first pair, a plain frame with other data replaces the pending one
+    /// ([`Discarded::PlainReplacedBeforeFirstPair`]), and [`Consumer::on_inverted`] discards
+    /// an inverted frame that is not its inverse: the producer's NMT reset may have cut a
+    /// pair whose frames were still in its CAN controllers' transmit queues, and a queued half
+    /// reaches the bus after the master's start, which overtook it (EN 50325-5 8.2.2: the
+    /// producer stops transmitting SRDOs at the reset, but cannot take back a frame already
+    /// going out). The consumer cannot tell that half from its producer's new frames, except
+    /// that it does not pair. Nothing but an exact pair is delivered, and the outputs are in
+    /// the safe state until the first pair, so discarding costs only time, which stays
+    /// bounded as the standard bounds it: SRVT keeps running from the first plain frame
+    /// pending (EN 50325-5 7.1.2: the inverted frame that completes the first pair must still
+    /// come within SRVT of it), and SCT from the entry into Operational. The old frame is
+    /// marked invalid, as CiA 304 9.5 asks of an old received SRDO. From the first pair on,
+    /// every deviation is a fault again at once.
     ///
     /// Inlined always: its one caller is the receive hot path, whose result it would
     /// otherwise return through memory.
@@ -251,8 +286,10 @@ impl Consumer {
         if self.srvt_deadline != Instant::NEVER {
             return if data == self.pending && length == self.pending_dlc {
                 Ok(PlainOutcome::Discarded(Discarded::PlainRepeated))
-            } else {
+            } else if self.paired {
                 Err(SrdoFaultCause::PlainRepeated)
+            } else {
+                self.replace_before_first_pair(data, length, dlc, len)
             };
         }
         if dlc < len {
@@ -264,9 +301,34 @@ impl Consumer {
         Ok(PlainOutcome::Pending)
     }
 
+    /// [`Consumer::on_plain`] before the first pair: `data` replaces the pending plain frame,
+    /// whose SRVT keeps running. A frame too short is refused as ever. Cold: a reset and start
+    /// that overtake a queued frame.
+    #[cold]
+    #[inline(never)]
+    fn replace_before_first_pair(
+        &mut self,
+        data: u64,
+        length: DataLength,
+        dlc: u8,
+        len: u8,
+    ) -> Result<PlainOutcome, SrdoFaultCause> {
+        if dlc < len {
+            return Err(SrdoFaultCause::TooShort);
+        }
+        self.pending = data;
+        self.pending_dlc = length;
+        Ok(PlainOutcome::Discarded(
+            Discarded::PlainReplacedBeforeFirstPair,
+        ))
+    }
+
     /// The inverted frame (COB-ID 2) arrived at `now`. A valid pair restarts SCT; with no
     /// plain frame pending the frame is discarded (CAN double reception, or monitoring that
-    /// started between the two frames) and SCT keeps running.
+    /// started between the two frames) and SCT keeps running. One that is not the inverse of
+    /// the pending plain frame is a fault, or, before the first pair since the consumer
+    /// entered Operational, discarded with the plain frame still pending and its SRVT running
+    /// (see [`Consumer::on_plain`]).
     ///
     /// Inlined always: its one caller is the receive hot path, whose result it would
     /// otherwise return through memory.
@@ -288,13 +350,20 @@ impl Consumer {
         }
         let inverted = u64::from_le_bytes(*data);
         if !is_inverse(self.pending, inverted, len) {
-            return Err(SrdoFaultCause::NotInverted);
+            return if self.paired {
+                Err(SrdoFaultCause::NotInverted)
+            } else {
+                Ok(InvertedOutcome::Discarded(
+                    Discarded::InvertedNotPairedBeforeFirstPair,
+                ))
+            };
         }
         let plain = self.pending;
         self.pending = 0;
         self.pending_dlc = DataLength::L0;
         self.srvt_deadline = Instant::NEVER;
         self.sct_deadline = now + sct;
+        self.paired = true;
         Ok(InvertedOutcome::Pair { plain, inverted })
     }
 }
@@ -627,44 +696,56 @@ mod tests {
         );
     }
 
+    /// A consumer that took one pair (plain 1 at 1 us, its inverse at 2 us) after starting at 0:
+    /// every deviation is a fault from then on.
+    fn paired_once() -> Consumer {
+        let mut consumer = Consumer::start(at(0), SCT);
+        consumer.on_plain(at(1), &bytes(1), 1, 1, SRVT).unwrap();
+        assert!(matches!(
+            consumer.on_inverted(at(2), &bytes(0xFE), 1, 1, SCT),
+            Ok(InvertedOutcome::Pair { .. })
+        ));
+        consumer
+    }
+
     #[test]
     fn cia304_9_5_order_is_checked_and_double_receptions_are_discarded() {
-        let mut consumer = Consumer::start(at(0), SCT);
+        let mut consumer = paired_once();
         assert_eq!(
-            consumer.on_inverted(at(1), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(11), &bytes(0xFE), 1, 1, SCT),
             Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain))
         );
-        assert_eq!(consumer.deadline(), at(50_000), "SCT keeps running");
+        assert_eq!(consumer.deadline(), at(50_002), "SCT keeps running");
         assert_eq!(
-            consumer.on_plain(at(2), &bytes(1), 1, 1, SRVT),
+            consumer.on_plain(at(12), &bytes(1), 1, 1, SRVT),
             Ok(PlainOutcome::Pending)
         );
         assert_eq!(
-            consumer.on_plain(at(3), &bytes(1), 1, 1, SRVT),
+            consumer.on_plain(at(13), &bytes(1), 1, 1, SRVT),
             Ok(PlainOutcome::Discarded(Discarded::PlainRepeated))
         );
-        assert_eq!(consumer.deadline(), at(20_002), "SRVT of the first copy");
+        assert_eq!(consumer.deadline(), at(20_012), "SRVT of the first copy");
         for (data, dlc) in [(2, 1), (1, 2), (0x0101, 2)] {
             let mut copy = consumer;
             assert_eq!(
-                copy.on_plain(at(4), &bytes(data), dlc, 1, SRVT),
+                copy.on_plain(at(14), &bytes(data), dlc, 1, SRVT),
                 Err(SrdoFaultCause::PlainRepeated),
                 "{data:#x} length {dlc}"
             );
         }
         assert_eq!(
-            consumer.on_inverted(at(5), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(15), &bytes(0xFE), 1, 1, SCT),
             Ok(InvertedOutcome::Pair {
                 plain: 1,
                 inverted: 0xFE
             })
         );
         assert_eq!(
-            consumer.on_inverted(at(6), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(16), &bytes(0xFE), 1, 1, SCT),
             Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain)),
             "a repeat of the inverted frame"
         );
-        assert_eq!(consumer.deadline(), at(50_005));
+        assert_eq!(consumer.deadline(), at(50_015));
     }
 
     #[test]
@@ -701,15 +782,129 @@ mod tests {
     fn en50325_5_7_1_1_not_inverted_data_is_refused_bit_by_bit() {
         for bit in 0..64 {
             let mut consumer = Consumer::start(at(0), SCT);
+            consumer.on_plain(at(1), &bytes(0), 8, 8, SRVT).unwrap();
+            consumer.on_inverted(at(2), &bytes(!0), 8, 8, SCT).unwrap();
             let plain = 0x0123_4567_89AB_CDEFu64;
-            consumer.on_plain(at(1), &bytes(plain), 8, 8, SRVT).unwrap();
+            consumer.on_plain(at(3), &bytes(plain), 8, 8, SRVT).unwrap();
             let wrong = !plain ^ (1 << bit);
             assert_eq!(
-                consumer.on_inverted(at(2), &bytes(wrong), 8, 8, SCT),
+                consumer.on_inverted(at(4), &bytes(wrong), 8, 8, SCT),
                 Err(SrdoFaultCause::NotInverted),
                 "bit {bit}"
             );
         }
+    }
+
+    /// CiA 304 9.5, EN 50325-5 7.1.2 and 8.2.2: before its first pair since entering
+    /// Operational, a consumer takes a plain frame with other data (or another length) for
+    /// the producer's next one: the pending frame (the ended epoch's, say, whose inverse
+    /// nobody sends) is marked invalid and replaced. SRVT still counts from the first plain
+    /// frame, so the first pair is due as early as ever; its inverse alone completes it; the
+    /// replaced frame's inverse is discarded too. Once a pair is complete, the same order is a
+    /// sequence error again.
+    #[test]
+    fn cia304_9_5_before_the_first_pair_a_plain_frame_with_other_data_replaces_the_pending_one() {
+        let mut consumer = Consumer::start(at(0), SCT);
+        consumer.on_plain(at(1_000), &bytes(1), 1, 1, SRVT).unwrap();
+        for (data, dlc) in [(0, 1), (0x0100, 2), (0, 1)] {
+            assert_eq!(
+                consumer.on_plain(at(1_500), &bytes(data), dlc, 1, SRVT),
+                Ok(PlainOutcome::Discarded(
+                    Discarded::PlainReplacedBeforeFirstPair
+                )),
+                "{data:#x} length {dlc}"
+            );
+        }
+        assert_eq!(
+            consumer.on_plain(at(1_600), &bytes(0), 1, 1, SRVT),
+            Ok(PlainOutcome::Discarded(Discarded::PlainRepeated)),
+            "an exact repeat of the frame that replaced it"
+        );
+        assert_eq!(
+            consumer.deadline(),
+            at(21_000),
+            "SRVT of the first plain frame"
+        );
+        let mut late = consumer;
+        assert_eq!(
+            late.on_inverted(at(21_000), &bytes(0xFF), 1, 1, SCT),
+            Err(SrdoFaultCause::SrvtElapsed),
+            "the first pair is due within SRVT of the first plain frame"
+        );
+        assert_eq!(
+            consumer.on_inverted(at(1_700), &bytes(0xFE), 1, 1, SCT),
+            Ok(InvertedOutcome::Discarded(
+                Discarded::InvertedNotPairedBeforeFirstPair
+            )),
+            "the replaced frame's inverse"
+        );
+        assert_eq!(
+            consumer.on_inverted(at(1_800), &bytes(0xFF), 1, 1, SCT),
+            Ok(InvertedOutcome::Pair {
+                plain: 0,
+                inverted: 0xFF
+            })
+        );
+        consumer.on_plain(at(2_000), &bytes(0), 1, 1, SRVT).unwrap();
+        assert_eq!(
+            consumer.on_plain(at(2_100), &bytes(1), 1, 1, SRVT),
+            Err(SrdoFaultCause::PlainRepeated),
+            "after the first pair"
+        );
+    }
+
+    /// EN 50325-5 7.1.1 and 7.1.2, CiA 304 9.5 (bit by bit): before the first pair an inverted
+    /// frame that is not the inverse of the pending plain frame, in any bit, is never
+    /// delivered: the plain frame stays pending, and without its inverse the SRVT event
+    /// follows at the same instant as it would without that frame, or its exact inverse
+    /// completes the pair. A frame too short is refused before the first pair as after it.
+    #[test]
+    fn en50325_5_7_1_1_before_the_first_pair_a_wrong_inverse_is_never_delivered_and_srvt_ends_it() {
+        let plain = 0x0123_4567_89AB_CDEFu64;
+        for bit in 0..64 {
+            let mut consumer = Consumer::start(at(0), SCT);
+            consumer.on_plain(at(1), &bytes(plain), 8, 8, SRVT).unwrap();
+            let wrong = !plain ^ (1 << bit);
+            assert_eq!(
+                consumer.on_inverted(at(2), &bytes(wrong), 8, 8, SCT),
+                Ok(InvertedOutcome::Discarded(
+                    Discarded::InvertedNotPairedBeforeFirstPair
+                )),
+                "bit {bit}"
+            );
+            assert_eq!(consumer.check_timers(at(20_000)), Ok(()), "bit {bit}");
+            let mut late = consumer;
+            assert_eq!(
+                late.check_timers(at(20_001)),
+                Err(SrdoFaultCause::SrvtElapsed),
+                "bit {bit}"
+            );
+            assert_eq!(
+                late.on_inverted(at(20_001), &bytes(!plain), 8, 8, SCT),
+                Err(SrdoFaultCause::SrvtElapsed),
+                "bit {bit}"
+            );
+            assert_eq!(
+                consumer.on_inverted(at(3), &bytes(!plain), 8, 8, SCT),
+                Ok(InvertedOutcome::Pair {
+                    plain,
+                    inverted: !plain
+                }),
+                "bit {bit}"
+            );
+        }
+        let mut consumer = Consumer::start(at(0), SCT);
+        consumer
+            .on_plain(at(1), &bytes(0x0201), 2, 2, SRVT)
+            .unwrap();
+        assert_eq!(
+            consumer.on_plain(at(2), &bytes(0x03), 1, 2, SRVT),
+            Err(SrdoFaultCause::TooShort)
+        );
+        assert_eq!(
+            consumer.on_inverted(at(3), &bytes(0xFE), 1, 2, SCT),
+            Err(SrdoFaultCause::TooShort)
+        );
     }
 
     #[test]
