@@ -1031,41 +1031,68 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
         "interop 7: python-can, python-canopen and safety-config on the shipped images' \
          emulated network (emulate-network --socketcand, no QEMU)",
     );
-    let cross = crate::toolchain::ensure()?;
-    crate::toolchain::ensure_emulator_build_deps()?;
-    let protocol = network::Protocol::CanopenSafety;
-    let layer = protocol.hardware_layer();
-    crate::images::build_layer(root, &cross, layer)?;
-    let emulate = crate::emulate::build_emulate_network(root)?;
     crate::run(
         crate::cargo()
             .current_dir(root)
             .args(["build", "--quiet", "-p", "safety-config"]),
     )?;
-    let dir = root.join("target/interop/emulated-network");
-    std::fs::create_dir_all(&dir)?;
-    let file = dir.join("network.toml");
-    std::fs::write(&file, protocol.network_file())?;
-    let log_path = dir.join("emulate-network.log");
-    let log = std::fs::File::create(&log_path)?;
-    let port = free_port()?;
-    let address = format!("127.0.0.1:{port}");
-    let mut emulator = Guarded::spawn(
-        Command::new(emulate)
-            .arg(crate::images::image(&cross, root, layer, "a"))
-            .arg(crate::images::image(&cross, root, layer, "b"))
-            .args(["--inputs-closed", "--quiet", "--socketcand", &address])
-            .stdout(log.try_clone()?)
-            .stderr(log),
-    )
-    .context("starting emulate-network")?;
-    let result = emulated_network_checks(root, python, &address, &file);
-    emulator.end();
+    let mut served = ShippedNetwork::serve(root, "emulated-network", &["--inputs-closed"])?;
+    let file = served.dir.join("network.toml");
+    std::fs::write(&file, network::Protocol::CanopenSafety.network_file())?;
+    let result = emulated_network_checks(root, python, &served.address, &file);
+    served.emulator.end();
+    let log_path = served.log;
     let log = std::fs::read_to_string(&log_path).unwrap_or_default();
     if let Some(line) = log.lines().rev().find(|line| line.contains("socketcand:")) {
         println!("xtask: interop 7: {line}");
     }
     result.with_context(|| format!("the emulator's output is in {}", log_path.display()))
+}
+
+/// The shipped CANopen Safety images on the emulator's network, serving socketcand
+/// (`emulate-network --socketcand`), as parts 6 and 7 run them.
+struct ShippedNetwork {
+    /// The running emulator; ended on drop.
+    emulator: Guarded,
+    /// Its socketcand address (`127.0.0.1:PORT`).
+    address: String,
+    /// The part's directory under `target/interop/`.
+    dir: PathBuf,
+    /// The emulator's output.
+    log: PathBuf,
+}
+
+impl ShippedNetwork {
+    /// Builds the shipped images and `emulate-network`, and starts it with `arguments` (the
+    /// nodes, the contacts) on a free port, its output in `target/interop/NAME/`.
+    fn serve(root: &Path, name: &str, arguments: &[&str]) -> Result<ShippedNetwork> {
+        let cross = crate::toolchain::ensure()?;
+        crate::toolchain::ensure_emulator_build_deps()?;
+        let layer = network::Protocol::CanopenSafety.hardware_layer();
+        crate::images::build_layer(root, &cross, layer)?;
+        let emulate = crate::emulate::build_emulate_network(root)?;
+        let dir = root.join("target/interop").join(name);
+        std::fs::create_dir_all(&dir)?;
+        let log = dir.join("emulate-network.log");
+        let output = std::fs::File::create(&log)?;
+        let address = format!("127.0.0.1:{}", free_port()?);
+        let emulator = Guarded::spawn(
+            Command::new(emulate)
+                .arg(crate::images::image(&cross, root, layer, "a"))
+                .arg(crate::images::image(&cross, root, layer, "b"))
+                .args(arguments)
+                .args(["--quiet", "--socketcand", &address])
+                .stdout(output.try_clone()?)
+                .stderr(output),
+        )
+        .context("starting emulate-network")?;
+        Ok(ShippedNetwork {
+            emulator,
+            address,
+            dir,
+            log,
+        })
+    }
 }
 
 /// Part 7's steps against the emulated network serving socketcand at `address`.

@@ -143,37 +143,22 @@ pub fn check(root: &Path, python: &Path) -> Result<()> {
         "interop 6: python-canopen's LSS master (fast scan, configure node-ID, store) on the \
          shipped images of an unconfigured node (switches open) on the emulated network",
     );
-    let cross = crate::toolchain::ensure()?;
-    crate::toolchain::ensure_emulator_build_deps()?;
-    let layer = crate::network::Protocol::CanopenSafety.hardware_layer();
-    crate::images::build_layer(root, &cross, layer)?;
-    let emulate = crate::emulate::build_emulate_network(root)?;
-    let dir = root.join("target/interop/lss");
-    std::fs::create_dir_all(&dir)?;
-    let log_path = dir.join("emulate-network.log");
-    let log = std::fs::File::create(&log_path)?;
-    let port = free_port()?;
-    let address = format!("127.0.0.1:{port}");
-    let mut emulator = Guarded::spawn(
-        Command::new(emulate)
-            .arg(crate::images::image(&cross, root, layer, "a"))
-            .arg(crate::images::image(&cross, root, layer, "b"))
-            .args(["--nodes", "0", "--quiet", "--socketcand", &address])
-            .stdout(log.try_clone()?)
-            .stderr(log),
-    )
-    .context("starting emulate-network")?;
+    let mut served = super::ShippedNetwork::serve(root, "lss", &["--nodes", "0"])?;
     let give_up = std::time::Instant::now() + Duration::from_secs(60);
-    while SocketcandClient::connect(&address, "can0").is_err() {
+    while SocketcandClient::connect(&served.address, "can0").is_err() {
         if std::time::Instant::now() >= give_up {
-            emulator.end();
-            bail!("emulate-network did not listen on {address} within 60 s");
+            served.emulator.end();
+            bail!(
+                "emulate-network did not listen on {} within 60 s",
+                served.address
+            );
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    let result = check_at(root, python, &address);
-    emulator.end();
-    result.with_context(|| format!("the emulator's output is in {}", log_path.display()))
+    let result = check_at(root, python, &served.address);
+    served.emulator.end();
+    let log = served.log;
+    result.with_context(|| format!("the emulator's output is in {}", log.display()))
 }
 
 /// [`check`]'s steps against the server at `address`.
