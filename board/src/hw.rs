@@ -67,6 +67,14 @@ bind_interrupts!(struct Irqs {
 
 /// CAN bit rate (CiA 301 Table 1): the device description's.
 pub const BIT_RATE: u32 = safety_device::BIT_RATE;
+
+/// The bit rates LSS may configure on this image (CiA 305).
+#[cfg(not(feature = "simplecan"))]
+const LSS_BIT_RATES: shared::canopen::lss::BitRates = safety_device::LSS_BIT_RATES;
+/// The bit rates LSS may configure on this image (CiA 305): SimpleCAN's slots need 500 kbit/s
+/// or more.
+#[cfg(feature = "simplecan")]
+const LSS_BIT_RATES: shared::canopen::lss::BitRates = safety_device::SIMPLECAN_LSS_BIT_RATES;
 /// Link heartbeat period: five per SCT of 50 ms.
 pub const LINK_PERIOD: Duration = Duration::from_millis(10);
 /// Link USART baud rate: the device description's.
@@ -389,6 +397,18 @@ impl Driver for HwDriver<'_> {
         }
     }
 
+    fn switch_bit_rate(&mut self, rate: shared::canopen::lss::BitRate) {
+        // Every rate LSS may make pending was checked at start-up to have a timing.
+        let Some(timing) = can_timing(rate) else {
+            halt_safe("no CAN bit timing for the bit rate LSS activated");
+        };
+        self.can.switch_bit_rate(timing);
+        defmt::info!(
+            "CAN switched to {=u32} bit/s (LSS activate bit timing)",
+            rate.bits_per_second().unwrap_or(0)
+        );
+    }
+
     fn link_deaf(&mut self) -> bool {
         LINK_DEAF.swap(false, Ordering::Relaxed)
     }
@@ -518,20 +538,6 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     };
     drop(switch_pins);
 
-    // `Can::set_bitrate` unwraps the timing calculation, which links the `Debug` formatting of
-    // its error into the image (`docs/footprint.md`); the same calculation, refused by name.
-    let clock = embassy_stm32::rcc::frequency::<embassy_stm32::peripherals::CAN1>();
-    let Ok(timing) = embassy_stm32::can::util::calc_can_timings(clock, BIT_RATE) else {
-        halt_safe("no CAN bit timing for 500 kbit/s from the APB1 clock");
-    };
-    let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
-    // Kept for as long as the loop runs: the link's pins stay set up while it lives.
-    let Some(_link) = link_usart::set_up(p.USART3, p.PB11, p.PB10, LINK_BAUD) else {
-        halt_safe("link USART configuration refused");
-    };
-    let _ = Irqs;
-    link_usart::start();
-
     // Without switches the description's default stands in until LSS sets the node-ID in
     // force (`Runtime::enable_lss`): the node sends nothing but LSS answers until it has one.
     let config = (device.describe)(switches.unwrap_or(device.default_id));
@@ -552,9 +558,40 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // The other channel may be erasing ahead while this one was not, or for longer.
     runtime.allow_longer_start_up(ERASE_AHEAD_LONGEST);
     runtime.restore_parameters();
-    if !runtime.enable_lss(switches, safety_device::LSS_BIT_RATES) {
+    if !runtime.enable_lss(switches, LSS_BIT_RATES) {
         halt_safe("LSS not enabled before the first poll");
     }
+    // Every rate LSS may configure has a timing from this clock, or the node does not start:
+    // a switch to a rate without one would leave it on no rate at all.
+    let untimed = shared::canopen::lss::BitRate::ALL
+        .into_iter()
+        .filter(|&rate| LSS_BIT_RATES.contains(rate))
+        .any(|rate| can_timing(rate).is_none());
+    if untimed {
+        halt_safe("an LSS bit rate has no CAN bit timing from the APB1 clock");
+    }
+    // The CAN controller starts at the bit rate LSS stored (CiA 305 store configuration),
+    // else at the hardware's.
+    let start_rate = runtime
+        .lss_settings()
+        .bit_rate
+        .unwrap_or(safety_device::BIT_RATE_ENTRY);
+    let Some(timing) = can_timing(start_rate) else {
+        halt_safe("no CAN bit timing for the start-up bit rate from the APB1 clock");
+    };
+    if start_rate != safety_device::BIT_RATE_ENTRY {
+        defmt::info!(
+            "CAN at {=u32} bit/s, the bit rate LSS stored",
+            start_rate.bits_per_second().unwrap_or(0)
+        );
+    }
+    let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
+    // Kept for as long as the loop runs: the link's pins stay set up while it lives.
+    let Some(_link) = link_usart::set_up(p.USART3, p.PB11, p.PB10, LINK_BAUD) else {
+        halt_safe("link USART configuration refused");
+    };
+    let _ = Irqs;
+    link_usart::start();
     let mut channel = ChannelLoop::new(device.pins);
     let mut driver = HwDriver {
         can,
@@ -577,6 +614,17 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
         )
         .await;
     }
+}
+
+/// The CAN bit timing of `rate` from CAN1's clock (APB1), `None` where there is none (a rate
+/// the clock does not divide into, automatic detection). embassy's calculation, called here
+/// rather than through `Can::set_bitrate`, which unwraps it and so links the `Debug`
+/// formatting of its error into the image (`docs/footprint.md`).
+fn can_timing(
+    rate: shared::canopen::lss::BitRate,
+) -> Option<embassy_stm32::can::util::NominalBitTiming> {
+    let clock = embassy_stm32::rcc::frequency::<embassy_stm32::peripherals::CAN1>();
+    embassy_stm32::can::util::calc_can_timings(clock, rate.bits_per_second()?).ok()
 }
 
 /// The start-up's housekeeping of the parameter slots ([`storage::erase_ahead`]): erases the

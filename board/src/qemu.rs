@@ -610,7 +610,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // The node-ID in use (`node=N`, else the build's) stands for set switches, which win
     // over LSS (CiA 305): a QEMU node answers LSS but keeps its node-ID. The emulated
     // STM32F405 runs the hardware images, whose switches may be all open.
-    if !runtime.enable_lss(Some(id), safety_device::LSS_BIT_RATES) {
+    if !runtime.enable_lss(Some(id), safety_device::LSS_OWN_BIT_RATE_ONLY) {
         defmt::error!("LSS not enabled before the first poll");
         exit(false);
     }

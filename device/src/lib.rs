@@ -83,21 +83,50 @@ pub const SRDO_COUNT: usize = 4;
 /// The CAN bit rate of the hardware (CiA 301 Table 1; the EDS's `BaudRate_500`).
 pub const BIT_RATE: u32 = 500_000;
 
-/// The bit rates LSS may configure on the boards (CiA 305 configure bit timing, Fig. 34):
-/// the hardware's own only. The boards do not reprogram the CAN controller's bit timing while
-/// running, so configure bit timing to any other rate of the table is refused with error
-/// code 1 (CiA 305: bit timing not supported) and changes nothing; activate bit timing then
-/// keeps the bus's rate.
-pub const LSS_BIT_RATES: shared::canopen::lss::BitRates =
-    shared::canopen::lss::BitRates::of(&[shared::canopen::lss::BitRate::Kbit500]);
+/// [`BIT_RATE`] as its entry of CiA 301's bit-timing table (CiA 305's index).
+pub const BIT_RATE_ENTRY: shared::canopen::lss::BitRate = shared::canopen::lss::BitRate::Kbit500;
 
-// The one rate LSS may configure is the hardware's.
+/// The bit rates LSS may configure on the hardware (CiA 305 configure bit timing, Fig. 34):
+/// every rate of CiA 301's table that the CAN clock (APB1, 42 MHz) divides into exactly, with
+/// the time quanta and sample point the board's bit-timing calculation gives, which the
+/// hardware image checks for each of them at start-up (it halts in the safe state if one has
+/// none). Not 800 kbit/s: 42 MHz divides into no whole number of quanta of it, so configure
+/// bit timing to it is refused with error code 1 (CiA 305: bit timing not supported) and
+/// changes nothing; nor automatic bit rate detection. Activate bit timing switches both
+/// channels' controllers after the switch delay (the channel loop's `Driver::switch_bit_rate`).
+pub const LSS_BIT_RATES: shared::canopen::lss::BitRates = {
+    use shared::canopen::lss::BitRate;
+    shared::canopen::lss::BitRates::of(&[
+        BitRate::Kbit1000,
+        BitRate::Kbit500,
+        BitRate::Kbit250,
+        BitRate::Kbit125,
+        BitRate::Kbit50,
+        BitRate::Kbit20,
+        BitRate::Kbit10,
+    ])
+};
+
+/// The bit rates LSS may configure on the hardware with SimpleCAN: those of
+/// [`LSS_BIT_RATES`] at which a SimpleCAN packet fits its slot in the worst case, 500 kbit/s
+/// and above (`docs/simplecan.md`, section 5).
+pub const SIMPLECAN_LSS_BIT_RATES: shared::canopen::lss::BitRates = {
+    use shared::canopen::lss::BitRate;
+    shared::canopen::lss::BitRates::of(&[BitRate::Kbit1000, BitRate::Kbit500])
+};
+
+/// The bit rates LSS may configure on a board whose CAN has no bit time to switch (the QEMU
+/// board's CAN over a serial line): the one it runs at.
+pub const LSS_OWN_BIT_RATE_ONLY: shared::canopen::lss::BitRates =
+    shared::canopen::lss::BitRates::of(&[BIT_RATE_ENTRY]);
+
+// The rate the hardware starts at is one LSS may configure, and the one rate of a board that
+// cannot switch is the hardware's.
 const _: () = assert!(
-    matches!(
-        shared::canopen::lss::BitRate::Kbit500.bits_per_second(),
-        Some(BIT_RATE)
-    ),
-    "LSS_BIT_RATES names another rate than BIT_RATE"
+    matches!(BIT_RATE_ENTRY.bits_per_second(), Some(BIT_RATE))
+        && LSS_BIT_RATES.contains(BIT_RATE_ENTRY)
+        && SIMPLECAN_LSS_BIT_RATES.contains(BIT_RATE_ENTRY),
+    "BIT_RATE_ENTRY is not BIT_RATE, or LSS_BIT_RATES does not hold it"
 );
 
 /// The device name (0x1008) channel A's image reports; channel A answers SDO for the node.

@@ -34,9 +34,11 @@
 
 use crate::filters::AcceptanceList;
 use crate::runtime::{ChannelEvent, ChannelProtocol, Io, Role, Runtime};
+use shared::canopen::lss::{BitRate, LssEvent};
 use shared::canopen::nmt::NmtState;
 use shared::canopen::od::Address;
 use shared::canopen::storage::Flash;
+use shared::node::Event;
 use shared::safety::config::SrdoRecord;
 use shared::safety::types::{Direction, SrdoNumber};
 use shared::{CanFrame, Instant};
@@ -96,6 +98,14 @@ pub trait Driver {
     fn set_output(&mut self, pin: usize, level: bool);
     /// Reports `event` (log, diagnostics).
     fn event(&mut self, event: &ChannelEvent);
+    /// Switches the CAN controller to `rate` now: LSS activate bit timing, after its first
+    /// switch delay, while the node is silent (CiA 305 Fig. 35; `shared::canopen::lss`, rule
+    /// 4). Called only with a rate of the set the board enabled LSS with
+    /// ([`Runtime::enable_lss`]). The default switches nothing: a board that enables only the
+    /// rate it runs at is never asked for another.
+    fn switch_bit_rate(&mut self, rate: BitRate) {
+        let _ = rate;
+    }
     /// `true`, once, when the processor could not receive link bytes for a while since the
     /// last call (a flash program held it: a store of the parameters); the loop then tells
     /// the runtime ([`Runtime::link_was_deaf`]). The default: never (a board whose link
@@ -160,6 +170,9 @@ impl<D: Driver> Io for DriverIo<'_, D> {
     }
     fn event(&mut self, event: ChannelEvent) {
         self.driver.event(&event);
+        if let ChannelEvent::Node(Event::Lss(LssEvent::SwitchBitRate(rate))) = event {
+            self.driver.switch_bit_rate(rate);
+        }
     }
     #[cfg(feature = "simplecan")]
     fn simplecan_output(&mut self, _: u8, _: u32) {

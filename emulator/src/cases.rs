@@ -251,7 +251,7 @@ fn run_until_event(
 pub(crate) fn event_time(event: &Event) -> Nanos {
     match event {
         Event::Frame { at, .. } | Event::Output { at, .. } | Event::Refused { at, .. } => *at,
-        Event::Stopped { at, .. } | Event::Reset { at, .. } => *at,
+        Event::Stopped { at, .. } | Event::Reset { at, .. } | Event::BitRate { at, .. } => *at,
     }
 }
 

@@ -16,6 +16,20 @@
 //! requests within one round on an idle bus: they arbitrate together, by identifier, as if
 //! made at the first one's instant.
 //!
+//! # Bit rate
+//! The bus runs at one bit rate. A controller whose bit time (RM0090 32.7.7, from its BTR and
+//! PCLK1) differs from the bus's by more than the oscillator tolerance CAN allows
+//! ([`BIT_RATE_TOLERANCE`]) is out of step: it receives no frame (each counts as a receive
+//! error, RM0090 32.7.6), and a frame it sends is acknowledged by nobody (a transmit error
+//! each time) and never reaches the bus. The error flags such a controller drives on a real
+//! bus, which destroy the others' frames until it is error passive, are not modelled.
+//! The bus changes its rate as an LSS master makes every device on it change (CiA 305
+//! Fig. 34 and 35): the master's configure bit timing names the rate, its activate bit timing
+//! switches the master and every participant that is not an emulated MCU (the tools) to it
+//! after the switch delay; an emulated MCU follows only if its own firmware reprograms its
+//! controller. An activate bit timing after a rate the table does not name, or with none
+//! configured, changes nothing.
+//!
 //! # Determinism
 //! The MCUs run in a fixed order, the bus is the hub's deterministic model, every event is
 //! ordered by time and then by MCU: the same images, inputs and faults give the same trace.
@@ -33,6 +47,20 @@ use crate::time::Nanos;
 
 /// One round of the lockstep, by default: one word on the link at 1 Mbit/s (10 bit times).
 pub const DEFAULT_QUANTUM: Nanos = 10_000;
+
+/// How far a controller's bit time may be from the bus's and still take part: the oscillator
+/// tolerance of ISO 11898-1 (1.58 %), in parts per ten thousand.
+pub const BIT_RATE_TOLERANCE: u64 = 158;
+
+/// The bits over which a controller's bit time is compared with the bus's.
+const STEP_BITS: u64 = 10_000;
+
+/// `true` when a controller whose `bits` bits last `duration` keeps step with a bus at
+/// `bit_rate` ([`BIT_RATE_TOLERANCE`]).
+fn in_step(duration: Nanos, bits: u64, bit_rate: u32) -> bool {
+    let bus = bits * 1_000_000_000 / u64::from(bit_rate.max(1));
+    duration.abs_diff(bus) * 10_000 <= bus * BIT_RATE_TOLERANCE
+}
 
 /// The node-ID switches: PC2 (bit 0) to PC8 (bit 6), closed = driven high (`board::hw`).
 const NODE_ID_PINS: usize = 2;
@@ -96,6 +124,15 @@ pub enum Event {
         stop: Stop,
         /// When.
         at: Nanos,
+    },
+    /// The bus changed its bit rate: the LSS master's activate bit timing (CiA 305 Fig. 35)
+    /// took effect for the master and every participant that is not an emulated MCU
+    /// ([`Network`]'s bit-rate model).
+    BitRate {
+        /// When: the switch delay after the request ended on the bus.
+        at: Nanos,
+        /// The new bit rate.
+        bit_rate: u32,
     },
     /// An MCU's CAN controller put a frame on the bus that the bus model cannot carry (an
     /// extended identifier): the bus carries only CAN 2.0A frames. The frame is ended with
@@ -177,6 +214,10 @@ pub struct Network {
     /// `None` once the participant left ([`Network::leave_external`]).
     inboxes: Vec<Option<std::collections::VecDeque<Delivery>>>,
     events: Vec<Event>,
+    /// The bit rate the LSS master last configured (configure bit timing), in bit/s.
+    master_rate: Option<u32>,
+    /// The bus's switch to a new bit rate, when the master activated it: (when, bit/s).
+    rate_switch: Option<(Nanos, u32)>,
 }
 
 fn instant(at: Nanos) -> Instant {
@@ -260,6 +301,8 @@ impl Network {
             externals: Vec::new(),
             inboxes: Vec::new(),
             events: Vec::new(),
+            master_rate: None,
+            rate_switch: None,
         })
     }
 
@@ -556,6 +599,7 @@ impl Network {
         self.links();
         self.conclude_transmissions();
         self.deliver();
+        self.switch_bit_rate();
         self.arbitrate();
     }
 
@@ -599,6 +643,48 @@ impl Network {
         }
     }
 
+    /// The bus's part of CiA 305 Fig. 34 and 35: `frame`, ended at `at`, is an LSS request
+    /// that configures or activates a bit rate for the master and the tools.
+    fn follow_lss_master(&mut self, frame: &CanFrame, at: Nanos) {
+        use shared::canopen::lss::{BitRate, MASTER_TO_SLAVE, specifier};
+        if frame.id() != MASTER_TO_SLAVE || frame.data().len() != 8 {
+            return;
+        }
+        let data = frame.data();
+        match data[0] {
+            specifier::CONFIGURE_BIT_TIMING => {
+                self.master_rate = (data[1] == 0)
+                    .then(|| BitRate::from_index(data[2]).and_then(BitRate::bits_per_second))
+                    .flatten();
+            }
+            specifier::ACTIVATE_BIT_TIMING => {
+                if let Some(rate) = self.master_rate {
+                    let delay = u64::from(u16::from_le_bytes([data[1], data[2]]));
+                    self.rate_switch = Some((at + delay * 1_000_000, rate));
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// The bus takes the rate the master activated, once its switch delay has passed.
+    fn switch_bit_rate(&mut self) {
+        let Some((at, bit_rate)) = self.rate_switch else {
+            return;
+        };
+        if at > self.now {
+            return;
+        }
+        self.rate_switch = None;
+        self.bus.set_bit_rate(bit_rate);
+        self.events.push(Event::BitRate { at, bit_rate });
+    }
+
+    /// The bus's bit rate now.
+    pub fn bit_rate(&self) -> u32 {
+        self.bus.bit_rate()
+    }
+
     /// Frames that reached their receivers by now.
     fn deliver(&mut self) {
         let now = instant(self.now);
@@ -611,12 +697,22 @@ impl Network {
                 from: self.participant_name(delivery.from),
                 frame: delivery.frame,
             });
+            self.follow_lss_master(&delivery.frame, at);
             let frame = from_bus(&delivery.frame);
+            let bit_rate = self.bus.bit_rate();
             for (index, mcu) in self.mcus.iter_mut().enumerate() {
                 if index == delivery.from || mcu.stopped {
                     continue;
                 }
-                mcu.machine.can().borrow_mut().deliver(&frame, at);
+                {
+                    let can = mcu.machine.can();
+                    let mut can = can.borrow_mut();
+                    if in_step(can.bits_duration(STEP_BITS), STEP_BITS, bit_rate) {
+                        can.deliver(&frame, at);
+                    } else {
+                        can.receive_error(BusError::Form, at);
+                    }
+                }
                 mcu.machine.can_changed();
             }
             for (external, inbox) in self.inboxes.iter_mut().enumerate() {
@@ -651,6 +747,21 @@ impl Network {
                 continue;
             };
             let since = mcu.offering_since.unwrap_or(self.now);
+            let out_of_step = {
+                let can = mcu.machine.can();
+                let can = can.borrow();
+                (!in_step(can.bits_duration(STEP_BITS), STEP_BITS, self.bus.bit_rate()))
+                    .then(|| can.frame_duration(&offer))
+            };
+            if let Some(duration) = out_of_step {
+                // Nobody on the bus reads its bits: no acknowledgement, and its frame is not
+                // the bus's (see the module's "Bit rate").
+                let start = since.max(self.now);
+                mcu.machine.can().borrow_mut().start_transmission(start);
+                mcu.transmitting = Some((start + duration, Conclusion::NotAcknowledged));
+                mcu.offering_since = None;
+                continue;
+            }
             earliest = Some(earliest.map_or(since, |e| e.min(since)));
             match to_bus(&offer) {
                 Some(frame) => {

@@ -346,6 +346,12 @@ impl Bus {
         self.bit_rate
     }
 
+    /// Changes the bit rate for the frames that start from now on (an LSS activate bit
+    /// timing, CiA 305 Fig. 35); a frame on the bus keeps the time it was given.
+    pub fn set_bit_rate(&mut self, bit_rate: u32) {
+        self.bit_rate = bit_rate;
+    }
+
     /// Participant `from` wants to send `frame` (queued in order, like a transmit FIFO, or by
     /// identifier: [`Bus::set_transmit_mailboxes`]). A
     /// participant not seen before joins the bus. For the host simulation, whose senders are

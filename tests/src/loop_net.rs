@@ -23,6 +23,7 @@ use dual_channel::runtime::{ChannelEvent, ChannelProtocol, Runtime};
 use safety_config::ToolError;
 use safety_config::network_file;
 use safety_config::procedure::{self, Quiet};
+use shared::canopen::lss::BitRate;
 use shared::canopen::nmt::{self, NmtCommand, NmtState};
 use shared::canopen::storage::RamFlash;
 use shared::node::{SrdoAndSimpleCan, SrdoTable};
@@ -91,6 +92,9 @@ pub struct SimDriver {
     pub readings: Vec<(Instant, Instant, bool)>,
     /// Every frame the loop handed to the controller, and when.
     pub handed: Vec<(Instant, CanFrame)>,
+    /// Every bit-rate switch the loop asked of the controller ([`Driver::switch_bit_rate`]),
+    /// and when. The bus model runs at one rate: the log is what a test checks.
+    pub switched: Vec<(Instant, BitRate)>,
 }
 
 impl SimDriver {
@@ -118,6 +122,7 @@ impl SimDriver {
             output_changes: Vec::new(),
             readings: Vec::new(),
             handed: Vec::new(),
+            switched: Vec::new(),
         }
     }
 
@@ -219,6 +224,9 @@ impl Driver for SimDriver {
     }
     fn event(&mut self, event: &ChannelEvent) {
         self.events.push((self.now, *event));
+    }
+    fn switch_bit_rate(&mut self, rate: BitRate) {
+        self.switched.push((self.now, rate));
     }
     fn transmitted(&mut self) -> Option<CanFrame> {
         self.confirmed.pop_front()

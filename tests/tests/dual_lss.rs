@@ -196,3 +196,85 @@ fn cia305_configure_starts_with_lss_when_the_network_file_asks_for_it() {
     net.run_for(Duration::from_millis(100));
     assert_eq!(faults(&net), [], "no mismatch between the channels");
 }
+
+/// CiA 305 Fig. 34 and 35 on the boards' own loop (`ChannelLoop` over a simulated bxCAN):
+/// configure bit timing to a rate the hardware cannot make is refused with error code 1 by
+/// channel A alone; to one it can, accepted; activate bit timing then has both channels'
+/// loops switch their controllers once, after the switch delay, and the node sends nothing
+/// for twice the delay around the switch (rule 4).
+#[test]
+fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the_delay() {
+    use shared::CanFrame;
+    use system_tests::loop_net::{Filtering, LoopNetwork};
+    let mut net: LoopNetwork = LoopNetwork::new(500_000, &[5], Filtering::Banks);
+    {
+        let node = net.node_mut(5);
+        let five = NodeId::new(5).ok();
+        assert!(node.a.enable_lss(five, safety_device::LSS_BIT_RATES));
+        assert!(node.b.enable_lss(five, safety_device::LSS_BIT_RATES));
+    }
+    net.run_for(Duration::from_millis(100));
+    let request = |data: [u8; 8]| CanFrame::new(MASTER_TO_SLAVE, &data).expect("8 bytes");
+    let answers = |net: &LoopNetwork, since: Instant| -> Vec<(Vec<u8>, usize)> {
+        net.trace
+            .iter()
+            .filter(|(at, frame, _)| *at >= since && frame.id() == SLAVE_TO_MASTER)
+            .map(|(_, frame, from)| (frame.data().to_vec(), *from))
+            .collect()
+    };
+    let start = net.now;
+    // Switch state global: configuration; configure bit timing 800 kbit/s, then 250 kbit/s.
+    net.bus.send(0, request([0x04, 1, 0, 0, 0, 0, 0, 0]));
+    net.run_for(Duration::from_millis(10));
+    net.bus.send(
+        0,
+        request([0x13, 0, BitRate::Kbit800.index(), 0, 0, 0, 0, 0]),
+    );
+    net.run_for(Duration::from_millis(10));
+    net.bus.send(
+        0,
+        request([0x13, 0, BitRate::Kbit250.index(), 0, 0, 0, 0, 0]),
+    );
+    net.run_for(Duration::from_millis(10));
+    assert_eq!(
+        answers(&net, start),
+        [
+            (vec![0x13, 1, 0, 0, 0, 0, 0, 0], 1),
+            (vec![0x13, 0, 0, 0, 0, 0, 0, 0], 1)
+        ],
+        "800 kbit/s refused (error code 1), 250 kbit/s accepted, by channel A alone"
+    );
+    // Activate bit timing, switch delay 100 ms.
+    net.bus.send(0, request([0x15, 100, 0, 0, 0, 0, 0, 0]));
+    net.run_for(Duration::from_millis(400));
+    let activated = net
+        .trace
+        .iter()
+        .find(|(_, frame, _)| frame.id() == MASTER_TO_SLAVE && frame.data()[0] == 0x15)
+        .map(|(at, _, _)| *at)
+        .expect("the activate request on the bus");
+    let delay = Duration::from_millis(100);
+    for (side, driver) in net.node(5).drivers.iter().enumerate() {
+        let [(at, rate)] = driver.switched[..] else {
+            panic!("channel {side}: {:?}", driver.switched);
+        };
+        assert_eq!(rate, BitRate::Kbit250, "channel {side}");
+        assert!(
+            at >= activated + delay && at < activated + delay + Duration::from_millis(2),
+            "channel {side} switched at {at:?}, the delay after {activated:?}"
+        );
+    }
+    let node_sent = |frame: &CanFrame| frame.id() != MASTER_TO_SLAVE;
+    assert!(
+        !net.trace.iter().any(|(at, frame, _)| *at > activated
+            && *at < activated + delay + delay
+            && node_sent(frame)),
+        "the node is silent for twice the switch delay"
+    );
+    assert_eq!(
+        net.node(5).a.lss_settings().bit_rate,
+        Some(BitRate::Kbit250)
+    );
+    assert_eq!(net.node(5).a.lss_settings(), net.node(5).b.lss_settings());
+    assert!(net.node(5).a.fault().is_none() && net.node(5).b.fault().is_none());
+}

@@ -455,7 +455,13 @@ pub struct Commissioning<'a> {
 
 /// The DCF of a node whose dictionary is `objects` (`procedure::dictionary_of`).
 pub fn dcf(objects: &[Object], commissioning: &Commissioning<'_>) -> String {
-    render_objects(objects, "safety-node.eds", "eds", Some(commissioning))
+    render_objects(
+        objects,
+        "safety-node.eds",
+        "eds",
+        Some(commissioning),
+        safety_device::LSS_BIT_RATES,
+    )
 }
 
 /// The dictionary of a device that serves SimpleCAN with `entries` SDD entries beside `srdos`
@@ -491,6 +497,7 @@ pub fn simplecan_eds(entries: u8, srdos: u8) -> Option<String> {
         "safety-node-simplecan.eds",
         &format!("eds --simplecan {entries} --srdos {srdos}"),
         None,
+        safety_device::SIMPLECAN_LSS_BIT_RATES,
     ))
 }
 
@@ -500,12 +507,14 @@ pub fn simplecan_eds(entries: u8, srdos: u8) -> Option<String> {
 pub const SIMPLECAN_IMAGES: (u8, u8) = (2, 0);
 
 /// The EDS (or with `commissioning` the DCF) of `objects`, named `eds_name`, which the
-/// tool's command `regenerate` prints.
+/// tool's command `regenerate` prints, for a device that runs at the `bit_rates` LSS may
+/// configure (its `BaudRate_` entries, CiA 306).
 fn render_objects(
     objects: &[Object],
     eds_name: &str,
     regenerate: &str,
     commissioning: Option<&Commissioning<'_>>,
+    bit_rates: shared::canopen::lss::BitRates,
 ) -> String {
     use safety_device as device;
     let description = description();
@@ -524,7 +533,7 @@ fn render_objects(
          CreatedBy=safety-config {}\n\n",
         env!("CARGO_PKG_VERSION")
     );
-    let bit_rates = [10, 20, 50, 125, 250, 500, 800, 1000];
+    let rates_kbit = [10, 20, 50, 125, 250, 500, 800, 1000];
     let _ = writeln!(
         text,
         "[DeviceInfo]\nVendorName=Dual-channel safety node project\nVendorNumber=0x{:08X}\n\
@@ -532,8 +541,11 @@ fn render_objects(
          RevisionNumber=0x{:08X}\nOrderCode=safety-node",
         description.identity[0], description.identity[1], description.identity[2]
     );
-    for rate in bit_rates {
-        let supported = u32::from(rate * 1000 == device::BIT_RATE);
+    // The rates LSS may configure are the device's (CiA 306: BaudRate_x supported).
+    for rate in rates_kbit {
+        let supported = u32::from(shared::canopen::lss::BitRate::ALL.into_iter().any(|entry| {
+            entry.bits_per_second() == Some(rate * 1000) && bit_rates.contains(entry)
+        }));
         let _ = writeln!(text, "BaudRate_{rate}={supported}");
     }
     let _ = write!(
@@ -615,7 +627,13 @@ fn render_objects(
 
 /// The CANopen Safety node's EDS (CiA 306 4.0 syntax).
 pub fn eds() -> String {
-    render_objects(&objects(), "safety-node.eds", "eds", None)
+    render_objects(
+        &objects(),
+        "safety-node.eds",
+        "eds",
+        None,
+        safety_device::LSS_BIT_RATES,
+    )
 }
 
 /// The text a DCF gives a value of `entry` read as `bytes` (little-endian integers as

@@ -162,6 +162,22 @@ impl CanPort {
         }
     }
 
+    /// Switches the controller to `timing` (CiA 305 activate bit timing, in the node's
+    /// silence after the first switch delay): bxcan enters initialisation mode, writes BTR
+    /// (RM0090 32.9.2) and leaves it when the configuration is dropped.
+    pub fn switch_bit_rate(&mut self, timing: embassy_stm32::can::util::NominalBitTiming) {
+        let timing = BitTiming {
+            prescaler: timing.prescaler.get(),
+            seg1: timing.seg1.get(),
+            seg2: timing.seg2.get(),
+            sync_jump_width: timing.sync_jump_width.get(),
+        };
+        let Ok(btr) = timing.register() else {
+            halt_safe("CAN bit timing outside the bxCAN's fields");
+        };
+        drop(self.can.modify_config().set_bit_timing(btr));
+    }
+
     /// Queues `frame` and fills the mailboxes from the queue.
     pub fn transmit(&mut self, frame: &CanFrame) -> Result<(), QueueFull> {
         self.transmitter.transmit(frame, &mut self.can)

@@ -297,6 +297,24 @@ fn set_filters(banks: impl Iterator<Item = FilterBank>) {
 /// Polls CAN_MSR until the controller is in initialisation mode (`initialising`: INAK set)
 /// or has left it (INAK clear), and out of sleep (SLAK clear) either way; `false` after
 /// [`MODE_POLLS`] polls.
+/// How long a bit-rate switch waits for initialisation mode: longer than a frame at the
+/// slowest rate LSS may configure, shorter than the watchdog's time-out
+/// ([`super::WATCHDOG_TIMEOUT_US`]).
+const SWITCH_PATIENCE: shared::Duration = shared::Duration::from_millis(15);
+
+/// The CAN_BTR value of embassy's `timing` (RM0090 32.9.2, [`BitTiming::register`]).
+fn bit_timing_register(
+    timing: embassy_stm32::can::util::NominalBitTiming,
+) -> Result<u32, crate::bxcan_adapter::BitTimingOutOfRange> {
+    BitTiming {
+        prescaler: timing.prescaler.get(),
+        seg1: timing.seg1.get(),
+        seg2: timing.seg2.get(),
+        sync_jump_width: timing.sync_jump_width.get(),
+    }
+    .register()
+}
+
 async fn mode_reached(initialising: bool) -> bool {
     for _ in 0..MODE_POLLS {
         let msr = pac::CAN1.msr().read();
@@ -341,13 +359,7 @@ impl CanPort {
         watchdog: &mut super::Watchdog,
     ) -> CanPort {
         can_wakeup::bound(Irqs);
-        let timing = BitTiming {
-            prescaler: timing.prescaler.get(),
-            seg1: timing.seg1.get(),
-            seg2: timing.seg2.get(),
-            sync_jump_width: timing.sync_jump_width.get(),
-        };
-        let Ok(btr) = timing.register() else {
+        let Ok(btr) = bit_timing_register(timing) else {
             halt_safe("CAN bit timing outside the bxCAN's fields");
         };
         let (rx_af, tx_af) = (RxPin::<CAN1>::af_num(&*rx), TxPin::<CAN1>::af_num(&*tx));
@@ -402,6 +414,32 @@ impl CanPort {
             mailboxes: Mailboxes,
             transmitter: Transmitter::new(),
         }
+    }
+
+    /// Switches the controller to `timing` (CiA 305 activate bit timing, in the node's
+    /// silence after the first switch delay). RM0090 32.9.2: BTR is written in initialisation
+    /// mode, which 32.4.1 enters once the frame on the bus has ended; 32.4.2: normal mode is
+    /// taken up again after 11 recessive bits at the new rate, which the loop does not wait
+    /// for (the node stays silent for the second switch delay). Frames in the mailboxes and
+    /// FIFOs are kept. Halts in the safe state when the controller does not enter
+    /// initialisation mode within [`SWITCH_PATIENCE`]: the node could then be on neither rate.
+    pub fn switch_bit_rate(&mut self, timing: embassy_stm32::can::util::NominalBitTiming) {
+        let Ok(btr) = bit_timing_register(timing) else {
+            halt_safe("CAN bit timing outside the bxCAN's fields");
+        };
+        let registers = pac::CAN1;
+        registers.mcr().modify(|w| {
+            w.set_sleep(false);
+            w.set_inrq(true);
+        });
+        let give_up = now() + SWITCH_PATIENCE;
+        while !registers.msr().read().inak() {
+            if now() >= give_up {
+                halt_safe("CAN controller did not enter initialisation mode to switch bit rate");
+            }
+        }
+        registers.btr().write_value(pac::can::regs::Btr(btr));
+        registers.mcr().modify(|w| w.set_inrq(false));
     }
 
     /// Queues `frame` and fills the mailboxes from the queue.

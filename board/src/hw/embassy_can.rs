@@ -43,8 +43,9 @@ const TRANSMIT_QUEUE: usize = 16;
 
 /// CAN1 as the channel loop uses it: the receive FIFOs and filters, the transmit path.
 pub struct CanPort {
-    /// Kept, never used again: its drop would reset the controller under the halves.
-    _controller: Can<'static>,
+    /// Kept: its drop would reset the controller under the halves. Used again only to
+    /// switch the bit rate.
+    controller: Can<'static>,
     rx: CanRx<'static>,
     tx: CanTx<'static>,
     transmitter: Transmitter<TRANSMIT_QUEUE>,
@@ -127,12 +128,19 @@ impl CanPort {
         can.enable().await;
         let (can_tx, can_rx) = can.split();
         CanPort {
-            _controller: can,
+            controller: can,
             rx: can_rx,
             tx: can_tx,
             transmitter: Transmitter::new(),
             frame: None,
         }
+    }
+
+    /// Switches the controller to `timing` (CiA 305 activate bit timing, in the node's
+    /// silence after the first switch delay): the configuration enters initialisation mode,
+    /// writes BTR (RM0090 32.9.2) and leaves it when dropped, as in `start`.
+    pub fn switch_bit_rate(&mut self, timing: embassy_stm32::can::util::NominalBitTiming) {
+        drop(self.controller.modify_config().set_bit_timing(timing));
     }
 
     /// Queues `frame` and fills the mailboxes from the queue.

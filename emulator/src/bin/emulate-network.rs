@@ -535,6 +535,12 @@ fn print_event(
             names[*mcu],
             *at as f64 / 1e6
         ),
+        Event::BitRate { at, bit_rate } => println!(
+            "{:<8} {:>12.6} ms the bus runs at {bit_rate} bit/s: the LSS master activated it \
+             (CiA 305)",
+            "bus",
+            *at as f64 / 1e6
+        ),
         Event::Refused { mcu, at, frame } => println!(
             "{:<8} {:>12.6} ms sent {frame:?}, which the bus model cannot carry (an extended \
              identifier): ended with a form error",

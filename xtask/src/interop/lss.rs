@@ -15,6 +15,7 @@ use anyhow::{Context, Result, bail};
 use safety_config::lss::{LssMaster, parts};
 use safety_config::socketcand::SocketcandClient;
 use shared::canopen::NodeId;
+use shared::canopen::lss::BitRate;
 use shared::{CanFrame, CanId};
 use std::path::Path;
 use std::process::Command;
@@ -24,6 +25,11 @@ use system_tests::tool_bus::SimulatedBus;
 
 /// The bus's bit rate, the host simulation's (`socketcand_sim`): the device's.
 const BIT_RATE: u32 = safety_device::BIT_RATE;
+
+/// The bit rate python-canopen switches the shipped images' node to (CiA 305 configure and
+/// activate bit timing): not the device's start-up rate, so that a node that did not switch
+/// its controller hears nothing on the emulated bus afterwards.
+const SWITCHED_TO: BitRate = BitRate::Kbit250;
 
 /// Each node is given its serial number plus this as its node-ID.
 const OFFSET: u8 = 10;
@@ -105,16 +111,20 @@ fn python_canopen(
     address: &str,
     store: bool,
     check: bool,
+    bit_rate: Option<BitRate>,
 ) -> Result<serde_json::Value> {
     let (host, port) = address.split_once(':').context("the server's address")?;
-    script_json(
-        Command::new(python)
-            .arg(root.join("xtask/interop/python_canopen_lss.py"))
-            .args([host, port, &OFFSET.to_string()])
-            .arg(TIMEOUT.as_secs_f64().to_string())
-            .arg(if store { "1" } else { "0" })
-            .arg(if check { "1" } else { "0" }),
-    )
+    let mut command = Command::new(python);
+    command
+        .arg(root.join("xtask/interop/python_canopen_lss.py"))
+        .args([host, port, &OFFSET.to_string()])
+        .arg(TIMEOUT.as_secs_f64().to_string())
+        .arg(if store { "1" } else { "0" })
+        .arg(if check { "1" } else { "0" });
+    if let Some(rate) = bit_rate {
+        command.arg(rate.index().to_string());
+    }
+    script_json(&mut command)
 }
 
 /// A frame of the script's record: (time stamp in seconds, identifier, data in hex).
@@ -130,9 +140,11 @@ fn recorded(entry: &serde_json::Value) -> Option<(f64, CanFrame)> {
 }
 
 /// `cargo xtask interop --only lss`: python-canopen's `LssMaster` finds the one unconfigured
-/// node by fast scan, gives it node-ID 11 and has it store it; the node boots on it, answers
-/// python-canopen's SDO upload of its identity at 11, and boots on 11 again after an NMT reset
-/// node; the tool's LSS master then selects it by identity and inquires node-ID 11 active.
+/// node by fast scan, gives it node-ID 11, has 800 kbit/s refused, configures
+/// [`SWITCHED_TO`], has it store both and activates the bit rate; the emulated bus switches
+/// with the master, and the node boots on 11, answers python-canopen's SDO upload of its
+/// identity there, and boots on 11 again after an NMT reset node, at the stored rate; the
+/// tool's LSS master then selects it by identity and inquires node-ID 11 active.
 /// The node is the shipped hardware images (channels A and B) on the emulated STM32F405s,
 /// their node-ID switches all open (`emulate-network --nodes 0 --socketcand`): channel A
 /// answers, channel B checks each answer against its own (`dual_channel::lss`), and a
@@ -140,8 +152,9 @@ fn recorded(entry: &serde_json::Value) -> Option<(f64, CanFrame)> {
 /// answer or boot-up.
 pub fn check(root: &Path, python: &Path) -> Result<()> {
     crate::step(
-        "interop 6: python-canopen's LSS master (fast scan, configure node-ID, store) on the \
-         shipped images of an unconfigured node (switches open) on the emulated network",
+        "interop 6: python-canopen's LSS master (fast scan, configure node-ID and bit timing, \
+         store, activate bit timing) on the shipped images of an unconfigured node (switches \
+         open) on the emulated network",
     );
     let mut served = super::ShippedNetwork::serve(root, "lss", &["--nodes", "0"])?;
     let give_up = std::time::Instant::now() + Duration::from_secs(60);
@@ -158,12 +171,23 @@ pub fn check(root: &Path, python: &Path) -> Result<()> {
     let result = check_at(root, python, &served.address);
     served.emulator.end();
     let log = served.log;
-    result.with_context(|| format!("the emulator's output is in {}", log.display()))
+    result
+        .and_then(|()| {
+            // The bus model switched with the master (emulator::network, "Bit rate"): the
+            // node's answers after it prove that both channels' controllers switched too.
+            let bit_rate = SWITCHED_TO.bits_per_second().unwrap_or(0);
+            let output = std::fs::read_to_string(&log)?;
+            if !output.contains(&format!("the bus runs at {bit_rate} bit/s")) {
+                bail!("the emulated bus never switched to {bit_rate} bit/s");
+            }
+            Ok(())
+        })
+        .with_context(|| format!("the emulator's output is in {}", log.display()))
 }
 
 /// [`check`]'s steps against the server at `address`.
 fn check_at(root: &Path, python: &Path, address: &str) -> Result<()> {
-    let result = python_canopen(root, python, address, true, true)?;
+    let result = python_canopen(root, python, address, true, true, Some(SWITCHED_TO))?;
     let serial = 1u8;
     let node_id = serial + OFFSET;
     let found: Vec<(Vec<u64>, u64)> = result["found"]
@@ -185,6 +209,17 @@ fn check_at(root: &Path, python: &Path, address: &str) -> Result<()> {
     if found != [(wanted.clone(), u64::from(node_id))] {
         bail!(
             "python-canopen's fast scan found {found:?}, not the one node {wanted:X?} given node-ID {node_id}"
+        );
+    }
+    // CiA 305 Fig. 34: a rate the device cannot make is refused with error code 1.
+    if result["refused_800"]
+        .as_str()
+        .is_none_or(|error| !error.ends_with(": 1"))
+    {
+        bail!(
+            "python-canopen's configure bit timing to 800 kbit/s was not refused with error \
+             code 1: {}",
+            result["refused_800"]
         );
     }
     if let Some(failures) = result["failures"].as_array().filter(|f| !f.is_empty()) {
@@ -260,7 +295,8 @@ fn check_at(root: &Path, python: &Path, address: &str) -> Result<()> {
         .filter(|(_, frame)| frame.id() == shared::canopen::lss::MASTER_TO_SLAVE)
         .count();
     println!(
-        "xtask: interop 6: python-canopen's LssMaster found the unconfigured node {target} by fast scan ({requests} LSS requests), gave it node-ID {node_id} and had it store it (17h answered with error code 0); it booted on {node_id}, answered python-canopen's upload of 1018h there, booted on {node_id} again after NMT reset node, and the tool's LSS inquiry reads node-ID {node_id} active"
+        "xtask: interop 6: python-canopen's LssMaster found the unconfigured node {target} by fast scan ({requests} LSS requests), gave it node-ID {node_id}, had 800 kbit/s refused (error code 1), configured {} bit/s, had it store both (17h answered with error code 0) and activated the bit rate; on the bus at the new rate it booted on {node_id}, answered python-canopen's upload of 1018h there, booted on {node_id} again after NMT reset node (at the stored rate), and the tool's LSS inquiry reads node-ID {node_id} active",
+        SWITCHED_TO.bits_per_second().unwrap_or(0)
     );
     Ok(())
 }
@@ -386,7 +422,7 @@ fn tool_run(count: u8, timeout: Duration) -> Result<Run> {
 /// simulated bus's time (the server's time stamps; the simulation runs in real time there).
 fn python_run(root: &Path, python: &Path, count: u8) -> Result<Run> {
     let (_server, address) = start_simulation(root, count)?;
-    let result = python_canopen(root, python, &address, true, false)?;
+    let result = python_canopen(root, python, &address, true, false, None)?;
     let frames: Vec<(f64, CanFrame)> = result["frames"]
         .as_array()
         .context("the recorded frames")?
