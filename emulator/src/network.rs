@@ -849,3 +849,36 @@ impl Network {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// ISO 11898-1's oscillator tolerance: a controller within it keeps step with the bus, one
+    /// beyond it (or at another rate of the table) does not.
+    #[test]
+    fn iso11898_1_a_controller_keeps_step_only_within_the_oscillator_tolerance() {
+        let bus_ns = |bits: u64, rate: u64| bits * 1_000_000_000 / rate;
+        assert!(in_step(bus_ns(STEP_BITS, 500_000), STEP_BITS, 500_000));
+        // 1.5 % slow and fast: within.
+        assert!(in_step(
+            bus_ns(STEP_BITS, 500_000) * 1015 / 1000,
+            STEP_BITS,
+            500_000
+        ));
+        assert!(in_step(
+            bus_ns(STEP_BITS, 500_000) * 985 / 1000,
+            STEP_BITS,
+            500_000
+        ));
+        // 1.7 %: out of step.
+        assert!(!in_step(
+            bus_ns(STEP_BITS, 500_000) * 1017 / 1000,
+            STEP_BITS,
+            500_000
+        ));
+        // The controller at 500 kbit/s, the bus switched to 250 kbit/s, and back.
+        assert!(!in_step(bus_ns(STEP_BITS, 500_000), STEP_BITS, 250_000));
+        assert!(!in_step(bus_ns(STEP_BITS, 250_000), STEP_BITS, 500_000));
+    }
+}
