@@ -120,14 +120,28 @@ fn totals(window: &Window) -> Totals {
     }
 }
 
-/// The same figures machine-readable, one JSON object: per MCU and window, the instructions,
-/// the loop iterations, the idle iteration (fewest, median, most), the instructions per pair
-/// (the lower bound of [`markdown`]'s *per pair*) and the pairs; per MCU, the deepest stack;
-/// the goals per channel.
+/// The same figures machine-readable, one JSON object: per MCU and window, the longest
+/// activation that ran the loop and the longest with a pair's work (the processing step's
+/// path, `cargo xtask bench --target-cost`), the instructions, the loop iterations, the idle
+/// iteration (fewest, median, most), the instructions per pair (the lower bound of
+/// [`markdown`]'s *per pair*) and the pairs; per MCU, the deepest stack; the goals per
+/// channel.
 pub fn json(nominal: &Nominal, names: &[String]) -> serde_json::Value {
     let window = |window: &Window| {
         let t = totals(window);
+        let longest = |test: Test| {
+            window
+                .activations
+                .iter()
+                .filter(|a| test(a))
+                .map(|a| a.instructions)
+                .max()
+        };
         serde_json::json!({
+            "longest_activation": {
+                "loop": longest(|a| a.has("loop")),
+                "pair": longest(is_pair),
+            },
             "instructions": t.instructions,
             "loop_iterations": t.iterations,
             "idle_iteration": {"fewest": t.idle.0, "median": t.idle.1, "most": t.idle.2},

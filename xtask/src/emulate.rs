@@ -495,7 +495,7 @@ const NOMINAL_LOAD_SECONDS: f64 = crate::e2e::CI_LOAD_SECONDS;
 /// Where the nominal case's figures are written.
 const FIGURES: &str = "docs/emulated-figures.md";
 /// The same figures machine-readable (`emulator::figures::json`).
-const FIGURES_JSON: &str = "docs/emulated-figures.json";
+pub(crate) const FIGURES_JSON: &str = "docs/emulated-figures.json";
 
 /// Both nodes' shipped images configured by the tool's library, started, under bus load,
 /// then the emergency stop (`emulator::cases::nominal`); writes what it measured to

@@ -236,13 +236,14 @@ enum Task {
         /// Check the counts against the targets and fail when one is exceeded.
         #[arg(long)]
         check: bool,
-        /// Instead: count the Thumb instructions of the real QEMU images' digest and link
-        /// heartbeat under QEMU, and the CPU load they imply at 168 MHz; writes its block of
-        /// docs/performance.md.
+        /// Instead: the processing step of the safety manual, from the Thumb instructions the
+        /// shipped images execute on the emulated STM32F405 (the nominal case); writes its
+        /// block of docs/performance.md and tool/src/calc/target_measured.rs.
         #[arg(long)]
         target_cost: bool,
         /// With `--target-cost`: the images and network of this protocol, `canopen-safety`
-        /// (the default) or `simplecan` (SimpleCAN's processing step, its own block).
+        /// (the default) or `simplecan` (SimpleCAN's processing step, its own block, counted in
+        /// the QEMU images with SimpleCAN under QEMU's instruction trace).
         #[arg(long, value_enum, default_value_t, requires = "target_cost")]
         protocol: network::Protocol,
         /// With `--target-cost`: instead, the shipped CANopen Safety images on the emulated

@@ -770,19 +770,34 @@ fn processing_part(bench: &str) -> Result<String> {
         );
     }
     let mut out = header("`safety_config::calc::target` and `docs/performance.md`");
+    let rows = match measured.basis {
+        target::Basis::Activations => format!(
+            "| the activation a frame may wait behind: the longest that ran the loop, from the \
+             core's wake-up to its next sleep (interrupt handlers, the executor, the iteration, \
+             the watchdog fed, the stack's search) | {} | counted in the shipped images on the \
+             emulated STM32F405 (most seen) |\n\
+             | the activation that handles the SRDO frame, the pair or the verdict: the longest \
+             with a pair's work | {} | counted in the shipped images on the emulated STM32F405 \
+             (most seen) |\n",
+            measured.longest_iteration, measured.longest_protocol_iteration
+        ),
+        target::Basis::LoopIterations => format!(
+            "| wake-up: the interrupt to the loop's entry | {} | allowed by argument |\n\
+             | the loop iteration a frame may wait behind (the longest of any kind) | {} | measured (most seen) |\n\
+             | the board's work after it: the watchdog fed, the stack's search (`board::stack::WORDS_PER_STEP` words), a new mark's log line | {} | allowed by analysis of the images' code |\n\
+             | the loop iteration that handles the SRDO frame or verdict (the longest) | {} | measured (most seen) |\n",
+            target::WAKE_INSTRUCTIONS,
+            measured.longest_iteration,
+            target::BETWEEN_ITERATIONS,
+            measured.longest_protocol_iteration
+        ),
+    };
     let _ = writeln!(
         out,
         "| part of the longest processing path | Thumb instructions | how it is known |\n\
          |---|---:|---|\n\
-         | wake-up: the interrupt to the loop's entry | {} | allowed by argument |\n\
-         | the loop iteration a frame may wait behind (the longest of any kind) | {} | measured (most seen) |\n\
-         | the board's work after it: the watchdog fed, the stack's search (`board::stack::WORDS_PER_STEP` words), a new mark's log line | {} | allowed by analysis of the images' code |\n\
-         | the loop iteration that handles the SRDO frame or verdict (the longest) | {} | measured (most seen) |\n\
+         {rows}\
          | **path** | **{}** | |\n",
-        target::WAKE_INSTRUCTIONS,
-        measured.longest_iteration,
-        target::BETWEEN_ITERATIONS,
-        measured.longest_protocol_iteration,
         measured.path_instructions()
     );
     let cycles = measured.path_instructions() * target::CPI_BOUND;

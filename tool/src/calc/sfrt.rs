@@ -83,9 +83,9 @@ impl DeviceTiming {
     /// The hardware: the device description's input sample period and link byte time
     /// ([`INPUT_SAMPLE_PERIOD`], [`LINK_BYTE_TIME`], which the channel loop and `board::hw`
     /// run with); the contacts' skew up to the whole sample window. Processing: the step measured on the target ([`super::target::MEASURED`],
-    /// instructions counted by `cargo xtask bench --target-cost` in the real images under
-    /// QEMU, at the bounded cycles per instruction of [`super::target::CPI_BOUND`] on
-    /// 168 MHz, doubled for interrupts). The output pin is written in the channel's step; the
+    /// instructions counted by `cargo xtask bench --target-cost` in the shipped images on the
+    /// emulated STM32F405, at the bounded cycles per instruction of
+    /// [`super::target::CPI_BOUND`] on 168 MHz, doubled for interrupts). The output pin is written in the channel's step; the
     /// output stage beyond the pin (relay, contactor) is the machine builder's and not
     /// included.
     pub const HARDWARE: DeviceTiming = DeviceTiming {

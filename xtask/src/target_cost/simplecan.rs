@@ -109,7 +109,8 @@ fn render(channels: &[(&str, Channel)], traced: f64) -> Result<(String, TargetCo
          (`xtask/src/target_cost/simplecan.rs`): the emulated network of `cargo xtask run \
          --protocol simplecan` (the QEMU images with SimpleCAN instead of SRDOs; node 1 \
          produces SC-ID 30h in slot 0 and sends the syncs, node 33 consumes it), configured and \
-         Operational, each of the four images traced as in the block above, for at least \
+         Operational, each of the four images traced in turn under QEMU, one instruction per \
+         translation block (`xtask/src/target_cost.rs`, `trace`), for at least \
          {traced:.2} s of the network's time each, the emergency stop pressed and released once. \
          The unit is one iteration of the channel loop, the QEMU layer's markers subtracted; \
          an iteration that received or sent a frame handled the network's traffic (the \
@@ -135,6 +136,7 @@ fn render(channels: &[(&str, Channel)], traced: f64) -> Result<(String, TargetCo
         }
     }
     let measured = TargetCost {
+        basis: cost::Basis::LoopIterations,
         longest_iteration: most(channels, |c| &c.all),
         longest_protocol_iteration: most(channels, |c| &c.frames),
     };
@@ -197,6 +199,7 @@ mod tests {
     #[test]
     fn the_generated_constants_are_the_measurement() {
         let text = generated(&TargetCost {
+            basis: cost::Basis::LoopIterations,
             longest_iteration: 12345,
             longest_protocol_iteration: 678,
         });
