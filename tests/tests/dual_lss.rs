@@ -278,3 +278,28 @@ fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the
     assert_eq!(net.node(5).a.lss_settings(), net.node(5).b.lss_settings());
     assert!(net.node(5).a.fault().is_none() && net.node(5).b.fault().is_none());
 }
+
+/// CiA 305 on a node that has just powered up: an LSS request that reaches both channels
+/// before their link is up (a master scanning while the machine is switched on) is answered by
+/// channel A, and channel B pairs the answer once the link is up, or takes it as uncertain: it
+/// is never a mismatch. Swept over the first 40 ms after power-on.
+#[test]
+fn cia305_an_lss_request_in_the_start_up_window_is_no_mismatch() {
+    use shared::CanFrame;
+    let request = |data: [u8; 8]| CanFrame::new(MASTER_TO_SLAVE, &data).expect("8 bytes");
+    for at_ms in [0u64, 1, 2, 3, 5, 8, 10, 15, 20, 30, 40] {
+        let mut net = lss_node(None, None);
+        net.run_until(Instant::ZERO + Duration::from_millis(at_ms));
+        // Switch state global: configuration; inquire node-ID (answered: FFh, unconfigured).
+        net.send_foreign(request([0x04, 1, 0, 0, 0, 0, 0, 0]));
+        net.send_foreign(request([0x5E, 0, 0, 0, 0, 0, 0, 0]));
+        net.run_for(Duration::from_millis(600));
+        let answered = net
+            .trace
+            .iter()
+            .filter(|(_, frame, _)| frame.id() == SLAVE_TO_MASTER && frame.data()[0] == 0x5E)
+            .count();
+        assert_eq!(answered, 1, "at {at_ms} ms: the inquiry answered once");
+        assert_eq!(faults(&net), [], "at {at_ms} ms: no mismatch");
+    }
+}
