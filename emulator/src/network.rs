@@ -857,7 +857,7 @@ mod tests {
     /// ISO 11898-1's oscillator tolerance: a controller within it keeps step with the bus, one
     /// beyond it (or at another rate of the table) does not.
     #[test]
-    fn iso11898_1_a_controller_keeps_step_only_within_the_oscillator_tolerance() {
+    fn rm0090_32_7_7_a_controller_keeps_step_with_the_bus_only_within_the_oscillator_tolerance() {
         let bus_ns = |bits: u64, rate: u64| bits * 1_000_000_000 / rate;
         assert!(in_step(bus_ns(STEP_BITS, 500_000), STEP_BITS, 500_000));
         // 1.5 % slow and fast: within.
