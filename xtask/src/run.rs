@@ -805,6 +805,7 @@ pub fn task(
     duration: Option<Duration>,
     mut schedule: Vec<(Duration, Action)>,
     protocol: network::Protocol,
+    images: network::Images,
 ) -> Result<()> {
     check_schedule(duration, &schedule).map_err(anyhow::Error::msg)?;
     let interrupted = Arc::new(AtomicBool::new(false));
@@ -819,7 +820,7 @@ pub fn task(
     if !live && !typed && duration.is_none() {
         bail!("not on a terminal: give `--for <duration>` to run unattended");
     }
-    let mut network = Network::start_for(root, protocol)?;
+    let mut network = Network::start_images(root, protocol, images)?;
     // The monitor's own socketcand connection to the hub, beside the configuration tool's.
     let mut bus = SocketcandClient::connect(&network::hub_tcp(), "can0")?;
     let origin = "target/emulate/network.toml";
@@ -860,8 +861,10 @@ pub fn task(
         None
     };
     let mut screen = Screen {
-        title: "cargo xtask run: the emulated safety network (nodes 1 and 33, four QEMU MCUs)"
-            .to_owned(),
+        title: format!(
+            "cargo xtask run: the emulated safety network (nodes 1 and 33, {})",
+            images.describe()
+        ),
         keys: KEYS.to_owned(),
         ..Screen::default()
     };
@@ -1008,7 +1011,8 @@ pub fn task(
                 ) {
                     screen.panels = vec![(
                         format!(
-                            "Channels (the hub's status reports; run time {:.1} s)",
+                            "Channels ({}; run time {:.1} s)",
+                            images.reporter(),
                             started.elapsed().as_secs_f64()
                         ),
                         channels,
@@ -1044,6 +1048,8 @@ pub fn task(
 
 fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<()>) -> Result<()> {
     let protocol = network.protocol;
+    let images = network.images;
+    let crcs = network.crcs;
     let latest = network.control.latest.clone();
     let stall = network.worst(|s| s.longest_stall_ms);
     let pace = network.pace_summary();
@@ -1061,9 +1067,17 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     if seen.resets > 0 {
         println!("resets: {}", seen.resets);
     }
-    println!("longest stall of an emulated MCU (host time it did not run): {stall} ms");
+    match (images, crcs) {
+        (network::Images::Shipped, Some([a, b])) => println!(
+            "the shipped images, unchanged: channel A image CRC {a:08X}h, channel B {b:08X}h \
+             (as `cargo xtask build` sealed them and the emulator read them)"
+        ),
+        _ => println!("longest stall of an emulated MCU (host time it did not run): {stall} ms"),
+    }
     println!("{pace}");
-    println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());
+    if images == network::Images::Qemu {
+        println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());
+    }
     for (name, lines) in &faults {
         let reports = safe_state_reports(lines);
         if let Some(last) = reports.last() {

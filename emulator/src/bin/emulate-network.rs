@@ -3,7 +3,9 @@
 //! for a span of virtual time; prints every MCU's decoded log, the frames on the bus and how
 //! each MCU's run ended. `cargo xtask emulate --network` builds the images and calls it.
 //! With `--socketcand ADDRESS:PORT`, separate programs join the bus over TCP
-//! (`emulator::socketcand`), and the virtual time follows the host clock.
+//! (`emulator::socketcand`), and the virtual time follows the host clock; with `--control
+//! ADDRESS:PORT` as well, a program drives the network through the line protocol of
+//! `can-hub`'s control port (`emulator::control`).
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -101,6 +103,12 @@ struct Cli {
     /// (`emulator::socketcand`).
     #[arg(long, value_name = "ADDRESS:PORT", conflicts_with_all = ["nominal", "power_cut_sweep"])]
     socketcand: Option<String>,
+    /// With `--socketcand`: serve the control port on this TCP address (`127.0.0.1:29537`),
+    /// the line protocol of `can-hub`'s (`emulator::control`): a channel's contact, the bus
+    /// faults, a node's link cut and restored; every channel's status as the network shows
+    /// it, and how the pacing goes, written to every client.
+    #[arg(long, value_name = "ADDRESS:PORT", requires = "socketcand")]
+    control: Option<String>,
     /// With `--power-cut-sweep`: cut at every Nth step only (the first and the last steps
     /// always).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
@@ -411,6 +419,19 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
         None => None,
     };
+    let mut control = match &cli.control {
+        Some(address) => {
+            let port = emulator::control::Server::listen(address)?;
+            let panel = emulator::control::Panel::new(&mut network, cli.inputs_closed);
+            println!("emulate-network: control clients join on {address}");
+            Some((port, panel))
+        }
+        None => None,
+    };
+    // With a control port, the network runs in short slices so that its commands take effect
+    // and its status lines go out promptly.
+    let slice = if control.is_some() { 1_000_000 } else { slice };
+    let mut next_pace_line: Nanos = 0;
     let duration = match (cli.duration, &server) {
         (Some(duration), _) => duration,
         (None, Some(_)) => Nanos::MAX,
@@ -466,6 +487,9 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         for mcu in 0..names.len() {
             for (at, bytes) in network.take_log(mcu) {
                 for line in decoders[mcu].feed(at, &bytes) {
+                    if let Some((_, panel)) = control.as_mut() {
+                        panel.log(mcu, &line.message);
+                    }
                     if !cli.quiet {
                         println!("{:<8} {line}", names[mcu]);
                     }
@@ -473,7 +497,22 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             }
         }
         for event in network.take_events() {
+            if let Some((_, panel)) = control.as_mut() {
+                panel.event(&event);
+            }
             stopped |= print_event(&event, &names, &mut frames, candump.as_mut())?;
+        }
+        if let Some((port, panel)) = control.as_mut() {
+            port.serve(panel, &mut network);
+            for line in panel.reports(network.now()) {
+                port.write(None, &line);
+            }
+            if let Some(server) = &server
+                && network.now() >= next_pace_line
+            {
+                next_pace_line = network.now() + 1_000_000_000;
+                port.write(None, &can_hub::control::pace_line(&server.pace_report()));
+            }
         }
     }
     summary(&network, &names, &frames, started);
