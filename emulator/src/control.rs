@@ -28,6 +28,7 @@ use can_hub::bus::{Fault, Injection, Match};
 use can_hub::control::{Command, status_line};
 use can_hub::port::ControlEvent;
 use emulation_wire::Status;
+use shared::canopen::emcy::{self, Emergency};
 use shared::canopen::nmt::NmtState;
 use shared::safety::cause::Cause;
 use shared::{CanFrame, CanId, Instant};
@@ -137,6 +138,8 @@ impl Panel {
             })
             .collect();
         let own = network.join_external("control");
+        // It sends (`insert`) and never receives: nothing is kept for it.
+        network.leave_external(own);
         Panel {
             reported: vec![None; names.len()],
             names,
@@ -290,6 +293,11 @@ impl Panel {
         }
         if let Some((node, cause)) = crate::e2e::emcy_cause(frame) {
             self.nodes.entry(node).or_default().cause = Some(cause);
+        } else if (0x081..=0x0FF).contains(&id)
+            && Emergency::parse(frame.data()).is_some_and(|emcy| emcy.code == emcy::code::NO_ERROR)
+        {
+            // An error reset (CiA 301 7.2.7.3.1): the node says it has no error left.
+            self.nodes.entry((id - 0x080) as u8).or_default().cause = None;
         }
         if SRDO_IDS.contains(&id) && !frame.is_remote() {
             if let Some(sender) = sender {
@@ -498,7 +506,7 @@ mod tests {
     /// line naming its safe state; a boot-up message clears what was latched (CiA 301
     /// 7.2.8.3.2: a boot-up comes only after a reset or power-on).
     #[test]
-    fn en50325_5_a_channels_status_follows_heartbeats_emcy_and_its_log() {
+    fn cia301_7_2_8_3_2_a_channels_status_follows_heartbeats_emcy_and_its_log() {
         let mut network = bus_only();
         let mut panel = Panel {
             names: vec!["node33a".into(), "node33b".into()],

@@ -1086,6 +1086,25 @@ pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
 mod tests {
     use super::*;
 
+    /// The image CRC is read from the emulator's own line for that image and no other: a
+    /// line for another path, or one that is not a CRC, gives none (and the run refuses).
+    #[test]
+    fn the_emulators_image_crc_is_read_from_its_line_for_that_image() {
+        let log = "emulate-network: /t/channel-a: sealed image, CRC 1234ABCDh\n\
+                   emulate-network: /t/channel-b: sealed image, CRC 0BADF00Dh\n\
+                   emulate-network: /t/channel-c: sealed image, CRC nonsenseh\n";
+        assert_eq!(
+            reported_crc(log, Path::new("/t/channel-a")),
+            Some(0x1234_ABCD)
+        );
+        assert_eq!(
+            reported_crc(log, Path::new("/t/channel-b")),
+            Some(0x0BAD_F00D)
+        );
+        assert_eq!(reported_crc(log, Path::new("/t/channel-c")), None);
+        assert_eq!(reported_crc(log, Path::new("/t/channel")), None);
+    }
+
     /// The SimpleCAN network file of `cargo xtask run --protocol simplecan` parses, takes
     /// xtask's SDO time-out, and has node 1 as the only potential master, producing 30h,
     /// and node 33 consuming it (what the run's ending checks).

@@ -21,6 +21,14 @@
 //! screen ([`Restart`]): the nodes' boot-up messages are awaited, then NMT start, then every
 //! channel Operational and working, each step on the network's time.
 //!
+//! `--images shipped`: the same run on the sealed hardware images `cargo xtask build` makes,
+//! unchanged, on the emulated STM32F405s of `emulate-network` (the `emulator` crate) instead
+//! of the QEMU images under the hub: the tool and the monitor join its socketcand port, the
+//! run drives it through its control port, which speaks the hub's protocol
+//! (`emulator::control`), and each channel's status is what the emulator sees of it from
+//! outside (heartbeats, EMCYs, the channel's own log, its pins). The run refuses images whose
+//! CRC the emulator reads differently from what the build sealed, and prints both CRCs.
+//!
 //! `--protocol simplecan`: the same network on the SimpleCAN images, configured from
 //! `scenarios/networks/simplecan.toml` (node 1 the master and producer of SC-ID 30h, node 33
 //! its consumer, [`network::Protocol`]). The actions act on the same channels: `press`,
