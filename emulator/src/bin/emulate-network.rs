@@ -47,6 +47,10 @@ struct Cli {
     /// Write the frames on the bus as a candump log here.
     #[arg(long)]
     candump: Option<PathBuf>,
+    /// Write the frames on the bus as a pcap file here (LINKTYPE_CAN_SOCKETCAN, for
+    /// Wireshark), stamped with the virtual time.
+    #[arg(long)]
+    pcap: Option<PathBuf>,
     /// Print no MCU log lines, only the summary.
     #[arg(long)]
     quiet: bool,
@@ -228,10 +232,19 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     let mut decoders: Vec<_> = (0..names.len())
         .map(|mcu| tables[mcu % 2].decoder())
         .collect();
-    let mut candump = match &cli.candump {
-        Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path)?)),
-        None => None,
+    let create = |path: &PathBuf| {
+        std::fs::File::create(path)
+            .map(std::io::BufWriter::new)
+            .map_err(|error| format!("cannot create {}: {error}", path.display()))
     };
+    let mut traces = Traces {
+        candump: cli.candump.as_ref().map(create).transpose()?,
+        pcap: match &cli.pcap {
+            Some(path) => Some(can_hub::trace::PcapWriter::new(create(path)?)?),
+            None => None,
+        },
+    };
+    let candump = &mut traces;
     let started = std::time::Instant::now();
     let mut frames = vec![0u64; names.len() + 1];
     if let Some(path) = &cli.nominal {
@@ -272,7 +285,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         trace.extend(network.take_events());
         let mut stopped = false;
         for event in &trace {
-            stopped |= print_event(event, &names, &mut frames, candump.as_mut())?;
+            stopped |= print_event(event, &names, &mut frames, candump)?;
         }
         if !cli.quiet {
             for mcu in 0..names.len() {
@@ -500,7 +513,12 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             if let Some((_, panel)) = control.as_mut() {
                 panel.event(&event);
             }
-            stopped |= print_event(&event, &names, &mut frames, candump.as_mut())?;
+            stopped |= print_event(&event, &names, &mut frames, candump)?;
+        }
+        if control.is_some() {
+            // Killed at the end of a run driven over the control port: the traces so far are
+            // on disk.
+            candump.flush()?;
         }
         if let Some((port, panel)) = control.as_mut() {
             port.serve(panel, &mut network);
@@ -536,23 +554,45 @@ fn pace(server: &emulator::socketcand::Server) {
     );
 }
 
-/// Prints one event (frames go to the candump log only); whether it is an MCU's stop.
+/// The traces of the frames on the bus.
+struct Traces {
+    candump: Option<std::io::BufWriter<std::fs::File>>,
+    pcap: Option<can_hub::trace::PcapWriter<std::io::BufWriter<std::fs::File>>>,
+}
+
+impl Traces {
+    /// Writes what is buffered.
+    fn flush(&mut self) -> std::io::Result<()> {
+        if let Some(out) = &mut self.candump {
+            out.flush()?;
+        }
+        if let Some(pcap) = &mut self.pcap {
+            pcap.flush()?;
+        }
+        Ok(())
+    }
+}
+
+/// Prints one event (frames go to the traces only); whether it is an MCU's stop.
 fn print_event(
     event: &Event,
     names: &[String],
     frames: &mut [u64],
-    candump: Option<&mut std::io::BufWriter<std::fs::File>>,
+    traces: &mut Traces,
 ) -> std::io::Result<bool> {
     match event {
         Event::Frame { at, from, frame } => {
             let index = names.iter().position(|n| n == from).unwrap_or(names.len());
             frames[index] += 1;
-            if let Some(out) = candump {
+            if let Some(out) = &mut traces.candump {
                 writeln!(
                     out,
                     "{}",
                     can_hub::trace::candump_line(at / 1_000, "vcan0", frame)
                 )?;
+            }
+            if let Some(pcap) = &mut traces.pcap {
+                pcap.write(at / 1_000, frame)?;
             }
         }
         Event::Output { at, mcu, on } => println!(
