@@ -661,6 +661,8 @@ impl Network {
             .args(["--socketcand", &hub_tcp(), "--control", &hub_control()])
             .arg("--candump")
             .arg(dir.join("bus.log"))
+            .arg("--pcap")
+            .arg(dir.join("bus.pcap"))
             .stdin(Stdio::null())
             .stdout(std::fs::File::create(&output)?)
             .stderr(std::fs::File::create(dir.join("emulate-network.err"))?);
