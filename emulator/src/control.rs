@@ -596,6 +596,48 @@ mod tests {
         assert_eq!(panel.reports(2 + REPORT_PERIOD).len(), 2);
     }
 
+    /// Over TCP: a client's bad line is answered with a sentence, its good line with `ok`,
+    /// and the status lines reach every client.
+    #[test]
+    fn the_control_port_answers_each_client_and_reports_to_all() {
+        use std::io::BufRead as _;
+        let mut network = bus_only();
+        let mut panel = Panel::new(&mut network, true);
+        let mut port = Server::listen("127.0.0.1:0").expect("a port");
+        let mut client = TcpStream::connect(port.local_addr()).expect("connected");
+        client
+            .set_read_timeout(Some(std::time::Duration::from_secs(5)))
+            .unwrap();
+        client.write_all(b"frobnicate 3\r\ndrop 0x102\n").unwrap();
+        let mut lines = std::io::BufReader::new(client.try_clone().unwrap()).lines();
+        let mut answers = Vec::new();
+        let give_up = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        client
+            .set_read_timeout(Some(std::time::Duration::from_millis(20)))
+            .unwrap();
+        while answers.len() < 2 && std::time::Instant::now() < give_up {
+            port.serve(&mut panel, &mut network);
+            if let Some(Ok(line)) = lines.next() {
+                answers.push(line);
+            }
+        }
+        assert_eq!(answers.len(), 2, "{answers:?}");
+        assert!(
+            answers[0].starts_with("error `frobnicate` with 1 argument(s) is not a command"),
+            "{}",
+            answers[0]
+        );
+        assert_eq!(answers[1], "ok drop 0x102 t=0.000000");
+        port.write(None, "status node1a t=0.100000");
+        client
+            .set_read_timeout(Some(std::time::Duration::from_secs(5)))
+            .unwrap();
+        assert_eq!(
+            lines.next().and_then(Result::ok).as_deref(),
+            Some("status node1a t=0.100000")
+        );
+    }
+
     /// The names of causes in logged safe states.
     #[test]
     fn a_logged_safe_state_names_its_cause() {

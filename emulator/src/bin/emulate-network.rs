@@ -110,7 +110,8 @@ struct Cli {
     /// With `--socketcand`: serve the control port on this TCP address (`127.0.0.1:29537`),
     /// the line protocol of `can-hub`'s (`emulator::control`): a channel's contact, the bus
     /// faults, a node's link cut and restored; every channel's status as the network shows
-    /// it, and how the pacing goes, written to every client.
+    /// it, and how the pacing goes, written to every client. The program then ends when an
+    /// MCU stops (a fault, a lockup), as a QEMU instance does.
     #[arg(long, value_name = "ADDRESS:PORT", requires = "socketcand")]
     control: Option<String>,
     /// With `--power-cut-sweep`: cut at every Nth step only (the first and the last steps
@@ -519,6 +520,12 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             // Killed at the end of a run driven over the control port: the traces so far are
             // on disk.
             candump.flush()?;
+            if stopped {
+                // A program driving the network learns it from the end of this process, as
+                // from a QEMU instance that a panic or HardFault ends; why is printed above.
+                summary(&network, &names, &frames, started);
+                return Ok(false);
+            }
         }
         if let Some((port, panel)) = control.as_mut() {
             port.serve(panel, &mut network);
