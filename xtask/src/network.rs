@@ -171,6 +171,14 @@ impl Images {
         }
     }
 
+    /// Who carries out the control commands (drops, corrupts, refuses), in words.
+    pub fn controller(self) -> &'static str {
+        match self {
+            Images::Qemu => "the hub",
+            Images::Shipped => "the emulated network",
+        }
+    }
+
     /// Who reports the channels' statuses, in words.
     pub fn reporter(self) -> &'static str {
         match self {
@@ -800,7 +808,7 @@ impl Network {
     pub fn command(&mut self, command: &str) -> Result<f64> {
         self.control
             .command(command)?
-            .map_err(|why| anyhow!("the hub refused `{command}`: {why}"))
+            .map_err(|why| anyhow!("{} refused `{command}`: {why}", self.images.controller()))
     }
 
     fn configure(&mut self) -> Result<()> {

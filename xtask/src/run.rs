@@ -176,8 +176,8 @@ const KEYS: &str = "e e-stop  d drop  c corrupt  s stop node 1  b B differs  l c
 fn help() -> Vec<String> {
     [
         "e   press or release the emergency stop (both contacts of node 1)",
-        "d   the hub drops node 1's next inverted frame (node 33: SRVT elapsed)",
-        "c   the hub corrupts byte 0 of node 1's next plain frame",
+        "d   node 1's next inverted frame is dropped on the bus (node 33: SRVT elapsed)",
+        "c   byte 0 of node 1's next plain frame is corrupted on the bus",
         "s   stop node 1 (both channels muted; node 33: SCT elapsed)",
         "b   channel B of node 1 reads its input as 0, channel A as 1",
         "l   cut the link between node 33's channels, or restore it",
@@ -328,13 +328,18 @@ fn apply(
         }
         Action::Drop => {
             network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
-            "the hub drops node 1's next inverted frame".to_owned()
+            format!(
+                "{} drops node 1's next inverted frame",
+                network.images.controller()
+            )
         }
         Action::Corrupt => {
             network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
-            "the hub corrupts byte 0 of node 1's next plain frame (node 1's channel B sees it \
-             too and withholds the inverted frame)"
-                .to_owned()
+            format!(
+                "{} corrupts byte 0 of node 1's next plain frame (node 1's channel B sees it \
+                 too and withholds the inverted frame)",
+                network.images.controller()
+            )
         }
         Action::Stop => {
             network.command("mute node1a")?;
