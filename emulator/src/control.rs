@@ -10,7 +10,8 @@
 //!   heartbeats (its NMT state; a boot-up clears what was latched), its EMCY frames (the
 //!   cause), the channel's own log (a `SafeState(..)` or `Fault(..)` line and the cause it
 //!   names), its output pin, the contact as driven, the link wire as cut, the SRDO frames it
-//!   sent, and the SRDO pairs the bus delivered to it while Operational and working, once its
+//!   sent (SRDO frames, SimpleCAN data packets), and the SRDO pairs and SimpleCAN data packets
+//!   the bus delivered to it while Operational and working, once its
 //!   output has come on since its node's boot-up (a consumer's output comes on only on
 //!   confirmed pairs; a producer's never does). That count is what reached a working
 //!   consumer, not the channel's own count of the pairs it validated. The figures only an image itself measures (stalls, link gaps,
@@ -33,6 +34,7 @@ use emulation_wire::Status;
 use shared::canopen::emcy::{self, Emergency};
 use shared::canopen::nmt::NmtState;
 use shared::safety::cause::Cause;
+use shared::simplecan::frame::{self as simplecan, SYNC_IDENTIFIER};
 use shared::{CanFrame, CanId, Instant};
 
 use crate::network::{Event, Network};
@@ -305,25 +307,40 @@ impl Panel {
             // An error reset (CiA 301 7.2.7.3.1): the node says it has no error left.
             self.nodes.entry((id - 0x080) as u8).or_default().cause = None;
         }
-        if SRDO_IDS.contains(&id) && !frame.is_remote() {
+        let simplecan_data = simplecan::is_simplecan(frame.id()) && id != SYNC_IDENTIFIER.raw();
+        if (SRDO_IDS.contains(&id) || simplecan_data) && !frame.is_remote() {
             if let Some(sender) = sender {
                 self.channels[sender].sent = self.channels[sender].sent.saturating_add(1);
             }
-            if id % 2 == 1 {
+            // A value is complete with an SRDO's inverted half, or with a SimpleCAN data
+            // packet (its CRC is the consumer's to check).
+            let complete = if simplecan_data {
+                true
+            } else if id % 2 == 1 {
                 self.plain = Some(id);
-            } else if self.plain.take() == Some(id - 1) {
-                let receivers: Vec<usize> = (0..self.channels.len())
-                    .filter(|&mcu| Some(mcu) != sender && self.channels[mcu].consumer)
-                    .filter(|&mcu| {
-                        let status = self.status(mcu);
-                        status.working && status.nmt_state() == Some(NmtState::Operational)
-                    })
-                    .collect();
-                for mcu in receivers {
-                    let channel = &mut self.channels[mcu];
-                    channel.validated = channel.validated.saturating_add(1);
-                }
+                false
+            } else {
+                self.plain.take() == Some(id - 1)
+            };
+            if complete {
+                self.delivered(sender);
             }
+        }
+    }
+
+    /// A complete value (an SRDO pair, a SimpleCAN data packet) from `sender` reached every
+    /// other channel: counted for each working, Operational consumer.
+    fn delivered(&mut self, sender: Option<usize>) {
+        let receivers: Vec<usize> = (0..self.channels.len())
+            .filter(|&mcu| Some(mcu) != sender && self.channels[mcu].consumer)
+            .filter(|&mcu| {
+                let status = self.status(mcu);
+                status.working && status.nmt_state() == Some(NmtState::Operational)
+            })
+            .collect();
+        for mcu in receivers {
+            let channel = &mut self.channels[mcu];
+            channel.validated = channel.validated.saturating_add(1);
         }
     }
 
@@ -563,6 +580,10 @@ mod tests {
         on_bus(&mut panel, "node1a", frame(0x101, &[0]));
         on_bus(&mut panel, "node1b", frame(0x102, &[0xFF]));
         assert_eq!(panel.status(1).validated, 2);
+        // A SimpleCAN data packet (SC-ID 30h) is a value of its own; a sync (02Fh) is none.
+        on_bus(&mut panel, "node1a", frame(0x02F, &[0; 8]));
+        on_bus(&mut panel, "node1a", frame(0x030, &[0; 8]));
+        assert_eq!(panel.status(1).validated, 3);
         panel.log(1, "Fault(PeerSafeState { cause: 17 })");
         assert!(!panel.status(1).working);
         assert_eq!(panel.status(1).cause, Cause::PeerSafeState.code());
