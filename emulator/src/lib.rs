@@ -13,11 +13,13 @@
 //!   a sentence, [`stop`]);
 //! - [`image`], [`rtt`], [`log`]: the sealed image loaded, its defmt log drained from RTT and
 //!   decoded;
-//! - [`network`]: MCUs on one CAN bus in one virtual time; [`tool_port`] and [`cases`]: the
-//!   configuration tool's library on it in-process; [`socketcand`]: separate programs on it
-//!   over TCP, on a virtual time that follows the host clock.
+//! - [`network`]: MCUs on one CAN bus in one virtual time; [`control`]: its control port;
+//!   [`tool_port`] and [`cases`]: the configuration tool's library on it in-process;
+//!   [`socketcand`]: separate programs on it over TCP, on a virtual time that follows the host
+//!   clock.
 
 pub mod cases;
+pub mod control;
 pub mod cpu;
 pub mod e2e;
 pub mod figures;

@@ -1,6 +1,8 @@
 //! The hub's control port: a line protocol on TCP for people (`nc 127.0.0.1 29537`), scripts
 //! and tests. It sets the emulated boards' input pins, injects faults on the bus, cuts the
-//! links between channels, and reports every channel's status as it arrives.
+//! links between channels, and reports every channel's status as it arrives. The emulated
+//! network of the shipped images serves the same protocol (`emulate-network --control`,
+//! `emulator::control`).
 //!
 //! ```text
 //! → input node1a 0            the input pin of participant node1a reads 0

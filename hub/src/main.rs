@@ -41,15 +41,13 @@ use can_hub::events;
 use can_hub::hub::Hub;
 use can_hub::load::Load;
 use can_hub::pace::{self, Pacer};
-use can_hub::port::{
-    Arrival, Connections, MAX_CLIENTS, ToolEvent, WRITE_TIMEOUT, accept_socketcand, reader, refuse,
-};
+use can_hub::port::{Arrival, ControlEvent, ToolEvent, accept_control, accept_socketcand, reader};
 use can_hub::trace::{PcapWriter, candump_line};
 use clap::Parser;
 use shared::Instant;
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Write};
+use std::io::{BufWriter, Write};
 use std::net::{Shutdown, TcpListener, TcpStream};
 use std::os::unix::net::UnixListener;
 use std::path::PathBuf;
@@ -313,35 +311,14 @@ fn start(args: &Args) -> Result<(), String> {
     if let Some(address) = &args.control {
         let listener = TcpListener::bind(address).map_err(|e| cannot_listen(address, &e))?;
         let tx = tx.clone();
-        let controls = Connections::default();
-        std::thread::spawn(move || {
-            for (client, stream) in listener.incoming().enumerate() {
-                let Ok(stream) = stream else { continue };
-                let _ = stream.set_nodelay(true);
-                let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
-                let Some(counted) = controls.take() else {
-                    refuse(
-                        stream,
-                        &format!(
-                            "error the hub serves {MAX_CLIENTS} control clients at once; close one and connect again\n"
-                        ),
-                    );
-                    continue;
-                };
-                if let Ok(writer) = stream.try_clone() {
-                    let _ = tx.send(Input::ControlJoined(client, Box::new(writer)));
-                    let tx = tx.clone();
-                    std::thread::spawn(move || {
-                        let _counted = counted;
-                        let mut reader = BufReader::new(stream);
-                        while let Ok(Some(line)) = control::read_line(&mut reader) {
-                            if tx.send(Input::Control(client, line)).is_err() {
-                                return;
-                            }
-                        }
-                    });
+        accept_control(listener, "the hub", move |event| {
+            tx.send(match event {
+                ControlEvent::Joined(client, writer) => {
+                    Input::ControlJoined(client, Box::new(writer))
                 }
-            }
+                ControlEvent::Line(client, line) => Input::Control(client, line),
+            })
+            .is_ok()
         });
     }
     drop(tx);

@@ -159,3 +159,57 @@ pub fn accept_socketcand(
         }
     });
 }
+
+/// What the control port's threads report ([`accept_control`]).
+#[derive(Debug)]
+pub enum ControlEvent {
+    /// A client connected as number `client`: its connection, to write the answers and the
+    /// reports to (with [`WRITE_TIMEOUT`] set).
+    Joined(usize, TcpStream),
+    /// A line from client `client`, or why it was refused
+    /// ([`crate::control::read_line`]).
+    Line(usize, Result<String, String>),
+}
+
+/// Accepts control clients (the line protocol of [`crate::control`]) on `listener` in a
+/// thread of its own, numbered from 0, each read line by line in a thread of its own;
+/// everything is reported to `tell`. Past [`MAX_CLIENTS`] a client is told, in an `error`
+/// line naming `server` (`the hub`), that it serves that many, and closed.
+pub fn accept_control(
+    listener: TcpListener,
+    server: &str,
+    tell: impl Fn(ControlEvent) -> bool + Clone + Send + 'static,
+) {
+    let refusal = format!(
+        "error {server} serves {MAX_CLIENTS} control clients at once; close one and connect \
+         again\n"
+    );
+    let controls = Connections::default();
+    std::thread::spawn(move || {
+        for (client, stream) in listener.incoming().enumerate() {
+            let Ok(stream) = stream else { continue };
+            let _ = stream.set_nodelay(true);
+            let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
+            let Some(counted) = controls.take() else {
+                refuse(stream, &refusal);
+                continue;
+            };
+            let Ok(writer) = stream.try_clone() else {
+                continue;
+            };
+            if !tell(ControlEvent::Joined(client, writer)) {
+                return;
+            }
+            let tell = tell.clone();
+            std::thread::spawn(move || {
+                let _counted = counted;
+                let mut reader = std::io::BufReader::new(stream);
+                while let Ok(Some(line)) = crate::control::read_line(&mut reader) {
+                    if !tell(ControlEvent::Line(client, line)) {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+}

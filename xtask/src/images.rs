@@ -331,15 +331,16 @@ pub fn tampered_copy(elf: &Path, copy: &Path, change: impl FnOnce(&mut [u8])) ->
     Ok(())
 }
 
-/// Builds both images of `layer` and seals them.
-pub fn build_layer(root: &Path, cross: &Cross, layer: Layer) -> Result<()> {
+/// Builds both images of `layer` and seals them; their image CRCs (channels A and B).
+pub fn build_layer(root: &Path, cross: &Cross, layer: Layer) -> Result<[u32; 2]> {
     crate::run(&mut cargo(cross, root, "build", layer))?;
-    for channel in ["a", "b"] {
+    let mut crcs = [0; 2];
+    for (crc, channel) in crcs.iter_mut().zip(["a", "b"]) {
         let elf = image(cross, root, layer, channel);
-        let crc = seal(&elf)?;
+        *crc = seal(&elf)?;
         println!("xtask: channel-{channel} ({layer:?}): sealed, image CRC {crc:08X}h");
     }
-    Ok(())
+    Ok(crcs)
 }
 
 /// The hardware images a user flashes (CANopen Safety, [`Layer::Hw`]; SimpleCAN,

@@ -205,6 +205,11 @@ enum Task {
         /// default) or `simplecan` (the SimpleCAN images, SC-ID 30h, node 1 the master).
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
+        /// What the MCUs run: `qemu` (the QEMU images under the hub, the default) or
+        /// `shipped` (the sealed hardware images on `emulate-network`, its control port
+        /// speaking the hub's protocol).
+        #[arg(long, value_enum, default_value_t)]
+        images: network::Images,
     },
     /// The host demo: two nodes on a simulated bus under simulated time (no QEMU), with an
     /// emergency stop and injected faults, every step checked.
@@ -510,7 +515,8 @@ fn task() -> Result<()> {
             duration,
             at,
             protocol,
-        } => run::task(&root, duration, at, protocol),
+            images,
+        } => run::task(&root, duration, at, protocol, images),
         Task::Demo { args } => {
             let mut command = cargo();
             command.args([

@@ -12,7 +12,7 @@ use std::time::Duration;
 
 /// Builds both images for QEMU and seals them.
 pub fn build(root: &Path, cross: &Cross) -> Result<()> {
-    images::build_layer(root, cross, Layer::Qemu)
+    images::build_layer(root, cross, Layer::Qemu).map(drop)
 }
 
 /// The QEMU image of `channel` (`a` or `b`).

@@ -21,6 +21,14 @@
 //! screen ([`Restart`]): the nodes' boot-up messages are awaited, then NMT start, then every
 //! channel Operational and working, each step on the network's time.
 //!
+//! `--images shipped`: the same run on the sealed hardware images `cargo xtask build` makes,
+//! unchanged, on the emulated STM32F405s of `emulate-network` (the `emulator` crate) instead
+//! of the QEMU images under the hub: the tool and the monitor join its socketcand port, the
+//! run drives it through its control port, which speaks the hub's protocol
+//! (`emulator::control`), and each channel's status is what the emulator sees of it from
+//! outside (heartbeats, EMCYs, the channel's own log, its pins). The run refuses images whose
+//! CRC the emulator reads differently from what the build sealed, and prints both CRCs.
+//!
 //! `--protocol simplecan`: the same network on the SimpleCAN images, configured from
 //! `scenarios/networks/simplecan.toml` (node 1 the master and producer of SC-ID 30h, node 33
 //! its consumer, [`network::Protocol`]). The actions act on the same channels: `press`,
@@ -168,8 +176,8 @@ const KEYS: &str = "e e-stop  d drop  c corrupt  s stop node 1  b B differs  l c
 fn help() -> Vec<String> {
     [
         "e   press or release the emergency stop (both contacts of node 1)",
-        "d   the hub drops node 1's next inverted frame (node 33: SRVT elapsed)",
-        "c   the hub corrupts byte 0 of node 1's next plain frame",
+        "d   node 1's next inverted frame is dropped on the bus (node 33: SRVT elapsed)",
+        "c   byte 0 of node 1's next plain frame is corrupted on the bus",
         "s   stop node 1 (both channels muted; node 33: SCT elapsed)",
         "b   channel B of node 1 reads its input as 0, channel A as 1",
         "l   cut the link between node 33's channels, or restore it",
@@ -320,13 +328,18 @@ fn apply(
         }
         Action::Drop => {
             network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
-            "the hub drops node 1's next inverted frame".to_owned()
+            format!(
+                "{} drops node 1's next inverted frame",
+                network.images.controller()
+            )
         }
         Action::Corrupt => {
             network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
-            "the hub corrupts byte 0 of node 1's next plain frame (node 1's channel B sees it \
-             too and withholds the inverted frame)"
-                .to_owned()
+            format!(
+                "{} corrupts byte 0 of node 1's next plain frame (node 1's channel B sees it \
+                 too and withholds the inverted frame)",
+                network.images.controller()
+            )
         }
         Action::Stop => {
             network.command("mute node1a")?;
@@ -805,6 +818,7 @@ pub fn task(
     duration: Option<Duration>,
     mut schedule: Vec<(Duration, Action)>,
     protocol: network::Protocol,
+    images: network::Images,
 ) -> Result<()> {
     check_schedule(duration, &schedule).map_err(anyhow::Error::msg)?;
     let interrupted = Arc::new(AtomicBool::new(false));
@@ -819,7 +833,7 @@ pub fn task(
     if !live && !typed && duration.is_none() {
         bail!("not on a terminal: give `--for <duration>` to run unattended");
     }
-    let mut network = Network::start_for(root, protocol)?;
+    let mut network = Network::start_images(root, protocol, images)?;
     // The monitor's own socketcand connection to the hub, beside the configuration tool's.
     let mut bus = SocketcandClient::connect(&network::hub_tcp(), "can0")?;
     let origin = "target/emulate/network.toml";
@@ -860,8 +874,10 @@ pub fn task(
         None
     };
     let mut screen = Screen {
-        title: "cargo xtask run: the emulated safety network (nodes 1 and 33, four QEMU MCUs)"
-            .to_owned(),
+        title: format!(
+            "cargo xtask run: the emulated safety network (nodes 1 and 33, {})",
+            images.describe()
+        ),
         keys: KEYS.to_owned(),
         ..Screen::default()
     };
@@ -1008,7 +1024,8 @@ pub fn task(
                 ) {
                     screen.panels = vec![(
                         format!(
-                            "Channels (the hub's status reports; run time {:.1} s)",
+                            "Channels ({}; run time {:.1} s)",
+                            images.reporter(),
                             started.elapsed().as_secs_f64()
                         ),
                         channels,
@@ -1044,6 +1061,8 @@ pub fn task(
 
 fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<()>) -> Result<()> {
     let protocol = network.protocol;
+    let images = network.images;
+    let crcs = network.crcs;
     let latest = network.control.latest.clone();
     let stall = network.worst(|s| s.longest_stall_ms);
     let pace = network.pace_summary();
@@ -1061,9 +1080,17 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     if seen.resets > 0 {
         println!("resets: {}", seen.resets);
     }
-    println!("longest stall of an emulated MCU (host time it did not run): {stall} ms");
+    match (images, crcs) {
+        (network::Images::Shipped, Some([a, b])) => println!(
+            "the shipped images, unchanged: channel A image CRC {a:08X}h, channel B {b:08X}h \
+             (as `cargo xtask build` sealed them and the emulator read them)"
+        ),
+        _ => println!("longest stall of an emulated MCU (host time it did not run): {stall} ms"),
+    }
     println!("{pace}");
-    println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());
+    if images == network::Images::Qemu {
+        println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());
+    }
     for (name, lines) in &faults {
         let reports = safe_state_reports(lines);
         if let Some(last) = reports.last() {

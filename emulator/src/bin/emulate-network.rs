@@ -3,7 +3,9 @@
 //! for a span of virtual time; prints every MCU's decoded log, the frames on the bus and how
 //! each MCU's run ended. `cargo xtask emulate --network` builds the images and calls it.
 //! With `--socketcand ADDRESS:PORT`, separate programs join the bus over TCP
-//! (`emulator::socketcand`), and the virtual time follows the host clock.
+//! (`emulator::socketcand`), and the virtual time follows the host clock; with `--control
+//! ADDRESS:PORT` as well, a program drives the network through the line protocol of
+//! `can-hub`'s control port (`emulator::control`).
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -45,6 +47,10 @@ struct Cli {
     /// Write the frames on the bus as a candump log here.
     #[arg(long)]
     candump: Option<PathBuf>,
+    /// Write the frames on the bus as a pcap file here (LINKTYPE_CAN_SOCKETCAN, for
+    /// Wireshark), stamped with the virtual time.
+    #[arg(long)]
+    pcap: Option<PathBuf>,
     /// Print no MCU log lines, only the summary.
     #[arg(long)]
     quiet: bool,
@@ -101,6 +107,13 @@ struct Cli {
     /// (`emulator::socketcand`).
     #[arg(long, value_name = "ADDRESS:PORT", conflicts_with_all = ["nominal", "power_cut_sweep"])]
     socketcand: Option<String>,
+    /// With `--socketcand`: serve the control port on this TCP address (`127.0.0.1:29537`),
+    /// the line protocol of `can-hub`'s (`emulator::control`): a channel's contact, the bus
+    /// faults, a node's link cut and restored; every channel's status as the network shows
+    /// it, and how the pacing goes, written to every client. The program then ends when an
+    /// MCU stops (a fault, a lockup), as a QEMU instance does.
+    #[arg(long, value_name = "ADDRESS:PORT", requires = "socketcand")]
+    control: Option<String>,
     /// With `--power-cut-sweep`: cut at every Nth step only (the first and the last steps
     /// always).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
@@ -220,10 +233,19 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     let mut decoders: Vec<_> = (0..names.len())
         .map(|mcu| tables[mcu % 2].decoder())
         .collect();
-    let mut candump = match &cli.candump {
-        Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path)?)),
-        None => None,
+    let create = |path: &PathBuf| {
+        std::fs::File::create(path)
+            .map(std::io::BufWriter::new)
+            .map_err(|error| format!("cannot create {}: {error}", path.display()))
     };
+    let mut traces = Traces {
+        candump: cli.candump.as_ref().map(create).transpose()?,
+        pcap: match &cli.pcap {
+            Some(path) => Some(can_hub::trace::PcapWriter::new(create(path)?)?),
+            None => None,
+        },
+    };
+    let candump = &mut traces;
     let started = std::time::Instant::now();
     let mut frames = vec![0u64; names.len() + 1];
     if let Some(path) = &cli.nominal {
@@ -264,7 +286,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         trace.extend(network.take_events());
         let mut stopped = false;
         for event in &trace {
-            stopped |= print_event(event, &names, &mut frames, candump.as_mut())?;
+            stopped |= print_event(event, &names, &mut frames, candump)?;
         }
         if !cli.quiet {
             for mcu in 0..names.len() {
@@ -411,6 +433,19 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
         None => None,
     };
+    let mut control = match &cli.control {
+        Some(address) => {
+            let port = emulator::control::Server::listen(address)?;
+            let panel = emulator::control::Panel::new(&mut network, cli.inputs_closed);
+            println!("emulate-network: control clients join on {address}");
+            Some((port, panel))
+        }
+        None => None,
+    };
+    // With a control port, the network runs in short slices so that its commands take effect
+    // and its status lines go out promptly.
+    let slice = if control.is_some() { 1_000_000 } else { slice };
+    let mut next_pace_line: Nanos = 0;
     let duration = match (cli.duration, &server) {
         (Some(duration), _) => duration,
         (None, Some(_)) => Nanos::MAX,
@@ -466,6 +501,9 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         for mcu in 0..names.len() {
             for (at, bytes) in network.take_log(mcu) {
                 for line in decoders[mcu].feed(at, &bytes) {
+                    if let Some((_, panel)) = control.as_mut() {
+                        panel.log(mcu, &line.message);
+                    }
                     if !cli.quiet {
                         println!("{:<8} {line}", names[mcu]);
                     }
@@ -473,7 +511,33 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             }
         }
         for event in network.take_events() {
-            stopped |= print_event(&event, &names, &mut frames, candump.as_mut())?;
+            if let Some((_, panel)) = control.as_mut() {
+                panel.event(&event);
+            }
+            stopped |= print_event(&event, &names, &mut frames, candump)?;
+        }
+        if control.is_some() {
+            // Killed at the end of a run driven over the control port: the traces so far are
+            // on disk.
+            candump.flush()?;
+            if stopped {
+                // A program driving the network learns it from the end of this process, as
+                // from a QEMU instance that a panic or HardFault ends; why is printed above.
+                summary(&network, &names, &frames, started);
+                return Ok(false);
+            }
+        }
+        if let Some((port, panel)) = control.as_mut() {
+            port.serve(panel, &mut network);
+            for line in panel.reports(network.now()) {
+                port.write(None, &line);
+            }
+            if let Some(server) = &server
+                && network.now() >= next_pace_line
+            {
+                next_pace_line = network.now() + 1_000_000_000;
+                port.write(None, &can_hub::control::pace_line(&server.pace_report()));
+            }
         }
     }
     summary(&network, &names, &frames, started);
@@ -497,23 +561,45 @@ fn pace(server: &emulator::socketcand::Server) {
     );
 }
 
-/// Prints one event (frames go to the candump log only); whether it is an MCU's stop.
+/// The traces of the frames on the bus.
+struct Traces {
+    candump: Option<std::io::BufWriter<std::fs::File>>,
+    pcap: Option<can_hub::trace::PcapWriter<std::io::BufWriter<std::fs::File>>>,
+}
+
+impl Traces {
+    /// Writes what is buffered.
+    fn flush(&mut self) -> std::io::Result<()> {
+        if let Some(out) = &mut self.candump {
+            out.flush()?;
+        }
+        if let Some(pcap) = &mut self.pcap {
+            pcap.flush()?;
+        }
+        Ok(())
+    }
+}
+
+/// Prints one event (frames go to the traces only); whether it is an MCU's stop.
 fn print_event(
     event: &Event,
     names: &[String],
     frames: &mut [u64],
-    candump: Option<&mut std::io::BufWriter<std::fs::File>>,
+    traces: &mut Traces,
 ) -> std::io::Result<bool> {
     match event {
         Event::Frame { at, from, frame } => {
             let index = names.iter().position(|n| n == from).unwrap_or(names.len());
             frames[index] += 1;
-            if let Some(out) = candump {
+            if let Some(out) = &mut traces.candump {
                 writeln!(
                     out,
                     "{}",
                     can_hub::trace::candump_line(at / 1_000, "vcan0", frame)
                 )?;
+            }
+            if let Some(pcap) = &mut traces.pcap {
+                pcap.write(at / 1_000, frame)?;
             }
         }
         Event::Output { at, mcu, on } => println!(
