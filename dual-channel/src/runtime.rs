@@ -1233,7 +1233,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     fn send(&mut self, message: &Message, io: &mut impl Io) {
         // Every message fits a frame; an encoding failure would be a bug, and the other
         // channel then sees a sequence gap and goes to the safe state.
-        if let Ok(bytes) = self.sender.encode(message) {
+        let mut bytes = heapless::Vec::new();
+        if self.sender.encode_into(message, &mut bytes).is_ok() {
             io.link(&bytes);
         }
     }
