@@ -181,8 +181,7 @@ mod tests {
                 _ => {
                     let mut out = [0u8; 12];
                     let count = ring.take_into(&mut out[..length]);
-                    let expected: Vec<u8> =
-                        (0..length).map_while(|_| model.pop_front()).collect();
+                    let expected: Vec<u8> = (0..length).map_while(|_| model.pop_front()).collect();
                     assert_eq!(&out[..count], &expected[..], "step {step}");
                 }
             }
@@ -191,6 +190,9 @@ mod tests {
             assert_eq!(ring.room(), 16 - model.len(), "step {step}");
             assert_eq!(ring.is_empty(), model.is_empty(), "step {step}");
         }
-        assert!(wrapped, "the sequence never held bytes across the end of the array");
+        assert!(
+            wrapped,
+            "the sequence never held bytes across the end of the array"
+        );
     }
 }

@@ -27,6 +27,7 @@
 //! emulator's USART model (written from RM0090, `emulator/src/peripherals/usart.rs`) runs this
 //! driver in the shipped images.
 
+use crate::byte_ring::ByteRing;
 use core::cell::RefCell;
 use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -40,7 +41,6 @@ use embassy_stm32::usart::{RxPin, TxPin};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::waitqueue::AtomicWaker;
-use crate::byte_ring::ByteRing;
 
 use dual_channel::link::DELIMITER;
 /// Receive queue, bytes: what arrives while the loop is busy.
