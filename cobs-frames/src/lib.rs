@@ -101,7 +101,10 @@ impl<const N: usize> Reassembler<N> {
     }
 
     /// Appends non-delimiter bytes; what does not fit marks the frame as overflowed, as a
-    /// byte [`Reassembler::push`] cannot keep does.
+    /// byte [`Reassembler::push`] cannot keep does. Kept out of line: the emulator's profile
+    /// tells a loop iteration that received a link message by its entry
+    /// (`emulator::profile::MARKERS`).
+    #[inline(never)]
     fn collect(&mut self, bytes: &[u8]) {
         let room = N - self.len;
         let (kept, dropped) = bytes.split_at(bytes.len().min(room));

@@ -395,8 +395,10 @@ impl Receiver {
         bytes: &[u8],
     ) -> (usize, Option<Result<Message, LinkFault>>) {
         let mut taken = 0;
+        // One buffer for every frame these bytes complete: each is decoded over the last
+        // one's bytes, and only the bytes it decoded are read.
+        let mut raw = [0u8; MAX_WIRE];
         while taken < bytes.len() {
-            let mut raw = [0u8; MAX_WIRE];
             let (count, completed) = self
                 .frames
                 .push_slice(bytes.get(taken..).unwrap_or_default(), &mut raw);
