@@ -25,6 +25,7 @@ use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 
 pub mod bxcan_adapter;
+pub mod byte_ring;
 pub mod diagnostics;
 pub mod frame_trail;
 #[cfg(all(target_os = "none", feature = "hw"))]

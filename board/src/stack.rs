@@ -12,11 +12,11 @@
 
 /// Words of the stack one loop iteration reads at most. Few: the loop runs at every wake-up
 /// (every link message, every frame, the input sample every millisecond), and the search
-/// is paid at each of them; enough that a pass over the region (all the RAM above the
-/// statics, not only the stack's reserve) takes about a second of the loop's iterations, so
-/// that a new mark comes that much later, never lost (`docs/emulated-figures.md` has what an
-/// iteration costs with it).
-pub const WORDS_PER_STEP: usize = 32;
+/// is paid at each of them, in the idle iteration too, where it was the largest single part
+/// (`docs/emulated-figures.md` has what an iteration costs with it); enough that a pass over
+/// the region (all the RAM above the statics, not only the stack's reserve) takes a few
+/// seconds of the loop's iterations, so that a new mark comes that much later, never lost.
+pub const WORDS_PER_STEP: usize = 8;
 
 /// The search for the deepest word no longer painted, a few words per call.
 ///

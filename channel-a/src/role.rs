@@ -254,7 +254,12 @@ impl<const N: usize> Role<N> for ChannelA {
                 }
             }
         }
-        for awaited in self.awaiting.iter_mut().flatten() {
+        // Loops over the slots, not `flatten()`: the adapter was not inlined at the images'
+        // optimisation level, and this runs at every poll.
+        for slot in &mut self.awaiting {
+            let Some(awaited) = slot else {
+                continue;
+            };
             let since = *awaited.since.get_or_insert(now);
             if shared::time::expired(since + awaited.limit, now) {
                 let srdo = awaited.srdo;
@@ -275,16 +280,16 @@ impl<const N: usize> Role<N> for ChannelA {
     }
 
     fn deadline(&self) -> Instant {
-        self.awaiting
-            .iter()
-            .flatten()
-            .map(|awaited| match awaited.since {
+        let mut earliest = Instant::NEVER;
+        for awaited in self.awaiting.iter().filter_map(Option::as_ref) {
+            let deadline = match awaited.since {
                 Some(since) => since + awaited.limit,
                 // Not stamped yet: the next poll does it.
                 None => Instant::ZERO,
-            })
-            .min()
-            .unwrap_or(Instant::NEVER)
+            };
+            earliest = earliest.min(deadline);
+        }
+        earliest
     }
 
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32 {

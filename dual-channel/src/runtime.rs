@@ -997,10 +997,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         ];
         #[cfg(feature = "simplecan")]
         let node_deadline = node_deadline.min(self.simplecan_poll(now, io));
-        supervision
-            .into_iter()
-            .filter(|deadline| *deadline > now)
-            .fold(node_deadline.min(self.next_heartbeat), Instant::min)
+        earliest_ahead(node_deadline.min(self.next_heartbeat), &supervision, now)
     }
 
     /// What the role answered: a frame to send (not in the safe state), or a fault.
@@ -1236,7 +1233,8 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
     fn send(&mut self, message: &Message, io: &mut impl Io) {
         // Every message fits a frame; an encoding failure would be a bug, and the other
         // channel then sees a sequence gap and goes to the safe state.
-        if let Ok(bytes) = self.sender.encode(message) {
+        let mut bytes = heapless::Vec::new();
+        if self.sender.encode_into(message, &mut bytes).is_ok() {
             io.link(&bytes);
         }
     }
@@ -1797,6 +1795,20 @@ impl<const C: usize> FrameSlots<C> {
 /// `true` for identifiers in the SRDO range ([`SRDO_IDENTIFIERS`]).
 pub fn is_srdo(frame: &CanFrame) -> bool {
     SRDO_IDENTIFIERS.contains(&frame.id().raw())
+}
+
+/// The earliest of `first` and those of `deadlines` after `now` (a deadline at or before
+/// `now` has done its work). A plain loop over the slice: the iterator chain it replaces
+/// (`into_iter`, `filter`, `fold` on the array) was compiled into a copy of the array and a
+/// call per element at every poll (`docs/emulated-figures.md`).
+fn earliest_ahead(first: Instant, deadlines: &[Instant], now: Instant) -> Instant {
+    let mut earliest = first;
+    for &deadline in deadlines {
+        if deadline > now && deadline < earliest {
+            earliest = deadline;
+        }
+    }
+    earliest
 }
 
 /// CRC-32 over signatures, as [`Role::signature_digest`] folds them for the link: each

@@ -44,8 +44,14 @@ impl CanId {
 }
 
 /// A classic CAN data or remote frame with a base (11-bit) identifier.
+///
+/// Aligned to four bytes (its size, twelve, is the same either way): frames are copied at
+/// every step between the controller and the core, and on the Cortex-M4 images a copy of a
+/// two-byte-aligned value went through the byte-wise general copy routine, one word-aligned
+/// goes word by word.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(align(4))]
 pub struct CanFrame {
     id: CanId,
     remote: bool,

@@ -90,8 +90,20 @@ impl Handler<typelevel::CAN1_TX> for WakeOnTransmit {
     }
 }
 
-/// Puts the receive lines back into the NVIC.
+/// Puts the receive lines back into the NVIC. A line whose FIFO is empty now first loses the
+/// pending state it took while masked: the FIFO that raised it was still full when the
+/// handler returned (the line is level-triggered, ARMv7-M B3.4.1, so it pended again behind
+/// the mask), and the loop has read the FIFO since; left pending, it would wake the loop at
+/// once for nothing, an iteration per frame received. A FIFO that holds a frame keeps its
+/// line pending, and wakes the loop at once, as before.
 pub fn unmask_receive() {
+    let can = embassy_stm32::pac::CAN1;
+    if can.rfr(0).read().fmp() == 0 {
+        typelevel::CAN1_RX0::unpend();
+    }
+    if can.rfr(1).read().fmp() == 0 {
+        typelevel::CAN1_RX1::unpend();
+    }
     // SAFETY: the handlers share nothing with the task but the `Wakeup` atomics, and no
     // critical section of this program relies on these lines being masked.
     unsafe {
@@ -100,8 +112,13 @@ pub fn unmask_receive() {
     }
 }
 
-/// Puts the transmit line back into the NVIC.
+/// Puts the transmit line back into the NVIC; as [`unmask_receive`], a line pending from a
+/// completion the driver has acknowledged since (no RQCP set) loses its pending state first.
 pub fn unmask_transmit() {
+    let status = embassy_stm32::pac::CAN1.tsr().read();
+    if !(0..3).any(|mailbox| status.rqcp(mailbox)) {
+        typelevel::CAN1_TX::unpend();
+    }
     // SAFETY: as `unmask_receive`.
     unsafe { typelevel::CAN1_TX::enable() }
 }

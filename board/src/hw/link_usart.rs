@@ -27,6 +27,7 @@
 //! emulator's USART model (written from RM0090, `emulator/src/peripherals/usart.rs`) runs this
 //! driver in the shipped images.
 
+use crate::byte_ring::ByteRing;
 use core::cell::RefCell;
 use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -40,7 +41,6 @@ use embassy_stm32::usart::{RxPin, TxPin};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::waitqueue::AtomicWaker;
-use heapless::Deque;
 
 use dual_channel::link::DELIMITER;
 /// Receive queue, bytes: what arrives while the loop is busy.
@@ -52,7 +52,7 @@ type Shared<T> = Mutex<CriticalSectionRawMutex, RefCell<T>>;
 
 /// Bytes received, oldest first, and how many frame delimiters are among them.
 struct Received {
-    bytes: Deque<u8, RX_BYTES>,
+    bytes: ByteRing<RX_BYTES>,
     delimiters: usize,
 }
 
@@ -65,11 +65,11 @@ impl Received {
 
 /// Bytes received.
 static RX: Shared<Received> = Mutex::new(RefCell::new(Received {
-    bytes: Deque::new(),
+    bytes: ByteRing::new(),
     delimiters: 0,
 }));
 /// Bytes to send, oldest first.
-static TX: Shared<Deque<u8, TX_BYTES>> = Mutex::new(RefCell::new(Deque::new()));
+static TX: Shared<ByteRing<TX_BYTES>> = Mutex::new(RefCell::new(ByteRing::new()));
 /// The loop, waiting for link bytes.
 static RX_WAKER: AtomicWaker = AtomicWaker::new();
 /// A byte was lost since the last [`take_lost`]: the receive queue was full, or the USART
@@ -89,7 +89,7 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
             let byte = usart.dr().read().dr() as u8;
             let (kept, wake) = RX.lock(|rx| {
                 let mut rx = rx.borrow_mut();
-                let kept = rx.bytes.push_back(byte).is_ok();
+                let kept = rx.bytes.push(byte);
                 if kept && byte == DELIMITER {
                     rx.delimiters += 1;
                 }
@@ -103,7 +103,7 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
             }
         }
         if status.txe() && usart.cr1().read().txeie() {
-            TX.lock(|tx| match tx.borrow_mut().pop_front() {
+            TX.lock(|tx| match tx.borrow_mut().pop() {
                 // RM0090 30.6.1: a write to DR clears TXE.
                 Some(byte) => usart.dr().write(|w| w.set_dr(u16::from(byte))),
                 None => usart.cr1().modify(|w| w.set_txeie(false)),
@@ -184,13 +184,9 @@ pub fn start() {
 /// Queues `bytes` whole for sending, or none of them (`false`: no room).
 pub fn write(bytes: &[u8]) -> bool {
     TX.lock(|tx| {
-        let mut tx = tx.borrow_mut();
-        if tx.capacity() - tx.len() < bytes.len() {
+        // The whole message in one copy, or nothing when it does not fit.
+        if !tx.borrow_mut().extend(bytes) {
             return false;
-        }
-        for &byte in bytes {
-            // Room was checked above.
-            let _ = tx.push_back(byte);
         }
         // Inside the critical section: the handler clears TXEIE under the same lock.
         pac::USART3.cr1().modify(|w| w.set_txeie(true));
@@ -202,19 +198,15 @@ pub fn write(bytes: &[u8]) -> bool {
 pub fn read(buf: &mut [u8]) -> usize {
     RX.lock(|rx| {
         let mut rx = rx.borrow_mut();
-        let mut count = 0;
-        for slot in buf.iter_mut() {
-            match rx.bytes.pop_front() {
-                Some(byte) => {
-                    *slot = byte;
-                    if byte == DELIMITER {
-                        rx.delimiters = rx.delimiters.saturating_sub(1);
-                    }
-                }
-                None => break,
-            }
-            count += 1;
-        }
+        let count = rx.bytes.take_into(buf);
+        // The delimiters taken out with them leave the count.
+        let taken = buf
+            .get(..count)
+            .unwrap_or_default()
+            .iter()
+            .filter(|&&byte| byte == DELIMITER)
+            .count();
+        rx.delimiters = rx.delimiters.saturating_sub(taken);
         count
     })
 }

@@ -264,6 +264,20 @@ impl Sender {
         &mut self,
         message: &Message,
     ) -> Result<heapless::Vec<u8, MAX_WIRE>, EncodeError> {
+        let mut out = heapless::Vec::new();
+        self.encode_into(message, &mut out)?;
+        Ok(out)
+    }
+
+    /// As [`Sender::encode`], into the caller's empty `out`: the bytes are written where the
+    /// caller keeps them, not returned by value and copied out of the result (a copy call for
+    /// every message sent, on the images). On an error `out` holds no message.
+    pub fn encode_into(
+        &mut self,
+        message: &Message,
+        out: &mut heapless::Vec<u8, MAX_WIRE>,
+    ) -> Result<(), EncodeError> {
+        out.clear();
         let mut raw = [0u8; MAX_RAW];
         let (sequence, rest) = raw.split_first_chunk_mut::<2>().ok_or(EncodeError)?;
         *sequence = self.sequence.to_le_bytes();
@@ -277,11 +291,12 @@ impl Sender {
             .copy_from_slice(&crc.to_le_bytes());
         // `MAX_WIRE` holds the longest encoding of `MAX_RAW` bytes and the delimiter, so
         // this cannot fail.
-        let mut out = heapless::Vec::new();
-        cobs_frames::encode_into(raw.get(..end + 4).ok_or(EncodeError)?, &mut out)
-            .map_err(|_| EncodeError)?;
+        if cobs_frames::encode_into(raw.get(..end + 4).ok_or(EncodeError)?, out).is_err() {
+            out.clear();
+            return Err(EncodeError);
+        }
         self.sequence = self.sequence.wrapping_add(1);
-        Ok(out)
+        Ok(())
     }
 }
 
@@ -380,8 +395,10 @@ impl Receiver {
         bytes: &[u8],
     ) -> (usize, Option<Result<Message, LinkFault>>) {
         let mut taken = 0;
+        // One buffer for every frame these bytes complete: each is decoded over the last
+        // one's bytes, and only the bytes it decoded are read.
+        let mut raw = [0u8; MAX_WIRE];
         while taken < bytes.len() {
-            let mut raw = [0u8; MAX_WIRE];
             let (count, completed) = self
                 .frames
                 .push_slice(bytes.get(taken..).unwrap_or_default(), &mut raw);
