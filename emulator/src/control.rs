@@ -276,7 +276,10 @@ impl Panel {
                 }
             }
             Event::Frame { from, frame, .. } => self.frame(from, frame),
-            Event::Reset { .. } | Event::Stopped { .. } | Event::Refused { .. } => {}
+            Event::Reset { .. }
+            | Event::Stopped { .. }
+            | Event::Refused { .. }
+            | Event::BitRate { .. } => {}
         }
     }
 
