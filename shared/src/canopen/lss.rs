@@ -398,6 +398,11 @@ pub enum LssEvent {
     /// The node has no node-ID (FFh): it sends nothing but LSS answers until a master gives
     /// it one (safety rule 3).
     Unconfigured,
+    /// The bit rate stored by LSS is not one this board can switch to (its image supports
+    /// other rates than the one that stored it): the board starts at its own rate, and the
+    /// stored one stays unused until the next store configuration replaces it (CiA 305 only
+    /// ever makes a supported rate pending).
+    StoredBitRateUnsupported(BitRate),
     /// The node-ID switches are set and win over the LSS node-ID stored (safety rule 3).
     SwitchesWin {
         /// The switches' node-ID.
@@ -466,6 +471,8 @@ pub struct Lss {
     pending: Option<NodeId>,
     pending_rate: Option<BitRate>,
     stored: Option<NodeId>,
+    /// A stored bit rate outside `supported`, not taken (reported at start and reset).
+    unsupported_rate: Option<BitRate>,
     /// The next switch state selective specifier expected (40h: none started).
     selective: u8,
     /// The next identify remote slave specifier expected (46h: none started).
@@ -479,7 +486,9 @@ impl Lss {
     /// The LSS slave of a node with `identity` (object 1018h sub-indices 1 to 4), its node-ID
     /// switches (`None`: all open, "use LSS"), the LSS settings stored with its parameters
     /// (`None`: none stored) and the bit rates its board can switch to. The active node-ID is
-    /// the switches', else the stored one, else none (unconfigured).
+    /// the switches', else the stored one, else none (unconfigured). A stored bit rate the
+    /// board does not support is not taken: the board starts at its own
+    /// ([`LssEvent::StoredBitRateUnsupported`]).
     pub fn new(
         identity: [u32; 4],
         switches: Option<NodeId>,
@@ -487,6 +496,10 @@ impl Lss {
         supported: BitRates,
     ) -> Lss {
         let stored = stored.unwrap_or(LssSettings::UNCONFIGURED);
+        let (pending_rate, unsupported_rate) = match stored.bit_rate {
+            Some(rate) if !supported.contains(rate) => (None, Some(rate)),
+            rate => (rate, None),
+        };
         Lss {
             identity,
             switches,
@@ -494,8 +507,9 @@ impl Lss {
             state: LssState::Waiting,
             active: switches.or(stored.node_id),
             pending: stored.node_id,
-            pending_rate: stored.bit_rate,
+            pending_rate,
             stored: stored.node_id,
+            unsupported_rate,
             selective: specifier::SWITCH_SELECTIVE_VENDOR,
             identify: specifier::IDENTIFY_VENDOR,
             fastscan_position: 0,
@@ -534,10 +548,11 @@ impl Lss {
         }
     }
 
-    /// The event the node logs when it starts or resets: it is unconfigured, or its switches
-    /// win over a stored LSS node-ID that differs from theirs (safety rule 3), else nothing.
-    pub fn start_event(&self) -> Option<LssEvent> {
-        match (self.switches, self.active) {
+    /// The events the node logs when it starts or resets: it is unconfigured, or its switches
+    /// win over a stored LSS node-ID that differs from theirs (safety rule 3); and the stored
+    /// bit rate is one the board does not support.
+    pub fn start_events(&self) -> [Option<LssEvent>; 2] {
+        let node_id = match (self.switches, self.active) {
             (Some(switches), _) if self.stored.is_some_and(|stored| stored != switches) => {
                 Some(LssEvent::SwitchesWin {
                     switches,
@@ -546,7 +561,12 @@ impl Lss {
             }
             (_, None) => Some(LssEvent::Unconfigured),
             _ => None,
-        }
+        };
+        [
+            node_id,
+            self.unsupported_rate
+                .map(LssEvent::StoredBitRateUnsupported),
+        ]
     }
 
     /// `true` while activate bit timing keeps the node silent (safety rule 4).
@@ -605,6 +625,7 @@ impl Lss {
     /// node-ID (for [`LssEvent::SwitchesWin`]).
     fn stored_as(&mut self, settings: LssSettings) {
         self.stored = settings.node_id;
+        self.unsupported_rate = None;
     }
 
     fn enter_waiting(&mut self) {

@@ -312,9 +312,10 @@ struct Core<F: Flash, P: SafetyProtocol> {
     /// The LSS settings in the stored image (kept by 0x1010 and 0x1011).
     #[cfg(feature = "lss")]
     stored_lss: Option<LssSettings>,
-    /// What LSS has to say at the next poll (the node-ID's source, at start and reset).
+    /// What LSS has to say at the next poll (the node-ID's source and an unsupported stored
+    /// bit rate, at start and reset).
     #[cfg(feature = "lss")]
-    lss_event: Option<LssEvent>,
+    lss_events: [Option<LssEvent>; 2],
 }
 
 /// The part of the shell a protocol reaches through its [`Slot`]: NMT state, the latch and
@@ -499,7 +500,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
                 #[cfg(feature = "lss")]
                 stored_lss: None,
                 #[cfg(feature = "lss")]
-                lss_event: None,
+                lss_events: [None, None],
             },
         })
     }
@@ -537,7 +538,7 @@ impl<F: Flash, P: SafetyProtocol> Device<F, P> {
             core.stored_lss,
             supported,
         );
-        core.lss_event = lss.start_event();
+        core.lss_events = lss.start_events();
         if let Some(id) = lss.active() {
             if id != core.shell.config.node_id {
                 core.shell.config.node_id = id;
@@ -919,7 +920,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             if let Some(id) = lss.reset_communication() {
                 self.shell.config.node_id = id;
             }
-            self.lss_event = lss.start_event();
+            self.lss_events = lss.start_events();
         }
         self.restore_parameters(now);
         self.shell.state = NmtState::Initialising;
@@ -945,7 +946,7 @@ impl<F: Flash, P: SafetyProtocol> Core<F, P> {
             sink.event(Event::Lss(event));
         }
         let deadline = lss.deadline();
-        if let Some(event) = self.lss_event.take() {
+        for event in self.lss_events.iter_mut().filter_map(Option::take) {
             sink.event(Event::Lss(event));
         }
         if !self.lss_holds_back(now) {

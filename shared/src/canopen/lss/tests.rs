@@ -276,6 +276,61 @@ fn cia305_fig34_bit_timing_outside_the_table_or_not_supported_gets_error_1() {
     }
 }
 
+/// CiA 305 makes only a supported bit rate pending; a stored one this board does not
+/// support (stored by an image with other rates) is not taken either: the board starts at
+/// its own rate, the node says why at start and at every reset, activate bit timing has
+/// nothing to switch to, and the next store configuration replaces the stored rate.
+#[test]
+fn cia305_fig34_a_stored_bit_rate_the_board_does_not_support_is_not_taken() {
+    let stored = LssSettings {
+        node_id: Some(id(5)),
+        bit_rate: Some(BitRate::Kbit50),
+    };
+    let mut lss = Lss::new(IDENTITY, None, Some(stored), RATES);
+    assert_eq!(lss.bit_rate(), None, "the board's own rate");
+    assert_eq!(lss.active(), Some(id(5)), "the node-ID is still taken");
+    assert_eq!(
+        lss.start_events(),
+        [
+            None,
+            Some(LssEvent::StoredBitRateUnsupported(BitRate::Kbit50))
+        ]
+    );
+    to_configuration(&mut lss);
+    let outcome = send(&mut lss, request([0x15, 100, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(outcome, LssOutcome::default());
+    assert_eq!(lss.deadline(), Instant::NEVER, "no switch started");
+    assert_eq!(lss.reset_communication(), Some(id(5)));
+    assert_eq!(
+        lss.start_events()[1],
+        Some(LssEvent::StoredBitRateUnsupported(BitRate::Kbit50)),
+        "still stored, still reported"
+    );
+    to_configuration(&mut lss);
+    let outcome = lss.on_frame(
+        Instant::ZERO,
+        &request([0x17, 0, 0, 0, 0, 0, 0, 0]),
+        false,
+        |settings| {
+            assert_eq!(
+                settings.bit_rate, None,
+                "the unsupported rate is not stored again"
+            );
+            Ok(())
+        },
+    );
+    assert_eq!(answer(outcome), Some([0x17, OK, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(lss.start_events(), [None, None]);
+    // A supported stored rate is taken as before.
+    let stored = LssSettings {
+        node_id: Some(id(5)),
+        bit_rate: Some(BitRate::Kbit125),
+    };
+    let lss = Lss::new(IDENTITY, None, Some(stored), RATES);
+    assert_eq!(lss.bit_rate(), Some(BitRate::Kbit125));
+    assert_eq!(lss.start_events(), [None, None]);
+}
+
 #[test]
 fn cia305_bit_timing_table_indices_round_trip() {
     for rate in BitRate::ALL {
@@ -536,7 +591,7 @@ fn cia305_fig33_rule_2_a_configured_node_id_waits_for_reset_communication() {
     assert_eq!(lss.active(), Some(id(9)));
     assert_eq!(lss.reset_communication(), None);
     assert_eq!(lss.source(), NodeIdSource::Unconfigured);
-    assert_eq!(lss.start_event(), Some(LssEvent::Unconfigured));
+    assert_eq!(lss.start_events(), [Some(LssEvent::Unconfigured), None]);
 }
 
 /// Safety rule 3: the switches win over a stored LSS node-ID, configure node-ID is refused
@@ -551,11 +606,14 @@ fn cia305_fig33_rule_3_the_switches_win_over_an_lss_node_id() {
     assert_eq!(lss.active(), Some(id(3)));
     assert_eq!(lss.source(), NodeIdSource::Switches);
     assert_eq!(
-        lss.start_event(),
-        Some(LssEvent::SwitchesWin {
-            switches: id(3),
-            stored: Some(id(40))
-        })
+        lss.start_events(),
+        [
+            Some(LssEvent::SwitchesWin {
+                switches: id(3),
+                stored: Some(id(40))
+            }),
+            None
+        ]
     );
     to_configuration(&mut lss);
     let outcome = send(&mut lss, request([0x11, 9, 0, 0, 0, 0, 0, 0]));
@@ -576,8 +634,8 @@ fn cia305_fig33_rule_3_the_switches_win_over_an_lss_node_id() {
     assert_eq!(Lss::new(IDENTITY, None, None, RATES).active(), None);
     // Switches equal to the stored node-ID: nothing to report.
     assert_eq!(
-        Lss::new(IDENTITY, Some(id(40)), Some(stored), RATES).start_event(),
-        None
+        Lss::new(IDENTITY, Some(id(40)), Some(stored), RATES).start_events(),
+        [None, None]
     );
     // The unconfigured node with switches set is not unconfigured: no fastscan answer.
     let mut switched = Lss::new(IDENTITY, Some(id(3)), None, RATES);
