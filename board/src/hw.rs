@@ -627,6 +627,21 @@ fn can_timing(
     embassy_stm32::can::util::calc_can_timings(clock, rate.bits_per_second()?).ok()
 }
 
+/// The CAN_BTR value of embassy's `timing` (RM0090 32.9.2,
+/// [`crate::bxcan_adapter::BitTiming::register`]), for the board's own CAN driver and bxcan's.
+#[cfg(any(feature = "can-bxcan", not(feature = "can-embassy")))]
+fn bit_timing_register(
+    timing: embassy_stm32::can::util::NominalBitTiming,
+) -> Result<u32, crate::bxcan_adapter::BitTimingOutOfRange> {
+    crate::bxcan_adapter::BitTiming {
+        prescaler: timing.prescaler.get(),
+        seg1: timing.seg1.get(),
+        seg2: timing.seg2.get(),
+        sync_jump_width: timing.sync_jump_width.get(),
+    }
+    .register()
+}
+
 /// The start-up's housekeeping of the parameter slots ([`storage::erase_ahead`]): erases the
 /// slot the next store writes to when it still holds the record the last store superseded,
 /// so that the store only programs words. Runs before the channel loop and the link

@@ -21,8 +21,8 @@ use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
 use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
-use super::{embassy_instant, halt_safe, now};
-use crate::bxcan_adapter::{self, BitTiming};
+use super::{bit_timing_register, embassy_instant, halt_safe, now};
+use crate::bxcan_adapter;
 use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 
 /// CAN1 and its two pins, owned for as long as bxcan drives them.
@@ -113,13 +113,7 @@ impl CanPort {
         watchdog: &mut super::Watchdog,
     ) -> CanPort {
         can_wakeup::bound(Irqs);
-        let timing = BitTiming {
-            prescaler: timing.prescaler.get(),
-            seg1: timing.seg1.get(),
-            seg2: timing.seg2.get(),
-            sync_jump_width: timing.sync_jump_width.get(),
-        };
-        let Ok(btr) = timing.register() else {
+        let Ok(btr) = bit_timing_register(timing) else {
             halt_safe("CAN bit timing outside the bxCAN's fields");
         };
         let (rx_af, tx_af) = (RxPin::<CAN1>::af_num(&*rx), TxPin::<CAN1>::af_num(&*tx));
@@ -166,13 +160,7 @@ impl CanPort {
     /// silence after the first switch delay): bxcan enters initialisation mode, writes BTR
     /// (RM0090 32.9.2) and leaves it when the configuration is dropped.
     pub fn switch_bit_rate(&mut self, timing: embassy_stm32::can::util::NominalBitTiming) {
-        let timing = BitTiming {
-            prescaler: timing.prescaler.get(),
-            seg1: timing.seg1.get(),
-            seg2: timing.seg2.get(),
-            sync_jump_width: timing.sync_jump_width.get(),
-        };
-        let Ok(btr) = timing.register() else {
+        let Ok(btr) = bit_timing_register(timing) else {
             halt_safe("CAN bit timing outside the bxCAN's fields");
         };
         drop(self.can.modify_config().set_bit_timing(btr));

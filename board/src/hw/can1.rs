@@ -30,8 +30,7 @@ use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
 use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
-use super::{embassy_instant, halt_safe, now};
-use crate::bxcan_adapter::BitTiming;
+use super::{bit_timing_register, embassy_instant, halt_safe, now};
 use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 
 /// Frames waiting for a transmit mailbox, as [`crate::transmit_queue`] orders them.
@@ -301,19 +300,6 @@ fn set_filters(banks: impl Iterator<Item = FilterBank>) {
 /// slowest rate LSS may configure, shorter than the watchdog's time-out
 /// ([`super::WATCHDOG_TIMEOUT_US`]).
 const SWITCH_PATIENCE: shared::Duration = shared::Duration::from_millis(15);
-
-/// The CAN_BTR value of embassy's `timing` (RM0090 32.9.2, [`BitTiming::register`]).
-fn bit_timing_register(
-    timing: embassy_stm32::can::util::NominalBitTiming,
-) -> Result<u32, crate::bxcan_adapter::BitTimingOutOfRange> {
-    BitTiming {
-        prescaler: timing.prescaler.get(),
-        seg1: timing.seg1.get(),
-        seg2: timing.seg2.get(),
-        sync_jump_width: timing.sync_jump_width.get(),
-    }
-    .register()
-}
 
 async fn mode_reached(initialising: bool) -> bool {
     for _ in 0..MODE_POLLS {
