@@ -204,18 +204,46 @@ fn cia305_configure_starts_with_lss_when_the_network_file_asks_for_it() {
 /// for twice the delay around the switch (rule 4).
 #[test]
 fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the_delay() {
+    activate_bit_timing_switches_both_controllers::<shared::node::SrdoTable<4>>(
+        safety_device::LSS_BIT_RATES,
+        BitRate::Kbit800,
+        BitRate::Kbit250,
+    );
+}
+
+/// The same on the SimpleCAN images' channels (SRDOs and SimpleCAN beside them), whose
+/// rates are 1000 and 500 kbit/s only (a SimpleCAN packet needs them to fit its slot):
+/// 250 kbit/s, which a CANopen Safety node takes, is refused with error code 1.
+#[test]
+fn cia305_fig35_sc_activate_bit_timing_switches_both_simplecan_channels_controllers() {
+    activate_bit_timing_switches_both_controllers::<system_tests::loop_net::SimpleCanProtocol>(
+        safety_device::SIMPLECAN_LSS_BIT_RATES,
+        BitRate::Kbit250,
+        BitRate::Kbit1000,
+    );
+}
+
+/// Node 5 (switches at 5) of a loop network whose channels run `P` and offer `rates`:
+/// configure bit timing to `refused`, then to `accepted`, then activate bit timing.
+fn activate_bit_timing_switches_both_controllers<P>(
+    rates: BitRates,
+    refused: BitRate,
+    accepted: BitRate,
+) where
+    P: dual_channel::runtime::ChannelProtocol<4>,
+{
     use shared::CanFrame;
     use system_tests::loop_net::{Filtering, LoopNetwork};
-    let mut net: LoopNetwork = LoopNetwork::new(500_000, &[5], Filtering::Banks);
+    let mut net: LoopNetwork<P> = LoopNetwork::new(500_000, &[5], Filtering::Banks);
     {
         let node = net.node_mut(5);
         let five = NodeId::new(5).ok();
-        assert!(node.a.enable_lss(five, safety_device::LSS_BIT_RATES));
-        assert!(node.b.enable_lss(five, safety_device::LSS_BIT_RATES));
+        assert!(node.a.enable_lss(five, rates));
+        assert!(node.b.enable_lss(five, rates));
     }
     net.run_for(Duration::from_millis(100));
     let request = |data: [u8; 8]| CanFrame::new(MASTER_TO_SLAVE, &data).expect("8 bytes");
-    let answers = |net: &LoopNetwork, since: Instant| -> Vec<(Vec<u8>, usize)> {
+    let answers = |net: &LoopNetwork<P>, since: Instant| -> Vec<(Vec<u8>, usize)> {
         net.trace
             .iter()
             .filter(|(at, frame, _)| *at >= since && frame.id() == SLAVE_TO_MASTER)
@@ -223,18 +251,14 @@ fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the
             .collect()
     };
     let start = net.now;
-    // Switch state global: configuration; configure bit timing 800 kbit/s, then 250 kbit/s.
+    // Switch state global: configuration; configure bit timing `refused`, then `accepted`.
     net.bus.send(0, request([0x04, 1, 0, 0, 0, 0, 0, 0]));
     net.run_for(Duration::from_millis(10));
-    net.bus.send(
-        0,
-        request([0x13, 0, BitRate::Kbit800.index(), 0, 0, 0, 0, 0]),
-    );
+    net.bus
+        .send(0, request([0x13, 0, refused.index(), 0, 0, 0, 0, 0]));
     net.run_for(Duration::from_millis(10));
-    net.bus.send(
-        0,
-        request([0x13, 0, BitRate::Kbit250.index(), 0, 0, 0, 0, 0]),
-    );
+    net.bus
+        .send(0, request([0x13, 0, accepted.index(), 0, 0, 0, 0, 0]));
     net.run_for(Duration::from_millis(10));
     assert_eq!(
         answers(&net, start),
@@ -242,7 +266,7 @@ fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the
             (vec![0x13, 1, 0, 0, 0, 0, 0, 0], 1),
             (vec![0x13, 0, 0, 0, 0, 0, 0, 0], 1)
         ],
-        "800 kbit/s refused (error code 1), 250 kbit/s accepted, by channel A alone"
+        "{refused:?} refused (error code 1), {accepted:?} accepted, by channel A alone"
     );
     // Activate bit timing, switch delay 100 ms.
     net.bus.send(0, request([0x15, 100, 0, 0, 0, 0, 0, 0]));
@@ -258,7 +282,7 @@ fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the
         let [(at, rate)] = driver.switched[..] else {
             panic!("channel {side}: {:?}", driver.switched);
         };
-        assert_eq!(rate, BitRate::Kbit250, "channel {side}");
+        assert_eq!(rate, accepted, "channel {side}");
         assert!(
             at >= activated + delay && at < activated + delay + Duration::from_millis(2),
             "channel {side} switched at {at:?}, the delay after {activated:?}"
@@ -271,10 +295,7 @@ fn cia305_fig35_activate_bit_timing_switches_both_channels_controllers_after_the
             && node_sent(frame)),
         "the node is silent for twice the switch delay"
     );
-    assert_eq!(
-        net.node(5).a.lss_settings().bit_rate,
-        Some(BitRate::Kbit250)
-    );
+    assert_eq!(net.node(5).a.lss_settings().bit_rate, Some(accepted));
     assert_eq!(net.node(5).a.lss_settings(), net.node(5).b.lss_settings());
     assert!(net.node(5).a.fault().is_none() && net.node(5).b.fault().is_none());
 }
