@@ -625,7 +625,12 @@ pub fn load_trace(log: &str) -> LoadTrace {
 /// case (`cargo xtask e2e --bus-load`, [`LOAD_SECONDS`]) takes many minutes of host time on
 /// the shared machine (`docs/can-receive.md`); CI runs [`CI_LOAD_SECONDS`].
 pub fn task(root: &std::path::Path, bus_load_seconds: Option<f64>) -> Result<()> {
-    task_for(root, bus_load_seconds, network::Protocol::CanopenSafety)
+    task_for(
+        root,
+        bus_load_seconds,
+        network::Protocol::CanopenSafety,
+        network::Images::Qemu,
+    )
 }
 
 /// [`task`] on a network speaking `protocol`: with SimpleCAN, [`run_simplecan`] (no bus-load
@@ -634,9 +639,10 @@ pub fn task_for(
     root: &std::path::Path,
     bus_load_seconds: Option<f64>,
     protocol: network::Protocol,
+    images: network::Images,
 ) -> Result<()> {
-    let mut network = Network::start_for(root, protocol)?;
-    println!("\n## End-to-end tests on the emulated network ({protocol:?})");
+    let mut network = Network::start_images(root, protocol, images)?;
+    println!("\n## End-to-end tests on the emulated network ({protocol:?}, {images:?} images)");
     let outcome = match protocol {
         network::Protocol::CanopenSafety => run_all(&mut network, bus_load_seconds),
         network::Protocol::Simplecan => run_simplecan(&mut network),

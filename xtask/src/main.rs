@@ -87,8 +87,7 @@ enum Task {
         #[arg(long, value_name = "SECONDS", conflicts_with = "bus_load", value_parser = load_seconds)]
         bus_load_seconds: Option<f64>,
         /// The cases of this protocol: `canopen-safety` (the default, the cases above) or
-        /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped; on
-        /// the QEMU images only, so far).
+        /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped).
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
         /// Run the cases on the QEMU images (`board::qemu`) with the hub, as before the
@@ -425,13 +424,11 @@ fn task() -> Result<()> {
             qemu,
         } => {
             let load_seconds = bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS));
-            if qemu || protocol == network::Protocol::Simplecan {
-                if !qemu {
-                    println!(
-                        "xtask: the SimpleCAN cases run on the QEMU images only so far (docs/emulator.md)"
-                    );
-                }
-                e2e::task_for(&root, load_seconds, protocol)
+            if qemu {
+                e2e::task_for(&root, load_seconds, protocol, network::Images::Qemu)
+            } else if protocol == network::Protocol::Simplecan {
+                // The SimpleCAN cases over the shipped images' control port, as on the hub.
+                e2e::task_for(&root, load_seconds, protocol, network::Images::Shipped)
             } else {
                 emulate::network_task(
                     &root,
@@ -747,8 +744,13 @@ fn test(root: &Path) -> Result<()> {
     }
     step("end-to-end tests on the emulated network, the bus-load case at its CI size");
     e2e::task(root, Some(e2e::CI_LOAD_SECONDS))?;
-    step("end-to-end tests on the emulated SimpleCAN network");
-    e2e::task_for(root, None, network::Protocol::Simplecan)?;
+    step("end-to-end tests of the shipped SimpleCAN images on the emulated network");
+    e2e::task_for(
+        root,
+        None,
+        network::Protocol::Simplecan,
+        network::Images::Shipped,
+    )?;
     step("scenarios on the emulated network (a small set)");
     let set: Vec<std::path::PathBuf> = scenario::CI_SET
         .iter()
