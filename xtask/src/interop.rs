@@ -62,9 +62,10 @@ pub enum Part {
     Socketcand,
     /// python-canopen on the host simulation's nodes behind a socketcand server (no QEMU).
     Simulated,
-    /// python-canopen on the emulated network (QEMU).
+    /// python-canopen on the shipped images on the emulated network (no QEMU).
     Canopen,
-    /// python-canopen's sweep of the SimpleCAN images' EDS on the emulated SimpleCAN network.
+    /// python-canopen's sweep of the SimpleCAN images' EDS on the shipped SimpleCAN images on
+    /// the emulated network (no QEMU).
     Simplecan,
     /// python-canopen reading node 33's objects back to back on the emulated network while
     /// python-can fills 30 % of the bus, for 60 s of the bus's time: the largest SDO response
@@ -292,10 +293,17 @@ fn simulated(root: &Path, python: &Path) -> Result<()> {
     canopen_checks(root, python, &address, &mut tool, "interop 2")
 }
 
-/// Part 3: python-canopen on the emulated network.
+/// Part 3: python-canopen on the shipped images on the emulated network.
 fn canopen(root: &Path, python: &Path) -> Result<()> {
-    crate::step("interop 3: python-canopen on the emulated network (QEMU) through can-hub");
-    let mut network = Network::start(root)?;
+    crate::step(
+        "interop 3: python-canopen on the shipped images on the emulated network, through \
+         emulate-network's socketcand port",
+    );
+    let mut network = Network::start_images(
+        root,
+        network::Protocol::CanopenSafety,
+        network::Images::Shipped,
+    )?;
     let result = network
         .tool()
         .and_then(|tool| canopen_checks(root, python, &network::hub_tcp(), tool, "interop 3"));
@@ -563,10 +571,11 @@ fn mixed_load(root: &Path, python: &Path) -> Result<()> {
 /// (13FEh, 13FFh:00) and the audit records of SimpleCAN's signature included.
 fn simplecan(root: &Path, python: &Path) -> Result<()> {
     crate::step(
-        "interop 4: python-canopen's sweep of the SimpleCAN images' EDS on the emulated \
-         SimpleCAN network (QEMU) through can-hub",
+        "interop 4: python-canopen's sweep of the SimpleCAN images' EDS on the shipped \
+         SimpleCAN images on the emulated network, through emulate-network's socketcand port",
     );
-    let mut network = Network::start_for(root, network::Protocol::Simplecan)?;
+    let mut network =
+        Network::start_images(root, network::Protocol::Simplecan, network::Images::Shipped)?;
     // Only python-canopen talks from here; the network's own connection would not be read.
     network.release_tool();
     let address = network::hub_tcp();
