@@ -204,6 +204,16 @@ impl Symbols {
     }
 }
 
+/// Whether loading an image checks its seal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Seal {
+    /// Only a sealed image is loaded (every run of the product's images).
+    Required,
+    /// The image is loaded whatever its seal holds, still only with an `IMAGE_SEAL` symbol: a
+    /// copy damaged on purpose, to see the image's own start-up check refuse it.
+    NotChecked,
+}
+
 /// A sealed image, ready to load.
 #[derive(Clone, Debug)]
 pub struct Image {
@@ -224,15 +234,25 @@ pub struct Image {
 impl Image {
     /// Reads and checks the image at `path`.
     pub fn load(path: &Path) -> Result<Image, ImageError> {
+        Image::load_as(path, Seal::Required)
+    }
+
+    /// Reads the image at `path`, its seal checked as `seal` says.
+    pub fn load_as(path: &Path, seal: Seal) -> Result<Image, ImageError> {
         let elf = std::fs::read(path).map_err(|source| ImageError::Read {
             path: path.to_owned(),
             source,
         })?;
-        Image::parse(path, elf)
+        Image::parse_as(path, elf, seal)
     }
 
     /// Checks the image in `elf` (read from `path`).
     pub fn parse(path: &Path, elf: Vec<u8>) -> Result<Image, ImageError> {
+        Image::parse_as(path, elf, Seal::Required)
+    }
+
+    /// Checks the image in `elf` (read from `path`), its seal as `seal` says.
+    pub fn parse_as(path: &Path, elf: Vec<u8>, seal_check: Seal) -> Result<Image, ImageError> {
         let path_buf = path.to_owned();
         let file = ElfFile32::<Endianness>::parse(&*elf).map_err(|error| ImageError::NotElf {
             path: path_buf.clone(),
@@ -300,7 +320,10 @@ impl Image {
         let seal = symbol("IMAGE_SEAL").ok_or_else(|| ImageError::NoSeal {
             path: path_buf.clone(),
         })?;
-        let crc = check_seal(&path_buf, &segments, seal)?;
+        let crc = match seal_check {
+            Seal::Required => check_seal(&path_buf, &segments, seal)?,
+            Seal::NotChecked => sealed_crc(&path_buf, &segments, seal)?,
+        };
         let rtt = symbol("_SEGGER_RTT");
         let symbols = Symbols::from_elf(&elf);
         drop(file);
@@ -318,7 +341,7 @@ impl Image {
 /// Checks the seal as the image does at start-up: the code segment from the start of flash
 /// and the data's load image right after it (the alignment bytes between them not covered).
 fn check_seal(path: &Path, segments: &[Segment], seal: u32) -> Result<u32, ImageError> {
-    use dual_channel::selftest::{SEAL_LEN, check_image};
+    use dual_channel::selftest::check_image;
     let layout = || ImageError::Layout {
         path: path.to_owned(),
     };
@@ -338,10 +361,23 @@ fn check_seal(path: &Path, segments: &[Segment], seal: u32) -> Result<u32, Image
         path: path.to_owned(),
         fault,
     })?;
-    let crc = code
-        .get(offset + 4..offset + SEAL_LEN)
-        .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
-    Ok(crc)
+    sealed_crc(path, segments, seal)
+}
+
+/// The image CRC the seal at `seal` holds, unchecked.
+fn sealed_crc(path: &Path, segments: &[Segment], seal: u32) -> Result<u32, ImageError> {
+    let layout = || ImageError::Layout {
+        path: path.to_owned(),
+    };
+    let offset = seal.checked_sub(FLASH_ORIGIN).ok_or_else(layout)? as usize;
+    segments
+        .first()
+        .and_then(|code| {
+            code.bytes
+                .get(offset + 4..offset + dual_channel::selftest::SEAL_LEN)
+        })
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .ok_or_else(layout)
 }
 
 #[cfg(test)]

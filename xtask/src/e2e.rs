@@ -620,21 +620,11 @@ pub fn load_trace(log: &str) -> LoadTrace {
     trace
 }
 
-/// `cargo xtask e2e`.
+/// `cargo xtask e2e --qemu`, and its SimpleCAN cases: the end-to-end cases on a network of
+/// `images` speaking `protocol` (with SimpleCAN, [`run_simplecan`], no bus-load case).
 /// `bus_load_seconds`: also the case under bus load ([`bus_load`]) for that long: the full
 /// case (`cargo xtask e2e --bus-load`, [`LOAD_SECONDS`]) takes many minutes of host time on
-/// the shared machine (`docs/can-receive.md`); CI runs [`CI_LOAD_SECONDS`].
-pub fn task(root: &std::path::Path, bus_load_seconds: Option<f64>) -> Result<()> {
-    task_for(
-        root,
-        bus_load_seconds,
-        network::Protocol::CanopenSafety,
-        network::Images::Qemu,
-    )
-}
-
-/// [`task`] on a network speaking `protocol`: with SimpleCAN, [`run_simplecan`] (no bus-load
-/// case).
+/// the shared machine (`docs/can-receive.md`).
 pub fn task_for(
     root: &std::path::Path,
     bus_load_seconds: Option<f64>,

@@ -120,7 +120,72 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
                 );
             }
             println!("xtask: {protocol:?} channel {channel}: a dead crystal halts it safe, said");
+            tampered_checks(root, &emulate, &image, protocol, channel)?;
         }
+    }
+    Ok(())
+}
+
+/// A copy of the shipped `image` with its seal zeroed, and one with a bit of its CRC flipped:
+/// the emulator refuses to run either as a shipped image, and given it anyway (`--unsealed`)
+/// the image's own start-up check (the image CRC, CiA 304 9.5's self-test) refuses it, names
+/// the fault and halts in the safe state.
+fn tampered_checks(
+    root: &Path,
+    emulate: &Path,
+    image: &Path,
+    protocol: Protocol,
+    channel: &str,
+) -> Result<()> {
+    let dir = root.join("target/emulate-tampered");
+    std::fs::create_dir_all(&dir)?;
+    /// How a case changes the seal's bytes.
+    type Change = fn(&mut [u8]);
+    let cases: [(&str, Change, &str); 2] = [
+        ("unsealed", |seal| seal.fill(0), "NotSealed"),
+        ("damaged", |seal| seal[4] ^= 0x01, "Mismatch"),
+    ];
+    for (name, change, expected) in cases {
+        let copy = dir.join(format!("{protocol:?}-channel-{channel}-{name}"));
+        images::tampered_copy(image, &copy, change)?;
+        let output = std::process::Command::new(emulate)
+            .arg(&copy)
+            .args(["--for", "1s", "--node-id", "1", "--input-closed"])
+            .output()?;
+        let refused = String::from_utf8_lossy(&output.stderr);
+        if output.status.success() || !refused.contains("not a sealed image") {
+            anyhow::bail!(
+                "{}: the emulator ran the {name} copy as a shipped image:\n{refused}",
+                copy.display()
+            );
+        }
+        let output = std::process::Command::new(emulate)
+            .arg(&copy)
+            .args([
+                "--for",
+                "1s",
+                "--node-id",
+                "1",
+                "--input-closed",
+                "--unsealed",
+            ])
+            .output()?;
+        let log = String::from_utf8_lossy(&output.stdout);
+        let failed = log
+            .lines()
+            .find(|line| line.contains("self-test: image CRC failed"));
+        if !failed.is_some_and(|line| line.contains(expected))
+            || log.contains("self-test: image CRC passed")
+        {
+            anyhow::bail!(
+                "{}: the {name} copy is not refused by its own image CRC check ({expected}):\n{log}",
+                copy.display()
+            );
+        }
+        println!(
+            "xtask: {protocol:?} channel {channel}: its {name} copy is refused by the emulator, \
+             and by its own image CRC self-test ({expected})"
+        );
     }
     Ok(())
 }

@@ -153,12 +153,12 @@ impl Protocol {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Images {
     /// The QEMU images (`board::qemu`) in four QEMU instances under the bus hub `can-hub`.
-    #[default]
     Qemu,
     /// The sealed hardware images `cargo xtask build` makes, unchanged, on the emulated
     /// STM32F405s of one `emulate-network` (the `emulator` crate), which serves socketcand and
     /// a control port of the hub's protocol (`emulator::control`); the virtual time follows
-    /// the host clock.
+    /// the host clock. The default: what ships is what runs.
+    #[default]
     Shipped,
 }
 

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use clap::Parser;
 use emulator::cpu::{Config, Machine};
-use emulator::image::Image;
+use emulator::image::{Image, Seal};
 use emulator::log::LogTable;
 use emulator::peripherals::gpio::Port;
 use emulator::peripherals::rcc::{self, Hse};
@@ -37,6 +37,10 @@ struct Cli {
     /// Close the channel's safety input contact (PC0 driven high).
     #[arg(long)]
     input_closed: bool,
+    /// Load the image even when its seal does not match its flash (a copy damaged on
+    /// purpose), to see the image's own start-up check refuse it.
+    #[arg(long)]
+    unsealed: bool,
 }
 
 fn main() -> ExitCode {
@@ -53,10 +57,20 @@ fn main() -> ExitCode {
 
 /// Runs the image; `Ok(false)` when the run stopped before its time.
 fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
-    let image = Image::load(&cli.image)?;
+    let seal = if cli.unsealed {
+        Seal::NotChecked
+    } else {
+        Seal::Required
+    };
+    let image = Image::load_as(&cli.image, seal)?;
     println!(
-        "emulate: {}: sealed image, CRC {:08X}h, {} bytes of flash",
+        "emulate: {}: {}, CRC {:08X}h, {} bytes of flash",
         image.path.display(),
+        if cli.unsealed {
+            "image loaded unchecked (--unsealed), its seal holds"
+        } else {
+            "sealed image"
+        },
         image.crc,
         image.segments.iter().map(|s| s.bytes.len()).sum::<usize>()
     );
