@@ -67,7 +67,7 @@ pub enum Part {
     /// python-canopen's sweep of the SimpleCAN images' EDS on the shipped SimpleCAN images on
     /// the emulated network (no QEMU).
     Simplecan,
-    /// python-canopen reading node 33's objects back to back on the emulated network while
+    /// python-canopen reading node 33's objects back to back on the shipped images' emulated network while
     /// python-can fills 30 % of the bus, for 60 s of the bus's time: the largest SDO response
     /// time and heartbeat gap. Only when asked for (`--only mixed-load`): it takes minutes.
     MixedLoad,
@@ -489,9 +489,14 @@ const MIXED_LOAD_PERCENT: u32 = 30;
 fn mixed_load(root: &Path, python: &Path) -> Result<()> {
     crate::step(&format!(
         "interop 5: python-canopen reading node 33 back to back beside python-can's \
-         {MIXED_LOAD_PERCENT} % of the bus, for {MIXED_LOAD_SECONDS} s of the bus's time (QEMU)"
+         {MIXED_LOAD_PERCENT} % of the bus, for {MIXED_LOAD_SECONDS} s of the bus's time (the \
+         shipped images)"
     ));
-    let mut network = Network::start(root)?;
+    let mut network = Network::start_images(
+        root,
+        network::Protocol::CanopenSafety,
+        network::Images::Shipped,
+    )?;
     network.release_tool();
     let address = network::hub_tcp();
     let result = address
