@@ -1,5 +1,5 @@
-//! `cargo xtask interop`: third-party CANopen software on the emulated bus, through the hub's
-//! socketcand port, in a virtual environment under `target/interop/venv` (python-can and
+//! `cargo xtask interop`: third-party CANopen software on the emulated bus, through a
+//! socketcand port (the hub's or `emulate-network`'s), in a virtual environment under `target/interop/venv` (python-can and
 //! python-canopen from PyPI, pinned).
 //!
 //! 1. python-can's own `socketcand` bus against `can-hub` (no QEMU): frames sent by the tool
@@ -8,8 +8,8 @@
 //! 2. python-canopen against the host simulation's nodes 1 and 33 (the protocol core,
 //!    configured by the tool library, in real time behind a socketcand server built from the
 //!    tool's server session: `tests/src/bin/socketcand_sim.rs`), then
-//! 3. python-canopen on the emulated network (four QEMU instances, as `cargo xtask run`
-//!    starts and configures them); both times it loads the node's EDS (`eds/safety-node.eds`) with
+//! 3. python-canopen on the emulated network (the shipped images on four emulated
+//!    STM32F405s, as `cargo xtask run` starts and configures them); both times it loads the node's EDS (`eds/safety-node.eds`) with
 //!    `canopen.import_od`, first sweeps every entry of it on node 33 in Pre-operational (and
 //!    at the end on node 1, the producer)
 //!    (`xtask/interop/python_canopen_sweep.py`: each readable entry uploads as many bytes as
@@ -21,7 +21,7 @@
 //!    with the tool's reading; its write to a safety object in Operational is aborted with
 //!    0800 0022h (EN 50325-5 8.2.2); in Pre-operational an SCT of 0 is aborted with
 //!    0609 0032h and a valid write is accepted and resets 0x13FE (EN 50325-5 6.4.1.6).
-//! 4. python-canopen on the emulated SimpleCAN network (the SimpleCAN images, configured from
+//! 4. python-canopen on the emulated SimpleCAN network (the shipped SimpleCAN images, configured from
 //!    `scenarios/networks/simplecan.toml`): the same sweep of every entry, with the SimpleCAN
 //!    images' EDS (`eds/safety-node-simplecan.eds`), on node 33.
 //! 5. (`--only mixed-load`) python-canopen beside python-can's bus load, below.
@@ -914,6 +914,9 @@ pub fn bench(root: &Path) -> Result<()> {
         bench_on(root, &python, &address)?
     };
 
+    // On the QEMU images: each round stores (1010h), and the shipped images refuse a second
+    // store before a power cycle (the manual, "Parameterisation"), which emulate-network's
+    // control port cannot give yet (docs/emulation.md, "What still runs on QEMU").
     crate::step("interop bench 2: the emulated network (QEMU) through can-hub");
     let mut network = Network::start(root)?;
     // The network's own connection would not be read during the bench.
