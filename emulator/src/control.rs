@@ -243,6 +243,14 @@ impl Panel {
                 }
             }
             Command::Clear => network.bus_mut().clear_faults(),
+            Command::PowerCycle(names) => {
+                let mcus = names
+                    .iter()
+                    .map(|name| self.mcu(name))
+                    .collect::<Result<Vec<_>, _>>()?;
+                // What a channel showed before is cleared by its node's boot-up message.
+                network.power_cycle(&mcus);
+            }
             Command::Load { .. } | Command::LoadOff => {
                 return Err(
                     "the emulated network generates no load on its control port (`emulate-network \
@@ -504,6 +512,8 @@ mod tests {
             ("input node1a 0", "no participant `node1a`"),
             ("cut node33-link", "no link `node33-link`"),
             ("mute node9b", "no participant `node9b`"),
+            ("power-cycle node9a", "no participant `node9a`"),
+            ("power-cycle", "is not a command"),
             ("load 30 281#00", "generates no load"),
             ("load off", "generates no load"),
             ("insert 0x101 0 1 2 3 4 5 6 7 8", "at most 8"),

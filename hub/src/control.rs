@@ -138,6 +138,10 @@ pub enum Command {
     Cut(String),
     /// The link relay `name` passes bytes again.
     Restore(String),
+    /// Switch these participants off and on again (a node's supply failing and coming back):
+    /// each starts from its image, its parameter flash as it stands. Only the emulated
+    /// STM32F405s can (`emulate-network`); the hub refuses it.
+    PowerCycle(Vec<String>),
     /// Remove every injected bus fault.
     Clear,
     /// Generate load ([`crate::load`]): `percent` of the bus, these frames in turn
@@ -257,6 +261,9 @@ impl Command {
             ["cut", name] => Command::Cut((*name).to_string()),
             ["restore", name] => Command::Restore((*name).to_string()),
             ["clear"] => Command::Clear,
+            ["power-cycle", names @ ..] if !names.is_empty() => {
+                Command::PowerCycle(names.iter().map(|name| (*name).to_string()).collect())
+            }
             ["load", "off"] => Command::LoadOff,
             ["load", percent, frames @ ..] => Command::Load {
                 percent: number(percent, "a share of the bus in percent")?,
@@ -269,7 +276,8 @@ impl Command {
             [verb, ..] => {
                 return Err(format!(
                     "`{verb}` with {} argument(s) is not a command (input, drop, corrupt, delay, \
-                     repeat, reorder, insert, mute, unmute, cut, restore, clear, load)",
+                     repeat, reorder, insert, mute, unmute, cut, restore, power-cycle, clear, \
+                     load)",
                     words.len() - 1
                 ));
             }
@@ -298,6 +306,7 @@ impl fmt::Display for Command {
             Command::Cut(name) => write!(f, "cut {name}"),
             Command::Restore(name) => write!(f, "restore {name}"),
             Command::Clear => write!(f, "clear"),
+            Command::PowerCycle(names) => write!(f, "power-cycle {}", names.join(" ")),
             Command::Load { percent, frames } => {
                 write!(f, "load {percent}")?;
                 frames.iter().try_for_each(|(id, data)| {
@@ -506,6 +515,7 @@ mod tests {
             "unmute node1b",
             "cut node33-link",
             "restore node33-link",
+            "power-cycle node1a node1b",
             "clear",
             "load 30 621#4018100100000000 281#5555555555555555 000#",
             "load off",
@@ -532,6 +542,7 @@ mod tests {
         assert!(error("load 30 281#XY").contains("not hexadecimal"));
         assert!(error("load 30 281#000000000000000000").contains("0 to 8 bytes"));
         assert!(error("load much 281#00").contains("share of the bus"));
+        assert!(error("power-cycle").contains("not a command"));
     }
 
     #[test]

@@ -486,6 +486,13 @@ impl Hosts {
                 self.links.cut.retain(|end| *end != a && *end != b);
             }
             Command::Clear => hub.retain_faults(|_| false),
+            Command::PowerCycle(_) => {
+                return Err(
+                    "the hub cannot switch a QEMU instance off and on (the emulated STM32F405s \
+                     of `emulate-network` can)"
+                        .to_owned(),
+                );
+            }
             Command::Load { percent, frames } => {
                 let frames = frames
                     .iter()

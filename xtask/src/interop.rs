@@ -829,14 +829,19 @@ struct Case {
 /// side [`BENCH_ROUNDS`] times, alternating. The tool has a connection of its own per node
 /// (`procedure::configure_concurrently`), python-canopen one for all; both connect before
 /// their clocks start.
-fn bench_on(root: &Path, python: &Path, address: &str) -> Result<[Case; 2]> {
+fn bench_on(
+    root: &Path,
+    python: &Path,
+    address: &str,
+    mut start_up: impl FnMut() -> Result<()>,
+) -> Result<[Case; 2]> {
     // Both sides wait as long for an SDO answer (the script's RESPONSE_TIMEOUT): on the
     // emulated network a loaded host holds the virtual time, and with it an answer, for
     // seconds of host time now and then (`docs/emulation.md`), which the bench should time,
     // not fail on.
     // Connected per case, so that no connection sits unread through a case it has no part
     // in (the server's frames would pile up in it, and its first request drain them).
-    let case = |nodes: usize| -> Result<Case> {
+    let mut case = |nodes: usize| -> Result<Case> {
         let mut clients = BENCH_NODES[..nodes]
             .iter()
             .map(|_| {
@@ -846,10 +851,33 @@ fn bench_on(root: &Path, python: &Path, address: &str) -> Result<[Case; 2]> {
             })
             .collect::<Result<Vec<_>>>()?;
         let spec = safety_config::network_file::parse(&bench_file(nodes), "bench network file")?;
-        let (tool, python) = bench_rounds(root, python, address, &mut clients, &spec)?;
+        let (tool, python) =
+            bench_rounds(root, python, address, &mut clients, &spec, &mut start_up)?;
         Ok(Case { tool, python })
     };
     Ok([case(1)?, case(BENCH_NODES.len())?])
+}
+
+/// Switches every node of the shipped images' network off and on (`power-cycle` on the
+/// control port) and waits until each of [`BENCH_NODES`] answers an SDO upload of its
+/// identity again: a store needs a start-up since the last one (the manual,
+/// "Parameterisation"), and each round of the bench stores.
+fn power_cycle_nodes(network: &mut Network) -> Result<()> {
+    network.command("power-cycle node1a node1b node33a node33b")?;
+    let mut client = Client::new(
+        SocketcandClient::connect(&network::hub_tcp(), "can0")
+            .context("a connection to wait for the nodes' start-up")?,
+        Duration::from_millis(500),
+    );
+    let give_up = std::time::Instant::now() + Duration::from_secs(60);
+    for node in BENCH_NODES {
+        while safety_config::procedure::read_identity(&mut client, node).is_err() {
+            if std::time::Instant::now() >= give_up {
+                bail!("node {node} did not answer an SDO upload within 60 s of its power cycle");
+            }
+        }
+    }
+    Ok(())
 }
 
 /// How long each side of the bench waits for one SDO answer: python-canopen's
@@ -863,10 +891,13 @@ fn bench_rounds(
     address: &str,
     clients: &mut [Client<SocketcandClient>],
     spec: &safety_config::network_file::Network,
+    start_up: &mut impl FnMut() -> Result<()>,
 ) -> Result<(Vec<Round>, Vec<Round>)> {
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     for round in 1..=BENCH_ROUNDS {
+        start_up()?;
         ours.push(tool_round(clients, spec)?);
+        start_up()?;
         theirs.push(python_round(root, python, address, &mut clients[0], spec)?);
         println!(
             "xtask: bench round {round} ({} node(s)): tool {:?} + {:?}, python-canopen {:?} + {:?}",
@@ -911,17 +942,24 @@ pub fn bench(root: &Path) -> Result<()> {
             }
             std::thread::sleep(Duration::from_millis(50));
         }
-        bench_on(root, &python, &address)?
+        // The simulation's flash erases without stalling: a store needs no start-up.
+        bench_on(root, &python, &address, || Ok(()))?
     };
 
-    // On the QEMU images: each round stores (1010h), and the shipped images refuse a second
-    // store before a power cycle (the manual, "Parameterisation"), which emulate-network's
-    // control port cannot give yet (docs/emulation.md, "What still runs on QEMU").
-    crate::step("interop bench 2: the emulated network (QEMU) through can-hub");
-    let mut network = Network::start(root)?;
+    crate::step(
+        "interop bench 2: the shipped images on the emulated network, through \
+         emulate-network's socketcand port, every node switched off and on before each store",
+    );
+    let mut network = Network::start_images(
+        root,
+        network::Protocol::CanopenSafety,
+        network::Images::Shipped,
+    )?;
     // The network's own connection would not be read during the bench.
     network.release_tool();
-    let emulated = bench_on(root, &python, &network::hub_tcp());
+    let emulated = bench_on(root, &python, &network::hub_tcp(), || {
+        power_cycle_nodes(&mut network)
+    });
     let faults = network.stop();
     let emulated = emulated?;
     faults?;
@@ -933,7 +971,7 @@ pub fn bench(root: &Path) -> Result<()> {
             &simulated,
         ),
         (
-            "emulated network (QEMU, can-hub)",
+            "emulated network (the shipped images, emulate-network)",
             "emulated network",
             &emulated,
         ),
@@ -972,8 +1010,10 @@ pub fn bench(root: &Path) -> Result<()> {
          does not). After every python-canopen round the tool's `verify` confirms the same \
          result: every node matches the file, signed and valid. Both sides connect before \
          their clocks start. Wall time, host load included, median (min–max) of the rounds; \
-         on the emulated network the bus runs on the hub's virtual time, so host load slows \
-         both sides alike.\n\n\
+         on the emulated network (the shipped images on `emulate-network`) the bus runs on \
+         the network's virtual time, so host load slows both sides alike, and every node is \
+         switched off and on before each side's round, outside its clock (a store needs a \
+         start-up since the last one on the hardware).\n\n\
          | bus | nodes | who | SDO transactions (configure + verify) | configure | verify | both |\n\
          |-----|-------|-----|--------------------------------------:|----------:|-------:|-----:|\n\
          {rows}\n\
