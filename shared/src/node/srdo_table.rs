@@ -128,11 +128,15 @@ pub struct SrdoTable<const N: usize> {
     event_driven: bool,
     remote_frames_ignored: u32,
     double_reception: DoubleReception,
-    /// The earliest timer of the running SRDOs as the last poll left them, and whether the
-    /// device was latched then: what [`SafetyProtocol::deadline`] answers without a second
-    /// pass over the SRDOs. `None` when anything since may have moved a timer (a frame, a
-    /// changed object, the safe state, a start or stop), and then the deadline is computed.
-    next_timer: Option<(Instant, bool)>,
+    /// The earliest timer of the running SRDOs as the last poll left them: what
+    /// [`SafetyProtocol::deadline`] answers without a second pass over the SRDOs, when
+    /// [`SrdoTable::next_timer_judged`] holds.
+    next_timer: Instant,
+    /// Whether the device was latched when the last poll judged [`SrdoTable::next_timer`];
+    /// `None` when anything since may have moved a timer (a frame, a changed object, the safe
+    /// state, a start or stop), and then the deadline is computed. Apart from the instant so
+    /// that the deadline asks one comparison of a byte.
+    next_timer_judged: Option<bool>,
 }
 
 impl<const N: usize> SrdoTable<N> {
@@ -166,7 +170,8 @@ impl<const N: usize> SrdoTable<N> {
             event_driven: config.event_driven,
             remote_frames_ignored: 0,
             double_reception: DoubleReception::default(),
-            next_timer: None,
+            next_timer: Instant::NEVER,
+            next_timer_judged: None,
         })
     }
 
@@ -282,7 +287,7 @@ impl<const N: usize> SrdoTable<N> {
         let Role::Consumer(consumer) = &mut runtime.role else {
             return; // Our own identifiers (a producer's).
         };
-        self.next_timer = None;
+        self.next_timer_judged = None;
         let len = runtime.mapping.len;
         let result = if tag & LOOKUP_INVERTED == 0 {
             consumer
@@ -382,8 +387,10 @@ impl<const N: usize> SrdoTable<N> {
             // Each arm gives the SRDO's next timer as `deadline` judges it; a fault makes it
             // moot (the pass's answer is then dropped, see `poll`).
             let (result, timer) = match &mut runtime.role {
-                Role::Producer(producer) if !self.producers_halted => {
-                    if !producer.due(now) {
+                Role::Producer(producer) => {
+                    if self.producers_halted {
+                        (Ok(()), Instant::NEVER)
+                    } else if !producer.due(now) {
                         (Ok(()), producer.deadline(now))
                     } else {
                         match srdo::gather(slot.image(), &runtime.mapping) {
@@ -403,7 +410,7 @@ impl<const N: usize> SrdoTable<N> {
                 Role::Consumer(consumer) if !slot.latched() => {
                     (consumer.check_timers(now), consumer.deadline())
                 }
-                _ => (Ok(()), Instant::NEVER),
+                Role::Consumer(_) | Role::Idle => (Ok(()), Instant::NEVER),
             };
             next = next.min(timer);
             if let Err(cause) = result {
@@ -662,7 +669,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         self.lookup = [0; SRDO_IDS];
         self.integrity = integrity::Integrity::IDLE;
         self.running = false;
-        self.next_timer = None;
+        self.next_timer_judged = None;
     }
 
     fn reset(&mut self) {
@@ -696,18 +703,16 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         // how the earlier ones count), and entering it clears `next_timer`. The integrity
         // check or another protocol entering it later clears it again.
         let latched = slot.latched();
-        self.next_timer = Some((Instant::NEVER, latched));
-        let next = self.run_srdos(now, slot);
-        if self.next_timer.is_some() {
-            self.next_timer = Some((next, latched));
-        }
+        self.next_timer_judged = Some(latched);
+        self.next_timer = self.run_srdos(now, slot);
         self.poll_integrity(now, slot);
     }
 
     fn deadline(&self, now: Instant, latched: bool) -> Instant {
-        let srdos = match self.next_timer {
-            Some((next, for_latched)) if for_latched == latched => next,
-            _ => self.timers(now, latched),
+        let srdos = if self.next_timer_judged == Some(latched) {
+            self.next_timer
+        } else {
+            self.timers(now, latched)
         };
         self.integrity.deadline().min(srdos)
     }
@@ -736,7 +741,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         if !already_latched {
             self.clear_received(image);
         }
-        self.next_timer = None;
+        self.next_timer_judged = None;
     }
 
     /// Marks every running producer whose mapping includes the byte at `offset` as changed.
@@ -754,7 +759,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
             }
         }
         if due {
-            self.next_timer = None;
+            self.next_timer_judged = None;
         }
         due
     }

@@ -568,8 +568,9 @@ pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, 
         // panicking (it then delivers wrong bytes, which validation has already excluded).
         let shift = (8 * at) & 63;
         let (plain_part, inverted_part) = (plain >> shift, inverted >> shift);
+        // Both branches write the same bytes: this one only lets the compiler drop the
+        // bounds checks of `put_le` and share the mask.
         if plain_span.len == inverted_span.len
-            && plain_span.len <= 8
             && plain_span.offset.max(inverted_span.offset) <= WINDOW_END
         {
             // Every pair of a valid mapping: both words lie in the image, one mask for both.
@@ -582,8 +583,8 @@ pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, 
     }
 }
 
-/// One pair of [`deliver`] whose objects differ in length, are longer than 8 bytes or end past
-/// the image (a damaged mapping). Cold: a valid mapping never comes here.
+/// One pair of [`deliver`] whose objects differ in length or whose 8-byte windows end past the
+/// image (a damaged mapping). Cold: a valid mapping never comes here.
 #[cold]
 #[inline(never)]
 fn deliver_clamped(
