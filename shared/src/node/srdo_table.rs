@@ -132,11 +132,35 @@ pub struct SrdoTable<const N: usize> {
     /// [`SafetyProtocol::deadline`] answers without a second pass over the SRDOs, when
     /// [`SrdoTable::next_timer_judged`] holds.
     next_timer: Instant,
-    /// Whether the device was latched when the last poll judged [`SrdoTable::next_timer`];
-    /// `None` when anything since may have moved a timer (a frame, a changed object, the safe
-    /// state, a start or stop), and then the deadline is computed. Apart from the instant so
-    /// that the deadline asks one comparison of a byte.
-    next_timer_judged: Option<bool>,
+    /// For which device state the last poll judged [`SrdoTable::next_timer`]; stale when
+    /// anything since may have moved a timer (a frame, a changed object, the safe state, a
+    /// start or stop), and then the deadline is computed.
+    next_timer_judged: Judged,
+}
+
+/// For which device state [`SrdoTable::next_timer`] was judged: one byte the deadline compares
+/// with the state it is asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+enum Judged {
+    /// Judged with the device out of its latched safe state.
+    Unlatched,
+    /// Judged with the device in its latched safe state.
+    Latched,
+    /// Something may have moved a timer since.
+    Stale,
+}
+
+impl Judged {
+    /// Judged with the device latched (`true`) or not.
+    #[inline]
+    fn when(latched: bool) -> Self {
+        if latched {
+            Judged::Latched
+        } else {
+            Judged::Unlatched
+        }
+    }
 }
 
 impl<const N: usize> SrdoTable<N> {
@@ -171,7 +195,7 @@ impl<const N: usize> SrdoTable<N> {
             remote_frames_ignored: 0,
             double_reception: DoubleReception::default(),
             next_timer: Instant::NEVER,
-            next_timer_judged: None,
+            next_timer_judged: Judged::Stale,
         })
     }
 
@@ -287,7 +311,7 @@ impl<const N: usize> SrdoTable<N> {
         let Role::Consumer(consumer) = &mut runtime.role else {
             return; // Our own identifiers (a producer's).
         };
-        self.next_timer_judged = None;
+        self.next_timer_judged = Judged::Stale;
         let len = runtime.mapping.len;
         let result = if tag & LOOKUP_INVERTED == 0 {
             consumer
@@ -669,7 +693,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         self.lookup = [0; SRDO_IDS];
         self.integrity = integrity::Integrity::IDLE;
         self.running = false;
-        self.next_timer_judged = None;
+        self.next_timer_judged = Judged::Stale;
     }
 
     fn reset(&mut self) {
@@ -700,16 +724,16 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
     fn poll<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
         // The pass judges each SRDO with the device's state at its turn: its answer is the
         // deadline only when nothing entered the safe state on the way (which would change
-        // how the earlier ones count), and entering it clears `next_timer`. The integrity
+        // how the earlier ones count), and entering it makes `next_timer` stale. The integrity
         // check or another protocol entering it later clears it again.
         let latched = slot.latched();
-        self.next_timer_judged = Some(latched);
+        self.next_timer_judged = Judged::when(latched);
         self.next_timer = self.run_srdos(now, slot);
         self.poll_integrity(now, slot);
     }
 
     fn deadline(&self, now: Instant, latched: bool) -> Instant {
-        let srdos = if self.next_timer_judged == Some(latched) {
+        let srdos = if self.next_timer_judged == Judged::when(latched) {
             self.next_timer
         } else {
             self.timers(now, latched)
@@ -741,7 +765,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         if !already_latched {
             self.clear_received(image);
         }
-        self.next_timer_judged = None;
+        self.next_timer_judged = Judged::Stale;
     }
 
     /// Marks every running producer whose mapping includes the byte at `offset` as changed.
@@ -759,7 +783,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
             }
         }
         if due {
-            self.next_timer_judged = None;
+            self.next_timer_judged = Judged::Stale;
         }
         due
     }
