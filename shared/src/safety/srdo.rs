@@ -723,9 +723,7 @@ mod tests {
     fn en50325_5_7_1_2_a_valid_pair_restarts_sct() {
         let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
         assert_eq!(consumer.deadline(), at(50_000));
-        consumer
-            .on_plain(at(10_000), &bytes(0x5A), 1, 1)
-            .unwrap();
+        consumer.on_plain(at(10_000), &bytes(0x5A), 1, 1).unwrap();
         assert_eq!(consumer.deadline(), at(30_000), "SRVT now the earliest");
         assert_eq!(
             consumer.on_inverted(at(10_200), &bytes(0xA5), 1, 1),
@@ -821,9 +819,7 @@ mod tests {
             consumer.on_plain(at(1), &bytes(1), 1, 2),
             Err(SrdoFaultCause::TooShort)
         );
-        consumer
-            .on_plain(at(2), &bytes(0x0201), 2, 2)
-            .unwrap();
+        consumer.on_plain(at(2), &bytes(0x0201), 2, 2).unwrap();
         assert_eq!(
             consumer.on_inverted(at(3), &bytes(0xFDFE), 1, 2),
             Err(SrdoFaultCause::TooShort)
@@ -960,9 +956,7 @@ mod tests {
             );
         }
         let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
-        consumer
-            .on_plain(at(1), &bytes(0x0201), 2, 2)
-            .unwrap();
+        consumer.on_plain(at(1), &bytes(0x0201), 2, 2).unwrap();
         assert_eq!(
             consumer.on_plain(at(2), &bytes(0x03), 1, 2),
             Err(SrdoFaultCause::TooShort)
@@ -1019,8 +1013,14 @@ mod tests {
 
     #[test]
     fn cia304_9_5_first_transmission_delayed_half_a_millisecond_per_node_id() {
-        assert_eq!(Producer::start(at(1_000), 1, 25, identifiers()).deadline(at(1_000)), at(1_500));
-        assert_eq!(Producer::start(at(0), 64, 25, identifiers()).deadline(at(0)), at(32_000));
+        assert_eq!(
+            Producer::start(at(1_000), 1, 25, identifiers()).deadline(at(1_000)),
+            at(1_500)
+        );
+        assert_eq!(
+            Producer::start(at(0), 64, 25, identifiers()).deadline(at(0)),
+            at(32_000)
+        );
     }
 
     #[test]
