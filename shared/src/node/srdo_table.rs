@@ -725,7 +725,8 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         // The pass judges each SRDO with the device's state at its turn: its answer is the
         // deadline only when nothing entered the safe state on the way (which would change
         // how the earlier ones count), and entering it makes `next_timer` stale. The integrity
-        // check or another protocol entering it later clears it again.
+        // check entering it later makes it stale again; another protocol latching the device
+        // leaves it judged for the state before, which `deadline` no longer takes.
         let latched = slot.latched();
         self.next_timer_judged = Judged::when(latched);
         self.next_timer = self.run_srdos(now, slot);

@@ -10,10 +10,9 @@
 //! identifier table (CAN identifier → SRDO slot, plain or inverted), each running SRDO's
 //! resolved mapping and role (transmit or receive) with the record's values its producer or
 //! consumer runs with (refresh time and identifiers, or SCT and SRVT), and the list of running
-//! SRDOs. The
-//! configuration digest the two channels of a dual-channel device compare covers the records
-//! only. Here, every period (see below), the same Operational-entry check runs again on the
-//! records (each signature, 0x13FE) and the tables are derived again into fresh ones and
+//! SRDOs. The configuration digest the two channels of a dual-channel device compare covers the
+//! records only. Here, every period (see below), the same Operational-entry check runs again on
+//! the records (each signature, 0x13FE) and the tables are derived again into fresh ones and
 //! compared with the ones in use entry by entry. The derivation goes through the same validation
 //! functions as at Operational entry: this finds damage in memory, not a fault in that code
 //! (which the configuration tests cover). Any difference latches the safe state
