@@ -111,6 +111,20 @@ impl CanFrame {
         }
     }
 
+    /// A data frame of `len` bytes (clamped to 8) of the little-endian `payload`, whose bytes
+    /// beyond `len` are sent as 0: a payload the crate built as a word (an SRDO's), one mask
+    /// instead of a loop over the bytes past `len`.
+    #[inline]
+    pub(crate) const fn from_payload(id: CanId, payload: u64, len: u8) -> Self {
+        let dlc = if len > 8 { 8 } else { len };
+        CanFrame {
+            id,
+            remote: false,
+            dlc,
+            data: (payload & crate::process_image::byte_mask(dlc)).to_le_bytes(),
+        }
+    }
+
     /// A remote frame (RTR) requesting `dlc` bytes.
     pub fn remote(id: CanId, dlc: u8) -> Result<Self, FrameError> {
         if dlc > 8 {

@@ -219,6 +219,16 @@ pub struct Slot<'a, S: Sink> {
 }
 
 impl<S: Sink> Slot<'_, S> {
+    /// The same slot, by value, for one call: what an out-of-line (cold) callee takes, so
+    /// that the hot caller's slot stays in registers rather than in memory for a reference.
+    pub fn reborrow(&mut self) -> Slot<'_, S> {
+        Slot {
+            shell: self.shell,
+            image: self.image,
+            sink: self.sink,
+        }
+    }
+
     /// The node-ID.
     pub fn node_id(&self) -> NodeId {
         self.shell.config.node_id

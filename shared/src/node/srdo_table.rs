@@ -13,7 +13,7 @@ use super::persist::{self, Reader};
 use super::slot::{Refused, RowImage, SafetyProtocol, Slot};
 use super::{ApiError, Event, NodeConfig, PersistError, SafeStateCause, Sink};
 use crate::canopen::od::{AbortCode, Address};
-use crate::frame::{CanFrame, CanId};
+use crate::frame::CanFrame;
 use crate::process_image::ProcessImage;
 use crate::safety::MAX_SRDOS;
 use crate::safety::config::{
@@ -23,7 +23,7 @@ use crate::safety::srdo::{
     self, Consumer, Discarded, InvertedOutcome, PlainOutcome, Producer, SrdoFault, SrdoFaultCause,
 };
 use crate::safety::types::{Direction, SrdoNumber};
-use crate::time::{Duration, Instant};
+use crate::time::Instant;
 
 pub use integrity::{IDLE_PERIOD as INTEGRITY_IDLE_PERIOD, IntegrityFault};
 
@@ -128,11 +128,39 @@ pub struct SrdoTable<const N: usize> {
     event_driven: bool,
     remote_frames_ignored: u32,
     double_reception: DoubleReception,
-    /// The earliest timer of the running SRDOs as the last poll left them, and whether the
-    /// device was latched then: what [`SafetyProtocol::deadline`] answers without a second
-    /// pass over the SRDOs. `None` when anything since may have moved a timer (a frame, a
-    /// changed object, the safe state, a start or stop), and then the deadline is computed.
-    next_timer: Option<(Instant, bool)>,
+    /// The earliest timer of the running SRDOs as the last poll left them: what
+    /// [`SafetyProtocol::deadline`] answers without a second pass over the SRDOs, when
+    /// [`SrdoTable::next_timer_judged`] holds.
+    next_timer: Instant,
+    /// For which device state the last poll judged [`SrdoTable::next_timer`]; stale when
+    /// anything since may have moved a timer (a frame, a changed object, the safe state, a
+    /// start or stop), and then the deadline is computed.
+    next_timer_judged: Judged,
+}
+
+/// For which device state [`SrdoTable::next_timer`] was judged: one byte the deadline compares
+/// with the state it is asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+enum Judged {
+    /// Judged with the device out of its latched safe state.
+    Unlatched,
+    /// Judged with the device in its latched safe state.
+    Latched,
+    /// Something may have moved a timer since.
+    Stale,
+}
+
+impl Judged {
+    /// Judged with the device latched (`true`) or not.
+    #[inline]
+    fn when(latched: bool) -> Self {
+        if latched {
+            Judged::Latched
+        } else {
+            Judged::Unlatched
+        }
+    }
 }
 
 impl<const N: usize> SrdoTable<N> {
@@ -166,7 +194,8 @@ impl<const N: usize> SrdoTable<N> {
             event_driven: config.event_driven,
             remote_frames_ignored: 0,
             double_reception: DoubleReception::default(),
-            next_timer: None,
+            next_timer: Instant::NEVER,
+            next_timer_judged: Judged::Stale,
         })
     }
 
@@ -274,21 +303,19 @@ impl<const N: usize> SrdoTable<N> {
         if slot.latched() {
             return; // Latched: nothing is delivered any more.
         }
-        let (Some(runtime), Some(record)) = (
-            self.runtime.get_mut(position - 1),
-            self.safety.srdos.get(position - 1),
-        ) else {
+        // The consumer holds its SCT and SRVT from the record (taken at the Operational entry
+        // and compared with the record by the integrity check), so the record is not read here.
+        let Some(runtime) = self.runtime.get_mut(position - 1) else {
             return;
         };
         let Role::Consumer(consumer) = &mut runtime.role else {
             return; // Our own identifiers (a producer's).
         };
-        self.next_timer = None;
+        self.next_timer_judged = Judged::Stale;
         let len = runtime.mapping.len;
         let result = if tag & LOOKUP_INVERTED == 0 {
-            let srvt = Duration::from_millis(u64::from(record.srvt));
             consumer
-                .on_plain(now, frame.raw_data(), frame.dlc(), len, srvt)
+                .on_plain(now, frame.raw_data(), frame.dlc(), len)
                 .map(|outcome| match outcome {
                     PlainOutcome::Pending => {
                         slot.wake_at(consumer.deadline());
@@ -297,11 +324,10 @@ impl<const N: usize> SrdoTable<N> {
                     PlainOutcome::Discarded(discarded) => Some(discarded),
                 })
         } else {
-            let sct = Duration::from_millis(u64::from(record.cycle_time));
             // A `match`, not `Result::map` with a closure: the closure was compiled out of
             // line, and its call (registers saved, captures spilled) cost the validated pair
             // instructions (`cargo xtask bench`) and channel B's image flash.
-            match consumer.on_inverted(now, frame.raw_data(), frame.dlc(), len, sct) {
+            match consumer.on_inverted(now, frame.raw_data(), frame.dlc(), len) {
                 Ok(InvertedOutcome::Pair { plain, inverted }) => {
                     srdo::deliver(slot.image_mut(), &runtime.mapping, plain, inverted);
                     runtime.pairs = runtime.pairs.wrapping_add(1);
@@ -317,13 +343,13 @@ impl<const N: usize> SrdoTable<N> {
         };
         match result {
             Ok(None) => {}
-            Ok(Some(discarded)) => self.discarded(number, discarded, slot),
+            Ok(Some(discarded)) => self.discarded(number, discarded, slot.reborrow()),
             Err(cause) => self.latch(
                 SafeStateCause::Srdo(SrdoFault {
                     srdo: number,
                     cause,
                 }),
-                slot,
+                slot.reborrow(),
             ),
         }
     }
@@ -336,7 +362,7 @@ impl<const N: usize> SrdoTable<N> {
         &mut self,
         srdo: SrdoNumber,
         discarded: Discarded,
-        slot: &mut Slot<'_, S>,
+        mut slot: Slot<'_, S>,
     ) {
         let counter = match discarded {
             Discarded::PlainRepeated => Some(&mut self.double_reception.plain_repeated),
@@ -358,7 +384,7 @@ impl<const N: usize> SrdoTable<N> {
     /// of the receive hot path.
     #[cold]
     #[inline(never)]
-    fn latch<S: Sink>(&mut self, cause: SafeStateCause, slot: &mut Slot<'_, S>) {
+    fn latch<S: Sink>(&mut self, cause: SafeStateCause, mut slot: Slot<'_, S>) {
         if let SafeStateCause::Srdo(fault) = cause {
             slot.event(Event::SrdoFault(fault));
         }
@@ -372,40 +398,32 @@ impl<const N: usize> SrdoTable<N> {
     /// device's state at that SRDO's turn (which a fault on the way makes moot).
     fn run_srdos<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) -> Instant {
         let mut next = Instant::NEVER;
-        for position in 0..self.active.len() {
-            let Some(&index) = self.active.get(position) else {
-                break;
-            };
+        let mut position = 0;
+        while let Some(&index) = self.active.get(position) {
+            position += 1;
             let index = usize::from(index);
-            let (Some(runtime), Some(record)) =
-                (self.runtime.get_mut(index), self.safety.srdos.get(index))
-            else {
+            // Producers and consumers hold what they need of their records (taken at the
+            // Operational entry and compared with the records by the integrity check), so the
+            // records are not read here.
+            let Some(runtime) = self.runtime.get_mut(index) else {
                 continue;
             };
-            let number = SrdoNumber::from_index(index);
             // Each arm gives the SRDO's next timer as `deadline` judges it; a fault makes it
             // moot (the pass's answer is then dropped, see `poll`).
             let (result, timer) = match &mut runtime.role {
-                Role::Consumer(consumer) if !slot.latched() => {
-                    (consumer.check_timers(now), consumer.deadline())
-                }
-                Role::Producer(producer) if !self.producers_halted => {
-                    if !producer.due(now) {
+                Role::Producer(producer) => {
+                    if self.producers_halted {
+                        (Ok(()), Instant::NEVER)
+                    } else if !producer.due(now) {
                         (Ok(()), producer.deadline(now))
                     } else {
                         match srdo::gather(slot.image(), &runtime.mapping) {
                             Ok((plain, inverted)) => {
-                                let cob_1 = CanId::from_masked(record.cob_id_1 as u16);
-                                let cob_2 = CanId::from_masked(record.cob_id_2 as u16);
-                                let len = runtime.mapping.len;
-                                slot.transmit(CanFrame::with_len(cob_1, plain.to_le_bytes(), len));
-                                slot.transmit(CanFrame::with_len(
-                                    cob_2,
-                                    inverted.to_le_bytes(),
-                                    len,
-                                ));
-                                let refresh = Duration::from_millis(u64::from(record.cycle_time));
-                                producer.sent(now, refresh);
+                                let [first, second] =
+                                    producer.frames(plain, inverted, runtime.mapping.len);
+                                slot.transmit(first);
+                                slot.transmit(second);
+                                producer.sent(now);
                                 runtime.pairs = runtime.pairs.wrapping_add(1);
                                 (Ok(()), producer.deadline(now))
                             }
@@ -413,16 +431,19 @@ impl<const N: usize> SrdoTable<N> {
                         }
                     }
                 }
-                _ => (Ok(()), Instant::NEVER),
+                Role::Consumer(consumer) if !slot.latched() => {
+                    (consumer.check_timers(now), consumer.deadline())
+                }
+                Role::Consumer(_) | Role::Idle => (Ok(()), Instant::NEVER),
             };
             next = next.min(timer);
             if let Err(cause) = result {
                 self.latch(
                     SafeStateCause::Srdo(SrdoFault {
-                        srdo: number,
+                        srdo: SrdoNumber::from_index(index),
                         cause,
                     }),
-                    slot,
+                    slot.reborrow(),
                 );
             }
         }
@@ -607,11 +628,22 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
             lookup,
             ..
         } = self;
+        let records = &safety.srdos;
         let result = safety.check_for_operational(slot.image(), |number, valid| {
             let index = number.index();
+            let Some(record) = records.get(index) else {
+                return;
+            };
+            // Each takes the times (and a producer its identifiers) it runs with from the
+            // record it was just validated from; the integrity check compares them again.
             let role = match valid.direction {
-                Direction::Transmit => Role::Producer(Producer::start(now, node_id)),
-                _ => Role::Consumer(Consumer::start(now, valid.cycle_time)),
+                Direction::Transmit => Role::Producer(Producer::start(
+                    now,
+                    node_id,
+                    record.cycle_time,
+                    valid.cob_ids,
+                )),
+                _ => Role::Consumer(Consumer::start(now, record.cycle_time, record.srvt)),
             };
             if let Some(entry) = runtime.get_mut(index) {
                 *entry = SrdoRuntime {
@@ -661,7 +693,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         self.lookup = [0; SRDO_IDS];
         self.integrity = integrity::Integrity::IDLE;
         self.running = false;
-        self.next_timer = None;
+        self.next_timer_judged = Judged::Stale;
     }
 
     fn reset(&mut self) {
@@ -692,21 +724,20 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
     fn poll<S: Sink>(&mut self, now: Instant, slot: &mut Slot<'_, S>) {
         // The pass judges each SRDO with the device's state at its turn: its answer is the
         // deadline only when nothing entered the safe state on the way (which would change
-        // how the earlier ones count), and entering it clears `next_timer`. The integrity
-        // check or another protocol entering it later clears it again.
+        // how the earlier ones count), and entering it makes `next_timer` stale. The integrity
+        // check entering it later makes it stale again; another protocol latching the device
+        // leaves it judged for the state before, which `deadline` no longer takes.
         let latched = slot.latched();
-        self.next_timer = Some((Instant::NEVER, latched));
-        let next = self.run_srdos(now, slot);
-        if self.next_timer.is_some() {
-            self.next_timer = Some((next, latched));
-        }
+        self.next_timer_judged = Judged::when(latched);
+        self.next_timer = self.run_srdos(now, slot);
         self.poll_integrity(now, slot);
     }
 
     fn deadline(&self, now: Instant, latched: bool) -> Instant {
-        let srdos = match self.next_timer {
-            Some((next, for_latched)) if for_latched == latched => next,
-            _ => self.timers(now, latched),
+        let srdos = if self.next_timer_judged == Judged::when(latched) {
+            self.next_timer
+        } else {
+            self.timers(now, latched)
         };
         self.integrity.deadline().min(srdos)
     }
@@ -735,7 +766,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
         if !already_latched {
             self.clear_received(image);
         }
-        self.next_timer = None;
+        self.next_timer_judged = Judged::Stale;
     }
 
     /// Marks every running producer whose mapping includes the byte at `offset` as changed.
@@ -753,7 +784,7 @@ impl<const N: usize> SafetyProtocol for SrdoTable<N> {
             }
         }
         if due {
-            self.next_timer = None;
+            self.next_timer_judged = Judged::Stale;
         }
         due
     }

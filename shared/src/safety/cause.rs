@@ -142,7 +142,8 @@ pub enum Cause {
     IntegrityRecords = 0xF2,
     /// In Operational the identifier table differs from the records.
     IntegrityIdentifierTable = 0xF3,
-    /// In Operational an SRDO's resolved mapping or role differs from its record.
+    /// In Operational an SRDO's resolved mapping or role, or the times or identifiers its
+    /// producer or consumer runs with, differ from its record.
     IntegrityRuntime = 0xF4,
     /// In Operational the list of running SRDOs differs from the records.
     IntegrityActiveList = 0xF5,

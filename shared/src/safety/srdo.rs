@@ -18,8 +18,9 @@
 //! [`Consumer::on_plain`]). Any other deviation from "plain, then its inverse within SRVT" is
 //! a fault.
 
-use super::config::ResolvedMapping;
-use super::types::SrdoNumber;
+use super::config::{ResolvedMapping, ValidSrdo};
+use super::types::{CobIdPair, SrdoNumber};
+use crate::frame::{CanFrame, CanId};
 use crate::process_image::{ProcessImage, Span};
 use crate::time::{self, Duration, Instant};
 
@@ -165,6 +166,11 @@ pub struct Consumer {
     srvt_deadline: Instant,
     /// The pending plain frame's data bytes (those beyond its length are 0).
     pending: u64,
+    /// SCT in ms, from the SRDO's record at the Operational entry (the integrity check
+    /// compares it with the record, [`Consumer::runs_with`]).
+    sct_ms: u16,
+    /// SRVT in ms, from the record as SCT.
+    srvt_ms: u8,
     /// The pending plain frame's data length code, to tell an exact repeat.
     pending_dlc: DataLength,
     /// A pair completed since the consumer entered Operational ([`Consumer::start`]).
@@ -209,15 +215,36 @@ impl DataLength {
 }
 
 impl Consumer {
-    /// A consumer that starts monitoring at `now`: the first pair is due within SCT.
-    pub fn start(now: Instant, sct: Duration) -> Self {
+    /// A consumer that starts monitoring at `now` with the SCT and SRVT of its record (in ms,
+    /// as the record holds them): the first pair is due within SCT. Taken once, at the
+    /// Operational entry, so that a frame does not look its record up.
+    pub fn start(now: Instant, sct_ms: u16, srvt_ms: u8) -> Self {
         Consumer {
-            sct_deadline: now + sct,
+            sct_deadline: now + Duration::from_millis(u64::from(sct_ms)),
             srvt_deadline: Instant::NEVER,
             pending: 0,
+            sct_ms,
+            srvt_ms,
             pending_dlc: DataLength::L0,
             paired: false,
         }
+    }
+
+    /// The SCT it runs with.
+    #[inline]
+    pub fn sct(&self) -> Duration {
+        Duration::from_millis(u64::from(self.sct_ms))
+    }
+
+    /// The SRVT it runs with.
+    #[inline]
+    pub fn srvt(&self) -> Duration {
+        Duration::from_millis(u64::from(self.srvt_ms))
+    }
+
+    /// `true` when it runs with the SCT and SRVT of `valid` (the integrity check's question).
+    pub fn runs_with(&self, valid: &ValidSrdo) -> bool {
+        self.sct() == valid.cycle_time && self.srvt() == valid.srvt
     }
 
     /// The earliest instant at which [`Consumer::check_timers`] can fail.
@@ -278,7 +305,6 @@ impl Consumer {
         data: &[u8; 8],
         dlc: u8,
         len: u8,
-        srvt: Duration,
     ) -> Result<PlainOutcome, SrdoFaultCause> {
         self.check_timers(now)?;
         let data = u64::from_le_bytes(*data);
@@ -297,7 +323,7 @@ impl Consumer {
         }
         self.pending = data;
         self.pending_dlc = length;
-        self.srvt_deadline = now + srvt;
+        self.srvt_deadline = now + self.srvt();
         Ok(PlainOutcome::Pending)
     }
 
@@ -339,7 +365,6 @@ impl Consumer {
         data: &[u8; 8],
         dlc: u8,
         len: u8,
-        sct: Duration,
     ) -> Result<InvertedOutcome, SrdoFaultCause> {
         self.check_timers(now)?;
         if self.srvt_deadline == Instant::NEVER {
@@ -362,7 +387,7 @@ impl Consumer {
         self.pending = 0;
         self.pending_dlc = DataLength::L0;
         self.srvt_deadline = Instant::NEVER;
-        self.sct_deadline = now + sct;
+        self.sct_deadline = now + self.sct();
         self.paired = true;
         Ok(InvertedOutcome::Pair { plain, inverted })
     }
@@ -373,18 +398,50 @@ impl Consumer {
 pub struct Producer {
     /// The next cyclic transmission.
     next: Instant,
+    /// The refresh time in ms, from the SRDO's record at the Operational entry (the integrity
+    /// check compares it with the record, [`Producer::runs_with`]).
+    refresh_ms: u16,
+    /// The identifiers it sends on, from the record as the refresh time.
+    identifiers: CobIdPair,
     /// The mapped data changed since the last transmission (event-driven transmission).
     changed: bool,
 }
 
 impl Producer {
-    /// A producer entering Operational at `now`: its first cyclic transmission is delayed by
-    /// 0.5 ms × node-ID (CiA 304 9.5), so producers started together do not collide.
-    pub fn start(now: Instant, node_id: u8) -> Self {
+    /// A producer entering Operational at `now` with the refresh time (in ms, as its record
+    /// holds it) and the identifiers of its record: its first cyclic transmission is delayed
+    /// by 0.5 ms × node-ID (CiA 304 9.5), so producers started together do not collide.
+    /// Taken once, at the Operational entry, so that a transmission does not look its record
+    /// up.
+    pub fn start(now: Instant, node_id: u8, refresh_ms: u16, identifiers: CobIdPair) -> Self {
         Producer {
             next: now + Duration::from_micros(500 * u64::from(node_id)),
+            refresh_ms,
+            identifiers,
             changed: false,
         }
+    }
+
+    /// The refresh time it runs with.
+    #[inline]
+    pub fn refresh(&self) -> Duration {
+        Duration::from_millis(u64::from(self.refresh_ms))
+    }
+
+    /// `true` when it runs with the refresh time and the identifiers of `valid` (the
+    /// integrity check's question).
+    pub fn runs_with(&self, valid: &ValidSrdo) -> bool {
+        self.refresh() == valid.cycle_time && self.identifiers == valid.cob_ids
+    }
+
+    /// The two frames of a pair: `plain` on COB-ID 1 and `inverted` on COB-ID 2, `len` bytes
+    /// each (little-endian payloads; the bytes beyond `len` are sent as 0).
+    #[inline]
+    pub fn frames(&self, plain: u64, inverted: u64, len: u8) -> [CanFrame; 2] {
+        [
+            CanFrame::from_payload(CanId::from_masked(self.identifiers.first()), plain, len),
+            CanFrame::from_payload(CanId::from_masked(self.identifiers.second()), inverted, len),
+        ]
     }
 
     /// The next transmission, cyclic or event-driven.
@@ -409,7 +466,8 @@ impl Producer {
     /// whole cycle or was event-driven (so a burst of events cannot shorten the refresh
     /// interval that consumers' SCT expects to see honoured).
     #[inline]
-    pub fn sent(&mut self, now: Instant, refresh: Duration) {
+    pub fn sent(&mut self, now: Instant) {
+        let refresh = self.refresh();
         let on_cycle = self.next + refresh;
         self.next = if self.changed || time::expired(on_cycle, now) {
             now + refresh
@@ -510,8 +568,9 @@ pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, 
         // panicking (it then delivers wrong bytes, which validation has already excluded).
         let shift = (8 * at) & 63;
         let (plain_part, inverted_part) = (plain >> shift, inverted >> shift);
+        // Both branches write the same bytes: this one only lets the compiler drop the
+        // bounds checks of `put_le` and share the mask.
         if plain_span.len == inverted_span.len
-            && plain_span.len <= 8
             && plain_span.offset.max(inverted_span.offset) <= WINDOW_END
         {
             // Every pair of a valid mapping: both words lie in the image, one mask for both.
@@ -524,8 +583,8 @@ pub fn deliver(image: &mut ProcessImage, mapping: &ResolvedMapping, plain: u64, 
     }
 }
 
-/// One pair of [`deliver`] whose objects differ in length, are longer than 8 bytes or end past
-/// the image (a damaged mapping). Cold: a valid mapping never comes here.
+/// One pair of [`deliver`] whose objects differ in length or whose 8-byte windows end past the
+/// image (a damaged mapping). Cold: a valid mapping never comes here.
 #[cold]
 #[inline(never)]
 fn deliver_clamped(
@@ -551,8 +610,15 @@ pub fn clear(image: &mut ProcessImage, mapping: &ResolvedMapping) {
 mod tests {
     use super::*;
 
-    const SCT: Duration = Duration::from_millis(50);
-    const SRVT: Duration = Duration::from_millis(20);
+    use crate::safety::types::Direction;
+
+    /// SCT and SRVT of the consumers, in ms as their records hold them.
+    const SCT_MS: u16 = 50;
+    const SRVT_MS: u8 = 20;
+    /// The identifiers of the producers.
+    fn identifiers() -> CobIdPair {
+        CobIdPair::new(0x101, 0x102).expect("valid pair")
+    }
     const fn at(micros: u64) -> Instant {
         Instant::from_micros(micros)
     }
@@ -655,14 +721,12 @@ mod tests {
 
     #[test]
     fn en50325_5_7_1_2_a_valid_pair_restarts_sct() {
-        let mut consumer = Consumer::start(at(0), SCT);
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
         assert_eq!(consumer.deadline(), at(50_000));
-        consumer
-            .on_plain(at(10_000), &bytes(0x5A), 1, 1, SRVT)
-            .unwrap();
+        consumer.on_plain(at(10_000), &bytes(0x5A), 1, 1).unwrap();
         assert_eq!(consumer.deadline(), at(30_000), "SRVT now the earliest");
         assert_eq!(
-            consumer.on_inverted(at(10_200), &bytes(0xA5), 1, 1, SCT),
+            consumer.on_inverted(at(10_200), &bytes(0xA5), 1, 1),
             Ok(InvertedOutcome::Pair {
                 plain: 0x5A,
                 inverted: 0xA5
@@ -673,7 +737,7 @@ mod tests {
 
     #[test]
     fn en50325_5_7_1_2_sct_event_at_the_deadline_itself() {
-        let consumer = Consumer::start(at(0), SCT);
+        let consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
         assert_eq!(consumer.check_timers(at(49_999)), Ok(()));
         assert_eq!(
             consumer.check_timers(at(50_000)),
@@ -683,15 +747,15 @@ mod tests {
 
     #[test]
     fn en50325_5_7_1_2_srvt_event_and_late_frames_are_judged_on_arrival() {
-        let mut consumer = Consumer::start(at(0), SCT);
-        consumer.on_plain(at(1_000), &bytes(1), 1, 1, SRVT).unwrap();
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+        consumer.on_plain(at(1_000), &bytes(1), 1, 1).unwrap();
         assert_eq!(
             consumer.check_timers(at(21_000)),
             Err(SrdoFaultCause::SrvtElapsed)
         );
         // Not polled in between: the late inverted frame itself is refused.
         assert_eq!(
-            consumer.on_inverted(at(21_000), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(21_000), &bytes(0xFE), 1, 1),
             Err(SrdoFaultCause::SrvtElapsed)
         );
     }
@@ -699,10 +763,10 @@ mod tests {
     /// A consumer that took one pair (plain 1 at 1 us, its inverse at 2 us) after starting at 0:
     /// every deviation is a fault from then on.
     fn paired_once() -> Consumer {
-        let mut consumer = Consumer::start(at(0), SCT);
-        consumer.on_plain(at(1), &bytes(1), 1, 1, SRVT).unwrap();
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+        consumer.on_plain(at(1), &bytes(1), 1, 1).unwrap();
         assert!(matches!(
-            consumer.on_inverted(at(2), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(2), &bytes(0xFE), 1, 1),
             Ok(InvertedOutcome::Pair { .. })
         ));
         consumer
@@ -712,36 +776,36 @@ mod tests {
     fn cia304_9_5_order_is_checked_and_double_receptions_are_discarded() {
         let mut consumer = paired_once();
         assert_eq!(
-            consumer.on_inverted(at(11), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(11), &bytes(0xFE), 1, 1),
             Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain))
         );
         assert_eq!(consumer.deadline(), at(50_002), "SCT keeps running");
         assert_eq!(
-            consumer.on_plain(at(12), &bytes(1), 1, 1, SRVT),
+            consumer.on_plain(at(12), &bytes(1), 1, 1),
             Ok(PlainOutcome::Pending)
         );
         assert_eq!(
-            consumer.on_plain(at(13), &bytes(1), 1, 1, SRVT),
+            consumer.on_plain(at(13), &bytes(1), 1, 1),
             Ok(PlainOutcome::Discarded(Discarded::PlainRepeated))
         );
         assert_eq!(consumer.deadline(), at(20_012), "SRVT of the first copy");
         for (data, dlc) in [(2, 1), (1, 2), (0x0101, 2)] {
             let mut copy = consumer;
             assert_eq!(
-                copy.on_plain(at(14), &bytes(data), dlc, 1, SRVT),
+                copy.on_plain(at(14), &bytes(data), dlc, 1),
                 Err(SrdoFaultCause::PlainRepeated),
                 "{data:#x} length {dlc}"
             );
         }
         assert_eq!(
-            consumer.on_inverted(at(15), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(15), &bytes(0xFE), 1, 1),
             Ok(InvertedOutcome::Pair {
                 plain: 1,
                 inverted: 0xFE
             })
         );
         assert_eq!(
-            consumer.on_inverted(at(16), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(16), &bytes(0xFE), 1, 1),
             Ok(InvertedOutcome::Discarded(Discarded::InvertedWithoutPlain)),
             "a repeat of the inverted frame"
         );
@@ -750,28 +814,26 @@ mod tests {
 
     #[test]
     fn en50325_5_7_1_3_short_frames_are_not_processed() {
-        let mut consumer = Consumer::start(at(0), SCT);
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
         assert_eq!(
-            consumer.on_plain(at(1), &bytes(1), 1, 2, SRVT),
+            consumer.on_plain(at(1), &bytes(1), 1, 2),
             Err(SrdoFaultCause::TooShort)
         );
-        consumer
-            .on_plain(at(2), &bytes(0x0201), 2, 2, SRVT)
-            .unwrap();
+        consumer.on_plain(at(2), &bytes(0x0201), 2, 2).unwrap();
         assert_eq!(
-            consumer.on_inverted(at(3), &bytes(0xFDFE), 1, 2, SCT),
+            consumer.on_inverted(at(3), &bytes(0xFDFE), 1, 2),
             Err(SrdoFaultCause::TooShort)
         );
     }
 
     #[test]
     fn en50325_5_7_1_3_longer_frames_use_only_the_mapped_bytes() {
-        let mut consumer = Consumer::start(at(0), SCT);
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
         consumer
-            .on_plain(at(1), &[0x01, 0xAA, 0xBB, 0, 0, 0, 0, 0], 3, 1, SRVT)
+            .on_plain(at(1), &[0x01, 0xAA, 0xBB, 0, 0, 0, 0, 0], 3, 1)
             .unwrap();
         let Ok(InvertedOutcome::Pair { plain, inverted }) =
-            consumer.on_inverted(at(2), &[0xFE, 0x00, 0x00, 0, 0, 0, 0, 0], 3, 1, SCT)
+            consumer.on_inverted(at(2), &[0xFE, 0x00, 0x00, 0, 0, 0, 0, 0], 3, 1)
         else {
             panic!("a valid pair");
         };
@@ -781,14 +843,14 @@ mod tests {
     #[test]
     fn en50325_5_7_1_1_not_inverted_data_is_refused_bit_by_bit() {
         for bit in 0..64 {
-            let mut consumer = Consumer::start(at(0), SCT);
-            consumer.on_plain(at(1), &bytes(0), 8, 8, SRVT).unwrap();
-            consumer.on_inverted(at(2), &bytes(!0), 8, 8, SCT).unwrap();
+            let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+            consumer.on_plain(at(1), &bytes(0), 8, 8).unwrap();
+            consumer.on_inverted(at(2), &bytes(!0), 8, 8).unwrap();
             let plain = 0x0123_4567_89AB_CDEFu64;
-            consumer.on_plain(at(3), &bytes(plain), 8, 8, SRVT).unwrap();
+            consumer.on_plain(at(3), &bytes(plain), 8, 8).unwrap();
             let wrong = !plain ^ (1 << bit);
             assert_eq!(
-                consumer.on_inverted(at(4), &bytes(wrong), 8, 8, SCT),
+                consumer.on_inverted(at(4), &bytes(wrong), 8, 8),
                 Err(SrdoFaultCause::NotInverted),
                 "bit {bit}"
             );
@@ -804,11 +866,11 @@ mod tests {
     /// sequence error again.
     #[test]
     fn cia304_9_5_before_the_first_pair_a_plain_frame_with_other_data_replaces_the_pending_one() {
-        let mut consumer = Consumer::start(at(0), SCT);
-        consumer.on_plain(at(1_000), &bytes(1), 1, 1, SRVT).unwrap();
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+        consumer.on_plain(at(1_000), &bytes(1), 1, 1).unwrap();
         for (data, dlc) in [(0, 1), (0x0100, 2), (0, 1)] {
             assert_eq!(
-                consumer.on_plain(at(1_500), &bytes(data), dlc, 1, SRVT),
+                consumer.on_plain(at(1_500), &bytes(data), dlc, 1),
                 Ok(PlainOutcome::Discarded(
                     Discarded::PlainReplacedBeforeFirstPair
                 )),
@@ -816,7 +878,7 @@ mod tests {
             );
         }
         assert_eq!(
-            consumer.on_plain(at(1_600), &bytes(0), 1, 1, SRVT),
+            consumer.on_plain(at(1_600), &bytes(0), 1, 1),
             Ok(PlainOutcome::Discarded(Discarded::PlainRepeated)),
             "an exact repeat of the frame that replaced it"
         );
@@ -827,27 +889,27 @@ mod tests {
         );
         let mut late = consumer;
         assert_eq!(
-            late.on_inverted(at(21_000), &bytes(0xFF), 1, 1, SCT),
+            late.on_inverted(at(21_000), &bytes(0xFF), 1, 1),
             Err(SrdoFaultCause::SrvtElapsed),
             "the first pair is due within SRVT of the first plain frame"
         );
         assert_eq!(
-            consumer.on_inverted(at(1_700), &bytes(0xFE), 1, 1, SCT),
+            consumer.on_inverted(at(1_700), &bytes(0xFE), 1, 1),
             Ok(InvertedOutcome::Discarded(
                 Discarded::InvertedNotPairedBeforeFirstPair
             )),
             "the replaced frame's inverse"
         );
         assert_eq!(
-            consumer.on_inverted(at(1_800), &bytes(0xFF), 1, 1, SCT),
+            consumer.on_inverted(at(1_800), &bytes(0xFF), 1, 1),
             Ok(InvertedOutcome::Pair {
                 plain: 0,
                 inverted: 0xFF
             })
         );
-        consumer.on_plain(at(2_000), &bytes(0), 1, 1, SRVT).unwrap();
+        consumer.on_plain(at(2_000), &bytes(0), 1, 1).unwrap();
         assert_eq!(
-            consumer.on_plain(at(2_100), &bytes(1), 1, 1, SRVT),
+            consumer.on_plain(at(2_100), &bytes(1), 1, 1),
             Err(SrdoFaultCause::PlainRepeated),
             "after the first pair"
         );
@@ -862,11 +924,11 @@ mod tests {
     fn en50325_5_7_1_1_before_the_first_pair_a_wrong_inverse_is_never_delivered_and_srvt_ends_it() {
         let plain = 0x0123_4567_89AB_CDEFu64;
         for bit in 0..64 {
-            let mut consumer = Consumer::start(at(0), SCT);
-            consumer.on_plain(at(1), &bytes(plain), 8, 8, SRVT).unwrap();
+            let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+            consumer.on_plain(at(1), &bytes(plain), 8, 8).unwrap();
             let wrong = !plain ^ (1 << bit);
             assert_eq!(
-                consumer.on_inverted(at(2), &bytes(wrong), 8, 8, SCT),
+                consumer.on_inverted(at(2), &bytes(wrong), 8, 8),
                 Ok(InvertedOutcome::Discarded(
                     Discarded::InvertedNotPairedBeforeFirstPair
                 )),
@@ -880,12 +942,12 @@ mod tests {
                 "bit {bit}"
             );
             assert_eq!(
-                late.on_inverted(at(20_001), &bytes(!plain), 8, 8, SCT),
+                late.on_inverted(at(20_001), &bytes(!plain), 8, 8),
                 Err(SrdoFaultCause::SrvtElapsed),
                 "bit {bit}"
             );
             assert_eq!(
-                consumer.on_inverted(at(3), &bytes(!plain), 8, 8, SCT),
+                consumer.on_inverted(at(3), &bytes(!plain), 8, 8),
                 Ok(InvertedOutcome::Pair {
                     plain,
                     inverted: !plain
@@ -893,33 +955,80 @@ mod tests {
                 "bit {bit}"
             );
         }
-        let mut consumer = Consumer::start(at(0), SCT);
-        consumer
-            .on_plain(at(1), &bytes(0x0201), 2, 2, SRVT)
-            .unwrap();
+        let mut consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+        consumer.on_plain(at(1), &bytes(0x0201), 2, 2).unwrap();
         assert_eq!(
-            consumer.on_plain(at(2), &bytes(0x03), 1, 2, SRVT),
+            consumer.on_plain(at(2), &bytes(0x03), 1, 2),
             Err(SrdoFaultCause::TooShort)
         );
         assert_eq!(
-            consumer.on_inverted(at(3), &bytes(0xFE), 1, 2, SCT),
+            consumer.on_inverted(at(3), &bytes(0xFE), 1, 2),
             Err(SrdoFaultCause::TooShort)
         );
+    }
+
+    /// A validated SRDO with these times and identifiers, its mapping empty (not looked at).
+    fn valid(direction: Direction, cycle_ms: u16, srvt_ms: u8, first: u32) -> ValidSrdo {
+        ValidSrdo {
+            direction,
+            cob_ids: CobIdPair::new(first, first + 1).expect("valid pair"),
+            cycle_time: Duration::from_millis(u64::from(cycle_ms)),
+            srvt: Duration::from_millis(u64::from(srvt_ms)),
+            mapping: ResolvedMapping::EMPTY,
+        }
+    }
+
+    /// What the integrity check asks: a consumer runs with its record's SCT and SRVT and with
+    /// no others, a producer with its record's refresh time and identifiers.
+    #[test]
+    fn en50325_5_8_3_1_producer_and_consumer_run_with_their_records_values() {
+        let consumer = Consumer::start(at(0), SCT_MS, SRVT_MS);
+        assert_eq!(consumer.sct(), Duration::from_millis(50));
+        assert_eq!(consumer.srvt(), Duration::from_millis(20));
+        assert!(consumer.runs_with(&valid(Direction::Receive, 50, 20, 0x101)));
+        assert!(!consumer.runs_with(&valid(Direction::Receive, 51, 20, 0x101)));
+        assert!(!consumer.runs_with(&valid(Direction::Receive, 50, 21, 0x101)));
+        let producer = Producer::start(at(0), 1, 25, identifiers());
+        assert_eq!(producer.refresh(), Duration::from_millis(25));
+        assert!(producer.runs_with(&valid(Direction::Transmit, 25, 1, 0x101)));
+        assert!(!producer.runs_with(&valid(Direction::Transmit, 24, 1, 0x101)));
+        assert!(!producer.runs_with(&valid(Direction::Transmit, 25, 1, 0x103)));
+    }
+
+    /// EN 50325-5 7.1.1: the plain payload on COB-ID 1, the inverted one on COB-ID 2, each as
+    /// long as the mapping, nothing sent beyond it.
+    #[test]
+    fn en50325_5_7_1_1_a_pair_goes_on_the_records_identifiers_with_the_mapped_length() {
+        let producer = Producer::start(at(0), 1, 25, identifiers());
+        let [plain, inverted] = producer.frames(0x1122_3344_5566_7788, !0x5566_7788, 3);
+        assert_eq!(plain.id().raw(), 0x101);
+        assert_eq!(inverted.id().raw(), 0x102);
+        assert_eq!(plain.data(), &[0x88, 0x77, 0x66]);
+        assert_eq!(inverted.data(), &[0x77, 0x88, 0x99]);
+        assert_eq!(plain.raw_data(), &[0x88, 0x77, 0x66, 0, 0, 0, 0, 0]);
+        assert_eq!(inverted.raw_data(), &[0x77, 0x88, 0x99, 0, 0, 0, 0, 0]);
+        let [whole, _] = producer.frames(u64::MAX, 0, 8);
+        assert_eq!(whole.data(), &[0xFF; 8]);
     }
 
     #[test]
     fn cia304_9_5_first_transmission_delayed_half_a_millisecond_per_node_id() {
-        assert_eq!(Producer::start(at(1_000), 1).deadline(at(1_000)), at(1_500));
-        assert_eq!(Producer::start(at(0), 64).deadline(at(0)), at(32_000));
+        assert_eq!(
+            Producer::start(at(1_000), 1, 25, identifiers()).deadline(at(1_000)),
+            at(1_500)
+        );
+        assert_eq!(
+            Producer::start(at(0), 64, 25, identifiers()).deadline(at(0)),
+            at(32_000)
+        );
     }
 
     #[test]
     fn en50325_5_6_2_1_cyclic_transmission_keeps_phase_and_events_go_at_once() {
-        let refresh = Duration::from_millis(25);
-        let mut producer = Producer::start(at(0), 2);
+        let mut producer = Producer::start(at(0), 2, 25, identifiers());
         assert!(!producer.due(at(999)));
         assert!(producer.due(at(1_000)));
-        producer.sent(at(1_100), refresh);
+        producer.sent(at(1_100));
         assert_eq!(
             producer.deadline(at(1_100)),
             at(26_000),
@@ -927,13 +1036,13 @@ mod tests {
         );
         producer.mark_changed();
         assert!(producer.due(at(5_000)));
-        producer.sent(at(5_000), refresh);
+        producer.sent(at(5_000));
         assert_eq!(
             producer.deadline(at(5_000)),
             at(30_000),
             "event restarts the cycle"
         );
-        producer.sent(at(90_000), refresh);
+        producer.sent(at(90_000));
         assert_eq!(
             producer.deadline(at(90_000)),
             at(115_000),

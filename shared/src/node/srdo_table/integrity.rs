@@ -8,10 +8,11 @@
 //! On the way into Operational the node validates the records (0x1301.., 0x1381.., 0x13FE,
 //! 0x13FF) once and derives from them what the receive and transmit paths actually use: the
 //! identifier table (CAN identifier → SRDO slot, plain or inverted), each running SRDO's
-//! resolved mapping and role (transmit or receive), and the list of running SRDOs. The
-//! configuration digest the two channels of a dual-channel device compare covers the records
-//! only. Here, every period (see below), the same Operational-entry check runs again on the
-//! records (each signature, 0x13FE) and the tables are derived again into fresh ones and
+//! resolved mapping and role (transmit or receive) with the record's values its producer or
+//! consumer runs with (refresh time and identifiers, or SCT and SRVT), and the list of running
+//! SRDOs. The configuration digest the two channels of a dual-channel device compare covers the
+//! records only. Here, every period (see below), the same Operational-entry check runs again on
+//! the records (each signature, 0x13FE) and the tables are derived again into fresh ones and
 //! compared with the ones in use entry by entry. The derivation goes through the same validation
 //! functions as at Operational entry: this finds damage in memory, not a fault in that code
 //! (which the configuration tests cover). Any difference latches the safe state
@@ -67,7 +68,8 @@ pub mod cause {
     pub const RECORDS: u8 = Cause::IntegrityRecords.code();
     /// The identifier table differs from the records.
     pub const IDENTIFIER_TABLE: u8 = Cause::IntegrityIdentifierTable.code();
-    /// An SRDO's resolved mapping or role differs from its record.
+    /// An SRDO's resolved mapping or role, or the times or identifiers it runs with, differ
+    /// from its record.
     pub const RUNTIME: u8 = Cause::IntegrityRuntime.code();
     /// The list of running SRDOs differs from the records.
     pub const ACTIVE_LIST: u8 = Cause::IntegrityActiveList.code();
@@ -82,8 +84,9 @@ pub enum IntegrityFault {
     Records(ConfigFault),
     /// The identifier table the receive path looks frames up in differs from the records.
     IdentifierTable,
-    /// This SRDO's resolved mapping or role (producer, consumer, idle) differs from its
-    /// record.
+    /// This SRDO's resolved mapping or role (producer, consumer, idle), or the times (refresh
+    /// time, or SCT and SRVT) or identifiers its producer or consumer runs with, differ from
+    /// its record.
     Runtime(SrdoNumber),
     /// The list of running SRDOs differs from the records.
     ActiveList,
@@ -173,7 +176,7 @@ impl<const N: usize> SrdoTable<N> {
             return;
         }
         if let Err(fault) = self.check_integrity(slot.image()) {
-            self.latch(SafeStateCause::Integrity(fault), slot);
+            self.latch(SafeStateCause::Integrity(fault), slot.reborrow());
         }
     }
 
@@ -187,11 +190,13 @@ impl<const N: usize> SrdoTable<N> {
             .check_for_operational(image, |number, valid| {
                 let slot = number.index();
                 let transmit = valid.direction == Direction::Transmit;
+                // The role, and the times (and identifiers) it runs with, which it took from
+                // the record at the Operational entry.
                 let matches = self.runtime.get(slot).is_some_and(|runtime| {
                     runtime.mapping == valid.mapping
-                        && match runtime.role {
-                            Role::Producer(_) => transmit,
-                            Role::Consumer(_) => !transmit,
+                        && match &runtime.role {
+                            Role::Producer(producer) => transmit && producer.runs_with(&valid),
+                            Role::Consumer(consumer) => !transmit && consumer.runs_with(&valid),
                             Role::Idle => false,
                         }
                 });

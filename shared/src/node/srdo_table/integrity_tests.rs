@@ -197,14 +197,65 @@ fn en50325_5_8_3_1_every_bit_flip_of_a_resolved_mapping_in_operational_gives_the
     }
 }
 
+/// A damaged copy of the record's values a running producer or consumer took at the
+/// Operational entry (a producer's refresh time or identifiers, a consumer's SCT or SRVT): the
+/// receive and transmit paths run on these copies, not on the records, so the check compares
+/// them with the records.
+#[test]
+fn en50325_5_8_3_1_a_changed_time_or_identifier_of_a_running_srdo_gives_the_safe_state() {
+    let other_pair = crate::safety::types::CobIdPair::new(0x105, 0x106).unwrap();
+    let own_pair = crate::safety::types::CobIdPair::new(0x103, 0x104).unwrap();
+    for (what, slot, role) in [
+        (
+            "the consumer's SCT",
+            0,
+            Role::Consumer(srdo::Consumer::start(Instant::ZERO, 50 ^ 4, 20)),
+        ),
+        (
+            "the consumer's SRVT",
+            0,
+            Role::Consumer(srdo::Consumer::start(Instant::ZERO, 50, 20 ^ 1)),
+        ),
+        (
+            "the producer's refresh time",
+            1,
+            Role::Producer(srdo::Producer::start(
+                Instant::ZERO,
+                33,
+                REFRESH_MS ^ 8,
+                own_pair,
+            )),
+        ),
+        (
+            "the producer's identifiers",
+            1,
+            Role::Producer(srdo::Producer::start(
+                Instant::ZERO,
+                33,
+                REFRESH_MS,
+                other_pair,
+            )),
+        ),
+    ] {
+        let fault = flipped(what, |table| table.runtime[slot].role = role);
+        assert_eq!(
+            fault,
+            IntegrityFault::Runtime(SrdoNumber::from_index(slot)),
+            "{what}"
+        );
+    }
+}
+
 /// A damaged role: a running SRDO that is idle or has the other role, an idle one that runs.
 #[test]
 fn en50325_5_8_3_1_a_changed_role_in_operational_gives_the_safe_state() {
-    let consumer = Role::Consumer(srdo::Consumer::start(
+    let consumer = Role::Consumer(srdo::Consumer::start(Instant::ZERO, 50, 20));
+    let producer = Role::Producer(srdo::Producer::start(
         Instant::ZERO,
-        Duration::from_millis(50),
+        33,
+        REFRESH_MS,
+        crate::safety::types::CobIdPair::new(0x103, 0x104).unwrap(),
     ));
-    let producer = Role::Producer(srdo::Producer::start(Instant::ZERO, 33));
     for (slot, role) in [
         (0, Role::Idle),
         (0, producer),
