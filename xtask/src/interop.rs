@@ -1093,7 +1093,12 @@ fn emulated_network(root: &Path, python: &Path) -> Result<()> {
             .current_dir(root)
             .args(["build", "--quiet", "-p", "safety-config"]),
     )?;
-    let mut served = ShippedNetwork::serve(root, "emulated-network", &["--inputs-closed"])?;
+    let mut served = ShippedNetwork::serve(
+        root,
+        network::Protocol::CanopenSafety,
+        "emulated-network",
+        &["--inputs-closed"],
+    )?;
     let file = served.dir.join("network.toml");
     std::fs::write(&file, network::Protocol::CanopenSafety.network_file())?;
     let result = emulated_network_checks(root, python, &served.address, &file);
@@ -1120,12 +1125,17 @@ struct ShippedNetwork {
 }
 
 impl ShippedNetwork {
-    /// Builds the shipped images and `emulate-network`, and starts it with `arguments` (the
-    /// nodes, the contacts) on a free port, its output in `target/interop/NAME/`.
-    fn serve(root: &Path, name: &str, arguments: &[&str]) -> Result<ShippedNetwork> {
+    /// Builds the shipped images of `protocol` and `emulate-network`, and starts it with
+    /// `arguments` (the nodes, the contacts) on a free port, its output in `target/interop/NAME/`.
+    fn serve(
+        root: &Path,
+        protocol: network::Protocol,
+        name: &str,
+        arguments: &[&str],
+    ) -> Result<ShippedNetwork> {
         let cross = crate::toolchain::ensure()?;
         crate::toolchain::ensure_emulator_build_deps()?;
-        let layer = network::Protocol::CanopenSafety.hardware_layer();
+        let layer = protocol.hardware_layer();
         crate::images::build_layer(root, &cross, layer)?;
         let emulate = crate::emulate::build_emulate_network(root)?;
         let dir = root.join("target/interop").join(name);

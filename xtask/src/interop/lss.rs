@@ -27,9 +27,15 @@ use system_tests::tool_bus::SimulatedBus;
 const BIT_RATE: u32 = safety_device::BIT_RATE;
 
 /// The bit rate python-canopen switches the shipped images' node to (CiA 305 configure and
-/// activate bit timing): not the device's start-up rate, so that a node that did not switch
-/// its controller hears nothing on the emulated bus afterwards.
-const SWITCHED_TO: BitRate = BitRate::Kbit250;
+/// activate bit timing), per protocol: not the device's start-up rate, so that a node that
+/// did not switch its controller hears nothing on the emulated bus afterwards; for SimpleCAN
+/// one of its two rates (`safety_device::SIMPLECAN_LSS_BIT_RATES`).
+fn switched_to(protocol: crate::network::Protocol) -> BitRate {
+    match protocol {
+        crate::network::Protocol::CanopenSafety => BitRate::Kbit250,
+        crate::network::Protocol::Simplecan => BitRate::Kbit1000,
+    }
+}
 
 /// Each node is given its serial number plus this as its node-ID.
 const OFFSET: u8 = 10;
@@ -141,7 +147,7 @@ fn recorded(entry: &serde_json::Value) -> Option<(f64, CanFrame)> {
 
 /// `cargo xtask interop --only lss`: python-canopen's `LssMaster` finds the one unconfigured
 /// node by fast scan, gives it node-ID 11, has 800 kbit/s refused, configures
-/// [`SWITCHED_TO`], has it store both and activates the bit rate; the emulated bus switches
+/// [`switched_to`], has it store both and activates the bit rate; the emulated bus switches
 /// with the master, and the node boots on 11, answers python-canopen's SDO upload of its
 /// identity there, and boots on 11 again after an NMT reset node, at the stored rate; the
 /// tool's LSS master then selects it by identity and inquires node-ID 11 active.
@@ -151,12 +157,24 @@ fn recorded(entry: &serde_json::Value) -> Option<(f64, CanFrame)> {
 /// difference would put the node in its safe state, which the check would see as a missing
 /// answer or boot-up.
 pub fn check(root: &Path, python: &Path) -> Result<()> {
-    crate::step(
+    for protocol in [
+        crate::network::Protocol::CanopenSafety,
+        crate::network::Protocol::Simplecan,
+    ] {
+        check_protocol(root, python, protocol)?;
+    }
+    Ok(())
+}
+
+/// [`check`] on the shipped images of `protocol`.
+fn check_protocol(root: &Path, python: &Path, protocol: crate::network::Protocol) -> Result<()> {
+    crate::step(&format!(
         "interop 6: python-canopen's LSS master (fast scan, configure node-ID and bit timing, \
-         store, activate bit timing) on the shipped images of an unconfigured node (switches \
-         open) on the emulated network",
-    );
-    let mut served = super::ShippedNetwork::serve(root, "lss", &["--nodes", "0"])?;
+         store, activate bit timing) on the shipped {protocol:?} images of an unconfigured node \
+         (switches open) on the emulated network"
+    ));
+    let name = format!("lss-{protocol:?}");
+    let mut served = super::ShippedNetwork::serve(root, protocol, &name, &["--nodes", "0"])?;
     let give_up = std::time::Instant::now() + Duration::from_secs(60);
     while SocketcandClient::connect(&served.address, "can0").is_err() {
         if std::time::Instant::now() >= give_up {
@@ -168,14 +186,15 @@ pub fn check(root: &Path, python: &Path) -> Result<()> {
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    let result = check_at(root, python, &served.address);
+    let switched = switched_to(protocol);
+    let result = check_at(root, python, &served.address, switched);
     served.emulator.end();
     let log = served.log;
     result
         .and_then(|()| {
             // The bus model switched with the master (emulator::network, "Bit rate"): the
             // node's answers after it prove that both channels' controllers switched too.
-            let bit_rate = SWITCHED_TO.bits_per_second().unwrap_or(0);
+            let bit_rate = switched.bits_per_second().unwrap_or(0);
             let output = std::fs::read_to_string(&log)?;
             if !output.contains(&format!("the bus runs at {bit_rate} bit/s")) {
                 bail!("the emulated bus never switched to {bit_rate} bit/s");
@@ -186,8 +205,8 @@ pub fn check(root: &Path, python: &Path) -> Result<()> {
 }
 
 /// [`check`]'s steps against the server at `address`.
-fn check_at(root: &Path, python: &Path, address: &str) -> Result<()> {
-    let result = python_canopen(root, python, address, true, true, Some(SWITCHED_TO))?;
+fn check_at(root: &Path, python: &Path, address: &str, switched: BitRate) -> Result<()> {
+    let result = python_canopen(root, python, address, true, true, Some(switched))?;
     let serial = 1u8;
     let node_id = serial + OFFSET;
     let found: Vec<(Vec<u64>, u64)> = result["found"]
@@ -296,7 +315,7 @@ fn check_at(root: &Path, python: &Path, address: &str) -> Result<()> {
         .count();
     println!(
         "xtask: interop 6: python-canopen's LssMaster found the unconfigured node {target} by fast scan ({requests} LSS requests), gave it node-ID {node_id}, had 800 kbit/s refused (error code 1), configured {} bit/s, had it store both (17h answered with error code 0) and activated the bit rate; on the bus at the new rate it booted on {node_id}, answered python-canopen's upload of 1018h there, booted on {node_id} again after NMT reset node (at the stored rate), and the tool's LSS inquiry reads node-ID {node_id} active",
-        SWITCHED_TO.bits_per_second().unwrap_or(0)
+        switched.bits_per_second().unwrap_or(0)
     );
     Ok(())
 }
