@@ -963,6 +963,34 @@ impl Network {
             .unwrap_or(0)
     }
 
+    /// The channels' measured figures (the worst over every channel's latest report), as a
+    /// sentence for the summary that says who measured them and how: the QEMU images measure
+    /// themselves (a stall is host time the emulated MCU did not run); the emulator measures
+    /// the shipped images from outside in its lockstep virtual time, where no MCU stalls
+    /// (`emulator::control`, `emulator::observed`).
+    pub fn measured_summary(&self) -> String {
+        let link_gap = self.worst(|s| s.longest_link_gap_ms);
+        let busy = self.worst(|s| s.longest_busy_ms);
+        let stack = self.worst(|s| s.stack_used);
+        let reserve = crate::images::STACK_RESERVE;
+        match self.images {
+            Images::Qemu => format!(
+                "longest stall of an emulated MCU (host time it did not run): {} ms, longest \
+                 link gap: {link_gap} ms, longest loop wake-up: {busy} ms, deepest stack: \
+                 {stack} bytes (reserve {reserve} bytes), as the QEMU images measured themselves",
+                self.worst(|s| s.longest_stall_ms)
+            ),
+            Images::Shipped => format!(
+                "stall: none (the emulator runs every MCU in one lockstep virtual time; none \
+                 stops while the others run on); measured by the emulator from outside, in \
+                 virtual time: longest link gap {link_gap} ms (between the ends of two link \
+                 messages reaching a channel), longest wake-up {busy} ms (of a core, to its \
+                 next sleep, interrupts included), deepest stack {stack} bytes (reserve \
+                 {reserve} bytes; the stack pointer at every translated block's start)"
+            ),
+        }
+    }
+
     /// What the hub's pacing did (`can_hub::pace`), as a sentence for the summary: how much
     /// virtual time passed in how much host time, the longest hold and the grants' round trips.
     pub fn pace_summary(&self) -> String {
