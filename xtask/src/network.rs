@@ -984,9 +984,10 @@ impl Network {
                 "stall: none (the emulator runs every MCU in one lockstep virtual time; none \
                  stops while the others run on); measured by the emulator from outside, in \
                  virtual time: longest link gap {link_gap} ms (between the ends of two link \
-                 messages reaching a channel), longest wake-up {busy} ms (of a core, to its \
-                 next sleep, interrupts included), deepest stack {stack} bytes (reserve \
-                 {reserve} bytes; the stack pointer at every translated block's start)"
+                 messages reaching a channel), longest wake-up {} (of a core, to its next \
+                 sleep, interrupts included), deepest stack {stack} bytes (reserve {reserve} \
+                 bytes; the stack pointer at every translated block's start)",
+                whole_ms(busy)
             ),
         }
     }
@@ -1115,9 +1116,26 @@ pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
     out
 }
 
+/// A status line's whole milliseconds in words: `0` is "under 1 ms" (the line rounds down).
+fn whole_ms(ms: u16) -> String {
+    if ms == 0 {
+        "under 1 ms".to_owned()
+    } else {
+        format!("{ms} ms")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A status line's figure rounds down to whole milliseconds: 0 is a time under 1 ms, not
+    /// none.
+    #[test]
+    fn a_figure_of_0_ms_reads_as_under_1_ms() {
+        assert_eq!(whole_ms(0), "under 1 ms");
+        assert_eq!(whole_ms(12), "12 ms");
+    }
 
     /// The image CRC is read from the emulator's own line for that image and no other: a
     /// line for another path, or one that is not a CRC, gives none (and the run refuses).
