@@ -59,7 +59,7 @@ pub struct Nominal {
     /// Each MCU's profile of the Operational window.
     pub operational: Vec<Window>,
     /// Each MCU's deepest stack over the whole case, in bytes below its initial stack
-    /// pointer ([`crate::profile::Profile::lowest_sp`]).
+    /// pointer ([`crate::cpu::Machine::deepest_stack`]).
     pub deepest_stack: Vec<u32>,
 }
 
@@ -384,14 +384,7 @@ pub fn nominal(
     .filter(|_| consumer.iter().all(|&mcu| !network.output(mcu)))
     .ok_or("node 33's outputs did not go off within a second after node 1's contacts opened")?;
     let deepest_stack = (0..network.names().count())
-        .map(|mcu| {
-            let machine = network.machine(mcu);
-            let top = machine
-                .read_memory(crate::image::FLASH_ORIGIN, 4)
-                .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
-            let lowest = machine.profile().map_or(top, |p| p.lowest_sp().min(top));
-            top - lowest
-        })
+        .map(|mcu| network.machine(mcu).deepest_stack().unwrap_or(0))
         .collect();
     Ok(Nominal {
         configured_in,

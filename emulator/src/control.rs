@@ -14,8 +14,14 @@
 //!   the bus delivered to it while Operational and working, once its
 //!   output has come on since its node's boot-up (a consumer's output comes on only on
 //!   confirmed pairs; a producer's never does). That count is what reached a working
-//!   consumer, not the channel's own count of the pairs it validated. The figures only an image itself measures (stalls, link gaps,
-//!   busy times, stack, discarded frames) are not seen from outside and are reported as 0.
+//!   consumer, not the channel's own count of the pairs it validated. The figures the QEMU
+//!   images measure themselves are measured here from outside ([`crate::observed`], in
+//!   virtual time, [`Panel::measure`]): the longest gap between two link messages reaching
+//!   the channel, the longest wake-up of its core (to its next sleep, interrupts included),
+//!   its deepest stack (the stack pointer at every translated block's start, followed from
+//!   the panel's start). No stall is reported: every MCU runs in the one lockstep virtual
+//!   time, nothing stops one while the others run on (0). Nor are discarded frames, which
+//!   only the channel's own count knows (0).
 //! - [`Server`]: the port on TCP ([`can_hub::port::accept_control`], the bounds of the hub's
 //!   port), the answers and the status lines written to every client.
 //!
@@ -38,6 +44,7 @@ use shared::simplecan::frame::{self as simplecan, SYNC_IDENTIFIER};
 use shared::{CanFrame, CanId, Instant};
 
 use crate::network::{Event, Network};
+use crate::observed::status_ms;
 use crate::time::Nanos;
 
 /// How often every channel's status is reported when it does not change (virtual time); a
@@ -66,6 +73,12 @@ struct Channel {
     cause: Option<Cause>,
     sent: u16,
     validated: u16,
+    /// The longest gap between two link messages it received, in milliseconds.
+    link_gap_ms: u16,
+    /// The longest wake-up of its core, in milliseconds.
+    busy_ms: u16,
+    /// Its deepest stack, in bytes.
+    stack: u16,
 }
 
 /// What is known of one node from the bus.
@@ -123,7 +136,8 @@ fn logged_cause(line: &str) -> Option<Cause> {
 impl Panel {
     /// The panel of `network`, whose contacts are all `input_closed` at power-on; the nodes'
     /// links are those of MCUs `2n` and `2n + 1` (as `emulate-network` wires them). Joins the
-    /// bus as an external participant named `control`.
+    /// bus as an external participant named `control`. Every MCU's stack is followed from now
+    /// on ([`crate::cpu::Machine::follow_stack`]).
     pub fn new(network: &mut Network, input_closed: bool) -> Panel {
         let names: Vec<String> = network.names().map(str::to_owned).collect();
         let channels = names
@@ -143,6 +157,9 @@ impl Panel {
                 (format!("{node}-link"), [2 * pair, 2 * pair + 1])
             })
             .collect();
+        for mcu in 0..names.len() {
+            network.machine_mut(mcu).follow_stack();
+        }
         let own = network.join_external("control");
         // It sends (`insert`) and never receives: nothing is kept for it.
         network.leave_external(own);
@@ -368,6 +385,20 @@ impl Panel {
         }
     }
 
+    /// Takes in what `network` measured of every channel from outside so far: the longest
+    /// link gap, the longest wake-up and the deepest stack ([`crate::observed`]); the status
+    /// lines carry them from then on.
+    pub fn measure(&mut self, network: &Network) {
+        for (mcu, channel) in self.channels.iter_mut().enumerate() {
+            let machine = network.machine(mcu);
+            channel.link_gap_ms = status_ms(network.longest_link_gap(mcu));
+            channel.busy_ms = status_ms(machine.longest_activation());
+            channel.stack = machine
+                .deepest_stack()
+                .map_or(0, |bytes| u16::try_from(bytes).unwrap_or(u16::MAX));
+        }
+    }
+
     /// Channel `mcu`'s status as the network shows it.
     pub fn status(&self, mcu: usize) -> Status {
         let channel = &self.channels[mcu];
@@ -386,19 +417,26 @@ impl Panel {
             cause: cause.map_or(0, Cause::code),
             sent: channel.sent,
             validated: channel.validated,
-            ..Status::default()
+            longest_stall_ms: 0,
+            longest_link_gap_ms: channel.link_gap_ms,
+            longest_busy_ms: channel.busy_ms,
+            stack_used: channel.stack,
+            discarded: 0,
         }
     }
 
-    /// The status lines due at virtual time `now`: a channel's when it changed or was last
-    /// reported [`REPORT_PERIOD`] ago.
+    /// The status lines due at virtual time `now`: a channel's when what a watcher acts on
+    /// changed, or when it was last reported [`REPORT_PERIOD`] ago (a measured figure that
+    /// grew waits for the period, as the images' own reports do).
     pub fn reports(&mut self, now: Nanos) -> Vec<String> {
         let mut lines = Vec::new();
         for mcu in 0..self.names.len() {
             let status = self.status(mcu);
             let due = match self.reported[mcu] {
                 None => true,
-                Some((at, last)) => last != status || now >= at + REPORT_PERIOD,
+                Some((at, last)) => {
+                    acted_on(&last) != acted_on(&status) || now >= at + REPORT_PERIOD
+                }
             };
             if due {
                 self.reported[mcu] = Some((now, status));
@@ -416,6 +454,18 @@ impl Panel {
                 let status = self.status(mcu);
                 status.working && status.nmt_state() == Some(NmtState::Operational)
             })
+    }
+}
+
+/// `status` without the figures measured over time (the longest gaps, wake-ups and stack),
+/// which a watcher reads but does not act on.
+fn acted_on(status: &Status) -> Status {
+    Status {
+        longest_stall_ms: 0,
+        longest_link_gap_ms: 0,
+        longest_busy_ms: 0,
+        stack_used: 0,
+        ..*status
     }
 }
 
@@ -628,6 +678,35 @@ mod tests {
         assert_eq!(lines.len(), 2, "{lines:?}");
         assert!(lines[0].contains(" link=0 "), "{}", lines[0]);
         assert_eq!(panel.reports(2 + REPORT_PERIOD).len(), 2);
+    }
+
+    /// The figures measured from outside ride along in the status lines; a figure that grew
+    /// (a link gap, a wake-up in progress) does not make a line due before the period, a
+    /// change a watcher acts on does.
+    #[test]
+    fn measured_figures_are_reported_with_the_period_not_at_each_change() {
+        let mut network = bus_only();
+        let mut panel = Panel::new(&mut network, true);
+        panel.names = vec!["node33a".into()];
+        panel.channels = vec![Channel {
+            node: Some(33),
+            ..Channel::default()
+        }];
+        panel.reported = vec![None];
+        assert_eq!(panel.reports(0).len(), 1);
+        panel.channels[0].link_gap_ms = 7;
+        panel.channels[0].busy_ms = 2;
+        panel.channels[0].stack = 1024;
+        assert!(panel.reports(1).is_empty());
+        let lines = panel.reports(REPORT_PERIOD);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(
+            lines[0].contains(" stall_ms=0 link_gap_ms=7 busy_ms=2 stack=1024 "),
+            "{}",
+            lines[0]
+        );
+        panel.channels[0].cut = true;
+        assert_eq!(panel.reports(REPORT_PERIOD + 1).len(), 1);
     }
 
     /// Over TCP: a client's bad line is answered with a sentence, its good line with `ok`,

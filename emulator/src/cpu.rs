@@ -46,6 +46,7 @@ use unicorn_engine::{ArmCpuModel, RegisterARM, Unicorn};
 
 use crate::image::{Image, Symbols};
 use crate::memory;
+use crate::observed::{Activations, stack_depth};
 use crate::peripherals::bxcan::{self, Can};
 use crate::peripherals::dbgmcu::{self, Dbgmcu};
 use crate::peripherals::flash::{self, Flash};
@@ -209,6 +210,10 @@ pub struct State {
     flash_busy_until: Option<Nanos>,
     /// Where the instructions go, when asked for ([`Machine::start_profile`]).
     profile: Option<Box<Profile>>,
+    /// The core's wake-ups and sleeps ([`Machine::longest_activation`]).
+    activations: Activations,
+    /// The main stack pointer the last reset loaded from the vector table.
+    initial_sp: u32,
 }
 
 impl State {
@@ -270,6 +275,12 @@ impl State {
         if self.stop.is_none() {
             self.stop = Some((stop, self.clock.now()));
         }
+    }
+
+    /// The core goes to sleep (`sleep`) now: the activation since its wake-up ends.
+    fn fall_asleep(&mut self, sleep: Sleep) {
+        self.sleep = Some(sleep);
+        self.activations.slept(self.clock.now());
     }
 
     fn core(&self, ipsr: u32) -> CoreState {
@@ -630,7 +641,7 @@ fn exception_return(uc: &mut Uc<'_>) {
     st.attention = true;
     if to_thread && st.system.scr() & system::SCR_SLEEPONEXIT != 0 {
         // Sleep-on-exit (B1.5.19): back to sleep instead of Thread mode's code.
-        st.sleep = Some(Sleep::Interrupt);
+        st.fall_asleep(Sleep::Interrupt);
         st.stopping = true;
         let _ = uc.emu_stop();
     }
@@ -839,7 +850,7 @@ fn on_invalid(uc: &mut Uc<'_>) -> bool {
         if st.event_register {
             st.event_register = false;
         } else {
-            st.sleep = Some(Sleep::Event);
+            st.fall_asleep(Sleep::Event);
             st.stopping = true;
             let _ = uc.emu_stop();
         }
@@ -1252,6 +1263,8 @@ impl Machine {
             flash_dirty: false,
             flash_busy_until: None,
             profile: None,
+            activations: Activations::default(),
+            initial_sp: 0,
         };
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB | Mode::LITTLE_ENDIAN, state)
             .map_err(engine("start"))?;
@@ -1471,6 +1484,9 @@ impl Machine {
         set_reg(uc, RegisterARM::LR, 0xFFFF_FFFF);
         set_reg(uc, RegisterARM::PC, pc);
         let st = uc.get_data_mut();
+        let now = st.clock.now();
+        st.activations.reset(now);
+        st.initial_sp = sp & !3;
         st.system = SystemControl::new();
         st.hung_until = 0;
         st.stop = None;
@@ -1632,7 +1648,7 @@ impl Machine {
                             && read_half(&self.uc, after.wrapping_sub(2)) == Some(0x8003));
                     let st = self.uc.get_data_mut();
                     if wfi {
-                        st.sleep = Some(Sleep::Interrupt);
+                        st.fall_asleep(Sleep::Interrupt);
                     } else {
                         let at = st.describe(after);
                         st.set_stop(Stop::Engine {
@@ -1672,6 +1688,7 @@ impl Machine {
             st.attention = true;
             st.wake_ups += 1;
             let now = st.clock.now();
+            st.activations.woke(now);
             if let Some(profile) = st.profile.as_mut() {
                 profile.woke(now);
             }
@@ -1730,6 +1747,33 @@ impl Machine {
     /// The image's function symbols, to read a profile with.
     pub fn symbols(&self) -> &Symbols {
         &self.uc.get_data().symbols
+    }
+
+    /// Follows the deepest stack from now on ([`Machine::deepest_stack`]): a paused profile
+    /// ([`Profile::pause`]) unless one runs already. It costs a register read at every
+    /// translated block's start.
+    pub fn follow_stack(&mut self) {
+        if self.uc.get_data().profile.is_none() {
+            self.start_profile();
+            self.pause_profile();
+        }
+    }
+
+    /// The deepest stack since the profile started ([`Machine::start_profile`],
+    /// [`Machine::follow_stack`]), in bytes below the main stack pointer the last reset
+    /// loaded ([`crate::observed::stack_depth`]); `None` when the stack is not followed.
+    pub fn deepest_stack(&self) -> Option<u32> {
+        let st = self.uc.get_data();
+        let profile = st.profile.as_ref()?;
+        Some(stack_depth(st.initial_sp, profile.lowest_sp()))
+    }
+
+    /// The longest activation of the core so far, the one in progress included: from a
+    /// wake-up (from WFI or WFE) to the next sleep or reset, in virtual time
+    /// ([`crate::observed::Activations`]).
+    pub fn longest_activation(&self) -> Nanos {
+        let st = self.uc.get_data();
+        st.activations.longest(st.clock.now())
     }
 
     /// Whether the core is asleep (WFI or WFE) at the end of the last run.

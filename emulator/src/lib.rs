@@ -27,6 +27,7 @@ pub mod image;
 pub mod log;
 pub mod memory;
 pub mod network;
+pub mod observed;
 pub mod peripherals;
 pub mod profile;
 pub mod rtt;

@@ -39,6 +39,7 @@ use shared::{CanFrame, CanId, Instant};
 
 use crate::cpu::{Config, EngineError, Machine};
 use crate::image::Image;
+use crate::observed::LinkGaps;
 use crate::peripherals::bxcan::{BusError, Frame, Identifier};
 use crate::peripherals::gpio::Port;
 use crate::peripherals::rcc::Hse;
@@ -185,6 +186,8 @@ struct Mcu {
     /// The end of its frame on the bus, while it is transmitting: (end, outcome).
     transmitting: Option<(Nanos, Conclusion)>,
     log: Vec<(Nanos, Vec<u8>)>,
+    /// The link messages that reached its USART3 RX from its peer.
+    link_gaps: LinkGaps,
 }
 
 /// How a transmission ends for its sender.
@@ -286,6 +289,7 @@ impl Network {
                 offering_since: None,
                 transmitting: None,
                 log: Vec::new(),
+                link_gaps: LinkGaps::default(),
             });
         }
         let mut bus = Bus::new(bit_rate, mcus.len());
@@ -337,6 +341,12 @@ impl Network {
     /// MCU `mcu`'s machine (for reports: instructions, registers, the flash accelerator).
     pub fn machine(&self, mcu: usize) -> &Machine {
         &self.mcus[mcu].machine
+    }
+
+    /// The longest gap so far between two link messages that reached MCU `mcu`'s USART3 RX
+    /// from its peer, in virtual time ([`LinkGaps`]): 0 until a first message came.
+    pub fn longest_link_gap(&self, mcu: usize) -> Nanos {
+        self.mcus[mcu].link_gaps.longest(self.now)
     }
 
     /// Whether MCU `mcu` stopped.
@@ -613,8 +623,10 @@ impl Network {
             if self.mcus[peer].stopped {
                 continue;
             }
+            let receiver = &mut self.mcus[peer];
             for word in words {
-                self.mcus[peer].machine.usart_receive(word.word, word.end);
+                receiver.link_gaps.word(word.word, word.end);
+                receiver.machine.usart_receive(word.word, word.end);
             }
         }
     }

@@ -135,6 +135,47 @@ fn armv7m_b3_3_systick_interrupts_every_reload_plus_one_cycles_and_b1_5_19_wfi_s
     assert!(machine.asleep());
 }
 
+/// Seen from outside (`emulator::observed`): each SysTick interrupt wakes the core for its
+/// handler and the return to WFI, far shorter than the period it then sleeps; a stack
+/// followed from the start goes as deep as the exception frame the interrupt stacked on the
+/// initial main stack (eight words, B1.5.6), and one not followed is not reported.
+#[test]
+fn armv7m_b1_5_19_a_wake_up_lasts_until_wfi_and_b1_5_6_the_deepest_stack_holds_the_frame() {
+    let (mut machine, elf) = machine("systick");
+    assert_eq!(machine.deepest_stack(), None, "not followed");
+    machine.follow_stack();
+    run(&mut machine, MILLISECOND);
+    let initial = word(&machine, symbol(&elf, "vectors"));
+    assert_eq!(machine.deepest_stack(), Some(8 * 4), "below {initial:#x}");
+    // One cycle per instruction at the reset clock (HSI, 16 MHz): the handler and the way
+    // back to WFI are a few instructions, the period 1000 cycles.
+    let cycle = MILLISECOND / 16_000;
+    let longest = machine.longest_activation();
+    assert!(
+        (cycle..20 * cycle).contains(&longest),
+        "longest wake-up {longest} ns"
+    );
+    assert!(machine.asleep());
+}
+
+/// The deepest stack is measured from the main stack pointer the reset loaded: here the
+/// program's own word below it and the frame the interrupt stacked under that, realigned to
+/// eight bytes (B1.5.7), as the handler saw its SP.
+#[test]
+fn armv7m_b1_5_7_the_deepest_stack_reaches_the_realigned_exception_frame() {
+    let (mut machine, elf) = machine("exception_frame");
+    machine.follow_stack();
+    run(&mut machine, 100 * MICROSECOND);
+    let initial = word(&machine, symbol(&elf, "vectors"));
+    let frame = machine.register(Register::R8);
+    assert_eq!(machine.deepest_stack(), Some(initial - frame));
+    assert_eq!(
+        machine.longest_activation(),
+        0,
+        "the core never slept: no wake-up"
+    );
+}
+
 #[test]
 fn armv7m_b1_5_18_sev_sets_the_event_register_that_wfe_consumes_and_wfe_then_sleeps() {
     let (mut machine, _) = machine("wfe");

@@ -637,9 +637,7 @@ pub fn task_for(
         network::Protocol::CanopenSafety => run_all(&mut network, bus_load_seconds),
         network::Protocol::Simplecan => run_simplecan(&mut network),
     };
-    let stall = network.worst(|s| s.longest_stall_ms);
-    let link_gap = network.worst(|s| s.longest_link_gap_ms);
-    let busy = network.worst(|s| s.longest_busy_ms);
+    let measured = network.measured_summary();
     let stack = network.worst(|s| s.stack_used);
     let discarded = network.worst(|s| s.discarded);
     let pace = network.pace_summary();
@@ -651,11 +649,7 @@ pub fn task_for(
             println!("| {case} | {ms:.1} ms | {bound_ms} ms |");
         }
     }
-    println!(
-        "   longest stall of an emulated MCU (host time it did not run): {stall} ms, longest link gap: {link_gap} ms, \
-         longest loop wake-up: {busy} ms, deepest stack: {stack} bytes (reserve {} bytes)",
-        crate::images::STACK_RESERVE
-    );
+    println!("   {measured}");
     println!(
         "   most SRDO frames one channel discarded as CAN double reception (since its last \
          reset): {discarded}"

@@ -963,6 +963,35 @@ impl Network {
             .unwrap_or(0)
     }
 
+    /// The channels' measured figures (the worst over every channel's latest report), as a
+    /// sentence for the summary that says who measured them and how: the QEMU images measure
+    /// themselves (a stall is host time the emulated MCU did not run); the emulator measures
+    /// the shipped images from outside in its lockstep virtual time, where no MCU stalls
+    /// (`emulator::control`, `emulator::observed`).
+    pub fn measured_summary(&self) -> String {
+        let link_gap = self.worst(|s| s.longest_link_gap_ms);
+        let busy = self.worst(|s| s.longest_busy_ms);
+        let stack = self.worst(|s| s.stack_used);
+        let reserve = crate::images::STACK_RESERVE;
+        match self.images {
+            Images::Qemu => format!(
+                "longest stall of an emulated MCU (host time it did not run): {} ms, longest \
+                 link gap: {link_gap} ms, longest loop wake-up: {busy} ms, deepest stack: \
+                 {stack} bytes (reserve {reserve} bytes), as the QEMU images measured themselves",
+                self.worst(|s| s.longest_stall_ms)
+            ),
+            Images::Shipped => format!(
+                "stall: none (the emulator runs every MCU in one lockstep virtual time; none \
+                 stops while the others run on); measured by the emulator from outside, in \
+                 virtual time: longest link gap {link_gap} ms (between the ends of two link \
+                 messages reaching a channel), longest wake-up {} (of a core, to its next \
+                 sleep, interrupts included), deepest stack {stack} bytes (reserve {reserve} \
+                 bytes; the stack pointer at every translated block's start)",
+                whole_ms(busy)
+            ),
+        }
+    }
+
     /// What the hub's pacing did (`can_hub::pace`), as a sentence for the summary: how much
     /// virtual time passed in how much host time, the longest hold and the grants' round trips.
     pub fn pace_summary(&self) -> String {
@@ -1087,9 +1116,26 @@ pub fn table(latest: &HashMap<String, (f64, Status)>) -> String {
     out
 }
 
+/// A status line's whole milliseconds in words: `0` is "under 1 ms" (the line rounds down).
+fn whole_ms(ms: u16) -> String {
+    if ms == 0 {
+        "under 1 ms".to_owned()
+    } else {
+        format!("{ms} ms")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A status line's figure rounds down to whole milliseconds: 0 is a time under 1 ms, not
+    /// none.
+    #[test]
+    fn a_figure_of_0_ms_reads_as_under_1_ms() {
+        assert_eq!(whole_ms(0), "under 1 ms");
+        assert_eq!(whole_ms(12), "12 ms");
+    }
 
     /// The image CRC is read from the emulator's own line for that image and no other: a
     /// line for another path, or one that is not a CRC, gives none (and the run refuses).

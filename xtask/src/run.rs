@@ -1064,7 +1064,7 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     let images = network.images;
     let crcs = network.crcs;
     let latest = network.control.latest.clone();
-    let stall = network.worst(|s| s.longest_stall_ms);
+    let measured = network.measured_summary();
     let pace = network.pace_summary();
     let dir = network.dir().to_path_buf();
     let faults = network.stop()?;
@@ -1080,13 +1080,13 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     if seen.resets > 0 {
         println!("resets: {}", seen.resets);
     }
-    match (images, crcs) {
-        (network::Images::Shipped, Some([a, b])) => println!(
+    if let (network::Images::Shipped, Some([a, b])) = (images, crcs) {
+        println!(
             "the shipped images, unchanged: channel A image CRC {a:08X}h, channel B {b:08X}h \
              (as `cargo xtask build` sealed them and the emulator read them)"
-        ),
-        _ => println!("longest stall of an emulated MCU (host time it did not run): {stall} ms"),
+        );
     }
+    println!("{measured}");
     println!("{pace}");
     if images == network::Images::Qemu {
         println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());

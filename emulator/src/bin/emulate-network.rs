@@ -529,6 +529,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
         if let Some((port, panel)) = control.as_mut() {
             port.serve(panel, &mut network);
+            panel.measure(&network);
             for line in panel.reports(network.now()) {
                 port.write(None, &line);
             }
@@ -643,8 +644,12 @@ fn summary(network: &Network, names: &[String], frames: &[u64], started: std::ti
     let virtual_seconds = network.now() as f64 / 1e9;
     for (mcu, name) in names.iter().enumerate() {
         let machine = network.machine(mcu);
+        let stack = machine.deepest_stack().map_or(String::new(), |bytes| {
+            format!(", deepest stack {bytes} bytes")
+        });
         println!(
-            "emulate-network: {name}: {} instructions, {} frames sent, output {}{}",
+            "emulate-network: {name}: {} instructions, {} frames sent, output {}{}; seen from \
+             outside (virtual time): longest wake-up {:.3} ms, longest link gap {:.3} ms{stack}",
             machine.instructions(),
             frames[mcu],
             if network.output(mcu) { "on" } else { "off" },
@@ -652,7 +657,9 @@ fn summary(network: &Network, names: &[String], frames: &[u64], started: std::ti
                 ", stopped"
             } else {
                 ""
-            }
+            },
+            machine.longest_activation() as f64 / 1e6,
+            network.longest_link_gap(mcu) as f64 / 1e6,
         );
     }
     println!(
