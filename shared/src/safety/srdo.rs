@@ -275,7 +275,7 @@ impl Consumer {
     }
 
     /// The plain frame (COB-ID 1) arrived at `now` with `dlc` bytes of `data` (bytes beyond
-    /// `dlc` are 0, as in every [`CanFrame`](crate::CanFrame)).
+    /// `dlc` are 0, as in every [`CanFrame`]).
     ///
     /// With a plain frame pending, an exact repeat of it is discarded (CAN double reception)
     /// and any other plain frame is a sequence error (CiA 304 9.5), once a pair has completed
