@@ -121,8 +121,80 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
             }
             println!("xtask: {protocol:?} channel {channel}: a dead crystal halts it safe, said");
             tampered_checks(root, &emulate, &image, protocol, channel)?;
+            panic_check(&emulate, &image, protocol, channel)?;
         }
     }
+    Ok(())
+}
+
+/// When the shipped image panics, the run ends promptly in HardFault (on a board the default
+/// HardFault handler then spins unfed and the independent watchdog resets the MCU into its
+/// safe state), and the image's own panic handler has logged the return addresses that lead
+/// back to where the panic came from. The panic is a call of `core::panicking::panic`
+/// injected by the emulator (`emulate --panic-at`) in place of whatever instruction the core
+/// runs then: the shipped images have no way in for a panic on purpose, and a test entry in
+/// them would be code that ships.
+fn panic_check(emulate: &Path, image: &Path, protocol: Protocol, channel: &str) -> Result<()> {
+    /// When the panic is injected: after the start-up, in the loop.
+    const AT_MS: f64 = 700.0;
+    /// How soon after it the run must have ended.
+    const PROMPTLY_MS: f64 = 5.0;
+    let output = std::process::Command::new(emulate)
+        .arg(image)
+        .args(["--for", "2s", "--node-id", "1", "--input-closed"])
+        .args(["--panic-at", &format!("{AT_MS}ms")])
+        .output()?;
+    let log = String::from_utf8_lossy(&output.stdout);
+    let failed = |why: &str| {
+        anyhow::anyhow!(
+            "{}: a panic on the shipped image: {why}:\n{log}{}",
+            image.display(),
+            String::from_utf8_lossy(&output.stderr)
+        )
+    };
+    let injected = log
+        .lines()
+        .find(|line| line.contains("core::panicking::panic` injected in place of"))
+        .and_then(|line| line.rsplit_once("PC 0x"))
+        .and_then(|(_, rest)| u32::from_str_radix(rest.trim_end_matches(')'), 16).ok())
+        .ok_or_else(|| failed("the emulator injected no call"))?;
+    let stopped = log
+        .lines()
+        .find_map(|line| {
+            let rest = line.strip_prefix("emulate: stopped at ")?;
+            let (ms, why) = rest.split_once(" ms of virtual time: ")?;
+            Some((ms.parse::<f64>().ok()?, why))
+        })
+        .ok_or_else(|| failed("the run did not end"))?;
+    if output.status.success()
+        || !stopped.1.starts_with("HardFault: an undefined instruction")
+        || stopped.0 > AT_MS + PROMPTLY_MS
+    {
+        return Err(failed(&format!(
+            "not ended in HardFault by the handler's `udf` within {PROMPTLY_MS} ms"
+        )));
+    }
+    let addresses = crate::locate::panic_addresses(&log)
+        .ok_or_else(|| failed("no log line with the panic's return addresses"))?;
+    if !addresses
+        .iter()
+        .any(|&address| address & !1 == u64::from(injected))
+    {
+        return Err(failed(&format!(
+            "the return addresses {addresses:#010x?} do not lead back to {injected:#010x}, \
+             where the panic was called"
+        )));
+    }
+    let frames = crate::locate::return_addresses(image, &[u64::from(injected) | 1])?;
+    let site = frames
+        .into_iter()
+        .flatten()
+        .next()
+        .map_or_else(|| format!("{injected:#010x}"), |frame| frame.to_string());
+    println!(
+        "xtask: {protocol:?} channel {channel}: a panic ends the run in HardFault within \
+         {PROMPTLY_MS} ms, its log line leading back to {site}"
+    );
     Ok(())
 }
 
