@@ -328,7 +328,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         let emulate = build_emulate_network(root)?;
         let file = write_network_file(root)?;
         let seconds = load_seconds.unwrap_or(NOMINAL_LOAD_SECONDS);
-        return nominal_check(root, &cross, &emulate, &file, seconds);
+        return nominal_check(root, &cross, &emulate, &file, seconds, Speed::Written);
     }
     crate::run(
         cargo()
@@ -566,7 +566,14 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
         println!("xtask: {line}");
     }
     socketcand_check(root, cross, &emulate)?;
-    nominal_check(root, cross, &emulate, &file, NOMINAL_LOAD_SECONDS)
+    nominal_check(
+        root,
+        cross,
+        &emulate,
+        &file,
+        NOMINAL_LOAD_SECONDS,
+        Speed::Printed,
+    )
 }
 
 /// The shipped images joined from outside (`emulate-network --socketcand`): the tool
@@ -644,6 +651,7 @@ fn nominal_check(
     emulate: &Path,
     file: &Path,
     load_seconds: f64,
+    speed: Speed,
 ) -> Result<()> {
     let layer = Protocol::CanopenSafety.hardware_layer();
     let output = std::process::Command::new(emulate)
@@ -707,6 +715,9 @@ fn nominal_check(
         report.push_str(line);
         report.push('\n');
     }
+    if speed == Speed::Written {
+        write_speed(root, &lines)?;
+    }
     let committed = crate::generated::committed(root, FIGURES);
     std::fs::write(root.join(FIGURES), &report)?;
     // A report, not a gate (docs/overview.md, "Generated pages"): said, so that it is committed.
@@ -747,6 +758,39 @@ pub fn target_cost_json(root: &Path) -> Result<()> {
     )?;
     print!("{}", std::fs::read_to_string(root.join(FIGURES_JSON))?);
     Ok(())
+}
+
+/// Whether [`nominal_check`] writes the emulation's speed into docs/performance.md.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Speed {
+    /// Printed only (`cargo xtask test`: the host's load varies, and a page it rewrote at
+    /// every run would change at every run).
+    Printed,
+    /// Written too (`cargo xtask emulate --network --nominal`, asked for).
+    Written,
+}
+
+/// The block of docs/performance.md that holds the emulation's speed.
+pub(crate) const SPEED_MARKER: &str = "emulation-speed";
+
+/// Writes the speed line of the nominal run's output `lines` (the four shipped images on one
+/// `emulate-network`, virtual time per host second) into docs/performance.md's
+/// [`SPEED_MARKER`] block, with the host's load.
+fn write_speed(root: &Path, lines: &[&str]) -> Result<()> {
+    let speed = lines
+        .iter()
+        .find(|line| line.contains(" of host time") && line.contains("per host second"))
+        .ok_or_else(|| anyhow::anyhow!("emulate-network printed no speed line"))?;
+    let block = format!(
+        "## The emulated STM32F405s: emulation speed\n\n\
+         Written by `cargo xtask emulate --network --nominal` (`xtask/src/emulate.rs`, \
+         `write_speed`) on this machine (2 cores, {}): the nominal case's run of the four \
+         shipped CANopen Safety images on one `emulate-network` (the load case, the fault \
+         cases and the scenarios included, docs/emulated-figures.md). Goal: at least one second \
+         of virtual time per host second.\n\n{speed}.\n",
+        crate::interop::load_average()
+    );
+    crate::fullnet::write_performance_block(root, SPEED_MARKER, &block)
 }
 
 /// `--scenario FILE` for every scenario written for the emulated network
