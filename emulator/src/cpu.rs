@@ -1791,6 +1791,22 @@ impl Machine {
         set_reg(&mut self.uc, register, value);
     }
 
+    /// Makes the code the core runs call the function at `address` now, as a `bl` in place
+    /// of the instruction it would execute next would (LR = that instruction's address with
+    /// its Thumb bit, PC = `address`): a defect's call, injected (`emulate --panic-at`).
+    /// `None`, and nothing changed, while the core sleeps or is inside an IT block (QEMU
+    /// keeps the IT state in the translated code, so a call from there would run
+    /// conditionally); else the address of the instruction the call replaced.
+    pub fn inject_call(&mut self, address: u32) -> Option<u32> {
+        if self.asleep() || reg(&self.uc, RegisterARM::XPSR) & EPSR_IT != 0 {
+            return None;
+        }
+        let pc = reg(&self.uc, RegisterARM::PC);
+        set_reg(&mut self.uc, RegisterARM::LR, pc | 1);
+        set_reg(&mut self.uc, RegisterARM::PC, address | 1);
+        Some(pc)
+    }
+
     /// The system part (NVIC, SCB, SysTick), for tests and reports.
     pub fn system(&self) -> &SystemControl {
         &self.uc.get_data().system

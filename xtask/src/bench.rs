@@ -296,6 +296,7 @@ fn keep_blocks(report: &mut String, previous: &str) {
         crate::fullnet::TIMING_MARKER,
         crate::target_cost::MARKER,
         crate::target_cost::SIMPLECAN_MARKER,
+        crate::emulate::SPEED_MARKER,
     ] {
         if let Some(kept) = generated_block(previous, name) {
             report.truncate(report.trim_end().len());

@@ -121,8 +121,80 @@ pub fn startup_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
             }
             println!("xtask: {protocol:?} channel {channel}: a dead crystal halts it safe, said");
             tampered_checks(root, &emulate, &image, protocol, channel)?;
+            panic_check(&emulate, &image, protocol, channel)?;
         }
     }
+    Ok(())
+}
+
+/// When the shipped image panics, the run ends promptly in HardFault (on a board the default
+/// HardFault handler then spins unfed and the independent watchdog resets the MCU into its
+/// safe state), and the image's own panic handler has logged the return addresses that lead
+/// back to where the panic came from. The panic is a call of `core::panicking::panic`
+/// injected by the emulator (`emulate --panic-at`) in place of whatever instruction the core
+/// runs then: the shipped images have no way in for a panic on purpose, and a test entry in
+/// them would be code that ships.
+fn panic_check(emulate: &Path, image: &Path, protocol: Protocol, channel: &str) -> Result<()> {
+    /// When the panic is injected: after the start-up, in the loop.
+    const AT_MS: f64 = 700.0;
+    /// How soon after it the run must have ended.
+    const PROMPTLY_MS: f64 = 5.0;
+    let output = std::process::Command::new(emulate)
+        .arg(image)
+        .args(["--for", "2s", "--node-id", "1", "--input-closed"])
+        .args(["--panic-at", &format!("{AT_MS}ms")])
+        .output()?;
+    let log = String::from_utf8_lossy(&output.stdout);
+    let failed = |why: &str| {
+        anyhow::anyhow!(
+            "{}: a panic on the shipped image: {why}:\n{log}{}",
+            image.display(),
+            String::from_utf8_lossy(&output.stderr)
+        )
+    };
+    let injected = log
+        .lines()
+        .find(|line| line.contains("core::panicking::panic` injected in place of"))
+        .and_then(|line| line.rsplit_once("PC 0x"))
+        .and_then(|(_, rest)| u32::from_str_radix(rest.trim_end_matches(')'), 16).ok())
+        .ok_or_else(|| failed("the emulator injected no call"))?;
+    let stopped = log
+        .lines()
+        .find_map(|line| {
+            let rest = line.strip_prefix("emulate: stopped at ")?;
+            let (ms, why) = rest.split_once(" ms of virtual time: ")?;
+            Some((ms.parse::<f64>().ok()?, why))
+        })
+        .ok_or_else(|| failed("the run did not end"))?;
+    if output.status.success()
+        || !stopped.1.starts_with("HardFault: an undefined instruction")
+        || stopped.0 > AT_MS + PROMPTLY_MS
+    {
+        return Err(failed(&format!(
+            "not ended in HardFault by the handler's `udf` within {PROMPTLY_MS} ms"
+        )));
+    }
+    let addresses = crate::locate::panic_addresses(&log)
+        .ok_or_else(|| failed("no log line with the panic's return addresses"))?;
+    if !addresses
+        .iter()
+        .any(|&address| address & !1 == u64::from(injected))
+    {
+        return Err(failed(&format!(
+            "the return addresses {addresses:#010x?} do not lead back to {injected:#010x}, \
+             where the panic was called"
+        )));
+    }
+    let frames = crate::locate::return_addresses(image, &[u64::from(injected) | 1])?;
+    let site = frames
+        .into_iter()
+        .flatten()
+        .next()
+        .map_or_else(|| format!("{injected:#010x}"), |frame| frame.to_string());
+    println!(
+        "xtask: {protocol:?} channel {channel}: a panic ends the run in HardFault within \
+         {PROMPTLY_MS} ms, its log line leading back to {site}"
+    );
     Ok(())
 }
 
@@ -256,7 +328,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         let emulate = build_emulate_network(root)?;
         let file = write_network_file(root)?;
         let seconds = load_seconds.unwrap_or(NOMINAL_LOAD_SECONDS);
-        return nominal_check(root, &cross, &emulate, &file, seconds);
+        return nominal_check(root, &cross, &emulate, &file, seconds, Speed::Written);
     }
     crate::run(
         cargo()
@@ -494,7 +566,14 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
         println!("xtask: {line}");
     }
     socketcand_check(root, cross, &emulate)?;
-    nominal_check(root, cross, &emulate, &file, NOMINAL_LOAD_SECONDS)
+    nominal_check(
+        root,
+        cross,
+        &emulate,
+        &file,
+        NOMINAL_LOAD_SECONDS,
+        Speed::Printed,
+    )
 }
 
 /// The shipped images joined from outside (`emulate-network --socketcand`): the tool
@@ -572,6 +651,7 @@ fn nominal_check(
     emulate: &Path,
     file: &Path,
     load_seconds: f64,
+    speed: Speed,
 ) -> Result<()> {
     let layer = Protocol::CanopenSafety.hardware_layer();
     let output = std::process::Command::new(emulate)
@@ -635,6 +715,9 @@ fn nominal_check(
         report.push_str(line);
         report.push('\n');
     }
+    if speed == Speed::Written {
+        write_speed(root, &lines)?;
+    }
     let committed = crate::generated::committed(root, FIGURES);
     std::fs::write(root.join(FIGURES), &report)?;
     // A report, not a gate (docs/overview.md, "Generated pages"): said, so that it is committed.
@@ -675,6 +758,39 @@ pub fn target_cost_json(root: &Path) -> Result<()> {
     )?;
     print!("{}", std::fs::read_to_string(root.join(FIGURES_JSON))?);
     Ok(())
+}
+
+/// Whether [`nominal_check`] writes the emulation's speed into docs/performance.md.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Speed {
+    /// Printed only (`cargo xtask test`: the host's load varies, and a page it rewrote at
+    /// every run would change at every run).
+    Printed,
+    /// Written too (`cargo xtask emulate --network --nominal`, asked for).
+    Written,
+}
+
+/// The block of docs/performance.md that holds the emulation's speed.
+pub(crate) const SPEED_MARKER: &str = "emulation-speed";
+
+/// Writes the speed line of the nominal run's output `lines` (the four shipped images on one
+/// `emulate-network`, virtual time per host second) into docs/performance.md's
+/// [`SPEED_MARKER`] block, with the host's load.
+fn write_speed(root: &Path, lines: &[&str]) -> Result<()> {
+    let speed = lines
+        .iter()
+        .find(|line| line.contains(" of host time") && line.contains("per host second"))
+        .ok_or_else(|| anyhow::anyhow!("emulate-network printed no speed line"))?;
+    let block = format!(
+        "## The emulated STM32F405s: emulation speed\n\n\
+         Written by `cargo xtask emulate --network --nominal` (`xtask/src/emulate.rs`, \
+         `write_speed`) on this machine (2 cores, {}): the nominal case's run of the four \
+         shipped CANopen Safety images on one `emulate-network` (the load case, the fault \
+         cases and the scenarios included, docs/emulated-figures.md). Goal: at least one second \
+         of virtual time per host second.\n\n{speed}.\n",
+        crate::interop::load_average()
+    );
+    crate::fullnet::write_performance_block(root, SPEED_MARKER, &block)
 }
 
 /// `--scenario FILE` for every scenario written for the emulated network

@@ -98,17 +98,23 @@ fn write_timing(root: &Path, section: &str) -> Result<()> {
          (network-performance.md), written by `cargo xtask fullnet`.\n\n{}\n\n{}\n",
         quoted[0], quoted[1]
     );
+    write_performance_block(root, TIMING_MARKER, &block)
+}
+
+/// Writes `block` into [`PERFORMANCE`]'s generated block `marker` (added at the end of the
+/// page when it has none); `cargo xtask bench`, which writes the rest of the page, keeps it.
+pub(crate) fn write_performance_block(root: &Path, marker: &str, block: &str) -> Result<()> {
     let path = root.join(PERFORMANCE);
     let text = std::fs::read_to_string(&path).unwrap_or_default();
-    let updated = replace_block(&text, TIMING_MARKER, &block).unwrap_or_else(|_| {
+    let updated = replace_block(&text, marker, block).unwrap_or_else(|_| {
         format!(
-            "{}\n\n<!-- {TIMING_MARKER}:begin (generated, do not edit) -->\n{}\n<!-- {TIMING_MARKER}:end -->\n",
+            "{}\n\n<!-- {marker}:begin (generated, do not edit) -->\n{}\n<!-- {marker}:end -->\n",
             text.trim_end(),
             block.trim_end()
         )
     });
     std::fs::write(&path, updated).with_context(|| format!("writing {PERFORMANCE}"))?;
-    eprintln!("xtask: wrote the {TIMING_MARKER} block of {PERFORMANCE}");
+    eprintln!("xtask: wrote the {marker} block of {PERFORMANCE}");
     Ok(())
 }
 

@@ -1029,7 +1029,7 @@ pub fn bench(root: &Path) -> Result<()> {
 }
 
 /// The machine's load average as the bench saw it (`/proc/loadavg`), for the report.
-fn load_average() -> String {
+pub(crate) fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg")
         .ok()
         .and_then(|text| text.split_whitespace().next().map(str::to_owned))

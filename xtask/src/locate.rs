@@ -93,17 +93,6 @@ pub fn parse_address(text: &str) -> Result<u64> {
         .with_context(|| format!("`{text}` is not an address of the image: not hexadecimal"))
 }
 
-/// The line of `needle` in the source file `path` (1-based), for checks that a frame names it.
-pub fn line_of(path: &Path, needle: &str) -> Result<u32> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let index = text
-        .lines()
-        .position(|line| line.contains(needle))
-        .with_context(|| format!("{}: no line holds `{needle}`", path.display()))?;
-    Ok(u32::try_from(index + 1)?)
-}
-
 /// `cargo xtask where`: prints each address and the frames the image has at it, source files
 /// relative to the workspace `root` (the images' own and, with the registry's prefix cut by
 /// `cargo xtask build`, the crates': `embassy-stm32-0.6.0/src/…`).

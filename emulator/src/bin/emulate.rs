@@ -41,7 +41,16 @@ struct Cli {
     /// purpose), to see the image's own start-up check refuse it.
     #[arg(long)]
     unsealed: bool,
+    /// At this virtual time, make the code the core runs call `core::panicking::panic` (a
+    /// defect's panic, injected; the image's own panic handler runs, which reads nothing of
+    /// the panic's arguments), the next time the core is awake and outside an IT block.
+    #[arg(long, value_parser = emulator::time::parse_duration)]
+    panic_at: Option<Nanos>,
 }
+
+/// The function a panic calls first (`panic!` with a message, a failed `unwrap`, a bounds
+/// check), as the symbol table names it.
+const PANIC: &str = "core::panicking::panic";
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -92,12 +101,44 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         }
         port_c.drive(0, Some(cli.input_closed));
     }
+    let panic_target = match cli.panic_at {
+        Some(_) => Some(
+            image
+                .symbols
+                .starts_of(PANIC, true)
+                .first()
+                .copied()
+                .ok_or_else(|| format!("{}: no function `{PANIC}` to call", image.path.display()))?,
+        ),
+        None => None,
+    };
     machine.reset()?;
     let started = Instant::now();
     let slice: Nanos = 10_000_000;
+    // While the injection waits for the core to wake (or to leave an IT block).
+    let nudge: Nanos = 1_000;
     let end = cli.duration;
+    let mut panic_at = cli.panic_at;
     let outcome = loop {
-        let until = (machine.now() + slice).min(end);
+        let mut until = (machine.now() + slice).min(end);
+        if let (Some(at), Some(target)) = (panic_at, panic_target) {
+            if machine.now() >= at {
+                match machine.inject_call(target) {
+                    Some(pc) => {
+                        println!(
+                            "emulate: at {:.6} ms of virtual time, a call of `{PANIC}` \
+                             injected in place of {}",
+                            machine.now() as f64 / 1e6,
+                            image.symbols.describe(pc)
+                        );
+                        panic_at = None;
+                    }
+                    None => until = (machine.now() + nudge).min(end),
+                }
+            } else {
+                until = until.min(at);
+            }
+        }
         let outcome = machine.run_until(until);
         for (at, bytes) in machine.take_log() {
             for line in decoder.feed(at, &bytes) {
