@@ -108,7 +108,9 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                 .starts_of(PANIC, true)
                 .first()
                 .copied()
-                .ok_or_else(|| format!("{}: no function `{PANIC}` to call", image.path.display()))?,
+                .ok_or_else(|| {
+                    format!("{}: no function `{PANIC}` to call", image.path.display())
+                })?,
         ),
         None => None,
     };
