@@ -185,12 +185,17 @@ fn panic_check(emulate: &Path, image: &Path, protocol: Protocol, channel: &str) 
              where the panic was called"
         )));
     }
-    let frames = crate::locate::return_addresses(image, &[u64::from(injected) | 1])?;
-    let site = frames
+    // The frames at the place, the innermost (inlined) first: named with the function it
+    // was inlined into, the one the symbol table holds.
+    let frames: Vec<_> = crate::locate::return_addresses(image, &[u64::from(injected) | 1])?
         .into_iter()
         .flatten()
-        .next()
-        .map_or_else(|| format!("{injected:#010x}"), |frame| frame.to_string());
+        .collect();
+    let site = match (frames.first(), frames.last()) {
+        (Some(inner), Some(outer)) if frames.len() > 1 => format!("{inner}, inlined into {outer}"),
+        (Some(only), _) => only.to_string(),
+        _ => format!("{injected:#010x}"),
+    };
     println!(
         "xtask: {protocol:?} channel {channel}: a panic ends the run in HardFault within \
          {PROMPTLY_MS} ms, its log line leading back to {site}"

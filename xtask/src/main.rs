@@ -26,7 +26,7 @@ mod target_cost;
 mod toolchain;
 mod trace;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::Command;
