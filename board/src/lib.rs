@@ -16,8 +16,9 @@
 //! status a channel reports on the emulated board's line), [`stack`]'s search for the stack's
 //! high-water mark, [`frame_trail`]'s walk of the frame records a panic is logged by, all
 //! host-tested. What the values the layers read mean lives with its concept: the node-ID
-//! switches and the reset flags in `safety_device` (`switches`, `reset_cause`), the emulated
-//! run's arguments and its paced clock in `emulation_wire` (`arguments`, `clock`).
+//! switches and the reset flags in `safety_device` (`switches`, `reset_cause`), the link
+//! USART's byte queue in `dual_channel::byte_ring`, the emulated run's arguments and its
+//! paced clock in `emulation_wire` (`arguments`, `clock`).
 #![no_std]
 
 use dual_channel::channel_loop::Pins;
@@ -25,7 +26,6 @@ use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 
 pub mod bxcan_adapter;
-pub mod byte_ring;
 pub mod diagnostics;
 pub mod frame_trail;
 #[cfg(all(target_os = "none", feature = "hw"))]

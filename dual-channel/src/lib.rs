@@ -22,6 +22,7 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod byte_ring;
 pub mod can_loopback;
 pub mod channel_loop;
 pub mod clock;

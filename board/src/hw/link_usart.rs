@@ -27,11 +27,11 @@
 //! emulator's USART model (written from RM0090, `emulator/src/peripherals/usart.rs`) runs this
 //! driver in the shipped images.
 
-use crate::byte_ring::ByteRing;
 use core::cell::RefCell;
 use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, Ordering};
 use core::task::Poll;
+use dual_channel::byte_ring::ByteRing;
 use embassy_stm32::Peri;
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
 use embassy_stm32::interrupt::typelevel::{self, Handler, Interrupt};

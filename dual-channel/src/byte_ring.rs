@@ -1,5 +1,5 @@
 //! A byte queue on a fixed array that takes and hands out runs of bytes with a copy each
-//! (at most two: where the run wraps), for the link USART's queues (`hw::link_usart`): its
+//! (at most two: where the run wraps), for the link USART's queues (`board::hw::link_usart`): its
 //! interrupt moves one byte at a time, the loop moves whole messages, and a queue that
 //! copied them a byte at a time through `push_back` and `pop_front` made the loop's link
 //! reads and writes cost per byte (`docs/emulated-figures.md`).
