@@ -35,15 +35,8 @@
 //! threads (`docs/emulation.md`), so frames the controller would reject anyway made every
 //! channel's line, and with it the shared virtual time, slower.
 
-//!
-//! Beside the wire: the emulated run's [`arguments`] on QEMU's command line and the
-//! emulated channel's [`clock`], paced by the hub's grants.
-
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
-
-pub mod arguments;
-pub mod clock;
 
 use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_16_XMODEM, Crc};

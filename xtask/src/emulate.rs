@@ -356,7 +356,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
 }
 
 /// Writes `cargo xtask run`'s network file for the emulated network's cases; returns its path.
-fn write_network_file(root: &Path) -> Result<std::path::PathBuf> {
+pub(crate) fn write_network_file(root: &Path) -> Result<std::path::PathBuf> {
     let dir = root.join("target/emulate-network");
     std::fs::create_dir_all(&dir)?;
     let path = dir.join("network.toml");
