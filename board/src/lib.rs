@@ -21,7 +21,7 @@ use dual_channel::channel_loop::Pins;
 use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 
-pub mod bxcan_adapter;
+pub mod can_registers;
 pub mod frame_trail;
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;

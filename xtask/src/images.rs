@@ -118,10 +118,6 @@ pub enum Layer {
     /// ([`SIMPLECAN_FLASH_BUDGET`], [`RAM_BUDGET`]) by `cargo xtask build`, flashed by
     /// `cargo xtask flash --protocol simplecan`.
     HwSimpleCan,
-    /// The hardware images with the bxCAN driven by the `bxcan` crate (`board`'s feature
-    /// `can-bxcan`): checked by clippy in `cargo xtask test`, so that the driver compared in
-    /// docs/can-driver.md keeps building; never shipped.
-    HwBxcan,
 }
 
 impl Layer {
@@ -130,7 +126,6 @@ impl Layer {
         match self {
             Layer::Hw => cross.target_dir(root),
             Layer::HwSimpleCan => cross.target_dir(root).join("hw-simplecan"),
-            Layer::HwBxcan => cross.target_dir(root).join("hw-bxcan"),
         }
     }
 }
@@ -143,7 +138,6 @@ pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
         Layer::HwSimpleCan => {
             "channel-a/defmt,channel-a/simplecan,channel-b/defmt,channel-b/simplecan"
         }
-        Layer::HwBxcan => "channel-a/defmt,channel-b/defmt,board/can-bxcan",
     };
     let mut command = cross.cargo(root).args([
         verb,

@@ -134,10 +134,6 @@ enum Task {
         /// With `--power-cut-sweep`: every Nth step only.
         #[arg(long, default_value_t = 1)]
         every: u64,
-        /// The image with the bxCAN driven by the `bxcan` 0.8 crate (board feature
-        /// `can-bxcan`, docs/can-driver.md) instead of the shipped one, alone.
-        #[arg(long, conflicts_with = "network")]
-        bxcan: bool,
         /// Only the emulator's checks of `cargo xtask test` (the shipped images alone, then on
         /// one bus: start-up, faults, power cuts, the nominal case), on the images as built.
         #[arg(long)]
@@ -445,9 +441,8 @@ fn task() -> Result<()> {
             node_id,
             protocol,
             network: false,
-            bxcan,
             ..
-        } => emulate::task(&root, &channel, &duration, node_id, protocol, bxcan),
+        } => emulate::task(&root, &channel, &duration, node_id, protocol),
         Task::Where { channel, addresses } => {
             let cross = toolchain::ensure()?;
             locate::task(
@@ -619,14 +614,8 @@ fn test(root: &Path) -> Result<()> {
         .cargo(root)
         .args(["build", "--release", "-p", "shared", "--features", "defmt"])
         .finish())?;
-    step(
-        "clippy (firmware crates for thumbv7em-none-eabihf, with and without SimpleCAN, and the bxcan driver)",
-    );
-    for layer in [
-        images::Layer::Hw,
-        images::Layer::HwSimpleCan,
-        images::Layer::HwBxcan,
-    ] {
+    step("clippy (firmware crates for thumbv7em-none-eabihf, with and without SimpleCAN)");
+    for layer in [images::Layer::Hw, images::Layer::HwSimpleCan] {
         run(images::cargo(&cross, root, "clippy", layer).args(["--", "-D", "warnings"]))?;
     }
     step("firmware images");

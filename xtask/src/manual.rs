@@ -977,7 +977,7 @@ fn build_part(root: &Path) -> Result<String> {
             Layer::HwSimpleCan => {
                 "SimpleCAN instead of SRDOs (`cargo xtask flash --protocol simplecan`)"
             }
-            Layer::Hw | Layer::HwBxcan => "CANopen Safety",
+            Layer::Hw => "CANopen Safety",
         };
         for channel in ["a", "b"] {
             let elf = images::image(&cross, root, layer, channel);
