@@ -275,10 +275,14 @@ enum Task {
         /// At the CI size: also write the runs' figures into docs/model-checking.md.
         #[arg(long)]
         report: bool,
-        /// The minutes each verifier run may take (by default none at the CI size, 5 per run
+        /// The minutes each verifier run may take (by default none at the CI size, 15 per run
         /// with --full, 20 with --liveness); a run stopped by it fails and is reported so.
         #[arg(long)]
         minutes: Option<u32>,
+        /// With --full or --liveness: the memory each verifier run may use, in MB (pan's
+        /// MEMLIM; by default 14000, a 16 GB workstation's).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(500..=1_000_000))]
+        memory: Option<u32>,
     },
     /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
     /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
@@ -536,6 +540,7 @@ fn task() -> Result<()> {
             liveness,
             report,
             minutes,
+            memory,
         } => {
             let mode = if full {
                 spin::Mode::Full
@@ -544,7 +549,7 @@ fn task() -> Result<()> {
             } else {
                 spin::Mode::Ci
             };
-            spin::task(&root, mode, report, minutes)
+            spin::task(&root, mode, report, minutes, memory)
         }
         Task::Scenario {
             files,
