@@ -26,8 +26,8 @@
 //!   Operational is judged without it: both masters started on their own clocks at NMT start,
 //!   B's time is A's (within the loops' handling of that frame), and A's time plus a stated
 //!   buffering that exceeds the sync's real delay by more than the tolerance (a node may state
-//!   any buffering time up to its guarantee, SC_REQ_33; the emulated network states room for
-//!   its serial line) would be ahead of B's own although A's clock is not: a mismatch on the
+//!   any buffering time up to its guarantee, SC_REQ_33; the emulated network's file states
+//!   more than its sync's frame time) would be ahead of B's own although A's clock is not: a mismatch on the
 //!   node's first sync. Without it the first sync's check is lenient by the real delay (at
 //!   least the sync's frame time), once. Taking A's time at every sync, two clocks within
 //!   50 ppm of each other (SC_REQ_31) part by at most a sync interval's drift
@@ -207,8 +207,9 @@ impl TransmitCheck {
         }
     }
 
-    /// [`TransmitCheck::new`] with the time bounds `bounds` instead of the standard's (the
-    /// QEMU layer's tolerances), built where it is kept rather than built and then changed.
+    /// [`TransmitCheck::new`] with the time bounds `bounds` instead of the standard's (an
+    /// image whose frames take longer to reach B; every image now keeps the standard's),
+    /// built where it is kept rather than built and then changed.
     pub fn with_bounds(window: Duration, bounds: Bounds) -> Self {
         TransmitCheck {
             bounds,
@@ -257,8 +258,7 @@ impl TransmitCheck {
     /// A's early one waits for B's next sample (the window). A packet still waiting on the
     /// same identifier is missing: A's did not come before B computed the next one (with the
     /// standard's bounds its deadline, the slot, has passed by then and the poll reports it
-    /// first; a bound as long as the cycle, as under QEMU, would otherwise let the newer
-    /// packet hide it).
+    /// first; a bound as long as the cycle would otherwise let the newer packet hide it).
     pub fn computed(
         &mut self,
         now: Instant,
