@@ -122,15 +122,6 @@ pub fn commands(stimulus: &Stimulus) -> Result<Vec<Command>, String> {
     })
 }
 
-/// `true` when the scenario cuts a link: the hub cannot join it again, so the network must
-/// be started anew before the next scenario.
-pub fn cuts_a_link(scenario: &Scenario) -> bool {
-    scenario
-        .steps
-        .iter()
-        .any(|step| matches!(step.stimulus, Stimulus::Fault(FaultSpec::Cut { .. })))
-}
-
 /// Refuses, in a sentence, a scenario the emulated network cannot play: another network
 /// than `emulated` (the one xtask configures), another bit rate than `bit_rate`, or a
 /// fault the hub cannot inject (named with its line).
@@ -628,16 +619,4 @@ pub fn step_line(step: &Step) -> String {
         step.line,
         ms(Duration::from_micros(step.at_us))
     )
-}
-
-/// The frames of the hub's candump trace (`--candump`), with their stamps moved by `offset`
-/// seconds onto the control port's clock (the trace's stamps are the hub's virtual time plus
-/// the host clock at its start; the control port's are the virtual time alone).
-pub fn trace_frames(log: &str, origin: &str, offset: f64) -> Result<Vec<(f64, CanFrame)>, String> {
-    let frames =
-        safety_config::monitor::candump::parse(log, origin).map_err(|error| error.to_string())?;
-    Ok(frames
-        .into_iter()
-        .map(|logged| (logged.at.as_secs_f64() - offset, logged.frame))
-        .collect())
 }
