@@ -1,6 +1,6 @@
 //! COBS-encoded, zero-delimited frames: encoding one, and reassembling them from a byte
-//! stream. What the inter-channel link (`dual-channel`) and the emulation's CAN-over-serial
-//! line (`emulation-wire`) share, in a crate of its own so that neither depends on the other.
+//! stream: the framing of the inter-channel link (`dual_channel::link`), kept apart from the
+//! link's messages.
 
 #![no_std]
 #![forbid(unsafe_code)]
@@ -65,7 +65,7 @@ impl<const N: usize> Reassembler<N> {
     /// with it, and nothing completes); a delimiter is left for `push` (`false`). A receiver
     /// fed a byte at a time calls this first and makes the buffer a frame is decoded into
     /// only at a delimiter, not for every byte (zeroing it for every byte was the largest
-    /// part of the QEMU board layer's serial line, until that layer retired on 2026-12-07).
+    /// part of a byte's handling).
     pub fn keep(&mut self, byte: u8) -> bool {
         if byte == 0 {
             return false;

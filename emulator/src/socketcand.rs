@@ -10,9 +10,10 @@
 //!   client, the bounds on clients, backlog and blocked writes, as `can-hub` has them), and
 //!   the network run at the pace of the host clock: third-party tools time out on the wall
 //!   clock, so the virtual time never runs ahead of it ([`can_hub::pace::Pacer`], with the
-//!   network as its one paced participant, granted time and acknowledging it as the QEMU
-//!   instances did `can-hub`'s, with the same lookahead and grant period). When the host cannot keep up, the virtual time
-//!   falls behind and does not race to catch up: the pacer counts the time it was held.
+//!   network as its one paced participant, granted time and acknowledging it, with
+//!   [`can_hub::pace::LOOKAHEAD`] and [`can_hub::pace::GRANT_PERIOD`]). When the host cannot
+//!   keep up, the virtual time falls behind and does not race to catch up: the pacer counts
+//!   the time it was held.
 
 use std::collections::BTreeMap;
 use std::io::Write as _;

@@ -1,38 +1,41 @@
-//! The hub's control port: a line protocol on TCP for people (`nc 127.0.0.1 29537`), scripts
-//! and tests. It sets the emulated boards' input pins, injects faults on the bus, cuts the
-//! links between channels, and reports every channel's status as it arrives. The emulated
-//! network of the shipped images serves the same protocol (`emulate-network --control`,
-//! `emulator::control`).
+//! The control port's line protocol, on TCP, for people (`nc 127.0.0.1 29537`), scripts and
+//! tests: the parser of its commands and the lines it writes. Two programs serve it:
+//! `can-hub --control` (bus faults, `insert`, `mute` of a tool, `load`; it has no emulated
+//! channel and refuses the commands for them in a sentence) and the emulated network of the
+//! shipped images, `emulate-network --control` (`emulator::control`: everything but `load`,
+//! with the channels' input pins, links, power and status reports).
 //!
 //! ```text
-//! → input node1a 0            the input pin of participant node1a reads 0
+//! → input node1a 0            the input pin of channel node1a reads 0
 //! → drop 0x102                the next frame with identifier 102h is lost
 //! → corrupt 0x101 0 0x01      data byte 0 of the next 101h frame is XOR-ed with 01h
 //! → delay 0x101 30            the next 101h frame arrives 30 ms late
 //! → repeat 0x101              the next 101h frame arrives twice
 //! → reorder 0x101             the next 101h frame arrives after the frame that follows it
-//! → insert 0x101 00 ff        a frame 101h#00FF goes on the bus from the hub itself (a rogue
+//! → insert 0x101 00 ff        a frame 101h#00FF goes on the bus from the port itself (a rogue
 //!                             sender; arbitration and bit time as for everyone)
 //! → mute node1a / unmute node1a
-//! → cut node33-link           the link relay stops passing bytes, both ways
+//!                             the participant's frames stop (start again) reaching the bus
+//! → cut node33-link           the link between a node's two channels passes no byte, both ways
 //! → restore node33-link       it passes them again
+//! → power-cycle node33a node33b
+//!                             these channels are switched off and on again
 //! → clear                     every injected bus fault is removed
 //! → load 30 621#4018100100000000 281#5555555555555555
-//!                             the hub sends these frames in turn, in its virtual time, so
+//!                             the hub sends these frames in turn, on its clock, so
 //!                             that the traffic other than SRDOs fills 30 % of the bus
 //!                             (`can_hub::load`); `load off` stops it
-//! ← ok <command> t=<seconds on the hub's clock>   or   error <why>
+//! ← ok <command> t=<seconds on the server's clock>   or   error <why>
 //!   (a line longer than MAX_LINE bytes, or not UTF-8, is refused with `error <why>`)
 //! ← status node1a t=1.234567 nmt=5 working=1 link=1 output=1 input=1 cause=0x00 sent=12
 //!          validated=0 stall_ms=3 link_gap_ms=52 busy_ms=1
 //!          stack=5400 discarded=0
+//!   (a channel's status, `emulation_wire::Status`, as the emulated network reports it)
 //! ← pace t=12.345678 behind_ms=420.0 hold_ms=61.2 round_trips=20112 rtt_median_ms=0.41
 //!          rtt_p99_ms=6.20 rtt_max_ms=48.90
-//!   (every second while the emulated MCUs are paced, `can_hub::pace`: how far the virtual
-//!   time is behind the host clock, its longest hold, the grants' round trips in host time)
-//! ← slowest node33a acknowledged=12.325678
-//!   (after each pace line: the emulated MCU whose acknowledgement of the virtual time is the
-//!   oldest; while the time stands still, the one the network waits for)
+//!   (every second while the emulated network is paced to the host clock, `can_hub::pace`:
+//!   how far the virtual time is behind the host clock, its longest hold, the grants' round
+//!   trips in host time)
 //! ```
 
 use emulation_wire::Status;
@@ -96,7 +99,7 @@ pub fn read_line(reader: &mut impl BufRead) -> std::io::Result<Option<Result<Str
 /// A command on the control port.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Command {
-    /// Set participant `name`'s input pin.
+    /// Set emulated channel `name`'s input pin.
     Input {
         /// The participant.
         name: String,
@@ -125,7 +128,7 @@ pub enum Command {
     Repeat(u16),
     /// Deliver the next frame with this identifier after the frame that follows it.
     Reorder(u16),
-    /// Put this frame on the bus, from the hub itself.
+    /// Put this frame on the bus, from the control port itself.
     Insert {
         /// The identifier.
         id: u16,
@@ -134,13 +137,13 @@ pub enum Command {
     },
     /// Participant `name`'s frames stop (`true`) or start again (`false`) reaching the bus.
     Mute(String, bool),
-    /// The link relay `name` stops passing bytes.
+    /// The link `name` between a node's two emulated channels stops passing bytes.
     Cut(String),
-    /// The link relay `name` passes bytes again.
+    /// The link `name` passes bytes again.
     Restore(String),
     /// Switch these participants off and on again (a node's supply failing and coming back):
     /// each starts from its image, its parameter flash as it stands. Only the emulated
-    /// STM32F405s can (`emulate-network`); the hub refuses it.
+    /// STM32F405s can (`emulate-network`); `can-hub` refuses it.
     PowerCycle(Vec<String>),
     /// Remove every injected bus fault.
     Clear,
@@ -319,7 +322,7 @@ impl fmt::Display for Command {
     }
 }
 
-/// A status line as the hub sends it: participant `name`'s `status`, received at `t` seconds.
+/// A status line as the emulated network sends it: participant `name`'s `status`, received at `t` seconds.
 pub fn status_line(name: &str, t: f64, status: &Status) -> String {
     format!(
         "status {name} t={t:.6} nmt={} working={} link={} output={} input={} cause=0x{:02X} \
@@ -340,7 +343,7 @@ pub fn status_line(name: &str, t: f64, status: &Status) -> String {
     )
 }
 
-/// A pace line as the hub sends it (see the module documentation).
+/// A pace line as the emulated network sends it (see the module documentation).
 pub fn pace_line(report: &crate::pace::PaceReport) -> String {
     let ms = |d: shared::Duration| d.as_micros() as f64 / 1000.0;
     format!(
@@ -354,24 +357,6 @@ pub fn pace_line(report: &crate::pace::PaceReport) -> String {
         ms(report.round_trip_p99),
         ms(report.round_trip_max),
     )
-}
-
-/// A slowest line as the hub sends it after each pace line: the emulated MCU whose
-/// acknowledgement of the virtual time is the oldest, and that time (seconds); while the
-/// time stands still, the one the network waits for.
-pub fn slowest_line(name: &str, acknowledged: f64) -> String {
-    format!("slowest {name} acknowledged={acknowledged:.6}")
-}
-
-/// Reads a slowest line back: (participant, acknowledged time in seconds).
-pub fn parse_slowest(line: &str) -> Option<(String, f64)> {
-    let mut words = line.split_whitespace();
-    if words.next()? != "slowest" {
-        return None;
-    }
-    let name = words.next()?.to_string();
-    let acknowledged = words.next()?.strip_prefix("acknowledged=")?.parse().ok()?;
-    words.next().is_none().then_some((name, acknowledged))
 }
 
 /// Reads a pace line back (durations rounded as written).
@@ -460,10 +445,6 @@ mod tests {
         assert_eq!(parse_pace(&pace_line(&report)), Some(report));
         assert_eq!(parse_pace("pace t=1 hold_ms=-1"), None);
         assert_eq!(parse_pace("status node1a t=1"), None);
-        let line = slowest_line("node33a", 12.325678);
-        assert_eq!(line, "slowest node33a acknowledged=12.325678");
-        assert_eq!(parse_slowest(&line), Some(("node33a".into(), 12.325678)));
-        assert_eq!(parse_slowest("slowest node33a"), None);
     }
 
     /// A line past `MAX_LINE` bytes is refused with a sentence, held no longer than the bound,

@@ -1,11 +1,12 @@
-//! The hub's event log (`can-hub --events PATH`): every frame the hub put on the bus with the
-//! virtual time it ended and the participant that sent it, and every change of an emulated
-//! channel's output as its status report brought it, on the same clock. It is what an
-//! independent bus monitor with a tap on each node's cable and a probe on each output would
-//! record; the scenario runner hands it to the campaigns' oracle
-//! (`system_tests::campaign::recorded`).
+//! The event log of a run on the emulated bus: every frame with the virtual time it ended and
+//! the participant that sent it, and every change of an emulated channel's output, on the same
+//! clock. It is what an independent bus monitor with a tap on each node's cable and a probe on
+//! each output would record; the scenario runner hands it to the campaigns' oracle
+//! (`system_tests::campaign::recorded`). `can-hub --events PATH` writes the frames of its bus
+//! in this format (it has no emulated channel, so no output); the emulated network of the
+//! shipped images records both kinds as [`Event`]s (`emulator::scenario`).
 //!
-//! One event a line, in the order the hub handled them (times never decrease):
+//! One event a line, in time order (times never decrease):
 //!
 //! ```text
 //! frame t=12.345678 from=node1a 101#01
@@ -15,24 +16,18 @@
 //! output t=12.346211 node33a 1
 //! ```
 //!
-//! - `t=`: the hub's virtual time in seconds (six decimals, microseconds), the clock of the
-//!   bus model, the traces and the control port (`can_hub::pace`). For a frame: when its last
-//!   bit left the bus, as every receiver gets it. For an output: when the hub received the
-//!   channel's status report that carries the new value. A channel reports at once when its
-//!   output changes (`board::diagnostics`), after the loop iteration that drives its pin,
-//!   so no value the pin took is missing; the report's stamp is never before the frames
-//!   the channel had received when it sent it (the channel received them from the hub
-//!   after they ended), and later than the change by at most the emulation's lookahead
-//!   twice (`docs/emulation.md`).
-//! - `from=`: who put the frame on the bus: an emulated channel by its `--socket` name
-//!   (`node1a`), `hub` for a frame the control port's `insert` sent, `load` for the generated
-//!   load (`load` on the control port), `toolN` for socketcand client N. A frame the control
+//! - `t=`: the virtual time in seconds (six decimals, microseconds), the clock of the bus
+//!   model, the traces and the control port. For a frame: when its last bit left the bus, as
+//!   every receiver gets it. For an output: when the channel's output pin took the value.
+//! - `from=`: who put the frame on the bus: an emulated channel by its name (`node1a`),
+//!   `hub` for a frame the control port's `insert` sent, `load` for the generated load
+//!   (`load` on the control port), `toolN` for socketcand client N. A frame the control
 //!   port's `corrupt`, `delay`, `repeat` or `reorder` altered keeps its sender: the fault is
 //!   on the wire, the sender sent it.
 //! - The frame in candump's notation: identifier in hexadecimal, `#`, the data bytes in
 //!   hexadecimal (`#R` and a length digit for a remote frame: `701#R0`).
-//! - `output`: the participant and its output pin's value (decimal), logged for its first
-//!   report and for every report whose value differs from its previous one.
+//! - `output`: the channel and its output pin's value (decimal), for its first value and for
+//!   every change.
 
 use shared::{CanFrame, CanId, Instant};
 use std::fmt::Write as _;
@@ -51,9 +46,9 @@ pub enum Event {
     },
     /// An emulated channel's output pin took a new value.
     Output {
-        /// When the hub received the report of it, on the hub's virtual clock.
+        /// When the pin took the value, on the virtual clock.
         at: Instant,
-        /// The channel (its `--socket` name).
+        /// The channel (its name).
         channel: String,
         /// The output pin's value.
         value: u8,
@@ -211,21 +206,6 @@ pub fn parse(text: &str) -> Result<Vec<Event>, ParseError> {
         .collect()
 }
 
-/// Which output changes to log: each channel's last value reported.
-#[derive(Clone, Debug, Default)]
-pub struct Outputs {
-    last: std::collections::HashMap<String, u8>,
-}
-
-impl Outputs {
-    /// The line to log for `channel`'s report of `value` at `at`: its first report, and
-    /// every report whose value differs from the one before.
-    pub fn report(&mut self, at: Instant, channel: &str, value: u8) -> Option<String> {
-        let previous = self.last.insert(channel.to_string(), value);
-        (previous != Some(value)).then(|| output_line(at, channel, value))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -297,34 +277,5 @@ mod tests {
         assert!(error("frame t=1 from=hub 101#0\n").contains("two hexadecimal digits"));
         assert!(error("output t=1 node33a 256\n").contains("not an output value"));
         assert!(error("status node33a t=1\n").contains("neither"));
-    }
-
-    /// An output is logged on its first report and on each change, not on every report.
-    #[test]
-    fn an_output_is_logged_on_its_first_report_and_on_every_change_only() {
-        let mut outputs = Outputs::default();
-        let at = |ms| Instant::from_millis(ms);
-        let logged: Vec<String> = [
-            (0, "node33a", 0),
-            (1, "node33b", 0),
-            (250, "node33a", 0),
-            (300, "node33a", 1),
-            (550, "node33a", 1),
-            (600, "node33b", 1),
-            (700, "node33a", 0),
-        ]
-        .into_iter()
-        .filter_map(|(ms, channel, value)| outputs.report(at(ms), channel, value))
-        .collect();
-        assert_eq!(
-            logged,
-            [
-                "output t=0.000000 node33a 0",
-                "output t=0.001000 node33b 0",
-                "output t=0.300000 node33a 1",
-                "output t=0.600000 node33b 1",
-                "output t=0.700000 node33a 0",
-            ]
-        );
     }
 }

@@ -1,18 +1,16 @@
-//! Shared virtual time for the emulated network: the hub's clock waits for the slowest
-//! emulated MCU, so that host load slows the network down but does not change what it does.
+//! Shared virtual time held to the host clock: a clock that follows the host's but never runs
+//! more than a lookahead past what the participants it paces have acknowledged, so that a
+//! participant the host does not run makes the virtual time stand still instead of running
+//! away from it.
 //!
-//! Every emulated channel receives one ordered byte stream from the hub (CAN frames, link
-//! bytes, its input pin, and time grants, `Wire::Time`) and its clock never runs more than
-//! [`Pacer::lookahead`] past the last grant it has handled. It acknowledges each grant once
-//! it has handled everything before it. The hub's virtual time follows the host clock, but
-//! never more than the lookahead past the oldest acknowledgement of any paced participant:
-//! while the host does not schedule one emulated MCU (or its serial line lags), the time of
-//! the whole network stands still instead of running away from it.
-//!
-//! What that bounds, whatever the host load (`docs/emulation.md` has the argument): a channel
-//! handles a frame or link message at most one lookahead after the virtual time the hub sent
-//! it, its clock is at most one lookahead ahead of the hub's, and the two channels of a node
-//! see every frame within one lookahead of each other (on real hardware: the same instant).
+//! Each paced participant is granted the virtual time now and then ([`Pacer::grants_due`]),
+//! runs up to it, and acknowledges it ([`Pacer::acknowledged`]); the virtual time follows the
+//! host clock, but never more than [`Pacer::lookahead`] past the oldest acknowledgement. The
+//! emulated network's socketcand port runs the network so (`emulator::socketcand`, the
+//! network its one paced participant): third-party tools time out on the wall clock, so the
+//! network never runs ahead of it, and when the host cannot keep up the virtual time falls
+//! behind instead of racing to catch up; the report ([`PaceReport`], the control port's
+//! `pace` line) says by how much.
 //!
 //! Sans-I/O: the program hands in the host clock, grants sent and acknowledgements received,
 //! and asks for the virtual time and when the next grant is due.
@@ -22,8 +20,8 @@ use std::collections::{BTreeMap, VecDeque};
 
 pub use emulation_wire::{GRANT_PERIOD, LOOKAHEAD};
 
-/// A grant not acknowledged for this long (host time) is sent again: one sent before the
-/// board enabled its USART is lost.
+/// A grant not acknowledged for this long (host time) is sent again (a participant may miss
+/// one it was not ready for).
 pub const RESEND: Duration = Duration::from_millis(100);
 
 /// One paced participant: what it acknowledged, the grants not yet acknowledged with the
@@ -40,7 +38,7 @@ struct Paced {
 pub struct PaceReport {
     /// The virtual time now.
     pub virtual_time: Instant,
-    /// How far the virtual time is behind the host clock (since the hub started).
+    /// How far the virtual time is behind the host clock (since the first [`Pacer::advance`]).
     pub behind: Duration,
     /// The longest stretch of host time during which the virtual time stood still because a
     /// participant had not acknowledged.
@@ -56,7 +54,7 @@ pub struct PaceReport {
     pub round_trip_max: Duration,
 }
 
-/// The hub's virtual clock.
+/// The virtual clock.
 #[derive(Clone, Debug)]
 pub struct Pacer {
     lookahead: Duration,
@@ -99,8 +97,8 @@ impl Pacer {
         self.now
     }
 
-    /// Participant `id` is an emulated MCU: from now on the virtual time waits for it. It
-    /// starts as having acknowledged the present virtual time.
+    /// Participant `id` is paced: from now on the virtual time waits for it. It starts as
+    /// having acknowledged the present virtual time.
     pub fn join(&mut self, id: usize) {
         self.paced.insert(
             id,
@@ -137,15 +135,6 @@ impl Pacer {
             .unwrap_or(Instant::NEVER)
     }
 
-    /// The paced participant whose acknowledgement is the oldest (the one that holds the
-    /// virtual time when it stands at [`Pacer::limit`]), with that acknowledgement.
-    pub fn slowest(&self) -> Option<(usize, Instant)> {
-        self.paced
-            .iter()
-            .map(|(&id, paced)| (id, paced.acknowledged))
-            .min_by_key(|&(_, acknowledged)| acknowledged)
-    }
-
     /// Moves the virtual time on with the host clock `host`, as far as the acknowledgements
     /// allow; returns it. Never goes backwards.
     pub fn advance(&mut self, host: Instant) -> Instant {
@@ -168,9 +157,9 @@ impl Pacer {
 
     /// The participants to send a grant of the virtual time now to, at host time `host`
     /// (recorded as sent): those with no grant outstanding whose last is a grant period old,
-    /// and those whose outstanding grant is [`RESEND`] old. One grant at a time: a board
-    /// takes its serial bytes slowly (QEMU's USART, one byte per round trip through its main
-    /// loop), and grants queued behind each other would only delay everything behind them.
+    /// and those whose outstanding grant is [`RESEND`] old. One grant at a time: a
+    /// participant that has not handled the last one would only be handed more to work
+    /// through behind it.
     pub fn grants_due(&mut self, host: Instant) -> Vec<usize> {
         let (now, period) = (self.now, self.grant_period);
         let mut due = Vec::new();
@@ -182,7 +171,7 @@ impl Pacer {
                 .back()
                 .is_some_and(|(_, sent)| host.saturating_since(*sent) >= RESEND);
             if fresh || stale {
-                // A participant that never answers must not make the hub hold more and more.
+                // A participant that never answers must not make the pacer hold more and more.
                 if paced.pending.len() >= 64 {
                     paced.pending.pop_front();
                 }

@@ -1,6 +1,7 @@
-//! A test's or a task's connection to the hub's control port: commands, and every channel's
-//! status reports. (CAN frames, SDO, NMT and the configuration procedure are the tool
-//! library's, `safety_config`, over the hub's socketcand port.)
+//! A test's or a task's connection to a control port (`can-hub`'s, or the emulated
+//! network's, `emulate-network --control`): commands, every channel's status reports and the
+//! pace reports. (CAN frames, SDO, NMT and the configuration procedure are the tool
+//! library's, `safety_config`, over the socketcand port.)
 
 use crate::control::parse_status;
 use emulation_wire::Status;
@@ -9,7 +10,7 @@ use std::io::{self, BufRead, BufReader, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
-/// A connection to the hub's control port ([`crate::control`]): commands, and the latest
+/// A connection to a control port ([`crate::control`]): commands, and the latest
 /// status of every participant.
 pub struct Control {
     writer: TcpStream,
@@ -18,11 +19,8 @@ pub struct Control {
     pub latest: HashMap<String, (f64, Status)>,
     /// Every status line received, in order: (participant, hub time, status).
     pub history: Vec<(String, f64, Status)>,
-    /// The latest pace line (`crate::pace`), when the hub paces its participants.
+    /// The latest pace line (`crate::pace`), when the server paces its network.
     pub pace: Option<crate::pace::PaceReport>,
-    /// The latest slowest line: the emulated MCU with the oldest acknowledgement of the
-    /// virtual time, and that time (seconds).
-    pub slowest: Option<(String, f64)>,
     /// When (host time) the latest line of any kind arrived: a hub that has stopped writing
     /// is told from one whose time stands still.
     pub last_line: Option<Instant>,
@@ -46,7 +44,6 @@ impl Control {
             latest: HashMap::new(),
             history: Vec::new(),
             pace: None,
-            slowest: None,
             last_line: None,
         })
     }
@@ -67,8 +64,6 @@ impl Control {
                     self.history.push((name, t, status));
                 } else if let Some(pace) = crate::control::parse_pace(&line) {
                     self.pace = Some(pace);
-                } else if let Some(slowest) = crate::control::parse_slowest(&line) {
-                    self.slowest = Some(slowest);
                 }
                 Ok(Some(line))
             }

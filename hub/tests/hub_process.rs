@@ -1,9 +1,8 @@
 //! The `can-hub` program end to end: tools join over TCP speaking socketcand (the tool
-//! library's client), an emulated MCU on a Unix socket speaking CAN-over-serial, a frame one
-//! sends reaches the others (not itself), and the traces it writes are read by other tools:
-//! the candump log, and the pcap as tshark decodes it (CANopen over SocketCAN).
+//! library's client), a frame one sends reaches the others (not itself), and the traces it
+//! writes are read by other tools: the candump log, the pcap as tshark decodes it (CANopen over
+//! SocketCAN), and the event log.
 
-use emulation_wire::{Decoder, LinkBytes, Wire, encode, encode_wire};
 use safety_config::Transport;
 use safety_config::socketcand::SocketcandClient;
 use shared::{CanFrame, CanId};
@@ -30,8 +29,6 @@ fn start(port: u16) -> Hub {
     std::fs::create_dir_all(&dir).unwrap();
     let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
         .args(["--tcp", &format!("127.0.0.1:{port}")])
-        .arg("--socket")
-        .arg(format!("mcu={}", dir.join("mcu.sock").display()))
         .arg("--candump")
         .arg(dir.join("bus.log"))
         .arg("--pcap")
@@ -80,41 +77,13 @@ fn next_frame(tool: &mut SocketcandClient) -> CanFrame {
         .expect("a frame within 5 s")
 }
 
-/// The next frame an emulated MCU receives (CAN-over-serial), within 5 s.
-fn receive(stream: &mut impl Read) -> CanFrame {
-    let mut decoder = Decoder::new();
-    let mut byte = [0u8; 1];
-    loop {
-        stream.read_exact(&mut byte).expect("a frame within 5 s");
-        if let Some(result) = decoder.push(byte[0]) {
-            match result.expect("well-formed") {
-                emulation_wire::Wire::Can(frame) => return frame,
-                other => panic!("a frame expected, got {other:?}"),
-            }
-        }
-    }
-}
-
 #[test]
 fn frames_reach_the_other_participants_and_the_traces() {
     let port = 20_000 + (std::process::id() % 20_000) as u16;
     let hub = start(port);
-    let mut tool = tool(port);
+    let mut first = tool(port);
+    let mut tool = self::tool(port);
     let mut other = self::tool(port);
-    let mut node = {
-        let path = hub.dir.join("mcu.sock");
-        let deadline = Instant::now() + Duration::from_secs(10);
-        loop {
-            match std::os::unix::net::UnixStream::connect(&path) {
-                Ok(stream) => break stream,
-                Err(_) if Instant::now() < deadline => {
-                    std::thread::sleep(Duration::from_millis(20))
-                }
-                Err(error) => panic!("hub's MCU socket not reachable: {error}"),
-            }
-        }
-    };
-    node.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
     // All joined (and out of the raw-mode grace) before anything is sent.
     std::thread::sleep(Duration::from_millis(200));
     let boot_up = CanFrame::new(CanId::new(0x701).unwrap(), &[0x00]).unwrap();
@@ -124,14 +93,14 @@ fn frames_reach_the_other_participants_and_the_traces() {
     )
     .unwrap();
     let gfc = CanFrame::new(CanId::new(0x001).unwrap(), &[]).unwrap();
-    node.write_all(&encode(&boot_up)).unwrap();
+    first.send(&boot_up).unwrap();
     assert_eq!(next_frame(&mut tool), boot_up);
     assert_eq!(next_frame(&mut other), boot_up);
     tool.send(&sdo).unwrap();
-    assert_eq!(receive(&mut node), sdo);
+    assert_eq!(next_frame(&mut first), sdo);
     assert_eq!(next_frame(&mut other), sdo);
     other.send(&gfc).unwrap();
-    assert_eq!(receive(&mut node), gfc);
+    assert_eq!(next_frame(&mut first), gfc);
     assert_eq!(next_frame(&mut tool), gfc, "a frame without data");
     // The sender does not receive its own frame back.
     let soon = tool.now() + Duration::from_millis(200);
@@ -168,22 +137,14 @@ fn frames_reach_the_other_participants_and_the_traces() {
         Err(_) => panic!("tshark is missing: run `cargo xtask setup`"),
     }
 
-    // The event log: the same frames with their senders (the MCU by its name, the tools by
-    // their participant numbers, after the MCU, the hub's own sender and its load), then
-    // the MCU's output as its status reports give it: its first value and each change only.
-    for output in [0, 1, 1, 0] {
-        let status = emulation_wire::Status {
-            output,
-            ..emulation_wire::Status::default()
-        };
-        node.write_all(&encode_wire(&Wire::Status(status))).unwrap();
-    }
+    // The event log: the same frames with their senders, the tools by their participant
+    // numbers (after the hub's own sender and its load), in time order.
     let path = hub.dir.join("events.log");
     let deadline = Instant::now() + Duration::from_secs(5);
     let events = loop {
         let text = std::fs::read_to_string(&path).unwrap();
         let events = can_hub::events::parse(&text).unwrap();
-        if events.len() >= 6 || Instant::now() > deadline {
+        if events.len() >= 3 || Instant::now() > deadline {
             break events;
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -199,47 +160,32 @@ fn frames_reach_the_other_participants_and_the_traces() {
             }
         })
         .collect();
-    assert_eq!(
-        described,
-        [
-            "mcu 701",
-            "tool3 601",
-            "tool4 001",
-            "mcu output 0",
-            "mcu output 1",
-            "mcu output 0"
-        ]
-    );
+    assert_eq!(described, ["tool2 701", "tool3 601", "tool4 001"]);
     assert!(
         events.windows(2).all(|pair| pair[0].at() <= pair[1].at()),
         "{events:?}"
     );
 }
 
-/// The control port: commands are answered, bad ones with the reason; an inserted frame
-/// reaches the tools; an injected fault applies to the next matching frame; the link relay
-/// passes link messages between the two channels of a node until cut, and again once restored.
+/// The control port: commands are answered, bad ones with the reason (those for emulated
+/// channels, which the hub has not, among them); an inserted frame reaches the tools; an
+/// injected fault applies to the next matching frame; a muted tool's frames reach nobody until
+/// it is unmuted.
 #[test]
-fn the_control_port_inserts_injects_and_cuts() {
+fn the_control_port_inserts_injects_and_mutes() {
     use can_hub::tool::Control;
-    use std::os::unix::net::UnixStream;
     let port = 20_000 + (std::process::id() % 20_000) as u16 + 1;
     let control_port = port + 20_000;
     let dir = std::env::temp_dir().join(format!("can-hub-control-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let (a, b) = (dir.join("a.sock"), dir.join("b.sock"));
     let child = Command::new(env!("CARGO_BIN_EXE_can-hub"))
         .args(["--tcp", &format!("127.0.0.1:{port}")])
         .args(["--control", &format!("127.0.0.1:{control_port}")])
-        .arg("--socket")
-        .arg(format!("a={}", a.display()))
-        .arg("--socket")
-        .arg(format!("b={}", b.display()))
-        .args(["--link", "l=a,b"])
         .spawn()
         .unwrap();
     let _hub = Hub { child, dir };
     let mut tool = tool(port);
+    let mut sender = self::tool(port);
     let mut control = Control::connect(
         &format!("127.0.0.1:{control_port}"),
         Duration::from_secs(10),
@@ -257,56 +203,34 @@ fn the_control_port_inserts_injects_and_cuts() {
     let next = next_frame(&mut tool);
     assert_eq!(next.id().raw(), 0x125, "the 124h frame was dropped");
 
-    let error = control.command("input nobody 1").unwrap().unwrap_err();
-    assert!(error.contains("no participant `nobody`"), "{error}");
     let error = control.command("drop 0x800").unwrap().unwrap_err();
     assert!(error.contains("11-bit"), "{error}");
+    for line in [
+        "input node1a 1",
+        "cut node1-link",
+        "restore node1-link",
+        "power-cycle node1a",
+    ] {
+        let error = control.command(line).unwrap().unwrap_err();
+        assert!(error.contains("no emulated channel"), "{line}: {error}");
+    }
+    let error = control.command("mute nobody").unwrap().unwrap_err();
+    assert!(error.contains("no participant `nobody`"), "{error}");
+    assert!(error.contains("tool2, tool3"), "{error}");
 
-    let mut left = UnixStream::connect(&a).unwrap();
-    let mut right = UnixStream::connect(&b).unwrap();
-    right
-        .set_read_timeout(Some(Duration::from_millis(100)))
-        .unwrap();
-    let link = |bytes: &[u8]| encode_wire(&Wire::Link(LinkBytes::new(bytes).unwrap()));
-    // Link bytes for a channel that has not joined yet are lost (as on a link to an MCU that
-    // is not powered): say "hi" until the other end has joined and hears it.
-    let mut decoder = Decoder::new();
-    let mut buf = [0u8; 1];
-    let relayed = (0..50).find_map(|_| {
-        left.write_all(&link(b"hi")).unwrap();
-        while right.read_exact(&mut buf).is_ok() {
-            if let Some(message) = decoder.push(buf[0]) {
-                return Some(message);
-            }
-        }
-        None
-    });
+    // The tools are participants 2 and 3, as the event log names them.
+    let frame = |n: u8| CanFrame::new(CanId::new(0x301).unwrap(), &[n]).unwrap();
+    assert!(control.command("mute tool3").unwrap().is_ok());
+    sender.send(&frame(1)).unwrap();
+    let soon = tool.now() + Duration::from_millis(300);
     assert_eq!(
-        relayed,
-        Some(Ok(Wire::Link(LinkBytes::new(b"hi").unwrap())))
+        tool.receive(soon).unwrap(),
+        None,
+        "a muted tool reaches nobody"
     );
-    // Further copies of "hi" may still be on their way: read them off before the cut.
-    while right.read_exact(&mut buf).is_ok() {}
-    assert!(control.command("cut l").unwrap().is_ok());
-    left.write_all(&link(b"lost")).unwrap();
-    assert!(right.read(&mut buf).is_err(), "nothing passes a cut link");
-    // Restored, the link passes bytes again.
-    assert!(control.command("restore l").unwrap().is_ok());
-    let mut decoder = Decoder::new();
-    let relayed = (0..50).find_map(|_| {
-        left.write_all(&link(b"back")).unwrap();
-        while right.read_exact(&mut buf).is_ok() {
-            if let Some(message) = decoder.push(buf[0]) {
-                return Some(message);
-            }
-        }
-        None
-    });
-    assert_eq!(
-        relayed,
-        Some(Ok(Wire::Link(LinkBytes::new(b"back").unwrap())))
-    );
-    assert!(control.command("restore nowhere").unwrap().is_err());
+    assert!(control.command("unmute tool3").unwrap().is_ok());
+    sender.send(&frame(2)).unwrap();
+    assert_eq!(next_frame(&mut tool), frame(2));
 }
 
 /// The control port refuses a line longer than `control::MAX_LINE` bytes with a sentence (a

@@ -1,7 +1,7 @@
-//! Reference encoders for the link and the CAN-over-serial line, written from the framing the
-//! modules document, not from their code: bitwise CRCs, a plain COBS encoder, the link
-//! messages' layout from its table. The targets build frames with these (at any sequence
-//! number, with any body) and check the product's encoders against them.
+//! Reference encoders for the link, written from the framing its modules document, not from
+//! their code: a bitwise CRC, a plain COBS encoder, the link messages' layout from its table.
+//! The targets build frames with these (at any sequence number, with any body) and check the
+//! product's encoders against them.
 
 use dual_channel::link::Message;
 
@@ -22,26 +22,9 @@ pub fn crc32(bytes: &[u8]) -> u32 {
     !crc
 }
 
-/// CRC-16/XMODEM, bit by bit (polynomial 0x1021, initial value 0, no reflection, no final XOR).
-pub fn crc16(bytes: &[u8]) -> u16 {
-    let mut crc = 0u16;
-    for &byte in bytes {
-        crc ^= u16::from(byte) << 8;
-        for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 {
-                (crc << 1) ^ 0x1021
-            } else {
-                crc << 1
-            };
-        }
-    }
-    crc
-}
-
-/// Checks both CRCs against their catalogue check values ("123456789").
-pub fn check_crcs() {
+/// Checks the CRC against its catalogue check value ("123456789").
+pub fn check_crc() {
     assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
-    assert_eq!(crc16(b"123456789"), 0x31C3);
 }
 
 /// COBS (Cheshire and Baker) with the 0x00 delimiter appended. Frames here are far shorter
@@ -77,14 +60,6 @@ pub fn link_raw(sequence: u16, body: &[u8]) -> Vec<u8> {
     let mut raw = sequence.to_le_bytes().to_vec();
     raw.extend_from_slice(body);
     let crc = crc32(&raw);
-    raw.extend_from_slice(&crc.to_le_bytes());
-    raw
-}
-
-/// The raw CAN-over-serial frame: word and body as given, CRC-16 LE over them.
-pub fn serial_raw(word_and_body: &[u8]) -> Vec<u8> {
-    let mut raw = word_and_body.to_vec();
-    let crc = crc16(&raw);
     raw.extend_from_slice(&crc.to_le_bytes());
     raw
 }
