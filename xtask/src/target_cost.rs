@@ -68,6 +68,10 @@ struct Measurement {
     command: &'static str,
 }
 
+/// One MCU's longest activations in the Operational window: its name, the longest that ran
+/// the loop, the longest with the protocol's work.
+type Row = (String, u64, u64);
+
 /// [`Measurement`] of `protocol`.
 fn measurement(protocol: Protocol) -> Measurement {
     match protocol {
@@ -146,10 +150,7 @@ pub fn run(root: &Path, protocol: Protocol) -> Result<()> {
 /// Each MCU's longest activation that ran the loop and longest with the protocol's work (key
 /// `key` of `longest_activation`) in the Operational window of `figures`, and the most of
 /// each over every MCU as the measured path.
-fn longest(
-    figures: &serde_json::Value,
-    key: &str,
-) -> Result<(Vec<(String, u64, u64)>, TargetCost)> {
+fn longest(figures: &serde_json::Value, key: &str) -> Result<(Vec<Row>, TargetCost)> {
     let mut rows = Vec::new();
     for mcu in figures["mcus"].as_array().context("the figures' MCUs")? {
         let name = mcu["mcu"].as_str().context("an MCU's name")?.to_owned();
@@ -175,7 +176,7 @@ fn longest(
 fn render(
     m: &Measurement,
     protocol: Protocol,
-    rows: &[(String, u64, u64)],
+    rows: &[Row],
     measured: &TargetCost,
 ) -> String {
     let traffic = match protocol {
