@@ -17,13 +17,11 @@
 //! empties, and the loop is woken when a whole message has arrived. The independent watchdog
 //! is fed by the channel loop only.
 //!
-//! The bxCAN has three drivers here, all built (`docs/can-driver.md`): the board's own on the
-//! registers (`can1`, the default), embassy-stm32's (`embassy_can`, feature `can-embassy`)
-//! and the `bxcan` crate's (`bxcan_can`, feature `can-bxcan`).
-//! In each the loop's task fills the transmit mailboxes from its queue through
-//! [`crate::transmit_queue::Transmitter`], which also tells which frames went out and takes
-//! back the frames of an identifier not yet sent (SimpleCAN: SC_REQ_18, SC_REQ_23). Each
-//! gives [`HwDriver`] the same `CanPort`.
+//! The bxCAN's driver is the board's own, on the registers (`can1`, RM0090 32; why not
+//! embassy-stm32's or the `bxcan` crate's: `docs/can-driver.md`). The loop's task fills the
+//! transmit mailboxes from its queue through [`crate::transmit_queue::Transmitter`], which
+//! also tells which frames went out and takes back the frames of an identifier not yet sent
+//! (SimpleCAN: SC_REQ_18, SC_REQ_23).
 
 use core::sync::atomic::{AtomicBool, Ordering};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
@@ -39,23 +37,12 @@ use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
 
 use crate::Device;
-use crate::bxcan_adapter::ErrorState;
+use crate::can_registers::ErrorState;
 use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 
-#[cfg(feature = "can-bxcan")]
-mod bxcan_can;
-#[cfg(feature = "can-bxcan")]
-use bxcan_can::CanPort;
-#[cfg(not(any(feature = "can-bxcan", feature = "can-embassy")))]
 mod can1;
-#[cfg(not(any(feature = "can-bxcan", feature = "can-embassy")))]
 use can1::CanPort;
-#[cfg(any(feature = "can-bxcan", not(feature = "can-embassy")))]
 mod can_wakeup;
-#[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
-mod embassy_can;
-#[cfg(all(feature = "can-embassy", not(feature = "can-bxcan")))]
-use embassy_can::CanPort;
 mod flash;
 mod link_usart;
 mod watchdog;
@@ -314,8 +301,8 @@ impl HwDriver<'_> {
         defmt::warn!(
             "CAN error state {} (transmit errors {=u8}, receive errors {=u8})",
             state,
-            crate::bxcan_adapter::transmit_errors(esr),
-            crate::bxcan_adapter::receive_errors(esr)
+            crate::can_registers::transmit_errors(esr),
+            crate::can_registers::receive_errors(esr)
         );
         self.error_state = state;
         if entered {
@@ -628,12 +615,11 @@ fn can_timing(
 }
 
 /// The CAN_BTR value of embassy's `timing` (RM0090 32.9.2,
-/// [`crate::bxcan_adapter::BitTiming::register`]), for the board's own CAN driver and bxcan's.
-#[cfg(any(feature = "can-bxcan", not(feature = "can-embassy")))]
+/// [`crate::can_registers::BitTiming::register`]), for the board's CAN driver.
 fn bit_timing_register(
     timing: embassy_stm32::can::util::NominalBitTiming,
-) -> Result<u32, crate::bxcan_adapter::BitTimingOutOfRange> {
-    crate::bxcan_adapter::BitTiming {
+) -> Result<u32, crate::can_registers::BitTimingOutOfRange> {
+    crate::can_registers::BitTiming {
         prescaler: timing.prescaler.get(),
         seg1: timing.seg1.get(),
         seg2: timing.seg2.get(),

@@ -1,40 +1,33 @@
-//! Board layers of the firmware images: everything that touches hardware, and nothing else.
+//! The board layer of the firmware images: everything that touches hardware, and nothing else.
 //!
-//! - `hw` (feature `hw`): the STM32F405RG: the board's own register-level drivers for the
-//!   bxCAN, the link USART, the parameter flash and the independent watchdog (RM0090), and
-//!   embassy-stm32 for the clock tree, the pins, the time driver and the interrupt vectors.
-//! - `qemu` (feature `qemu`): QEMU's `netduinoplus2`: a SysTick time driver, register-level
-//!   USARTs (CAN frames over serial, and the link), semihosting.
-//!
-//! Both are adapters of the one channel loop
+//! `hw` (feature `hw`): the STM32F405RG: the board's own register-level drivers for the
+//! bxCAN, the link USART, the parameter flash and the independent watchdog (RM0090), and
+//! embassy-stm32 for the clock tree, the pins, the time driver and the interrupt vectors. It
+//! is an adapter of the one channel loop
 //! ([`ChannelLoop`](dual_channel::channel_loop::ChannelLoop)) around a channel
-//! [`Runtime`](dual_channel::runtime::Runtime): each implements its
-//! [`Driver`](dual_channel::channel_loop::Driver) and waits in its own way; the loop and the
-//! logic it drives are host-tested in `dual-channel`, `channel-a`, `channel-b` and `tests`. On the host this crate holds
-//! the types both layers share and what the hardware layer needs that is not hardware:
-//! [`parameter_flash`] (the parameter slots on word-programmed flash), [`diagnostics`] (the
-//! status a channel reports on the emulated board's line), [`stack`]'s search for the stack's
-//! high-water mark, [`frame_trail`]'s walk of the frame records a panic is logged by, all
-//! host-tested. What the values the layers read mean lives with its concept: the node-ID
-//! switches and the reset flags in `safety_device` (`switches`, `reset_cause`), the link
-//! USART's byte queue in `dual_channel::byte_ring`, the emulated run's arguments and its
-//! paced clock in `emulation_wire` (`arguments`, `clock`).
+//! [`Runtime`](dual_channel::runtime::Runtime): it implements the loop's
+//! [`Driver`](dual_channel::channel_loop::Driver) and waits on the hardware; the loop and the
+//! logic it drives are host-tested in `dual-channel`, `channel-a`, `channel-b` and `tests`,
+//! and the images themselves run on the emulated STM32F405 (`emulator`). On the host this
+//! crate holds what the hardware layer needs that is not hardware: [`parameter_flash`] (the
+//! parameter slots on word-programmed flash), [`stack`]'s search for the stack's high-water
+//! mark, [`frame_trail`]'s walk of the frame records a panic is logged by, all host-tested.
+//! What the values the layer reads mean lives with its concept: the node-ID switches and the
+//! reset flags in `safety_device` (`switches`, `reset_cause`), the link USART's byte queue in
+//! `dual_channel::byte_ring`.
 #![no_std]
 
 use dual_channel::channel_loop::Pins;
 use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 
-pub mod bxcan_adapter;
-pub mod diagnostics;
+pub mod can_registers;
 pub mod frame_trail;
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;
 #[cfg(target_os = "none")]
 mod panic;
 pub mod parameter_flash;
-#[cfg(all(target_os = "none", feature = "qemu"))]
-pub mod qemu;
 #[cfg(target_os = "none")]
 pub mod ram;
 pub mod stack;
@@ -71,9 +64,9 @@ pub type Protocol<const N: usize> = shared::node::SrdoAndSimpleCan<N, SIMPLECAN_
 pub struct Device {
     /// The device description for a node-ID.
     pub describe: fn(NodeId) -> NodeConfig,
-    /// The node-ID when the emulated run is given none (`SAFETY_NODE_ID` at build time, default
-    /// 1); the hardware layer reads its switches instead
-    /// ([`node_id_from_switches`](safety_device::switches::node_id_from_switches)).
+    /// The node-ID the description stands in with while the switches give none and LSS has
+    /// not set one (`SAFETY_NODE_ID` at build time, default 1); the hardware layer reads its
+    /// switches ([`node_id_from_switches`](safety_device::switches::node_id_from_switches)).
     pub default_id: NodeId,
     /// The channel's pins and the objects they are sampled into or driven by (the device
     /// description's [`INPUT_PINS`](safety_device::INPUT_PINS) and
@@ -90,7 +83,8 @@ static SHARED_RAM_PER_SRDO: u32 = shared::node::RAM_PER_SRDO as u32;
 
 impl Device {
     /// The demo device (`safety_device`) named `describe` gives, with the node-ID the
-    /// image was built for (`SAFETY_NODE_ID`, default 1) for an emulated run without one.
+    /// image was built for (`SAFETY_NODE_ID`, default 1) standing in while the switches give
+    /// none.
     pub fn built(describe: fn(NodeId) -> NodeConfig) -> Result<Device, u8> {
         let raw = option_env!("SAFETY_NODE_ID")
             .and_then(|text| text.parse::<u8>().ok())
@@ -143,7 +137,7 @@ fn image() -> (&'static [u8], &'static [u8]) {
     }
 }
 
-/// One start-up self-test, as both layers run them through
+/// One start-up self-test, as the board layer runs them through
 /// [`dual_channel::selftest::start_up`] before the channel starts (and, on the hardware,
 /// before the independent watchdog is armed): the RAM test's verdict (March C- over all RAM,
 /// run before RAM was initialised: [`ram`]), the image CRC against its seal and the link

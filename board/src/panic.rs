@@ -1,12 +1,12 @@
-//! The panic handler of both images: logs where the panic came from as return addresses, and
+//! The panic handler of the images: logs where the panic came from as return addresses, and
 //! ends in a HardFault.
 //!
 //! A panic in the firmware is a defect, never a path of the protocol (bad input gets an error
 //! value). What the handler does is what `panic-probe` did before it, minus the formatting:
 //! interrupts off, one log line, then `udf` with UsageFault disabled, so the fault escalates to
-//! HardFault. Under QEMU the HardFault handler ends the run with failure (`board::qemu`); on the
-//! hardware the default HardFault handler spins without feeding the independent watchdog, so
-//! the MCU resets and starts again in the safe state.
+//! HardFault. The default HardFault handler spins without feeding the independent watchdog, so
+//! the MCU resets and starts again in the safe state (the emulated STM32F405 ends its run at
+//! the HardFault instead, `cargo xtask emulate --panic-at`).
 //!
 //! The handler reads nothing of the [`PanicInfo`]: neither the message nor the location. Reading
 //! either keeps every panic site's location (a 16-byte record and its file name in flash) and
@@ -21,10 +21,8 @@
 //!
 //! What that costs: where a function holds several panics, the compiler shares one call of
 //! the panic among them (their arguments are dead, so the calls are alike), and its return
-//! address names the function, with what was inlined at the call, but no line. Measured:
-//! the deliberate crash of the QEMU layer, written inline in its `run`, resolved to line 0 of
-//! channel B's main task (and to its line in channel A's). The place of a panic is then the
-//! function and the calls above it in the trail, not the statement.
+//! address names the function, with what was inlined at the call, but no line. The place of a
+//! panic is then the function and the calls above it in the trail, not the statement.
 
 use core::panic::PanicInfo;
 use core::sync::atomic::{AtomicBool, Ordering};

@@ -1,9 +1,8 @@
 //! The stack's high-water mark, measured: cortex-m-rt's reset handler paints the whole stack
 //! with `STACK_PAINT_VALUE` before `main` (feature `paint-stack`), and the deepest word no
 //! longer holding it shows how much stack was ever used. The images' RAM budget reserves
-//! `STACK_RESERVE` for the stack (`cargo xtask build`); both board layers report the measured
-//! figure (the QEMU layer in its status, the hardware layer in its log), and `cargo xtask e2e`
-//! fails when an emulated channel used more than the reserve.
+//! `STACK_RESERVE` for the stack (`cargo xtask build`); the board layer logs the measured
+//! figure, and `cargo xtask e2e` fails when an emulated channel used more than the reserve.
 //!
 //! The search for that word is spread over the loop's iterations ([`Sweep`], host-tested
 //! here; `Sampled` on the target reads the stack with it), a bounded number of words per

@@ -76,20 +76,9 @@ pub struct ChannelA {
     /// The pairs awaited when NMT reset came: the inverse of one, once and within the SRDO's
     /// refresh time, ends it (see the module documentation).
     cut: [Option<Awaited>; 8],
-    /// How long channel B waits for this channel's announcement of a plain frame, where an
-    /// image widens channel B's window (`None`: [`SAMPLE_WINDOW`], channel B's default).
-    announcement_window: Option<Duration>,
 }
 
 impl ChannelA {
-    /// Sets how long channel B waits for this channel's announcement of a plain frame: channel
-    /// B's window, where an image widens it (the QEMU images). This channel's link latency
-    /// supervision holds the round trip to the bound that follows from it
-    /// (`dual_channel::link::round_trip_bound`), as channel B does with its own window.
-    pub fn set_announcement_window(&mut self, window: Duration) {
-        self.announcement_window = Some(window);
-    }
-
     /// `frame`, the plain frame of `srdo`, goes on the bus: its inverted frame is awaited.
     /// A full list means more transmit SRDOs in flight than this role tracks: the frame goes
     /// without tracking rather than never (B's check still guards it; its inverted frame is
@@ -295,10 +284,6 @@ impl<const N: usize> Role<N> for ChannelA {
     fn signature_digest(&self, config: &SafetyConfig<N>) -> u32 {
         // Table-driven CRC-16 of the `crc` crate, through the protocol core.
         fold_signatures(config.srdos.iter().map(signature::compute))
-    }
-
-    fn announcement_window(&self) -> Duration {
-        self.announcement_window.unwrap_or(SAMPLE_WINDOW)
     }
 
     fn speaks_for_the_node(&self) -> bool {

@@ -106,9 +106,6 @@ pub struct ChannelB {
     /// reception).
     last_plain: Option<(CanFrame, Instant)>,
     window: Duration,
-    /// Model A's time bounds for channel A's SimpleCAN packets (the standard's by default).
-    #[cfg(feature = "simplecan")]
-    simplecan_bounds: dual_channel::simplecan::Bounds,
 }
 
 impl ChannelB {
@@ -132,27 +129,12 @@ impl ChannelB {
             epoch_lead: 0,
             last_plain: None,
             window: DEFAULT_WINDOW,
-            #[cfg(feature = "simplecan")]
-            simplecan_bounds: dual_channel::simplecan::Bounds::STANDARD,
         })
     }
 
     /// The discrepancy window.
     pub fn window(&self) -> Duration {
         self.window
-    }
-
-    /// Sets the discrepancy window (keep it well below the smallest SRVT).
-    pub fn set_window(&mut self, window: Duration) {
-        self.window = window;
-    }
-
-    /// Sets Model A's time bounds for channel A's SimpleCAN packets (docs/simplecan.md
-    /// section 13): only where frames take longer to reach channel B than on a board (the
-    /// QEMU image); a board keeps the standard's.
-    #[cfg(feature = "simplecan")]
-    pub fn set_simplecan_bounds(&mut self, bounds: dual_channel::simplecan::Bounds) {
-        self.simplecan_bounds = bounds;
     }
 
     /// `true` between this channel's NMT reset and channel A's heartbeat of the new epoch
@@ -496,11 +478,6 @@ impl<const N: usize> Role<N> for ChannelB {
 
     fn window(&self) -> Duration {
         self.window
-    }
-
-    #[cfg(feature = "simplecan")]
-    fn simplecan_bounds(&self) -> dual_channel::simplecan::Bounds {
-        self.simplecan_bounds
     }
 
     /// Channel B's verdict on a SimpleCAN frame is its own decoder's

@@ -65,7 +65,7 @@ impl<const N: usize> Reassembler<N> {
     /// with it, and nothing completes); a delimiter is left for `push` (`false`). A receiver
     /// fed a byte at a time calls this first and makes the buffer a frame is decoded into
     /// only at a delimiter, not for every byte (zeroing it for every byte was the largest
-    /// part of the emulated board's serial line under QEMU).
+    /// part of the QEMU board layer's serial line, until that layer retired on 2026-12-07).
     pub fn keep(&mut self, byte: u8) -> bool {
         if byte == 0 {
             return false;

@@ -115,13 +115,7 @@ pub const SIMPLECAN_LSS_BIT_RATES: shared::canopen::lss::BitRates = {
     shared::canopen::lss::BitRates::of(&[BitRate::Kbit1000, BitRate::Kbit500])
 };
 
-/// The bit rates LSS may configure on a board whose CAN has no bit time to switch (the QEMU
-/// board's CAN over a serial line): the one it runs at.
-pub const LSS_OWN_BIT_RATE_ONLY: shared::canopen::lss::BitRates =
-    shared::canopen::lss::BitRates::of(&[BIT_RATE_ENTRY]);
-
-// The rate the hardware starts at is one LSS may configure, and the one rate of a board that
-// cannot switch is the hardware's.
+// The rate the hardware starts at is one LSS may configure.
 const _: () = assert!(
     matches!(BIT_RATE_ENTRY.bits_per_second(), Some(BIT_RATE))
         && LSS_BIT_RATES.contains(BIT_RATE_ENTRY)

@@ -4,13 +4,13 @@
 //! A board layer implements [`Driver`] (the CAN controller's transmit and receive queues and
 //! acceptance filters, the link to the other channel, the input and output pins, the clock)
 //! and calls [`ChannelLoop::service`] whenever something arrived or the returned instant has
-//! come; waiting is the board's business (an async select on hardware, WFI under QEMU), the
+//! come; waiting is the board's business (an async select on hardware), the
 //! rest is here, sans-I/O and host-tested:
 //!
 //! - **Acceptance filters**: derived from the configuration ([`crate::filters`]) and handed to
 //!   the driver whenever they change; every received frame is also judged by the same list in
-//!   software, so a board whose controller passes more (QEMU's hub before the first list, the
-//!   bank fallback passes the SRDO range) sees exactly the same frames.
+//!   software, so a board whose controller passes more (the bank fallback passes the SRDO
+//!   range) sees exactly the same frames.
 //! - **Receive**: the driver's queue, frame by frame; a queue overrun of frames the filters
 //!   passed is the safe state with its own cause ([`Received::Overrun`]), never a silent loss.
 //! - **Inputs, one policy for every board**: each input pin is read on every wake-up and at

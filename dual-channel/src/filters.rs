@@ -13,8 +13,9 @@
 //! The protocol decides the filters, the driver only applies them ([`crate::channel_loop`]):
 //! [`AcceptanceList::of`] is the one list, [`bank_layout`] its place in the bxCAN's banks
 //! (RM0090 32.7.4), and [`AcceptanceList::accepts`] the same decision in software, which the
-//! channel loop applies to every received frame on every board (under QEMU the hub applies the
-//! same list in the controller's place, `emulation_wire::Wire::Accept`).
+//! channel loop applies to every received frame on every board (the QEMU board layer, until
+//! 2026-12-07, sent the same list to the hub, which applied it in the controller's place:
+//! `emulation_wire::Wire::Accept`).
 
 use heapless::Vec;
 use shared::canopen::NodeId;

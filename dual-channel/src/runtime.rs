@@ -110,17 +110,6 @@ pub const INPUT_DISCREPANCY: Duration = Duration::from_millis(200);
 /// for channel A's announcement of a plain frame: the device's sample window.
 pub use safety_device::timing::SAMPLE_WINDOW;
 
-/// The sample window of the QEMU images, on both channels: channel B's window
-/// (`ChannelB::set_window`) and channel A's announcement window
-/// (`ChannelA::set_announcement_window`), so that both channels hold the link's round trip to
-/// the same bound ([`round_trip_bound`]). Under QEMU the link between the channels and the CAN
-/// bus are two separate paths through the hub on a shared host: channel A's announcement of a
-/// plain frame can reach channel B tens of milliseconds after the frame itself when the host is
-/// loaded (the stalls measured, and the shorter window that made node 1 report its own plain
-/// frame as foreign: docs/emulation.md, "The QEMU images' sample window"). It leaves 40 ms of
-/// the emulated network's SRVT (100 ms) for the inverted frame. The hardware images keep [`SAMPLE_WINDOW`].
-pub const QEMU_SAMPLE_WINDOW: Duration = Duration::from_millis(60);
-
 /// How many safety inputs (plain objects) a channel samples and cross-checks; one more is
 /// [`ChannelFault::InputTableFull`].
 pub const MAX_INPUTS: usize = 8;
@@ -279,18 +268,10 @@ pub trait Role<const N: usize> {
 
     /// How long channel B waits for channel A's announcement of a plain frame (B's window):
     /// the link's round-trip bound follows from it on both channels ([`round_trip_bound`]).
-    /// Channel B's is its [`Role::window`]; channel A's must be set to the same where an
-    /// image widens B's (`channel_a::role`).
+    /// Channel B's is its [`Role::window`]; channel A's is the same, the device's
+    /// [`SAMPLE_WINDOW`].
     fn announcement_window(&self) -> Duration {
         self.window()
-    }
-
-    /// Model A's time bounds for the node's SimpleCAN packets (channel B's check of A's):
-    /// the standard's, unless an image's frames take longer to reach the channel than a
-    /// board's (channel B's QEMU image, `channel_b::role`).
-    #[cfg(feature = "simplecan")]
-    fn simplecan_bounds(&self) -> crate::simplecan::Bounds {
-        crate::simplecan::Bounds::STANDARD
     }
 
     /// This channel's own decoding of a SimpleCAN frame with the node hashes `hash_of`
@@ -652,7 +633,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         let timeout = Duration::from_micros(2 * link_period.as_micros());
         let protocol = P::build(&config).ok_or(NodeError::SrdoCount)?;
         #[cfg(feature = "simplecan")]
-        let (window, bounds) = (role.window(), role.simplecan_bounds());
+        let (window, bounds) = (role.window(), crate::simplecan::Bounds::STANDARD);
         Ok(Runtime {
             node: Device::prepare(config, flash, protocol)?,
             role,

@@ -196,8 +196,8 @@ pub trait StartUp {
 /// loops over fixed ranges (all of RAM, the image in flash, nine bytes) that wait on no
 /// peripheral, so they end by construction; a fed watchdog would add a feed point inside
 /// each loop and nothing it could catch. What they take grows with the image: the image CRC
-/// costs a number of Thumb instructions per byte (counted under QEMU by `cargo xtask qemu a
-/// --selftest --count`, `manual/src/device.md` has the figure), which a grown image could
+/// costs a number of Thumb instructions per byte (counted under QEMU until 2026-12-07,
+/// `manual/src/device.md` has the figure), which a grown image could
 /// carry past the watchdog's time and into a reset before every start. Until the watchdog is armed the
 /// outputs are low (their reset state) and the channel has not joined the bus: a hang there
 /// is the safe state, which the other channel sees as a silent link. A test that fails

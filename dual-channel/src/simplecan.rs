@@ -536,8 +536,8 @@ pub struct Checks {
 
 impl Checks {
     /// Checks that wait `window` for channel A's copy of a frame and `timeout` for the
-    /// other channel's verdict, with Model A's time `bounds` ([`Bounds::STANDARD`] on a
-    /// board).
+    /// other channel's verdict, with Model A's time `bounds` ([`Bounds::STANDARD`] in every
+    /// image).
     pub fn new(window: Duration, timeout: Duration, bounds: Bounds) -> Self {
         Checks {
             forward: ForwardCheck::new(window),

@@ -1,16 +1,19 @@
 //! CAN frames over a serial line, for the emulated network (the emulation's own wire format: the
-//! safety runtime does not depend on it, and the hub depends on nothing else of the node): QEMU models no CAN controller, so
-//! the QEMU board layer sends and receives CAN frames on USART2, and a host-side bus hub puts
-//! them on the simulated bus.
+//! safety runtime does not depend on it, and the hub depends on nothing else of the node).
+//! Written for the QEMU board layer (`board::qemu`, retired with the QEMU images on
+//! 2026-12-07): QEMU models no CAN controller, so that layer sent and received CAN frames on
+//! USART2, and the bus hub (`can-hub --socket`) put them on the simulated bus. No image speaks
+//! the line since; the hub's serial side and its tests still do, and the hub's and the
+//! emulator's control ports report every channel's [`Status`].
 //!
-//! QEMU models no GPIO either, so the same line carries the board's pins: the hub sets the
+//! QEMU models no GPIO either, so the same line carried the board's pins: the hub sets the
 //! channel's safety input ([`Wire::Input`]) and the channel reports its state and output
 //! ([`Wire::Status`]). These never reach the bus.
 //!
-//! Under emulation the line also carries the channel's link to the other channel
-//! ([`Wire::Link`]) and the shared virtual time ([`Wire::Time`]): one ordered stream per
-//! channel, so that a channel handles every frame, link byte and input change the hub sent it
-//! before its clock passes the time the hub granted after them (`docs/emulation.md`).
+//! The line also carries the channel's link to the other channel ([`Wire::Link`]) and the
+//! shared virtual time ([`Wire::Time`]): one ordered stream per channel, so that a channel
+//! handles every frame, link byte and input change the hub sent it before its clock passes
+//! the time the hub granted after them (`docs/emulation.md`).
 //!
 //! ```text
 //! COBS( word: u16 LE | body | CRC-16/XMODEM LE ) 0x00
@@ -31,19 +34,12 @@
 //! the list `dual_channel::filters` derives from its configuration, which the hardware layer
 //! writes into bxCAN's filter banks), and from then on the hub sends it only the frames on
 //! those identifiers, as the controller would let through; before the first list, every
-//! frame. On a loaded host each byte on the line costs a hand-over between the emulator's
+//! frame. On a loaded host each byte on the line cost a hand-over between QEMU's
 //! threads (`docs/emulation.md`), so frames the controller would reject anyway made every
 //! channel's line, and with it the shared virtual time, slower.
 
-//!
-//! Beside the wire: the emulated run's [`arguments`] on QEMU's command line and the
-//! emulated channel's [`clock`], paced by the hub's grants.
-
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
-
-pub mod arguments;
-pub mod clock;
 
 use cobs_frames::{Completed, Reassembler};
 use crc::{CRC_16_XMODEM, Crc};
@@ -54,22 +50,25 @@ const CRC: Crc<u16> = Crc::<u16>::new(&CRC_16_XMODEM);
 /// at most this far past the last [`Wire::Time`] grant it handled, and the hub's clock at most
 /// this far past the oldest grant a channel acknowledged (`can_hub::pace`,
 /// `docs/emulation.md`). It bounds, whatever the host load, how much later than the hub sent
-/// it a channel handles a frame, and how far apart the two channels of a node handle one.
+/// it a channel handles a frame, and how far apart the two channels of a node handle one. The
+/// emulator's socketcand port paces its whole network with it (`emulator::socketcand`).
 pub const LOOKAHEAD: shared::Duration = shared::Duration::from_millis(20);
 
 /// How often (virtual time) the hub grants time to each paced channel; well below
 /// [`LOOKAHEAD`], so that a channel that keeps up is never held.
 pub const GRANT_PERIOD: shared::Duration = shared::Duration::from_millis(5);
 
-/// The lookahead of the SimpleCAN run (`cargo xtask run --protocol simplecan`): the QEMU
-/// images built with `board`'s feature `simplecan` pace their clocks with it, and xtask gives it
-/// to the hub (`--lookahead`). SimpleCAN's millisecond grid (a packet within its 1 ms slot, a
-/// receiver's ±2 ms, SC_REQ_30) needs the channels' clocks far closer to the hub's than
-/// [`LOOKAHEAD`] (`docs/emulation.md`, section "SimpleCAN on the emulated network").
+/// The lookahead of the SimpleCAN run on the QEMU images (until 2026-12-07): the QEMU
+/// images built with `board`'s feature `simplecan` paced their clocks with it, and xtask gave
+/// it to the hub (`--lookahead`). SimpleCAN's millisecond grid (a packet within its 1 ms slot,
+/// a receiver's ±2 ms, SC_REQ_30) needed the channels' clocks far closer to the hub's than
+/// [`LOOKAHEAD`] (`docs/emulation.md`, section "SimpleCAN on the emulated network"). Nothing
+/// uses it since.
 pub const SIMPLECAN_LOOKAHEAD: shared::Duration = shared::Duration::from_micros(500);
 
-/// The grant period of the SimpleCAN run, about half [`SIMPLECAN_LOOKAHEAD`] (xtask gives it to
-/// the hub, `--grant-period`).
+/// The grant period of the SimpleCAN run on the QEMU images, about half
+/// [`SIMPLECAN_LOOKAHEAD`] (xtask gave it to the hub, `--grant-period`). Nothing uses it
+/// since.
 pub const SIMPLECAN_GRANT_PERIOD: shared::Duration = shared::Duration::from_micros(250);
 
 /// Most link bytes one [`Wire::Link`] message carries.
@@ -112,8 +111,9 @@ impl core::fmt::Display for SerialError {
     }
 }
 
-/// What one channel tells the hub about itself (the emulated board's diagnostics and output
-/// pin). Counters wrap.
+/// One channel's state as the control ports report it: what a QEMU image told the hub about
+/// itself over its line (until 2026-12-07), or what the emulator observes of a shipped image
+/// from outside (`emulator::control`). Counters wrap.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Status {

@@ -1,7 +1,7 @@
 //! The emulated network's control port (`emulate-network --control ADDRESS:PORT`): the line
 //! protocol of `can-hub`'s control port ([`can_hub::control`], its parser and its lines), so
-//! that a program driving the network (`cargo xtask run`) talks to the QEMU network under the
-//! hub and to the shipped images on the emulator alike.
+//! that a program driving the network (`cargo xtask run`) talks to it as it talked to the QEMU
+//! network under the hub until 2026-12-07.
 //!
 //! - [`Panel`], sans-I/O: carries out a [`Command`] on the [`Network`] (a contact of a
 //!   channel, the bus faults of the hub's vocabulary on the same bus model, a link wire cut
@@ -15,7 +15,7 @@
 //!   output has come on since its node's boot-up (a consumer's output comes on only on
 //!   confirmed pairs; a producer's never does). That count is what reached a working
 //!   consumer, not the channel's own count of the pairs it validated. The figures the QEMU
-//!   images measure themselves are measured here from outside ([`crate::observed`], in
+//!   images measured themselves are measured here from outside ([`crate::observed`], in
 //!   virtual time, [`Panel::measure`]): the longest gap between two link messages reaching
 //!   the channel, the longest wake-up of its core (to its next sleep, interrupts included),
 //!   its deepest stack (the stack pointer at every translated block's start, followed from

@@ -1,11 +1,11 @@
 //! The scenario files written for the emulated network (`scenarios/emulated/*.toml`) played
 //! on the shipped images: each step applied at its instant of virtual time on the emulated
 //! network (a contact, an NMT command or GFC from a tool on the bus, the hub's fault
-//! vocabulary on the bus model, a cut link wire), and every expectation judged by the same
-//! judge as on the QEMU network (`system_tests::scenario_runner::emulated::judge`, with the
-//! campaigns' oracle on the frames and output pins).
+//! vocabulary on the bus model, a cut link wire), and every expectation judged by the judge
+//! the QEMU network had until 2026-12-07 (`system_tests::scenario_runner::emulated::judge`,
+//! with the campaigns' oracle on the frames and output pins).
 //!
-//! **What a node's status is here.** The QEMU images report each channel's status over their
+//! **What a node's status is here.** The QEMU images reported each channel's status over their
 //! serial line; the shipped images send no such report. A rig around real boards sees each
 //! channel's output pin and the node's EMCY frames, and so does this player: a channel's
 //! status is its output pin, and the node's last EMCY names why it left the working state
@@ -334,7 +334,7 @@ fn play(
 
 /// Plays `scenarios` one after the other on `network` after the nominal case (nodes 1 and 33
 /// configured and stored), each after an NMT reset and start of both nodes (`Rig::reset`);
-/// prints each report as the QEMU runs print it. `seen` receives every event. Returns
+/// prints each report as the host runs print it. `seen` receives every event. Returns
 /// whether every scenario passed, or why one could not be played.
 pub fn play_all(
     network: &mut Network,

@@ -11,7 +11,7 @@
 //!   the network run at the pace of the host clock: third-party tools time out on the wall
 //!   clock, so the virtual time never runs ahead of it ([`can_hub::pace::Pacer`], with the
 //!   network as its one paced participant, granted time and acknowledging it as the QEMU
-//!   instances do `can-hub`'s, with the same lookahead and grant period). When the host cannot keep up, the virtual time
+//!   instances did `can-hub`'s, with the same lookahead and grant period). When the host cannot keep up, the virtual time
 //!   falls behind and does not race to catch up: the pacer counts the time it was held.
 
 use std::collections::BTreeMap;

@@ -309,15 +309,6 @@ fn iso11898_1_dual_channel_nodes_agree_on_duplicated_frames() {
             a.plain_repeated + a.inverted_without_plain > 0,
             "{repeated:x?}"
         );
-        // The channel status (what the emulated board reports to the hub) carries the count.
-        let status = board::diagnostics::Diagnostics::new()
-            .report(net.now, &node.a)
-            .expect("the first report goes out at once");
-        assert_eq!(
-            u32::from(status.discarded),
-            a.plain_repeated + a.inverted_without_plain,
-            "{repeated:x?}"
-        );
     }
 }
 

@@ -514,46 +514,6 @@ fn a_link_message_from_before_an_nmt_reset_is_ignored_after_it() {
     assert!(net.node(1).a.is_working() && net.node(1).b.is_working());
 }
 
-/// The board's status report (`board::diagnostics`): at once when what a watcher acts
-/// on changes, otherwise every period; counters and the cause of the last safe state follow
-/// what the channel did.
-#[test]
-fn the_status_report_goes_out_on_change_and_every_period() {
-    use board::diagnostics::{Diagnostics, PERIOD};
-    use shared::safety::srdo::SrdoFault;
-    let net = running();
-    let a = &net.node(33).a;
-    let mut diagnostics = Diagnostics::new();
-    let t = net.now;
-    let first = diagnostics.report(t, a).expect("the first report at once");
-    assert_eq!((first.nmt, first.working, first.output), (5, true, 1));
-    assert_eq!(diagnostics.report(t, a), None, "nothing changed");
-    let late = t + PERIOD;
-    assert_eq!(diagnostics.deadline(), late);
-    assert!(diagnostics.report(late, a).is_some(), "periodic");
-    diagnostics.input(1);
-    assert_eq!(
-        diagnostics.report(late, a).map(|s| s.input),
-        Some(1),
-        "on change"
-    );
-    let frame = |id: u16| shared::CanFrame::new(shared::CanId::new(id).unwrap(), &[1]).unwrap();
-    diagnostics.transmitted(&frame(0x101));
-    diagnostics.transmitted(&frame(0x701));
-    diagnostics.event(&ChannelEvent::Node(Event::SafeState(
-        shared::node::SafeStateCause::Srdo(SrdoFault {
-            srdo: shared::safety::types::SrdoNumber::new(1).unwrap(),
-            cause: SrdoFaultCause::SrvtElapsed,
-        }),
-    )));
-    let status = diagnostics.report(late, a).expect("the cause changed");
-    assert_eq!(
-        (status.sent, status.cause),
-        (1, 2),
-        "only SRDO frames count"
-    );
-}
-
 /// The two channels of node 33 read different node-IDs from their switches (33 and 34): the
 /// node never drives its outputs. Each channel's link heartbeat names its node-ID in force,
 /// so the first heartbeats already put both channels in the safe state with the cause in

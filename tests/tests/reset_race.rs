@@ -22,8 +22,8 @@ const STEP: Duration = Duration::from_micros(100);
 const PLAIN: u16 = 0x101;
 const INVERTED: u16 = 0x102;
 
-/// Both nodes configured and started, every link byte `link_latency` late (as under
-/// emulation, where each channel's loop runs in its own QEMU).
+/// Both nodes configured and started, every link byte `link_latency` late (as under the
+/// QEMU images' emulation until 2026-12-07, where each channel's loop ran in its own QEMU).
 fn running(link_latency: Duration) -> DualNetwork {
     let mut net = DualNetwork::new(500_000, &[1, 33]);
     for id in [1, 33] {

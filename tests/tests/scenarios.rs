@@ -186,9 +186,9 @@ fn only_faults_the_hub_can_inject_make_a_scenario_the_hubs() {
 }
 
 mod emulated {
-    //! The emulated network's half of the runner, on recorded observations (no QEMU): each
-    //! step as the hub's control command, and the expectations judged from status reports
-    //! and the bus trace on the hub's clock.
+    //! The emulated network's half of the runner, on recorded observations (no emulated MCU):
+    //! each step as the hub's control command, and the expectations judged from status
+    //! reports and the bus frames on the network's clock.
 
     use super::dir;
     use can_hub::events::Event;

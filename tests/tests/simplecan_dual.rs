@@ -463,7 +463,7 @@ fn runs_ten_seconds_without_a_fault(net: &mut ScDualNetwork, case: &str) {
 
 /// SC_REQ_33 and SC_REQ_10 (Model A): a node may state a buffering time beyond the sync's
 /// real delay by more than the sync tolerance (`SYNC_OFFSET_TOLERANCE`), as the emulated
-/// network's `scenarios/networks/simplecan.toml` does (500 µs, for its serial line) at 500
+/// network's `scenarios/networks/simplecan.toml` does (500 µs, chosen for the QEMU images' serial line) at 500
 /// kbit/s. Both of node 1's masters start on their own clocks at NMT start, so A's first sync
 /// is judged against B's own time without the buffering, and later ones, after B took A's
 /// time with the buffering, with it: no fault in 10 s, a packet of 30h every cycle. (Judged

@@ -1,9 +1,9 @@
 //! Child processes that end with `cargo xtask`: the one place that starts the long-running
-//! ones (the hub, QEMU, the socketcand simulation, python scripts) and ends them.
+//! ones (the emulated network, the hub, the socketcand simulation, python scripts) and ends them.
 //!
 //! Each [`Guarded`] child runs in its own process group, so that a Ctrl-C on the terminal
 //! reaches `cargo xtask` alone and the order of the ending is ours, and its whole group
-//! (e.g. `timeout` and the QEMU it runs) is killed when the guard is dropped: on return, on
+//! (e.g. `timeout` and the program it runs) is killed when the guard is dropped: on return, on
 //! an error, on a panic. What a drop cannot cover is xtask ended by a signal: SIGINT,
 //! SIGTERM and SIGHUP end a process without running destructors. [`end_with_xtask`]
 //! installs the one handler for them (the `ctrlc` crate, feature `termination`): it kills

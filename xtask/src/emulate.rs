@@ -19,17 +19,10 @@ pub fn task(
     duration: &str,
     node_id: u8,
     protocol: Protocol,
-    bxcan: bool,
 ) -> Result<()> {
     let cross = toolchain::ensure()?;
     toolchain::ensure_emulator_build_deps()?;
-    let layer = match (bxcan, protocol) {
-        (false, _) => protocol.hardware_layer(),
-        (true, Protocol::CanopenSafety) => images::Layer::HwBxcan,
-        (true, Protocol::Simplecan) => {
-            anyhow::bail!("the bxcan driver is built for the CANopen Safety images only")
-        }
-    };
+    let layer = protocol.hardware_layer();
     images::build_layer(root, &cross, layer)?;
     let image = images::image(&cross, root, layer, channel);
     let node_id = node_id.to_string();
@@ -357,7 +350,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
 
 /// Writes `cargo xtask run`'s network file of `protocol` for the emulated network's cases;
 /// returns its path.
-fn write_network_file(root: &Path, protocol: Protocol) -> Result<std::path::PathBuf> {
+pub(crate) fn write_network_file(root: &Path, protocol: Protocol) -> Result<std::path::PathBuf> {
     let dir = root.join("target/emulate-network");
     std::fs::create_dir_all(&dir)?;
     let path = dir.join(match protocol {

@@ -484,12 +484,7 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
         rustc.trim()
     )?;
     let mut layers = Vec::new();
-    for layer in [
-        Layer::Hw,
-        Layer::Qemu,
-        Layer::HwSimpleCan,
-        Layer::QemuSimpleCan,
-    ] {
+    for layer in [Layer::Hw, Layer::HwSimpleCan] {
         images::build_layer(root, cross, layer)?;
         let mut measured = Vec::new();
         for (name, channel) in [("channel-a", "a"), ("channel-b", "b")] {
@@ -512,12 +507,13 @@ pub fn run(root: &Path, cross: &Cross) -> Result<()> {
         .collect();
     budgets(&with_budgets, &mut shipped)?;
     tables.insert_str(tables.find("### ").unwrap_or(tables.len()), &shipped);
-    for (base, with) in [
-        (Layer::Hw, Layer::HwSimpleCan),
-        (Layer::Qemu, Layer::QemuSimpleCan),
-    ] {
-        added(base, of(base), with, of(with), &mut tables)?;
-    }
+    added(
+        Layer::Hw,
+        of(Layer::Hw),
+        Layer::HwSimpleCan,
+        of(Layer::HwSimpleCan),
+        &mut tables,
+    )?;
     let path = root.join("docs/footprint.md");
     let text =
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;

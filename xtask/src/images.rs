@@ -34,23 +34,21 @@ pub const SIMPLECAN_FLASH_BUDGET: u64 = 68 * 1024;
 ///
 /// 21 KiB. Static data does not vary at run time, so the margin the generated part of
 /// `docs/footprint.md` gives is what a change may add before it is looked at; the budget's
-/// earlier values and why they moved are in its "History". The QEMU images hold more
-/// (`docs/footprint.md`) and are not held to it.
+/// earlier values and why they moved are in its "History".
 pub const RAM_BUDGET: u64 = 21 * 1024;
 /// RAM set aside for the stack in the budget. The linker places the stack at the top of RAM.
 /// The figure is checked against the measured high-water mark: the stack is painted at
-/// start-up (`board::stack`), every emulated channel reports its deepest use, which `cargo
-/// xtask e2e` fails on when it is above this, and both layers log it.
+/// start-up (`board::stack`), the emulator measures each emulated channel's deepest use,
+/// which `cargo xtask e2e` fails on when it is above this, and the board layer logs it.
 ///
 /// 12 KiB. Every path of the channel runs on top of the main task's stack frame, which once
 /// held the runtime's construction inlined with two copies of the runtime; the runtime is now
 /// built by an out-of-line `Runtime::new`, or in place by `Runtime::around` and
 /// `Device::prepare` into the board's `Result`, its parameters restored there afterwards
-/// (`Runtime::restore_parameters`). The SimpleCAN QEMU images are held to the same reserve by
-/// `cargo xtask e2e --protocol simplecan`. The deepest stack each emulated run measured is in
-/// `docs/emulated-figures.md` (the shipped images) and `docs/footprint.md` ("History": the
-/// QEMU images, the steps that moved it, and a static estimate of the hardware images'
-/// deepest call chain, whose own figure comes from their log once they run on a board).
+/// (`Runtime::restore_parameters`). The shipped SimpleCAN images are held to the same reserve
+/// by `cargo xtask e2e --protocol simplecan`. The deepest stack each emulated run measured is
+/// in `docs/emulated-figures.md`; the steps that moved it are in `docs/footprint.md`
+/// ("History").
 pub const STACK_RESERVE: u64 = 12 * 1024;
 
 /// The chip, as probe-rs names it.
@@ -116,20 +114,10 @@ pub fn measure(elf: &Path) -> Result<Sizes> {
 pub enum Layer {
     /// embassy-stm32 on the STM32F405RG.
     Hw,
-    /// QEMU's netduinoplus2.
-    Qemu,
-    /// QEMU's netduinoplus2 with SimpleCAN instead of SRDOs (`simplecan` of both images,
-    /// `board::Protocol`): the images of `cargo xtask run --protocol simplecan`, built there
-    /// and by `cargo xtask footprint`.
-    QemuSimpleCan,
     /// The hardware images with SimpleCAN instead of SRDOs: built and held to their budgets
     /// ([`SIMPLECAN_FLASH_BUDGET`], [`RAM_BUDGET`]) by `cargo xtask build`, flashed by
     /// `cargo xtask flash --protocol simplecan`.
     HwSimpleCan,
-    /// The hardware images with the bxCAN driven by the `bxcan` crate (`board`'s feature
-    /// `can-bxcan`): checked by clippy in `cargo xtask test`, so that the driver compared in
-    /// docs/can-driver.md keeps building; never shipped.
-    HwBxcan,
 }
 
 impl Layer {
@@ -137,16 +125,8 @@ impl Layer {
     fn target_dir(self, cross: &Cross, root: &Path) -> PathBuf {
         match self {
             Layer::Hw => cross.target_dir(root),
-            Layer::Qemu => cross.target_dir(root).join("qemu"),
-            Layer::QemuSimpleCan => cross.target_dir(root).join("qemu-simplecan"),
             Layer::HwSimpleCan => cross.target_dir(root).join("hw-simplecan"),
-            Layer::HwBxcan => cross.target_dir(root).join("hw-bxcan"),
         }
-    }
-
-    /// `true` for the QEMU layers.
-    fn is_qemu(self) -> bool {
-        matches!(self, Layer::Qemu | Layer::QemuSimpleCan)
     }
 }
 
@@ -155,15 +135,9 @@ impl Layer {
 pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
     let features = match layer {
         Layer::Hw => "channel-a/defmt,channel-b/defmt",
-        Layer::Qemu => "channel-a/qemu,channel-a/defmt,channel-b/qemu,channel-b/defmt",
-        Layer::QemuSimpleCan => {
-            "channel-a/qemu,channel-a/defmt,channel-a/simplecan,\
-             channel-b/qemu,channel-b/defmt,channel-b/simplecan"
-        }
         Layer::HwSimpleCan => {
             "channel-a/defmt,channel-a/simplecan,channel-b/defmt,channel-b/simplecan"
         }
-        Layer::HwBxcan => "channel-a/defmt,channel-b/defmt,board/can-bxcan",
     };
     let mut command = cross.cargo(root).args([
         verb,
@@ -174,9 +148,6 @@ pub fn cargo(cross: &Cross, root: &Path, verb: &str, layer: Layer) -> Command {
         "-p",
         "board",
     ]);
-    if layer.is_qemu() {
-        command = command.args(["--no-default-features"]);
-    }
     for image in IMAGES {
         command = command.args(["-p", image]);
     }
@@ -242,7 +213,7 @@ const FLASH_ORIGIN: u64 = 0x0800_0000;
 /// code and read-only data in one segment from the start of flash, `--no-rosegment`) and the
 /// load image of `.data` (the firmware's `__erodata` and `__sidata` ranges); the seal's offset
 /// in the code and in the ELF file. The few alignment bytes between the two are not written
-/// by anyone (the MCU reads them as erased, QEMU as 0) and not covered.
+/// by anyone (the MCU reads them as erased) and not covered.
 struct Located {
     code: Vec<u8>,
     data: Vec<u8>,

@@ -2,7 +2,7 @@
 //! socketcand port (the hub's or `emulate-network`'s), in a virtual environment under `target/interop/venv` (python-can and
 //! python-canopen from PyPI, pinned).
 //!
-//! 1. python-can's own `socketcand` bus against `can-hub` (no QEMU): frames sent by the tool
+//! 1. python-can's own `socketcand` bus against `can-hub`: frames sent by the tool
 //!    library's socketcand client reach python-can, and python-can's answers reach the tool,
 //!    identifier and data exact, a frame without data included.
 //! 2. python-canopen against the host simulation's nodes 1 and 33 (the protocol core,
@@ -30,7 +30,7 @@
 //!    (`emulate-network --nodes 0 --socketcand`, [`lss`]); `--only lss-bench` times the tool's fastscan and python-canopen's against the bus
 //!    time of their frames, into docs/tool.md.
 //! 7. The shipped hardware images on the emulator's network (`emulate-network --socketcand`:
-//!    nodes 1 and 33, channels A and B, no QEMU), joined by separate programs
+//!    nodes 1 and 33, channels A and B), joined by separate programs
 //!    ([`emulated_network`]): python-can sees both nodes' heartbeats, python-canopen reads node
 //!    1's identity and producer heartbeat time by SDO, and the `safety-config` program
 //!    configures and starts both nodes from the network file.
@@ -60,23 +60,22 @@ const PACKAGES: [&str; 2] = ["python-can==4.6.1", "canopen==2.4.1"];
 pub enum Part {
     /// python-can's socketcand bus against the hub alone.
     Socketcand,
-    /// python-canopen on the host simulation's nodes behind a socketcand server (no QEMU).
+    /// python-canopen on the host simulation's nodes behind a socketcand server.
     Simulated,
-    /// python-canopen on the shipped images on the emulated network (no QEMU).
+    /// python-canopen on the shipped images on the emulated network.
     Canopen,
     /// python-canopen's sweep of the SimpleCAN images' EDS on the shipped SimpleCAN images on
-    /// the emulated network (no QEMU).
+    /// the emulated network.
     Simplecan,
     /// python-canopen reading node 33's objects back to back on the shipped images' emulated network while
     /// python-can fills 30 % of the bus, for 60 s of the bus's time: the largest SDO response
     /// time and heartbeat gap. Only when asked for (`--only mixed-load`): it takes minutes.
     MixedLoad,
     /// python-canopen's LSS master configures an unconfigured node of the shipped images on
-    /// the emulated network (fast scan, configure node-ID, store), the tool inquires it (no
-    /// QEMU).
+    /// the emulated network (fast scan, configure node-ID, store), the tool inquires it.
     Lss,
     /// python-can, python-canopen and the configuration tool as separate programs on the
-    /// shipped images' emulated network (`emulate-network --socketcand`, no QEMU).
+    /// shipped images' emulated network (`emulate-network --socketcand`).
     EmulatedNetwork,
     /// The tool's and python-canopen's fastscan of 1 and 8 unconfigured nodes in bus time,
     /// against the bus time of their frames, into docs/tool.md. Only when asked for
@@ -137,7 +136,7 @@ fn script_json(command: &mut Command) -> Result<serde_json::Value> {
 
 /// Part 1: python-can's socketcand bus and the tool's client on one hub.
 fn socketcand(root: &Path, python: &Path) -> Result<()> {
-    crate::step("interop 1: python-can's socketcand bus against can-hub (no QEMU)");
+    crate::step("interop 1: python-can's socketcand bus against can-hub");
     crate::run(crate::cargo().args(["build", "--quiet", "-p", "can-hub"]))?;
     let port = free_port()?;
     let address = format!("127.0.0.1:{port}");
@@ -264,7 +263,7 @@ fn tool_reading<T: Transport>(tool: &mut Client<T>, node: u8) -> Result<serde_js
 
 /// Part 2: python-canopen on the host simulation behind a socketcand server.
 fn simulated(root: &Path, python: &Path) -> Result<()> {
-    crate::step("interop 2: python-canopen on the host simulation's nodes (socketcand, no QEMU)");
+    crate::step("interop 2: python-canopen on the host simulation's nodes (socketcand)");
     crate::run(crate::cargo().args([
         "build",
         "--quiet",
@@ -299,11 +298,7 @@ fn canopen(root: &Path, python: &Path) -> Result<()> {
         "interop 3: python-canopen on the shipped images on the emulated network, through \
          emulate-network's socketcand port",
     );
-    let mut network = Network::start_images(
-        root,
-        network::Protocol::CanopenSafety,
-        network::Images::Shipped,
-    )?;
+    let mut network = Network::start_for(root, network::Protocol::CanopenSafety)?;
     let result = network
         .tool()
         .and_then(|tool| canopen_checks(root, python, &network::hub_tcp(), tool, "interop 3"));
@@ -492,11 +487,7 @@ fn mixed_load(root: &Path, python: &Path) -> Result<()> {
          {MIXED_LOAD_PERCENT} % of the bus, for {MIXED_LOAD_SECONDS} s of the bus's time (the \
          shipped images)"
     ));
-    let mut network = Network::start_images(
-        root,
-        network::Protocol::CanopenSafety,
-        network::Images::Shipped,
-    )?;
+    let mut network = Network::start_for(root, network::Protocol::CanopenSafety)?;
     network.release_tool();
     let address = network::hub_tcp();
     let result = address
@@ -579,8 +570,7 @@ fn simplecan(root: &Path, python: &Path) -> Result<()> {
         "interop 4: python-canopen's sweep of the SimpleCAN images' EDS on the shipped \
          SimpleCAN images on the emulated network, through emulate-network's socketcand port",
     );
-    let mut network =
-        Network::start_images(root, network::Protocol::Simplecan, network::Images::Shipped)?;
+    let mut network = Network::start_for(root, network::Protocol::Simplecan)?;
     // Only python-canopen talks from here; the network's own connection would not be read.
     network.release_tool();
     let address = network::hub_tcp();
@@ -918,7 +908,7 @@ pub fn bench(root: &Path) -> Result<()> {
     let python = python(root)?;
     let count = safety_device::SRDO_COUNT;
 
-    crate::step("interop bench 1: the host simulation behind socketcand_sim (no QEMU)");
+    crate::step("interop bench 1: the host simulation behind socketcand_sim");
     crate::run(crate::cargo().args([
         "build",
         "--quiet",
@@ -950,11 +940,7 @@ pub fn bench(root: &Path) -> Result<()> {
         "interop bench 2: the shipped images on the emulated network, through \
          emulate-network's socketcand port, every node switched off and on before each store",
     );
-    let mut network = Network::start_images(
-        root,
-        network::Protocol::CanopenSafety,
-        network::Images::Shipped,
-    )?;
+    let mut network = Network::start_for(root, network::Protocol::CanopenSafety)?;
     // The network's own connection would not be read during the bench.
     network.release_tool();
     let emulated = bench_on(root, &python, &network::hub_tcp(), || {
@@ -1086,7 +1072,7 @@ const HEARTBEAT_SECONDS: &str = "2";
 fn emulated_network(root: &Path, python: &Path) -> Result<()> {
     crate::step(
         "interop 7: python-can, python-canopen and safety-config on the shipped images' \
-         emulated network (emulate-network --socketcand, no QEMU)",
+         emulated network (emulate-network --socketcand)",
     );
     crate::run(
         crate::cargo()

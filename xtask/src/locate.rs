@@ -1,5 +1,5 @@
 //! Where an address of a firmware image is in the source: `cargo xtask where`, and the check
-//! that a panic under QEMU logs return addresses that lead back to the panic.
+//! that a panic on the emulated STM32F405 logs return addresses that lead back to the panic.
 //!
 //! The panic handler (`board::panic`) logs the return addresses of the calls that led to it
 //! instead of the panic's location (which would keep every panic site's location and
@@ -103,8 +103,7 @@ pub fn task(root: &Path, elf: &Path, addresses: &[String]) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     if !elf.exists() {
         bail!(
-            "{}: no such image; build it first (`cargo xtask build`, or `cargo xtask qemu` for \
-             the QEMU images): the addresses mean something only in the image that logged them",
+            "{}: no such image; build it first (`cargo xtask build`): the addresses mean something only in the image that logged them",
             elf.display()
         );
     }

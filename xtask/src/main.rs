@@ -6,7 +6,6 @@
 mod bench;
 mod campaign;
 mod child;
-mod defmt_log;
 mod e2e;
 mod emulate;
 mod footprint;
@@ -18,7 +17,6 @@ mod licences;
 mod locate;
 mod manual;
 mod network;
-mod qemu;
 mod run;
 mod scenario;
 mod spin;
@@ -75,11 +73,10 @@ enum Task {
     /// The end-to-end tests on the shipped hardware images on the emulated STM32F405
     /// network (`emulator::cases`, `emulator::e2e`): configured by the tool's library,
     /// nominal, emergency stop, dropped and corrupted frames, a silent node, a channel that
-    /// reads otherwise, a cut link. `--qemu`: on the QEMU images with the hub instead.
+    /// reads otherwise, a cut link.
     E2e {
         /// Also 60 s of SDO and non-safety traffic on 30 % of the bus beside the SRDOs
-        /// (opt-in; on the QEMU images it takes many minutes of host time on a loaded 2-core
-        /// machine, docs/can-receive.md).
+        /// (opt-in, docs/can-receive.md).
         #[arg(long)]
         bus_load: bool,
         /// The case under bus load for this many seconds of the network's time instead
@@ -90,10 +87,6 @@ enum Task {
         /// `simplecan` (the SimpleCAN images: emergency stop, node 1 the master stopped).
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
-        /// Run the cases on the QEMU images (`board::qemu`) with the hub, as before the
-        /// emulated STM32F405, instead of on the shipped hardware images.
-        #[arg(long)]
-        qemu: bool,
     },
     /// Where addresses of a firmware image are in the source: the functions (with what was
     /// inlined there), files and lines. For the return addresses a panic logs (`panicked;
@@ -102,9 +95,6 @@ enum Task {
         /// Which channel's image: `a` or `b`.
         #[arg(value_parser = ["a", "b"])]
         channel: String,
-        /// The QEMU image (`cargo xtask qemu` builds it) instead of the hardware one.
-        #[arg(long)]
-        qemu: bool,
         /// The addresses, hexadecimal (`0x08001234` or `08001234`).
         #[arg(required = true)]
         addresses: Vec<String>,
@@ -144,10 +134,6 @@ enum Task {
         /// With `--power-cut-sweep`: every Nth step only.
         #[arg(long, default_value_t = 1)]
         every: u64,
-        /// The image with the bxCAN driven by the `bxcan` 0.8 crate (board feature
-        /// `can-bxcan`, docs/can-driver.md) instead of the shipped one, alone.
-        #[arg(long, conflicts_with = "network")]
-        bxcan: bool,
         /// Only the emulator's checks of `cargo xtask test` (the shipped images alone, then on
         /// one bus: start-up, faults, power cuts, the nominal case), on the images as built.
         #[arg(long)]
@@ -165,26 +151,10 @@ enum Task {
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
     },
-    /// One image alone under QEMU (netduinoplus2), its defmt log decoded.
-    Qemu {
-        /// Which channel's image: `a` or `b`.
-        #[arg(value_parser = ["a", "b"])]
-        channel: String,
-        /// Stop after the start-up self-tests; fail unless they pass.
-        #[arg(long)]
-        selftest: bool,
-        /// With `--selftest`: count the instructions of each start-up self-test in a trace
-        /// of the run (one line per instruction) instead of printing the log.
-        #[arg(long, requires = "selftest")]
-        count: bool,
-        /// Stop the run after this many seconds.
-        #[arg(long, default_value_t = 5)]
-        seconds: u64,
-    },
     /// Everything CI checks: tests, clippy, rustfmt, the cross build of `shared`, the images,
     /// the shipped images on the emulated STM32F405 (start-up, faults, power cuts, the
-    /// end-to-end cases and scenarios, CANopen Safety's and SimpleCAN's), the QEMU images'
-    /// self-test and panic, the model check; last, that the committed traceability matrix
+    /// end-to-end cases and scenarios, CANopen Safety's and SimpleCAN's, a panic on purpose),
+    /// the model check; last, that the committed traceability matrix
     /// (docs/traceability.md) is the one this run writes.
     Test,
     /// The main job: the emulated safety network (two nodes, the four sealed hardware images
@@ -205,13 +175,8 @@ enum Task {
         /// default) or `simplecan` (the SimpleCAN images, SC-ID 30h, node 1 the master).
         #[arg(long, value_enum, default_value_t)]
         protocol: network::Protocol,
-        /// What the MCUs run: `shipped` (the default: the sealed hardware images on
-        /// `emulate-network`, its control port speaking the hub's protocol) or `qemu` (the
-        /// QEMU images under the hub, as before the emulated STM32F405).
-        #[arg(long, value_enum, default_value_t)]
-        images: network::Images,
     },
-    /// The host demo: two nodes on a simulated bus under simulated time (no QEMU), with an
+    /// The host demo: two nodes on a simulated bus under simulated time, with an
     /// emergency stop and injected faults, every step checked.
     Demo {
         /// Arguments for the demo (`cargo xtask demo -- --help`).
@@ -311,10 +276,14 @@ enum Task {
         /// At the CI size: also write the runs' figures into docs/model-checking.md.
         #[arg(long)]
         report: bool,
-        /// The minutes each verifier run may take (by default none at the CI size, 5 per run
+        /// The minutes each verifier run may take (by default none at the CI size, 15 per run
         /// with --full, 20 with --liveness); a run stopped by it fails and is reported so.
         #[arg(long)]
         minutes: Option<u32>,
+        /// With --full or --liveness: the memory each verifier run may use, in MB (pan's
+        /// MEMLIM; by default 14000, a 16 GB workstation's).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(500..=1_000_000))]
+        memory: Option<u32>,
     },
     /// Run the tests (nextest, JUnit report) and write the traceability matrix, requirement
     /// (requirements/*.toml) → tests → PASS/FAIL/not run: docs/traceability.md and
@@ -336,8 +305,8 @@ enum Task {
     Scenario {
         /// Scenario files.
         files: Vec<std::path::PathBuf>,
-        /// Play them on the emulated network (the hub and the QEMU images of `cargo xtask
-        /// run`) instead: scenarios/emulated/*.toml unless FILES are given.
+        /// Play them on the shipped images on the emulated STM32F405s instead, after the
+        /// nominal case: scenarios/emulated/*.toml unless FILES are given.
         #[arg(long)]
         emulated: bool,
     },
@@ -423,14 +392,16 @@ fn task() -> Result<()> {
             bus_load,
             bus_load_seconds,
             protocol,
-            qemu,
         } => {
             let load_seconds = bus_load_seconds.or(bus_load.then_some(e2e::LOAD_SECONDS));
-            if qemu {
-                e2e::task_for(&root, load_seconds, protocol, network::Images::Qemu)
-            } else if protocol == network::Protocol::Simplecan {
-                // The SimpleCAN cases over the shipped images' control port, as on the hub.
-                e2e::task_for(&root, load_seconds, protocol, network::Images::Shipped)
+            if protocol == network::Protocol::Simplecan {
+                if load_seconds.is_some() {
+                    anyhow::bail!(
+                        "the case under bus load is CANopen Safety's: `cargo xtask e2e --bus-load`"
+                    );
+                }
+                // The SimpleCAN cases over the shipped images' control port.
+                e2e::simplecan(&root)
             } else {
                 emulate::network_task(
                     &root,
@@ -475,29 +446,13 @@ fn task() -> Result<()> {
             node_id,
             protocol,
             network: false,
-            bxcan,
             ..
-        } => emulate::task(&root, &channel, &duration, node_id, protocol, bxcan),
-        Task::Qemu {
-            channel,
-            selftest,
-            count,
-            seconds,
-        } => qemu::task(&root, &channel, selftest, count, seconds),
-        Task::Where {
-            channel,
-            qemu,
-            addresses,
-        } => {
+        } => emulate::task(&root, &channel, &duration, node_id, protocol),
+        Task::Where { channel, addresses } => {
             let cross = toolchain::ensure()?;
-            let layer = if qemu {
-                images::Layer::Qemu
-            } else {
-                images::Layer::Hw
-            };
             locate::task(
                 &root,
-                &images::image(&cross, &root, layer, &channel),
+                &images::image(&cross, &root, images::Layer::Hw, &channel),
                 &addresses,
             )
         }
@@ -514,8 +469,7 @@ fn task() -> Result<()> {
             duration,
             at,
             protocol,
-            images,
-        } => run::task(&root, duration, at, protocol, images),
+        } => run::task(&root, duration, at, protocol),
         Task::Demo { args } => {
             let mut command = cargo();
             command.args([
@@ -587,6 +541,7 @@ fn task() -> Result<()> {
             liveness,
             report,
             minutes,
+            memory,
         } => {
             let mode = if full {
                 spin::Mode::Full
@@ -595,7 +550,7 @@ fn task() -> Result<()> {
             } else {
                 spin::Mode::Ci
             };
-            spin::task(&root, mode, report, minutes)
+            spin::task(&root, mode, report, minutes, memory)
         }
         Task::Scenario {
             files,
@@ -665,16 +620,8 @@ fn test(root: &Path) -> Result<()> {
         .cargo(root)
         .args(["build", "--release", "-p", "shared", "--features", "defmt"])
         .finish())?;
-    step(
-        "clippy (firmware crates for thumbv7em-none-eabihf, both board layers, with and without SimpleCAN)",
-    );
-    for layer in [
-        images::Layer::Hw,
-        images::Layer::HwSimpleCan,
-        images::Layer::Qemu,
-        images::Layer::QemuSimpleCan,
-        images::Layer::HwBxcan,
-    ] {
+    step("clippy (firmware crates for thumbv7em-none-eabihf, with and without SimpleCAN)");
+    for layer in [images::Layer::Hw, images::Layer::HwSimpleCan] {
         run(images::cargo(&cross, root, "clippy", layer).args(["--", "-D", "warnings"]))?;
     }
     step("firmware images");
@@ -683,27 +630,8 @@ fn test(root: &Path) -> Result<()> {
     emulate::startup_checks(root, &cross)?;
     step("both nodes' shipped images on one emulated bus, their links on USART3");
     emulate::network_checks(root, &cross)?;
-    // The QEMU images (`board::qemu`) until they retire (docs/emulation.md, "What still runs
-    // on QEMU"): that they still build and pass their self-test.
-    step("each QEMU image alone, to its self-test verdict");
-    toolchain::ensure_qemu()?;
-    qemu::build(root, &cross)?;
-    for channel in ["a", "b"] {
-        let image = qemu::image(&cross, root, channel);
-        let limit = std::time::Duration::from_secs(30);
-        let (code, log) = qemu::run_alone(&image, &["selftest"], limit)?;
-        print!("{log}");
-        if code != 0 || !log.contains("self-test verdict: true") {
-            anyhow::bail!("channel {channel}: self-test under QEMU failed");
-        }
-    }
     step("end-to-end tests of the shipped SimpleCAN images on the emulated network");
-    e2e::task_for(
-        root,
-        None,
-        network::Protocol::Simplecan,
-        network::Images::Shipped,
-    )?;
+    e2e::simplecan(root)?;
     step("model check of the two channels' protocol (SPIN, CI bounds)");
     spin::check(root)?;
     step("traceability matrix, and the committed one is this run's");

@@ -963,10 +963,10 @@ fn build_part(root: &Path) -> Result<String> {
     out.push_str("| image | protocol | flash (bytes) | RAM with stack reserve (bytes) | image CRC (checked at every start) |\n|---|---|---:|---:|---:|\n");
     for (layer, _) in images::SHIPPED {
         let protocol = match layer {
-            Layer::HwSimpleCan | Layer::QemuSimpleCan => {
+            Layer::HwSimpleCan => {
                 "SimpleCAN instead of SRDOs (`cargo xtask flash --protocol simplecan`)"
             }
-            Layer::Hw | Layer::Qemu | Layer::HwBxcan => "CANopen Safety",
+            Layer::Hw => "CANopen Safety",
         };
         for channel in ["a", "b"] {
             let elf = images::image(&cross, root, layer, channel);

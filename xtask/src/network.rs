@@ -1,13 +1,14 @@
-//! The emulated safety network: the bus hub and four QEMU instances (node 1, the
-//! emergency-stop input device and SRDO producer; node 33, the safe output device and SRDO
-//! consumer; each as channel A and channel B with the link between them relayed by the hub),
-//! configured, read back, signed, validated, stored and started by the configuration tool's
-//! library (`safety_config`, EN 50325-5 8.3.1) over the hub's socketcand port, from the network
-//! file [`network_file`] (written to `target/emulate/network.toml`, so that `safety-config
-//! verify target/emulate/network.toml` can check a running network).
+//! The emulated safety network: the four sealed hardware images on the emulated STM32F405s of
+//! one `emulate-network` (node 1, the emergency-stop input device and SRDO producer; node 33,
+//! the safe output device and SRDO consumer; each as channel A and channel B, linked by their
+//! USART3s), configured, read back, signed, validated, stored and started by the configuration
+//! tool's library (`safety_config`, EN 50325-5 8.3.1) over the emulator's socketcand port, from
+//! the network file [`network_file`] (written to `target/emulate/network.toml`, so that
+//! `safety-config verify target/emulate/network.toml` can check a running network). The
+//! emulator's control port speaks the hub's protocol (`can_hub::control`, `emulator::control`).
 //!
 //! With [`Protocol::Simplecan`] (`cargo xtask run --protocol simplecan`) the same four MCUs run
-//! the SimpleCAN images (`images::Layer::QemuSimpleCan`) and are configured from
+//! the SimpleCAN images (`images::Layer::HwSimpleCan`) and are configured from
 //! `scenarios/networks/simplecan.toml`: node 1 the master and producer of SC-ID 30h, node 33
 //! its consumer.
 //!
@@ -16,7 +17,7 @@
 
 use crate::child::Guarded;
 use crate::images::{self, Layer};
-use crate::toolchain::{self, Cross};
+use crate::toolchain;
 use anyhow::{Context, Result, anyhow, bail};
 use can_hub::tool::Control;
 use emulation_wire::Status;
@@ -45,16 +46,17 @@ pub const PLAIN: u16 = 0x101;
 /// The inverted half.
 pub const INVERTED: u16 = 0x102;
 
-/// Emulation timing (the QEMU layer's link heartbeat is 100 ms): node 1 refreshes SRDO 1
-/// every 100 ms; node 33 allows 500 ms between pairs (SCT) and 100 ms between the halves
+/// The emulated network's timing: node 1 refreshes SRDO 1 every 100 ms; node 33 allows 500 ms between pairs (SCT) and 100 ms between the halves
 /// of a pair (SRVT).
 pub const REFRESH_MS: u64 = 100;
 /// Node 33's safeguard cycle time for SRDO 1.
 pub const SCT_MS: u64 = 500;
 /// Node 33's SRVT for SRDO 1.
 pub const SRVT_MS: u64 = 100;
-/// The QEMU layer's link heartbeat period; a link is timed out after two.
-pub const LINK_PERIOD_MS: u64 = 100;
+/// How long the start after a reset waits beyond channel B's window, in the network's time:
+/// well past the board layer's link heartbeat period (`board::hw::LINK_PERIOD`), so that
+/// channel A's first heartbeat of the new epoch has reached channel B.
+const RESET_SETTLE_MS: u64 = 100;
 
 /// The safety protocol the emulated network speaks between node 1 and node 33.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -68,15 +70,7 @@ pub enum Protocol {
 }
 
 impl Protocol {
-    /// The images this protocol runs on.
-    pub fn layer(self) -> Layer {
-        match self {
-            Protocol::CanopenSafety => Layer::Qemu,
-            Protocol::Simplecan => Layer::QemuSimpleCan,
-        }
-    }
-
-    /// The hardware images of this protocol (`cargo xtask flash`).
+    /// The hardware images of this protocol (`cargo xtask flash`, the emulated network).
     pub fn hardware_layer(self) -> Layer {
         match self {
             Protocol::CanopenSafety => Layer::Hw,
@@ -92,98 +86,11 @@ impl Protocol {
         }
     }
 
-    /// The pacing's lookahead and grant period for this protocol's images (`board::qemu`'s
-    /// `LOOKAHEAD`): the SimpleCAN images run with a smaller lookahead (`docs/emulation.md`).
-    pub fn pacing(self) -> (shared::Duration, shared::Duration) {
-        match self {
-            Protocol::CanopenSafety => (emulation_wire::LOOKAHEAD, emulation_wire::GRANT_PERIOD),
-            Protocol::Simplecan => (
-                emulation_wire::SIMPLECAN_LOOKAHEAD,
-                emulation_wire::SIMPLECAN_GRANT_PERIOD,
-            ),
-        }
-    }
-
-    /// The tolerances only the QEMU images apply beyond the hardware's, in words (reported
-    /// by the run): channel B's discrepancy window for both protocols, and for SimpleCAN
-    /// channel B's Model A bounds (`channel_b`'s QEMU main, `Bounds::paced`; the hardware
-    /// and the host keep the standard's), and the pacing's lookahead and grant period.
-    pub fn qemu_tolerances(self) -> String {
-        let (lookahead, grant_period) = self.pacing();
-        let pacing = format!(
-            "lookahead {} µs, grants every {} µs",
-            lookahead.as_micros(),
-            grant_period.as_micros()
-        );
-        match self {
-            Protocol::CanopenSafety => {
-                format!("channel B's window 60 ms (hardware 5 ms); {pacing}")
-            }
-            Protocol::Simplecan => {
-                use dual_channel::simplecan::Bounds;
-                let (paced, standard) = (Bounds::paced(lookahead, grant_period), Bounds::STANDARD);
-                format!(
-                    "channel B's window 60 ms (hardware 5 ms); Model A (hardware in brackets): \
-                     A's data packet within {} µs of B's ({} µs), A's sync within {} µs ({} µs) \
-                     and not ahead of B's time by more than {} µs ({} µs), A's packet heard at \
-                     most {} µs before B computed its own ({} µs); {pacing}",
-                    paced.data_within.as_micros(),
-                    standard.data_within.as_micros(),
-                    paced.sync_within.as_micros(),
-                    standard.sync_within.as_micros(),
-                    paced.sync_ahead.as_micros(),
-                    standard.sync_ahead.as_micros(),
-                    paced.heard_ahead.as_micros(),
-                    standard.heard_ahead.as_micros(),
-                )
-            }
-        }
-    }
-
     /// What node 33 receives from node 1, in words.
     pub fn stream(self) -> &'static str {
         match self {
             Protocol::CanopenSafety => "node 1's SRDO 1 (101h/102h)",
             Protocol::Simplecan => "node 1's SimpleCAN SC-ID 30h (slot 0, master node 1)",
-        }
-    }
-}
-
-/// What the four MCUs run, and on what.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Images {
-    /// The QEMU images (`board::qemu`) in four QEMU instances under the bus hub `can-hub`.
-    Qemu,
-    /// The sealed hardware images `cargo xtask build` makes, unchanged, on the emulated
-    /// STM32F405s of one `emulate-network` (the `emulator` crate), which serves socketcand and
-    /// a control port of the hub's protocol (`emulator::control`); the virtual time follows
-    /// the host clock. The default: what ships is what runs.
-    #[default]
-    Shipped,
-}
-
-impl Images {
-    /// The MCUs and where they run, in words (the live view's title).
-    pub fn describe(self) -> &'static str {
-        match self {
-            Images::Qemu => "four QEMU MCUs",
-            Images::Shipped => "the shipped images on four emulated STM32F405s",
-        }
-    }
-
-    /// Who carries out the control commands (drops, corrupts, refuses), in words.
-    pub fn controller(self) -> &'static str {
-        match self {
-            Images::Qemu => "the hub",
-            Images::Shipped => "the emulated network",
-        }
-    }
-
-    /// Who reports the channels' statuses, in words.
-    pub fn reporter(self) -> &'static str {
-        match self {
-            Images::Qemu => "the hub's status reports",
-            Images::Shipped => "the emulator's status reports",
         }
     }
 }
@@ -195,16 +102,18 @@ pub const SIMPLECAN_NETWORK_FILE: &str = include_str!("../../scenarios/networks/
 /// consumes in [`SIMPLECAN_NETWORK_FILE`].
 pub const ESTOP_SC_ID: u8 = 0x30;
 
-/// The hub's socketcand port (bus `can0`) when `CAN_HUB_PORT` does not name another.
+/// The emulated network's socketcand port (bus `can0`) when `CAN_HUB_PORT` does not name
+/// another.
 const DEFAULT_HUB_PORT: u16 = 29536;
 
-/// The hub's socketcand port (bus `can0`): 127.0.0.1, port `CAN_HUB_PORT` (default 29536),
-/// so that two emulated networks can run on one machine side by side.
+/// The emulated network's socketcand port (bus `can0`): 127.0.0.1, port `CAN_HUB_PORT`
+/// (default 29536, the hub's too), so that two emulated networks can run on one machine side
+/// by side.
 pub fn hub_tcp() -> String {
     format!("127.0.0.1:{}", hub_port())
 }
 
-/// The hub's control port: the port after [`hub_tcp`]'s.
+/// The emulated network's control port: the port after [`hub_tcp`]'s.
 fn hub_control() -> String {
     format!("127.0.0.1:{}", hub_port() + 1)
 }
@@ -227,10 +136,10 @@ fn hub_port() -> u16 {
 }
 
 /// How long one SDO request of the tool waits over the emulated bus, in host time. Four
-/// emulated MCUs on two shared cores answer within milliseconds of virtual time, but on a
-/// heavily loaded host the hub held virtual time for longer than a timeout of one second,
-/// and network starts failed with it (`docs/emulation.md`). A timeout only decides how long a
-/// node that really does not answer takes to be reported, so it is generous.
+/// emulated MCUs on two shared cores answer within milliseconds of virtual time, but a
+/// heavily loaded host can hold virtual time back for longer than a timeout of one second
+/// (`docs/emulation.md`). A timeout only decides how long a node that really does not answer
+/// takes to be reported, so it is generous.
 const SDO_TIMEOUT: Duration = Duration::from_millis(5000);
 
 /// The network file of the emulated network: node 1's SRDO 1 transmits on 101h/102h every
@@ -273,7 +182,8 @@ mapping = ["output", "output_inverted"]
     )
 }
 
-/// Connects the tool library's socketcand client to the hub, retrying for up to `patience`.
+/// Connects the tool library's socketcand client to the emulated network, retrying for up to
+/// `patience`.
 pub fn connect_tool(patience: Duration) -> Result<Client<SocketcandClient>> {
     connect_tool_at(&hub_tcp(), patience)
 }
@@ -344,21 +254,17 @@ impl Operator for Narrator {
 /// The running network.
 pub struct Network {
     children: Vec<(String, Guarded)>,
-    /// The configuration tool (the tool library over the hub's socketcand port), while it is
+    /// The configuration tool (the tool library over the socketcand port), while it is
     /// needed: see [`Network::tool`].
     tool: Option<Client<SocketcandClient>>,
-    /// The hub's control port.
+    /// The emulated network's control port.
     pub control: Control,
     dir: PathBuf,
-    cross: Cross,
-    root: PathBuf,
     /// What the nodes speak.
     pub protocol: Protocol,
-    /// What the MCUs run, and on what.
-    pub images: Images,
-    /// With [`Images::Shipped`]: the image CRCs of channels A and B, as the build sealed them
-    /// and the emulator read them.
-    pub crcs: Option<[u32; 2]>,
+    /// The image CRCs of channels A and B, as the build sealed them and the emulator read
+    /// them.
+    pub crcs: [u32; 2],
 }
 
 impl Drop for Network {
@@ -369,58 +275,9 @@ impl Drop for Network {
     }
 }
 
-/// One emulated MCU: USART2 on the hub's socket `can` (CAN frames, the link to the other
-/// channel, the input pin, its status and the virtual time, `paced`); USART1 and USART3
-/// unused. With `monitor` (for an instruction trace switched on at run time, `cargo xtask
-/// bench --target-cost`): QEMU's monitor on that Unix socket, and QEMU's clock counting
-/// instructions (`-icount shift=2`: 4 ns each, about the 168 MHz core's pace; idle, it
-/// follows the host's), so that a traced, slow QEMU still takes its 1 kHz SysTick every
-/// 250,000 instructions and not every millisecond of host time, which left the traced
-/// thread almost no instructions at all.
-fn qemu_instance(
-    image: &Path,
-    node: u8,
-    can: &Path,
-    log: &Path,
-    monitor: Option<&Path>,
-) -> Result<Guarded> {
-    let mut command = Command::new("qemu-system-arm");
-    command.args(["-M", "netduinoplus2", "-nographic", "-monitor"]);
-    match monitor {
-        Some(path) => command
-            .arg(format!("unix:{},server,nowait", path.display()))
-            .args(["-icount", "shift=2,align=off,sleep=on"]),
-        None => command.arg("none"),
-    };
-    command
-        .args([
-            "-semihosting-config",
-            &format!("enable=on,target=native,arg=node={node},arg=paced"),
-        ])
-        .args(["-chardev", &format!("socket,id=can,path={}", can.display())])
-        .args([
-            "-serial",
-            "null",
-            "-serial",
-            "chardev:can",
-            "-serial",
-            "null",
-        ])
-        .arg("-kernel")
-        .arg(image)
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(log)?)
-        .stderr(std::fs::File::create(log.with_extension("err"))?);
-    // Its own process group: Ctrl-C reaches `cargo xtask`, which ends the run in order and
-    // kills every child (`crate::child`).
-    Guarded::spawn(&mut command).map_err(|error| {
-        anyhow!("qemu-system-arm could not be started ({error}): run `cargo xtask setup`")
-    })
-}
-
-/// Fails with a sentence when one of the hub's TCP addresses is taken already: otherwise
-/// the hub would exit and the tool might talk to whatever listens there (another engineer's
-/// emulated network, say).
+/// Fails with a sentence when one of the network's TCP addresses is taken already:
+/// otherwise the emulator would exit and the tool might talk to whatever listens there
+/// (another engineer's emulated network, say).
 fn ports_free() -> Result<()> {
     for address in [hub_tcp(), hub_control()] {
         if let Err(error) = std::net::TcpListener::bind(&address) {
@@ -471,9 +328,7 @@ fn connect(
     if let Some(status) = children[0].1.try_wait()? {
         let log = std::fs::read_to_string(dir.join(errors)).unwrap_or_default();
         let log = log.trim();
-        let log = ["can-hub: ", "emulate-network: "]
-            .iter()
-            .fold(log, |log, prefix| log.trim_start_matches(prefix));
+        let log = log.trim_start_matches("emulate-network: ");
         bail!("{what} exited at once ({status}): {log}");
     }
     Ok((tool, control))
@@ -509,128 +364,18 @@ pub fn output_33(latest: &HashMap<String, (f64, Status)>) -> Option<u8> {
 }
 
 impl Network {
-    /// Builds what is missing, starts the hub and the four MCUs, configures both nodes over
-    /// the bus and starts them; returns once both nodes are Operational and node 33's output
-    /// follows node 1's input.
+    /// Builds what is missing, starts the four MCUs, configures both nodes over the bus and
+    /// starts them; returns once both nodes are Operational and node 33's output follows node
+    /// 1's input.
     pub fn start(root: &Path) -> Result<Network> {
-        Network::start_speaking(root, &[], Protocol::CanopenSafety)
+        Network::start_for(root, Protocol::CanopenSafety)
     }
 
-    /// As [`Network::start`], the nodes speaking `protocol`.
-    pub fn start_for(root: &Path, protocol: Protocol) -> Result<Network> {
-        Network::start_speaking(root, &[], protocol)
-    }
-
-    /// As [`Network::start_for`], with QEMU's monitor of each channel named in `monitored`
-    /// (as in [`CHANNELS`]) on the Unix socket [`Network::monitor`].
-    pub fn start_with_monitors(
-        root: &Path,
-        monitored: &[&str],
-        protocol: Protocol,
-    ) -> Result<Network> {
-        Network::start_speaking(root, monitored, protocol)
-    }
-
-    fn start_speaking(root: &Path, monitored: &[&str], protocol: Protocol) -> Result<Network> {
-        // Each step says what it installs or builds and why before it starts, and cargo shows
-        // its progress: a first run compiles for minutes, and silence looks like a hang.
-        eprintln!(
-            "xtask: [1/5] the compiler's target {} for the firmware (rustup; installed once)",
-            toolchain::TARGET
-        );
-        let cross = toolchain::ensure()?;
-        eprintln!("xtask: [2/5] QEMU 8 or later, which emulates the four STM32F405 MCUs");
-        toolchain::ensure_qemu()?;
-        eprintln!(
-            "xtask: [3/5] building the QEMU firmware images of channels A and B ({:?}; the first \
-             build compiles the firmware's crates, a minute or two, later builds only what \
-             changed)",
-            protocol.layer()
-        );
-        images::build_layer(root, &cross, protocol.layer())?;
-        eprintln!(
-            "xtask: [4/5] building can-hub, the CAN bus model the MCUs and the tools share \
-             (a few seconds after the first time)"
-        );
-        crate::run(crate::cargo().args(["build", "-p", "can-hub"]))?;
-        eprintln!(
-            "xtask: [5/5] starting the hub and four QEMU instances (nodes 1 and 33, channels A \
-             and B), then configuring both nodes over the bus with the tool library"
-        );
-        let dir = root.join("target/emulate");
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir)?;
-        let sockets = dir.clone();
-        let socket = |name: &str| sockets.join(format!("{name}.sock"));
-
-        let mut hub = Command::new(root.join("target/debug/can-hub"));
-        hub.args(["--tcp", &hub_tcp(), "--control", &hub_control(), "--paced"]);
-        let (lookahead, grant_period) = protocol.pacing();
-        hub.arg("--lookahead")
-            .arg(lookahead.as_micros().to_string())
-            .arg("--grant-period")
-            .arg(grant_period.as_micros().to_string());
-        for (name, _, _) in CHANNELS {
-            hub.arg("--socket")
-                .arg(format!("{name}={}", socket(name).display()));
-        }
-        for node in ["node1", "node33"] {
-            hub.arg("--link")
-                .arg(format!("{node}-link={node}a,{node}b"));
-        }
-        hub.arg("--candump")
-            .arg(dir.join("bus.log"))
-            .arg("--pcap")
-            .arg(dir.join("bus.pcap"))
-            .arg("--events")
-            .arg(dir.join("events.log"))
-            .stderr(std::fs::File::create(dir.join("hub.err"))?);
-        ports_free()?;
-        let hub = Guarded::spawn(&mut hub).context("starting can-hub")?;
-        let mut children = vec![("hub".to_string(), hub)];
-        // The tool and the control port join first, so they see the boot-up messages.
-        let (tool, control) = connect(&mut children, &dir, "hub.err", "the hub")?;
-        let mut network = Network {
-            children,
-            tool: Some(tool),
-            control,
-            dir,
-            cross,
-            root: root.to_path_buf(),
-            protocol,
-            images: Images::Qemu,
-            crcs: None,
-        };
-        for (name, node, channel) in CHANNELS {
-            let image = images::image(&network.cross, root, protocol.layer(), channel);
-            let log = network.dir.join(format!("{name}.defmt"));
-            let monitor = monitored.contains(&name).then(|| network.monitor(name));
-            let child = qemu_instance(&image, node, &socket(name), &log, monitor.as_deref())?;
-            network.children.push((name.to_string(), child));
-        }
-        if let Err(error) = network.configure() {
-            let _ = network.save_logs();
-            return Err(error.context(format!(
-                "the emulated network did not come up (logs and traces in {})",
-                network.dir.display()
-            )));
-        }
-        Ok(network)
-    }
-
-    /// As [`Network::start_for`], the MCUs running `images`.
-    pub fn start_images(root: &Path, protocol: Protocol, images: Images) -> Result<Network> {
-        match images {
-            Images::Qemu => Network::start_for(root, protocol),
-            Images::Shipped => Network::start_shipped(root, protocol),
-        }
-    }
-
-    /// The sealed hardware images on `emulate-network`, serving socketcand on [`hub_tcp`] and
-    /// its control port on the port after it, as the hub does; configured and started as on
-    /// the hub. Refuses to run images whose CRC the emulator reads differently from what the
+    /// As [`Network::start`], the nodes speaking `protocol`: the sealed hardware images on
+    /// `emulate-network`, serving socketcand on [`hub_tcp`] and its control port on the port
+    /// after it. Refuses to run images whose CRC the emulator reads differently from what the
     /// build sealed.
-    fn start_shipped(root: &Path, protocol: Protocol) -> Result<Network> {
+    pub fn start_for(root: &Path, protocol: Protocol) -> Result<Network> {
         eprintln!(
             "xtask: [1/4] the compiler's target {} for the firmware (rustup; installed once), \
              and what the emulator's build needs",
@@ -703,11 +448,8 @@ impl Network {
             tool: Some(tool),
             control,
             dir,
-            cross,
-            root: root.to_path_buf(),
             protocol,
-            images: Images::Shipped,
-            crcs: Some(sealed),
+            crcs: sealed,
         };
         if let Err(error) = network.configure() {
             let _ = network.save_logs();
@@ -719,17 +461,11 @@ impl Network {
         Ok(network)
     }
 
-    /// Where QEMU's monitor of channel `name` listens, when it was started with one
-    /// ([`Network::start_with_monitors`]).
-    pub fn monitor(&self, name: &str) -> PathBuf {
-        self.dir.join(format!("{name}.monitor"))
-    }
-
-    /// The configuration tool, connected to the hub's socketcand port (again) if it is not.
+    /// The configuration tool, connected to the socketcand port (again) if it is not.
     ///
     /// Between uses it is disconnected ([`Network::release_tool`]): a socketcand client that
-    /// does not read lets the hub's writes to it pile up until they block the hub (for its
-    /// write time-out, then the hub drops it), and nothing reads the tool's frames while a
+    /// does not read lets the server's writes to it pile up until they block it (for its
+    /// write time-out, then it drops the client), and nothing reads the tool's frames while a
     /// run or the end-to-end cases go on.
     pub fn tool(&mut self) -> Result<&mut Client<SocketcandClient>> {
         if self.tool.is_none() {
@@ -745,23 +481,24 @@ impl Network {
         self.tool = None;
     }
 
-    /// Fails when an emulated MCU has ended (a panic or HardFault exits QEMU).
+    /// Fails when the emulated network has ended (an MCU's fault or lockup ends
+    /// `emulate-network`).
     pub fn check_alive(&mut self) -> Result<()> {
         for (name, child) in &mut self.children {
             if let Some(status) = child.try_wait()? {
                 bail!(
-                    "{name} ended ({status}): a panic, HardFault or refused start; its log is \
-                     {}",
-                    self.dir.join(format!("{name}.log")).display()
+                    "{name} ended ({status}): an MCU's HardFault, lockup or an access no model \
+                     claims; its output is {}",
+                    self.dir.join("emulate-network.log").display()
                 );
             }
         }
         Ok(())
     }
 
-    /// Waits up to `patience` of the network's time (the hub's virtual clock, which host
-    /// load slows down: `can_hub::pace`) for the statuses to satisfy `until`; returns the
-    /// hub time. A network that stops reporting altogether is given up on after ten times
+    /// Waits up to `patience` of the network's time (the emulator's virtual clock, which
+    /// follows the host clock and host load slows down) for the statuses to satisfy `until`;
+    /// returns the network's time. A network that stops reporting altogether is given up on after ten times
     /// `patience` of host time, plus ten seconds.
     pub fn wait_for(
         &mut self,
@@ -803,16 +540,10 @@ impl Network {
     pub fn command(&mut self, command: &str) -> Result<f64> {
         self.control
             .command(command)?
-            .map_err(|why| anyhow!("{} refused `{command}`: {why}", self.images.controller()))
+            .map_err(|why| anyhow!("the emulated network refused `{command}`: {why}"))
     }
 
     fn configure(&mut self) -> Result<()> {
-        if self.images == Images::Qemu {
-            eprintln!(
-                "xtask: QEMU-only tolerances: {}",
-                self.protocol.qemu_tolerances()
-            );
-        }
         eprintln!("xtask: waiting for the boot-up messages of nodes 1 and 33");
         let booted = await_heartbeats(self.tool()?, Duration::from_secs(20), |_| true)?;
         self.check_alive()?;
@@ -856,11 +587,8 @@ impl Network {
         if !failures.is_empty() {
             bail!("configuration failed:\n{}", failures.join("\n"));
         }
-        // An NMT start right after the store used to reach the two channels of a node far
-        // apart (docs/emulation.md): each channel worked through the frames queued for it on QEMU's USART
-        // at its own pace (docs/emulation.md). On the paced virtual time that cannot happen
-        // any more; the start still waits for three status reports from every channel after
-        // the store (a report comes only from a channel whose loop runs).
+        // The start waits for three status reports from every channel after the store (a
+        // report comes only from a channel whose loop runs).
         let stored = self.command("clear")?;
         let mut reports: HashMap<String, usize> = HashMap::new();
         let mut seen: HashMap<String, f64> = HashMap::new();
@@ -939,10 +667,9 @@ impl Network {
         // the reset apart for a window after A's first link heartbeat of the new epoch
         // (docs/model-checking.md, the reset trails): a start inside that time, with a frame
         // lost just before the reset (a muted node), makes the first pair a transmit mismatch,
-        // the safe side. On a board the boot-up alone outlasts the hardware's 5 ms window;
-        // under QEMU the window is `QEMU_SAMPLE_WINDOW` and the link period
-        // `LINK_PERIOD_MS`, so the start waits for both, on the network's time.
-        let settle = LINK_PERIOD_MS + dual_channel::runtime::QEMU_SAMPLE_WINDOW.as_micros() / 1000;
+        // the safe side. The boot-up alone outlasts the window; the start still waits for a
+        // link period and the window, on the network's time.
+        let settle = RESET_SETTLE_MS + dual_channel::runtime::SAMPLE_WINDOW.as_micros() / 1000;
         self.wait_for(Duration::from_millis(settle), |_| false)?;
         self.start_nodes()
     }
@@ -964,8 +691,7 @@ impl Network {
     }
 
     /// The channels' measured figures (the worst over every channel's latest report), as a
-    /// sentence for the summary that says who measured them and how: the QEMU images measure
-    /// themselves (a stall is host time the emulated MCU did not run); the emulator measures
+    /// sentence for the summary that says who measured them and how: the emulator measures
     /// the shipped images from outside in its lockstep virtual time, where no MCU stalls
     /// (`emulator::control`, `emulator::observed`).
     pub fn measured_summary(&self) -> String {
@@ -973,23 +699,15 @@ impl Network {
         let busy = self.worst(|s| s.longest_busy_ms);
         let stack = self.worst(|s| s.stack_used);
         let reserve = crate::images::STACK_RESERVE;
-        match self.images {
-            Images::Qemu => format!(
-                "longest stall of an emulated MCU (host time it did not run): {} ms, longest \
-                 link gap: {link_gap} ms, longest loop wake-up: {busy} ms, deepest stack: \
-                 {stack} bytes (reserve {reserve} bytes), as the QEMU images measured themselves",
-                self.worst(|s| s.longest_stall_ms)
-            ),
-            Images::Shipped => format!(
-                "stall: none (the emulator runs every MCU in one lockstep virtual time; none \
-                 stops while the others run on); measured by the emulator from outside, in \
-                 virtual time: longest link gap {link_gap} ms (between the ends of two link \
-                 messages reaching a channel), longest wake-up {} (of a core, to its next \
-                 sleep, interrupts included), deepest stack {stack} bytes (reserve {reserve} \
-                 bytes; the stack pointer at every translated block's start)",
-                whole_ms(busy)
-            ),
-        }
+        format!(
+            "stall: none (the emulator runs every MCU in one lockstep virtual time; none \
+             stops while the others run on); measured by the emulator from outside, in \
+             virtual time: longest link gap {link_gap} ms (between the ends of two link \
+             messages reaching a channel), longest wake-up {} (of a core, to its next \
+             sleep, interrupts included), deepest stack {stack} bytes (reserve {reserve} \
+             bytes; the stack pointer at every translated block's start)",
+            whole_ms(busy)
+        )
     }
 
     /// What the hub's pacing did (`can_hub::pace`), as a sentence for the summary: how much
@@ -1014,8 +732,9 @@ impl Network {
         )
     }
 
-    /// Stops every process, decodes the defmt logs into `target/emulate/<name>.log`, and
-    /// returns the channel faults each log shows.
+    /// Stops the emulated network, writes each MCU's decoded log (the emulator decodes them,
+    /// each line after its MCU's name) into `target/emulate/<name>.log`, and returns the
+    /// channel faults each log shows.
     pub fn stop(mut self) -> Result<Vec<(String, Vec<String>)>> {
         self.save_logs()
     }
@@ -1031,30 +750,16 @@ impl Network {
         for (_, child) in &mut self.children {
             child.end();
         }
-        // The emulator decodes the logs itself, each line after its MCU's name.
-        let emulated = match self.images {
-            Images::Qemu => None,
-            Images::Shipped => Some(std::fs::read_to_string(
-                self.dir.join("emulate-network.log"),
-            )?),
-        };
+        let output = std::fs::read_to_string(self.dir.join("emulate-network.log"))?;
         let mut faults = Vec::new();
-        for (name, _, channel) in CHANNELS {
-            let decoded = match &emulated {
-                None => {
-                    let image =
-                        images::image(&self.cross, &self.root, self.protocol.layer(), channel);
-                    let raw = std::fs::read(self.dir.join(format!("{name}.defmt")))?;
-                    crate::defmt_log::decode(&image, &raw)?
-                }
-                Some(output) => output
-                    .lines()
-                    .filter_map(|line| {
-                        let (mcu, rest) = line.split_once(' ')?;
-                        (mcu == name).then(|| rest.trim_start().to_owned() + "\n")
-                    })
-                    .collect(),
-            };
+        for (name, _, _) in CHANNELS {
+            let decoded: String = output
+                .lines()
+                .filter_map(|line| {
+                    let (mcu, rest) = line.split_once(' ')?;
+                    (mcu == name).then(|| rest.trim_start().to_owned() + "\n")
+                })
+                .collect();
             std::fs::write(self.dir.join(format!("{name}.log")), &decoded)?;
             let lines = decoded
                 .lines()

@@ -1,6 +1,8 @@
-//! `cargo xtask run`: the main job. The emulated safety network ([`Network`]) shown through
-//! the configuration tool's live monitor (`safety_config::monitor`): every channel's status
-//! from the hub, and the bus as the monitor decodes it (NMT states, SRDO pairs with their
+//! `cargo xtask run`: the main job. The emulated safety network ([`Network`]: the sealed
+//! hardware images `cargo xtask build` makes, unchanged, on the emulated STM32F405s of
+//! `emulate-network`) shown through the configuration tool's live monitor
+//! (`safety_config::monitor`): every channel's status as the emulator sees it from outside,
+//! and the bus as the monitor decodes it (NMT states, SRDO pairs with their
 //! gaps and periods, EMCYs in words, SDO traffic), redrawn in place; single keys press the
 //! emergency stop and inject faults; a summary says how the run ended.
 //!
@@ -21,13 +23,11 @@
 //! screen ([`Restart`]): the nodes' boot-up messages are awaited, then NMT start, then every
 //! channel Operational and working, each step on the network's time.
 //!
-//! `--images shipped`: the same run on the sealed hardware images `cargo xtask build` makes,
-//! unchanged, on the emulated STM32F405s of `emulate-network` (the `emulator` crate) instead
-//! of the QEMU images under the hub: the tool and the monitor join its socketcand port, the
-//! run drives it through its control port, which speaks the hub's protocol
-//! (`emulator::control`), and each channel's status is what the emulator sees of it from
-//! outside (heartbeats, EMCYs, the channel's own log, its pins). The run refuses images whose
-//! CRC the emulator reads differently from what the build sealed, and prints both CRCs.
+//! The tool and the monitor join the emulated network's socketcand port, the run drives it
+//! through its control port, which speaks the hub's protocol (`emulator::control`), and each
+//! channel's status is what the emulator sees of it from outside (heartbeats, EMCYs, the
+//! channel's own log, its pins). The run refuses images whose CRC the emulator reads
+//! differently from what the build sealed, and prints both CRCs.
 //!
 //! `--protocol simplecan`: the same network on the SimpleCAN images, configured from
 //! `scenarios/networks/simplecan.toml` (node 1 the master and producer of SC-ID 30h, node 33
@@ -187,7 +187,7 @@ fn help() -> Vec<String> {
         "p   pause or resume the drawing",
         "q   quit (also Esc, Ctrl-C) and print the summary",
         "",
-        "Channels: each MCU's own status report from the hub.",
+        "Channels: each MCU's status as the emulator observes it.",
         "Nodes, SRDOs, Events: the bus as the monitor decodes it.",
     ]
     .map(str::to_owned)
@@ -318,28 +318,23 @@ fn apply(
         }
         Action::Drop if network.protocol == network::Protocol::Simplecan => {
             network.command(&format!("drop 0x{:03X}", network::ESTOP_SC_ID))?;
-            "the hub drops node 1's next packet of 30h".to_owned()
+            "the emulated network drops node 1's next packet of 30h".to_owned()
         }
         Action::Corrupt if network.protocol == network::Protocol::Simplecan => {
             network.command(&format!("corrupt 0x{:03X} 0 0x01", network::ESTOP_SC_ID))?;
-            "the hub corrupts byte 0 of node 1's next packet of 30h (its CRC fails at node 33; \
-             node 1's channel B finds it differs from its own)"
+            "the emulated network corrupts byte 0 of node 1's next packet of 30h (its CRC fails \
+             at node 33; node 1's channel B finds it differs from its own)"
                 .to_owned()
         }
         Action::Drop => {
             network.command(&format!("drop 0x{:03X}", network::INVERTED))?;
-            format!(
-                "{} drops node 1's next inverted frame",
-                network.images.controller()
-            )
+            "the emulated network drops node 1's next inverted frame".to_owned()
         }
         Action::Corrupt => {
             network.command(&format!("corrupt 0x{:03X} 0 0x01", network::PLAIN))?;
-            format!(
-                "{} corrupts byte 0 of node 1's next plain frame (node 1's channel B sees it \
-                 too and withholds the inverted frame)",
-                network.images.controller()
-            )
+            "the emulated network corrupts byte 0 of node 1's next plain frame (node 1's \
+             channel B sees it too and withholds the inverted frame)"
+                .to_owned()
         }
         Action::Stop => {
             network.command("mute node1a")?;
@@ -818,7 +813,6 @@ pub fn task(
     duration: Option<Duration>,
     mut schedule: Vec<(Duration, Action)>,
     protocol: network::Protocol,
-    images: network::Images,
 ) -> Result<()> {
     check_schedule(duration, &schedule).map_err(anyhow::Error::msg)?;
     let interrupted = Arc::new(AtomicBool::new(false));
@@ -833,8 +827,8 @@ pub fn task(
     if !live && !typed && duration.is_none() {
         bail!("not on a terminal: give `--for <duration>` to run unattended");
     }
-    let mut network = Network::start_images(root, protocol, images)?;
-    // The monitor's own socketcand connection to the hub, beside the configuration tool's.
+    let mut network = Network::start_for(root, protocol)?;
+    // The monitor's own socketcand connection, beside the configuration tool's.
     let mut bus = SocketcandClient::connect(&network::hub_tcp(), "can0")?;
     let origin = "target/emulate/network.toml";
     let file = safety_config::network_file::parse(&protocol.network_file(), origin)?;
@@ -875,8 +869,8 @@ pub fn task(
     };
     let mut screen = Screen {
         title: format!(
-            "cargo xtask run: the emulated safety network (nodes 1 and 33, {})",
-            images.describe()
+            "cargo xtask run: the emulated safety network (nodes 1 and 33, the shipped images \
+             on four emulated STM32F405s)"
         ),
         keys: KEYS.to_owned(),
         ..Screen::default()
@@ -1024,8 +1018,7 @@ pub fn task(
                 ) {
                     screen.panels = vec![(
                         format!(
-                            "Channels ({}; run time {:.1} s)",
-                            images.reporter(),
+                            "Channels (the emulator's status reports; run time {:.1} s)",
                             started.elapsed().as_secs_f64()
                         ),
                         channels,
@@ -1061,8 +1054,7 @@ pub fn task(
 
 fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<()>) -> Result<()> {
     let protocol = network.protocol;
-    let images = network.images;
-    let crcs = network.crcs;
+    let [a, b] = network.crcs;
     let latest = network.control.latest.clone();
     let measured = network.measured_summary();
     let pace = network.pace_summary();
@@ -1080,17 +1072,12 @@ fn summary(network: Network, model: &Monitor, seen: &Observed, outcome: Result<(
     if seen.resets > 0 {
         println!("resets: {}", seen.resets);
     }
-    if let (network::Images::Shipped, Some([a, b])) = (images, crcs) {
-        println!(
-            "the shipped images, unchanged: channel A image CRC {a:08X}h, channel B {b:08X}h \
-             (as `cargo xtask build` sealed them and the emulator read them)"
-        );
-    }
+    println!(
+        "the shipped images, unchanged: channel A image CRC {a:08X}h, channel B {b:08X}h (as \
+         `cargo xtask build` sealed them and the emulator read them)"
+    );
     println!("{measured}");
     println!("{pace}");
-    if images == network::Images::Qemu {
-        println!("QEMU-only tolerances: {}", protocol.qemu_tolerances());
-    }
     for (name, lines) in &faults {
         let reports = safe_state_reports(lines);
         if let Some(last) = reports.last() {
@@ -1360,12 +1347,12 @@ mod tests {
         }
     }
 
-    /// The live view as a person sees it (QEMU: `cargo test -p xtask -- --ignored`): the
+    /// The live view as a person sees it (`cargo test -p xtask -- --ignored`): the
     /// channels and nodes Operational, the SRDO pair 101h/102h with its numbers; a dropped
     /// inverted frame (key `d`) puts node 33 in its safe state, named in words; `q` ends the
     /// run, whose summary says the safe state followed the injected fault, and exits 0.
     #[test]
-    #[ignore = "starts the emulated network (QEMU); run with --ignored"]
+    #[ignore = "starts the emulated network; run with --ignored"]
     fn the_run_view_shows_channels_srdo_pairs_and_a_cause_in_words_and_quits_on_q() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let exit = std::env::temp_dir().join(format!("xtask-run-view-{}.exit", std::process::id()));
@@ -1376,7 +1363,7 @@ mod tests {
             exit.display()
         ));
         let up = |screen: &str| {
-            screen.contains("Channels (the hub's status reports")
+            screen.contains("Channels (the emulator's status reports")
                 && screen.matches("Operational     working").count() == 4
                 && screen.contains("101h/102h 1 → 33")
         };
@@ -1410,7 +1397,7 @@ mod tests {
             "no safe state in words after the drop:\n{screen}"
         );
         assert!(
-            screen.contains("** the hub drops node 1's next inverted frame"),
+            screen.contains("** the emulated network drops node 1's next inverted frame"),
             "{screen}"
         );
         assert!(
@@ -1428,12 +1415,12 @@ mod tests {
         let _ = std::fs::remove_file(&exit);
     }
 
-    /// The run survives every key (QEMU: `cargo test -p xtask -- --ignored`): the link of
+    /// The run survives every key (`cargo test -p xtask -- --ignored`): the link of
     /// node 33 cut (`l`), then a reset (`r`): node 33 does not come back, the run says why in
     /// words and goes on; the link restored (`l` again) and another reset, and both nodes are
     /// Operational and working again; the run ends by `--for` and passes.
     #[test]
-    #[ignore = "starts the emulated network (QEMU); run with --ignored"]
+    #[ignore = "starts the emulated network; run with --ignored"]
     fn the_run_survives_a_reset_with_the_link_cut_and_comes_back_once_it_is_restored() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let output = std::process::Command::new(env!("CARGO"))

@@ -13,9 +13,6 @@
 //! loop, which the frame waits behind, then the longest that did the protocol's work
 //! (`emulator::profile::Protocol::is_work`), over every MCU ([`cost::Basis::Activations`]).
 
-/// Only for `xtask/src/qemu.rs`, which goes with the QEMU images.
-pub(crate) mod count;
-
 use crate::network::Protocol;
 use anyhow::{Context, Result, bail};
 use safety_config::calc::target::{self as cost, TargetCost};
@@ -173,12 +170,7 @@ fn longest(figures: &serde_json::Value, key: &str) -> Result<(Vec<Row>, TargetCo
 }
 
 /// The block of [`DOCUMENT`]: the run, each MCU's longest activations, the step.
-fn render(
-    m: &Measurement,
-    protocol: Protocol,
-    rows: &[Row],
-    measured: &TargetCost,
-) -> String {
+fn render(m: &Measurement, protocol: Protocol, rows: &[Row], measured: &TargetCost) -> String {
     let traffic = match protocol {
         Protocol::CanopenSafety => {
             "one second of Operational with node 1's SRDO flowing and the emergency stop \

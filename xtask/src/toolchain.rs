@@ -68,7 +68,8 @@ impl CrossCommand {
         self
     }
 
-    /// Builds into `dir` instead (the QEMU images, so they never overwrite the hardware ones).
+    /// Builds into `dir` instead (the other layers' images, so they never overwrite the
+    /// shipped ones).
     pub fn target_dir(mut self, dir: PathBuf) -> Self {
         self.target_dir = dir;
         self
@@ -206,7 +207,6 @@ pub fn setup(probe_rs: bool, fuzz: bool) -> Result<()> {
     if fuzz {
         ensure_fuzzing()?;
     }
-    ensure_qemu()?;
     ensure_emulator_build_deps()?;
     ensure_spin()?;
     ensure_tshark()?;
@@ -300,40 +300,6 @@ pub fn ensure_tshark() -> Result<()> {
     }
     eprintln!("xtask: installing tshark (Debian)");
     as_root("apt-get update -qq && apt-get install -y -qq tshark")
-}
-
-/// QEMU's major version, when `qemu-system-arm` runs.
-fn qemu_major() -> Option<u32> {
-    let version = output("qemu-system-arm", &["--version"])?;
-    let number = version.split("version ").nth(1)?;
-    number.split('.').next()?.trim().parse().ok()
-}
-
-/// QEMU 8 or later (the netduinoplus2 model with USART interrupts), from Debian's
-/// bookworm-backports when the machine's own is older or missing.
-pub fn ensure_qemu() -> Result<()> {
-    if qemu_major().is_some_and(|major| major >= 8) {
-        eprintln!("xtask: qemu-system-arm: installed");
-        return Ok(());
-    }
-    eprintln!("xtask: installing qemu-system-arm from bookworm-backports");
-    as_root(
-        "grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/ || \
-        echo 'deb http://deb.debian.org/debian bookworm-backports main' > /etc/apt/sources.list.d/backports.list",
-    )?;
-    as_root("apt-get update -qq && apt-get install -y -qq -t bookworm-backports qemu-system-arm")
-        .context(
-        "qemu-system-arm 8 or later is missing and could not be installed from Debian's \
-             bookworm-backports (the output above says why); install QEMU 8 or later \
-             yourself, then run this again",
-    )?;
-    if qemu_major().is_none_or(|major| major < 8) {
-        bail!(
-            "qemu-system-arm 8 or later is still not available after installing it: check that \
-             `qemu-system-arm --version` runs and says 8 or later"
-        );
-    }
-    Ok(())
 }
 
 /// Fails with a clear message when a tool a task needs is missing.

@@ -1,5 +1,5 @@
-//! The bxCAN's interrupts as wake-ups of the loop's task, for both drivers that leave the
-//! controller to the task (the board's own, [`super::can1`], and the `bxcan` crate's).
+//! The bxCAN's interrupts as wake-ups of the loop's task, for the driver that leaves the
+//! controller to the task ([`super::can1`]).
 //!
 //! Each handler masks its own line in the NVIC and wakes the task; the wait unmasks the lines
 //! again after registering the waker, so no handler touches the controller and a condition

@@ -26,8 +26,8 @@
 //!   Operational is judged without it: both masters started on their own clocks at NMT start,
 //!   B's time is A's (within the loops' handling of that frame), and A's time plus a stated
 //!   buffering that exceeds the sync's real delay by more than the tolerance (a node may state
-//!   any buffering time up to its guarantee, SC_REQ_33; the emulated network states room for
-//!   its serial line) would be ahead of B's own although A's clock is not: a mismatch on the
+//!   any buffering time up to its guarantee, SC_REQ_33; the emulated network's file states
+//!   more than its sync's frame time) would be ahead of B's own although A's clock is not: a mismatch on the
 //!   node's first sync. Without it the first sync's check is lenient by the real delay (at
 //!   least the sync's frame time), once. Taking A's time at every sync, two clocks within
 //!   50 ppm of each other (SC_REQ_31) part by at most a sync interval's drift
@@ -85,9 +85,7 @@ pub const SYNC_WITHIN: Duration = Duration::from_millis(2);
 
 /// Model A's time bounds in channel B: how long A's packet may take to appear after B computed
 /// its own, and how far A's sync may be ahead of B's time. [`Bounds::STANDARD`] is the
-/// hardware's and the host's (the slot, SC_REQ_23's 2 ms, [`SYNC_OFFSET_TOLERANCE`]); an image
-/// sets other bounds only where its frames take longer to reach channel B than a board's
-/// (`channel_b`'s QEMU main, `ChannelB::set_simplecan_bounds`), and says what that costs.
+/// hardware's and the host's (the slot, SC_REQ_23's 2 ms, [`SYNC_OFFSET_TOLERANCE`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Bounds {
     /// A data packet of the node: [`DATA_WITHIN`].
@@ -110,43 +108,6 @@ impl Bounds {
         sync_ahead: SYNC_OFFSET_TOLERANCE,
         heard_ahead: SYNC_OFFSET_TOLERANCE,
     };
-}
-
-/// The longest frame SimpleCAN sends (8 data bytes) at the emulated network's 500 kbit/s,
-/// stuff bits included: [`Bounds::paced`]'s frame time.
-pub const PACED_FRAME_TIME: Duration = Duration::from_micros(270);
-
-impl Bounds {
-    /// The bounds of an emulated node whose channels' clocks are paced with `lookahead` L and
-    /// a grant every `grant_period` G (`board::qemu`, docs/emulation.md "SimpleCAN on the
-    /// emulated network"): A's loop wakes for its slot at most G late (it wakes on every
-    /// grant), its frame ends on the bus at most L past A's clock plus a frame time F
-    /// ([`PACED_FRAME_TIME`]), and B handles it at most L past that: A's packet or sync
-    /// appears by B's clock within 2L + G + F of B's own, and A's sync is ahead of B's time
-    /// by at most 2L. The other way round, B can handle A's packet before it computed its
-    /// own by up to 4L + G: A's global time may lead B's by 2L (the sync's bound), B's clock
-    /// may be up to 2L behind A's when the frame reaches it (each clock is within L of the
-    /// hub's), and B's loop wakes for its own slot up to G late. Each bound is the standard's
-    /// where that is larger.
-    pub const fn paced(lookahead: Duration, grant_period: Duration) -> Bounds {
-        let l = lookahead.as_micros();
-        let g = grant_period.as_micros();
-        let within = 2 * l + g + PACED_FRAME_TIME.as_micros();
-        Bounds {
-            data_within: at_least(DATA_WITHIN, within),
-            sync_within: at_least(SYNC_WITHIN, within),
-            sync_ahead: at_least(SYNC_OFFSET_TOLERANCE, 2 * l),
-            heard_ahead: at_least(SYNC_OFFSET_TOLERANCE, 4 * l + g),
-        }
-    }
-}
-
-const fn at_least(standard: Duration, micros: u64) -> Duration {
-    if standard.as_micros() >= micros {
-        standard
-    } else {
-        Duration::from_micros(micros)
-    }
 }
 
 impl Default for Bounds {
@@ -246,8 +207,9 @@ impl TransmitCheck {
         }
     }
 
-    /// [`TransmitCheck::new`] with the time bounds `bounds` instead of the standard's (the
-    /// QEMU layer's tolerances), built where it is kept rather than built and then changed.
+    /// [`TransmitCheck::new`] with the time bounds `bounds` instead of the standard's (an
+    /// image whose frames take longer to reach B; every image now keeps the standard's),
+    /// built where it is kept rather than built and then changed.
     pub fn with_bounds(window: Duration, bounds: Bounds) -> Self {
         TransmitCheck {
             bounds,
@@ -296,8 +258,7 @@ impl TransmitCheck {
     /// A's early one waits for B's next sample (the window). A packet still waiting on the
     /// same identifier is missing: A's did not come before B computed the next one (with the
     /// standard's bounds its deadline, the slot, has passed by then and the poll reports it
-    /// first; a bound as long as the cycle, as under QEMU, would otherwise let the newer
-    /// packet hide it).
+    /// first; a bound as long as the cycle would otherwise let the newer packet hide it).
     pub fn computed(
         &mut self,
         now: Instant,
@@ -625,25 +586,6 @@ mod tests {
                 assert_eq!(ours, theirs, "{list:?}, {wanted}");
             }
         }
-    }
-
-    /// Model A's bounds under pacing (SC_REQ_23, SC_REQ_30): 2L + G + a frame time where
-    /// that exceeds the standard's, the standard's otherwise.
-    #[test]
-    fn paced_bounds_widen_model_a_only_past_the_standard_sc_req_23() {
-        let paced = Bounds::paced(Duration::from_micros(500), Duration::from_micros(250));
-        assert_eq!(paced.data_within, Duration::from_micros(1_520));
-        assert_eq!(paced.sync_within, SYNC_WITHIN);
-        assert_eq!(paced.sync_ahead, Duration::from_millis(1));
-        assert_eq!(paced.heard_ahead, Duration::from_micros(2_250));
-        let tight = Bounds::paced(Duration::from_micros(40), Duration::from_micros(20));
-        assert_eq!(tight.data_within, DATA_WITHIN);
-        assert_eq!(tight.sync_within, SYNC_WITHIN);
-        assert_eq!(tight.sync_ahead, SYNC_OFFSET_TOLERANCE);
-        assert_eq!(tight.heard_ahead, SYNC_OFFSET_TOLERANCE);
-        let wide = Bounds::paced(Duration::from_millis(20), Duration::from_millis(5));
-        assert_eq!(wide.sync_within, Duration::from_micros(45_270));
-        assert_eq!(wide.heard_ahead, Duration::from_millis(85));
     }
 
     fn at(micros: u64) -> Instant {

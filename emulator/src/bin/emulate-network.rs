@@ -71,8 +71,8 @@ struct Cli {
     #[arg(long, requires = "nominal")]
     e2e: bool,
     /// With `--nominal`: then play these scenario files (`scenarios/emulated/*.toml`) one
-    /// after the other, each after an NMT reset and start of both nodes, judged as on the
-    /// QEMU network (`emulator::scenario`). Repeatable.
+    /// after the other, each after an NMT reset and start of both nodes, judged by the
+    /// scenario runner's judge and the campaigns' oracle (`emulator::scenario`). Repeatable.
     #[arg(long, requires = "nominal", value_name = "SCENARIO_FILE")]
     scenario: Vec<PathBuf>,
     /// SimpleCAN's measuring run instead of a fixed time, on the SimpleCAN images: configure
@@ -118,7 +118,7 @@ struct Cli {
     /// the line protocol of `can-hub`'s (`emulator::control`): a channel's contact, the bus
     /// faults, a node's link cut and restored; every channel's status as the network shows
     /// it, and how the pacing goes, written to every client. The program then ends when an
-    /// MCU stops (a fault, a lockup), as a QEMU instance does.
+    /// MCU stops (a fault, a lockup), so that the program driving it learns it.
     #[arg(long, value_name = "ADDRESS:PORT", requires = "socketcand")]
     control: Option<String>,
     /// With `--power-cut-sweep`: cut at every Nth step only (the first and the last steps
@@ -567,8 +567,8 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
             // on disk.
             candump.flush()?;
             if stopped {
-                // A program driving the network learns it from the end of this process, as
-                // from a QEMU instance that a panic or HardFault ends; why is printed above.
+                // A program driving the network learns it from the end of this process; why
+                // is printed above.
                 summary(&network, &names, &frames, started);
                 return Ok(false);
             }

@@ -1,8 +1,8 @@
 //! A socketcand server in front of the host simulation (`cargo xtask interop`): nodes 1 and 33
 //! of `system_tests::network`, configured by the tool library (node 33 consumes node 1's
 //! SRDO 1) and started, then run in real time while socketcand clients (python-canopen, the
-//! tool) join the simulated bus, served by the tool crate's own server session. No QEMU: the
-//! same protocol core as the firmware, without the emulation's timing.
+//! tool) join the simulated bus, served by the tool crate's own server session. No emulated
+//! MCU: the same protocol core as the firmware, without the emulation's timing.
 //!
 //! Usage: `socketcand_sim PORT` (listens on 127.0.0.1:PORT, bus `can0`; runs until killed).
 //! `socketcand_sim PORT --lss N`: instead, N devices with the LSS slave enabled and no

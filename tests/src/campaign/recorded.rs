@@ -1,17 +1,22 @@
-//! The oracle's input from a recorded run of the emulated network: the hub's event log
-//! (`can-hub --events`, line format in `can_hub::events`) turned into the frames with their
-//! senders and the consumer's output changes that [`super::oracle`] judges, as it judges
-//! the host simulation's. Nothing here decides what is safe: the rules are the oracle's.
+//! The oracle's input from a recorded run of the emulated network: its events in the hub's
+//! vocabulary (line format in `can_hub::events`: the emulator's record of the shipped
+//! images' run, or, until 2026-12-07, the hub's event log of the QEMU images', `can-hub
+//! --events`) turned into the frames with their senders and the consumer's output changes
+//! that [`super::oracle`] judges, as it judges the host simulation's. Nothing here decides
+//! what is safe: the rules are the oracle's.
 //!
-//! **The clocks.** Frames are stamped by the hub's bus model when they end; an output change
-//! by the hub when the channel's status report of it arrives, on the same virtual clock. A
-//! channel handles a frame that ended at hub time T at its own clock within [T − L, T + L],
-//! and a report it sends at its clock c reaches the hub while the hub's clock is at most
-//! c + L (L = `emulation_wire::LOOKAHEAD`, `docs/emulation.md` "Why the verdicts no longer
-//! depend on the host"). So a reported change is never stamped before a frame the channel
-//! had received when it made it (a raise ahead of its pair stays a violation), and a
-//! lowering the rules require is stamped at most 2L after the frame or deadline that
-//! requires it: [`EMULATED_ALLOWANCE`] is the oracle's [`super::oracle::REACTION`] plus 2L.
+//! **The clocks.** On the shipped images the emulator stamps a frame when it ends and an
+//! output change when the pin changes, both in its one virtual time. On the QEMU images frames
+//! were stamped by the hub's bus model when they ended, and an output change by the hub when
+//! the channel's status report of it arrived, on the same virtual clock. A channel handled a
+//! frame that ended at hub time T at its own clock within [T − L, T + L], and a report it sent
+//! at its clock c reached the hub while the hub's clock was at most c + L
+//! (L = `emulation_wire::LOOKAHEAD`, `docs/emulation.md` "Why the verdicts no longer depended
+//! on the host"). So a reported change was never stamped before a frame the channel had
+//! received when it made it (a raise ahead of its pair stays a violation), and a lowering the
+//! rules require was stamped at most 2L after the frame or deadline that requires it:
+//! [`EMULATED_ALLOWANCE`] is the oracle's [`super::oracle::REACTION`] plus 2L, the allowance
+//! for every emulated run (more than the shipped images' pins need).
 
 use super::oracle::{self, Judgement, MonitoredSrdo, Observed, REACTION};
 use can_hub::events::Event;

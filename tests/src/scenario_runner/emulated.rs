@@ -1,29 +1,32 @@
-//! The scenario runner's half for the emulated network (the hub and four QEMU images,
-//! `cargo xtask scenario --emulated`): each step as the hub's control command
-//! ([`commands`], `hub/src/control.rs`), and the expectations judged from what the hub
-//! observed ([`judge`]): the channels' own status reports and the bus trace, both on the
-//! hub's virtual time. Beside the file's bounds, the campaigns' oracle
-//! ([`crate::campaign::oracle`], which does not reuse the implementation) judges every run
-//! from the hub's event log (`can_hub::events`: each frame with its sender, each output
-//! change; [`crate::campaign::recorded`] turns it into the oracle's input): an output not
-//! justified by a valid pair from node 1 within SCT and SRVT fails the run, with the
-//! instant and why. xtask does the I/O (starts the network, sends the commands when the
-//! hub's time reaches each step, collects the reports and the trace); everything here is
-//! sans-I/O, so it is tested on recorded observations without QEMU.
+//! The scenario runner's half for the emulated network (`cargo xtask scenario --emulated`,
+//! and every `cargo xtask test`): the expectations judged from what the emulated network
+//! observed ([`judge`]): each channel's status and the bus frames, on the network's virtual
+//! time. The shipped images play the files on the emulated STM32F405s
+//! (`emulator::scenario`, which applies each step at its instant and reads a channel's status
+//! from its output pin and its node's EMCY frames, as a rig around real boards would); until
+//! 2026-12-07 xtask played them on the QEMU images under the hub. Each step is written as
+//! the hub's control commands ([`commands`], `hub/src/control.rs`), which say whether the
+//! emulated network can play it and how the run prints it. Beside the file's bounds, the
+//! campaigns' oracle ([`crate::campaign::oracle`], which does not reuse the implementation)
+//! judges every run from each frame with its sender and each output change (in the hub's
+//! event vocabulary, `can_hub::events`; [`crate::campaign::recorded`] turns them into the
+//! oracle's input): an output not justified by a valid pair from node 1 within SCT and SRVT
+//! fails the run, with the instant and why. Everything here is sans-I/O, so it is tested on
+//! recorded observations.
 //!
-//! **What the hub's reports can show.** A channel reports its status at once when its NMT
-//! state, working state, link, input, output or cause changes, and every
-//! `board::diagnostics::PERIOD` otherwise; the hub stamps each report with its time of
-//! arrival. So a measured latency includes the report's way over the emulated serial line
-//! (the e2e tests' `MARGIN_MS` covers that), and an output is "safe" from the report that
-//! says so. A step is applied once the player sees the hub's clock at or past its time
-//! (from the frames on the bus, a few tens of milliseconds apart, and the reports), so a
-//! little late; every time the file gives after a step is measured from when the hub took
-//! that step's command ([`Observed::time_of`]), so a late step moves its expectations with
-//! it, and the run prints when each step was applied. A scenario for the emulated network names the network `cargo xtask run`
-//! configures (`scenarios/networks/emulated.toml`, checked against xtask's own), at
-//! its bit rate, and only faults the hub can inject; anything else is refused before the
-//! network is touched.
+//! **What the QEMU images' reports could show.** A channel reported its status at once when
+//! its NMT state, working state, link, input, output or cause changed, and periodically
+//! otherwise; the hub stamped each report with its time of arrival. So a measured latency
+//! included the report's way over the emulated serial line (the e2e tests' `MARGIN_MS`
+//! covered that), and an output was "safe" from the report that said so. A step was applied
+//! once the player saw the hub's clock at or past its time (from the frames on the bus, a few
+//! tens of milliseconds apart, and the reports), so a little late; every time the file gives
+//! after a step is measured from when the step was applied ([`Observed::time_of`]), so a late
+//! step moves its expectations with it, and the run prints when each step was applied. A
+//! scenario for the emulated network names the network `cargo xtask run` configures
+//! (`scenarios/networks/emulated.toml`, checked against xtask's own), at its bit rate, and
+//! only faults of the hub's vocabulary; anything else is refused before the network is
+//! touched.
 
 use super::{BEFORE_EMULATED, Check, Played, Report, ms};
 use crate::campaign::oracle::Judgement;
@@ -41,8 +44,8 @@ use std::fmt::Write as _;
 /// How much of the timeline after a failed expectation's bound is printed.
 const AFTER: f64 = 0.100;
 
-/// The hub's participant name of node `node`'s channel (`node1a`, `node33b`: the names
-/// `xtask/src/network.rs` gives the QEMU instances).
+/// The participant name of node `node`'s channel (`node1a`, `node33b`: the names the
+/// emulated network gives its MCUs, `xtask/src/network.rs`).
 pub fn participant(node: u8, channel: Channel) -> String {
     match channel {
         Channel::A => format!("node{node}a"),
@@ -119,15 +122,6 @@ pub fn commands(stimulus: &Stimulus) -> Result<Vec<Command>, String> {
     })
 }
 
-/// `true` when the scenario cuts a link: the hub cannot join it again, so the network must
-/// be started anew before the next scenario.
-pub fn cuts_a_link(scenario: &Scenario) -> bool {
-    scenario
-        .steps
-        .iter()
-        .any(|step| matches!(step.stimulus, Stimulus::Fault(FaultSpec::Cut { .. })))
-}
-
 /// Refuses, in a sentence, a scenario the emulated network cannot play: another network
 /// than `emulated` (the one xtask configures), another bit rate than `bit_rate`, or a
 /// fault the hub cannot inject (named with its line).
@@ -157,12 +151,14 @@ pub fn check_playable(
     Ok(())
 }
 
-/// What the hub observed while a scenario played, every time in seconds on the hub's clock.
+/// What the emulated network observed while a scenario played, every time in seconds on its
+/// virtual clock (the hub's, on the QEMU images).
 #[derive(Clone, Debug, Default)]
 pub struct Observed {
     /// Time 0 of the timeline.
     pub start: f64,
-    /// When each step took effect (the hub's answer to its last command), in step order.
+    /// When each step took effect (when the emulator applied it; on the QEMU images the hub's
+    /// answer to its last command), in step order.
     pub applied: Vec<f64>,
     /// Every status report: (participant, time, status).
     pub statuses: Vec<(String, f64, Status)>,
@@ -170,10 +166,10 @@ pub struct Observed {
     pub frames: Vec<(f64, CanFrame)>,
     /// The end of the run.
     pub end: f64,
-    /// The hub's event log (`can_hub::events`) of the network the scenario played on, from
-    /// the network's start to [`Observed::end`]: the oracle's input.
+    /// The events of the network the scenario played on, in the hub's vocabulary
+    /// (`can_hub::events`), from the network's start to [`Observed::end`]: the oracle's input.
     pub events: Vec<Event>,
-    /// From when the oracle's findings count, on the hub's clock: the end of the scenario
+    /// From when the oracle's findings count, on the network's clock: the end of the scenario
     /// played before on the same network (so the reset between them is judged with this
     /// one), 0 for the first.
     pub judged_from: f64,
@@ -245,7 +241,7 @@ fn cause_name(code: u8) -> String {
     Cause::from_code(code).map_or(format!("{code:02X}h"), |cause| cause.to_string())
 }
 
-/// Judges `scenario`'s expectations from what the hub observed, in the host runs' words
+/// Judges `scenario`'s expectations from what the network observed, in the host runs' words
 /// (PASS or FAIL, what was expected with its bound, the value measured), with the timeline
 /// of reports and frames around the first failure.
 pub fn judge(scenario: &Scenario, observed: &Observed) -> Report {
@@ -623,16 +619,4 @@ pub fn step_line(step: &Step) -> String {
         step.line,
         ms(Duration::from_micros(step.at_us))
     )
-}
-
-/// The frames of the hub's candump trace (`--candump`), with their stamps moved by `offset`
-/// seconds onto the control port's clock (the trace's stamps are the hub's virtual time plus
-/// the host clock at its start; the control port's are the virtual time alone).
-pub fn trace_frames(log: &str, origin: &str, offset: f64) -> Result<Vec<(f64, CanFrame)>, String> {
-    let frames =
-        safety_config::monitor::candump::parse(log, origin).map_err(|error| error.to_string())?;
-    Ok(frames
-        .into_iter()
-        .map(|logged| (logged.at.as_secs_f64() - offset, logged.frame))
-        .collect())
 }

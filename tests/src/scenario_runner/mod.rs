@@ -40,7 +40,7 @@ const BEFORE_EMULATED: f64 = 0.300;
 pub enum Played {
     /// On the dual-channel host simulation ([`run`]).
     Host,
-    /// On the emulated network: the hub and the QEMU images ([`emulated`]).
+    /// On the emulated network: the shipped images on the emulated STM32F405s ([`emulated`]).
     Emulated,
 }
 
