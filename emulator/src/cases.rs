@@ -551,7 +551,12 @@ pub fn simplecan(
     .filter(|_| outputs(network, false))
     .ok_or("node 33's outputs did not go off within a third of the window after node 1's contacts opened")?;
     network.run_until(pressed + third);
-    network.take_events().iter().for_each(&mut count);
+    for event in network.take_events() {
+        if let Event::Stopped { at, .. } = event {
+            return Err(stopped(at));
+        }
+        count(&event);
+    }
     let released = network.now();
     for &mcu in &producer {
         network.set_input(mcu, true);
