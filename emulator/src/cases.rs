@@ -370,13 +370,16 @@ pub fn nominal(
     })
 }
 
+/// Each MCU's (instructions, wake-ups) over a window, in the network's order.
+type Counts = Vec<(u64, u64)>;
+
 /// From power-on (the deepest stack counts every step of a case): the boot-up messages of
 /// nodes 1 and 33, then one profiled window before the configuration; every MCU's profile of
 /// it and its (instructions, wake-ups) in it.
 fn pre_operational_window(
     network: &mut Network,
     seen: &mut dyn FnMut(&Event),
-) -> Result<(Vec<Window>, Vec<(u64, u64)>), String> {
+) -> Result<(Vec<Window>, Counts), String> {
     start_windows(network);
     pause_windows(network);
     wait_for_boot_ups(network, &[1, 33], seen)?;
