@@ -10,6 +10,11 @@
 //! of node 33's outputs must go off within the producer's refresh time (EN 50325-5 7.1.2: the
 //! SRDO goes out at once on the change, and the consumer acts on the validated pair; the
 //! emulation adds no host jitter, so the bound is the standard's, with no margin).
+//!
+//! SimpleCAN's measuring run ([`simplecan`]): the SimpleCAN images configured from a
+//! SimpleCAN network file (node 1 the master and producer of an SC-ID, node 33 its consumer)
+//! and started; once both report Operational and node 33's outputs are on, one second is
+//! profiled on every MCU with node 1's contacts opened and closed once in it.
 
 use safety_config::client::Client;
 use safety_config::network_file::Network as NetworkFile;
@@ -63,6 +68,18 @@ pub struct Nominal {
     pub deepest_stack: Vec<u32>,
 }
 
+impl Nominal {
+    /// Its profiles, for [`crate::figures`].
+    pub fn profiled(&self) -> crate::figures::Profiled<'_> {
+        crate::figures::Profiled {
+            protocol: crate::profile::Protocol::CanopenSafety,
+            pre_operational: &self.pre_operational,
+            operational: &self.operational,
+            deepest_stack: &self.deepest_stack,
+        }
+    }
+}
+
 /// One MCU's profile over one measuring window ([`crate::profile`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Window {
@@ -70,7 +87,8 @@ pub struct Window {
     pub activations: Vec<crate::profile::Activation>,
     /// Instructions per function, most first.
     pub functions: Vec<(String, u64)>,
-    /// SRDO 1 pairs on the bus in the window.
+    /// The protocol's deliveries on the bus in the window: SRDO 1's pairs (CANopen Safety),
+    /// the data packets of node 1's SC-ID (SimpleCAN).
     pub pairs: u64,
     /// Frames on the bus in the window, by identifier (every sender's), in order of identifier.
     pub frames: Vec<(u16, u64)>,
@@ -277,55 +295,8 @@ pub fn nominal(
         .map(|srdo| Nanos::from(srdo.settings.cycle_time) * MS)
         .ok_or("the network file gives node 1 no SRDO")?;
     let stopped = |event: &Event| matches!(event, Event::Stopped { .. });
-    // From power-on: the deepest stack counts every step of the case.
-    start_windows(network);
-    pause_windows(network);
-    wait_for_boot_ups(network, &[1, 33], seen)?;
-    let idle_from = counters(network);
-    start_windows(network);
-    let mut idle_frames = Vec::new();
-    if let Some(at) = run_until_event(network, WINDOW, seen, |_, event| {
-        count_frame(&mut idle_frames, event);
-        stopped(event)
-    }) {
-        return Err(format!("an MCU stopped at {:.3} ms", at as f64 / 1e6));
-    }
-    let pre_operational = windows(network, 0, &idle_frames);
-    pause_windows(network);
-    let idle: Vec<(u64, u64)> = counters(network)
-        .iter()
-        .zip(&idle_from)
-        .map(|(now, from)| (now.0 - from.0, now.1 - from.1))
-        .collect();
-    let started = network.now();
-    let requests = configure_then(network, file, |client| {
-        client
-            .nmt(NmtCommand::Start, 0)
-            .map_err(|error| format!("NMT start: {error}"))
-    })?;
-    let configured_in = network.now() - started;
-    let mut operational = [false; 2];
-    run_until_event(network, 2_000 * MS, seen, |network, event| {
-        if let Event::Frame { frame, .. } = event {
-            note_operational(&mut operational, frame);
-        }
-        stopped(event)
-            || (operational == [true, true] && consumer.iter().all(|&mcu| network.output(mcu)))
-    });
-    if operational != [true, true] {
-        return Err(format!(
-            "after configuration and NMT start, not both nodes report Operational in their \
-             heartbeats within 2 s (node 1: {}, node 33: {})",
-            operational[0], operational[1]
-        ));
-    }
-    if !consumer.iter().all(|&mcu| network.output(mcu)) {
-        return Err(
-            "both nodes Operational, but node 33's outputs did not come on with node \
-                    1's contacts closed"
-                .into(),
-        );
-    }
+    let (pre_operational, idle) = pre_operational_window(network, seen)?;
+    let (configured_in, requests) = configure_and_start(network, file, &consumer, seen)?;
     // Steady state for a while: every pair validated, nothing drops out.
     let operational_from = counters(network);
     let plain = file
@@ -393,6 +364,229 @@ pub fn nominal(
         bound: refresh,
         costs,
         load,
+        pre_operational,
+        operational,
+        deepest_stack,
+    })
+}
+
+/// Each MCU's (instructions, wake-ups) over a window, in the network's order.
+type Counts = Vec<(u64, u64)>;
+
+/// From power-on (the deepest stack counts every step of a case): the boot-up messages of
+/// nodes 1 and 33, then one profiled window before the configuration; every MCU's profile of
+/// it and its (instructions, wake-ups) in it.
+fn pre_operational_window(
+    network: &mut Network,
+    seen: &mut dyn FnMut(&Event),
+) -> Result<(Vec<Window>, Counts), String> {
+    start_windows(network);
+    pause_windows(network);
+    wait_for_boot_ups(network, &[1, 33], seen)?;
+    let idle_from = counters(network);
+    start_windows(network);
+    let mut idle_frames = Vec::new();
+    if let Some(at) = run_until_event(network, WINDOW, seen, |_, event| {
+        count_frame(&mut idle_frames, event);
+        matches!(event, Event::Stopped { .. })
+    }) {
+        return Err(format!("an MCU stopped at {:.3} ms", at as f64 / 1e6));
+    }
+    let pre_operational = windows(network, 0, &idle_frames);
+    pause_windows(network);
+    let idle = counters(network)
+        .iter()
+        .zip(&idle_from)
+        .map(|(now, from)| (now.0 - from.0, now.1 - from.1))
+        .collect();
+    Ok((pre_operational, idle))
+}
+
+/// Configures both nodes from `file` with the tool's library and starts them (NMT start to
+/// all), then runs until both report Operational in their heartbeats and the `consumer`'s
+/// outputs (node 33's MCUs) are on, at most 2 s: the virtual time the configuration took
+/// and the SDO requests it sent, or which of these did not happen.
+fn configure_and_start(
+    network: &mut Network,
+    file: &NetworkFile,
+    consumer: &[usize],
+    seen: &mut dyn FnMut(&Event),
+) -> Result<(Nanos, u64), String> {
+    let started = network.now();
+    let requests = configure_then(network, file, |client| {
+        client
+            .nmt(NmtCommand::Start, 0)
+            .map_err(|error| format!("NMT start: {error}"))
+    })?;
+    let configured_in = network.now() - started;
+    let mut operational = [false; 2];
+    run_until_event(network, 2_000 * MS, seen, |network, event| {
+        if let Event::Frame { frame, .. } = event {
+            note_operational(&mut operational, frame);
+        }
+        matches!(event, Event::Stopped { .. })
+            || (operational == [true, true] && consumer.iter().all(|&mcu| network.output(mcu)))
+    });
+    if operational != [true, true] {
+        return Err(format!(
+            "after configuration and NMT start, not both nodes report Operational in their \
+             heartbeats within 2 s (node 1: {}, node 33: {})",
+            operational[0], operational[1]
+        ));
+    }
+    if !consumer.iter().all(|&mcu| network.output(mcu)) {
+        return Err(
+            "both nodes Operational, but node 33's outputs did not come on with node \
+                    1's contacts closed"
+                .into(),
+        );
+    }
+    Ok((configured_in, requests))
+}
+
+/// What SimpleCAN's measuring run measured ([`simplecan`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimpleCanRun {
+    /// Virtual time the configuration took (both nodes: read, write, validate, store).
+    pub configured_in: Nanos,
+    /// SDO requests the tool sent.
+    pub sdo_requests: u64,
+    /// The SC-ID node 1 produces and node 33 consumes.
+    pub sc_id: u8,
+    /// From the contacts opening to the last of node 33's outputs going off.
+    pub reaction: Nanos,
+    /// From the contacts closing to the last of node 33's outputs coming on again.
+    pub restored: Nanos,
+    /// Each MCU's profile of the pre-operational window (names in the network's order).
+    pub pre_operational: Vec<Window>,
+    /// Each MCU's profile of the Operational window, the emergency stop in it.
+    pub operational: Vec<Window>,
+    /// Each MCU's deepest stack over the whole run, in bytes below its initial stack pointer.
+    pub deepest_stack: Vec<u32>,
+}
+
+impl SimpleCanRun {
+    /// Its profiles, for [`crate::figures`].
+    pub fn profiled(&self) -> crate::figures::Profiled<'_> {
+        crate::figures::Profiled {
+            protocol: crate::profile::Protocol::Simplecan,
+            pre_operational: &self.pre_operational,
+            operational: &self.operational,
+            deepest_stack: &self.deepest_stack,
+        }
+    }
+}
+
+/// SimpleCAN's measuring run on a network of nodes 1 and 33 (the SimpleCAN images) built
+/// with every contact closed, configured from `file` (its SimpleCAN part: node 1 produces one
+/// SC-ID, node 33 consumes it): a pre-operational window, the configuration and NMT start,
+/// then one profiled window of Operational in which node 1's contacts open at a third (node
+/// 33's outputs must go off) and close at two thirds (they must come on again). `seen`
+/// receives every event. Fails with a sentence naming the step.
+pub fn simplecan(
+    network: &mut Network,
+    file: &NetworkFile,
+    seen: &mut dyn FnMut(&Event),
+) -> Result<SimpleCanRun, String> {
+    let producer = mcu_indices(network, 1);
+    let consumer = mcu_indices(network, 33);
+    if producer.len() != 2 || consumer.len() != 2 {
+        return Err("SimpleCAN's measuring run needs nodes 1 and 33, two channels each".into());
+    }
+    let part = file
+        .simplecan
+        .as_ref()
+        .ok_or("the network file has no SimpleCAN part")?;
+    let sc_id = part
+        .nodes
+        .get(&1)
+        .and_then(|node| node.produced.first())
+        .map(|produced| produced.sc_id)
+        .ok_or("the network file gives node 1 no SC-ID to produce")?;
+    if !part
+        .nodes
+        .get(&33)
+        .is_some_and(|node| node.consumed.iter().any(|c| c.sc_id == sc_id))
+    {
+        return Err(format!(
+            "the network file does not have node 33 consume node 1's SC-ID {sc_id:02X}h"
+        ));
+    }
+    let (pre_operational, _) = pre_operational_window(network, seen)?;
+    let (configured_in, sdo_requests) = configure_and_start(network, file, &consumer, seen)?;
+    let outputs =
+        |network: &Network, on: bool| consumer.iter().all(|&mcu| network.output(mcu) == on);
+    let third = WINDOW / 3;
+    let mut packets = 0;
+    let mut frames = Vec::new();
+    let mut count = |event: &Event| {
+        count_frame(&mut frames, event);
+        if let Event::Frame { frame, .. } = event
+            && frame.id().raw() == u16::from(sc_id)
+        {
+            packets += 1;
+        }
+        seen(event);
+    };
+    let stopped = |at: Nanos| format!("an MCU stopped at {:.3} ms", at as f64 / 1e6);
+    start_windows(network);
+    let end = network.now() + WINDOW;
+    // Steady: SC-ID's packets flowing, node 33's outputs on.
+    if let Some(at) = run_until_event(network, third, &mut count, |network, event| {
+        matches!(event, Event::Stopped { .. }) || !outputs(network, true)
+    }) {
+        return Err(match outputs(network, true) {
+            true => stopped(at),
+            false => format!(
+                "node 33's outputs went off at {:.3} ms with node 1's contacts closed",
+                at as f64 / 1e6
+            ),
+        });
+    }
+    // The emergency stop: both of node 1's contacts open at once.
+    let pressed = network.now();
+    for &mcu in &producer {
+        network.set_input(mcu, false);
+    }
+    let off = run_until_event(network, third, &mut count, |network, event| {
+        matches!(event, Event::Stopped { .. }) || outputs(network, false)
+    })
+    .filter(|_| outputs(network, false))
+    .ok_or("node 33's outputs did not go off within a third of the window after node 1's contacts opened")?;
+    network.run_until(pressed + third);
+    for event in network.take_events() {
+        if let Event::Stopped { at, .. } = event {
+            return Err(stopped(at));
+        }
+        count(&event);
+    }
+    let released = network.now();
+    for &mcu in &producer {
+        network.set_input(mcu, true);
+    }
+    let on = run_until_event(network, end - released, &mut count, |network, event| {
+        matches!(event, Event::Stopped { .. }) || outputs(network, true)
+    })
+    .filter(|_| outputs(network, true))
+    .ok_or("node 33's outputs did not come on again before the end of the window after node 1's contacts closed")?;
+    network.run_until(end);
+    for event in network.take_events() {
+        if let Event::Stopped { at, .. } = event {
+            return Err(stopped(at));
+        }
+        count(&event);
+    }
+    let operational = windows(network, packets, &frames);
+    pause_windows(network);
+    let deepest_stack = (0..network.names().count())
+        .map(|mcu| network.machine(mcu).deepest_stack().unwrap_or(0))
+        .collect();
+    Ok(SimpleCanRun {
+        configured_in,
+        sdo_requests,
+        sc_id,
+        reaction: off - pressed,
+        restored: on - released,
         pre_operational,
         operational,
         deepest_stack,

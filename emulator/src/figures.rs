@@ -1,54 +1,116 @@
-//! The nominal case's profiles as Markdown ([`crate::cases::Nominal`], [`crate::profile`]):
-//! per MCU, the cost of an idle loop iteration, of a pair, of what else woke the core, the
-//! functions the instructions went to, and the deepest stack. `emulate-network --nominal`
-//! prints these lines and `cargo xtask` writes them into `docs/emulated-figures.md`; no figure
-//! is written anywhere else.
+//! The measuring runs' profiles as Markdown and JSON ([`crate::cases::Nominal`] for CANopen
+//! Safety, [`crate::cases::SimpleCanRun`] for SimpleCAN; [`crate::profile`]): per MCU, the
+//! cost of an idle loop iteration, of the protocol's work, of what else woke the core, the
+//! functions the instructions went to, and the deepest stack. `emulate-network --nominal` and
+//! `--simplecan` print these lines and `cargo xtask` writes them into
+//! `docs/emulated-figures.md` and `docs/emulated-figures-simplecan.md`; no figure is written
+//! anywhere else.
 
-use crate::cases::{Nominal, Window};
-use crate::profile::{Activation, bit};
+use crate::cases::Window;
+use crate::profile::{Activation, Protocol, bit};
 
 /// How many functions each MCU's table lists.
 const TOP_FUNCTIONS: usize = 12;
 
-/// A test on an activation's markers.
-type Test = fn(&Activation) -> bool;
+/// A test on an activation's markers, for the images of a protocol.
+type Test = fn(&Activation, Protocol) -> bool;
+
+/// What a measuring run profiled: each MCU's windows (in the network's order) and deepest
+/// stack, on the images of `protocol`.
+#[derive(Clone, Copy, Debug)]
+pub struct Profiled<'a> {
+    /// The images' protocol: what an activation's protocol work is.
+    pub protocol: Protocol,
+    /// Each MCU's profile of the pre-operational window.
+    pub pre_operational: &'a [Window],
+    /// Each MCU's profile of the Operational window.
+    pub operational: &'a [Window],
+    /// Each MCU's deepest stack over the whole run, in bytes.
+    pub deepest_stack: &'a [u32],
+}
+
+/// The protocol's words in the tables: its work, the unit the window counts
+/// ([`Window::pairs`]), and the key of the JSON's longest activation with its work.
+struct Words {
+    work: &'static str,
+    work_detail: &'static str,
+    unit: &'static str,
+    key: &'static str,
+}
+
+/// [`Words`] of `protocol`.
+fn words(protocol: Protocol) -> Words {
+    match protocol {
+        Protocol::CanopenSafety => Words {
+            work: "a pair's work",
+            work_detail: "an SRDO frame handled or produced, a verdict",
+            unit: "pair",
+            key: "pair",
+        },
+        Protocol::Simplecan => Words {
+            work: "SimpleCAN's work",
+            work_detail: "a packet or sync decoded or produced, a forwarded packet paired, \
+                          channel A's packet judged, a verdict",
+            unit: "packet",
+            key: "simplecan",
+        },
+    }
+}
+
+/// The key of the JSON's longest activation with the protocol's work (`longest_activation`):
+/// `pair` for CANopen Safety, `simplecan` for SimpleCAN.
+pub fn work_key(protocol: Protocol) -> &'static str {
+    words(protocol).key
+}
 
 /// The kinds of activation, in the order the tables list them: a label and a test on the
 /// markers entered.
-const KINDS: [(&str, Test); 7] = [
-    (
-        "idle loop iteration (nothing received, nothing sent)",
-        is_idle,
-    ),
-    (
-        "loop iteration with a pair's work (an SRDO frame handled or produced, a verdict)",
-        is_pair,
-    ),
-    (
-        "loop iteration with a link message received, no pair's work",
-        |a| a.has("loop") && !is_pair(a) && a.has("link message"),
-    ),
-    (
-        "loop iteration sending the link heartbeat, no pair's work",
-        |a| a.has("loop") && !is_pair(a) && !a.has("link message") && a.has("heartbeat"),
-    ),
-    (
-        "other loop iteration (other frames or link messages sent)",
-        |a| {
-            a.has("loop")
-                && !is_pair(a)
-                && !is_idle(a)
-                && !a.has("link message")
-                && !a.has("heartbeat")
-        },
-    ),
-    ("interrupts only: the link USART (a byte in or out)", |a| {
-        !a.has("loop") && a.has("USART3")
-    }),
-    ("interrupts only: other (CAN, timer, executor)", |a| {
-        !a.has("loop") && !a.has("USART3")
-    }),
-];
+fn kinds(protocol: Protocol) -> [(String, Test); 7] {
+    let Words {
+        work, work_detail, ..
+    } = words(protocol);
+    [
+        (
+            "idle loop iteration (nothing received, nothing sent)".to_owned(),
+            |a, _| is_idle(a),
+        ),
+        (
+            format!("loop iteration with {work} ({work_detail})"),
+            |a, protocol| protocol.is_work(a),
+        ),
+        (
+            format!("loop iteration with a link message received, no {work}"),
+            |a, protocol| a.has("loop") && !protocol.is_work(a) && a.has("link message"),
+        ),
+        (
+            format!("loop iteration sending the link heartbeat, no {work}"),
+            |a, protocol| {
+                a.has("loop")
+                    && !protocol.is_work(a)
+                    && !a.has("link message")
+                    && a.has("heartbeat")
+            },
+        ),
+        (
+            "other loop iteration (other frames or link messages sent)".to_owned(),
+            |a, protocol| {
+                a.has("loop")
+                    && !protocol.is_work(a)
+                    && !is_idle(a)
+                    && !a.has("link message")
+                    && !a.has("heartbeat")
+            },
+        ),
+        (
+            "interrupts only: the link USART (a byte in or out)".to_owned(),
+            |a, _| !a.has("loop") && a.has("USART3"),
+        ),
+        (
+            "interrupts only: other (CAN, timer, executor)".to_owned(),
+            |a, _| !a.has("loop") && !a.has("USART3"),
+        ),
+    ]
+}
 
 /// A loop iteration that received nothing and sent nothing.
 fn is_idle(activation: &Activation) -> bool {
@@ -57,18 +119,9 @@ fn is_idle(activation: &Activation) -> bool {
         | bit("link sent")
         | bit("heartbeat")
         | bit("CAN sent")
-        | bit("SRDO produced")
-        | bit("pair validated")
-        | bit("verdict");
+        | Protocol::CanopenSafety.work_marks()
+        | Protocol::Simplecan.work_marks();
     activation.has("loop") && activation.marks & busy == 0
-}
-
-/// A loop iteration that did a pair's work: an SRDO frame handled (in the Operational window
-/// without load, the only frames the channels' filters pass) or produced, a pair validated,
-/// the other channel's verdict taken.
-fn is_pair(activation: &Activation) -> bool {
-    let pair = bit("frame") | bit("SRDO produced") | bit("pair validated") | bit("verdict");
-    activation.has("loop") && activation.marks & pair != 0
 }
 
 /// Fewest, median and most of `values` (zeros when empty).
@@ -94,7 +147,7 @@ struct Totals {
     link_interrupt_median: u64,
 }
 
-fn totals(window: &Window) -> Totals {
+fn totals(window: &Window, protocol: Protocol) -> Totals {
     let activations = &window.activations;
     let mut idle: Vec<u64> = activations
         .iter()
@@ -112,7 +165,7 @@ fn totals(window: &Window) -> Totals {
         idle: spread(&mut idle),
         pair_instructions: activations
             .iter()
-            .filter(|a| is_pair(a))
+            .filter(|a| protocol.is_work(a))
             .map(|a| a.instructions)
             .sum(),
         link_interrupts: link.len(),
@@ -121,15 +174,17 @@ fn totals(window: &Window) -> Totals {
 }
 
 /// The same figures machine-readable, one JSON object: per MCU and window, the longest
-/// activation that ran the loop and the longest with a pair's work (the processing step's
-/// path, `cargo xtask bench --target-cost`), the instructions, the loop iterations, the idle
-/// iteration (fewest, median, most), the instructions per pair (the lower bound of
-/// [`markdown`]'s *per pair*) and the pairs; per MCU, the deepest stack; the goals per
-/// channel.
-pub fn json(nominal: &Nominal, names: &[String]) -> serde_json::Value {
+/// activation that ran the loop and the longest with the protocol's work (key [`work_key`]:
+/// the processing step's path, `cargo xtask bench --target-cost`), the instructions, the loop
+/// iterations, the idle iteration (fewest, median, most), the instructions per pair or
+/// packet (the lower bound of [`markdown`]'s *per pair* or *per packet*) and the pairs or
+/// packets; per MCU, the deepest stack; for CANopen Safety, the goals per channel.
+pub fn json(profiled: &Profiled<'_>, names: &[String]) -> serde_json::Value {
+    let protocol = profiled.protocol;
+    let Words { unit, key, .. } = words(protocol);
     let window = |window: &Window| {
-        let t = totals(window);
-        let longest = |test: Test| {
+        let t = totals(window, protocol);
+        let longest = |test: &dyn Fn(&Activation) -> bool| {
             window
                 .activations
                 .iter()
@@ -137,18 +192,24 @@ pub fn json(nominal: &Nominal, names: &[String]) -> serde_json::Value {
                 .map(|a| a.instructions)
                 .max()
         };
-        serde_json::json!({
-            "longest_activation": {
-                "loop": longest(|a| a.has("loop")),
-                "pair": longest(is_pair),
-            },
-            "instructions": t.instructions,
-            "loop_iterations": t.iterations,
-            "idle_iteration": {"fewest": t.idle.0, "median": t.idle.1, "most": t.idle.2},
-            "per_pair": t.pair_instructions.checked_div(window.pairs),
-            "pairs": window.pairs,
-            "link_usart_interrupts": t.link_interrupts,
-        })
+        let mut longest_activation = serde_json::Map::new();
+        longest_activation.insert("loop".into(), longest(&|a| a.has("loop")).into());
+        longest_activation.insert(key.into(), longest(&|a| protocol.is_work(a)).into());
+        let mut figures = serde_json::Map::new();
+        figures.insert("longest_activation".into(), longest_activation.into());
+        figures.insert("instructions".into(), t.instructions.into());
+        figures.insert("loop_iterations".into(), t.iterations.into());
+        figures.insert(
+            "idle_iteration".into(),
+            serde_json::json!({"fewest": t.idle.0, "median": t.idle.1, "most": t.idle.2}),
+        );
+        figures.insert(
+            format!("per_{unit}"),
+            t.pair_instructions.checked_div(window.pairs).into(),
+        );
+        figures.insert(format!("{unit}s"), window.pairs.into());
+        figures.insert("link_usart_interrupts".into(), t.link_interrupts.into());
+        serde_json::Value::Object(figures)
     };
     let mcus: Vec<serde_json::Value> = names
         .iter()
@@ -156,64 +217,50 @@ pub fn json(nominal: &Nominal, names: &[String]) -> serde_json::Value {
         .map(|(mcu, name)| {
             serde_json::json!({
                 "mcu": name,
-                "pre_operational": nominal.pre_operational.get(mcu).map(window),
-                "operational": nominal.operational.get(mcu).map(window),
-                "deepest_stack_bytes": nominal.deepest_stack.get(mcu),
+                "pre_operational": profiled.pre_operational.get(mcu).map(window),
+                "operational": profiled.operational.get(mcu).map(window),
+                "deepest_stack_bytes": profiled.deepest_stack.get(mcu),
             })
         })
         .collect();
+    let goals = match protocol {
+        Protocol::CanopenSafety => serde_json::json!({"per_pair": 2000, "idle_iteration": 200}),
+        Protocol::Simplecan => serde_json::Value::Null,
+    };
     serde_json::json!({
         "unit": "Thumb instructions executed, counted by the emulator; windows of one second",
-        "goals_per_channel": {"per_pair": 2000, "idle_iteration": 200},
+        "goals_per_channel": goals,
         "mcus": mcus,
     })
 }
 
 /// The Markdown of the profiles (no trailing blank line).
-pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
+pub fn markdown(profiled: &Profiled<'_>, names: &[String]) -> Vec<String> {
     let mut out = Vec::new();
-    let pairs = nominal.operational.first().map_or(0, |w| w.pairs);
+    let protocol = profiled.protocol;
+    let Words { unit, .. } = words(protocol);
+    let pairs = profiled.operational.first().map_or(0, |w| w.pairs);
     out.push("## Where the instructions go (profiled by the emulator)".to_owned());
     out.push(String::new());
+    match protocol {
+        Protocol::CanopenSafety => out.extend(canopen_introduction(pairs)),
+        Protocol::Simplecan => out.extend(simplecan_introduction(pairs)),
+    }
     out.push(format!(
-        "Each MCU profiled over two windows of one second before the bus load: \
-         pre-operational (unconfigured, before the configuration) and Operational ({pairs} \
-         pairs of SRDO 1): every translated block counted with its \
-         instructions, an *activation* being everything from one wake-up of the core (WFI/WFE) \
-         to the next (the interrupt handlers, embassy's executor, the channel loop's iteration \
-         when the loop task ran, the wait it sets up), classed by the functions it entered \
-         (`emulator/src/profile.rs`: the channel loop's `service`, `hand` for a received \
-         frame, `Runtime::core_frame` for an SRDO produced, `deliver_clamped` for a validated \
-         pair, `VerdictCheck::arrive` for the other channel's verdict, the COBS reassembler \
-         for a link message, `Runtime::heartbeat`, the interrupt handlers). All layers: \
-         nothing is subtracted."
-    ));
-    out.push(String::new());
-    out.push(
-        "*Per pair*: the activations with a pair's work, summed and divided by the pairs (a \
-         lower bound: the link bytes of the verdicts are in the USART interrupts' row). *Per \
-         pair, all but idle*: every instruction of the window but the idle iterations', \
-         divided by the pairs (an upper bound: the link heartbeats are in it). Goals per \
-         channel: a pair at most 2,000 instructions, an idle iteration at most 200."
-            .to_owned(),
-    );
-    out.push(String::new());
-    out.push(
         "| MCU | window | instructions | loop iterations | idle iteration (fewest / median / \
-         most) | per pair | per pair, all but idle | link USART interrupts (median each) | \
+         most) | per {unit} | per {unit}, all but idle | link USART interrupts (median each) | \
          deepest stack |"
-            .to_owned(),
-    );
+    ));
     out.push("|---|---|---:|---:|---:|---:|---:|---:|---:|".to_owned());
     for (mcu, name) in names.iter().enumerate() {
         for (label, windows) in [
-            ("pre-operational", &nominal.pre_operational),
-            ("Operational", &nominal.operational),
+            ("pre-operational", &profiled.pre_operational),
+            ("Operational", &profiled.operational),
         ] {
             let Some(window) = windows.get(mcu) else {
                 continue;
             };
-            let t = totals(window);
+            let t = totals(window, protocol);
             let idle_total: u64 = window
                 .activations
                 .iter()
@@ -228,7 +275,7 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
             let (per_pair, all_but_idle) =
                 (per(t.pair_instructions), per(t.instructions - idle_total));
             let stack = if label == "Operational" {
-                nominal
+                profiled
                     .deepest_stack
                     .get(mcu)
                     .map_or("–".to_owned(), |bytes| format!("{bytes} bytes"))
@@ -266,21 +313,21 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
     );
     out.push("|---|---|---:|---:|---:|---:|---:|---:|---:|".to_owned());
     for (mcu, name) in names.iter().enumerate() {
-        let Some(window) = nominal.operational.get(mcu) else {
+        let Some(window) = profiled.operational.get(mcu) else {
             continue;
         };
         let total: u64 = window.activations.iter().map(|a| a.instructions).sum();
-        for (kind, test) in KINDS {
+        for (kind, test) in kinds(protocol) {
             let mut counts: Vec<u64> = window
                 .activations
                 .iter()
-                .filter(|a| test(a))
+                .filter(|a| test(a, protocol))
                 .map(|a| a.instructions)
                 .collect();
             let iterations: u32 = window
                 .activations
                 .iter()
-                .filter(|a| test(a))
+                .filter(|a| test(a, protocol))
                 .map(|a| a.iterations)
                 .sum();
             if counts.is_empty() {
@@ -310,7 +357,7 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
     out.push("| MCU | function | instructions | share |".to_owned());
     out.push("|---|---|---:|---:|".to_owned());
     for (mcu, name) in names.iter().enumerate() {
-        let Some(window) = nominal.operational.get(mcu) else {
+        let Some(window) = profiled.operational.get(mcu) else {
             continue;
         };
         let total: u64 = window.functions.iter().map(|(_, n)| n).sum();
@@ -336,14 +383,14 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
     out.push("| MCU | function | instructions |".to_owned());
     out.push("|---|---|---:|".to_owned());
     for (mcu, name) in names.iter().enumerate() {
-        let Some(window) = nominal.operational.get(mcu) else {
+        let Some(window) = profiled.operational.get(mcu) else {
             continue;
         };
         for (function, instructions) in &window.idle_iteration {
             out.push(format!("| {name} | `{function}` | {instructions} |"));
         }
     }
-    if let Some(window) = nominal.operational.first() {
+    if let Some(window) = profiled.operational.first() {
         out.push(String::new());
         let frames: Vec<String> = window
             .frames
@@ -356,4 +403,157 @@ pub fn markdown(nominal: &Nominal, names: &[String]) -> Vec<String> {
         ));
     }
     out
+}
+
+/// The introduction of the CANopen Safety images' tables: the windows, what the markers
+/// are, the goals.
+fn canopen_introduction(pairs: u64) -> Vec<String> {
+    vec![
+        format!(
+            "Each MCU profiled over two windows of one second before the bus load: \
+             pre-operational (unconfigured, before the configuration) and Operational ({pairs} \
+             pairs of SRDO 1): every translated block counted with its \
+             instructions, an *activation* being everything from one wake-up of the core \
+             (WFI/WFE) to the next (the interrupt handlers, embassy's executor, the channel \
+             loop's iteration when the loop task ran, the wait it sets up), classed by the \
+             functions it entered (`emulator/src/profile.rs`: the channel loop's `service`, \
+             `hand` for a received frame, `Runtime::core_frame` for an SRDO produced, \
+             `deliver_clamped` for a validated pair, `VerdictCheck::arrive` for the other \
+             channel's verdict, the COBS reassembler for a link message, `Runtime::heartbeat`, \
+             the interrupt handlers). All layers: nothing is subtracted."
+        ),
+        String::new(),
+        "*Per pair*: the activations with a pair's work, summed and divided by the pairs (a \
+         lower bound: the link bytes of the verdicts are in the USART interrupts' row). *Per \
+         pair, all but idle*: every instruction of the window but the idle iterations', \
+         divided by the pairs (an upper bound: the link heartbeats are in it). Goals per \
+         channel: a pair at most 2,000 instructions, an idle iteration at most 200."
+            .to_owned(),
+        String::new(),
+    ]
+}
+
+/// The introduction of the SimpleCAN images' tables: the windows, what the markers are.
+fn simplecan_introduction(packets: u64) -> Vec<String> {
+    vec![
+        format!(
+            "Each MCU profiled over two windows of one second: pre-operational (unconfigured, \
+             before the configuration) and Operational ({packets} data packets of node 1's \
+             SC-ID 30h on the bus, the syncs beside them, node 1's contacts opened and closed \
+             once in it): every translated block counted with its instructions, an \
+             *activation* being everything from one wake-up of the core (WFI/WFE) to the next \
+             (the interrupt handlers, embassy's executor, the channel loop's iteration when \
+             the loop task ran, the wait it sets up), classed by the functions it entered \
+             (`emulator/src/profile.rs`: the channel loop's `service`, `hand` for a received \
+             frame, `shared::simplecan::frame::crc` for a packet or sync decoded or produced, \
+             `frame::seal` for one produced, `ForwardCheck::pair` for channel A's forwarded \
+             copy paired on channel B, `TransmitCheck::judge` for channel A's packet judged \
+             against channel B's own (Model A), `VerdictCheck::arrive` for the other channel's \
+             verdict, the COBS reassembler for a link message, `Runtime::heartbeat`, the \
+             interrupt handlers). All layers: nothing is subtracted."
+        ),
+        String::new(),
+        "*Per packet*: the activations with SimpleCAN's work, summed and divided by the data \
+         packets of 30h (the syncs' work is in the sum, so this is more than a packet's own \
+         cost; the link bytes of the verdicts are in the USART interrupts' row). *Per packet, \
+         all but idle*: every instruction of the window but the idle iterations', divided by \
+         the packets (the link heartbeats are in it)."
+            .to_owned(),
+        String::new(),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An activation of `labels` entered, the loop once if it is among them.
+    fn activation(instructions: u64, labels: &[&str]) -> Activation {
+        Activation {
+            at: 0,
+            instructions,
+            marks: labels.iter().map(|label| bit(label)).fold(0, |a, b| a | b),
+            iterations: u32::from(labels.contains(&"loop")),
+        }
+    }
+
+    /// The kinds `activation` falls in, by their index in [`kinds`].
+    fn kinds_of(activation: &Activation, protocol: Protocol) -> Vec<usize> {
+        kinds(protocol)
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, test))| test(activation, protocol))
+            .map(|(index, _)| index)
+            .collect()
+    }
+
+    /// Every activation falls in exactly one kind, and a SimpleCAN activation that decoded or
+    /// produced a packet (its CRC), paired channel A's forwarded copy or took a verdict is
+    /// SimpleCAN's work on the SimpleCAN images, never idle; a frame handed to the loop
+    /// without a packet decoded (a heartbeat) is not.
+    #[test]
+    fn an_activation_with_a_simplecan_packet_is_simplecans_work() {
+        let work = 1;
+        let cases: [(&[&str], usize); 9] = [
+            (&["loop", "timer"], 0),
+            (&["loop", "frame", "SimpleCAN packet"], work),
+            (
+                &["loop", "SimpleCAN packet", "SimpleCAN sealed", "CAN sent"],
+                work,
+            ),
+            (&["loop", "link message", "SimpleCAN forward paired"], work),
+            (&["loop", "link message", "verdict"], work),
+            (&["loop", "frame", "SimpleCAN judged"], work),
+            (&["loop", "frame"], 4),
+            (&["loop", "link message"], 2),
+            (&["USART3"], 5),
+        ];
+        for (labels, kind) in cases {
+            let a = activation(100, labels);
+            assert_eq!(kinds_of(&a, Protocol::Simplecan), [kind], "{labels:?}");
+        }
+        // The same frame handed to the loop is a pair's work on the CANopen Safety images
+        // (the only frames their filters pass in Operational are SRDOs), and a SimpleCAN
+        // packet's markers are not.
+        let frame = activation(100, &["loop", "frame"]);
+        assert_eq!(kinds_of(&frame, Protocol::CanopenSafety), [work]);
+        let packet = activation(100, &["loop", "SimpleCAN packet"]);
+        assert_eq!(kinds_of(&packet, Protocol::CanopenSafety), [4]);
+        assert!(!is_idle(&packet));
+    }
+
+    /// The JSON gives the longest activation with SimpleCAN's work under its own key, and
+    /// the longest that ran the loop of any kind.
+    #[test]
+    fn the_json_gives_the_longest_activation_with_the_protocols_work() {
+        let window = Window {
+            activations: vec![
+                activation(5000, &["loop", "timer"]),
+                activation(3000, &["loop", "SimpleCAN packet"]),
+                activation(2000, &["loop", "verdict"]),
+                activation(9000, &["USART3"]),
+            ],
+            functions: Vec::new(),
+            pairs: 2,
+            frames: Vec::new(),
+            blocks: Vec::new(),
+            idle_iteration: Vec::new(),
+        };
+        let windows = [window];
+        let profiled = Profiled {
+            protocol: Protocol::Simplecan,
+            pre_operational: &windows,
+            operational: &windows,
+            deepest_stack: &[512],
+        };
+        let json = json(&profiled, &["node1a".to_owned()]);
+        let operational = &json["mcus"][0]["operational"];
+        assert_eq!(operational["longest_activation"]["loop"], 5000);
+        assert_eq!(
+            operational["longest_activation"][work_key(Protocol::Simplecan)],
+            3000
+        );
+        assert_eq!(operational["per_packet"], 2500);
+        assert_eq!(operational["packets"], 2);
+    }
 }

@@ -35,8 +35,10 @@ pub struct Marker {
     pub whole: bool,
 }
 
-/// The markers of the shipped images (`board::hw`, `dual_channel`), in bit order.
-pub const MARKERS: [Marker; 12] = [
+/// The markers of the shipped images (`board::hw`, `dual_channel`, `shared::simplecan`), in
+/// bit order; an image without a marker's function (the CANopen Safety images have no
+/// SimpleCAN packet code) never enters it.
+pub const MARKERS: [Marker; 16] = [
     Marker {
         label: "loop",
         symbol: "dual_channel::channel_loop::ChannelLoop::service",
@@ -83,6 +85,26 @@ pub const MARKERS: [Marker; 12] = [
         whole: false,
     },
     Marker {
+        label: "SimpleCAN packet",
+        symbol: "shared::simplecan::frame::crc",
+        whole: false,
+    },
+    Marker {
+        label: "SimpleCAN sealed",
+        symbol: "shared::simplecan::frame::seal",
+        whole: false,
+    },
+    Marker {
+        label: "SimpleCAN forward paired",
+        symbol: "dual_channel::simplecan::ForwardCheck::pair",
+        whole: false,
+    },
+    Marker {
+        label: "SimpleCAN judged",
+        symbol: "dual_channel::simplecan::transmit::TransmitCheck::judge",
+        whole: false,
+    },
+    Marker {
         label: "USART3",
         symbol: "USART3",
         whole: true,
@@ -105,6 +127,45 @@ pub fn bit(label: &str) -> u32 {
         .iter()
         .position(|marker| marker.label == label)
         .map_or(0, |index| 1 << index)
+}
+
+/// The safety protocol an image speaks, which decides what an activation's protocol work is
+/// ([`Protocol::is_work`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Protocol {
+    /// CANopen Safety: SRDOs.
+    CanopenSafety,
+    /// SimpleCAN: data packets and syncs.
+    Simplecan,
+}
+
+impl Protocol {
+    /// The markers whose entry in a loop iteration is the protocol's work. CANopen Safety: an
+    /// SRDO frame handled (`hand`: in the Operational window without load, the only frames
+    /// the channels' filters pass), an SRDO produced, a pair validated, the other channel's
+    /// verdict taken. SimpleCAN: a packet's CRC computed (every data packet or sync of a
+    /// known SC-ID decoded, every one produced, `frame::crc`), a packet sealed for the bus,
+    /// channel A's forwarded copy paired (channel B), channel A's packet on the bus judged
+    /// against channel B's own (channel B, Model A), the other channel's verdict taken.
+    pub fn work_marks(self) -> u32 {
+        match self {
+            Protocol::CanopenSafety => {
+                bit("frame") | bit("SRDO produced") | bit("pair validated") | bit("verdict")
+            }
+            Protocol::Simplecan => {
+                bit("SimpleCAN packet")
+                    | bit("SimpleCAN sealed")
+                    | bit("SimpleCAN forward paired")
+                    | bit("SimpleCAN judged")
+                    | bit("verdict")
+            }
+        }
+    }
+
+    /// Whether `activation` ran the loop and did the protocol's work ([`Protocol::work_marks`]).
+    pub fn is_work(self, activation: &Activation) -> bool {
+        activation.has("loop") && activation.marks & self.work_marks() != 0
+    }
 }
 
 /// One activation: what ran from one wake-up to the next.
@@ -370,6 +431,38 @@ mod tests {
                 13
             )
         );
+    }
+
+    /// The SimpleCAN markers are found in an image's symbols, and an activation that entered
+    /// one of them in a loop iteration is SimpleCAN's work, not CANopen Safety's; without the
+    /// loop it is neither.
+    #[test]
+    fn a_packets_crc_in_a_loop_iteration_is_simplecans_work() {
+        let symbols = Symbols::from_functions(&[
+            (
+                0x100,
+                0x40,
+                "dual_channel::channel_loop::ChannelLoop::service",
+            ),
+            (0x200, 0x40, "shared::simplecan::frame::crc"),
+        ]);
+        let mut profile = Profile::new(&symbols);
+        profile.block(0x100, 10, 0x2000_1000);
+        profile.block(0x200, 20, 0x2000_0F00);
+        profile.woke(1_000);
+        profile.block(0x200, 20, 0x2000_0F00);
+        profile.woke(2_000);
+        let [iteration, alone] = profile.activations() else {
+            panic!("two activations: {:?}", profile.activations());
+        };
+        assert!(
+            iteration.has("SimpleCAN packet"),
+            "{}",
+            iteration.describe()
+        );
+        assert!(Protocol::Simplecan.is_work(iteration));
+        assert!(!Protocol::CanopenSafety.is_work(iteration));
+        assert!(!Protocol::Simplecan.is_work(alone));
     }
 
     #[test]

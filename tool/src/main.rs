@@ -242,9 +242,9 @@ enum Command {
         #[arg(long, default_value_t = DeviceTiming::HARDWARE.contact_skew_us)]
         contact_skew_us: u64,
         /// One step of a channel (µs), for every safety function of the file; the default is
-        /// the step measured in the images on the emulated STM32F405 at a bounded cycles per
-        /// instruction (`safety_config::calc::target`): the CANopen Safety images' for SRDOs,
-        /// the SimpleCAN images' for SimpleCAN's.
+        /// the step counted in the shipped images on the emulated STM32F405 at a bounded cycles
+        /// per instruction (`safety_config::calc::target`): the CANopen Safety images' for
+        /// SRDOs, the SimpleCAN images' for SimpleCAN's.
         #[arg(long)]
         processing_us: Option<u64>,
         /// The output stage after the pin (µs).

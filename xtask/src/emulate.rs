@@ -295,7 +295,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
     images::build_layer(root, &cross, layer)?;
     let mut arguments: Vec<std::ffi::OsString> = Vec::new();
     if let Case::Serve { address } = &case {
-        let file = write_network_file(root)?;
+        let file = write_network_file(root, Protocol::CanopenSafety)?;
         println!(
             "xtask: join with python-can or python-canopen (interface socketcand, {address}, \
              channel can0), or configure the nodes with `safety-config --bus \
@@ -310,7 +310,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
         if protocol != Protocol::CanopenSafety {
             anyhow::bail!("the emulated network's cases are CANopen Safety's only");
         }
-        let file = write_network_file(root)?.into_os_string();
+        let file = write_network_file(root, Protocol::CanopenSafety)?.into_os_string();
         match case {
             Case::PowerCutSweep { every } => arguments.extend([
                 "--power-cut-sweep".into(),
@@ -324,7 +324,7 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
     if let Case::Nominal { load_seconds } = case {
         // The measuring run: the same as `cargo xtask test`'s, which writes the figures.
         let emulate = build_emulate_network(root)?;
-        let file = write_network_file(root)?;
+        let file = write_network_file(root, Protocol::CanopenSafety)?;
         let seconds = load_seconds.unwrap_or(NOMINAL_LOAD_SECONDS);
         return nominal_check(root, &cross, &emulate, &file, seconds, Speed::Written);
     }
@@ -348,12 +348,16 @@ pub fn network_task(root: &Path, duration: &str, protocol: Protocol, case: Case)
     )
 }
 
-/// Writes `cargo xtask run`'s network file for the emulated network's cases; returns its path.
-pub(crate) fn write_network_file(root: &Path) -> Result<std::path::PathBuf> {
+/// Writes `cargo xtask run`'s network file of `protocol` for the emulated network's cases;
+/// returns its path.
+pub(crate) fn write_network_file(root: &Path, protocol: Protocol) -> Result<std::path::PathBuf> {
     let dir = root.join("target/emulate-network");
     std::fs::create_dir_all(&dir)?;
-    let path = dir.join("network.toml");
-    std::fs::write(&path, Protocol::CanopenSafety.network_file())?;
+    let path = dir.join(match protocol {
+        Protocol::CanopenSafety => "network.toml",
+        Protocol::Simplecan => "simplecan.toml",
+    });
+    std::fs::write(&path, protocol.network_file())?;
     Ok(path)
 }
 
@@ -540,7 +544,7 @@ pub fn network_checks(root: &Path, cross: &toolchain::Cross) -> Result<()> {
     // SWEEP_EVERY-th flash step of each channel's store (all of them:
     // `cargo xtask emulate --network --power-cut-sweep`).
     let layer = Protocol::CanopenSafety.hardware_layer();
-    let file = write_network_file(root)?;
+    let file = write_network_file(root, Protocol::CanopenSafety)?;
     let output = std::process::Command::new(&emulate)
         .arg(images::image(cross, root, layer, "a"))
         .arg(images::image(cross, root, layer, "b"))
@@ -716,16 +720,34 @@ fn nominal_check(
     if speed == Speed::Written {
         write_speed(root, &lines)?;
     }
-    let committed = crate::generated::committed(root, FIGURES);
-    std::fs::write(root.join(FIGURES), &report)?;
+    write_figures(root, FIGURES, FIGURES_JSON, &report, &lines)?;
+    println!(
+        "xtask: the nominal case passed on the shipped images; figures in {FIGURES} and \
+         {FIGURES_JSON}"
+    );
+    Ok(())
+}
+
+/// Writes `report` to `page` and the JSON of the `figures-json` line of `lines` (what
+/// `emulate-network` printed, its prefix cut) to `json_page`, and says whether the page
+/// changed.
+fn write_figures(
+    root: &Path,
+    page: &str,
+    json_page: &str,
+    report: &str,
+    lines: &[&str],
+) -> Result<()> {
+    let committed = crate::generated::committed(root, page);
+    std::fs::write(root.join(page), report)?;
     // A report, not a gate (docs/overview.md, "Generated pages"): said, so that it is committed.
-    match committed.map(|committed| crate::generated::difference(&committed, &report)) {
-        Some(None) => println!("xtask: {FIGURES} is unchanged"),
+    match committed.map(|committed| crate::generated::difference(&committed, report)) {
+        Some(None) => println!("xtask: {page} is unchanged"),
         Some(Some(difference)) => println!(
-            "xtask: {FIGURES} differs from the committed page (commit it with the change that \
+            "xtask: {page} differs from the committed page (commit it with the change that \
              moved it), {difference}"
         ),
-        None => println!("xtask: {FIGURES} is new: commit it"),
+        None => println!("xtask: {page} is new: commit it"),
     }
     let json = lines
         .iter()
@@ -734,12 +756,84 @@ fn nominal_check(
     let value: serde_json::Value = serde_json::from_str(json)
         .map_err(|error| anyhow::anyhow!("emulate-network's figures-json line: {error}"))?;
     std::fs::write(
-        root.join(FIGURES_JSON),
+        root.join(json_page),
         serde_json::to_string_pretty(&value)? + "\n",
     )?;
+    Ok(())
+}
+
+/// Where SimpleCAN's measuring run's figures are written.
+const SIMPLECAN_FIGURES: &str = "docs/emulated-figures-simplecan.md";
+/// The same figures machine-readable (`emulator::figures::json`).
+pub(crate) const SIMPLECAN_FIGURES_JSON: &str = "docs/emulated-figures-simplecan.json";
+
+/// SimpleCAN's measuring run on the four shipped SimpleCAN images (`emulate-network
+/// --simplecan`, `emulator::cases::simplecan`): configured by the tool's library from
+/// `scenarios/networks/simplecan.toml`, started, one second of Operational profiled on every
+/// MCU with node 1's contacts opened and closed once; writes [`SIMPLECAN_FIGURES`] and
+/// [`SIMPLECAN_FIGURES_JSON`].
+pub fn simplecan_figures(root: &Path) -> Result<()> {
+    let cross = toolchain::ensure()?;
+    toolchain::ensure_emulator_build_deps()?;
+    let layer = Protocol::Simplecan.hardware_layer();
+    images::build_layer(root, &cross, layer)?;
+    let emulate = build_emulate_network(root)?;
+    let file = write_network_file(root, Protocol::Simplecan)?;
+    let output = std::process::Command::new(emulate)
+        .arg(images::image(&cross, root, layer, "a"))
+        .arg(images::image(&cross, root, layer, "b"))
+        .args(["--inputs-closed", "--quiet", "--simplecan"])
+        .arg(file)
+        .output()?;
+    let log = String::from_utf8_lossy(&output.stdout);
+    if !output.status.success() {
+        anyhow::bail!(
+            "SimpleCAN's measuring run on the shipped images failed:\n{log}{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    let lines: Vec<&str> = log
+        .lines()
+        .filter_map(|line| line.strip_prefix("emulate-network: "))
+        .filter(|line| !line.contains("sealed image"))
+        .collect();
+    let mut report = String::from(
+        "# Figures of the shipped SimpleCAN images on the emulated network\n\n\
+         Written by `cargo xtask bench --target-cost --protocol simplecan` \
+         (`xtask/src/emulate.rs`, `simplecan_figures`) from `emulate-network --simplecan` on \
+         the four shipped SimpleCAN images (`emulator::cases::simplecan`: node 1 the master \
+         and producer of SC-ID 30h, node 33 its consumer, `scenarios/networks/simplecan.toml`); \
+         do not edit by hand. Virtual time is exact; instructions are counted by the emulator \
+         (one per executed Thumb instruction, not cycles; docs/emulator.md). A report of the \
+         images it was written from, not a gate (docs/overview.md, \"Generated pages\").\n\n",
+    );
+    for line in &lines {
+        if line.starts_with("figures") {
+            continue;
+        }
+        println!("xtask: {line}");
+        if !line.contains(" of host time") {
+            report.push_str(&format!("- {line}\n"));
+        }
+    }
+    report.push('\n');
+    for line in lines
+        .iter()
+        .filter_map(|line| line.strip_prefix("figures "))
+    {
+        report.push_str(line);
+        report.push('\n');
+    }
+    write_figures(
+        root,
+        SIMPLECAN_FIGURES,
+        SIMPLECAN_FIGURES_JSON,
+        &report,
+        &lines,
+    )?;
     println!(
-        "xtask: the nominal case passed on the shipped images; figures in {FIGURES} and \
-         {FIGURES_JSON}"
+        "xtask: SimpleCAN's measuring run passed on the shipped images; figures in \
+         {SIMPLECAN_FIGURES} and {SIMPLECAN_FIGURES_JSON}"
     );
     Ok(())
 }

@@ -212,8 +212,9 @@ enum Task {
         #[arg(long)]
         target_cost: bool,
         /// With `--target-cost`: the images and network of this protocol, `canopen-safety`
-        /// (the default) or `simplecan` (SimpleCAN's processing step, its own block, counted in
-        /// the QEMU images with SimpleCAN under QEMU's instruction trace).
+        /// (the default) or `simplecan` (SimpleCAN's processing step, its own block and
+        /// tool/src/calc/target_measured_simplecan.rs, counted in the shipped SimpleCAN images
+        /// on the emulated STM32F405; their figures in docs/emulated-figures-simplecan.md).
         #[arg(long, value_enum, default_value_t, requires = "target_cost")]
         protocol: network::Protocol,
         /// With `--target-cost`: instead, the shipped CANopen Safety images on the emulated

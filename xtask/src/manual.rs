@@ -642,7 +642,7 @@ fn simplecan_part(root: &Path) -> Result<String> {
         bail!("{SIMPLECAN_EXAMPLE} has no [simplecan] section");
     };
     let bit_rate = safety_device::BIT_RATE;
-    // SimpleCAN's processing step, measured in the images with SimpleCAN, as
+    // SimpleCAN's processing step, counted in the shipped SimpleCAN images, as
     // `docs/performance.md`'s block of the same run states it.
     let step = target::MEASURED_SIMPLECAN.processing_us();
     let bench = std::fs::read_to_string(root.join("docs/performance.md"))
@@ -705,7 +705,7 @@ fn simplecan_part(root: &Path) -> Result<String> {
     ));
     let _ = writeln!(
         out,
-        "The example network file (`safety-config sfrt simplecan-network.toml --bit-rate {bit_rate}`):\n\n```toml\n{text}```\n\nIts output, with the hardware's timing and SimpleCAN's processing step measured in the images with SimpleCAN (`DeviceTiming::HARDWARE_SIMPLECAN`, {step} µs):\n"
+        "The example network file (`safety-config sfrt simplecan-network.toml --bit-rate {bit_rate}`):\n\n```toml\n{text}```\n\nIts output, with the hardware's timing and SimpleCAN's processing step counted in the shipped SimpleCAN images on the emulated STM32F405 (`DeviceTiming::HARDWARE_SIMPLECAN`, {step} µs):\n"
     );
     out.push_str(&report::simplecan_reactions(
         &hardware,
@@ -770,28 +770,17 @@ fn processing_part(bench: &str) -> Result<String> {
         );
     }
     let mut out = header("`safety_config::calc::target` and `docs/performance.md`");
-    let rows = match measured.basis {
-        target::Basis::Activations => format!(
-            "| the activation a frame may wait behind: the longest that ran the loop, from the \
-             core's wake-up to its next sleep (interrupt handlers, the executor, the iteration, \
-             the watchdog fed, the stack's search) | {} | counted in the shipped images on the \
-             emulated STM32F405 (most seen) |\n\
-             | the activation that handles the SRDO frame, the pair or the verdict: the longest \
-             with a pair's work | {} | counted in the shipped images on the emulated STM32F405 \
-             (most seen) |\n",
-            measured.longest_iteration, measured.longest_protocol_iteration
-        ),
-        target::Basis::LoopIterations => format!(
-            "| wake-up: the interrupt to the loop's entry | {} | allowed by argument |\n\
-             | the loop iteration a frame may wait behind (the longest of any kind) | {} | measured (most seen) |\n\
-             | the board's work after it: the watchdog fed, the stack's search (`board::stack::WORDS_PER_STEP` words), a new mark's log line | {} | allowed by analysis of the images' code |\n\
-             | the loop iteration that handles the SRDO frame or verdict (the longest) | {} | measured (most seen) |\n",
-            target::WAKE_INSTRUCTIONS,
-            measured.longest_iteration,
-            target::BETWEEN_ITERATIONS,
-            measured.longest_protocol_iteration
-        ),
-    };
+    let target::Basis::Activations = measured.basis;
+    let rows = format!(
+        "| the activation a frame may wait behind: the longest that ran the loop, from the \
+         core's wake-up to its next sleep (interrupt handlers, the executor, the iteration, \
+         the watchdog fed, the stack's search) | {} | counted in the shipped images on the \
+         emulated STM32F405 (most seen) |\n\
+         | the activation that handles the SRDO frame, the pair or the verdict: the longest \
+         with a pair's work | {} | counted in the shipped images on the emulated STM32F405 \
+         (most seen) |\n",
+        measured.longest_iteration, measured.longest_protocol_iteration
+    );
     let _ = writeln!(
         out,
         "| part of the longest processing path | Thumb instructions | how it is known |\n\

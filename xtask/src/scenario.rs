@@ -70,7 +70,7 @@ pub fn emulated(root: &Path, files: &[PathBuf]) -> Result<()> {
     let layer = Protocol::CanopenSafety.hardware_layer();
     images::build_layer(root, &cross, layer)?;
     let emulate = crate::emulate::build_emulate_network(root)?;
-    let network_file = crate::emulate::write_network_file(root)?;
+    let network_file = crate::emulate::write_network_file(root, Protocol::CanopenSafety)?;
     let mut command = std::process::Command::new(emulate);
     command
         .arg(images::image(&cross, root, layer, "a"))

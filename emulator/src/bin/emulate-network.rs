@@ -75,6 +75,13 @@ struct Cli {
     /// scenario runner's judge and the campaigns' oracle (`emulator::scenario`). Repeatable.
     #[arg(long, requires = "nominal", value_name = "SCENARIO_FILE")]
     scenario: Vec<PathBuf>,
+    /// SimpleCAN's measuring run instead of a fixed time, on the SimpleCAN images: configure
+    /// both nodes from this SimpleCAN network file with the configuration tool's library,
+    /// start them, then profile one second of Operational on every MCU with node 1's
+    /// contacts opened and closed once in it (`emulator::cases::simplecan`). Needs `--nodes
+    /// 1,33` (the default) and closed contacts.
+    #[arg(long, value_name = "NETWORK_FILE", conflicts_with_all = ["nominal", "power_cut_sweep"])]
+    simplecan: Option<PathBuf>,
     /// With `--load`: for this long (virtual time).
     #[arg(long, default_value = "10s", value_parser = emulator::time::parse_duration)]
     load_for: Nanos,
@@ -105,7 +112,7 @@ struct Cli {
     /// socketcand:127.0.0.1:29536/can0`). The virtual time then follows the host clock (never
     /// ahead of it), since such programs time out on the wall clock
     /// (`emulator::socketcand`).
-    #[arg(long, value_name = "ADDRESS:PORT", conflicts_with_all = ["nominal", "power_cut_sweep"])]
+    #[arg(long, value_name = "ADDRESS:PORT", conflicts_with_all = ["nominal", "power_cut_sweep", "simplecan"])]
     socketcand: Option<String>,
     /// With `--socketcand`: serve the control port on this TCP address (`127.0.0.1:29537`),
     /// the line protocol of `can-hub`'s (`emulator::control`): a channel's contact, the bus
@@ -248,6 +255,51 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
     let candump = &mut traces;
     let started = std::time::Instant::now();
     let mut frames = vec![0u64; names.len() + 1];
+    if let Some(path) = &cli.simplecan {
+        let text = std::fs::read_to_string(path)
+            .map_err(|error| format!("{}: {error}", path.display()))?;
+        let file = safety_config::network_file::parse(&text, &path.display().to_string())?;
+        let mut trace = Vec::new();
+        let result =
+            emulator::cases::simplecan(&mut network, &file, &mut |event| trace.push(event.clone()));
+        trace.extend(network.take_events());
+        let mut stopped = false;
+        for event in &trace {
+            stopped |= print_event(event, &names, &mut frames, candump)?;
+        }
+        if !cli.quiet {
+            for mcu in 0..names.len() {
+                for (at, bytes) in network.take_log(mcu) {
+                    for line in decoders[mcu].feed(at, &bytes) {
+                        println!("{:<8} {line}", names[mcu]);
+                    }
+                }
+            }
+        }
+        summary(&network, &names, &frames, started);
+        return match result {
+            Ok(run) => {
+                println!(
+                    "emulate-network: SimpleCAN's measuring run passed: configured in {:.3} s \
+                     of virtual time ({} SDO requests); node 33's outputs off {:.3} ms after \
+                     node 1's contacts opened, on again {:.3} ms after they closed ({} data \
+                     packets of SC-ID {:02X}h in the Operational window)",
+                    run.configured_in as f64 / 1e9,
+                    run.sdo_requests,
+                    run.reaction as f64 / 1e6,
+                    run.restored as f64 / 1e6,
+                    run.operational.first().map_or(0, |window| window.pairs),
+                    run.sc_id
+                );
+                print_figures(&run.profiled(), &names);
+                Ok(!stopped)
+            }
+            Err(why) => {
+                println!("emulate-network: SimpleCAN's measuring run failed: {why}");
+                Ok(false)
+            }
+        };
+    }
     if let Some(path) = &cli.nominal {
         let text = std::fs::read_to_string(path)
             .map_err(|error| format!("{}: {error}", path.display()))?;
@@ -389,13 +441,7 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                         std::fs::write(dir.join(format!("{name}.activations")), text)?;
                     }
                 }
-                for line in emulator::figures::markdown(&nominal, &names) {
-                    println!("emulate-network: figures {line}");
-                }
-                println!(
-                    "emulate-network: figures-json {}",
-                    emulator::figures::json(&nominal, &names)
-                );
+                print_figures(&nominal.profiled(), &names);
                 Ok(!stopped && nominal.reaction <= nominal.bound)
             }
             Err(why) => {
@@ -546,6 +592,18 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         pace(server);
     }
     Ok(!stopped)
+}
+
+/// Prints the profiles' Markdown (`figures` lines) and JSON (the `figures-json` line), which
+/// `cargo xtask` writes into the figures' pages.
+fn print_figures(profiled: &emulator::figures::Profiled<'_>, names: &[String]) {
+    for line in emulator::figures::markdown(profiled, names) {
+        println!("emulate-network: figures {line}");
+    }
+    println!(
+        "emulate-network: figures-json {}",
+        emulator::figures::json(profiled, names)
+    );
 }
 
 /// How the pacing to the host clock went, with the clients served so far.

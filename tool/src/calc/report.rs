@@ -78,7 +78,7 @@ pub fn reactions(reactions: &[Reaction], bit_rate: u32, timing: &DeviceTiming) -
         timing.link_byte_us,
         ms(timing.processing_us),
         if timing.processing_us == super::target::MEASURED.processing_us() {
-            " (instructions measured on the target under QEMU, cycles per instruction bounded by assumption: `safety_config::calc::target`)"
+            " (instructions counted in the shipped images on the emulated STM32F405, cycles per instruction bounded by assumption: `safety_config::calc::target`)"
         } else {
             ""
         },
@@ -151,7 +151,7 @@ pub fn simplecan_reactions(
             "SimpleCAN's channel step: {} ms{}.\n",
             ms(timing.processing_us),
             if timing.processing_us == super::target::MEASURED_SIMPLECAN.processing_us() {
-                " (instructions measured in the images with SimpleCAN under QEMU, cycles per instruction bounded by assumption: `safety_config::calc::target`)"
+                " (instructions counted in the shipped SimpleCAN images on the emulated STM32F405, cycles per instruction bounded by assumption: `safety_config::calc::target`)"
             } else {
                 ""
             }

@@ -97,9 +97,9 @@ impl DeviceTiming {
     };
 
     /// The hardware with SimpleCAN: [`DeviceTiming::HARDWARE`] but for the processing step,
-    /// measured in the images with SimpleCAN ([`super::target::MEASURED_SIMPLECAN`], `cargo
-    /// xtask bench --target-cost --protocol simplecan`), whose loop iterations carry
-    /// SimpleCAN's work beside the SRDO table's.
+    /// counted in the shipped SimpleCAN images on the emulated STM32F405
+    /// ([`super::target::MEASURED_SIMPLECAN`], `cargo xtask bench --target-cost --protocol
+    /// simplecan`), whose activations carry SimpleCAN's work beside the SRDO table's.
     pub const HARDWARE_SIMPLECAN: DeviceTiming = DeviceTiming {
         processing_us: super::target::MEASURED_SIMPLECAN.processing_us(),
         ..DeviceTiming::HARDWARE

@@ -4,28 +4,26 @@
 //! from the measurement):
 //!
 //! - **CANopen Safety** ([`MEASURED`], `target_measured.rs`, `cargo xtask bench
-//!   --target-cost`): the shipped hardware images on the emulated STM32F405 (`emulator`),
-//!   counted by [`Basis::Activations`]: whole activations of the core, each from a wake-up to
-//!   the next sleep, so the wake-up, the interrupt handlers that ran meanwhile, embassy's
-//!   executor, the loop iteration and the board's work after it are all counted.
+//!   --target-cost`): the shipped CANopen Safety images on the emulated STM32F405
+//!   (`emulator`), the nominal case.
 //! - **SimpleCAN** ([`MEASURED_SIMPLECAN`], `target_measured_simplecan.rs`, `cargo xtask bench
-//!   --target-cost --protocol simplecan`): the QEMU images with SimpleCAN, counted by
-//!   [`Basis::LoopIterations`]: the thread-mode instructions of the loop's iterations
-//!   (`ChannelLoop::service`) under QEMU's instruction trace, the QEMU board layer's own work
-//!   subtracted, the wake-up ([`WAKE_INSTRUCTIONS`]) and the board's work between iterations
-//!   ([`BETWEEN_ITERATIONS`]) allowed by argument, and the hardware layer's driver taken to
-//!   cost no more than the QEMU layer's.
+//!   --target-cost --protocol simplecan`): the shipped SimpleCAN images on the emulated
+//!   STM32F405, SimpleCAN's measuring run (node 1 producing an SC-ID and sending the syncs,
+//!   node 33 consuming it, the emergency stop opened and closed).
 //!
-//! In both, the path a frame takes is the longest activation (or iteration) of any kind that
-//! had the loop run, which a frame arriving during it waits behind (the loop does not preempt
-//! itself), then the longest one that handled the protocol's traffic (for CANopen Safety a
-//! received plain or inverted SRDO frame, a pair produced, the other channel's verdict; for
-//! SimpleCAN a frame received or sent).
+//! Both are counted by [`Basis::Activations`]: whole activations of the core, each from a
+//! wake-up to the next sleep, so the wake-up, the interrupt handlers that ran meanwhile,
+//! embassy's executor, the loop iteration and the board's work after it are all counted. The
+//! path a frame takes is the longest activation of any kind that had the loop run, which a
+//! frame arriving during it waits behind (the loop does not preempt itself), then the longest
+//! one that did the protocol's work (for CANopen Safety a received plain or inverted SRDO
+//! frame, a pair produced or validated, the other channel's verdict; for SimpleCAN a packet or
+//! sync decoded or produced, channel A's forwarded copy paired, channel A's packet judged by
+//! channel B, the other channel's verdict).
 //!
-//! **Bounded by argument** in both: [`CPI_BOUND`] cycles per instruction (the emulator and
-//! QEMU count instructions, not cycles), and [`INTERRUPT_ALLOWANCE_FACTOR`] for interrupts
-//! beyond those counted (the emulated traffic raises fewer than a fully loaded bus at 1 Mbit/s
-//! would; QEMU's count leaves them all out).
+//! **Bounded by argument**: [`CPI_BOUND`] cycles per instruction (the emulator counts
+//! instructions, not cycles), and [`INTERRUPT_ALLOWANCE_FACTOR`] for interrupts beyond those
+//! counted (the emulated traffic raises fewer than a fully loaded bus at 1 Mbit/s would).
 
 /// What the instructions of a [`TargetCost`] were counted over.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -33,10 +31,6 @@ pub enum Basis {
     /// Whole activations of the shipped images on the emulated STM32F405 (`emulator::profile`):
     /// the wake-up and the board's work around the loop iteration are in the count.
     Activations,
-    /// Thread-mode loop iterations of the QEMU images: the wake-up and the board's work
-    /// between iterations are added as allowances ([`WAKE_INSTRUCTIONS`],
-    /// [`BETWEEN_ITERATIONS`]).
-    LoopIterations,
 }
 
 /// Instructions counted on the target ([`Basis`] says over what).
@@ -44,30 +38,15 @@ pub enum Basis {
 pub struct TargetCost {
     /// What was counted.
     pub basis: Basis,
-    /// The longest activation with a loop iteration, or loop iteration, of any kind seen (a
-    /// frame arriving during it waits).
+    /// The longest activation with a loop iteration, of any kind seen (a frame arriving
+    /// during it waits).
     pub longest_iteration: u64,
-    /// The longest one that handled the safety protocol's traffic: an SRDO frame, a pair
-    /// produced or a verdict (CANopen Safety, [`MEASURED`]); a frame received or sent
-    /// (SimpleCAN, [`MEASURED_SIMPLECAN`]).
+    /// The longest one that did the safety protocol's work: an SRDO frame, a pair produced or
+    /// validated, a verdict (CANopen Safety, [`MEASURED`]); a packet or sync decoded or
+    /// produced, a forwarded packet paired, channel A's packet judged, a verdict (SimpleCAN,
+    /// [`MEASURED_SIMPLECAN`]).
     pub longest_protocol_iteration: u64,
 }
-
-/// The wake-up, an allowance by argument (instructions): on the hardware, the interrupt's
-/// handler wakes the task and embassy's executor polls it (its run queue, the task's poll,
-/// the select over the CAN, link and timer futures), a few hundred instructions; 2,000 are
-/// allowed. Not measured: the emulated loop did not halt while traced.
-pub const WAKE_INSTRUCTIONS: u64 = 2000;
-
-/// The board layer's work after each loop iteration, before it waits again, an allowance by
-/// analysis of the images' code (instructions): `board::hw::run` feeds the watchdog and
-/// searches `board::stack::WORDS_PER_STEP` words of the stack for its high-water mark, at
-/// 7 Thumb instructions a word in both hardware images (address, load, compare with the
-/// paint, branch, index: the loop as compiled) and a few around them, and logs a new mark
-/// when it finds one (one defmt line, a few hundred); 2,500 are allowed (the test
-/// `en50325_5_9_3_1_the_allowance_between_iterations_covers_the_stack_search` checks it). A frame that arrives during it waits for it, and the measurement does not count
-/// it: it counts the iteration (`ChannelLoop::service`).
-pub const BETWEEN_ITERATIONS: u64 = 2500;
 
 /// The core clock of the product's STM32F405 (`board::hw`).
 pub const CLOCK_HZ: u64 = 168_000_000;
@@ -94,15 +73,12 @@ pub use super::target_measured::MEASURED;
 pub use super::target_measured_simplecan::MEASURED_SIMPLECAN;
 
 impl TargetCost {
-    /// Instructions of the longest processing path: a wake-up, the iteration the loop was in
-    /// when the frame came and the board's work after it, the iteration that handles it
-    /// (counted whole by [`Basis::Activations`], the wake-up and the board's work allowed
-    /// by [`Basis::LoopIterations`]).
+    /// Instructions of the longest processing path: the activation the loop was in when the
+    /// frame came (its wake-up and the board's work after the iteration included), then the
+    /// activation that handles it ([`Basis::Activations`]: both counted whole).
     pub const fn path_instructions(&self) -> u64 {
-        let counted = self.longest_iteration + self.longest_protocol_iteration;
         match self.basis {
-            Basis::Activations => counted,
-            Basis::LoopIterations => counted + WAKE_INSTRUCTIONS + BETWEEN_ITERATIONS,
+            Basis::Activations => self.longest_iteration + self.longest_protocol_iteration,
         }
     }
 
@@ -120,15 +96,13 @@ mod tests {
     use super::*;
 
     /// The step is the whole path at the bounded cycles per instruction, doubled, rounded up
-    /// to 10 µs: the wake-up and the board's work between iterations (2,000 and 2,500), 2,000
-    /// and 1,060 instructions of iterations, 7,560 in all, are 90,720 cycles, 540.0 µs
-    /// exactly; one instruction more rounds up to 550 µs.
+    /// to 10 µs: activations of 6,500 and 1,060 instructions, 7,560 in all, are 90,720
+    /// cycles, 540.0 µs exactly; one instruction more rounds up to 550 µs.
     #[test]
     fn en50325_5_9_3_1_the_processing_step_is_the_path_at_the_bounded_cycles() {
-        assert_eq!((WAKE_INSTRUCTIONS, BETWEEN_ITERATIONS), (2000, 2500));
         let cost = TargetCost {
-            basis: Basis::LoopIterations,
-            longest_iteration: 2000,
+            basis: Basis::Activations,
+            longest_iteration: 6500,
             longest_protocol_iteration: 1060,
         };
         assert_eq!(cost.path_instructions(), 7560);
@@ -138,14 +112,5 @@ mod tests {
             ..cost
         };
         assert_eq!(one_more.processing_us(), 550);
-        // Whole activations carry the wake-up and the board's work: nothing is added. 4,500
-        // more instructions in the activations, the same path, the same step.
-        let activations = TargetCost {
-            basis: Basis::Activations,
-            longest_iteration: 2000 + WAKE_INSTRUCTIONS + BETWEEN_ITERATIONS,
-            longest_protocol_iteration: 1060,
-        };
-        assert_eq!(activations.path_instructions(), 7560);
-        assert_eq!(activations.processing_us(), 540);
     }
 }
