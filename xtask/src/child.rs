@@ -99,13 +99,6 @@ impl Guarded {
         Ok(status)
     }
 
-    /// Waits for the child to exit (reaped then, and forgotten).
-    pub fn wait(&mut self) -> std::io::Result<std::process::ExitStatus> {
-        let status = self.child.wait()?;
-        self.registry.set().remove(&self.child.id());
-        Ok(status)
-    }
-
     /// Kills the child's process group unless the child has exited, and reaps it; again, it
     /// does nothing.
     pub fn end(&mut self) {

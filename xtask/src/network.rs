@@ -53,11 +53,6 @@ pub const REFRESH_MS: u64 = 100;
 pub const SCT_MS: u64 = 500;
 /// Node 33's SRVT for SRDO 1.
 pub const SRVT_MS: u64 = 100;
-/// How long the start after a reset waits beyond channel B's window, in the network's time:
-/// well past the board layer's link heartbeat period (`board::hw::LINK_PERIOD`), so that
-/// channel A's first heartbeat of the new epoch has reached channel B.
-const RESET_SETTLE_MS: u64 = 100;
-
 /// The safety protocol the emulated network speaks between node 1 and node 33.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Protocol {
@@ -364,14 +359,9 @@ pub fn output_33(latest: &HashMap<String, (f64, Status)>) -> Option<u8> {
 }
 
 impl Network {
-    /// Builds what is missing, starts the four MCUs, configures both nodes over the bus and
-    /// starts them; returns once both nodes are Operational and node 33's output follows node
-    /// 1's input.
-    pub fn start(root: &Path) -> Result<Network> {
-        Network::start_for(root, Protocol::CanopenSafety)
-    }
-
-    /// As [`Network::start`], the nodes speaking `protocol`: the sealed hardware images on
+    /// Builds what is missing, starts the four MCUs speaking `protocol`, configures both nodes
+    /// over the bus and starts them; returns once both nodes are Operational and node 33's
+    /// output follows node 1's input. The MCUs run the sealed hardware images on
     /// `emulate-network`, serving socketcand on [`hub_tcp`] and its control port on the port
     /// after it. Refuses to run images whose CRC the emulator reads differently from what the
     /// build sealed.
@@ -629,49 +619,6 @@ impl Network {
             );
         }
         Ok(())
-    }
-
-    /// NMT reset node for every node (clears latched faults), then starts them again.
-    pub fn reset(&mut self) -> Result<()> {
-        self.command("clear")?;
-        for (name, _, _) in CHANNELS {
-            self.command(&format!("input {name} 1"))?;
-        }
-        // The inputs are released in every channel before the reset.
-        let released = self.wait_for(Duration::from_secs(3), |latest| {
-            CHANNELS
-                .iter()
-                .all(|(name, _, _)| latest.get(*name).is_some_and(|(_, s)| s.input == 1))
-        })?;
-        if released.is_none() {
-            bail!(
-                "not every channel took its input back to 1:\n{}",
-                self.table()
-            );
-        }
-        self.tool()?.nmt(NmtCommand::ResetNode, 0)?;
-        // Both nodes announce themselves again once both their channels run.
-        let mut booted = [false; 2];
-        receive_until(self.tool()?, Duration::from_secs(10), |frame| {
-            match (frame.id().raw(), frame.data()) {
-                (0x701, [0]) => booted[0] = true,
-                (0x721, [0]) => booted[1] = true,
-                _ => {}
-            }
-            booted == [true, true]
-        })?;
-        if booted != [true, true] {
-            bail!("after NMT reset node, no boot-up from both nodes within 10 s");
-        }
-        // Channel B sets the announcements of channel A's frames that were not on the bus at
-        // the reset apart for a window after A's first link heartbeat of the new epoch
-        // (docs/model-checking.md, the reset trails): a start inside that time, with a frame
-        // lost just before the reset (a muted node), makes the first pair a transmit mismatch,
-        // the safe side. The boot-up alone outlasts the window; the start still waits for a
-        // link period and the window, on the network's time.
-        let settle = RESET_SETTLE_MS + dual_channel::runtime::SAMPLE_WINDOW.as_micros() / 1000;
-        self.wait_for(Duration::from_millis(settle), |_| false)?;
-        self.start_nodes()
     }
 
     /// The latest status of every channel, as a table.

@@ -868,10 +868,9 @@ pub fn task(
         None
     };
     let mut screen = Screen {
-        title: format!(
-            "cargo xtask run: the emulated safety network (nodes 1 and 33, the shipped images \
-             on four emulated STM32F405s)"
-        ),
+        title: "cargo xtask run: the emulated safety network (nodes 1 and 33, the shipped \
+                images on four emulated STM32F405s)"
+            .to_owned(),
         keys: KEYS.to_owned(),
         ..Screen::default()
     };

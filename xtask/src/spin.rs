@@ -265,10 +265,12 @@ const MEMORY_FULL_MB: u32 = 14000;
 /// memory counts), 2^26 up to 8000 MB, 2^27 beyond (a fuller table costs collisions, not
 /// correctness: the search is exhaustive either way).
 fn hash_slots(memory: u32) -> u32 {
-    match memory {
-        ..=MEMORY_MB => 24,
-        ..=8000 => 26,
-        _ => 27,
+    if memory <= MEMORY_MB {
+        24
+    } else if memory <= 8000 {
+        26
+    } else {
+        27
     }
 }
 
