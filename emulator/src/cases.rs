@@ -175,6 +175,36 @@ pub struct LoadReport {
     pub gaps: Vec<Nanos>,
 }
 
+/// How far the share of the bus the load took may be from the share asked for, in percentage
+/// points: the generator fills its share frame by frame, so the last frame's bits are the
+/// only difference it leaves.
+pub const LOAD_SHARE_TOLERANCE: f64 = 0.5;
+
+impl LoadReport {
+    /// What the bus-load part must have shown beside its SRDOs, with `percent` asked for: no
+    /// SDO request lost (node 33 answers each; the last may still be on its way when the part
+    /// ends), the load's share within [`LOAD_SHARE_TOLERANCE`] of `percent`, and SRDO pairs
+    /// completed throughout. `Err` names what was not.
+    pub fn judge(&self, percent: u32) -> Result<(), String> {
+        if self.sdo_answers + 1 < self.sdo_requests || self.sdo_answers > self.sdo_requests {
+            return Err(format!(
+                "node 33 answered {} of {} SDO requests under bus load",
+                self.sdo_answers, self.sdo_requests
+            ));
+        }
+        let share = self.share * 100.0;
+        if (share - f64::from(percent)).abs() > LOAD_SHARE_TOLERANCE {
+            return Err(format!(
+                "the load took {share:.2} % of the bus, not {percent} % (± {LOAD_SHARE_TOLERANCE})"
+            ));
+        }
+        if self.gaps.is_empty() {
+            return Err("no SRDO pair was completed while the bus was loaded".to_string());
+        }
+        Ok(())
+    }
+}
+
 /// The babbling identifier of the bus-load part: free in the pre-defined connection set
 /// (CiA 301 7.3.5: NMT 000h, EMCY from 081h) and above every SRDO's priority (CiA 304: 101h
 /// and up).
@@ -910,10 +940,51 @@ fn under_load(
     network.leave_external(sender);
     gaps.sort_unstable();
     let seconds = spec.duration as f64 / 1e9;
-    Ok(LoadReport {
+    let report = LoadReport {
         share: other_bits as f64 / (500_000.0 * seconds),
         sdo_requests: requests,
         sdo_answers: answers,
         gaps,
-    })
+    };
+    report.judge(spec.percent)?;
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bus-load part's verdict beside its SRDOs: every SDO request answered but the last,
+    /// which may still be on its way; the share asked for within its tolerance; pairs
+    /// completed. Each departure is named.
+    #[test]
+    fn the_bus_load_part_fails_on_a_lost_answer_a_wrong_share_or_no_pair() {
+        let good = LoadReport {
+            share: 0.302,
+            sdo_requests: 500,
+            sdo_answers: 499,
+            gaps: vec![215_000],
+        };
+        assert_eq!(good.judge(30), Ok(()));
+        let lost = LoadReport {
+            sdo_answers: 498,
+            ..good.clone()
+        };
+        assert!(lost.judge(30).unwrap_err().contains("answered 498 of 500"));
+        let extra = LoadReport {
+            sdo_answers: 501,
+            ..good.clone()
+        };
+        assert!(extra.judge(30).is_err());
+        let thin = LoadReport {
+            share: 0.294,
+            ..good.clone()
+        };
+        assert!(thin.judge(30).unwrap_err().contains("29.40 %"));
+        let no_pair = LoadReport {
+            gaps: Vec::new(),
+            ..good
+        };
+        assert!(no_pair.judge(30).unwrap_err().contains("no SRDO pair"));
+    }
 }

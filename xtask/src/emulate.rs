@@ -759,7 +759,41 @@ fn write_figures(
         root.join(json_page),
         serde_json::to_string_pretty(&value)? + "\n",
     )?;
+    if let Some(why) = stack_over_reserve(&value, images::STACK_RESERVE) {
+        anyhow::bail!("{why} ({json_page})");
+    }
     Ok(())
+}
+
+/// The sentence naming every MCU of the measuring run's figures (`emulator::figures::json`)
+/// whose deepest stack is above `reserve` bytes, the stack the RAM budget sets aside
+/// ([`images::STACK_RESERVE`]), or `None` when none is; a run whose figures name no stack is
+/// one too, so that a renamed field cannot pass unseen.
+fn stack_over_reserve(figures: &serde_json::Value, reserve: u64) -> Option<String> {
+    let mcus = figures["mcus"]
+        .as_array()
+        .map(Vec::as_slice)
+        .unwrap_or_default();
+    let over: Vec<String> = mcus
+        .iter()
+        .filter_map(|mcu| {
+            let name = mcu["mcu"].as_str().unwrap_or("an MCU");
+            match mcu["deepest_stack_bytes"].as_u64() {
+                Some(bytes) if bytes <= reserve => None,
+                Some(bytes) => Some(format!("{name} used {bytes} bytes of stack")),
+                None => Some(format!("{name}'s deepest stack was not measured")),
+            }
+        })
+        .collect();
+    match (mcus.is_empty(), over.is_empty()) {
+        (true, _) => Some("the figures name no MCU, so no stack was checked".to_string()),
+        (false, true) => None,
+        (false, false) => Some(format!(
+            "{}, more than the {reserve} bytes the RAM budget reserves for the stack \
+             (`STACK_RESERVE` in xtask/src/images.rs)",
+            over.join(", ")
+        )),
+    }
 }
 
 /// Where SimpleCAN's measuring run's figures are written.
@@ -930,6 +964,38 @@ fn check_faults(log: &str) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The RAM budget's stack reserve holds on the shipped images: an MCU whose deepest stack
+    /// is above it, or not measured, fails the measuring run by name; at the reserve it
+    /// passes.
+    #[test]
+    fn a_deepest_stack_above_the_reserve_fails_the_measuring_run() {
+        let figures = |a: serde_json::Value, b: serde_json::Value| {
+            serde_json::json!({"mcus": [
+                {"mcu": "node1a", "deepest_stack_bytes": a},
+                {"mcu": "node1b", "deepest_stack_bytes": b},
+            ]})
+        };
+        let at = serde_json::json!(12_288);
+        assert_eq!(
+            stack_over_reserve(&figures(at.clone(), at.clone()), 12_288),
+            None
+        );
+        let over = stack_over_reserve(&figures(at.clone(), serde_json::json!(12_289)), 12_288)
+            .expect("over the reserve");
+        assert!(
+            over.starts_with("node1b used 12289 bytes of stack"),
+            "{over}"
+        );
+        assert!(!over.contains("node1a"), "{over}");
+        let missing = stack_over_reserve(&figures(at, serde_json::Value::Null), 12_288)
+            .expect("not measured");
+        assert!(
+            missing.contains("node1b's deepest stack was not measured"),
+            "{missing}"
+        );
+        assert!(stack_over_reserve(&serde_json::json!({}), 12_288).is_some());
+    }
 
     const TRACE: &str = "(0.288713) vcan0 701#00\n(0.288827) vcan0 721#00\n\
                          (0.388715) vcan0 721#7F\n(0.388833) vcan0 701#7F\n\
