@@ -155,6 +155,10 @@ struct Connection {
     pending: Arc<AtomicUsize>,
     /// The client closed its connection; it is forgotten once its bytes are taken.
     departed: bool,
+    /// A write found the client's end closed: nothing more is written to it, and the bytes
+    /// it sent before it closed still go on the bus, up to the end of its stream
+    /// ([`Connection::departed`], which the reader thread reports after them).
+    closed: bool,
 }
 
 /// The socketcand port on TCP, with the network paced to the host clock.
@@ -303,6 +307,7 @@ impl Server {
                         backlog: Vec::new(),
                         pending,
                         departed: false,
+                        closed: false,
                     },
                 );
                 self.exchange(network);
@@ -350,8 +355,16 @@ impl Server {
             let Some(connection) = self.connections.get_mut(&outgoing.to) else {
                 continue;
             };
-            if !connection.departed && connection.stream.write_all(&outgoing.bytes).is_err() {
-                failed.push(outgoing.to);
+            if connection.departed || connection.closed {
+                continue;
+            }
+            match connection.stream.write_all(&outgoing.bytes) {
+                Ok(()) => {}
+                // A client that sent its last frame and closed (the configuration tool after
+                // its NMT start, say) is not cut off: the frame may still be on its way from
+                // the reader thread, and dropping the connection here lost it.
+                Err(error) if peer_closed(&error) => connection.closed = true,
+                Err(_) => failed.push(outgoing.to),
             }
         }
         let closing: Vec<usize> = self.port.closing.drain(..).collect();
@@ -378,6 +391,16 @@ impl Server {
             self.note(network, id, why);
         }
     }
+}
+
+/// `true` when a write failed because the client's end of the connection is closed, not
+/// because the client does not read.
+fn peer_closed(error: &std::io::Error) -> bool {
+    use std::io::ErrorKind;
+    matches!(
+        error.kind(),
+        ErrorKind::BrokenPipe | ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted
+    )
 }
 
 #[cfg(test)]

@@ -1214,6 +1214,10 @@ fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Pat
         theirs["sdo_seconds"]
     );
 
+    // Closed while the tool runs: a socketcand client that does not read is disconnected
+    // once its unread frames pass the server's write time-out (`can_hub::port`), which a
+    // configuration on a loaded host outlasts. A new one watches the start.
+    drop(tool);
     let started = std::time::Instant::now();
     let output = Command::new(root.join("target/debug/safety-config"))
         .args(["--bus", &format!("socketcand:{address}/can0"), "configure"])
@@ -1231,6 +1235,7 @@ fn emulated_network_checks(root: &Path, python: &Path, address: &str, file: &Pat
             String::from_utf8_lossy(&output.stderr)
         );
     }
+    let mut tool = network::connect_tool_at(address, Duration::from_secs(20))?;
     let mut seen = [false; 3];
     network::receive_until(&mut tool, Duration::from_secs(5), |frame| {
         match (frame.id().raw(), frame.data()) {
