@@ -46,8 +46,8 @@ pub const PLAIN: u16 = 0x101;
 /// The inverted half.
 pub const INVERTED: u16 = 0x102;
 
-/// The emulated network's timing: node 1 refreshes SRDO 1 every 100 ms; node 33 allows 500 ms between pairs (SCT) and 100 ms between the halves
-/// of a pair (SRVT).
+/// The emulated network's timing: node 1 refreshes SRDO 1 every 100 ms; node 33 allows
+/// 500 ms between pairs (SCT) and 100 ms between the halves of a pair (SRVT).
 pub const REFRESH_MS: u64 = 100;
 /// Node 33's safeguard cycle time for SRDO 1.
 pub const SCT_MS: u64 = 500;
@@ -488,8 +488,8 @@ impl Network {
 
     /// Waits up to `patience` of the network's time (the emulator's virtual clock, which
     /// follows the host clock and host load slows down) for the statuses to satisfy `until`;
-    /// returns the network's time. A network that stops reporting altogether is given up on after ten times
-    /// `patience` of host time, plus ten seconds.
+    /// returns the network's time. A network that stops reporting altogether is given up on
+    /// after ten times `patience` of host time, plus ten seconds.
     pub fn wait_for(
         &mut self,
         patience: Duration,
