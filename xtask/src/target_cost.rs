@@ -173,8 +173,8 @@ fn longest(figures: &serde_json::Value, key: &str) -> Result<(Vec<Row>, TargetCo
 fn render(m: &Measurement, protocol: Protocol, rows: &[Row], measured: &TargetCost) -> String {
     let traffic = match protocol {
         Protocol::CanopenSafety => {
-            "one second of Operational with node 1's SRDO flowing and the emergency stop \
-             pressed and released"
+            "one second of Operational with node 1's SRDO flowing and its contacts closed \
+             (the window ends before the case's bus load and emergency stop)"
         }
         Protocol::Simplecan => {
             "node 1 the master and producer of SC-ID 30h, node 33 its consumer; one second \
