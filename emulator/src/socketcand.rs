@@ -363,7 +363,7 @@ impl Server {
                 // A client that sent its last frame and closed (the configuration tool after
                 // its NMT start, say) is not cut off: the frame may still be on its way from
                 // the reader thread, and dropping the connection here lost it.
-                Err(error) if peer_closed(&error) => connection.closed = true,
+                Err(error) if can_hub::port::peer_closed(&error) => connection.closed = true,
                 Err(_) => failed.push(outgoing.to),
             }
         }
@@ -391,16 +391,6 @@ impl Server {
             self.note(network, id, why);
         }
     }
-}
-
-/// `true` when a write failed because the client's end of the connection is closed, not
-/// because the client does not read.
-fn peer_closed(error: &std::io::Error) -> bool {
-    use std::io::ErrorKind;
-    matches!(
-        error.kind(),
-        ErrorKind::BrokenPipe | ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted
-    )
 }
 
 #[cfg(test)]

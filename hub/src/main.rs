@@ -388,15 +388,23 @@ impl Hosts {
         fed
     }
 
-    /// Writes `bytes` to tool `to`; one that cannot be written to has left.
+    /// Writes `bytes` to tool `to`. A tool whose end of the connection is closed is written
+    /// to no more, and leaves when its reader reports the end of its stream, after the bytes
+    /// it sent before closing (its last frames still go on the bus); one that does not read
+    /// for `can_hub::port::WRITE_TIMEOUT` leaves at once.
     fn write(&mut self, hub: &mut Hub, to: usize, bytes: &[u8]) {
-        let failed = self
-            .writers
-            .get_mut(&to)
-            .is_some_and(|writer| writer.write_all(bytes).is_err());
-        if failed {
-            self.writers.remove(&to);
-            hub.leave(to);
+        let Some(writer) = self.writers.get_mut(&to) else {
+            return;
+        };
+        match writer.write_all(bytes) {
+            Ok(()) => {}
+            Err(error) if can_hub::port::peer_closed(&error) => {
+                self.writers.remove(&to);
+            }
+            Err(_) => {
+                self.writers.remove(&to);
+                hub.leave(to);
+            }
         }
     }
 }

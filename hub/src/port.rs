@@ -24,6 +24,18 @@ pub const BACKLOG: usize = 4096;
 /// How long a write to a client may block before the client is disconnected.
 pub const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 
+/// `true` when a write to a client failed because the client's end of the connection is
+/// closed (it sent what it had and left), not because the client does not read (a write
+/// blocked for [`WRITE_TIMEOUT`]): the program then writes to it no more but still takes the
+/// bytes it sent before closing, up to the end of its stream.
+pub fn peer_closed(error: &std::io::Error) -> bool {
+    use std::io::ErrorKind;
+    matches!(
+        error.kind(),
+        ErrorKind::BrokenPipe | ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted
+    )
+}
+
 /// Connections of one kind a port serves at once.
 pub const MAX_CLIENTS: usize = 16;
 
@@ -212,4 +224,26 @@ pub fn accept_control(
             });
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Error, ErrorKind};
+
+    /// A write to a client that closed its end is told from one that blocked: only the first
+    /// keeps the client's last bytes for the bus.
+    #[test]
+    fn a_closed_client_is_told_from_one_that_does_not_read() {
+        for kind in [
+            ErrorKind::BrokenPipe,
+            ErrorKind::ConnectionReset,
+            ErrorKind::ConnectionAborted,
+        ] {
+            assert!(peer_closed(&Error::from(kind)), "{kind:?}");
+        }
+        for kind in [ErrorKind::WouldBlock, ErrorKind::TimedOut] {
+            assert!(!peer_closed(&Error::from(kind)), "{kind:?}");
+        }
+    }
 }
