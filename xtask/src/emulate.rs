@@ -669,18 +669,8 @@ fn nominal_check(
         ])
         .arg(format!("{}ms", (load_seconds * 1000.0).round()))
         .output()?;
-    let log = String::from_utf8_lossy(&output.stdout);
-    if !output.status.success() {
-        anyhow::bail!(
-            "the nominal case on the shipped images failed:\n{log}{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-    }
-    let lines: Vec<&str> = log
-        .lines()
-        .filter_map(|line| line.strip_prefix("emulate-network: "))
-        .filter(|line| !line.contains("sealed image"))
-        .collect();
+    let log = run_lines(&output, "the nominal case on the shipped images")?;
+    let lines: Vec<&str> = log.iter().map(String::as_str).collect();
     for line in &lines {
         if !line.starts_with("cost ") && !line.starts_with("figures") {
             println!("xtask: {line}");
@@ -801,6 +791,25 @@ const SIMPLECAN_FIGURES: &str = "docs/emulated-figures-simplecan.md";
 /// The same figures machine-readable (`emulator::figures::json`).
 pub(crate) const SIMPLECAN_FIGURES_JSON: &str = "docs/emulated-figures-simplecan.json";
 
+/// The lines `emulate-network` printed of its own (its prefix cut, the sealed-image lines
+/// left out) in a measuring run's `output`; fails, naming `run` and with the whole output,
+/// when the run failed.
+fn run_lines(output: &std::process::Output, run: &str) -> Result<Vec<String>> {
+    let log = String::from_utf8_lossy(&output.stdout);
+    if !output.status.success() {
+        anyhow::bail!(
+            "{run} failed:\n{log}{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    Ok(log
+        .lines()
+        .filter_map(|line| line.strip_prefix("emulate-network: "))
+        .filter(|line| !line.contains("sealed image"))
+        .map(str::to_owned)
+        .collect())
+}
+
 /// SimpleCAN's measuring run on the four shipped SimpleCAN images (`emulate-network
 /// --simplecan`, `emulator::cases::simplecan`): configured by the tool's library from
 /// `scenarios/networks/simplecan.toml`, started, one second of Operational profiled on every
@@ -819,18 +828,8 @@ pub fn simplecan_figures(root: &Path) -> Result<()> {
         .args(["--inputs-closed", "--quiet", "--simplecan"])
         .arg(file)
         .output()?;
-    let log = String::from_utf8_lossy(&output.stdout);
-    if !output.status.success() {
-        anyhow::bail!(
-            "SimpleCAN's measuring run on the shipped images failed:\n{log}{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-    }
-    let lines: Vec<&str> = log
-        .lines()
-        .filter_map(|line| line.strip_prefix("emulate-network: "))
-        .filter(|line| !line.contains("sealed image"))
-        .collect();
+    let log = run_lines(&output, "SimpleCAN's measuring run on the shipped images")?;
+    let lines: Vec<&str> = log.iter().map(String::as_str).collect();
     let mut report = String::from(
         "# Figures of the shipped SimpleCAN images on the emulated network\n\n\
          Written by `cargo xtask bench --target-cost --protocol simplecan` \

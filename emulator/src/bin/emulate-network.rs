@@ -263,19 +263,14 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         let result =
             emulator::cases::simplecan(&mut network, &file, &mut |event| trace.push(event.clone()));
         trace.extend(network.take_events());
-        let mut stopped = false;
-        for event in &trace {
-            stopped |= print_event(event, &names, &mut frames, candump)?;
-        }
-        if !cli.quiet {
-            for mcu in 0..names.len() {
-                for (at, bytes) in network.take_log(mcu) {
-                    for line in decoders[mcu].feed(at, &bytes) {
-                        println!("{:<8} {line}", names[mcu]);
-                    }
-                }
-            }
-        }
+        let stopped = print_run(
+            &mut network,
+            &trace,
+            &names,
+            &mut frames,
+            candump,
+            (!cli.quiet).then_some(&mut decoders),
+        )?;
         summary(&network, &names, &frames, started);
         return match result {
             Ok(run) => {
@@ -336,19 +331,14 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
         });
         network.run_until(network.now() + 100_000_000);
         trace.extend(network.take_events());
-        let mut stopped = false;
-        for event in &trace {
-            stopped |= print_event(event, &names, &mut frames, candump)?;
-        }
-        if !cli.quiet {
-            for mcu in 0..names.len() {
-                for (at, bytes) in network.take_log(mcu) {
-                    for line in decoders[mcu].feed(at, &bytes) {
-                        println!("{:<8} {line}", names[mcu]);
-                    }
-                }
-            }
-        }
+        let stopped = print_run(
+            &mut network,
+            &trace,
+            &names,
+            &mut frames,
+            candump,
+            (!cli.quiet).then_some(&mut decoders),
+        )?;
         summary(&network, &names, &frames, started);
         return match result {
             Ok((nominal, faults)) => {
@@ -637,6 +627,32 @@ impl Traces {
         }
         Ok(())
     }
+}
+
+/// Prints a case's events (`trace`, frames to the traces only) and, with `decoders`, every
+/// MCU's decoded log so far; whether an MCU stopped.
+fn print_run(
+    network: &mut Network,
+    trace: &[Event],
+    names: &[String],
+    frames: &mut [u64],
+    traces: &mut Traces,
+    decoders: Option<&mut Vec<emulator::log::LogDecoder<'_>>>,
+) -> std::io::Result<bool> {
+    let mut stopped = false;
+    for event in trace {
+        stopped |= print_event(event, names, frames, traces)?;
+    }
+    if let Some(decoders) = decoders {
+        for (mcu, decoder) in decoders.iter_mut().enumerate() {
+            for (at, bytes) in network.take_log(mcu) {
+                for line in decoder.feed(at, &bytes) {
+                    println!("{:<8} {line}", names[mcu]);
+                }
+            }
+        }
+    }
+    Ok(stopped)
 }
 
 /// Prints one event (frames go to the traces only); whether it is an MCU's stop.
