@@ -97,6 +97,10 @@ pub struct Window {
     /// An idle loop iteration, function by function
     /// ([`crate::profile::Profile::timer_iteration`]).
     pub idle_iteration: Vec<(String, u64)>,
+    /// The activations with the protocol's work ([`crate::profile::Protocol::is_work`]),
+    /// instructions per function summed over all of them, most first
+    /// ([`crate::profile::Profile::functions_of`]).
+    pub work_functions: Vec<(String, u64)>,
 }
 
 /// Starts a new profiling window on every MCU.
@@ -114,21 +118,28 @@ fn pause_windows(network: &mut Network) {
 }
 
 /// Every MCU's profile of the window since [`start_windows`].
-fn windows(network: &Network, pairs: u64, frames: &[(u16, u64)]) -> Vec<Window> {
+fn windows(
+    network: &Network,
+    protocol: crate::profile::Protocol,
+    pairs: u64,
+    frames: &[(u16, u64)],
+) -> Vec<Window> {
     (0..network.names().count())
         .map(|mcu| {
             let machine = network.machine(mcu);
-            let (activations, functions, blocks, idle_iteration) =
+            let (activations, functions, blocks, idle_iteration, work_functions) =
                 machine.profile().map_or_else(Default::default, |p| {
                     (
                         p.activations().to_vec(),
                         p.functions(machine.symbols()),
                         p.blocks(),
                         p.timer_iteration(machine.symbols()),
+                        p.functions_of(machine.symbols(), |marks| protocol.is_work_marks(marks)),
                     )
                 });
             Window {
                 idle_iteration,
+                work_functions,
                 activations,
                 functions,
                 blocks,
@@ -362,7 +373,12 @@ pub fn nominal(
             pairs,
         })
         .collect();
-    let operational = windows(network, pairs, &operational_frames);
+    let operational = windows(
+        network,
+        crate::profile::Protocol::CanopenSafety,
+        pairs,
+        &operational_frames,
+    );
     pause_windows(network);
     if let Some(at) = steady {
         return Err(format!(
@@ -422,7 +438,12 @@ fn pre_operational_window(
     }) {
         return Err(format!("an MCU stopped at {:.3} ms", at as f64 / 1e6));
     }
-    let pre_operational = windows(network, 0, &idle_frames);
+    let pre_operational = windows(
+        network,
+        crate::profile::Protocol::CanopenSafety,
+        0,
+        &idle_frames,
+    );
     pause_windows(network);
     let idle = counters(network)
         .iter()
@@ -606,7 +627,12 @@ pub fn simplecan(
         }
         count(&event);
     }
-    let operational = windows(network, packets, &frames);
+    let operational = windows(
+        network,
+        crate::profile::Protocol::Simplecan,
+        packets,
+        &frames,
+    );
     pause_windows(network);
     let deepest_stack = (0..network.names().count())
         .map(|mcu| network.machine(mcu).deepest_stack().unwrap_or(0))

@@ -368,6 +368,33 @@ pub fn markdown(profiled: &Profiled<'_>, names: &[String]) -> Vec<String> {
             ));
         }
     }
+    let Words { work, unit, .. } = words(protocol);
+    out.push(String::new());
+    out.push(format!(
+        "### Where {work} goes, top {TOP_FUNCTIONS} functions per MCU"
+    ));
+    out.push(String::new());
+    out.push(format!(
+        "The activations with {work} (the *per {unit}* column above) in the Operational window, \
+         each function's own instructions in them summed and divided by the {unit}s: the \
+         executor's and the loop's own share of those wake-ups included."
+    ));
+    out.push(String::new());
+    out.push(format!("| MCU | function | per {unit} | share |"));
+    out.push("|---|---|---:|---:|".to_owned());
+    for (mcu, name) in names.iter().enumerate() {
+        let Some(window) = profiled.operational.get(mcu) else {
+            continue;
+        };
+        let total: u64 = window.work_functions.iter().map(|(_, n)| n).sum();
+        for (function, instructions) in window.work_functions.iter().take(TOP_FUNCTIONS) {
+            out.push(format!(
+                "| {name} | `{function}` | {:.0} | {:.1} % |",
+                *instructions as f64 / window.pairs.max(1) as f64,
+                100.0 * *instructions as f64 / total.max(1) as f64
+            ));
+        }
+    }
     out.push(String::new());
     out.push(
         "### One idle loop iteration of the Operational window, function by function".to_owned(),
@@ -538,6 +565,7 @@ mod tests {
             frames: Vec::new(),
             blocks: Vec::new(),
             idle_iteration: Vec::new(),
+            work_functions: Vec::new(),
         };
         let windows = [window];
         let profiled = Profiled {

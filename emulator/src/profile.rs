@@ -164,7 +164,12 @@ impl Protocol {
 
     /// Whether `activation` ran the loop and did the protocol's work ([`Protocol::work_marks`]).
     pub fn is_work(self, activation: &Activation) -> bool {
-        activation.has("loop") && activation.marks & self.work_marks() != 0
+        self.is_work_marks(activation.marks)
+    }
+
+    /// [`Protocol::is_work`] of an activation that entered the markers `marks`.
+    pub fn is_work_marks(self, marks: u32) -> bool {
+        marks & bit("loop") != 0 && marks & self.work_marks() != 0
     }
 }
 
@@ -224,6 +229,10 @@ pub struct Profile {
     /// ([`Profile::timer_iteration`]).
     timer_iteration: Vec<(u32, u32)>,
     activations: Vec<Activation>,
+    /// Instructions per block start, per set of markers an activation entered: the blocks
+    /// of every ended activation, summed under its [`Activation::marks`]
+    /// ([`Profile::functions_of`]).
+    by_marks: HashMap<u32, HashMap<u32, u64>>,
     lowest_sp: u32,
     /// Whether blocks and activations are counted ([`Profile::pause`]); the deepest stack
     /// always is.
@@ -246,6 +255,7 @@ impl Profile {
             current_blocks: Vec::new(),
             timer_iteration: Vec::new(),
             activations: Vec::new(),
+            by_marks: HashMap::new(),
             lowest_sp: u32::MAX,
             counting: true,
         }
@@ -282,6 +292,10 @@ impl Profile {
                 ..Activation::default()
             },
         );
+        let blocks = self.by_marks.entry(ended.marks).or_default();
+        for &(address, instructions) in &self.current_blocks {
+            *blocks.entry(address).or_default() += u64::from(instructions);
+        }
         if ended.marks == bit("loop") | bit("timer") && ended.iterations == 1 {
             std::mem::swap(&mut self.timer_iteration, &mut self.current_blocks);
         }
@@ -333,6 +347,28 @@ impl Profile {
         functions
     }
 
+    /// Instructions per function of the ended activations whose markers `which` accepts (by
+    /// `symbols`, as [`Profile::functions`]), most first: where the instructions of one kind
+    /// of activation go (a pair's work: [`Protocol::is_work`]).
+    pub fn functions_of(
+        &self,
+        symbols: &Symbols,
+        which: impl Fn(u32) -> bool,
+    ) -> Vec<(String, u64)> {
+        let mut sums: HashMap<String, u64> = HashMap::new();
+        for (_, blocks) in self.by_marks.iter().filter(|(marks, _)| which(**marks)) {
+            for (&address, &instructions) in blocks {
+                let name = symbols
+                    .function(address)
+                    .map_or_else(|| format!("{address:#010x}"), short_name);
+                *sums.entry(name).or_default() += instructions;
+            }
+        }
+        let mut functions: Vec<(String, u64)> = sums.into_iter().collect();
+        functions.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+        functions
+    }
+
     /// Instructions per block start address, most first (for a finer look than
     /// [`Profile::functions`]: `llvm-addr2line` names the source lines).
     pub fn blocks(&self) -> Vec<(u32, u64)> {
@@ -357,6 +393,7 @@ impl Profile {
         self.counting = true;
         self.blocks.clear();
         self.activations.clear();
+        self.by_marks.clear();
         self.current = Activation::default();
         self.current_blocks.clear();
         self.timer_iteration.clear();
@@ -399,6 +436,56 @@ fn short_name(name: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A kind of activation's functions count only the activations of that kind: an idle
+    /// iteration's loop instructions are not a pair's, and a pair's interrupt-only wake-ups
+    /// (a link byte) are not in it either.
+    #[test]
+    fn the_functions_of_a_kind_of_activation_count_only_that_kind() {
+        let symbols = Symbols::from_functions(&[
+            (
+                0x100,
+                0x40,
+                "dual_channel::channel_loop::ChannelLoop::service",
+            ),
+            (0x200, 0x40, "shared::safety::srdo::deliver_clamped"),
+            (0x300, 0x40, "USART3"),
+        ]);
+        let mut profile = Profile::new(&symbols);
+        // An idle iteration, a byte, then two iterations with a validated pair.
+        profile.block(0x100, 7, 0x2000_0F00);
+        profile.woke(1_000);
+        profile.block(0x300, 5, 0x2000_0F00);
+        profile.woke(2_000);
+        for at in [3_000, 4_000] {
+            profile.block(0x100, 10, 0x2000_0F00);
+            profile.block(0x200, 20, 0x2000_0E00);
+            profile.woke(at);
+        }
+        let work = profile.functions_of(&symbols, |marks| {
+            Protocol::CanopenSafety.is_work_marks(marks)
+        });
+        assert_eq!(
+            work,
+            [
+                ("shared::safety::srdo::deliver_clamped".to_owned(), 40),
+                (
+                    "dual_channel::channel_loop::ChannelLoop::service".to_owned(),
+                    20
+                ),
+            ]
+        );
+        let idle = profile.functions_of(&symbols, |marks| marks == bit("loop"));
+        assert_eq!(
+            idle,
+            [(
+                "dual_channel::channel_loop::ChannelLoop::service".to_owned(),
+                7
+            )]
+        );
+        profile.restart();
+        assert!(profile.functions_of(&symbols, |_| true).is_empty());
+    }
 
     #[test]
     fn an_activation_sums_its_blocks_and_keeps_the_markers_entered() {
