@@ -6,9 +6,11 @@
 //! the node-ID switches on PC2 (bit 0) to PC8 (bit 6), closed = 1, read at start-up,
 //! 8 MHz HSE crystal.
 //!
-//! One task runs the channel loop ([`dual_channel::channel_loop`]) over [`HwDriver`] and wakes
-//! for whatever comes first: a CAN frame, link bytes, or the instant the loop asked for (the
-//! runtime's next deadline, the 1 ms input sample). The loop reads the bxCAN's receive FIFOs
+//! [`run`] runs the channel loop ([`dual_channel::channel_loop`]) over [`HwDriver`] and sleeps
+//! (`wfi`) until whatever comes first: a CAN frame, link bytes, or the instant the loop asked
+//! for (the runtime's next deadline, the 1 ms input sample), on the board's own time base
+//! ([`clock`], TIM2). There is no async executor: one loop, interrupts that only move link
+//! bytes or wake it, and a sleep that cannot miss a wake-up ([`sleep_until_woken`]). The loop reads the bxCAN's receive FIFOs
 //! itself, behind the acceptance filters it derives from the configuration (SRDO identifiers
 //! into FIFO 0, NMT, GFC and SDO into FIFO 1), and a FIFO overrun or a bus-off is the safe
 //! state, each with its own cause ([`dual_channel::runtime::ChannelFault::ReceiveOverrun`],
@@ -18,22 +20,23 @@
 //! is fed by the channel loop only.
 //!
 //! The bxCAN's driver is the board's own, on the registers (`can1`, RM0090 32; why not
-//! embassy-stm32's or the `bxcan` crate's: `docs/can-driver.md`). The loop's task fills the
+//! embassy-stm32's or the `bxcan` crate's: `docs/can-driver.md`). The loop fills the
 //! transmit mailboxes from its queue through [`crate::transmit_queue::Transmitter`], which
 //! also tells which frames went out and takes back the frames of an identifier not yet sent
 //! (SimpleCAN: SC_REQ_18, SC_REQ_23).
 
+use core::cell::UnsafeCell;
+use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};
 use dual_channel::filters::{self, AcceptanceList};
 use dual_channel::runtime::{ChannelEvent, Role, Runtime};
-use embassy_futures::select::select3;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{Config, bind_interrupts};
-use embassy_time::Timer;
 use shared::canopen::storage::{self, StorageError};
 use shared::node::Event;
+use shared::node::NodeError;
 use shared::{CanFrame, Duration, Instant};
 
 use crate::Device;
@@ -43,6 +46,7 @@ use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 mod can1;
 use can1::CanPort;
 mod can_wakeup;
+mod clock;
 mod flash;
 mod link_usart;
 mod watchdog;
@@ -50,6 +54,7 @@ use watchdog::Watchdog;
 
 bind_interrupts!(struct Irqs {
     USART3 => link_usart::LinkInterrupt;
+    TIM2 => clock::Alarm;
 });
 
 /// CAN bit rate (CiA 301 Table 1): the device description's.
@@ -77,16 +82,9 @@ const ERASE_AHEAD_LONGEST: Duration = Duration::from_millis(4000);
 /// The watchdog bites when the runtime loop has not run for this long.
 pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
 
-/// The time base of the protocol core: embassy's clock in microseconds. Kept out of line: it
-/// was inlined at nine call sites, with embassy's time driver under it (the measured step is
-/// in docs/footprint.md).
-#[inline(never)]
+/// The time base of the protocol core: [`clock`]'s microseconds.
 fn now() -> Instant {
-    Instant::from_micros(embassy_time::Instant::now().as_micros())
-}
-
-fn embassy_instant(at: Instant) -> embassy_time::Instant {
-    embassy_time::Instant::from_micros(at.as_micros())
+    clock::now()
 }
 
 /// The 168 MHz clock tree from the 8 MHz crystal (APB1 42 MHz for bxCAN and USART3).
@@ -447,14 +445,123 @@ impl dual_channel::selftest::StartUp for HwStartUp {
     }
 }
 
+/// The channel's runtime on this board: parameters on the STM32F405's flash sectors, the
+/// image's protocol ([`crate::Protocol`]).
+pub type ChannelRuntime<R, const N: usize> =
+    Runtime<SectorSlots<Stm32Sectors>, R, N, crate::Protocol<N>>;
+
+/// Where [`run`] builds the channel's runtime: a static of the channel's image, so that the
+/// runtime, the largest object of the image, is counted in RAM when the image is linked
+/// (`cargo xtask build` holds it to the RAM budget) and not on the stack, where only the
+/// measured high-water mark would show it.
+pub struct RuntimeSlot<R: Role<N>, const N: usize> {
+    built: UnsafeCell<MaybeUninit<Result<ChannelRuntime<R, N>, NodeError>>>,
+    taken: AtomicBool,
+}
+
+// SAFETY: the slot's contents are reached only through `take`, which hands out its one
+// mutable reference once (the `taken` flag, swapped atomically); the image has one thread,
+// and no interrupt handler reaches the slot.
+unsafe impl<R: Role<N>, const N: usize> Sync for RuntimeSlot<R, N> {}
+
+impl<R: Role<N>, const N: usize> RuntimeSlot<R, N> {
+    /// An empty slot.
+    #[allow(clippy::new_without_default)] // reason: built in a `static`, where only a `const fn` will do
+    pub const fn new() -> Self {
+        RuntimeSlot {
+            built: UnsafeCell::new(MaybeUninit::uninit()),
+            taken: AtomicBool::new(false),
+        }
+    }
+
+    /// The slot's place, the first time; `None` after.
+    #[allow(clippy::mut_from_ref)] // reason: handed out once, guarded by `taken` (see `Sync`)
+    fn take(
+        &'static self,
+    ) -> Option<&'static mut MaybeUninit<Result<ChannelRuntime<R, N>, NodeError>>> {
+        if self.taken.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: `taken` was clear, so no reference to the contents exists, and none will
+        // be made again (see the `Sync` implementation).
+        Some(unsafe { &mut *self.built.get() })
+    }
+}
+
+/// Sleeps (`wfi`) until a wake-up the loop armed has come: `woken` says whether one has. The
+/// check and the sleep run with interrupts masked (PRIMASK), so an interrupt between them is
+/// not lost: it stays pending, and a pending interrupt ends `wfi` even while masked
+/// (ARMv7-M B1.5.19); its handler runs when the mask is lifted, and the check is made again.
+fn sleep_until_woken(mut woken: impl FnMut() -> bool) {
+    loop {
+        cortex_m::interrupt::disable();
+        let ready = woken();
+        if !ready {
+            cortex_m::asm::wfi();
+        }
+        // SAFETY: the mask was set just above and nothing of this program relies on it
+        // beyond this point (the handlers share only atomics and `Mutex`-guarded queues).
+        unsafe { cortex_m::interrupt::enable() };
+        if ready {
+            return;
+        }
+    }
+}
+
 /// Initialises the board, runs the start-up self-tests, arms the watchdog and runs the
-/// channel until reset, in the task that calls it.
-pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
+/// channel until reset, with its runtime, of the role `role` makes, built in `slot`.
+pub fn run<R: Role<N>, const N: usize>(
+    device: Device,
+    role: impl FnOnce() -> R,
+    slot: &'static RuntimeSlot<R, N>,
+) -> ! {
+    let (runtime, mut driver, mut watchdog) = start(device, role, slot);
+    let mut channel = ChannelLoop::new(device.pins);
+    let mut stack_mark = crate::stack::Sampled::new();
+    loop {
+        let wake = channel.service(runtime, &mut driver);
+        watchdog.pet();
+        if let Some(stack) = stack_mark.poll() {
+            defmt::info!("stack high-water mark: {=usize} bytes", stack);
+        }
+        // The next service takes what woke it (a frame, link bytes, the instant).
+        if !driver.can.prepare_wait() {
+            continue;
+        }
+        let at = now();
+        if !clock::arm(wake, at) {
+            continue;
+        }
+        sleep_until_woken(|| driver.can.woken() || link_usart::readable() || clock::due(wake));
+    }
+}
+
+/// Everything before the loop: the clocks, the self-tests, the watchdog, the erase ahead, the
+/// node-ID, the runtime built in `slot`, the CAN controller and the link. Out of line, so that
+/// its stack frame is given back before the loop runs: the runtime is returned by value into
+/// it before it is moved into `slot` (the compiler does not build it in the static's place,
+/// which any function could read), a start-up peak of the stack that the loop does not keep.
+#[inline(never)]
+#[allow(clippy::mut_from_ref)] // reason: the runtime is `slot`'s, taken once (`RuntimeSlot::take`)
+fn start<R: Role<N>, const N: usize>(
+    device: Device,
+    role: impl FnOnce() -> R,
+    slot: &'static RuntimeSlot<R, N>,
+) -> (
+    &'static mut ChannelRuntime<R, N>,
+    HwDriver<'static>,
+    Watchdog,
+) {
     if !crystal_starts() {
         halt_safe("the crystal (HSE) did not start");
     }
     let p = embassy_stm32::init(clocks());
     accelerator_on();
+    let _ = Irqs;
+    let timer_clock = embassy_stm32::rcc::frequency::<embassy_stm32::peripherals::TIM2>();
+    if !clock::start(timer_clock.0) {
+        halt_safe("the timer clock does not divide into microseconds");
+    }
     // Why the MCU started, then the flags cleared (RMVF) so that the next start says its own.
     let csr = embassy_stm32::pac::RCC.csr().read().0;
     embassy_stm32::pac::RCC.csr().modify(|w| w.set_rmvf(true));
@@ -507,7 +614,7 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
             .fold(0u8, |id, (bit, pin)| id | (u8::from(pin.is_high()) << bit))
     };
     let first = read_switches();
-    Timer::after_millis(1).await;
+    clock::delay(Duration::from_millis(1));
     // All switches open: the node-ID is LSS's (CiA 305), set when LSS is enabled below.
     let switches = match safety_device::switches::node_id_or_lss(first, read_switches()) {
         Ok(Some(id)) => {
@@ -531,14 +638,16 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
     // Kept as built and borrowed, not moved out of its `Ok`: the move took the whole runtime
     // through this task's stack frame; the parameters restored where it is kept, for the
     // same reason (`docs/footprint.md`).
-    let mut built = Runtime::<_, _, N, crate::Protocol<N>>::around(
+    let Some(place) = slot.take() else {
+        halt_safe("the channel's runtime slot was taken twice");
+    };
+    let runtime = match place.write(ChannelRuntime::<R, N>::around(
         config,
         parameters,
-        role,
+        role(),
         now(),
         LINK_PERIOD,
-    );
-    let runtime = match &mut built {
+    )) {
         Ok(runtime) => runtime,
         Err(_) => halt_safe("device description refused"),
     };
@@ -572,35 +681,19 @@ pub async fn run<R: Role<N>, const N: usize>(device: Device, role: R) -> ! {
             start_rate.bits_per_second().unwrap_or(0)
         );
     }
-    let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog).await;
+    let can = CanPort::start(p.CAN1, p.PB8, p.PB9, timing, &mut watchdog);
     // Kept for as long as the loop runs: the link's pins stay set up while it lives.
     let Some(_link) = link_usart::set_up(p.USART3, p.PB11, p.PB10, LINK_BAUD) else {
         halt_safe("link USART configuration refused");
     };
-    let _ = Irqs;
     link_usart::start();
-    let mut channel = ChannelLoop::new(device.pins);
-    let mut driver = HwDriver {
+    let driver = HwDriver {
         can,
         error_state: ErrorState::Active,
         input,
         output,
     };
-    let mut stack_mark = crate::stack::Sampled::new();
-    loop {
-        let wake = channel.service(runtime, &mut driver);
-        watchdog.pet();
-        if let Some(stack) = stack_mark.poll() {
-            defmt::info!("stack high-water mark: {=usize} bytes", stack);
-        }
-        // The next service takes what woke it (a frame, link bytes, the instant).
-        let _ = select3(
-            driver.can.wait(),
-            link_usart::readable(),
-            Timer::at(embassy_instant(wake)),
-        )
-        .await;
-    }
+    (runtime, driver, watchdog)
 }
 
 /// The CAN bit timing of `rate` from CAN1's clock (APB1), `None` where there is none (a rate

@@ -14,19 +14,22 @@
 #[cfg(target_os = "none")]
 mod firmware {
     use board::Device;
-    use board::hw::run;
+    use board::hw::{RuntimeSlot, run};
     use channel_a::role::ChannelA;
     use defmt_rtt as _;
-    use embassy_executor::Spawner;
     use safety_device as device;
 
-    #[embassy_executor::main]
-    async fn main(_spawner: Spawner) {
+    /// The channel's runtime, built by the board layer's `run`: a static, counted in RAM when
+    /// the image is linked.
+    static RUNTIME: RuntimeSlot<ChannelA, { board::SRDOS }> = RuntimeSlot::new();
+
+    #[cortex_m_rt::entry]
+    fn main() -> ! {
         defmt::info!("channel {=char}", channel_a::CHANNEL);
         let Ok(device) = Device::built(|id| device::config(id, device::CHANNEL_A_NAME)) else {
             panic!("SAFETY_NODE_ID must be 1..=127");
         };
-        run::<_, { board::SRDOS }>(device, ChannelA::default()).await
+        run(device, ChannelA::default, &RUNTIME)
     }
 }
 

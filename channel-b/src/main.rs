@@ -14,26 +14,31 @@
 #[cfg(target_os = "none")]
 mod firmware {
     use board::Device;
-    use board::hw::run;
+    use board::hw::{RuntimeSlot, run};
     use channel_b::role::ChannelB;
     use defmt_rtt as _;
-    use embassy_executor::Spawner;
     use safety_device as device;
 
-    #[embassy_executor::main]
-    async fn main(_spawner: Spawner) {
+    /// The channel's runtime, built by the board layer's `run`: a static, counted in RAM when
+    /// the image is linked.
+    static RUNTIME: RuntimeSlot<ChannelB, { board::SRDOS }> = RuntimeSlot::new();
+
+    #[cortex_m_rt::entry]
+    fn main() -> ! {
         defmt::info!("channel {=char}", channel_b::CHANNEL);
         let Ok(device) = Device::built(|id| device::config(id, device::CHANNEL_B_NAME)) else {
             panic!("SAFETY_NODE_ID must be 1..=127");
         };
-        let role = match ChannelB::new(&[(0x6000, 1, 1)]) {
+        // Built by the board layer where it starts the runtime, not in this frame, which
+        // stays on the stack for as long as the channel runs. SimpleCAN's Model A
+        // (docs/simplecan.md section 13): channel B computes each packet of the node and must
+        // hear channel A's on the bus within the packet's slot, and a sync within its bound:
+        // the image keeps the standard's bounds (`Bounds::STANDARD`).
+        let role = || match ChannelB::new(&[(0x6000, 1, 1)]) {
             Ok(role) => role,
             Err(_) => panic!("channel B input table"),
         };
-        // SimpleCAN's Model A (docs/simplecan.md section 13): channel B computes each packet of
-        // the node and must hear channel A's on the bus within the packet's slot, and a sync
-        // within its bound: the image keeps the standard's bounds (`Bounds::STANDARD`).
-        run::<_, { board::SRDOS }>(device, role).await
+        run(device, role, &RUNTIME)
     }
 }
 

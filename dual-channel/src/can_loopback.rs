@@ -285,15 +285,15 @@ pub trait LoopbackController {
     fn now(&self) -> Instant;
     /// Queues `frame` for transmission at once; the mailbox it took, or `None` when refused.
     fn queue(&mut self, frame: &CanFrame) -> Option<u8>;
-    /// The next frame from either receive FIFO, or [`Received::Nothing`] at `until`.
-    #[allow(async_fn_in_trait)] // reason: the firmware's executor is single-threaded; no `Send` bound is wanted
-    async fn receive(&mut self, until: Instant) -> Received;
+    /// The next frame from either receive FIFO, or [`Received::Nothing`] at `until`: waits
+    /// for one (the test runs at start-up, before the channel loop, with nothing else to do).
+    fn receive(&mut self, until: Instant) -> Received;
 }
 
 /// Runs the whole plan on `controller` (and calls `between_bursts` before each burst, for
 /// the watchdog): each burst queued back to back, then read back until every accepted frame of
 /// it is there and [`SETTLE`] more has passed, or [`BURST_WAIT`] is over.
-pub async fn run<C: LoopbackController>(
+pub fn run<C: LoopbackController>(
     controller: &mut C,
     mut between_bursts: impl FnMut(),
 ) -> Result<(), LoopbackFault> {
@@ -314,7 +314,7 @@ pub async fn run<C: LoopbackController>(
                 settling = true;
                 until = until.min(controller.now() + SETTLE);
             }
-            match controller.receive(until).await {
+            match controller.receive(until) {
                 Received::Frame(frame) => check.on_received(&frame),
                 Received::Unreadable { id, dlc } => check.on_unreadable(id, dlc),
                 Received::BusError => check.on_bus_error(),
@@ -451,7 +451,7 @@ mod tests {
         /// Runs the whole plan through [`run`], as the hardware layer does.
         fn run(self) -> Result<(), LoopbackFault> {
             let mut bus = Simulated::new(self);
-            let verdict = block_on(run(&mut bus, || {}));
+            let verdict = run(&mut bus, || {});
             assert_eq!(bus.queued, FRAMES, "every frame was queued");
             verdict
         }
@@ -507,7 +507,7 @@ mod tests {
             Some(mailbox as u8)
         }
 
-        async fn receive(&mut self, until: Instant) -> Received {
+        fn receive(&mut self, until: Instant) -> Received {
             match self.pending.first().copied() {
                 Some((at, received)) if at <= until => {
                     self.pending.remove(0);
@@ -518,18 +518,6 @@ mod tests {
                     self.now.set(self.now.get().max(until));
                     Received::Nothing
                 }
-            }
-        }
-    }
-
-    /// Polls a future that never waits on anything outside it (the simulated controller
-    /// answers at once) to its end.
-    fn block_on<F: core::future::Future>(future: F) -> F::Output {
-        let mut future = core::pin::pin!(future);
-        let mut context = core::task::Context::from_waker(core::task::Waker::noop());
-        loop {
-            if let core::task::Poll::Ready(output) = future.as_mut().poll(&mut context) {
-                return output;
             }
         }
     }
@@ -622,7 +610,7 @@ mod tests {
             bus.latency = Duration::from_micros(latency_us);
             let clock = bus.now.clone();
             let mut fed = Vec::new();
-            let verdict = block_on(run(&mut bus, || fed.push(clock.get())));
+            let verdict = run(&mut bus, || fed.push(clock.get()));
             fed.push(clock.get());
             assert_eq!(fed.len(), PLAN.len() + 1);
             let longest = fed

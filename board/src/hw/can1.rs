@@ -16,7 +16,7 @@
 //! modes), 32.7 (functional description) and 32.9 (registers), and runs on the emulator's
 //! model of the controller (`emulator/src/peripherals/bxcan`, written from RM0090).
 //!
-//! The loop's task does everything; the interrupts only wake it ([`super::can_wakeup`]).
+//! The loop does everything; the interrupts only wake it ([`super::can_wakeup`]).
 //! embassy-stm32 still gives the clock, the pins and the interrupt vectors.
 
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
@@ -30,7 +30,7 @@ use embassy_stm32::peripherals::{CAN1, PB8, PB9};
 use shared::{CanFrame, Instant};
 
 use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
-use super::{bit_timing_register, embassy_instant, halt_safe, now};
+use super::{bit_timing_register, clock, halt_safe, now};
 use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 
 /// Frames waiting for a transmit mailbox, as [`crate::transmit_queue`] orders them.
@@ -76,6 +76,8 @@ pub struct CanPort {
     _tx: Flex<'static>,
     mailboxes: Mailboxes,
     transmitter: Transmitter<TRANSMIT_QUEUE>,
+    /// [`CanPort::prepare_wait`] armed the wake-up of a completed mailbox.
+    completion_awaited: bool,
 }
 
 /// CAN1's three transmit mailboxes (RM0090 32.7.1), for the transmit path and the loop-back
@@ -301,34 +303,34 @@ fn set_filters(banks: impl Iterator<Item = FilterBank>) {
 /// ([`super::WATCHDOG_TIMEOUT_US`]).
 const SWITCH_PATIENCE: shared::Duration = shared::Duration::from_millis(15);
 
-async fn mode_reached(initialising: bool) -> bool {
+fn mode_reached(initialising: bool) -> bool {
     for _ in 0..MODE_POLLS {
         let msr = pac::CAN1.msr().read();
         if msr.inak() == initialising && !msr.slak() {
             return true;
         }
-        embassy_time::Timer::after_micros(MODE_POLL_US).await;
+        clock::delay(shared::Duration::from_micros(MODE_POLL_US));
     }
     false
 }
 
 /// Initialisation mode (RM0090 32.4.1: INRQ set, SLEEP cleared; the controller finishes the
 /// frame on the bus first): halts in the safe state when it is not reached.
-async fn initialise() {
+fn initialise() {
     pac::CAN1.mcr().modify(|w| {
         w.set_sleep(false);
         w.set_inrq(true);
     });
-    if !mode_reached(true).await {
+    if !mode_reached(true) {
         halt_safe("CAN controller did not enter initialisation mode");
     }
 }
 
 /// Normal mode (RM0090 32.4.2: INRQ cleared; the controller joins once it has seen 11
 /// recessive bits): halts in the safe state when it does not.
-async fn join() {
+fn join() {
     pac::CAN1.mcr().modify(|w| w.set_inrq(false));
-    if !mode_reached(false).await {
+    if !mode_reached(false) {
         halt_safe("CAN controller did not synchronise on the bus");
     }
 }
@@ -337,7 +339,7 @@ impl CanPort {
     /// Brings CAN1 up at `timing`: pins and clock, the CiA 304 9.5 loop-back test, then on
     /// the bus with no filter bank enabled (the channel loop programs the node's before the
     /// core boots).
-    pub async fn start(
+    pub fn start(
         can: Peri<'static, CAN1>,
         rx: Peri<'static, PB8>,
         tx: Peri<'static, PB9>,
@@ -356,7 +358,7 @@ impl CanPort {
         embassy_stm32::rcc::enable_and_reset::<CAN1>();
 
         let registers = pac::CAN1;
-        initialise().await;
+        initialise();
         // RM0090 32.9.2: automatic bus-off recovery (ABOM), automatic retransmission (NART
         // 0), a full FIFO keeps overwriting its newest frame (RFLM 0, an overrun is read from
         // FOVR), no automatic wake-up, no time-triggered mode; TXFP for the loop-back test.
@@ -376,7 +378,7 @@ impl CanPort {
             w.set_fmpie(1, true);
             w.set_tmeie(true);
         });
-        match loopback_test(watchdog).await {
+        match loopback_test(watchdog) {
             Ok(()) => {
                 defmt::info!("self-test: CAN loop-back (3 mailboxes, 2 FIFOs, filters) passed")
             }
@@ -386,19 +388,20 @@ impl CanPort {
             }
         }
         watchdog.pet();
-        initialise().await;
+        initialise();
         registers.mcr().modify(|w| w.set_txfp(false));
         registers.btr().write_value(pac::can::regs::Btr(btr));
         // No filter bank enabled: the controller takes no frame until the channel loop has
         // programmed the node's filters (its first service, before the core boots).
         set_filters(core::iter::empty());
-        join().await;
+        join();
         CanPort {
             _peripheral: can,
             _rx: rx,
             _tx: tx,
             mailboxes: Mailboxes,
             transmitter: Transmitter::new(),
+            completion_awaited: false,
         }
     }
 
@@ -469,9 +472,12 @@ impl CanPort {
         );
     }
 
-    /// Waits for a received frame, or for a completed mailbox while frames wait for one (with
-    /// SimpleCAN also while a sent frame is still to be confirmed).
-    pub async fn wait(&mut self) {
+    /// Prepares the loop's sleep: fills the mailboxes from the queue and arms the wake-ups of
+    /// a received frame and, while frames wait for a mailbox (with SimpleCAN also while a
+    /// sent frame is still to be confirmed), of a completed mailbox. `false` when the loop
+    /// must not sleep at all (with SimpleCAN: a frame went out since the loop last asked, and
+    /// its confirmation is due now). The sleep ends when [`CanPort::woken`].
+    pub fn prepare_wait(&mut self) -> bool {
         // The request completion flags (RQCPx, which raise the transmit line with TMEIE)
         // cleared before the mailboxes are filled: a mailbox that completes after this raises
         // it again. Which frames went out is read from the mailboxes' empty bits, not from
@@ -483,20 +489,21 @@ impl CanPort {
         });
         self.transmitter.fill(&mut self.mailboxes);
         if cfg!(feature = "simplecan") && self.transmitter.has_sent(&self.mailboxes) {
-            // A frame went out since the loop last asked: its confirmation is due now.
-            return;
+            return false;
         }
-        let completion_awaited = self.transmitter.is_waiting()
+        self.completion_awaited = self.transmitter.is_waiting()
             || (cfg!(feature = "simplecan") && self.transmitter.is_pending());
-        if !completion_awaited {
-            RECEIVED.wait(unmask_receive).await;
-        } else {
-            embassy_futures::select::select(
-                RECEIVED.wait(unmask_receive),
-                MAILBOX_FREE.wait(unmask_transmit),
-            )
-            .await;
+        RECEIVED.arm(unmask_receive);
+        if self.completion_awaited {
+            MAILBOX_FREE.arm(unmask_transmit);
         }
+        true
+    }
+
+    /// Whether what [`CanPort::prepare_wait`] armed has fired: a frame was received, or a
+    /// mailbox completed while one was awaited.
+    pub fn woken(&self) -> bool {
+        RECEIVED.fired() || (self.completion_awaited && MAILBOX_FREE.fired())
     }
 }
 
@@ -513,7 +520,7 @@ impl LoopbackController for Loopback {
         Some(placement.mailbox.index() as u8)
     }
 
-    async fn receive(&mut self, until: Instant) -> Received {
+    fn receive(&mut self, until: Instant) -> Received {
         loop {
             // A lost frame fails the test as an error of the controller.
             if overran() {
@@ -522,15 +529,10 @@ impl LoopbackController for Loopback {
             match take() {
                 Some(Ok(frame)) => return Received::Frame(frame),
                 Some(Err((id, dlc))) => return Received::Unreadable { id, dlc },
-                None => {
-                    let woken = RECEIVED.wait(unmask_receive);
-                    if embassy_time::with_deadline(embassy_instant(until), woken)
-                        .await
-                        .is_err()
-                    {
-                        return Received::Nothing;
-                    }
-                }
+                // Polled, not slept on: the test runs before the loop, and each of its bursts
+                // ends within a few milliseconds.
+                None if clock::due(until) => return Received::Nothing,
+                None => {}
             }
         }
     }
@@ -540,7 +542,7 @@ impl LoopbackController for Loopback {
 /// before it joins the bus (plan, loop and verdict: [`dual_channel::can_loopback`]), on a
 /// controller in initialisation mode with loop-back, silent mode and TXFP set. Leaves it in
 /// loop-back, for [`CanPort::start`] to take it out.
-async fn loopback_test(watchdog: &mut super::Watchdog) -> Result<(), LoopbackFault> {
+fn loopback_test(watchdog: &mut super::Watchdog) -> Result<(), LoopbackFault> {
     use dual_channel::can_loopback::{ACCEPT_FIFO0, ACCEPT_FIFO1};
     set_filters(
         [
@@ -549,7 +551,7 @@ async fn loopback_test(watchdog: &mut super::Watchdog) -> Result<(), LoopbackFau
         ]
         .into_iter(),
     );
-    join().await;
+    join();
     // Each burst takes at most BURST_WAIT (5 ms), well inside the watchdog's time.
-    dual_channel::can_loopback::run(&mut Loopback, || watchdog.pet()).await
+    dual_channel::can_loopback::run(&mut Loopback, || watchdog.pet())
 }

@@ -1,17 +1,15 @@
-//! The bxCAN's interrupts as wake-ups of the loop's task, for the driver that leaves the
-//! controller to the task ([`super::can1`]).
+//! The bxCAN's interrupts as wake-ups of the channel loop, for the driver that leaves the
+//! controller to the loop ([`super::can1`]).
 //!
-//! Each handler masks its own line in the NVIC and wakes the task; the wait unmasks the lines
-//! again after registering the waker, so no handler touches the controller and a condition
-//! already pending wakes at once (the lines are level-triggered, RM0090 32.8: FIFO not empty
-//! with FMPIEx, a mailbox's request completed with TMEIE).
+//! Each handler masks its own line in the NVIC and sets its flag; the loop clears the flag and
+//! unmasks the lines again before it checks whether to sleep, so no handler touches the
+//! controller and a condition already pending wakes it at once (the lines are
+//! level-triggered, RM0090 32.8: FIFO not empty with FMPIEx, a mailbox's request completed
+//! with TMEIE).
 
-use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, Ordering};
-use core::task::Poll;
 
 use embassy_stm32::interrupt::typelevel::{self, Binding, Handler, Interrupt as _};
-use embassy_sync::waitqueue::AtomicWaker;
 
 embassy_stm32::bind_interrupts!(
     /// The bxCAN's receive and transmit lines, bound to this module's handlers.
@@ -21,40 +19,32 @@ embassy_stm32::bind_interrupts!(
     CAN1_TX => WakeOnTransmit;
 });
 
-/// An interrupt line's wake-up of the loop's task.
+/// An interrupt line's wake-up of the loop: a flag its handler sets.
 pub struct Wakeup {
-    waker: AtomicWaker,
     fired: AtomicBool,
 }
 
 impl Wakeup {
     const fn new() -> Self {
         Wakeup {
-            waker: AtomicWaker::new(),
             fired: AtomicBool::new(false),
         }
     }
 
     fn fire(&self) {
         self.fired.store(true, Ordering::Release);
-        self.waker.wake();
     }
 
-    /// Returns once a handler fired after the call; `unmask` puts the lines back into the
-    /// NVIC after the waker is registered, so a condition already pending fires at once and
-    /// none is missed.
-    pub async fn wait(&self, unmask: impl Fn()) {
+    /// Forgets an earlier firing and puts the lines back into the NVIC with `unmask`: a
+    /// condition already pending fires again at once, none is missed.
+    pub fn arm(&self, unmask: impl Fn()) {
         self.fired.store(false, Ordering::Relaxed);
-        poll_fn(|cx| {
-            self.waker.register(cx.waker());
-            if self.fired.load(Ordering::Acquire) {
-                Poll::Ready(())
-            } else {
-                unmask();
-                Poll::Pending
-            }
-        })
-        .await;
+        unmask();
+    }
+
+    /// Whether a handler fired since [`Wakeup::arm`].
+    pub fn fired(&self) -> bool {
+        self.fired.load(Ordering::Acquire)
     }
 }
 

@@ -28,9 +28,7 @@
 //! driver in the shipped images.
 
 use core::cell::RefCell;
-use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, Ordering};
-use core::task::Poll;
 use dual_channel::byte_ring::ByteRing;
 use embassy_stm32::Peri;
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
@@ -40,7 +38,6 @@ use embassy_stm32::peripherals::{PB10, PB11, USART3};
 use embassy_stm32::usart::{RxPin, TxPin};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::waitqueue::AtomicWaker;
 
 use dual_channel::link::DELIMITER;
 /// Receive queue, bytes: what arrives while the loop is busy.
@@ -70,8 +67,6 @@ static RX: Shared<Received> = Mutex::new(RefCell::new(Received {
 }));
 /// Bytes to send, oldest first.
 static TX: Shared<ByteRing<TX_BYTES>> = Mutex::new(RefCell::new(ByteRing::new()));
-/// The loop, waiting for link bytes.
-static RX_WAKER: AtomicWaker = AtomicWaker::new();
 /// A byte was lost since the last [`take_lost`]: the receive queue was full, or the USART
 /// overran (its one-byte DR was not read in time).
 static LOST: AtomicBool = AtomicBool::new(false);
@@ -87,19 +82,17 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
             // RM0090 30.6.1: this read after the SR read clears RXNE and, with them, ORE,
             // NF, FE and PE; DR holds the byte received (the one before an overrun).
             let byte = usart.dr().read().dr() as u8;
-            let (kept, wake) = RX.lock(|rx| {
+            let kept = RX.lock(|rx| {
                 let mut rx = rx.borrow_mut();
                 let kept = rx.bytes.push(byte);
                 if kept && byte == DELIMITER {
                     rx.delimiters += 1;
                 }
-                (kept, rx.worth_reading())
+                kept
             });
+            // The loop, woken by this interrupt, looks at the queue itself ([`readable`]).
             if !kept || status.ore() {
                 LOST.store(true, Ordering::Relaxed);
-            }
-            if wake || !kept {
-                RX_WAKER.wake();
             }
         }
         if status.txe() && usart.cr1().read().txeie() {
@@ -216,18 +209,10 @@ pub fn take_lost() -> bool {
     LOST.swap(false, Ordering::Relaxed)
 }
 
-/// Completes when a whole frame waits in the receive queue (its delimiter came) or the queue
-/// is half full: at once when it does, else when the handler wakes the loop. The bytes of a
+/// Whether the loop has link bytes worth an iteration: a whole frame waits in the receive
+/// queue (its delimiter came), the queue is half full, or a byte was lost. The bytes of a
 /// frame still arriving wait for its delimiter: the loop reads them with the next wake-up,
 /// and does not iterate once per byte (an iteration outlasts a byte on the line).
-pub async fn readable() {
-    poll_fn(|cx| {
-        RX_WAKER.register(cx.waker());
-        if RX.lock(|rx| rx.borrow().worth_reading()) {
-            Poll::Ready(())
-        } else {
-            Poll::Pending
-        }
-    })
-    .await;
+pub fn readable() -> bool {
+    LOST.load(Ordering::Relaxed) || RX.lock(|rx| rx.borrow().worth_reading())
 }
