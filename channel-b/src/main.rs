@@ -1,10 +1,10 @@
 //! Firmware image of channel B (STM32F405RG): initialises the board and runs the channel.
 //!
-//! `main` builds the channel's role and hands it to the board layer's `run`, which
-//! initialises the board, runs the self-tests and then runs the channel loop in the main task
-//! itself, the image's only task (interrupts fill and empty the link USART's queues). A separate channel task was tried and
-//! measured: its future was moved through the stack once more, and the deepest stack grew
-//! past the stack reserve (`docs/footprint.md`).
+//! `main` hands the device description, how to make the channel's role and the static slot
+//! of the channel's runtime to the board layer's `run`, which initialises the board, runs the
+//! self-tests and then runs the channel loop until reset: one loop that sleeps (`wfi`) until
+//! a frame, link bytes or its next instant, no async executor (interrupts only move link bytes
+//! and wake it; `board::hw`).
 //!
 //! Built for `thumbv7em-none-eabihf` by `cargo xtask build`; on the host this binary only
 //! says so, so that `cargo clippy --workspace` covers the crate. The node-ID comes from the

@@ -1715,7 +1715,7 @@ impl Machine {
     }
 
     /// Times the core woke from WFI or WFE since power-on: the image's loop iterations, for
-    /// an image whose loop sleeps when it has nothing to do (embassy's executor).
+    /// an image whose loop sleeps when it has nothing to do.
     pub fn wake_ups(&self) -> u64 {
         self.uc.get_data().wake_ups
     }

@@ -105,10 +105,9 @@ fn kinds(protocol: Protocol) -> [(String, Test); 7] {
             "interrupts only: the link USART (a byte in or out)".to_owned(),
             |a, _| !a.has("loop") && a.has("USART3"),
         ),
-        (
-            "interrupts only: other (CAN, timer, executor)".to_owned(),
-            |a, _| !a.has("loop") && !a.has("USART3"),
-        ),
+        ("interrupts only: other (CAN, timer)".to_owned(), |a, _| {
+            !a.has("loop") && !a.has("USART3")
+        }),
     ]
 }
 
@@ -377,7 +376,7 @@ pub fn markdown(profiled: &Profiled<'_>, names: &[String]) -> Vec<String> {
     out.push(format!(
         "The activations with {work} (the *per {unit}* column above) in the Operational window, \
          each function's own instructions in them summed and divided by the {unit}s: the \
-         executor's and the loop's own share of those wake-ups included."
+         wake-up's and the loop's own share of those activations included."
     ));
     out.push(String::new());
     out.push(format!("| MCU | function | per {unit} | share |"));
@@ -441,7 +440,7 @@ fn canopen_introduction(pairs: u64) -> Vec<String> {
              pre-operational (unconfigured, before the configuration) and Operational ({pairs} \
              pairs of SRDO 1): every translated block counted with its \
              instructions, an *activation* being everything from one wake-up of the core \
-             (WFI/WFE) to the next (the interrupt handlers, embassy's executor, the channel \
+             (WFI/WFE) to the next (the interrupt handlers, the channel \
              loop's iteration when the loop task ran, the wait it sets up), classed by the \
              functions it entered (`emulator/src/profile.rs`: the channel loop's `service`, \
              `hand` for a received frame, `Runtime::core_frame` for an SRDO produced, \
@@ -469,7 +468,7 @@ fn simplecan_introduction(packets: u64) -> Vec<String> {
              SC-ID 30h on the bus, the syncs beside them, node 1's contacts opened and closed \
              once in it): every translated block counted with its instructions, an \
              *activation* being everything from one wake-up of the core (WFI/WFE) to the next \
-             (the interrupt handlers, embassy's executor, the channel loop's iteration when \
+             (the interrupt handlers, the channel loop's iteration when \
              the loop task ran, the wait it sets up), classed by the functions it entered \
              (`emulator/src/profile.rs`: the channel loop's `service`, `hand` for a received \
              frame, `shared::simplecan::frame::crc` for a packet or sync decoded or produced, \

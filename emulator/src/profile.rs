@@ -9,8 +9,8 @@
 //!   profile: a function's own instructions, not its callees').
 //! - **Per activation**: the instructions from one wake-up of the core (from WFI or WFE) to
 //!   the next, with the [`Marker`]s whose function was entered meanwhile. An activation is the
-//!   whole cost of what woke the core: the interrupt handlers, embassy's executor, the channel
-//!   loop's iteration if the loop task ran, and the wait it then sets up. One that entered no
+//!   whole cost of what woke the core: the interrupt handlers, the channel loop's iteration if
+//!   the loop ran, and the wait it then sets up. One that entered no
 //!   marker ran interrupt handlers only (a link byte into or out of the USART's ring, say).
 //! - **The deepest stack**: the lowest main stack pointer seen at a block's start since the
 //!   profile began (a leaf function's own frame below it is not seen; exception frames are,

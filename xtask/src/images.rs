@@ -41,10 +41,10 @@ pub const RAM_BUDGET: u64 = 21 * 1024;
 /// start-up (`board::stack`), the emulator measures each emulated channel's deepest use,
 /// which `cargo xtask e2e` fails on when it is above this, and the board layer logs it.
 ///
-/// 12 KiB. Every path of the channel runs on top of the main task's stack frame, which once
-/// held the runtime's construction inlined with two copies of the runtime; the runtime is now
-/// built by an out-of-line `Runtime::new`, or in place by `Runtime::around` and
-/// `Device::prepare` into the board's `Result`, its parameters restored there afterwards
+/// 12 KiB. Every path of the channel runs on top of the frames of `main` and `board::hw::run`;
+/// the runtime itself is a static of the image (`board::hw::RuntimeSlot`), built once at
+/// start-up through a copy on the stack (`board::hw`'s `start`, whose frame is given back
+/// before the loop runs), its parameters restored in the slot afterwards
 /// (`Runtime::restore_parameters`). The shipped SimpleCAN images are held to the same reserve
 /// by `cargo xtask e2e --protocol simplecan`. The deepest stack each emulated run measured is
 /// in `docs/emulated-figures.md`; the steps that moved it are in `docs/footprint.md`

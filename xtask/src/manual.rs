@@ -773,7 +773,7 @@ fn processing_part(bench: &str) -> Result<String> {
     let target::Basis::Activations = measured.basis;
     let rows = format!(
         "| the activation a frame may wait behind: the longest that ran the loop, from the \
-         core's wake-up to its next sleep (interrupt handlers, the executor, the iteration, \
+         core's wake-up to its next sleep (interrupt handlers, the iteration, \
          the watchdog fed, the stack's search) | {} | counted in the shipped images on the \
          emulated STM32F405 (most seen) |\n\
          | the activation that handles the SRDO frame, the pair or the verdict: the longest \

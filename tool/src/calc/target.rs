@@ -13,7 +13,7 @@
 //!
 //! Both are counted by [`Basis::Activations`]: whole activations of the core, each from a
 //! wake-up to the next sleep, so the wake-up, the interrupt handlers that ran meanwhile,
-//! embassy's executor, the loop iteration and the board's work after it are all counted. The
+//! the loop iteration and the board's work after it are all counted. The
 //! path a frame takes is the longest activation of any kind that had the loop run, which a
 //! frame arriving during it waits behind (the loop does not preempt itself), then the longest
 //! one that did the protocol's work (for CANopen Safety a received plain or inverted SRDO
