@@ -101,6 +101,9 @@ pub struct Window {
     /// instructions per function summed over all of them, most first
     /// ([`crate::profile::Profile::functions_of`]).
     pub work_functions: Vec<(String, u64)>,
+    /// The same activations' instructions per block start address, most first
+    /// ([`crate::profile::Profile::blocks_of`]).
+    pub work_blocks: Vec<(u32, u64)>,
 }
 
 /// Starts a new profiling window on every MCU.
@@ -127,19 +130,22 @@ fn windows(
     (0..network.names().count())
         .map(|mcu| {
             let machine = network.machine(mcu);
-            let (activations, functions, blocks, idle_iteration, work_functions) =
+            let (activations, functions, blocks, idle_iteration, work_functions, work_blocks) =
                 machine.profile().map_or_else(Default::default, |p| {
+                    let work = |marks| protocol.is_work_marks(marks);
                     (
                         p.activations().to_vec(),
                         p.functions(machine.symbols()),
                         p.blocks(),
                         p.timer_iteration(machine.symbols()),
-                        p.functions_of(machine.symbols(), |marks| protocol.is_work_marks(marks)),
+                        p.functions_of(machine.symbols(), work),
+                        p.blocks_of(work),
                     )
                 });
             Window {
                 idle_iteration,
                 work_functions,
+                work_blocks,
                 activations,
                 functions,
                 blocks,

@@ -565,6 +565,7 @@ mod tests {
             blocks: Vec::new(),
             idle_iteration: Vec::new(),
             work_functions: Vec::new(),
+            work_blocks: Vec::new(),
         };
         let windows = [window];
         let profiled = Profiled {

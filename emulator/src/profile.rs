@@ -369,6 +369,20 @@ impl Profile {
         functions
     }
 
+    /// Instructions per block start address of the ended activations whose markers `which`
+    /// accepts, most first ([`Profile::blocks`] of one kind of activation).
+    pub fn blocks_of(&self, which: impl Fn(u32) -> bool) -> Vec<(u32, u64)> {
+        let mut sums: HashMap<u32, u64> = HashMap::new();
+        for (_, blocks) in self.by_marks.iter().filter(|(marks, _)| which(**marks)) {
+            for (&address, &instructions) in blocks {
+                *sums.entry(address).or_default() += instructions;
+            }
+        }
+        let mut blocks: Vec<(u32, u64)> = sums.into_iter().collect();
+        blocks.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        blocks
+    }
+
     /// Instructions per block start address, most first (for a finer look than
     /// [`Profile::functions`]: `llvm-addr2line` names the source lines).
     pub fn blocks(&self) -> Vec<(u32, u64)> {
@@ -482,6 +496,10 @@ mod tests {
                 "dual_channel::channel_loop::ChannelLoop::service".to_owned(),
                 7
             )]
+        );
+        assert_eq!(
+            profile.blocks_of(|marks| Protocol::CanopenSafety.is_work_marks(marks)),
+            [(0x200, 40), (0x100, 20)]
         );
         profile.restart();
         assert!(profile.functions_of(&symbols, |_| true).is_empty());

@@ -87,8 +87,9 @@ struct Cli {
     load_for: Nanos,
     /// With `--nominal`: write each MCU's instructions per translated block in the
     /// Operational window into this directory (`NAME.blocks`: address and instructions per
-    /// line, most first; `llvm-addr2line -f -i -e IMAGE` names their source lines), and its
-    /// activations (`NAME.activations`: when, instructions, loop iterations, markers).
+    /// line, most first; `llvm-addr2line -f -i -e IMAGE` names their source lines), the same
+    /// of the activations with a pair's work alone (`NAME.work-blocks`), and its activations
+    /// (`NAME.activations`: when, instructions, loop iterations, markers).
     #[arg(long, requires = "nominal", value_name = "DIR")]
     profile_blocks: Option<PathBuf>,
     /// Hang an MCU's core (no instruction, no interrupt; its watchdog runs on), as
@@ -418,6 +419,11 @@ fn run(cli: &Cli) -> Result<bool, Box<dyn std::error::Error>> {
                             text.push_str(&format!("{address:#010x} {instructions}\n"));
                         }
                         std::fs::write(dir.join(format!("{name}.blocks")), text)?;
+                        let mut text = String::new();
+                        for (address, instructions) in &window.work_blocks {
+                            text.push_str(&format!("{address:#010x} {instructions}\n"));
+                        }
+                        std::fs::write(dir.join(format!("{name}.work-blocks")), text)?;
                         let mut text = String::new();
                         for activation in &window.activations {
                             text.push_str(&format!(
