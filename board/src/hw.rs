@@ -19,9 +19,9 @@
 //!
 //! The bxCAN's driver is the board's own, on the registers (`can1`, RM0090 32; why not
 //! embassy-stm32's or the `bxcan` crate's: `docs/can-driver.md`). The loop's task fills the
-//! transmit mailboxes from its queue through [`crate::transmit_queue::Transmitter`], which
-//! also tells which frames went out and takes back the frames of an identifier not yet sent
-//! (SimpleCAN: SC_REQ_18, SC_REQ_23).
+//! transmit mailboxes from its queue through [`dual_channel::transmit_queue::Transmitter`],
+//! which also tells which frames went out and takes back the frames of an identifier not yet
+//! sent (SimpleCAN: SC_REQ_18, SC_REQ_23).
 
 use core::sync::atomic::{AtomicBool, Ordering};
 use dual_channel::channel_loop::{self, ChannelLoop, Driver, QueueFull};

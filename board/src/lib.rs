@@ -31,7 +31,6 @@ pub mod parameter_flash;
 #[cfg(target_os = "none")]
 pub mod ram;
 pub mod stack;
-pub mod transmit_queue;
 
 /// SDD entries of the SimpleCAN layer in an image with the feature `simplecan`
 /// ([`Protocol`]): the demo network's nodes use one each (node 1 produces 30h, node 33
