@@ -32,13 +32,13 @@ use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{Config, bind_interrupts};
 use embassy_time::Timer;
+use safety_device::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 use shared::canopen::storage::{self, StorageError};
 use shared::node::Event;
 use shared::{CanFrame, Duration, Instant};
 
 use crate::Device;
 use crate::can_registers::ErrorState;
-use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 
 mod can1;
 use can1::CanPort;
@@ -178,9 +178,9 @@ fn flush_data_cache() {
 static LINK_DEAF: AtomicBool = AtomicBool::new(false);
 
 /// The flash interface ([`flash`], the board's own driver) as the word-programmed medium of
-/// the parameter slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`].
-/// The processor executes from this flash, so an erase stalls it: a store only programs
-/// words, and the free slot is erased ahead at start-up ([`erase_ahead`]).
+/// the parameter slots ([`safety_device::parameter_flash`]); every erase runs in an
+/// [`EraseWindow`]. The processor executes from this flash, so an erase stalls it: a store
+/// only programs words, and the free slot is erased ahead at start-up ([`erase_ahead`]).
 pub struct Stm32Sectors {
     flash: flash::ParameterFlash,
 }

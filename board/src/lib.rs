@@ -27,7 +27,6 @@ pub mod frame_trail;
 pub mod hw;
 #[cfg(target_os = "none")]
 mod panic;
-pub mod parameter_flash;
 #[cfg(target_os = "none")]
 pub mod ram;
 pub mod stack;
