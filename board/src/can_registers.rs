@@ -1,7 +1,7 @@
 //! What the hardware layer's bxCAN driver (`board::hw`'s `can1`, RM0090 32) reads and writes
 //! that is not hardware, host-tested: the bit timing register (CAN_BTR) and the controller's
-//! error state read from CAN_ESR. The transmit path is [`crate::transmit_queue`]; the filter
-//! banks come from `dual_channel::filters::bank_layout` (`docs/can-driver.md`).
+//! error state read from CAN_ESR. The transmit path is [`dual_channel::transmit_queue`]; the
+//! filter banks come from `dual_channel::filters::bank_layout` (`docs/can-driver.md`).
 
 /// The bxCAN bit timing, in time quanta: as embassy-stm32's `calc_can_timings` gives it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -21,9 +21,9 @@
 //!
 //! The bxCAN's driver is the board's own, on the registers (`can1`, RM0090 32; why not
 //! embassy-stm32's or the `bxcan` crate's: `docs/can-driver.md`). The loop fills the
-//! transmit mailboxes from its queue through [`crate::transmit_queue::Transmitter`], which
-//! also tells which frames went out and takes back the frames of an identifier not yet sent
-//! (SimpleCAN: SC_REQ_18, SC_REQ_23).
+//! transmit mailboxes from its queue through [`dual_channel::transmit_queue::Transmitter`],
+//! which also tells which frames went out and takes back the frames of an identifier not yet
+//! sent (SimpleCAN: SC_REQ_18, SC_REQ_23).
 
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
@@ -34,6 +34,7 @@ use dual_channel::runtime::{ChannelEvent, Role, Runtime};
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{Config, bind_interrupts};
+use safety_device::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 use shared::canopen::storage::{self, StorageError};
 use shared::node::Event;
 use shared::node::NodeError;
@@ -41,7 +42,6 @@ use shared::{CanFrame, Duration, Instant};
 
 use crate::Device;
 use crate::can_registers::ErrorState;
-use crate::parameter_flash::{STM32F405_SLOTS, SectorSlots, Sectors};
 
 mod can1;
 use can1::CanPort;
@@ -176,9 +176,9 @@ fn flush_data_cache() {
 static LINK_DEAF: AtomicBool = AtomicBool::new(false);
 
 /// The flash interface ([`flash`], the board's own driver) as the word-programmed medium of
-/// the parameter slots ([`crate::parameter_flash`]); every erase runs in an [`EraseWindow`].
-/// The processor executes from this flash, so an erase stalls it: a store only programs
-/// words, and the free slot is erased ahead at start-up ([`erase_ahead`]).
+/// the parameter slots ([`safety_device::parameter_flash`]); every erase runs in an
+/// [`EraseWindow`]. The processor executes from this flash, so an erase stalls it: a store
+/// only programs words, and the free slot is erased ahead at start-up ([`erase_ahead`]).
 pub struct Stm32Sectors {
     flash: flash::ParameterFlash,
 }

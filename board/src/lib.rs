@@ -8,12 +8,26 @@
 //! [`Runtime`](dual_channel::runtime::Runtime): it implements the loop's
 //! [`Driver`](dual_channel::channel_loop::Driver) and waits on the hardware; the loop and the
 //! logic it drives are host-tested in `dual-channel`, `channel-a`, `channel-b` and `tests`,
-//! and the images themselves run on the emulated STM32F405 (`emulator`). On the host this
-//! crate holds what the hardware layer needs that is not hardware: [`parameter_flash`] (the
-//! parameter slots on word-programmed flash), [`stack`]'s search for the stack's high-water
-//! mark, [`frame_trail`]'s walk of the frame records a panic is logged by, all host-tested.
-//! What the values the layer reads mean lives with its concept: the node-ID switches and the
-//! reset flags in `safety_device` (`switches`, `reset_cause`), the link USART's byte queue in
+//! and the images themselves run on the emulated STM32F405 (`emulator`).
+//!
+//! Beside `hw`, the crate holds what reads the hardware's own layout, host-tested:
+//!
+//! - [`can_registers`]: the bxCAN's register fields (CAN_BTR's bit timing, the error state in
+//!   CAN_ESR, RM0090 32.9).
+//! - [`stack`]'s search for the stack's high-water mark is adapter logic because it encodes
+//!   how the MCU's stack lies in RAM: a full-descending stack of 32-bit words between the
+//!   linker's `_stack_end` and the initial stack pointer, painted word by word by cortex-m-rt's
+//!   reset handler, so that the lowest word no longer painted is the deepest ever used.
+//! - [`frame_trail`]'s walk is adapter logic because it encodes the frame records the
+//!   target's code generation leaves on that stack (`thumbv7em-none-eabihf`: r7 points at a
+//!   two-word record, the caller's r7 and then the return address with the Thumb bit set, and
+//!   each caller's record lies above its callee's).
+//!
+//! What the values the layer reads and writes mean lives with its concept: the node-ID
+//! switches, the reset flags and the parameter slots in flash (their sectors, their
+//! programming in whole words) in `safety_device` (`switches`, `reset_cause`,
+//! `parameter_flash`); the order of the transmit queue and the record of the bxCAN's transmit
+//! mailboxes in `dual_channel::transmit_queue`, the link USART's byte queue in
 //! `dual_channel::byte_ring`.
 #![no_std]
 
@@ -27,11 +41,9 @@ pub mod frame_trail;
 pub mod hw;
 #[cfg(target_os = "none")]
 mod panic;
-pub mod parameter_flash;
 #[cfg(target_os = "none")]
 pub mod ram;
 pub mod stack;
-pub mod transmit_queue;
 
 /// SDD entries of the SimpleCAN layer in an image with the feature `simplecan`
 /// ([`Protocol`]): the demo network's nodes use one each (node 1 produces 30h, node 33

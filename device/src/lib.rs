@@ -11,14 +11,20 @@
 //!   link between the channels), which the channels run with and the tool's response-time
 //!   calculation adds up;
 //! - [`switches`]: what the node-ID switches' readings at start-up mean;
-//! - [`reset_cause`]: why a channel's MCU started, from its reset flags, in words.
+//! - [`reset_cause`]: why a channel's MCU started, from its reset flags, in words;
+//! - [`parameter_flash`]: where the device keeps its stored parameters (two slots in the
+//!   STM32F405's flash sectors 10 and 11) and how the storage layer's records are written on
+//!   that flash, in whole 32-bit words, over the board layer's flash driver
+//!   ([`parameter_flash::Sectors`]).
 //!
 //! Only descriptions and the pure functions that read the device's own values: no runtime,
-//! no I/O, no heap. The board layers read the pins and registers and hand the values here.
+//! no I/O of its own, no heap. The board layers read the pins and registers and hand the
+//! values here, and erase and program the flash for [`parameter_flash`].
 
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod parameter_flash;
 pub mod reset_cause;
 pub mod switches;
 pub mod timing;

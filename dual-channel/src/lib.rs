@@ -11,6 +11,8 @@
 //!   their bxCAN bank layout;
 //! - [`channel_loop`]: the loop every board runs around the runtime, over a small driver
 //!   interface (CAN, link, pins, time);
+//! - [`transmit_queue`]: the order in which a channel's frames go to the CAN controller's
+//!   transmit mailboxes (by identifier, as arbitration), and which of them went out;
 //! - [`runtime`]: one channel around its copy of the protocol core: bus, link, cross-checks
 //!   and output, with the channel-specific parts ([`runtime::Role`]) supplied by channel A and
 //!   channel B;
@@ -35,3 +37,4 @@ pub mod selftest;
 #[cfg(feature = "simplecan")]
 pub mod simplecan;
 pub mod supervision;
+pub mod transmit_queue;

@@ -703,11 +703,12 @@ pub(crate) fn wait_for_boot_ups(
     }
 }
 
-/// The parameter slots of `board::parameter_flash::STM32F405_SLOTS` (flash sectors 10 and
-/// 11) in an emulated MCU's flash array, read with the storage layer the images use.
+/// The parameter slots of `safety_device::parameter_flash::STM32F405_SLOTS` (flash sectors 10
+/// and 11) in an emulated MCU's flash array, read with the storage layer the images use.
 struct Slots<'a>(&'a [u8]);
 
-/// Where the two slots begin in the flash array, and their length (`board::parameter_flash`).
+/// Where the two slots begin in the flash array, and their length
+/// (`safety_device::parameter_flash`).
 const SLOTS: ([usize; 2], usize) = ([0x000C_0000, 0x000E_0000], 0x0002_0000);
 
 impl storage::Flash for Slots<'_> {

@@ -371,8 +371,8 @@ impl Bus {
     /// TXFP = 0: the pending mailbox with the lowest identifier goes first) behind a software
     /// FIFO. The default, 1, is a plain FIFO. [`ORDERED_BY_IDENTIFIER`] is the whole queue by
     /// identifier, frames of one identifier in the order they were queued: `board::hw` keeps
-    /// its frames to send in such a priority queue (`board::transmit_queue`), so that a node's
-    /// own heartbeat or EMCY queued first never holds back its SRDO or its GFC; the
+    /// its frames to send in such a priority queue (`dual_channel::transmit_queue`), so that
+    /// a node's own heartbeat or EMCY queued first never holds back its SRDO or its GFC; the
     /// dual-channel simulation and the hub model each channel's controller so. (Not for a
     /// single controller that sends both halves of an SRDO, as the single-channel demo nodes
     /// do: a new plain frame would overtake its own pending inverted one.) Set it before

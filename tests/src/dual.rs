@@ -290,7 +290,8 @@ impl DualNetwork {
             .map(|&id| DualNode::powered_on(id, [RamFlash::new(), RamFlash::new()], Instant::ZERO))
             .collect();
         // Each channel's controller sends by identifier, as `board::hw` queues its frames
-        // (`board::transmit_queue`); each sends one half of an SRDO, so a pair keeps its order.
+        // (`dual_channel::transmit_queue`); each sends one half of an SRDO, so a pair keeps
+        // its order.
         let mut bus = Bus::new(bit_rate, 1 + 2 * nodes.len());
         bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
         DualNetwork {

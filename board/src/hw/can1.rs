@@ -5,10 +5,10 @@
 //! The board needs little of the controller: one bit timing, silent loop-back for the CiA 304
 //! 9.5 start-up test with transmit FIFO priority (TXFP) and two 32-bit list banks, then the
 //! node's filter banks (16-bit list and mask, from [`dual_channel::filters`]), the three
-//! transmit mailboxes behind [`crate::transmit_queue::Transmitter`], both receive FIFOs and
-//! their overrun flags, and a wake-up on a received frame or a completed mailbox. embassy-stm32
-//! 0.6's driver carries much more (a buffered mode, CAN2, per-mailbox wakers, the error
-//! interrupt, a filter API for every mode), and its `transmit`, with all three mailboxes
+//! transmit mailboxes behind [`dual_channel::transmit_queue::Transmitter`], both receive FIFOs
+//! and their overrun flags, and a wake-up on a received frame or a completed mailbox.
+//! embassy-stm32 0.6's driver carries much more (a buffered mode, CAN2, per-mailbox wakers, the
+//! error interrupt, a filter API for every mode), and its `transmit`, with all three mailboxes
 //! pending, takes the lowest-priority frame back out without comparing it with the new one,
 //! so the transmit queue, filling lowest identifier first, could swap two frames in and out
 //! for as long as the bus stays busy. The `bxcan` crate has no TXFP and refuses the loop-back
@@ -22,6 +22,7 @@
 use dual_channel::can_loopback::{LoopbackController, LoopbackFault, Received};
 use dual_channel::channel_loop::{self, QueueFull};
 use dual_channel::filters::{self, Bank, BankLayout};
+use dual_channel::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 use embassy_stm32::Peri;
 use embassy_stm32::can::{RxPin, TxPin};
 use embassy_stm32::gpio::{AfType, Flex, OutputType, Pull, Speed};
@@ -31,9 +32,8 @@ use shared::{CanFrame, Instant};
 
 use super::can_wakeup::{self, Irqs, MAILBOX_FREE, RECEIVED, unmask_receive, unmask_transmit};
 use super::{bit_timing_register, clock, halt_safe, now};
-use crate::transmit_queue::{Controller, Mailbox, Placement, Refusal, Transmitter};
 
-/// Frames waiting for a transmit mailbox, as [`crate::transmit_queue`] orders them.
+/// Frames waiting for a transmit mailbox, as [`dual_channel::transmit_queue`] orders them.
 const TRANSMIT_QUEUE: usize = 16;
 
 /// CAN_TIxR and CAN_RIxR: the standard identifier's place (STID, bits 31:21, RM0090 32.9.3).

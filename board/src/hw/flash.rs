@@ -2,7 +2,7 @@
 //! (RM0090 3.6), and why it is not embassy-stm32's flash driver.
 //!
 //! The parameter store needs three operations of the STM32F405's flash: read bytes, erase a
-//! 128 KiB sector, program one 32-bit word ([`crate::parameter_flash::Sectors`]).
+//! 128 KiB sector, program one 32-bit word ([`safety_device::parameter_flash::Sectors`]).
 //! embassy-stm32 0.6's blocking driver does these through a general layer (a region table for
 //! every STM32 family, sectors found by search, an asynchronous variant with its interrupt,
 //! the data cache saved and restored for the dual-bank parts' erratum, which the single-bank

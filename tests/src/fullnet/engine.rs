@@ -1403,8 +1403,8 @@ impl<O: Observer> Engine<O> {
         }
         let mut bus = Bus::new(bit_rate, 1 + 2 * node_count);
         // Each channel's whole transmit queue by identifier, as the board layer keeps it
-        // (`board::transmit_queue`) and `DualNetwork` and the hub model it: a node's own
-        // heartbeat or EMCY never holds back its SRDO or its GFC.
+        // (`dual_channel::transmit_queue`) and `DualNetwork` and the hub model it: a node's
+        // own heartbeat or EMCY never holds back its SRDO or its GFC.
         bus.set_transmit_mailboxes(ORDERED_BY_IDENTIFIER);
         Engine {
             now: Instant::ZERO,

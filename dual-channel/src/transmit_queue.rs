@@ -7,15 +7,17 @@
 //! consumer's output for up to 0.46 ms). The host bus model (`can_hub::bus`) orders each
 //! participant's queue the same way.
 //!
-//! [`Transmitter`] is the whole transmit path of `board::hw`, whichever driver moves the
-//! frames (embassy-stm32's `CanTx` or bxcan's `Can`, each behind [`Controller`]): the queue,
-//! the record of which frame each of the bxCAN's three mailboxes holds, and from it which
-//! frames went out on the bus (SimpleCAN's producers and master must know: SC_REQ_18,
+//! [`Transmitter`] is the whole transmit path of a channel's
+//! [`Driver`](crate::channel_loop::Driver) on the bxCAN, whatever driver moves the frames into
+//! the mailboxes (behind [`Controller`]: the board layer's own, on CAN1's registers): the
+//! queue, the record of which frame each of the bxCAN's three mailboxes holds, and from it
+//! which frames went out on the bus (SimpleCAN's producers and master must know: SC_REQ_18,
 //! SC_REQ_23) and the withdrawal of the frames of one identifier not yet sent. All of it is
-//! host-tested here against a model of the mailboxes.
+//! host-tested here against a model of the mailboxes; the board layer only implements
+//! [`Controller`] on the registers.
 
+use crate::channel_loop::QueueFull;
 use core::cmp::Ordering;
-use dual_channel::channel_loop::QueueFull;
 use heapless::Deque;
 use heapless::binary_heap::{BinaryHeap, Min};
 use shared::{CanFrame, CanId};
@@ -106,17 +108,18 @@ pub struct Placement {
     /// The mailbox that now holds it.
     pub mailbox: Mailbox,
     /// The controller took a lower-priority pending frame back out of that mailbox for it
-    /// (all three were pending): `TransmitStatus::dequeued_frame` in both drivers.
+    /// (all three were pending): the abort of that mailbox's frame completed before the new
+    /// frame went in (RM0090 32.7.1).
     pub displaced: bool,
 }
 
 /// Why a controller did not take a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Refusal {
-    /// Not now: a pending frame blocks it (bxcan 0.8 refuses a frame beside a pending one of
-    /// the same or a higher priority, embassy-stm32 0.6 beside one of the same identifier;
-    /// so in both, frames of one identifier leave in order), or all three mailboxes hold
-    /// frames of the same or a higher priority.
+    /// Not now: a pending frame blocks it (the board layer's driver refuses a frame beside a
+    /// pending one of the same identifier, the `bxcan` crate 0.8 beside one of the same or a
+    /// higher priority; so in both, frames of one identifier leave in order), or all three
+    /// mailboxes hold frames of the same or a higher priority.
     Busy,
     /// Never: not a frame the driver can carry (a [`CanFrame`] always is one; kept so that
     /// such a frame is dropped, not left to block the queue).
@@ -335,16 +338,18 @@ mod tests {
         );
     }
 
-    /// The bxCAN's mailboxes as the two drivers document them, written from RM0090 32.7.1 and
-    /// the drivers' sources, not from [`Transmitter`]: bxcan 0.8 refuses a frame while a
-    /// pending one has the same or a higher priority, embassy-stm32 0.6 only while one has the
-    /// same identifier; with all three pending, a higher-priority frame displaces the
+    /// The bxCAN's mailboxes under two drivers' rules, written from RM0090 32.7.1 and the
+    /// drivers' sources, not from [`Transmitter`]: bxcan 0.8 refuses a frame while a pending
+    /// one has the same or a higher priority, embassy-stm32 0.6 only while one has the same
+    /// identifier (the board layer's own driver, the one shipped, refuses as embassy-stm32's
+    /// does; bxcan's stricter rule stays as a second controller the queue must work with);
+    /// with all three pending, a higher-priority frame displaces the
     /// lowest-priority one; the bus takes the highest-priority pending frame; a frame in
     /// flight cannot be aborted and completes, and a displacement aimed at it waits for it to
     /// complete (embassy-stm32's `read_pending_mailbox`, bxcan's alike).
     #[derive(Default)]
     struct Model {
-        /// embassy-stm32's rule instead of bxcan's.
+        /// embassy-stm32's rule (the board layer's driver's) instead of bxcan's.
         embassy: bool,
         boxes: [Option<CanFrame>; 3],
         in_flight: Option<usize>,
@@ -541,8 +546,9 @@ mod tests {
         );
     }
 
-    /// Against the model of each driver's rule over 2,000 seeded runs of random operations (frames handed out,
-    /// the bus starting and finishing frames, withdrawals, confirmations asked for):
+    /// Against the model of each driver's rule over 2,000 seeded runs of random operations
+    /// (frames handed out, the bus starting and finishing frames, withdrawals, confirmations
+    /// asked for):
     /// every frame that went out is confirmed exactly once and nothing else is; frames of
     /// one identifier go out in the order handed out; a withdrawn frame that was not going
     /// out never goes out; every other frame handed out goes out once the bus drains.

@@ -1,6 +1,11 @@
 //! The two parameter slots of `shared::canopen::storage` on flash that is programmed in whole
-//! 32-bit words, as the STM32F4's is at x32 parallelism (the hardware layer's
-//! [`Sectors`] is embassy-stm32's flash driver). Hardware-free, so it is tested on the host.
+//! 32-bit words, as the STM32F4's is at x32 parallelism, and where this device keeps them
+//! ([`STM32F405_SLOTS`]). Hardware-free, so it is tested on the host; the hardware layer's
+//! [`Sectors`] is the board's own register-level flash driver (`board::hw::flash`, RM0090
+//! 3.6). It is the device's, not the board layer's: which sectors hold the parameters and
+//! that they are written in whole words are facts of this device's flash (the STM32F405RG's
+//! sector map, `memory.x` region PARAMETERS), as its pins are, while only the registers that
+//! erase and program them are the adapter's.
 //!
 //! The [`Flash`] trait allows writes at any byte offset; the flash takes aligned words. A write
 //! therefore reads each word it touches, clears the new bytes' zero bits into it and programs
@@ -35,7 +40,8 @@ pub struct SectorSlots<S> {
     len: u32,
 }
 
-/// The STM32F405's slots: sectors 10 and 11, 128 KiB each (`memory.x` region PARAMETERS).
+/// The STM32F405's slots: sectors 10 and 11, 128 KiB each (RM0090 Table 5; `memory.x`
+/// region PARAMETERS).
 pub const STM32F405_SLOTS: ([u32; 2], u32) = ([0x000C_0000, 0x000E_0000], 0x0002_0000);
 
 impl<S: Sectors> SectorSlots<S> {
