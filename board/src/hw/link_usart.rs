@@ -70,6 +70,11 @@ static TX: Shared<ByteRing<TX_BYTES>> = Mutex::new(RefCell::new(ByteRing::new())
 /// A byte was lost since the last [`take_lost`]: the receive queue was full, or the USART
 /// overran (its one-byte DR was not read in time).
 static LOST: AtomicBool = AtomicBool::new(false);
+/// The receive queue is worth a loop iteration ([`Received::worth_reading`]) or a byte was
+/// lost: set by the handler, recomputed by [`read`] under the queue's lock, read by the
+/// loop's sleep without taking the lock ([`readable`]), which it checks at every wake-up, a
+/// byte's interrupt included.
+static READABLE: AtomicBool = AtomicBool::new(false);
 
 /// The USART3 interrupt: receive what RXNE says is there, send what TXE asks for.
 pub struct LinkInterrupt;
@@ -82,18 +87,20 @@ impl Handler<typelevel::USART3> for LinkInterrupt {
             // RM0090 30.6.1: this read after the SR read clears RXNE and, with them, ORE,
             // NF, FE and PE; DR holds the byte received (the one before an overrun).
             let byte = usart.dr().read().dr() as u8;
-            let kept = RX.lock(|rx| {
+            RX.lock(|rx| {
                 let mut rx = rx.borrow_mut();
                 let kept = rx.bytes.push(byte);
                 if kept && byte == DELIMITER {
                     rx.delimiters += 1;
                 }
-                kept
+                if !kept || status.ore() {
+                    LOST.store(true, Ordering::Relaxed);
+                }
+                // The loop, woken by this interrupt, looks at the flag ([`readable`]).
+                if !kept || status.ore() || rx.worth_reading() {
+                    READABLE.store(true, Ordering::Relaxed);
+                }
             });
-            // The loop, woken by this interrupt, looks at the queue itself ([`readable`]).
-            if !kept || status.ore() {
-                LOST.store(true, Ordering::Relaxed);
-            }
         }
         if status.txe() && usart.cr1().read().txeie() {
             TX.lock(|tx| match tx.borrow_mut().pop() {
@@ -200,6 +207,10 @@ pub fn read(buf: &mut [u8]) -> usize {
             .filter(|&&byte| byte == DELIMITER)
             .count();
         rx.delimiters = rx.delimiters.saturating_sub(taken);
+        READABLE.store(
+            rx.worth_reading() || LOST.load(Ordering::Relaxed),
+            Ordering::Relaxed,
+        );
         count
     })
 }
@@ -214,5 +225,5 @@ pub fn take_lost() -> bool {
 /// frame still arriving wait for its delimiter: the loop reads them with the next wake-up,
 /// and does not iterate once per byte (an iteration outlasts a byte on the line).
 pub fn readable() -> bool {
-    LOST.load(Ordering::Relaxed) || RX.lock(|rx| rx.borrow().worth_reading())
+    READABLE.load(Ordering::Relaxed)
 }
