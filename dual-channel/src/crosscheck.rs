@@ -164,6 +164,9 @@ impl<const N: usize, S: Stream> VerdictCheck<N, S> {
     }
 
     /// `srdo`: this channel's stream, or the number the other channel sent.
+    // Out of line in the images: a marker of the emulator's profile
+    // (`emulator::profile::MARKERS`), found in every activation that runs it.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn arrive(
         &mut self,
         now: Instant,

@@ -1078,6 +1078,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     /// A transmit SRDO frame of this channel's core: on towards the bus, unless it carries
     /// changed data while the channels' samples differ (for less than [`SAMPLE_WINDOW`]).
+    // Out of line in the images: a marker of the emulator's profile
+    // (`emulator::profile::MARKERS`), found in every activation that runs it.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn core_frame(&mut self, now: Instant, frame: CanFrame, io: &mut impl Io) {
         let id = frame.id();
         let changed = self.handed_on.get(id).is_none_or(|last| *last != frame);
@@ -1193,6 +1196,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         }
     }
 
+    // Out of line in the images: a marker of the emulator's profile
+    // (`emulator::profile::MARKERS`), found in every activation that runs it.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn heartbeat(&mut self, io: &mut impl Io) {
         let config = self.node.safety_config();
         let signatures = self.role.signature_digest(config);
@@ -1211,6 +1217,9 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
         self.send(&heartbeat, io);
     }
 
+    // Out of line in the images: a marker of the emulator's profile
+    // (`emulator::profile::MARKERS`), found in every activation that runs it.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn send(&mut self, message: &Message, io: &mut impl Io) {
         // Every message fits a frame; an encoding failure would be a bug, and the other
         // channel then sees a sequence gap and goes to the safe state.

@@ -153,6 +153,9 @@ impl ForwardCheck {
 
     /// Pairs `frame` with the oldest waiting copy of the other side, or queues it.
     /// `Err(Some(other))`: the copies differ; `Err(None)`: the queue is full.
+    // Out of line in the images: a marker of the emulator's profile
+    // (`emulator::profile::MARKERS`), found in every activation that runs it.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn pair(
         now: Instant,
         bound: Duration,

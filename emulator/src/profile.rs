@@ -37,7 +37,9 @@ pub struct Marker {
 
 /// The markers of the shipped images (`board::hw`, `dual_channel`, `shared::simplecan`), in
 /// bit order; an image without a marker's function (the CANopen Safety images have no
-/// SimpleCAN packet code) never enters it.
+/// SimpleCAN packet code) never enters it. Each function is kept out of line in the images
+/// (`#[inline(never)]` on the target): a copy inlined into a caller would run without its
+/// entry, and the activations that ran it would be counted as something else.
 pub const MARKERS: [Marker; 16] = [
     Marker {
         label: "loop",

@@ -339,6 +339,9 @@ impl TransmitCheck {
     /// Whether A's packet `heard` (`decoded` by B's decoder, heard at `at`, `since` µs after
     /// B computed `own`: negative when heard ahead) stands for B's `own`: `Ok(Some(_))` it
     /// does, `Ok(None)` its value waits for B's next sample, `Err(_)` it does not.
+    // Out of line in the images: a marker of the emulator's profile
+    // (`emulator::profile::MARKERS`), found in every activation that runs it.
+    #[cfg_attr(target_os = "none", inline(never))]
     fn judge(
         &mut self,
         own: RawFrame,
