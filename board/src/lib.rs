@@ -36,6 +36,7 @@ use shared::canopen::NodeId;
 use shared::node::NodeConfig;
 
 pub mod can_registers;
+pub mod counter;
 pub mod frame_trail;
 #[cfg(all(target_os = "none", feature = "hw"))]
 pub mod hw;

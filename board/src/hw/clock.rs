@@ -10,8 +10,8 @@
 //! - Time base (RM0090 18.3.1, 18.3.2): CK_CNT = the APB1 timer clock / (PSC + 1), PSC
 //!   taken at the update event the start forces (EGR.UG); ARR = 2^32 - 1, so the counter runs
 //!   0 to 2^32 - 1 and wraps every 71.6 minutes.
-//! - [`now`] extends the counter: a reading below the last one means the counter wrapped once
-//!   since. The loop reads the clock at every wake-up and wakes at least every input sample
+//! - [`now`] extends the counter ([`crate::counter::Extended`], host-tested): a reading below
+//!   the last one means the counter wrapped once since. The loop reads the clock at every wake-up and wakes at least every input sample
 //!   period (`dual_channel::channel_loop::SAMPLE_PERIOD`); the longest it does not is a store's
 //!   flash erase at start-up, seconds, never a wrap's 71 minutes.
 //! - The alarm (18.3.8): CC1IF is set when the counter reaches CCR1, and with CC1IE the
@@ -20,6 +20,7 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use crate::counter::Extended;
 use embassy_stm32::interrupt::typelevel::{self, Handler, Interrupt as _};
 use embassy_stm32::pac;
 use shared::{Duration, Instant};
@@ -31,9 +32,10 @@ const TICK_HZ: u32 = 1_000_000;
 /// 71-minute range, so that the 32-bit compare never matches a later round of the counter.
 const LONGEST_ALARM: Duration = Duration::from_millis(1000);
 
-/// The counter's last reading ([`now`]).
+/// The counter's last reading and its wraps ([`now`], [`Extended::parts`]): written by the
+/// thread only, so two atomics without a lock do.
 static LAST: AtomicU32 = AtomicU32::new(0);
-/// The counter's wraps since the start ([`now`]).
+/// See [`LAST`].
 static WRAPS: AtomicU32 = AtomicU32::new(0);
 
 /// Starts TIM2 as the time base at 1 MHz from `timer_clock` (the APB1 timer clock, Hz);
@@ -67,14 +69,13 @@ pub fn start(timer_clock: u32) -> bool {
 /// the start-up), at least once per wrap of the counter (see the module's documentation).
 #[inline(never)]
 pub fn now() -> Instant {
-    let count = pac::TIM2.cnt().read();
-    let mut wraps = WRAPS.load(Ordering::Relaxed);
-    if count < LAST.load(Ordering::Relaxed) {
-        wraps = wraps.wrapping_add(1);
-        WRAPS.store(wraps, Ordering::Relaxed);
-    }
-    LAST.store(count, Ordering::Relaxed);
-    Instant::from_micros((u64::from(wraps) << 32) | u64::from(count))
+    let mut counter =
+        Extended::from_parts(LAST.load(Ordering::Relaxed), WRAPS.load(Ordering::Relaxed));
+    let micros = counter.read(pac::TIM2.cnt().read());
+    let (last, wraps) = counter.parts();
+    LAST.store(last, Ordering::Relaxed);
+    WRAPS.store(wraps, Ordering::Relaxed);
+    Instant::from_micros(micros)
 }
 
 /// Sets the alarm to `at` (at most [`LONGEST_ALARM`] ahead of `now`): the timer's interrupt
