@@ -57,8 +57,9 @@ pub const SIMPLECAN_ENTRIES: usize = 2;
 #[cfg(not(feature = "simplecan"))]
 pub const SRDOS: usize = safety_device::SRDO_COUNT;
 /// The SRDOs of the image's SRDO table: none. An image with SimpleCAN speaks it instead of
-/// SRDOs: with the SRDO table's code beside SimpleCAN's, the images are 11 to 15 KiB over
-/// their flash budget (docs/footprint.md). The host simulations run both at once
+/// SRDOs: with the SRDO table's code beside SimpleCAN's, the images exceeded their flash
+/// budget (measured on the images of 2026-12-05: docs/footprint.md, History, "Before:
+/// SimpleCAN beside the SRDO table"). The host simulations run both at once
 /// (`shared::node::SimpleCanNode`).
 #[cfg(feature = "simplecan")]
 pub const SRDOS: usize = 0;

@@ -2,9 +2,9 @@
 //! before a remote frame of the same identifier), frames of one identifier in the order they
 //! were handed out. That is CAN arbitration's own order, applied inside the node as well, so
 //! that a heartbeat or EMCY this node queued first never holds back its SRDO or its GFC
-//! behind it: a software FIFO in front of the controller would (measured in the host
-//! simulation: a GFC behind the node's heartbeat and EMCY left a replayed pair on a
-//! consumer's output for up to 0.46 ms). The host bus model (`can_hub::bus`) orders each
+//! behind it: a software FIFO in front of the controller would (seen in the host simulation:
+//! a GFC queued behind the node's heartbeat and EMCY left a replayed pair on a consumer's
+//! output while the GFC waited behind them). The host bus model (`can_hub::bus`) orders each
 //! participant's queue the same way.
 //!
 //! [`Transmitter`] is the whole transmit path of a channel's
