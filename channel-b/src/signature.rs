@@ -14,10 +14,10 @@
 //! Both channels recompute every signature for each heartbeat (and compare the other's
 //! digest with the one of their own last heartbeat), so that a bit flipped in one channel's
 //! copy of the configuration shows as differing digests within a link period; the
-//! byte step makes that recomputation cheaper than shifting bit by bit (and takes about a
-//! quarter fewer instructions than the 16-entry nibble table it replaced: 84·10⁶ against
-//! 62·10⁶ in the full-network profile, docs/network-performance.md); each heartbeat reads
-//! the object dictionary copy again.
+//! byte step makes that recomputation cheaper than shifting bit by bit (and took fewer
+//! instructions than the 16-entry nibble table it replaced in the full-network profile:
+//! docs/network-performance.md has the figures); each heartbeat reads the object dictionary
+//! copy again.
 
 /// The Table 9 fields of one SRDO as channel B reads them from its object dictionary copy.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1231,7 +1231,7 @@ impl<F: Flash, R: Role<N>, const N: usize, P: ChannelProtocol<N>> Runtime<F, R, 
 
     /// What the core handed out: frames through the role, events through the cross-checks.
     /// The lists are borrowed, not moved: they hold 16 frames and 16 events, and moving them
-    /// (into the call and into each loop) was a tenth of the full-network simulation's
+    /// (into the call and into each loop) showed in the full-network simulation's profile as
     /// instructions in `memcpy`.
     fn after_core(&mut self, now: Instant, collect: &Collect<'_>, io: &mut impl Io) {
         for &frame in collect.frames.iter() {
