@@ -337,16 +337,7 @@ impl Profile {
     /// Instructions per function (by `symbols`; blocks outside every symbol under their
     /// address), most first.
     pub fn functions(&self, symbols: &Symbols) -> Vec<(String, u64)> {
-        let mut sums: HashMap<String, u64> = HashMap::new();
-        for (&address, count) in &self.blocks {
-            let name = symbols
-                .function(address)
-                .map_or_else(|| format!("{address:#010x}"), short_name);
-            *sums.entry(name).or_default() += count.instructions;
-        }
-        let mut functions: Vec<(String, u64)> = sums.into_iter().collect();
-        functions.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
-        functions
+        by_function(symbols, self.blocks())
     }
 
     /// Instructions per function of the ended activations whose markers `which` accepts (by
@@ -357,18 +348,7 @@ impl Profile {
         symbols: &Symbols,
         which: impl Fn(u32) -> bool,
     ) -> Vec<(String, u64)> {
-        let mut sums: HashMap<String, u64> = HashMap::new();
-        for (_, blocks) in self.by_marks.iter().filter(|(marks, _)| which(**marks)) {
-            for (&address, &instructions) in blocks {
-                let name = symbols
-                    .function(address)
-                    .map_or_else(|| format!("{address:#010x}"), short_name);
-                *sums.entry(name).or_default() += instructions;
-            }
-        }
-        let mut functions: Vec<(String, u64)> = sums.into_iter().collect();
-        functions.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
-        functions
+        by_function(symbols, self.blocks_of(which))
     }
 
     /// Instructions per block start address of the ended activations whose markers `which`
@@ -380,21 +360,17 @@ impl Profile {
                 *sums.entry(address).or_default() += instructions;
             }
         }
-        let mut blocks: Vec<(u32, u64)> = sums.into_iter().collect();
-        blocks.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-        blocks
+        most_first(sums)
     }
 
     /// Instructions per block start address, most first (for a finer look than
     /// [`Profile::functions`]: `llvm-addr2line` names the source lines).
     pub fn blocks(&self) -> Vec<(u32, u64)> {
-        let mut blocks: Vec<(u32, u64)> = self
-            .blocks
-            .iter()
-            .map(|(&address, count)| (address, count.instructions))
-            .collect();
-        blocks.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-        blocks
+        most_first(
+            self.blocks
+                .iter()
+                .map(|(&address, count)| (address, count.instructions)),
+        )
     }
 
     /// Stops counting blocks and activations (what was counted stays readable); the deepest
@@ -414,6 +390,26 @@ impl Profile {
         self.current_blocks.clear();
         self.timer_iteration.clear();
     }
+}
+
+/// Instructions per function of `blocks` (instructions per block start address), by
+/// `symbols` (a block outside every symbol under its address), most first.
+fn by_function(symbols: &Symbols, blocks: Vec<(u32, u64)>) -> Vec<(String, u64)> {
+    let mut sums: HashMap<String, u64> = HashMap::new();
+    for (address, instructions) in blocks {
+        let name = symbols
+            .function(address)
+            .map_or_else(|| format!("{address:#010x}"), short_name);
+        *sums.entry(name).or_default() += instructions;
+    }
+    most_first(sums)
+}
+
+/// `counts` as a list, the most instructions first, equal counts in the order of their keys.
+fn most_first<K: Ord>(counts: impl IntoIterator<Item = (K, u64)>) -> Vec<(K, u64)> {
+    let mut list: Vec<(K, u64)> = counts.into_iter().collect();
+    list.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    list
 }
 
 /// A function's name without its generic parameters (`Runtime<F,R,_,P>::send` is
