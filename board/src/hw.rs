@@ -528,11 +528,12 @@ pub fn run<R: Role<N>, const N: usize>(
         if !driver.can.prepare_wait() {
             continue;
         }
-        let at = now();
-        if !clock::arm(wake, at) {
+        // Woken at the instant the alarm was set to: the loop's, or sooner when that was
+        // further ahead than the alarm reaches.
+        let Some(alarm) = clock::arm(wake, now()) else {
             continue;
-        }
-        sleep_until_woken(|| driver.can.woken() || link_usart::readable() || clock::due(wake));
+        };
+        sleep_until_woken(|| driver.can.woken() || link_usart::readable() || clock::due(alarm));
     }
 }
 

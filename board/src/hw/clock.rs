@@ -78,12 +78,13 @@ pub fn now() -> Instant {
     Instant::from_micros(micros)
 }
 
-/// Sets the alarm to `at` (at most [`LONGEST_ALARM`] ahead of `now`): the timer's interrupt
-/// is raised when the counter reaches it. `false` when `at` is not after `now`: the caller
-/// does not wait.
-pub fn arm(at: Instant, now: Instant) -> bool {
+/// Sets the alarm to `at`, or to [`LONGEST_ALARM`] after `now` when `at` is later: the
+/// timer's interrupt is raised when the counter reaches it. The instant it was set to, which
+/// the caller waits for ([`due`]); `None` when that is not after `now` (or has passed since):
+/// the caller does not wait.
+pub fn arm(at: Instant, now: Instant) -> Option<Instant> {
     if at <= now {
-        return false;
+        return None;
     }
     let at = at.min(now + LONGEST_ALARM);
     let tim = pac::TIM2;
@@ -97,7 +98,7 @@ pub fn arm(at: Instant, now: Instant) -> bool {
     // The counter may have passed CCR1 between the caller's reading and the write (the
     // compare is an equality, 18.3.8): then the flag is never set, and the caller must not
     // wait for it.
-    self::now() < at
+    (self::now() < at).then_some(at)
 }
 
 /// Whether the instant the alarm was set to has come.
